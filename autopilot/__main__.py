@@ -1,0 +1,5 @@
+import sys
+
+from autopilot.cli import main
+
+sys.exit(main())

@@ -1,0 +1,39 @@
+"""Build a controller from a preset (and optional overrides of the gains)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from autopilot.backstepping import BacksteppingController
+from autopilot.gains import poles_from_rates
+from autopilot.pd import PDController
+from quadsitl.config import Preset
+
+CONTROLLERS = ("backstepping", "pd")
+
+
+def make_controller(
+    preset: Preset,
+    kind: str | None = None,
+    rates: Sequence[float] | None = None,
+    poles: Sequence[float] | None = None,
+) -> BacksteppingController | PDController:
+    """The preset's controller (or ``kind``). ``rates`` (k_i, 1/s) or ``poles`` (λ_i) override the
+    preset's backstepping gains. Raises :class:`autopilot.gains.GainError` for inadmissible gains."""
+    kind = kind or preset.controller.type
+    c = preset.controller
+    if kind == "pd":
+        return PDController(preset.vehicle, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min, c.thrust_max)
+    if kind != "backstepping":
+        raise ValueError(f"controller {kind!r}: expected one of {', '.join(CONTROLLERS)}")
+    if rates is not None and poles is not None:
+        raise ValueError("give rates or poles, not both")
+    if rates is not None:
+        lam = poles_from_rates(rates, preset.sim.period)
+    elif poles is not None:
+        lam = tuple(poles)
+    else:
+        lam = preset.poles()
+    return BacksteppingController(
+        preset.vehicle, preset.sim.period, lam, c.max_tilt, c.thrust_min, c.thrust_max
+    )

@@ -1,0 +1,147 @@
+"""The ``quadsitl`` command.
+
+    quadsitl sim      the closed loop in one process (no network): telemetry, metrics, figures
+    quadsitl presets  list the shipped presets, or show one
+    quadsitl gains    check backstepping gains against the paper's conditions (41)–(44)
+
+Errors are one line on stderr and a non-zero exit (2 for bad input), never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from autopilot.cli import GAINS_EPILOG, add_gains_arguments, run_gains
+from autopilot.gains import GainError, poles_from_rates
+from quadsitl.cli_util import UsageError, attach_negative_values, check_range, parse_floats
+from quadsitl.config import ConfigError, Preset, load_preset
+from sitl.cli import add_presets_arguments, run_presets
+
+EXAMPLES_SIM = """examples:
+  quadsitl sim --preset paper --compare --out runs/paper
+  quadsitl sim --preset paper --integrator rk4 --duration 3 --out runs/rk4
+  quadsitl sim --preset paper --gains 5,5,10,10,10,10,10,10 --out runs/slow-altitude
+  quadsitl sim --preset x500 --controller pd --out runs/x500-pd
+"""
+
+
+def _load(name: str) -> Preset:
+    try:
+        return load_preset(name)
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from groundstation.metrics import format_table
+    from groundstation.offline import run_offline, write_outputs
+
+    preset = _load(args.preset)
+    check_range("--duration", args.duration, 0.0, 3600.0)
+    if args.substeps is not None and not 1 <= args.substeps <= 1000:
+        raise UsageError(f"--substeps {args.substeps}: expected an integer in [1, 1000]")
+    rates = parse_floats("--gains", args.gains, 8) if args.gains else None
+    poles = parse_floats("--poles", args.poles, 8) if args.poles else None
+    primary = args.controller or preset.controller.type
+    kinds = [primary] + ([k for k in ("backstepping", "pd") if k != primary] if args.compare else [])
+    if (rates or poles) and "backstepping" not in kinds:
+        raise UsageError(
+            "--gains/--poles set the backstepping gains; add --compare or --controller backstepping"
+        )
+    integrator = args.integrator or preset.sim.integrator
+    try:
+        results, metrics = run_offline(
+            preset, kinds, args.duration, integrator, args.substeps, rates=rates, poles=poles
+        )
+    except GainError as exc:
+        raise UsageError(f"inadmissible gains: {exc}") from None
+    settings = {
+        "integrator": integrator,
+        "duration": args.duration or preset.sim.duration,
+        "period": preset.sim.period,
+        "poles": list(poles_from_rates(rates, preset.sim.period) if rates else poles or preset.poles()),
+    }
+    out = Path(args.out)
+    files = write_outputs(out, preset, results, metrics, settings, figures=not args.no_figures)
+    if not args.quiet:
+        print(
+            f"preset {preset.name}, integrator {integrator}, T = {preset.sim.period:g} s, "
+            f"{len(next(iter(results.values())).t)} ticks"
+        )
+        print(format_table(metrics))
+        print("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="quadsitl",
+        description="MAVLink software-in-the-loop quadrotor with a discrete-time backstepping autopilot.",
+        epilog="Run 'quadsitl COMMAND --help' for the options and examples of each command.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    sim = sub.add_parser(
+        "sim",
+        help="run the closed loop in one process (no network)",
+        epilog=EXAMPLES_SIM,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Simulate plant and controller in one process and write telemetry.csv, metrics.json "
+        "and figures reproducing the paper's Figures 2–4.",
+    )
+    sim.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
+    sim.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+    sim.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the preset's)")
+    sim.add_argument(
+        "--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)"
+    )
+    sim.add_argument("--substeps", type=int, metavar="N", help="integration sub-steps per control period")
+    g = sim.add_mutually_exclusive_group()
+    g.add_argument("--gains", metavar="k1,..,k8", help="backstepping gains as rates in 1/s (λ = 1 − T·k)")
+    g.add_argument("--poles", metavar="l1,..,l8", help="backstepping gains as discrete poles λ")
+    sim.add_argument("--compare", action="store_true", help="also run the other controller and overlay it")
+    sim.add_argument("--out", default="runs/sim", metavar="DIR", help="output folder (default: runs/sim)")
+    sim.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    sim.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
+    sim.set_defaults(func=cmd_sim)
+
+    pre = sub.add_parser(
+        "presets",
+        help="list the shipped presets, or show one",
+        epilog="examples:\n  quadsitl presets\n  quadsitl presets x500",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_presets_arguments(pre)
+    pre.set_defaults(func=run_presets)
+
+    gains = sub.add_parser(
+        "gains",
+        help="check backstepping gains against conditions (41)–(44)",
+        epilog=GAINS_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_gains_arguments(gains)
+    gains.set_defaults(func=run_gains)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(
+        attach_negative_values(list(sys.argv[1:] if argv is None else argv), ("--gains", "--poles"))
+    )
+    try:
+        return args.func(args)
+    except UsageError as exc:
+        print(f"quadsitl {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"quadsitl {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

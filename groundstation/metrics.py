@@ -1,0 +1,78 @@
+"""Step-response metrics per channel: rise time (10–90 %), 2 % settling time, overshoot, steady-state
+error, peak |u| and RMS tracking error."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+CHANNELS = ("altitude", "roll", "pitch", "yaw")
+
+
+def step_metrics(t: np.ndarray, y: np.ndarray, ref: np.ndarray, u: np.ndarray) -> dict[str, float | None]:
+    """Metrics of output ``y`` following reference ``ref`` (same length as ``t``) under input ``u``.
+
+    The step is from y[0] to the final reference. Rise and settling times are in seconds from t[0];
+    ``None`` when the output never gets there within the run (or when there is no step).
+    Overshoot is in percent of the step. Steady-state error = final reference − final output.
+    """
+    y0, r = float(y[0]), float(ref[-1])
+    step = r - y0
+    out: dict[str, float | None] = {
+        "rise_time": None,
+        "settling_time": None,
+        "overshoot_pct": None,
+        "steady_state_error": r - float(y[-1]),
+        "peak_abs_u": float(np.max(np.abs(u))),
+        "rms_error": float(np.sqrt(np.mean((ref - y) ** 2))),
+    }
+    if abs(step) < 1e-12:
+        return out
+    frac = (y - y0) / step
+    i10 = np.flatnonzero(frac >= 0.1)
+    i90 = np.flatnonzero(frac >= 0.9)
+    if i10.size and i90.size:
+        out["rise_time"] = float(t[i90[0]] - t[i10[0]])
+    outside = np.flatnonzero(np.abs(y - r) > 0.02 * abs(step))
+    if outside.size == 0:
+        out["settling_time"] = 0.0
+    elif outside[-1] + 1 < len(t):
+        out["settling_time"] = float(t[outside[-1] + 1] - t[0])
+    out["overshoot_pct"] = max(0.0, float(np.max(frac)) - 1.0) * 100.0
+    return out
+
+
+def channel_outputs(state: np.ndarray) -> np.ndarray:
+    """(N, 4) outputs altitude, roll, pitch, yaw from (N, 12) VehicleState rows (yaw unwrapped)."""
+    return np.column_stack([-state[:, 2], state[:, 6], state[:, 7], np.unwrap(state[:, 8])])
+
+
+def run_metrics(t: np.ndarray, state: np.ndarray, reference: np.ndarray, inputs: np.ndarray) -> dict:
+    """Metrics of all four channels of one run."""
+    y = channel_outputs(state)
+    ref = reference.copy()
+    # Yaw reference on the same branch as the unwrapped yaw.
+    ref[:, 3] = y[:, 3] + np.angle(np.exp(1j * (reference[:, 3] - y[:, 3])))
+    return {ch: step_metrics(t, y[:, i], ref[:, i], inputs[:, i]) for i, ch in enumerate(CHANNELS)}
+
+
+def format_table(metrics: dict[str, dict]) -> str:
+    """A fixed-width table of {controller: {channel: metrics}} for the terminal and the README."""
+
+    def f(v: float | None, scale: float = 1.0, fmt: str = ".3f") -> str:
+        return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v * scale, fmt)
+
+    header = (
+        f"{'controller':<13}{'channel':<10}{'rise [s]':>10}{'settle [s]':>12}{'overshoot':>11}"
+        f"{'ss error':>12}{'peak |u|':>11}"
+    )
+    lines = [header, "-" * len(header)]
+    for ctrl, chans in metrics.items():
+        for ch, m in chans.items():
+            lines.append(
+                f"{ctrl:<13}{ch:<10}{f(m['rise_time']):>10}{f(m['settling_time']):>12}"
+                f"{f(m['overshoot_pct'], fmt='.2f') + ' %':>11}{f(m['steady_state_error'], fmt='.2e'):>12}"
+                f"{f(m['peak_abs_u'], fmt='.1f'):>11}"
+            )
+    return "\n".join(lines)

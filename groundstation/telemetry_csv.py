@@ -1,0 +1,42 @@
+"""The telemetry CSV: one row per control tick, the same columns for ``sim`` and ``fly``.
+
+Columns: t [s]; x, y, z [m, NED]; altitude [m] (= −z); vx, vy, vz [m/s, NED]; roll, pitch, yaw [rad];
+p, q, r [rad/s, body FRD]; altitude_ref [m]; roll_ref, pitch_ref, yaw_ref [rad]; u1 [N], u2, u3 [N],
+u4 [N·m]; f1..f4 commanded motor forces [N].
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+COLUMNS = (
+    "t", "x", "y", "z", "altitude", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r",
+    "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4",
+)  # fmt: skip
+
+
+def rows_from_arrays(
+    t: np.ndarray,
+    state: np.ndarray,
+    body_rates: np.ndarray,
+    reference: np.ndarray,
+    inputs: np.ndarray,
+    forces: np.ndarray,
+) -> np.ndarray:
+    """(N, len(COLUMNS)) array in column order."""
+    return np.column_stack(
+        [t, state[:, 0:3], -state[:, 2], state[:, 3:6], state[:, 6:9], body_rates, reference, inputs, forces]
+    )
+
+
+def write_csv(path: Path, rows: np.ndarray) -> None:
+    """Write rows (in :data:`COLUMNS` order) with a header line."""
+    np.savetxt(path, rows, delimiter=",", header=",".join(COLUMNS), comments="", fmt="%.12g")
+
+
+def read_csv(path: Path) -> dict[str, np.ndarray]:
+    """Read a telemetry CSV into {column: array}."""
+    data = np.genfromtxt(path, delimiter=",", names=True)
+    return {name: np.asarray(data[name], dtype=float) for name in data.dtype.names}

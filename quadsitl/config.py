@@ -1,0 +1,356 @@
+"""Presets: vehicle, actuator, simulation, controller and reference settings from TOML.
+
+Presets ship inside the package (``quadsitl/presets/*.toml``); a path to any TOML file works too.
+Loading validates every key: unknown keys, wrong types and out-of-range values raise
+:class:`ConfigError` with a message that names the key, the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from quadsitl.state import Reference
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+
+class ConfigError(ValueError):
+    """A preset or option value was refused. The message names key, value and what is allowed."""
+
+
+# --------------------------------------------------------------------------------------------
+# The parameter groups
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Paper Table 1 symbols. Units: SI; inertias [kg·m²]."""
+
+    mass: float  # m [kg]
+    ixx: float  # Ix
+    iyy: float  # Iy
+    izz: float  # Iz
+    drag: tuple[float, float, float, float, float, float]  # K1..K6 (K1–K3 [N·s/m], K4–K6 [N·s])
+    arm_length: float  # l [m]
+    rotor_inertia: float  # Jr [kg·m²]
+    thrust_factor: float  # b [N·s²]: F = b·Ω²
+    drag_factor: float  # d [N·m·s²]: rotor drag torque = d·Ω²
+    gravity: float  # g [m/s²]
+
+    @property
+    def d_over_b(self) -> float:
+        """Yaw torque per newton of thrust [m] (eq (8))."""
+        return self.drag_factor / self.thrust_factor
+
+
+@dataclass(frozen=True)
+class ActuatorParams:
+    """Motor model. ``ideal``: reversible, F ∈ [−F_max, F_max], no lag (the paper's assumption).
+    ``realistic``: F ∈ [0, F_max] with first-order lag (time constants up/down, 0 = none)."""
+
+    model: str
+    max_thrust: float  # F_max per motor [N]
+    time_constant_up: float = 0.0  # [s]
+    time_constant_down: float = 0.0  # [s]
+
+    @property
+    def reversible(self) -> bool:
+        return self.model == "ideal"
+
+    @property
+    def min_thrust(self) -> float:
+        return -self.max_thrust if self.reversible else 0.0
+
+
+@dataclass(frozen=True)
+class SimParams:
+    period: float  # control period T [s]
+    duration: float  # [s]
+    integrator: str  # "euler" | "rk4"
+    substeps: int  # integration sub-steps per control period
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """Controller choice, gains and limits.
+
+    Backstepping gains: either ``gains`` (rates k_i [1/s], pole λ_i = 1 − T·k_i) or ``poles`` (λ_i
+    directly); exactly one is set. PD gains per channel (altitude, roll, pitch, yaw): the closed loop
+    of the linearised channel is ë + kd·ė + kp·e = 0.
+    """
+
+    type: str  # "backstepping" | "pd"
+    gains: tuple[float, ...] | None
+    poles: tuple[float, ...] | None
+    max_tilt: float  # [rad], bound on |roll|, |pitch| references and on the 1/(cφcθ) factor
+    thrust_min: float  # u1 bounds [N]
+    thrust_max: float
+    pd_kp: tuple[float, float, float, float]  # [1/s²]
+    pd_kd: tuple[float, float, float, float]  # [1/s]
+
+
+@dataclass(frozen=True)
+class InitialState:
+    altitude: float = 0.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+
+
+@dataclass(frozen=True)
+class Preset:
+    name: str
+    description: str
+    vehicle: VehicleParams
+    actuators: ActuatorParams
+    sim: SimParams
+    controller: ControllerParams
+    reference: Reference
+    initial: InitialState = field(default_factory=InitialState)
+
+    def poles(self) -> tuple[float, ...]:
+        """The eight discrete poles λ_1..λ_8 (from rates k when given as rates: λ = 1 − T·k)."""
+        c = self.controller
+        if c.poles is not None:
+            return c.poles
+        assert c.gains is not None
+        return tuple(1.0 - self.sim.period * k for k in c.gains)
+
+
+# --------------------------------------------------------------------------------------------
+# Validation: one small spec per key
+
+
+@dataclass(frozen=True)
+class Spec:
+    """What a key accepts. ``check`` returns an error phrase or None."""
+
+    kind: str  # "number" | "int" | "string" | "numbers"
+    allowed: str  # human description of what is allowed
+    check: Callable[[Any], bool] = lambda v: True
+    length: int | None = None
+    required: bool = True
+    default: Any = None
+
+
+def _num(allowed: str, ok: Callable[[float], bool], **kw: Any) -> Spec:
+    return Spec("number", allowed, ok, **kw)
+
+
+POSITIVE = _num("a finite number > 0", lambda v: 0 < v < math.inf)
+NONNEG = _num("a finite number >= 0", lambda v: 0 <= v < math.inf)
+FINITE = _num("a finite number", math.isfinite)
+
+SCHEMA: dict[str, dict[str, Spec]] = {
+    "vehicle": {
+        "mass": POSITIVE,
+        "inertia": Spec("numbers", "3 finite numbers > 0 (Ix, Iy, Iz)", lambda v: 0 < v < math.inf, 3),
+        "drag": Spec("numbers", "6 finite numbers >= 0 (K1..K6)", lambda v: 0 <= v < math.inf, 6),
+        "arm_length": POSITIVE,
+        "rotor_inertia": NONNEG,
+        "thrust_factor": POSITIVE,
+        "drag_factor": POSITIVE,
+        "gravity": _num("a number in [0, 100]", lambda v: 0 <= v <= 100, required=False, default=9.81),
+    },
+    "actuators": {
+        "model": Spec("string", "one of: ideal, realistic", lambda v: v in ("ideal", "realistic")),
+        "max_thrust": POSITIVE,
+        "time_constant_up": _num("a number in [0, 1] s", lambda v: 0 <= v <= 1, required=False, default=0.0),
+        "time_constant_down": _num(
+            "a number in [0, 1] s", lambda v: 0 <= v <= 1, required=False, default=0.0
+        ),
+    },
+    "sim": {
+        "period": _num("a number in [1e-5, 0.1] s", lambda v: 1e-5 <= v <= 0.1),
+        "duration": _num("a number in (0, 3600] s", lambda v: 0 < v <= 3600),
+        "integrator": Spec("string", "one of: euler, rk4", lambda v: v in ("euler", "rk4")),
+        "substeps": Spec(
+            "int", "an integer in [1, 1000]", lambda v: 1 <= v <= 1000, required=False, default=1
+        ),
+    },
+    "controller": {
+        "type": Spec("string", "one of: backstepping, pd", lambda v: v in ("backstepping", "pd")),
+        "gains": Spec("numbers", "8 finite numbers (rates k_i, 1/s)", math.isfinite, 8, required=False),
+        "poles": Spec("numbers", "8 finite numbers (poles λ_i)", math.isfinite, 8, required=False),
+        "max_tilt": _num("a number in (0, 1.5533] rad (< 89°)", lambda v: 0 < v <= 1.5533),
+        "thrust_min": FINITE,
+        "thrust_max": FINITE,
+    },
+    "pd": {
+        "kp": Spec(
+            "numbers",
+            "4 finite numbers >= 0 (altitude, roll, pitch, yaw) [1/s²]",
+            lambda v: 0 <= v < math.inf,
+            4,
+        ),
+        "kd": Spec(
+            "numbers",
+            "4 finite numbers >= 0 (altitude, roll, pitch, yaw) [1/s]",
+            lambda v: 0 <= v < math.inf,
+            4,
+        ),
+    },
+    "reference": {
+        "altitude": _num("a number in [0, 10000] m", lambda v: 0 <= v <= 10000),
+        "roll": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2),
+        "pitch": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2),
+        "yaw": _num("a number in [−π, π] rad", lambda v: abs(v) <= math.pi),
+    },
+    "initial": {
+        "altitude": _num("a number in [0, 10000] m", lambda v: 0 <= v <= 10000, required=False, default=0.0),
+        "roll": _num(
+            "a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0
+        ),
+        "pitch": _num(
+            "a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0
+        ),
+        "yaw": _num("a number in [−π, π] rad", lambda v: abs(v) <= math.pi, required=False, default=0.0),
+    },
+}
+TOP_LEVEL_KEYS = {"description"}
+OPTIONAL_SECTIONS = {"initial"}
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def check_value(key: str, value: Any, spec: Spec, where: str = "") -> Any:
+    """Validate one value against its spec; return it normalised (floats, tuples)."""
+    prefix = f"{where}: " if where else ""
+
+    def fail() -> ConfigError:
+        return ConfigError(f"{prefix}{key} = {value!r}: expected {spec.allowed}")
+
+    if spec.kind == "number":
+        if not _is_number(value) or not spec.check(float(value)):
+            raise fail()
+        return float(value)
+    if spec.kind == "int":
+        if not isinstance(value, int) or isinstance(value, bool) or not spec.check(value):
+            raise fail()
+        return value
+    if spec.kind == "string":
+        if not isinstance(value, str) or not spec.check(value):
+            raise fail()
+        return value
+    if spec.kind == "numbers":
+        if not isinstance(value, (list, tuple)) or (spec.length is not None and len(value) != spec.length):
+            raise fail()
+        if not all(_is_number(v) and spec.check(float(v)) for v in value):
+            raise fail()
+        return tuple(float(v) for v in value)
+    raise AssertionError(spec.kind)
+
+
+def _validate(raw: dict[str, Any], where: str) -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    for key in raw:
+        if key not in SCHEMA and key not in TOP_LEVEL_KEYS:
+            allowed = ", ".join(sorted([*SCHEMA, *TOP_LEVEL_KEYS]))
+            raise ConfigError(f"{where}: unknown key {key!r}; allowed top-level keys: {allowed}")
+    for section, specs in SCHEMA.items():
+        table = raw.get(section)
+        if table is None:
+            if section in OPTIONAL_SECTIONS:
+                table = {}
+            else:
+                raise ConfigError(f"{where}: missing section [{section}]")
+        if not isinstance(table, dict):
+            raise ConfigError(f"{where}: {section} = {table!r}: expected a table [{section}]")
+        for key in table:
+            if key not in specs:
+                raise ConfigError(
+                    f"{where}: unknown key {section}.{key}; allowed in [{section}]: {', '.join(specs)}"
+                )
+        values: dict[str, Any] = {}
+        for key, spec in specs.items():
+            if key in table:
+                values[key] = check_value(f"{section}.{key}", table[key], spec, where)
+            elif spec.required:
+                raise ConfigError(f"{where}: missing key {section}.{key} ({spec.allowed})")
+            else:
+                values[key] = spec.default
+        out[section] = values
+    return out
+
+
+def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
+    v = _validate(raw, where)
+    desc = raw.get("description", "")
+    if not isinstance(desc, str):
+        raise ConfigError(f"{where}: description = {desc!r}: expected a string")
+    veh = v["vehicle"]
+    ix, iy, iz = veh.pop("inertia")
+    vehicle = VehicleParams(ixx=ix, iyy=iy, izz=iz, **veh)
+    c = v["controller"]
+    if (c["gains"] is None) == (c["poles"] is None):
+        raise ConfigError(
+            f"{where}: controller.gains / controller.poles: give exactly one of them "
+            "(gains = 8 rates k_i in 1/s, or poles = 8 discrete poles λ_i)"
+        )
+    if c["thrust_min"] >= c["thrust_max"]:
+        raise ConfigError(
+            f"{where}: controller.thrust_min = {c['thrust_min']!r}: must be below "
+            f"controller.thrust_max = {c['thrust_max']!r}"
+        )
+    controller = ControllerParams(pd_kp=v["pd"]["kp"], pd_kd=v["pd"]["kd"], **c)
+    ref = Reference(**v["reference"])
+    for axis in ("roll", "pitch"):
+        if abs(getattr(ref, axis)) > controller.max_tilt:
+            raise ConfigError(
+                f"{where}: reference.{axis} = {getattr(ref, axis)!r}: exceeds controller.max_tilt = "
+                f"{controller.max_tilt!r} rad"
+            )
+    return Preset(
+        name=name,
+        description=desc,
+        vehicle=vehicle,
+        actuators=ActuatorParams(**v["actuators"]),
+        sim=SimParams(**v["sim"]),
+        controller=controller,
+        reference=ref,
+        initial=InitialState(**v["initial"]),
+    )
+
+
+def available_presets() -> list[str]:
+    """Names of the presets shipped with the package."""
+    folder = resources.files("quadsitl") / "presets"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_preset(name_or_path: str) -> Preset:
+    """Load a shipped preset by name (``paper``) or any TOML file by path, validated."""
+    if name_or_path.endswith(".toml") or "/" in name_or_path or "\\" in name_or_path:
+        path = Path(name_or_path)
+        if not path.is_file():
+            raise ConfigError(f"preset file {name_or_path!r} does not exist")
+        text = path.read_text(encoding="utf-8")
+        name = path.stem
+    else:
+        names = available_presets()
+        if name_or_path not in names:
+            raise ConfigError(f"unknown preset {name_or_path!r}; available presets: {', '.join(names)}")
+        text = (resources.files("quadsitl") / "presets" / f"{name_or_path}.toml").read_text(encoding="utf-8")
+        name = name_or_path
+    return parse_preset(text, name)
+
+
+def parse_preset(text: str, name: str = "preset") -> Preset:
+    """Parse and validate a preset from TOML text."""
+    where = f"preset {name!r}"
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{where}: not valid TOML: {exc}") from None
+    return _build(name, raw, where)

@@ -1,0 +1,5 @@
+import sys
+
+from sitl.cli import main
+
+sys.exit(main())

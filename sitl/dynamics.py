@@ -1,0 +1,47 @@
+"""Quadrotor equations of motion, paper eqs (2)–(7), in NED/FRD (DESIGN.md §2).
+
+State vector (a :class:`quadsitl.state.VehicleState`): position and velocity in NED, ZYX Euler
+angles and their *rates* (the paper's angular state). With the paper's height h = −z the
+equations read
+
+    ẍ = −(cφ sθ cψ + sφ sψ)·u1/m − K1·ẋ/m                      (2) in NED
+    ÿ = −(cφ sθ sψ − sφ cψ)·u1/m − K2·ẏ/m                      (3) in NED (erratum 6: parenthesis)
+    z̈ = −(cφ cθ)·u1/m + g − K3·ż/m                             (4) in NED, i.e. ḧ = cφcθ·u1/m − g − K3ḣ/m
+    φ̈ = θ̇ψ̇(Iy − Iz)/Ix + (Jr/Ix)·θ̇·Ωr + (l/Ix)·u2 − (K4·l/Ix)·φ̇   (5)
+    θ̈ = φ̇ψ̇(Iz − Ix)/Iy + (Jr/Iy)·φ̇·Ωr + (l/Iy)·u3 − (K5·l/Iy)·θ̇   (6)
+    ψ̈ = φ̇θ̇(Ix − Iy)/Iz + u4/Iz − (K6/Iz)·ψ̇                          (7)
+
+A forward-Euler step of these with period T is exactly the paper's discrete model (10)–(17) with
+errata 1–3 applied.
+"""
+
+from __future__ import annotations
+
+import math
+
+from quadsitl.config import VehicleParams
+
+State = tuple[float, ...]  # the 12 fields of VehicleState, as a plain tuple for the integrators
+
+
+def derivatives(s: State, u: tuple[float, float, float, float], omega_r: float, p: VehicleParams) -> State:
+    """Time derivative of the state for inputs u = (u1..u4) and residual rotor speed Ωr [rad/s]."""
+    _, _, _, vx, vy, vz, phi, theta, psi, phid, thetad, psid = s
+    u1, u2, u3, u4 = u
+    m = p.mass
+    k1, k2, k3, k4, k5, k6 = p.drag
+    ix, iy, iz, arm, jr = p.ixx, p.iyy, p.izz, p.arm_length, p.rotor_inertia
+    cphi, sphi = math.cos(phi), math.sin(phi)
+    cth, sth = math.cos(theta), math.sin(theta)
+    cpsi, spsi = math.cos(psi), math.sin(psi)
+    ax = -(cphi * sth * cpsi + sphi * spsi) * u1 / m - k1 * vx / m  # (2)
+    ay = -(cphi * sth * spsi - sphi * cpsi) * u1 / m - k2 * vy / m  # (3)
+    az = -(cphi * cth) * u1 / m + p.gravity - k3 * vz / m  # (4)
+    phidd = (
+        thetad * psid * (iy - iz) / ix + jr / ix * thetad * omega_r + arm / ix * u2 - k4 * arm / ix * phid
+    )  # (5)
+    thetadd = (
+        phid * psid * (iz - ix) / iy + jr / iy * phid * omega_r + arm / iy * u3 - k5 * arm / iy * thetad
+    )  # (6)
+    psidd = phid * thetad * (ix - iy) / iz + u4 / iz - k6 / iz * psid  # (7)
+    return (vx, vy, vz, ax, ay, az, phid, thetad, psid, phidd, thetadd, psidd)

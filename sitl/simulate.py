@@ -1,0 +1,75 @@
+"""One process, no network: the closed loop of a plant and any controller, one readable loop.
+
+The controller is any object with ``step(state, reference) -> Inputs`` (u1..u4); ``allocate`` turns
+inputs into commanded motor forces (the autopilot's control allocation). The result holds one row per
+control tick k: the state x(k), the reference r(k) and the command u(k) computed from them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from quadsitl.frames import euler_rates_to_body_rates
+from quadsitl.state import Inputs, Reference, VehicleState
+from sitl.plant import Plant
+
+
+class Controller(Protocol):
+    def step(self, state: VehicleState, reference: Reference) -> Inputs: ...
+
+
+ReferenceSource = Callable[[float], Reference]
+
+
+@dataclass
+class SimResult:
+    """Arrays with one row per control tick. Units: SI, radians; NED for positions and velocities."""
+
+    t: np.ndarray  # (N,) [s]
+    state: np.ndarray  # (N, 12) VehicleState fields (Euler-angle rates)
+    reference: np.ndarray  # (N, 4) altitude, roll, pitch, yaw
+    inputs: np.ndarray  # (N, 4) u1..u4 commanded
+    forces: np.ndarray  # (N, 4) commanded motor forces [N]
+
+    def body_rates(self) -> np.ndarray:
+        """(N, 3) body rates p, q, r [rad/s] from the Euler-angle rates, paper eq (1)."""
+        s = self.state
+        return np.array([euler_rates_to_body_rates(r[6], r[7], r[9], r[10], r[11]) for r in s]).reshape(-1, 3)
+
+
+def simulate(
+    plant: Plant,
+    controller: Controller,
+    reference: ReferenceSource | Reference,
+    duration: float,
+    allocate: Callable[[Inputs], tuple[float, float, float, float]],
+    omega_r_from: Callable[[], float] | None = None,
+) -> SimResult:
+    """Run the loop for ``duration`` seconds of simulated time (round(duration / T) ticks).
+
+    ``omega_r_from``, when given, supplies the Ωr the plant uses each tick (for example the one the
+    controller assumed), instead of the one the applied motor forces make.
+    """
+    period = plant.period
+    n = round(duration / period)
+    ref_of = reference if callable(reference) else (lambda _t, r=reference: r)
+    t = np.arange(n) * period
+    states = np.empty((n, 12))
+    refs = np.empty((n, 4))
+    inputs = np.empty((n, 4))
+    forces = np.empty((n, 4))
+    for k in range(n):
+        state = plant.state
+        ref = ref_of(k * period)
+        u = controller.step(state, ref)
+        f = allocate(u)
+        states[k] = state
+        refs[k] = ref
+        inputs[k] = u
+        forces[k] = f
+        plant.step(f, omega_r=None if omega_r_from is None else omega_r_from())
+    return SimResult(t, states, refs, inputs, forces)

@@ -1,0 +1,24 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BIN = Path(sys.executable).parent
+
+
+def run_cli(*args: str, timeout: float = 120, module: str | None = None) -> subprocess.CompletedProcess:
+    """Run the installed ``quadsitl`` command (or ``python -m <module>``) and capture its output."""
+    if module:
+        cmd = [sys.executable, "-m", module, *args]
+    else:
+        exe = BIN / "quadsitl"
+        cmd = [str(exe), *args] if exe.exists() else [sys.executable, "-m", "groundstation", *args]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+@pytest.fixture
+def cli():
+    return run_cli

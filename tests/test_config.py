@@ -1,0 +1,97 @@
+"""Presets: the shipped ones load; bad files are refused with the key, the value and what is allowed."""
+
+import math
+
+import pytest
+
+from quadsitl.config import ConfigError, available_presets, load_preset, parse_preset
+
+PAPER_TEXT = (__import__("importlib").resources.files("quadsitl") / "presets" / "paper.toml").read_text()
+
+
+def test_shipped_presets_load():
+    assert {"paper", "x500"} <= set(available_presets())
+    p = load_preset("paper")
+    assert p.vehicle.mass == 2.0 and (p.vehicle.ixx, p.vehicle.iyy, p.vehicle.izz) == (1.25, 1.25, 2.2)
+    assert p.vehicle.drag == (0.1, 0.1, 0.1, 0.012, 0.012, 0.012)
+    assert p.vehicle.rotor_inertia == 1.0 and p.vehicle.d_over_b == 2.5 and p.vehicle.gravity == 9.8
+    assert p.sim.period == 0.001 and p.controller.gains == (10.0,) * 8
+    assert p.reference.altitude == 5.0 and p.reference.roll == pytest.approx(math.pi / 3)
+    assert p.actuators.reversible and p.actuators.min_thrust == -p.actuators.max_thrust
+    x = load_preset("x500")
+    assert not x.actuators.reversible and x.actuators.min_thrust == 0.0
+
+
+def _edit(old: str, new: str) -> str:
+    assert old in PAPER_TEXT
+    return PAPER_TEXT.replace(old, new, 1)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("mass = 2.0", "mass = -2.0", r"vehicle\.mass = -2\.0: expected a finite number > 0"),
+        ("mass = 2.0", 'mass = "heavy"', r"vehicle\.mass = 'heavy': expected a finite number > 0"),
+        ("mass = 2.0", "mass = 2.0\nmas = 3.0", r"unknown key vehicle\.mas; allowed in \[vehicle\]: mass"),
+        (
+            "inertia = [1.25, 1.25, 2.2]",
+            "inertia = [1.25, 2.2]",
+            r"vehicle\.inertia = \[1\.25, 2\.2\]: expected 3",
+        ),
+        (
+            'integrator = "euler"',
+            'integrator = "rk5"',
+            r"sim\.integrator = 'rk5': expected one of: euler, rk4",
+        ),
+        ("period = 0.001", "period = 1.0", r"sim\.period = 1\.0: expected a number in \[1e-5, 0\.1\] s"),
+        ("substeps = 1", "substeps = 1.5", r"sim\.substeps = 1\.5: expected an integer"),
+        (
+            'model = "ideal"',
+            'model = "magic"',
+            r"actuators\.model = 'magic': expected one of: ideal, realistic",
+        ),
+        ("altitude = 5.0", "altitude = 5.0\n[extra]", r"unknown key 'extra'"),
+        (
+            "roll = 1.0471975511965976",
+            "roll = 1.6",
+            r"reference\.roll = 1\.6: expected a number in \(−π/2, π/2\)",
+        ),
+        (
+            "max_tilt = 1.3962634015954636",
+            "max_tilt = 0.5",
+            r"reference\.roll = 1\.04.*exceeds controller\.max_tilt",
+        ),
+        ("gains = [", "poles = [0.9, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9]\ngains = [", r"exactly one of"),
+        ("thrust_min = -40000.0", "thrust_min = 50000.0", r"thrust_min = 50000\.0: must be below"),
+        ("[pd]", "[pd]\nkp = [1, 2]\n[pdx]", r"unknown key 'pdx'|pd\.kp"),
+        ("mass = 2.0", "mass = inf", r"vehicle\.mass = inf"),
+        (
+            "drag = [0.1, 0.1, 0.1, 0.012, 0.012, 0.012]",
+            "drag = [0.1, 0.1, 0.1, 0.012, 0.012, true]",
+            r"vehicle\.drag = .*expected 6 finite numbers >= 0",
+        ),
+    ],
+)
+def test_bad_values_are_refused_with_key_value_and_allowed(old, new, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_preset(_edit(old, new), "t")
+
+
+def test_missing_key_and_section():
+    with pytest.raises(ConfigError, match=r"missing key vehicle\.mass"):
+        parse_preset(_edit("mass = 2.0 ", "# "), "t")
+    start = PAPER_TEXT.index("[reference]")
+    with pytest.raises(ConfigError, match=r"missing section \[reference\]"):
+        parse_preset(PAPER_TEXT[:start], "t")
+
+
+def test_not_toml_and_unknown_preset(tmp_path):
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        parse_preset("mass = = 2", "t")
+    with pytest.raises(ConfigError, match=r"unknown preset 'nope'; available presets: .*paper"):
+        load_preset("nope")
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_preset(str(tmp_path / "missing.toml"))
+    f = tmp_path / "mine.toml"
+    f.write_text(_edit("mass = 2.0", "mass = 3.0"))
+    assert load_preset(str(f)).vehicle.mass == 3.0

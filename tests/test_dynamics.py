@@ -1,0 +1,140 @@
+"""The plant: eqs (2)–(7) against hand-derived values, errata 1, 2 and 6, integrators, actuators and
+the ground plane."""
+
+import dataclasses
+import math
+
+import pytest
+
+from quadsitl.config import ActuatorParams, load_preset
+from quadsitl.mixer import inputs_to_forces
+from quadsitl.state import VehicleState
+from sitl.actuators import Actuators
+from sitl.dynamics import derivatives
+from sitl.integrators import euler, rk4
+from sitl.plant import Plant
+
+PAPER = load_preset("paper")
+V = PAPER.vehicle
+T = PAPER.sim.period
+
+
+def test_hover_is_an_equilibrium():
+    d = derivatives(VehicleState(z=-3.0), (V.mass * V.gravity, 0, 0, 0), 0.0, V)
+    assert d == pytest.approx((0.0,) * 12, abs=1e-12)
+
+
+def test_eq4_vertical_in_ned_hand_value():
+    # Level, climbing at 1 m/s (vz = −1), u1 = 30 N: ḧ = 30/2 − 9.8 − 0.1·1/2 = 5.15 → z̈ = −5.15.
+    d = derivatives(VehicleState(vz=-1.0), (30.0, 0, 0, 0), 0.0, V)
+    assert d[5] == pytest.approx(-5.15)
+    assert d[2] == -1.0
+
+
+def test_erratum6_eq2_eq3_horizontal_in_ned():
+    # φ = 0, θ = 30°, ψ = 0: thrust tilts forward (nose-up pitch points thrust backwards in NED):
+    # ẍ = −(cφ sθ cψ + sφ sψ)·u1/m = −0.5·20/2 = −5; ÿ = −(cφ sθ sψ − sφ cψ)·u1/m = 0.
+    d = derivatives(VehicleState(pitch=math.radians(30)), (20.0, 0, 0, 0), 0.0, V)
+    assert d[3] == pytest.approx(-5.0) and d[4] == pytest.approx(0.0, abs=1e-12)
+    # φ = 30°, ψ = 0: right-wing-down roll accelerates to the right (+y):
+    # ÿ = −(0 − sφ)·u1/m = 0.5·20/2 = 5 (eq (3) with its parenthesis closed after sφcψ).
+    d = derivatives(VehicleState(roll=math.radians(30), vy=2.0), (20.0, 0, 0, 0), 0.0, V)
+    assert d[4] == pytest.approx(5.0 - 0.1 * 2.0 / 2.0)
+
+
+def test_eq5_to_eq7_hand_values():
+    s = VehicleState(roll_dot=0.2, pitch_dot=-0.3, yaw_dot=0.5)
+    u, wr = (0.0, 1.0, 2.0, 3.0), 4.0
+    ix, iy, iz, arm, jr = V.ixx, V.iyy, V.izz, V.arm_length, V.rotor_inertia
+    k4, k5, k6 = V.drag[3:]
+    d = derivatives(s, u, wr, V)
+    assert d[9] == pytest.approx(
+        -0.3 * 0.5 * (iy - iz) / ix + jr / ix * -0.3 * wr + arm / ix * 1.0 - k4 * arm / ix * 0.2
+    )
+    assert d[10] == pytest.approx(
+        0.2 * 0.5 * (iz - ix) / iy + jr / iy * 0.2 * wr + arm / iy * 2.0 - k5 * arm / iy * -0.3
+    )
+    assert d[11] == pytest.approx(0.2 * -0.3 * (ix - iy) / iz + 3.0 / iz - k6 / iz * 0.5)
+
+
+def _euler_plant_step(s, u, wr=0.0):
+    return euler(lambda x: derivatives(x, u, wr, V), tuple(s), T)
+
+
+def test_erratum1_pitch_integrates_pitch_rate():
+    # Eq (14) corrected: x5⁺ = x5 + T·x6 (the paper prints x5 + T·x5).
+    s = VehicleState(z=-1.0, pitch=0.4, pitch_dot=2.0)
+    out = _euler_plant_step(s, (V.mass * V.gravity, 0, 0, 0))
+    assert out[7] == pytest.approx(0.4 + T * 2.0, abs=1e-15)
+    assert out[7] != pytest.approx(0.4 + T * 0.4)
+
+
+def test_erratum2_yaw_rate_update():
+    # Eq (17) corrected: x8⁺ = (1 − T·K6/Iz)·x8 + T·x4·x6·(Ix − Iy)/Iz + T/Iz·u4 (the paper prints K8 and x4).
+    v = dataclasses.replace(V, ixx=1.0, iyy=1.5)  # make the coupling term non-zero
+    s = VehicleState(z=-1.0, roll_dot=0.3, pitch_dot=-0.2, yaw_dot=0.7)
+    u4 = 2.0
+    out = euler(lambda x: derivatives(x, (v.mass * v.gravity, 0, 0, u4), 0.0, v), tuple(s), T)
+    k6 = v.drag[5]
+    expected = (1 - T * k6 / v.izz) * 0.7 + T * 0.3 * -0.2 * (v.ixx - v.iyy) / v.izz + T / v.izz * u4
+    assert out[11] == pytest.approx(expected, abs=1e-15)
+
+
+def test_rk4_is_fourth_order():
+    # ẏ = −y from 1 over 1 s: error shrinks ~16× when the step halves.
+    def run(n):
+        y = (1.0,)
+        for _ in range(n):
+            y = rk4(lambda x: (-x[0],), y, 1.0 / n)
+        return abs(y[0] - math.exp(-1))
+
+    ratio = run(10) / run(20)
+    assert 14 < ratio < 18
+    assert abs(euler(lambda x: (-x[0],), (1.0,), 0.1)[0] - 0.9) < 1e-15
+
+
+def test_realistic_actuators_clamp_and_lag():
+    a = Actuators(ActuatorParams("realistic", 8.0, time_constant_up=0.02, time_constant_down=0.04))
+    assert a.clamp((-1.0, 4.0, 9.0, 8.0)) == (0.0, 4.0, 8.0, 8.0)
+    # Spin-up: after one time constant the force reaches 1 − 1/e of the step.
+    for _ in range(20):
+        a.advance((8.0,) * 4, 0.001)
+    assert a.forces[0] == pytest.approx(8.0 * (1 - math.exp(-1)), rel=1e-12)
+    # Spin-down uses the slower constant.
+    a.reset((8.0,) * 4)
+    for _ in range(40):
+        a.advance((0.0,) * 4, 0.001)
+    assert a.forces[0] == pytest.approx(8.0 * math.exp(-1), rel=1e-12)
+
+
+def test_ideal_actuators_are_reversible_without_lag():
+    a = Actuators(PAPER.actuators)
+    assert a.advance((-130.0, 600.0, 0.0, 2e4), 0.001) == (-130.0, 600.0, 0.0, 1e4)
+
+
+def test_ground_plane_holds_a_disarmed_vehicle():
+    plant = Plant(PAPER)
+    for _ in range(2000):
+        plant.step((0.0,) * 4)
+        assert plant.state.z == 0.0 and plant.state.vz == 0.0
+    assert plant.on_ground
+
+
+def test_ground_plane_catches_a_falling_vehicle():
+    x500 = dataclasses.replace(load_preset("x500"), initial=dataclasses.replace(PAPER.initial, altitude=1.0))
+    plant = Plant(x500)
+    lowest = 0.0
+    for _ in range(1500):  # free fall from 1 m takes 0.45 s
+        plant.step((0.0,) * 4)
+        lowest = max(lowest, plant.state.z)
+    assert lowest == 0.0 and plant.on_ground and plant.state.vz == 0.0
+
+
+def test_ground_plane_does_not_touch_a_takeoff():
+    plant = Plant(PAPER)
+    thrust = inputs_to_forces((2 * V.mass * V.gravity, 0, 0, 0), V.d_over_b)
+    plant.step(thrust)
+    # Forward Euler: z⁺ = z + T·vz = 0 on the first tick, but the vehicle is climbing.
+    assert plant.state.vz < 0 and not plant.on_ground
+    plant.step(thrust)
+    assert plant.state.z < 0
