@@ -1,5 +1,5 @@
 import sys
 
-from autopilot.cli import main
+from autopilot.process import main
 
 sys.exit(main())

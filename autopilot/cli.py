@@ -1,13 +1,11 @@
-"""``python -m autopilot`` / ``quadsitl gains``: check backstepping gains against conditions (41)–(44)."""
+"""``quadsitl gains``: check backstepping gains against conditions (41)–(44)."""
 
 from __future__ import annotations
 
 import argparse
-import sys
-from collections.abc import Sequence
 
 from autopilot.gains import GainError, poles_from_rates, rates_from_poles, stability_interval
-from quadsitl.cli_util import UsageError, attach_negative_values, check_range, parse_floats
+from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, load_preset
 
 GAINS_EPILOG = """examples:
@@ -49,21 +47,3 @@ def run_gains(args: argparse.Namespace) -> int:
         print(f"  λ{i} = {lam:<10.6g} k{i} = {k:.6g} 1/s")
     print(f"conditions (41)–(44) hold for {lo:.6g} < ε < {hi:.6g}")
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m autopilot",
-        description="Check discrete backstepping gains against the paper's conditions (41)–(44).",
-        epilog=GAINS_EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    add_gains_arguments(parser)
-    args = parser.parse_args(
-        attach_negative_values(list(sys.argv[1:] if argv is None else argv), ("--gains", "--poles"))
-    )
-    try:
-        return run_gains(args)
-    except UsageError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 2

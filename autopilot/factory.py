@@ -34,6 +34,4 @@ def make_controller(
         lam = tuple(poles)
     else:
         lam = preset.poles()
-    return BacksteppingController(
-        preset.vehicle, preset.sim.period, lam, c.max_tilt, c.thrust_min, c.thrust_max
-    )
+    return BacksteppingController(preset.vehicle, preset.sim.period, lam, c.max_tilt, c.thrust_min, c.thrust_max)

@@ -1,7 +1,7 @@
-"""``python -m groundstation`` is the ``quadsitl`` command."""
+"""``python -m groundstation`` is the ground-station process (``quadsitl gcs``)."""
 
 import sys
 
-from groundstation.cli import main
+from groundstation.gcs import main
 
 sys.exit(main())

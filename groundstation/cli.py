@@ -48,9 +48,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     primary = args.controller or preset.controller.type
     kinds = [primary] + ([k for k in ("backstepping", "pd") if k != primary] if args.compare else [])
     if (rates or poles) and "backstepping" not in kinds:
-        raise UsageError(
-            "--gains/--poles set the backstepping gains; add --compare or --controller backstepping"
-        )
+        raise UsageError("--gains/--poles set the backstepping gains; add --compare or --controller backstepping")
     integrator = args.integrator or preset.sim.integrator
     try:
         results, metrics = run_offline(
@@ -76,6 +74,31 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+EXAMPLES_FLY = """examples:
+  quadsitl fly --preset paper --out runs/fly
+  quadsitl fly --preset paper --speed 1 --duration 10 --out runs/realtime-pace
+  quadsitl fly --preset x500 --trajectory sine --duration 10 --out runs/x500-sine
+"""
+
+PROCESSES = {
+    "plant": ("sitl.process", "the simulated quadrotor process (MAVLink/UDP to the autopilot)"),
+    "autopilot": ("autopilot.process", "the autopilot process (control loop, MAVLink, Zenoh telemetry)"),
+    "gcs": ("groundstation.gcs", "the ground-station process (flies a trajectory, logs telemetry)"),
+}
+
+
+def cmd_fly(args: argparse.Namespace) -> int:
+    from groundstation.launcher import fly
+
+    preset = _load(args.preset)
+    check_range("--duration", args.duration, 0.0, 3600.0)
+    if args.speed < 0 or args.speed > 1000:
+        raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
+    if args.trajectory not in ("step", "ramp", "sine") and not Path(args.trajectory).is_file():
+        raise UsageError(f"--trajectory {args.trajectory!r}: expected step, ramp, sine or an existing CSV file")
+    return fly(args.preset, preset, args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="quadsitl",
@@ -95,9 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
     sim.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
     sim.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the preset's)")
-    sim.add_argument(
-        "--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)"
-    )
+    sim.add_argument("--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)")
     sim.add_argument("--substeps", type=int, metavar="N", help="integration sub-steps per control period")
     g = sim.add_mutually_exclusive_group()
     g.add_argument("--gains", metavar="k1,..,k8", help="backstepping gains as rates in 1/s (λ = 1 − T·k)")
@@ -107,6 +128,34 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     sim.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
     sim.set_defaults(func=cmd_sim)
+
+    fl = sub.add_parser(
+        "fly",
+        help="plant, autopilot and ground station as separate processes (MAVLink/UDP, Zenoh)",
+        epilog=EXAMPLES_FLY,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Start plant, autopilot and ground station on free loopback ports, fly the trajectory in "
+        "lockstep, and write telemetry.csv (from Zenoh), flight.tlog, metrics.json and figures.",
+    )
+    fl.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
+    fl.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+    fl.add_argument("--duration", type=float, metavar="S", help="simulated seconds of flight (default: the preset's)")
+    fl.add_argument(
+        "--speed",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="cap the lockstep pace at F × real time (default 0: as fast as possible)",
+    )
+    fl.add_argument("--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)")
+    fl.add_argument("--trajectory", default="step", help="step (default), ramp, sine or a CSV file")
+    fl.add_argument("--out", default="runs/fly", metavar="DIR", help="output folder (default: runs/fly)")
+    fl.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    fl.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+    fl.set_defaults(func=cmd_fly)
+
+    for name, (_module, help_text) in PROCESSES.items():
+        sub.add_parser(name, help=help_text, add_help=False)
 
     pre = sub.add_parser(
         "presets",
@@ -129,6 +178,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in PROCESSES:  # the process commands parse their own options
+        import importlib
+
+        return importlib.import_module(PROCESSES[argv[0]][0]).main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(
         attach_negative_values(list(sys.argv[1:] if argv is None else argv), ("--gains", "--poles"))

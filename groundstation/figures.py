@@ -10,8 +10,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from groundstation.metrics import channel_outputs
-
 LABELS = ("altitude h [m]", "roll φ [rad]", "pitch θ [rad]", "yaw ψ [rad]")
 ERROR_LABELS = ("e1 = h − h_d [m]", "e3 = φ − φ_d [rad]", "e5 = θ − θ_d [rad]", "e7 = ψ − ψ_d [rad]")
 INPUT_LABELS = ("u1 [N]", "u2 [N]", "u3 [N]", "u4 [N·m]")
@@ -19,7 +17,7 @@ STYLES = {"backstepping": dict(color="C0", lw=1.6), "pd": dict(color="C3", lw=1.
 
 
 def write_figures(runs: dict[str, dict[str, np.ndarray]], out: Path, title: str) -> list[Path]:
-    """``runs``: {controller: {"t", "state", "reference", "inputs"}}. Writes three PNGs into ``out``."""
+    """``runs``: {controller: {"t", "outputs", "reference", "inputs"}}. Writes three PNGs into ``out``."""
     paths = []
     specs = [
         ("fig2_outputs.png", "Outputs and references (paper Fig. 2)", LABELS, "outputs"),
@@ -29,7 +27,7 @@ def write_figures(runs: dict[str, dict[str, np.ndarray]], out: Path, title: str)
     for filename, heading, labels, what in specs:
         fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
         for name, run in runs.items():
-            y = channel_outputs(run["state"])
+            y = run["outputs"]
             ref = run["reference"]
             series = {"outputs": y, "errors": y - ref, "inputs": run["inputs"]}[what]
             if what == "errors":

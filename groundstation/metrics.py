@@ -43,14 +43,18 @@ def step_metrics(t: np.ndarray, y: np.ndarray, ref: np.ndarray, u: np.ndarray) -
     return out
 
 
+def outputs_from_columns(altitude, roll, pitch, yaw) -> np.ndarray:
+    """(N, 4) outputs altitude, roll, pitch, yaw (unwrapped) from columns."""
+    return np.column_stack([altitude, roll, pitch, np.unwrap(yaw)])
+
+
 def channel_outputs(state: np.ndarray) -> np.ndarray:
     """(N, 4) outputs altitude, roll, pitch, yaw from (N, 12) VehicleState rows (yaw unwrapped)."""
-    return np.column_stack([-state[:, 2], state[:, 6], state[:, 7], np.unwrap(state[:, 8])])
+    return outputs_from_columns(-state[:, 2], state[:, 6], state[:, 7], state[:, 8])
 
 
-def run_metrics(t: np.ndarray, state: np.ndarray, reference: np.ndarray, inputs: np.ndarray) -> dict:
-    """Metrics of all four channels of one run."""
-    y = channel_outputs(state)
+def run_metrics(t: np.ndarray, y: np.ndarray, reference: np.ndarray, inputs: np.ndarray) -> dict:
+    """Metrics of all four channels of one run; ``y`` from :func:`channel_outputs`."""
     ref = reference.copy()
     # Yaw reference on the same branch as the unwrapped yaw.
     ref[:, 3] = y[:, 3] + np.angle(np.exp(1j * (reference[:, 3] - y[:, 3])))

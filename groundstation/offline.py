@@ -13,7 +13,7 @@ from pathlib import Path
 
 from autopilot.factory import make_controller
 from groundstation.figures import write_figures
-from groundstation.metrics import run_metrics
+from groundstation.metrics import channel_outputs, run_metrics
 from groundstation.telemetry_csv import rows_from_arrays, write_csv
 from quadsitl.config import Preset
 from quadsitl.mixer import allocate
@@ -54,7 +54,7 @@ def run_offline(
         plant = Plant(preset, integrator=integrator, substeps=substeps)
         res = simulate(plant, controller, preset.reference, duration, alloc)
         results[kind] = res
-        metrics[kind] = run_metrics(res.t, res.state, res.reference, res.inputs)
+        metrics[kind] = run_metrics(res.t, channel_outputs(res.state), res.reference, res.inputs)
     return results, metrics
 
 
@@ -71,16 +71,14 @@ def write_outputs(
     files = []
     for i, (kind, res) in enumerate(results.items()):
         path = out / ("telemetry.csv" if i == 0 else f"telemetry_{kind}.csv")
-        write_csv(
-            path, rows_from_arrays(res.t, res.state, res.body_rates(), res.reference, res.inputs, res.forces)
-        )
+        write_csv(path, rows_from_arrays(res.t, res.state, res.body_rates(), res.reference, res.inputs, res.forces))
         files.append(path)
     mpath = out / "metrics.json"
     mpath.write_text(json.dumps({"preset": preset.name, **settings, "runs": metrics}, indent=2) + "\n")
     files.append(mpath)
     if figures:
         runs = {
-            k: {"t": r.t, "state": r.state, "reference": r.reference, "inputs": r.inputs}
+            k: {"t": r.t, "outputs": channel_outputs(r.state), "reference": r.reference, "inputs": r.inputs}
             for k, r in results.items()
         }
         files += write_figures(runs, out, f"preset {preset.name}")

@@ -165,17 +165,13 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "model": Spec("string", "one of: ideal, realistic", lambda v: v in ("ideal", "realistic")),
         "max_thrust": POSITIVE,
         "time_constant_up": _num("a number in [0, 1] s", lambda v: 0 <= v <= 1, required=False, default=0.0),
-        "time_constant_down": _num(
-            "a number in [0, 1] s", lambda v: 0 <= v <= 1, required=False, default=0.0
-        ),
+        "time_constant_down": _num("a number in [0, 1] s", lambda v: 0 <= v <= 1, required=False, default=0.0),
     },
     "sim": {
         "period": _num("a number in [1e-5, 0.1] s", lambda v: 1e-5 <= v <= 0.1),
         "duration": _num("a number in (0, 3600] s", lambda v: 0 < v <= 3600),
         "integrator": Spec("string", "one of: euler, rk4", lambda v: v in ("euler", "rk4")),
-        "substeps": Spec(
-            "int", "an integer in [1, 1000]", lambda v: 1 <= v <= 1000, required=False, default=1
-        ),
+        "substeps": Spec("int", "an integer in [1, 1000]", lambda v: 1 <= v <= 1000, required=False, default=1),
     },
     "controller": {
         "type": Spec("string", "one of: backstepping, pd", lambda v: v in ("backstepping", "pd")),
@@ -207,12 +203,8 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
     "initial": {
         "altitude": _num("a number in [0, 10000] m", lambda v: 0 <= v <= 10000, required=False, default=0.0),
-        "roll": _num(
-            "a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0
-        ),
-        "pitch": _num(
-            "a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0
-        ),
+        "roll": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
+        "pitch": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
         "yaw": _num("a number in [−π, π] rad", lambda v: abs(v) <= math.pi, required=False, default=0.0),
     },
 }
@@ -269,9 +261,7 @@ def _validate(raw: dict[str, Any], where: str) -> dict[str, dict[str, Any]]:
             raise ConfigError(f"{where}: {section} = {table!r}: expected a table [{section}]")
         for key in table:
             if key not in specs:
-                raise ConfigError(
-                    f"{where}: unknown key {section}.{key}; allowed in [{section}]: {', '.join(specs)}"
-                )
+                raise ConfigError(f"{where}: unknown key {section}.{key}; allowed in [{section}]: {', '.join(specs)}")
         values: dict[str, Any] = {}
         for key, spec in specs.items():
             if key in table:

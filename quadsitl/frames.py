@@ -28,9 +28,7 @@ def euler_rates_to_body_rates(
     return p, q, r
 
 
-def body_rates_to_euler_rates(
-    roll: float, pitch: float, p: float, q: float, r: float
-) -> tuple[float, float, float]:
+def body_rates_to_euler_rates(roll: float, pitch: float, p: float, q: float, r: float) -> tuple[float, float, float]:
     """Inverse of paper eq (1): body rates (p, q, r) → Euler-angle rates (φ̇, θ̇, ψ̇).
 
     Singular at pitch = ±π/2 (gimbal lock), which the paper's angle ranges exclude.

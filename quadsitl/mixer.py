@@ -25,9 +25,7 @@ def forces_to_inputs(forces: tuple[float, float, float, float], d_over_b: float)
     return Inputs(f1 + f2 + f3 + f4, f4 - f2, f3 - f1, d_over_b * (-f1 + f2 - f3 + f4))
 
 
-def inputs_to_forces(
-    u: tuple[float, float, float, float], d_over_b: float
-) -> tuple[float, float, float, float]:
+def inputs_to_forces(u: tuple[float, float, float, float], d_over_b: float) -> tuple[float, float, float, float]:
     """Inverse of eq (8): inputs (u1..u4) → motor forces (F1..F4) [N]."""
     u1, u2, u3, u4 = u
     yaw_share = u4 / d_over_b  # = (F2 + F4) − (F1 + F3)

@@ -1,5 +1,5 @@
 import sys
 
-from sitl.cli import main
+from sitl.process import main
 
 sys.exit(main())

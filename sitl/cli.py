@@ -1,11 +1,9 @@
-"""``python -m sitl`` / ``quadsitl presets``: list presets, or show one vehicle model and its hover trim."""
+"""``quadsitl presets``: list presets, or show one vehicle model and its hover trim."""
 
 from __future__ import annotations
 
 import argparse
 import math
-import sys
-from collections.abc import Sequence
 
 from quadsitl.cli_util import UsageError
 from quadsitl.config import ConfigError, available_presets, load_preset
@@ -35,23 +33,5 @@ def run_presets(args: argparse.Namespace) -> int:
     print(f"  T = {p.sim.period:g} s, {p.sim.integrator} × {p.sim.substeps}, duration {p.sim.duration:g} s")
     print(f"  controller {p.controller.type}, poles {', '.join(f'{x:.6g}' for x in p.poles())}")
     r = p.reference
-    print(
-        f"  reference altitude {r.altitude:g} m, roll {r.roll:.6g}, pitch {r.pitch:.6g}, yaw {r.yaw:.6g} rad"
-    )
+    print(f"  reference altitude {r.altitude:g} m, roll {r.roll:.6g}, pitch {r.pitch:.6g}, yaw {r.yaw:.6g} rad")
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m sitl",
-        description="The quadrotor plant: list presets or show a vehicle model.",
-        epilog="examples:\n  python -m sitl\n  python -m sitl x500",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    add_presets_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return run_presets(args)
-    except UsageError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 2

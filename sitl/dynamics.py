@@ -37,11 +37,7 @@ def derivatives(s: State, u: tuple[float, float, float, float], omega_r: float, 
     ax = -(cphi * sth * cpsi + sphi * spsi) * u1 / m - k1 * vx / m  # (2)
     ay = -(cphi * sth * spsi - sphi * cpsi) * u1 / m - k2 * vy / m  # (3)
     az = -(cphi * cth) * u1 / m + p.gravity - k3 * vz / m  # (4)
-    phidd = (
-        thetad * psid * (iy - iz) / ix + jr / ix * thetad * omega_r + arm / ix * u2 - k4 * arm / ix * phid
-    )  # (5)
-    thetadd = (
-        phid * psid * (iz - ix) / iy + jr / iy * phid * omega_r + arm / iy * u3 - k5 * arm / iy * thetad
-    )  # (6)
+    phidd = thetad * psid * (iy - iz) / ix + jr / ix * thetad * omega_r + arm / ix * u2 - k4 * arm / ix * phid  # (5)
+    thetadd = phid * psid * (iz - ix) / iy + jr / iy * phid * omega_r + arm / iy * u3 - k5 * arm / iy * thetad  # (6)
     psidd = phid * thetad * (ix - iy) / iz + u4 / iz - k6 / iz * psid  # (7)
     return (vx, vy, vz, ax, ay, az, phid, thetad, psid, phidd, thetadd, psidd)

@@ -35,18 +35,14 @@ def test_sim_compare_writes_telemetry_metrics_and_figures(cli, tmp_path):
     for run in metrics["runs"].values():
         assert set(run) == {"altitude", "roll", "pitch", "yaw"}
         for m in run.values():
-            assert {"rise_time", "settling_time", "overshoot_pct", "steady_state_error", "peak_abs_u"} <= set(
-                m
-            )
+            assert {"rise_time", "settling_time", "overshoot_pct", "steady_state_error", "peak_abs_u"} <= set(m)
             assert 0.2 < m["rise_time"] < 0.5
     for fig in ("fig2_outputs.png", "fig3_errors.png", "fig4_inputs.png"):
         assert (out / fig).stat().st_size > 10_000
 
 
 def test_sim_gains_override_slows_the_altitude(cli, tmp_path):
-    r = cli(
-        "sim", "--gains", "5,5,10,10,10,10,10,10", "--duration", "2", "--no-figures", "--out", str(tmp_path)
-    )
+    r = cli("sim", "--gains", "5,5,10,10,10,10,10,10", "--duration", "2", "--no-figures", "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["poles"][0] == pytest.approx(0.995)
@@ -73,17 +69,21 @@ def test_sim_refuses_bad_input_before_simulating(cli, tmp_path, args, message):
     assert not out.exists()  # nothing simulated, nothing written
 
 
-def test_every_package_runs_as_a_module(cli):
-    r = cli("--help", module="groundstation")
-    assert r.returncode == 0 and "sim" in r.stdout
-    r = cli(module="autopilot")
-    assert r.returncode == 0 and "conditions (41)–(44) hold for 0.000197005 < ε < 0.019899" in r.stdout
-    r = cli("x500", module="sitl")
-    assert r.returncode == 0 and "57.4 % of F_max" in r.stdout
+@pytest.mark.parametrize(
+    ("module", "prog"),
+    [("sitl", "quadsitl plant"), ("autopilot", "quadsitl autopilot"), ("groundstation", "quadsitl gcs")],
+)
+def test_every_package_runs_as_a_module(cli, module, prog):
+    r = cli("--help", module=module)
+    assert r.returncode == 0 and f"usage: {prog}" in r.stdout and "examples:" in r.stdout
 
 
 def test_gains_and_presets_commands(cli):
     r = cli("gains", "--poles", "-10,-10,-10,-10,-10,-10,-10,-10")
     assert r.returncode == 2 and "condition (41)" in r.stderr
+    r = cli("gains")
+    assert r.returncode == 0 and "conditions (41)–(44) hold for 0.000197005 < ε < 0.019899" in r.stdout
     r = cli("presets")
     assert r.returncode == 0 and "paper" in r.stdout and "x500" in r.stdout
+    r = cli("presets", "x500")
+    assert r.returncode == 0 and "57.4 % of F_max" in r.stdout

@@ -118,9 +118,7 @@ def _designed_dynamics_run(vehicle, poles, state, ref, ticks=1500):
 )
 def test_designed_error_dynamics_hold_to_round_off(vehicle):
     poles = (0.99, 0.985, 0.98, 0.975, 0.97, 0.995, 0.992, 0.96)
-    start = VehicleState(
-        z=-1.0, vz=0.5, roll=0.1, pitch=-0.2, yaw=3.0, roll_dot=0.3, pitch_dot=-0.4, yaw_dot=0.5
-    )
+    start = VehicleState(z=-1.0, vz=0.5, roll=0.1, pitch=-0.2, yaw=3.0, roll_dot=0.3, pitch_dot=-0.4, yaw_dot=0.5)
     ref = Reference(5.0, math.pi / 3, math.pi / 3, math.pi / 3)
     e = _designed_dynamics_run(vehicle, poles, start, ref)
     assert np.abs(e[0]).max() > 1.0  # the errors are far from zero at the start
@@ -140,9 +138,7 @@ def test_designed_dynamics_fail_without_the_errata():
         def step(self, state, reference):
             u = super().step(state, reference)
             c = math.cos(state.roll) * math.cos(state.pitch)
-            return u._replace(
-                u1=u.u1 + self.vehicle.mass / (T * c) * (self.vehicle.gravity - T * self.vehicle.gravity)
-            )
+            return u._replace(u1=u.u1 + self.vehicle.mass / (T * c) * (self.vehicle.gravity - T * self.vehicle.gravity))
 
     plant = Plant(PAPER, integrator="euler")
     c = Printed28(V, T, POLES)

@@ -1,0 +1,260 @@
+"""The ground station (``quadsitl gcs``, ``python -m groundstation``).
+
+Connects over MAVLink (UDP), waits for the autopilot's heartbeat, streams setpoints before arming
+(the PX4 offboard convention), arms, switches to offboard, flies the trajectory for ``--duration``
+simulated seconds, then lands and waits for the disarm. Its Zenoh subscriber logs the telemetry to
+``telemetry.csv``; its MAVLink link, both directions, goes to ``flight.tlog`` (each packet preceded by
+an 8-byte big-endian microsecond timestamp, as MAVProxy and QGroundControl write it).
+
+Setpoints are paced in simulated time: one pair (SET_ATTITUDE_TARGET + SET_POSITION_TARGET_LOCAL_NED)
+per 20 ms of simulated time seen in the autopilot's ATTITUDE stream, and at least every 100 ms of wall
+time, so a sped-up lockstep run never starves the stream.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import socket
+import struct
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from groundstation import trajectories
+from groundstation.logger import TelemetryLogger
+from groundstation.telemetry_csv import write_csv
+from quadsitl import telemetry, wire
+from quadsitl.cli_util import UsageError, check_range
+from quadsitl.config import ConfigError, load_preset
+from quadsitl.frames import euler_to_quaternion
+from quadsitl.process_util import die_with_parent, exit_on_signals, parse_address
+from quadsitl.state import Reference
+
+mavlink = wire.mavlink
+MASK_IGNORE_RATES = 1 | 2 | 4  # SET_ATTITUDE_TARGET: attitude and thrust fields used
+MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
+
+
+class GcsError(Exception):
+    pass
+
+
+class GroundStation:
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.preset = load_preset(args.preset)
+        self.period = self.preset.sim.period
+        self.trajectory = trajectories.make(args.trajectory, self.preset.reference)
+        self.duration = args.duration or self.preset.sim.duration
+        self.out = Path(args.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.connect(parse_address("--connect", args.connect))
+        self.sock.settimeout(0.005)
+        self.mav = wire.link(wire.GCS_SYSTEM_ID, wire.GCS_COMPONENT_ID)
+        self.tlog = open(self.out / "flight.tlog", "wb")  # noqa: SIM115 - closed in close()
+        conf = telemetry.config_from_args(args)
+        self.session = zenoh.open(conf)
+        self.logger = TelemetryLogger(self.session, args.vehicle, self.period)
+        self.target = (args.target_system, wire.AUTOPILOT_COMPONENT_ID)
+        self.armed = False
+        self.mode: wire.Mode | None = None
+        self.heard = False
+        self.sim_ms = 0
+        self.acks: dict[int, int] = {}
+
+    # ---- MAVLink ---------------------------------------------------------------------------------
+
+    def _log(self, buf: bytes) -> None:
+        self.tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + buf)
+
+    def send(self, msg) -> None:
+        buf = msg.pack(self.mav)
+        self._log(buf)
+        with contextlib.suppress(ConnectionRefusedError):  # nobody listening yet; UDP
+            self.sock.send(buf)
+
+    def poll(self) -> None:
+        """Read everything waiting (the first read waits up to 5 ms)."""
+        for i in range(200):
+            self.sock.settimeout(0.005 if i == 0 else 0.0)
+            try:
+                data = self.sock.recv(65535)
+            except (TimeoutError, BlockingIOError, ConnectionRefusedError):
+                return
+            self._handle(data)
+
+    def _handle(self, data: bytes) -> None:
+        for m in self.mav.parse_buffer(data) or []:
+            self._log(m.get_msgbuf())
+            mid = m.get_msgId()
+            if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT and m.get_srcComponent() == wire.AUTOPILOT_COMPONENT_ID:
+                self.heard = True
+                self.armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                self.mode = wire.Mode.from_px4(m.custom_mode)
+            elif mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+                self.sim_ms = m.time_boot_ms
+            elif mid == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
+                self.acks[m.command] = m.result
+            elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT and not self.args.quiet:
+                print(f"gcs: vehicle says: {m.text}", file=sys.stderr)
+
+    def send_setpoint(self, ref: Reference) -> None:
+        ts, tc = self.target
+        q = euler_to_quaternion(ref.roll, ref.pitch, ref.yaw)
+        ms, frame = self.sim_ms, mavlink.MAV_FRAME_LOCAL_NED
+        self.send(mavlink.MAVLink_set_attitude_target_message(ms, ts, tc, MASK_IGNORE_RATES, q, 0, 0, 0, 0.5))
+        z = -ref.altitude  # NED: z down
+        self.send(mavlink.MAVLink_set_position_target_local_ned_message(
+            ms, ts, tc, frame, MASK_Z_ONLY, 0, 0, z, 0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
+
+    def command(self, command: int, *params: float) -> None:
+        p = list(params) + [0.0] * (7 - len(params))
+        self.acks.pop(command, None)
+        self.send(mavlink.MAVLink_command_long_message(*self.target, command, 0, *p))
+
+    # ---- the flight ------------------------------------------------------------------------------
+
+    def fly(self) -> int:
+        args = self.args
+        phase = "connect"
+        deadline = time.monotonic() + args.timeout
+        last_sp_ms, last_sp_wall, last_hb, last_cmd, last_progress = -1e9, 0.0, 0.0, 0.0, time.monotonic()
+        setpoints_sent = 0
+        wall_start, flight_wall_start = time.monotonic(), None
+        while phase != "done":
+            now = time.monotonic()
+            if now > deadline:
+                raise GcsError(f"timed out after {args.timeout:g} s in phase '{phase}'")
+            self.poll()
+            self.logger.drain()
+            if now - last_hb >= 1.0:
+                last_hb = now
+                hb = mavlink.MAVLink_heartbeat_message
+                self.send(hb(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
+            flight_t = self.logger.flight_time()
+            if phase in ("prearm", "arming", "offboard", "flying") and (
+                self.sim_ms - last_sp_ms >= 20 or now - last_sp_wall >= 0.1
+            ):
+                self.send_setpoint(self.trajectory(max(flight_t, 0.0)))
+                last_sp_ms, last_sp_wall = self.sim_ms, now
+                setpoints_sent += 1
+            if phase == "connect" and self.heard:
+                phase = "prearm"
+            elif phase == "prearm" and setpoints_sent >= 5 and self.logger.last_status is not None:
+                # Arm only once the Zenoh telemetry reaches the logger: never fly what cannot be recorded.
+                phase, last_cmd = "arming", 0.0
+            elif phase == "arming":
+                result = self.acks.get(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+                if result == mavlink.MAV_RESULT_ACCEPTED:
+                    phase, last_cmd = "offboard", 0.0
+                elif result is not None and result != mavlink.MAV_RESULT_ACCEPTED:
+                    raise GcsError(f"arming refused (MAV_RESULT {result})")
+                elif now - last_cmd > 0.5:
+                    self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+                    last_cmd = now
+            elif phase == "offboard":
+                result = self.acks.get(mavlink.MAV_CMD_DO_SET_MODE)
+                if result == mavlink.MAV_RESULT_ACCEPTED:
+                    phase, flight_wall_start = "flying", now
+                elif result is not None:
+                    raise GcsError(f"offboard mode refused (MAV_RESULT {result})")
+                elif now - last_cmd > 0.5:
+                    self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0)
+                    last_cmd = now
+            elif phase == "flying" and flight_t >= self.duration:
+                phase, last_cmd = "landing", 0.0
+            elif phase == "landing":
+                if not self.armed and self.acks.get(mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED:
+                    phase = "done"
+                elif now - last_cmd > 0.5 and self.acks.get(mavlink.MAV_CMD_NAV_LAND) is None:
+                    self.command(mavlink.MAV_CMD_NAV_LAND)
+                    last_cmd = now
+            if not args.quiet and now - last_progress >= 1.0 and flight_t >= 0 and flight_wall_start:
+                last_progress = now
+                rtf = flight_t / max(now - flight_wall_start, 1e-9)
+                print(f"gcs: flight t = {min(flight_t, self.duration):.2f} / {self.duration:g} s, "
+                      f"{rtf:.1f}× real time", file=sys.stderr)  # fmt: skip
+        return self.finish(time.monotonic() - wall_start)
+
+    def finish(self, wall: float) -> int:
+        n = round(self.duration / self.period)
+        t_end = time.monotonic() + 2.0
+        while time.monotonic() < t_end and any(k not in self.logger.rows for k in range(n)):
+            time.sleep(0.01)
+            self.logger.drain()
+        missing = [k for k in range(n) if k not in self.logger.rows]
+        rows = np.array([self.logger.rows[k] for k in range(n) if k in self.logger.rows])
+        write_csv(self.out / "telemetry.csv", rows)
+        if not self.args.quiet:
+            print(f"gcs: landed and disarmed; {len(rows)} telemetry rows for {n} ticks, "
+                  f"{len(missing)} missing; wall time {wall:.1f} s", file=sys.stderr)  # fmt: skip
+        if missing:
+            print(
+                f"gcs: error: {len(missing)} telemetry ticks never arrived (first: {missing[0]})",
+                file=sys.stderr,
+            )
+            return 1
+        return 0
+
+    def close(self) -> None:
+        self.logger.close()
+        self.session.close()
+        self.tlog.close()
+        self.sock.close()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="quadsitl gcs",
+        description="Ground station: fly a reference trajectory over MAVLink, log telemetry from Zenoh.",
+        epilog="examples:\n  quadsitl gcs --connect 127.0.0.1:14580 --zenoh-connect tcp/127.0.0.1:7447 --out runs/gcs\n"
+        "  quadsitl gcs --trajectory sine --duration 10 --zenoh-connect tcp/127.0.0.1:7447",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--preset", default="paper", help="preset for T and the step reference (default: paper)")
+    p.add_argument(
+        "--connect",
+        default="127.0.0.1:14580",
+        metavar="HOST:PORT",
+        help="the autopilot's ground-station address (default: 127.0.0.1:14580)",
+    )
+    p.add_argument("--target-system", type=int, default=1, help="the autopilot's MAVLink system id (default 1)")
+    p.add_argument(
+        "--trajectory",
+        default="step",
+        help="step (default), ramp, sine or a CSV file t,altitude,roll,pitch,yaw",
+    )
+    p.add_argument("--duration", type=float, metavar="S", help="simulated seconds of flight (default: the preset's)")
+    p.add_argument("--out", default="runs/gcs", metavar="DIR", help="where telemetry.csv and flight.tlog go")
+    p.add_argument("--timeout", type=float, default=600.0, metavar="S", help="give up after S wall seconds")
+    p.add_argument("--quiet", "-q", action="store_true")
+    telemetry.add_zenoh_arguments(p)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    die_with_parent()
+    exit_on_signals()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        check_range("--duration", args.duration, 0.0, 3600.0)
+        gcs = GroundStation(args)
+    except (UsageError, ConfigError) as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return gcs.fly()
+    except GcsError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        gcs.close()

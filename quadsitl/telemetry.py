@@ -1,0 +1,106 @@
+"""Telemetry over Zenoh: the key schema, the encoding and the session configuration (DESIGN.md §5).
+
+Keys (``<vehicle>`` defaults to ``v1``), one sample per control tick on each:
+
+    quadsitl/<vehicle>/state      tick, t, x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r
+    quadsitl/<vehicle>/setpoint   tick, t, altitude_ref, roll_ref, pitch_ref, yaw_ref
+    quadsitl/<vehicle>/actuators  tick, t, u1, u2, u3, u4, f1, f2, f3, f4
+    quadsitl/<vehicle>/status     tick, t, armed, mode, failsafe, offboard_tick
+
+Encoding: little-endian C structs (``struct`` formats below): ``tick`` uint64 (control ticks since the
+plant started), ``t`` float64 simulated time [s], then float64 fields in SI units, radians, NED/FRD;
+status: ``armed`` uint8 (0/1), ``mode`` uint8 (0 hold, 1 offboard, 2 land), ``failsafe`` uint8 (0 none,
+1 setpoint stream lost), ``offboard_tick`` int64 (tick at which the current offboard flight started, −1
+when not in an offboard flight). The Zenoh encoding is ``application/octet-stream`` with schema
+``quadsitl.<stream>.v1``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import struct
+from collections.abc import Sequence
+from pathlib import Path
+
+import zenoh
+
+PREFIX = "quadsitl"
+STREAMS: dict[str, struct.Struct] = {
+    "state": struct.Struct("<Qd12d"),
+    "setpoint": struct.Struct("<Qd4d"),
+    "actuators": struct.Struct("<Qd8d"),
+    "status": struct.Struct("<QdBBBq"),
+}
+FIELDS: dict[str, tuple[str, ...]] = {
+    "state": ("tick", "t", "x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"),
+    "setpoint": ("tick", "t", "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref"),
+    "actuators": ("tick", "t", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4"),
+    "status": ("tick", "t", "armed", "mode", "failsafe", "offboard_tick"),
+}
+
+
+def key(vehicle: str, stream: str) -> str:
+    return f"{PREFIX}/{vehicle}/{stream}"
+
+
+def encoding(stream: str) -> zenoh.Encoding:
+    return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(f"quadsitl.{stream}.v1")
+
+
+def decode(stream: str, payload: bytes) -> dict[str, float]:
+    """One sample → {field: value}. Raises ValueError on a malformed payload."""
+    fmt = STREAMS[stream]
+    if len(payload) != fmt.size:
+        raise ValueError(f"{stream}: payload of {len(payload)} bytes, expected {fmt.size}")
+    return dict(zip(FIELDS[stream], fmt.unpack(payload)))
+
+
+def zenoh_config(
+    mode: str = "peer",
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: str | None = None,
+) -> zenoh.Config:
+    """A Zenoh configuration: from ``config_file`` (Zenoh's own JSON5 format) if given, else peer mode
+    with multicast scouting off (it fails inside containers) and the given endpoints."""
+    conf = zenoh.Config.from_file(str(Path(config_file))) if config_file else zenoh.Config()
+    if mode:
+        conf.insert_json5("mode", f'"{mode}"')
+    if listen:
+        conf.insert_json5("listen/endpoints", _json_list(listen))
+    if connect:
+        conf.insert_json5("connect/endpoints", _json_list(connect))
+    if not config_file:
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def _json_list(items: Sequence[str]) -> str:
+    return "[" + ",".join(f'"{i}"' for i in items) + "]"
+
+
+def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
+    """The Zenoh options every process that touches telemetry takes."""
+    p.add_argument(
+        "--vehicle", default="v1", help="vehicle name in the Zenoh keys quadsitl/<vehicle>/... (default: v1)"
+    )
+    p.add_argument("--zenoh-mode", choices=("peer", "client", "router"), default="peer", help="default: peer")
+    p.add_argument(
+        "--zenoh-listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    p.add_argument(
+        "--zenoh-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to (repeatable)",
+    )
+    p.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration file (TLS, access control)")
+
+
+def config_from_args(args: argparse.Namespace) -> zenoh.Config:
+    return zenoh_config(args.zenoh_mode, args.zenoh_listen, args.zenoh_connect, args.zenoh_config)

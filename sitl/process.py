@@ -1,0 +1,186 @@
+"""The plant process (``quadsitl plant``, ``python -m sitl``): owns the truth state and integrates it.
+
+One MAVLink 2 UDP link to the autopilot (see :mod:`quadsitl.wire`).
+
+- ``lockstep`` (default): the plant is the clock. For tick k it sends the state stamped with the
+  simulated time, waits for the HIL_ACTUATOR_CONTROLS answering tick k, then integrates one period.
+  Until an answer comes (at start, or if the autopilot goes away) it free-wheels: it re-sends the
+  state every 50 ms without advancing time. ``--speed F`` caps the pace at F × real time (0 = as fast
+  as possible).
+- ``realtime``: integrates on the wall clock at period T and applies the latest actuator command it has.
+
+In both, actuator messages older than the last one used (by ``time_usec``) are discarded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+import time
+from collections.abc import Sequence
+
+from quadsitl import wire
+from quadsitl.cli_util import UsageError, check_range
+from quadsitl.config import ConfigError, load_preset
+from quadsitl.process_util import die_with_parent, exit_on_signals, parse_address
+from sitl.plant import Plant
+
+FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
+
+
+class PlantLink:
+    """The plant's end of the UDP link: send states, receive actuator commands."""
+
+    def __init__(self, bind: tuple[str, int], autopilot: tuple[str, int], max_thrust: float, period: float):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(bind)
+        self.autopilot = autopilot
+        self.mav = wire.link(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
+        self.max_thrust = max_thrust
+        self.period = period
+        self.last_usec = -1  # newest actuator stamp used
+        self.discarded = 0
+
+    def send_state(self, tick: int, plant: Plant) -> None:
+        msg = wire.state_message(wire.usec_of(tick, self.period), plant.state)
+        self.sock.sendto(msg.pack(self.mav), self.autopilot)
+
+    def receive(self, timeout: float | None) -> list:
+        """Actuator messages newer than the last used, from one datagram (empty on timeout)."""
+        self.sock.settimeout(timeout)
+        try:
+            data = self.sock.recv(65535)
+        except (TimeoutError, BlockingIOError):
+            return []
+        msgs = self.mav.parse_buffer(data) or []
+        out = []
+        for m in msgs:
+            if m.get_msgId() != wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
+                continue
+            if m.time_usec <= self.last_usec:
+                self.discarded += 1
+                continue
+            out.append(m)
+        return out
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | None) -> int:
+    period = plant.period
+    tick = 0
+    start = time.monotonic()
+    while max_ticks is None or tick < max_ticks:
+        want = wire.usec_of(tick, period)
+        link.send_state(tick, plant)
+        forces = None
+        while forces is None:
+            for m in link.receive(FREEWHEEL_PERIOD):
+                if m.time_usec == want:
+                    forces = wire.forces_from_message(m, link.max_thrust)
+                    link.last_usec = m.time_usec
+                elif m.time_usec > want:  # from the future: not ours
+                    link.discarded += 1
+            if forces is None:
+                link.send_state(tick, plant)  # free-wheel: no answer yet
+                time.sleep(0)  # a wait already happened in receive()
+        plant.step(forces)
+        tick += 1
+        if speed > 0:
+            delay = start + tick * period / speed - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+    return tick
+
+
+def run_realtime(plant: Plant, link: PlantLink, max_ticks: int | None) -> int:
+    period = plant.period
+    forces: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    tick = 0
+    next_time = time.monotonic()
+    while max_ticks is None or tick < max_ticks:
+        link.send_state(tick, plant)
+        next_time += period
+        while True:
+            remaining = next_time - time.monotonic()
+            if remaining <= 0:
+                break
+            for m in link.receive(remaining):
+                forces = wire.forces_from_message(m, link.max_thrust)
+                link.last_usec = m.time_usec
+        plant.step(forces)
+        tick += 1
+    return tick
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="quadsitl plant",
+        description="The simulated quadrotor: integrates the truth state and talks MAVLink over UDP to the autopilot.",
+        epilog="examples:\n  quadsitl plant --preset paper --autopilot 127.0.0.1:14560\n"
+        "  quadsitl plant --preset x500 --mode realtime --autopilot 127.0.0.1:14560",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--preset", default="paper", help="preset name or TOML path (default: paper)")
+    p.add_argument(
+        "--autopilot",
+        default="127.0.0.1:14560",
+        metavar="HOST:PORT",
+        help="where the autopilot listens for the plant (default: 127.0.0.1:14560)",
+    )
+    p.add_argument(
+        "--bind",
+        default="127.0.0.1:0",
+        metavar="HOST:PORT",
+        help="local address of the plant's socket (default: 127.0.0.1, any port)",
+    )
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="default: lockstep")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="lockstep pace cap, × real time (0 = as fast as possible; default 0)",
+    )
+    p.add_argument("--integrator", choices=("euler", "rk4"), help="default: the preset's")
+    p.add_argument("--substeps", type=int, metavar="N", help="default: the preset's")
+    p.add_argument("--ticks", type=int, metavar="N", help="stop after N ticks (default: run until stopped)")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    die_with_parent()
+    exit_on_signals()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        preset = load_preset(args.preset)
+        check_range("--speed", args.speed if args.speed != 0 else None, 0.0, 1000.0)
+        bind = parse_address("--bind", args.bind)
+        autopilot = parse_address("--autopilot", args.autopilot)
+        plant = Plant(preset, integrator=args.integrator, substeps=args.substeps)
+        link = PlantLink(bind, autopilot, preset.actuators.max_thrust, preset.sim.period)
+    except (UsageError, ConfigError) as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"{parser.prog}: error: cannot bind --bind {args.bind}: {exc.strerror}", file=sys.stderr)
+        return 2
+    start = time.monotonic()
+    try:
+        if args.mode == "lockstep":
+            run_lockstep(plant, link, args.speed, args.ticks)
+        else:
+            run_realtime(plant, link, args.ticks)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        link.close()
+    elapsed = time.monotonic() - start
+    print(
+        f"plant: {plant.time:.3f} s simulated in {elapsed:.3f} s; {link.discarded} stale actuator messages discarded",
+        file=sys.stderr,
+    )
+    return 0
