@@ -1,0 +1,181 @@
+"""End to end: the real processes on free loopback ports, always cleaned up."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from groundstation.launcher import free_port
+from groundstation.telemetry_csv import read_csv
+
+BIN = Path(sys.executable).parent
+
+
+def quadsitl(*args: str) -> list[str]:
+    exe = BIN / "quadsitl"
+    return [str(exe), *args] if exe.exists() else [sys.executable, "-m", "groundstation.cli", *args]
+
+
+def children_of(pid: int) -> list[int]:
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(d.name))
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.fixture
+def procs():
+    """Processes a test starts; killed (with their children) whatever happens."""
+    started: list[subprocess.Popen] = []
+    yield started
+    for p in started:
+        for c in children_of(p.pid):
+            os.kill(c, signal.SIGKILL)
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
+def test_fly_equals_sim_and_loses_nothing(tmp_path):
+    out = tmp_path / "fly"
+    r = subprocess.run(quadsitl("fly", "--preset", "paper", "--duration", "2", "--out", str(out)),
+                       capture_output=True, text=True, timeout=180)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    s = subprocess.run(quadsitl("sim", "--duration", "2", "--no-figures", "--out", str(tmp_path / "sim")),
+                       capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert s.returncode == 0, s.stderr
+    fly, sim = read_csv(out / "telemetry.csv"), read_csv(tmp_path / "sim" / "telemetry.csv")
+    # Exactly one row per tick, t = 0 at the first tick under the trajectory: nothing lost.
+    assert len(fly["t"]) == len(sim["t"]) == 2000
+    assert np.allclose(fly["t"], np.arange(2000) * 0.001)
+    for column in ("altitude", "roll", "pitch", "yaw"):
+        assert np.abs(fly[column] - sim[column]).max() < 1e-3, column
+    assert fly["altitude"][0] == pytest.approx(0.0, abs=1e-9) and fly["altitude"][-1] == pytest.approx(5.0, abs=1e-3)
+    # The .tlog is standard: pymavlink reads it, both directions are in it.
+    tlog = mavutil.mavlink_connection(str(out / "flight.tlog"))
+    seen = set()
+    while (m := tlog.recv_match()) is not None:
+        seen.add(m.get_type())
+    assert {"HEARTBEAT", "ATTITUDE", "COMMAND_ACK", "COMMAND_LONG", "SET_ATTITUDE_TARGET"} <= seen
+    assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
+
+
+@pytest.mark.parametrize("victim", ["plant", "autopilot", "gcs"])
+def test_killing_a_child_fails_the_flight_promptly_without_orphans(tmp_path, procs, victim):
+    fly = subprocess.Popen(quadsitl("fly", "--speed", "1", "--duration", "60", "--out", str(tmp_path), "--quiet"),
+                           stderr=subprocess.PIPE, text=True)  # fmt: skip
+    procs.append(fly)
+    module = {"plant": "sitl", "autopilot": "autopilot", "gcs": "groundstation"}[victim]
+    deadline = time.monotonic() + 30
+    kids: list[int] = []
+    while time.monotonic() < deadline and not (tmp_path / "flight.tlog").exists():
+        time.sleep(0.1)
+    time.sleep(1.0)
+    kids = children_of(fly.pid)
+    cmdlines = {pid: Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") for pid in kids}
+    target = [pid for pid, cmd in cmdlines.items() if cmd[1:3] == [b"-m", module.encode()]]
+    assert len(kids) == 3 and len(target) == 1, cmdlines
+    os.kill(target[0], signal.SIGKILL)
+    start = time.monotonic()
+    _, err = fly.communicate(timeout=20)
+    assert time.monotonic() - start < 10
+    assert fly.returncode != 0
+    assert f"the {victim} process was killed by signal 9 (SIGKILL)" in err
+    time.sleep(0.2)
+    assert not [pid for pid in kids if alive(pid)]
+
+
+def test_sigterm_tears_everything_down(tmp_path, procs):
+    fly = subprocess.Popen(quadsitl("fly", "--speed", "1", "--duration", "60", "--out", str(tmp_path), "--quiet"),
+                           stderr=subprocess.PIPE, text=True)  # fmt: skip
+    procs.append(fly)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and len(children_of(fly.pid)) < 3:
+        time.sleep(0.1)
+    kids = children_of(fly.pid)
+    assert len(kids) == 3
+    time.sleep(1.0)
+    fly.send_signal(signal.SIGTERM)
+    _, err = fly.communicate(timeout=15)
+    assert fly.returncode != 0 and "interrupted" in err
+    time.sleep(0.2)
+    assert not [pid for pid in kids if alive(pid)]
+
+
+def test_setpoint_loss_failsafe_with_a_raw_pymavlink_client(procs):
+    plant_port, gcs_port = free_port(), free_port()
+    procs.append(subprocess.Popen([sys.executable, "-m", "autopilot", "--no-zenoh", "--plant-listen",
+                                   f"127.0.0.1:{plant_port}", "--gcs-listen", f"127.0.0.1:{gcs_port}"]))  # fmt: skip
+    procs.append(subprocess.Popen([sys.executable, "-m", "sitl", "--autopilot", f"127.0.0.1:{plant_port}",
+                                   "--speed", "2"]))  # fmt: skip
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255, source_component=190)
+    try:
+        hb, end = None, time.monotonic() + 15
+        while hb is None and time.monotonic() < end:  # a GCS heartbeats until the vehicle answers
+            gcs.mav.heartbeat_send(6, 8, 0, 0, 0)
+            hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+        assert hb is not None and hb.autopilot == mavutil.mavlink.MAV_AUTOPILOT_PX4
+
+        def setpoints():
+            gcs.mav.set_attitude_target_send(0, 1, 1, 7, [1, 0, 0, 0], 0, 0, 0, 0.5)
+            gcs.mav.set_position_target_local_ned_send(0, 1, 1, 1, 0b110111111011, 0, 0, -1.0, 0, 0, 0, 0, 0, 0, 0, 0)
+
+        def command(cmd, *p):
+            gcs.mav.command_long_send(1, 1, cmd, 0, *(list(p) + [0] * (7 - len(p))))
+            end = time.monotonic() + 5
+            while time.monotonic() < end:
+                setpoints()
+                ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.05)
+                if ack is not None and ack.command == cmd:
+                    return ack.result
+            return None
+
+        for _ in range(5):
+            setpoints()
+            time.sleep(0.05)
+        assert command(400, 1) == 0
+        assert command(176, 1, 6, 0) == 0
+        end = time.monotonic() + 3  # fly to 1 m
+        while time.monotonic() < end:
+            setpoints()
+            time.sleep(0.05)
+        while gcs.recv_msg() is not None:  # drop the backlog: the next position is a fresh one
+            pass
+        setpoints()
+        pos = gcs.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=2)
+        assert pos is not None and pos.z == pytest.approx(-1.0, abs=0.05)
+        # Now stop streaming: after 1 s of simulated time the vehicle says so, lands and disarms.
+        texts, disarmed = [], False
+        end = time.monotonic() + 20
+        while time.monotonic() < end and not disarmed:
+            m = gcs.recv_match(type=["STATUSTEXT", "HEARTBEAT"], blocking=True, timeout=0.5)
+            if m is None:
+                continue
+            if m.get_type() == "STATUSTEXT":
+                texts.append(m.text)
+            elif texts and not m.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+                disarmed = True
+        assert any(t.startswith("Failsafe: offboard setpoints lost") for t in texts), texts
+        assert "Landed, disarmed" in texts and disarmed
+    finally:
+        gcs.close()

@@ -1,0 +1,120 @@
+"""The wire (ODOMETRY, HIL_ACTUATOR_CONTROLS, PX4 modes), the commander state machine, and trajectories."""
+
+import math
+
+import pytest
+
+from autopilot.commander import FAILSAFE_SETPOINT_LOST, Commander, CommanderSettings
+from groundstation import trajectories
+from quadsitl import telemetry, wire
+from quadsitl.cli_util import UsageError
+from quadsitl.state import Reference, VehicleState
+
+mav = wire.mavlink
+
+
+def test_state_survives_the_wire_to_float32_precision():
+    s = VehicleState(1.5, -2.0, -5.0, 0.3, -0.2, -1.1, 0.9, -0.7, 2.5, 0.4, -0.3, 0.2)
+    link = wire.link(1, 1)
+    buf = wire.state_message(123_000, s).pack(link)
+    (m,) = wire.link(1, 1).parse_buffer(buf)
+    assert m.time_usec == 123_000 and m.get_type() == "ODOMETRY"
+    back = wire.state_from_message(m)
+    assert back == pytest.approx(s, abs=2e-6)
+
+
+def test_actuators_survive_the_wire_normalised():
+    link = wire.link(1, 1)
+    forces = (-130.0, 605.0, 0.0, 42.0)
+    (m,) = wire.link(1, 1).parse_buffer(wire.actuator_message(7000, forces, 1e4, True).pack(link))
+    assert m.controls[1] == pytest.approx(0.0605)
+    assert wire.forces_from_message(m, 1e4) == pytest.approx(forces, rel=1e-6)
+    assert m.mode & mav.MAV_MODE_FLAG_SAFETY_ARMED
+
+
+def test_px4_custom_modes():
+    assert wire.Mode.OFFBOARD.px4_custom_mode == 6 << 16 == 393216
+    assert wire.Mode.HOLD.px4_custom_mode == (4 << 16) | (3 << 24)
+    assert wire.Mode.LAND.px4_custom_mode == (4 << 16) | (6 << 24)
+    for mode in wire.Mode:
+        assert wire.Mode.from_px4(mode.px4_custom_mode) is mode
+    assert wire.Mode.from_px4(7 << 16) is None  # stabilized: not ours
+    assert wire.tick_of(wire.usec_of(12345, 0.001), 0.001) == 12345
+
+
+def test_telemetry_encoding_round_trip_and_bad_payload():
+    rec = telemetry.STREAMS["status"].pack(10, 0.01, 1, 1, 0, 7)
+    assert telemetry.decode("status", rec) == {
+        "tick": 10, "t": 0.01, "armed": 1, "mode": 1, "failsafe": 0, "offboard_tick": 7,
+    }  # fmt: skip
+    with pytest.raises(ValueError, match="expected"):
+        telemetry.decode("state", b"\x00" * 5)
+    assert telemetry.key("v1", "state") == "quadsitl/v1/state"
+
+
+AT_REST = VehicleState()
+
+
+def _tick(c: Commander, k: int, state=AT_REST, period=0.001):
+    return c.update(k, k * period, state)
+
+
+def test_offboard_needs_a_setpoint_stream():
+    c = Commander()
+    _tick(c, 0)
+    assert c.set_mode(wire.Mode.OFFBOARD) == (False, "Offboard denied: no setpoint stream")
+    assert c.arm()[0]  # arming in hold is fine
+    c.on_attitude_setpoint(0.1, 0.2, 0.3)
+    c.on_altitude_setpoint(5.0)
+    assert c.set_mode(wire.Mode.OFFBOARD)[0]
+    ref = _tick(c, 1)
+    assert ref == Reference(5.0, 0.1, 0.2, 0.3) and c.offboard_tick == 1
+
+
+def test_setpoint_loss_is_timed_in_simulated_time_and_lands():
+    c = Commander(CommanderSettings(setpoint_timeout=0.5))
+    _tick(c, 0)
+    c.on_altitude_setpoint(2.0)
+    c.arm()
+    c.set_mode(wire.Mode.OFFBOARD)
+    hovering = VehicleState(z=-2.0)
+    for k in range(1, 500):
+        assert _tick(c, k, hovering).altitude == 2.0 and c.mode == wire.Mode.OFFBOARD
+    _tick(c, 501, hovering)
+    assert c.mode == wire.Mode.LAND and c.failsafe == FAILSAFE_SETPOINT_LOST
+    assert any("Failsafe" in text for _, text in c.messages)
+    # Landing: the reference descends at 1 m/s, level, then touchdown disarms.
+    ref = _tick(c, 1501, hovering)
+    assert ref.roll == 0 and ref.pitch == 0 and ref.altitude == pytest.approx(1.0, abs=0.005)
+    for k in range(1502, 2200):
+        ref = _tick(c, k, VehicleState())  # on the ground, still
+    assert ref is None and not c.armed and c.messages[-1][1] == "Landed, disarmed"
+
+
+def test_arming_into_offboard_without_stream_is_denied():
+    c = Commander()
+    _tick(c, 0)
+    c.on_altitude_setpoint(1.0)
+    c.set_mode(wire.Mode.OFFBOARD)
+    _tick(c, 3000)  # 3 s later: the stream is stale
+    assert c.arm() == (False, "Arming denied: no offboard setpoint stream")
+
+
+def test_trajectories(tmp_path):
+    ref = Reference(5.0, 0.5, -0.5, 1.0)
+    assert trajectories.make("step", ref)(3.0) == ref
+    assert trajectories.make("ramp", ref)(1.0) == pytest.approx((2.5, 0.25, -0.25, 0.5))
+    assert trajectories.make("sine", ref)(0.5) == pytest.approx(tuple(v * 1.2 for v in ref))
+    f = tmp_path / "traj.csv"
+    f.write_text("t,altitude,roll,pitch,yaw\n0,0,0,0,0\n2,4,0.2,0,1\n")
+    traj = trajectories.make(str(f), ref)
+    assert traj(1.0) == pytest.approx((2.0, 0.1, 0.0, 0.5)) and traj(9.0) == pytest.approx((4.0, 0.2, 0.0, 1.0))
+    f.write_text("t,altitude,roll\n0,0,0\n")
+    with pytest.raises(UsageError, match="missing column"):
+        trajectories.make(str(f), ref)
+    f.write_text("t,altitude,roll,pitch,yaw\n0,0,2.0,0,0\n")
+    with pytest.raises(UsageError, match=r"line 2: .*π/2"):
+        trajectories.make(str(f), ref)
+    with pytest.raises(UsageError, match="expected step, ramp, sine"):
+        trajectories.make("zigzag", ref)
+    assert math.isfinite(trajectories.make("sine", ref)(123.4).altitude)
