@@ -85,7 +85,6 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
                     link.discarded += 1
             if forces is None:
                 link.send_state(tick, plant)  # free-wheel: no answer yet
-                time.sleep(0)  # a wait already happened in receive()
         plant.step(forces)
         tick += 1
         if speed > 0:
