@@ -1,9 +1,16 @@
 """The autopilot process (``quadsitl autopilot``, ``python -m autopilot``): a thin shell around the
-controller and the commander.
+controller, the commander and the parameter table.
 
-Two UDP sockets: the plant link (answers each ODOMETRY with HIL_ACTUATOR_CONTROLS for the same
-``time_usec``) and the ground-station link (MAVLink 2, PX4 conventions; it answers whoever talks to
-it). Every control tick it publishes state, reference, actuators and status to Zenoh
+Sockets, like PX4 SITL's:
+
+- the plant link (``--plant-listen``): answers each ODOMETRY with HIL_ACTUATOR_CONTROLS for the same
+  ``time_usec``;
+- two ground-station links, each bound to a local port and streaming to a fixed remote address as well as
+  to whoever talks to it: ``gcs`` (listens on 18570, streams to 14550, where QGroundControl and MAVProxy
+  listen) and ``api`` (listens on 14580, streams to 14540, where MAVSDK and offboard scripts listen).
+  MAVLink 2, PX4 conventions (:mod:`autopilot.gcs_messages`).
+
+Every control tick it publishes state, reference, actuators and status to Zenoh
 (:mod:`quadsitl.telemetry`); publishing drops rather than blocks, so the loop never waits on a subscriber.
 """
 
@@ -19,43 +26,78 @@ from collections.abc import Sequence
 
 import zenoh
 
+from autopilot import gcs_messages
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.factory import make_controller
 from autopilot.gains import GainError
+from autopilot.gcs_messages import Home, Snapshot
+from autopilot.params import ParamStore
+from autopilot.streams import MessageStreams
 from quadsitl import telemetry, wire
-from quadsitl.cli_util import UsageError, check_range
+from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
-from quadsitl.frames import euler_to_quaternion, quaternion_to_euler
+from quadsitl.frames import quaternion_to_euler
 from quadsitl.mixer import allocate
-from quadsitl.process_util import die_with_parent, exit_on_signals, parse_address
+from quadsitl.process_util import bind_udp, die_with_parent, exit_on_signals, parse_remote
+from quadsitl.state import Reference, VehicleState
 
 mavlink = wire.mavlink
 ZERO4 = (0.0, 0.0, 0.0, 0.0)
+PEER_TIMEOUT = 30.0  # [s] wall: stop streaming to a peer that has been silent this long
+FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
+QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
+
+
+class GcsLink:
+    """One ground-station socket: a bound local address, an optional fixed remote, and learned peers."""
+
+    def __init__(self, name: str, sock: socket.socket, remote: tuple[str, int] | None) -> None:
+        self.name, self.sock, self.remote = name, sock, remote
+        self.peers: dict[tuple[str, int], float] = {}  # address → wall time last heard
+
+    def destinations(self) -> list[tuple[str, int]]:
+        out = list(self.peers)
+        if self.remote is not None and self.remote not in self.peers:
+            out.append(self.remote)
+        return out
+
+    def forget_silent(self, now: float) -> None:
+        for peer, seen in list(self.peers.items()):
+            if now - seen > PEER_TIMEOUT:
+                del self.peers[peer]
 
 
 class Autopilot:
     def __init__(self, preset: Preset, args: argparse.Namespace) -> None:
         self.preset = preset
         self.period = preset.sim.period
-        self.controller = make_controller(preset, args.controller)
-        self.commander = Commander(CommanderSettings(setpoint_timeout=args.setpoint_timeout))
+        kind = args.controller or preset.controller.type
+        settings = CommanderSettings(setpoint_timeout=args.setpoint_timeout)
+        self.params = ParamStore(preset, kind, settings)
+        self.controller = make_controller(preset, kind)
+        self.commander = Commander(settings)
+        self.streams = MessageStreams(self.period, args.telemetry_rate)
+        self.home = Home(*args.home) if args.home else Home()
         self.sysid = args.system_id
         self.compid = wire.AUTOPILOT_COMPONENT_ID
         self.mav = wire.link(self.sysid, self.compid)
-        self.plant_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.plant_sock.bind(parse_address("--plant-listen", args.plant_listen))
-        self.gcs_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.gcs_sock.bind(parse_address("--gcs-listen", args.gcs_listen))
-        self.gcs_peers: dict[tuple[str, int], float] = {}
-        self.telemetry_every = max(1, round(1.0 / (args.telemetry_rate * self.period)))
-        self.status_every = max(1, round(0.5 / self.period))
+        self.plant_sock = bind_udp("--plant-listen", args.plant_listen)
+        self.links: list[GcsLink] = []
+        for name in ("gcs", "api"):
+            remote = parse_remote(f"--{name}-remote", getattr(args, f"{name}_remote"))
+            self.links.append(GcsLink(name, bind_udp(f"--{name}-listen", getattr(args, f"{name}_listen")), remote))
         self.was_armed = False
         self.u = ZERO4
         self.forces = ZERO4
         self.last_heartbeat = 0.0
         self.last_state_usec = -1
+        self.latest: tuple[int, object, VehicleState, Reference] | None = None  # tick, ODOMETRY, state, ref
+        self.errors_comm = 0  # undecodable ground-station datagrams
+        self.load = 0.0  # fraction of the period the last tick took
+        self.chunk_id = 0
         act = preset.actuators
-        self.f_min, self.f_max, self.d_over_b = act.min_thrust, act.max_thrust, preset.vehicle.d_over_b
+        self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
+        self.d_over_b = preset.vehicle.d_over_b
         self.session = None
         self.pubs: dict[str, zenoh.Publisher] = {}
         if not args.no_zenoh:
@@ -76,6 +118,7 @@ class Autopilot:
             return
         if self.last_state_usec - 1_000_000 < m.time_usec < self.last_state_usec:
             return  # stale or reordered; a jump back by more than 1 s is a restarted plant
+        started = time.perf_counter()
         self.last_state_usec = m.time_usec
         tick = wire.tick_of(m.time_usec, self.period)
         now = tick * self.period
@@ -91,16 +134,16 @@ class Autopilot:
         self.was_armed = ref is not None
         self._answer(m.time_usec, sender)
         shown = ref if ref is not None else self.commander.hold
+        self.latest = (tick, m, state, shown)
         if self.pubs:
             self._publish(tick, now, m, state, shown)
-        if self.gcs_peers:
-            if tick % self.telemetry_every == 0:
-                self._send_telemetry(now, m, state, shown)
-            if tick % self.status_every == 0:
-                self._send_gcs(mavlink.MAVLink_sys_status_message(0, 0, 0, 0, 65535, -1, -1, 0, 0, 0, 0, 0, 0))
-        for severity, text in self.commander.messages:
-            self._send_gcs(mavlink.MAVLink_statustext_message(severity, text.encode()[:50]))
-        self.commander.messages.clear()
+        due = self.streams.due(tick)
+        if due:
+            snap = self._snapshot()
+            for mid in due:
+                self._send_gcs(gcs_messages.build(mid, snap, self.commander, self.home))
+        self._announce_commander()
+        self.load = (time.perf_counter() - started) / self.period
 
     def _answer(self, time_usec: int, sender: tuple[str, int]) -> None:
         msg = wire.actuator_message(time_usec, self.forces, self.f_max, self.commander.armed)
@@ -116,93 +159,202 @@ class Autopilot:
         self.pubs["actuators"].put(s["actuators"].pack(tick, now, *self.u, *self.forces))
         self.pubs["status"].put(s["status"].pack(tick, now, c.armed, c.mode, c.failsafe, c.offboard_tick))
 
-    # ---- the ground-station link ---------------------------------------------------------------
+    def _snapshot(self) -> Snapshot | None:
+        if self.latest is None:
+            return None
+        tick, m, state, ref = self.latest
+        return Snapshot(
+            time_ms=round(tick * self.period * 1000),
+            state=state,
+            body_rates=(m.rollspeed, m.pitchspeed, m.yawspeed),
+            reference=ref,
+            u1=self.u[0],
+            controls=tuple(f / self.f_max for f in self.forces),
+            reversible=self.reversible,
+            max_total_thrust=4.0 * self.f_max,
+            load=self.load,
+            errors_comm=self.errors_comm,
+        )
+
+    # ---- the ground-station links --------------------------------------------------------------
 
     def _send_gcs(self, msg) -> None:
         buf = msg.pack(self.mav)
-        for peer in list(self.gcs_peers):
-            try:
-                self.gcs_sock.sendto(buf, peer)
-            except OSError:
-                self.gcs_peers.pop(peer, None)
+        for link in self.links:
+            for peer in link.destinations():
+                try:
+                    link.sock.sendto(buf, peer)
+                except OSError:
+                    link.peers.pop(peer, None)
 
-    def _send_telemetry(self, now, m, state, ref) -> None:
-        ms = int(now * 1000) & 0xFFFFFFFF
-        self._send_gcs(mavlink.MAVLink_attitude_message(
-            ms, state.roll, state.pitch, state.yaw, m.rollspeed, m.pitchspeed, m.yawspeed))  # fmt: skip
-        self._send_gcs(mavlink.MAVLink_local_position_ned_message(ms, m.x, m.y, m.z, m.vx, m.vy, m.vz))
-        q = euler_to_quaternion(ref.roll, ref.pitch, ref.yaw)
-        thrust = max(0.0, min(1.0, self.u[0] / (4.0 * self.f_max)))
-        self._send_gcs(mavlink.MAVLink_attitude_target_message(ms, 7, q, 0.0, 0.0, 0.0, thrust))
+    def _say(self, severity: int, text: str) -> None:
+        self.chunk_id = self.chunk_id % 65535 + 1
+        for msg in gcs_messages.statustext(severity, text, self.chunk_id):
+            self._send_gcs(msg)
+
+    def _announce_commander(self) -> None:
+        if self.commander.messages:
+            for severity, text in self.commander.messages:
+                self._say(severity, text)
+            self.commander.messages.clear()
 
     def heartbeat(self) -> None:
-        c = self.commander
-        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if c.armed else 0)
-        status = mavlink.MAV_STATE_ACTIVE if c.armed else mavlink.MAV_STATE_STANDBY
-        hb = mavlink.MAVLink_heartbeat_message
-        self._send_gcs(
-            hb(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, c.mode.px4_custom_mode, status, 3)
-        )
+        self._send_gcs(gcs_messages.heartbeat(self.commander))
 
-    def on_gcs(self, m, sender: tuple[str, int]) -> None:
-        new_peer = sender not in self.gcs_peers
-        self.gcs_peers[sender] = time.monotonic()
+    def on_gcs(self, m, link: GcsLink, sender: tuple[str, int]) -> None:
+        new_peer = sender not in link.peers
+        link.peers[sender] = time.monotonic()
         if new_peer:
             self.heartbeat()
-        mid = m.get_msgId()
         if not hasattr(m, "target_system") or not self._for_me(m.target_system, m.target_component):
             return
-        if mid == mavlink.MAVLINK_MSG_ID_COMMAND_LONG:
+        mid = m.get_msgId()
+        if mid in (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT):
             self._command(m)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
-            # type_mask 128: ignore attitude. The thrust field is always ignored: the altitude loop makes it.
-            q_ok = all(math.isfinite(x) for x in m.q) and abs(sum(x * x for x in m.q) - 1.0) < 0.1
-            if not m.type_mask & 128 and q_ok:
-                self.commander.on_attitude_setpoint(*quaternion_to_euler(*m.q))
+            self._attitude_target(m)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
             if m.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
                 return
             z_ignored = bool(m.type_mask & 4)  # z is down: altitude = −z
             if z_ignored or math.isfinite(m.z):
                 self.commander.on_altitude_setpoint(None if z_ignored else -m.z)
+        elif mid == mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST:
+            for index, name, value in self.params:
+                self._send_param(index, name, value)
+        elif mid == mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_READ:
+            found = self.params.lookup(m.param_id, m.param_index)
+            if found is not None:
+                self._send_param(*found)
+        elif mid == mavlink.MAVLINK_MSG_ID_PARAM_SET:
+            self._param_set(m)
+        self._announce_commander()
 
     def _for_me(self, system: int, component: int) -> bool:
         return system in (0, self.sysid) and component in (0, self.compid)
 
+    def _attitude_target(self, m) -> None:
+        """SET_ATTITUDE_TARGET: the attitude reference. type_mask 128 (attitude ignored) carries no
+        attitude we can fly (no body-rate control here), so it is not a setpoint. The thrust field is
+        always ignored: in offboard an altitude reference always exists and the altitude loop makes u1."""
+        if m.type_mask & 128:
+            return
+        q = m.q
+        n2 = sum(x * x for x in q)
+        if not (math.isfinite(n2) and abs(n2 - 1.0) < QUATERNION_TOLERANCE):
+            return
+        n = math.sqrt(n2)
+        self.commander.on_attitude_setpoint(*quaternion_to_euler(*(x / n for x in q)))
+
+    # ---- parameters ----------------------------------------------------------------------------
+
+    def _send_param(self, index: int, name: str, value: float) -> None:
+        self._send_gcs(
+            mavlink.MAVLink_param_value_message(
+                name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32, len(self.params), index
+            )
+        )
+
+    def _param_set(self, m) -> None:
+        name = m.param_id
+        reason = self.params.set(name, m.param_value)
+        found = self.params.lookup(name)
+        if found is None:
+            self._say(mavlink.MAV_SEVERITY_WARNING, f"Param set refused: {reason}")
+            return
+        if not reason:
+            self._apply_params()
+        self._send_param(*found)  # the value in force: the new one, or the unchanged one when refused
+        if reason:
+            self._say(mavlink.MAV_SEVERITY_WARNING, f"Param set refused: {reason}")
+
+    def _apply_params(self) -> None:
+        """Make the accepted parameter values the ones the next tick uses."""
+        applied = self.params.applied()
+        new = make_controller(applied.preset, applied.controller)
+        if hasattr(new, "last") and hasattr(self.controller, "last"):
+            new.last = self.controller.last  # Ωr comes from the command in force
+        self.controller = new
+        self.commander.settings = applied.settings
+        self.d_over_b = applied.preset.vehicle.d_over_b
+
+    # ---- commands ------------------------------------------------------------------------------
+
     def _command(self, m) -> None:
         c = self.commander
-        result, reason = mavlink.MAV_RESULT_ACCEPTED, ""
-        if m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+        accepted, denied = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED
+        result, reason, reply = accepted, "", None
+        cmd = m.command
+        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             if m.param1 == 1.0:
                 ok, reason = c.arm()
-                result = mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_DENIED
+                result = accepted if ok else denied
             elif m.param1 == 0.0:
-                c.disarm()
+                in_air = self.latest is not None and gcs_messages.landed_state(c, self.latest[2]) == (
+                    mavlink.MAV_LANDED_STATE_IN_AIR
+                )
+                if in_air and round(m.param2) != FORCE_DISARM:
+                    result, reason = denied, f"Disarming denied: in the air (force with param2 = {FORCE_DISARM})"
+                else:
+                    c.disarm()
             else:
-                result = mavlink.MAV_RESULT_DENIED
-                reason = f"Arm/disarm: param1 {m.param1:g} is neither 0 nor 1"
-        elif m.command == mavlink.MAV_CMD_DO_SET_MODE:
-            mode = wire.Mode.from_px4((int(m.param2) << 16) | (int(m.param3) << 24))
+                result, reason = denied, f"Arm/disarm: param1 {m.param1:g} is neither 0 nor 1"
+        elif cmd == mavlink.MAV_CMD_DO_SET_MODE:
+            mode = None
+            if int(m.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+                mode = wire.Mode.from_px4((int(m.param2) << 16) | (int(m.param3) << 24))
             if mode is None:
                 result = mavlink.MAV_RESULT_UNSUPPORTED
+                reason = f"Mode main {m.param2:g} sub {m.param3:g}: supported are offboard (6), hold (4/3), land (4/6)"
             else:
                 ok, reason = c.set_mode(mode)
-                result = mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_DENIED
-        elif m.command == mavlink.MAV_CMD_NAV_LAND:
+                result = accepted if ok else denied
+        elif cmd == mavlink.MAV_CMD_NAV_LAND:
             ok, reason = c.set_mode(wire.Mode.LAND)
-            result = mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_DENIED
+            result = accepted if ok else denied
+        elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            reply = gcs_messages.autopilot_version(self.sysid)
+        elif cmd == mavlink.MAV_CMD_GET_HOME_POSITION:
+            reply = gcs_messages.home_position(self.home)
+        elif cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            result, reason, reply = self._requested(m.param1)
+        elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            reason = self.streams.set_interval(int(m.param1), m.param2) if math.isfinite(m.param2) else "NaN"
+            result = denied if reason else accepted
+        elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
+            if self.streams.supported(int(m.param1)):
+                reply = mavlink.MAVLink_message_interval_message(int(m.param1), self.streams.interval_us(int(m.param1)))
+            else:
+                result, reason = denied, f"Message interval: message id {m.param1:g} is not streamed"
         else:
             result = mavlink.MAV_RESULT_UNSUPPORTED
-        self._send_gcs(
-            mavlink.MAVLink_command_ack_message(m.command, result, 0, 0, m.get_srcSystem(), m.get_srcComponent())
-        )
+        self._send_gcs(mavlink.MAVLink_command_ack_message(cmd, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()))
+        if reply is not None:
+            self._send_gcs(reply)
         if reason:
-            self._send_gcs(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING, reason.encode()[:50]))
+            self._say(mavlink.MAV_SEVERITY_WARNING, reason)
+
+    def _requested(self, msg_id: float) -> tuple[int, str, object]:
+        """MAV_CMD_REQUEST_MESSAGE: (result, reason, the message to send)."""
+        mid = int(msg_id) if math.isfinite(msg_id) else -1
+        if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.autopilot_version(self.sysid)
+        if mid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+            return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.home_position(self.home)
+        if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.heartbeat(self.commander)
+        if self.streams.supported(mid):
+            snap = self._snapshot()
+            if snap is None:
+                return mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "", None
+            return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.build(mid, snap, self.commander, self.home)
+        return mavlink.MAV_RESULT_UNSUPPORTED, "", None
 
     # ---- the loop ------------------------------------------------------------------------------
 
     def run(self) -> None:
-        socks = [self.plant_sock, self.gcs_sock]
+        by_sock = {link.sock: link for link in self.links}
+        socks = [self.plant_sock, *by_sock]
         odometry = mavlink.MAVLINK_MSG_ID_ODOMETRY
         while True:
             ready, _, _ = select.select(socks, [], [], 0.1)
@@ -211,6 +363,8 @@ class Autopilot:
                 try:
                     msgs = self.mav.parse_buffer(data) or []
                 except mavlink.MAVError:
+                    if sock is not self.plant_sock:
+                        self.errors_comm += 1
                     continue
                 if sock is self.plant_sock:
                     for m in msgs:
@@ -218,11 +372,13 @@ class Autopilot:
                             self.on_state(m, sender)
                 else:
                     for m in msgs:
-                        self.on_gcs(m, sender)
+                        self.on_gcs(m, by_sock[sock], sender)
             wall = time.monotonic()
             if wall - self.last_heartbeat >= 1.0:
                 self.last_heartbeat = wall
                 self.heartbeat()
+                for link in self.links:
+                    link.forget_silent(wall)
 
     def close(self) -> None:
         for pub in self.pubs.values():
@@ -230,16 +386,18 @@ class Autopilot:
         if self.session is not None:
             self.session.close()
         self.plant_sock.close()
-        self.gcs_sock.close()
+        for link in self.links:
+            link.sock.close()
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="quadsitl autopilot",
         description="The autopilot: discrete backstepping (or PD) control loop, MAVLink to the plant and to "
-        "ground stations, telemetry to Zenoh.",
+        "ground stations (PX4 SITL's ports and conventions), telemetry to Zenoh.",
         epilog="examples:\n  quadsitl autopilot --preset paper\n"
-        "  quadsitl autopilot --preset x500 --controller pd --zenoh-listen tcp/127.0.0.1:7447",
+        "  quadsitl autopilot --preset x500 --controller pd --zenoh-listen tcp/127.0.0.1:7447\n"
+        "  quadsitl autopilot --gcs-remote none --api-listen 127.0.0.1:24580 --api-remote none",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--preset", default="paper", help="preset name or TOML path (default: paper)")
@@ -250,30 +408,56 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="HOST:PORT",
         help="UDP address for the plant link (default: 127.0.0.1:14560)",
     )
-    p.add_argument(
-        "--gcs-listen",
-        default="127.0.0.1:14580",
-        metavar="HOST:PORT",
-        help="UDP address for ground stations (default: 127.0.0.1:14580)",
-    )
+    for name, listen, remote, who in (
+        ("gcs", 18570, 14550, "ground stations: QGroundControl, MAVProxy"),
+        ("api", 14580, 14540, "offboard APIs: MAVSDK, scripts"),
+    ):
+        p.add_argument(
+            f"--{name}-listen",
+            default=f"127.0.0.1:{listen}",
+            metavar="HOST:PORT",
+            help=f"local UDP address of the {name} link, for {who} (default: 127.0.0.1:{listen})",
+        )
+        p.add_argument(
+            f"--{name}-remote",
+            default=f"127.0.0.1:{remote}",
+            metavar="HOST:PORT|none",
+            help=f"where the {name} link streams even before anyone talks to it (default: 127.0.0.1:{remote})",
+        )
     p.add_argument("--system-id", type=int, default=1, help="MAVLink system id (default: 1)")
+    p.add_argument(
+        "--home",
+        metavar="LAT,LON,ALT",
+        help="home position: degrees, degrees, metres AMSL (default: PX4 SITL's, 47.397742,8.545594,488)",
+    )
     p.add_argument(
         "--telemetry-rate",
         type=float,
         default=50.0,
         metavar="HZ",
-        help="ATTITUDE, LOCAL_POSITION_NED, ATTITUDE_TARGET rate in simulated time (default: 50)",
+        help="ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ATTITUDE_TARGET rate in simulated time "
+        "(default: 50; MAV_CMD_SET_MESSAGE_INTERVAL changes any stream)",
     )
     p.add_argument(
         "--setpoint-timeout",
         type=float,
         default=1.0,
         metavar="S",
-        help="offboard setpoint loss failsafe, simulated seconds (default: 1)",
+        help="offboard setpoint loss failsafe, simulated seconds (default: 1; parameter COM_OF_LOSS_T)",
     )
     telemetry.add_zenoh_arguments(p)
     p.add_argument("--no-zenoh", action="store_true", help="do not publish telemetry to Zenoh")
     return p
+
+
+def parse_home(text: str | None) -> tuple[float, float, float] | None:
+    if text is None:
+        return None
+    lat, lon, alt = parse_floats("--home", text, 3)
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0 and -1000.0 <= alt <= 100000.0):
+        raise UsageError(f"--home {text!r}: expected latitude in [-90, 90], longitude in [-180, 180], altitude "
+                         "in [-1000, 100000] m")  # fmt: skip
+    return lat, lon, alt
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -287,16 +471,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_range("--setpoint-timeout", args.setpoint_timeout, 0.0, 3600.0)
         if not 1 <= args.system_id <= 255:
             raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
+        args.home = parse_home(args.home)
         ap = Autopilot(preset, args)
     except (UsageError, ConfigError, GainError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
-    except OSError as exc:
-        print(
-            f"{parser.prog}: error: cannot bind --plant-listen {args.plant_listen} / --gcs-listen "
-            f"{args.gcs_listen}: {exc.strerror}",
-            file=sys.stderr,
-        )
+    except zenoh.ZError as exc:
+        print(f"{parser.prog}: error: cannot open the Zenoh session (--zenoh-listen / --zenoh-connect / "
+              f"--zenoh-config): {exc}", file=sys.stderr)  # fmt: skip
         return 2
     try:
         ap.run()

@@ -83,7 +83,8 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     old = signal.signal(signal.SIGTERM, on_signal)
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
-              "--gcs-listen", f"127.0.0.1:{gcs_port}", "--zenoh-listen", zenoh_ep]  # fmt: skip
+              "--api-listen", f"127.0.0.1:{gcs_port}", "--api-remote", "none", "--gcs-listen",
+              f"127.0.0.1:{free_port()}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep]  # fmt: skip
         if args.controller:
             ap += ["--controller", args.controller]
         children.start("autopilot", ap)

@@ -62,3 +62,37 @@ def quaternion_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, 
     pitch = math.asin(max(-1.0, min(1.0, sinp)))
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     return roll, pitch, yaw
+
+
+# ---- local NED ↔ geodetic -------------------------------------------------------------------------
+
+EARTH_RADIUS = 6371000.0  # [m], PX4's CONSTANTS_RADIUS_OF_EARTH
+
+
+def ned_to_geodetic(north: float, east: float, lat0: float, lon0: float) -> tuple[float, float]:
+    """Local north/east offsets [m] from a home at (lat0, lon0) [deg] → (lat, lon) [deg].
+
+    The azimuthal equidistant projection on a sphere, as PX4's ``MapProjection::reproject``.
+    """
+    lat0_r, lon0_r = math.radians(lat0), math.radians(lon0)
+    x, y = north / EARTH_RADIUS, east / EARTH_RADIUS
+    c = math.hypot(x, y)
+    if c == 0.0:
+        return lat0, lon0
+    sin_c, cos_c = math.sin(c), math.cos(c)
+    sin_lat0, cos_lat0 = math.sin(lat0_r), math.cos(lat0_r)
+    lat = math.asin(cos_c * sin_lat0 + x * sin_c * cos_lat0 / c)
+    lon = lon0_r + math.atan2(y * sin_c, c * cos_lat0 * cos_c - x * sin_lat0 * sin_c)
+    return math.degrees(lat), math.degrees(lon)
+
+
+def geodetic_to_ned(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
+    """Inverse of :func:`ned_to_geodetic`: (lat, lon) [deg] → north/east offsets [m] from (lat0, lon0)."""
+    lat_r, lat0_r = math.radians(lat), math.radians(lat0)
+    dlon = math.radians(lon - lon0)
+    cos_c = math.sin(lat0_r) * math.sin(lat_r) + math.cos(lat0_r) * math.cos(lat_r) * math.cos(dlon)
+    c = math.acos(max(-1.0, min(1.0, cos_c)))
+    k = 1.0 if c == 0.0 else c / math.sin(c)
+    north = k * (math.cos(lat0_r) * math.sin(lat_r) - math.sin(lat0_r) * math.cos(lat_r) * math.cos(dlon))
+    east = k * math.cos(lat_r) * math.sin(dlon)
+    return north * EARTH_RADIUS, east * EARTH_RADIUS

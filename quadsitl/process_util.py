@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import ctypes
+import errno
 import signal
+import socket
 import sys
 
 from quadsitl.cli_util import UsageError
@@ -15,6 +17,25 @@ def parse_address(option: str, text: str) -> tuple[str, int]:
     if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
         raise UsageError(f"{option} {text!r}: expected HOST:PORT with PORT in 0..65535")
     return host, int(port)
+
+
+def parse_remote(option: str, text: str) -> tuple[str, int] | None:
+    """'HOST:PORT' or 'none' (→ None)."""
+    return None if text.lower() == "none" else parse_address(option, text)
+
+
+def bind_udp(option: str, text: str) -> socket.socket:
+    """A UDP socket bound to the option's HOST:PORT, or a UsageError that names the option, the address
+    and, for a busy port, how to choose another."""
+    address = parse_address(option, text)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind(address)
+    except OSError as exc:
+        sock.close()
+        hint = f"; choose another with {option} HOST:PORT" if exc.errno == errno.EADDRINUSE else ""
+        raise UsageError(f"{option} {text}: cannot bind: {exc.strerror}{hint}") from None
+    return sock
 
 
 def exit_on_signals() -> None:

@@ -125,7 +125,9 @@ def test_sigterm_tears_everything_down(tmp_path, procs):
 def test_setpoint_loss_failsafe_with_a_raw_pymavlink_client(procs):
     plant_port, gcs_port = free_port(), free_port()
     procs.append(subprocess.Popen([sys.executable, "-m", "autopilot", "--no-zenoh", "--plant-listen",
-                                   f"127.0.0.1:{plant_port}", "--gcs-listen", f"127.0.0.1:{gcs_port}"]))  # fmt: skip
+                                   f"127.0.0.1:{plant_port}", "--gcs-listen", f"127.0.0.1:{gcs_port}",
+                                   "--gcs-remote", "none", "--api-listen", "127.0.0.1:0",
+                                   "--api-remote", "none"]))  # fmt: skip
     procs.append(subprocess.Popen([sys.executable, "-m", "sitl", "--autopilot", f"127.0.0.1:{plant_port}",
                                    "--speed", "2"]))  # fmt: skip
     gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255, source_component=190)

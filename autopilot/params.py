@@ -1,0 +1,212 @@
+"""The autopilot's MAVLink parameters: a pure table of names, ranges and values, with no I/O.
+
+Every parameter is a REAL32 (MAVLink ``PARAM_VALUE`` carries a float; one type for all avoids the
+int-encoding differences between ground stations). The order of :data:`SPECS` is the
+``param_index``, so indices are stable and unique and ``param_count`` never changes.
+
+The table holds the autopilot's *own* copy of the vehicle model (DESIGN.md §2): by default it equals the
+preset the plant flies, and a user may mismatch it on purpose. A change is checked as a whole before it
+is accepted: the value must be in its range, and the resulting controller must build (backstepping
+gains must satisfy conditions (41)–(44), ``THR_MIN`` < ``THR_MAX``). :meth:`ParamStore.set` returns why
+it refused; a refused set leaves every value as it was.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+
+from autopilot.commander import CommanderSettings
+from autopilot.factory import make_controller
+from autopilot.gains import GainError, rates_from_poles
+from quadsitl.config import Preset
+
+MAX_NAME = 16  # MAVLink param_id length
+CONTROLLER_TYPES = ("backstepping", "pd")
+CHANNELS = ("ALT", "ROLL", "PITCH", "YAW")
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: its range is [lo, hi] (or (lo, hi] with ``lo_open``); ``integer`` values must be whole."""
+
+    name: str
+    lo: float
+    hi: float
+    unit: str
+    doc: str
+    lo_open: bool = False
+    integer: bool = False
+
+    def allowed(self) -> str:
+        if self.integer:
+            return f"an integer in [{self.lo:g}, {self.hi:g}]"
+        left = "(" if self.lo_open else "["
+        unit = f" {self.unit}" if self.unit else ""
+        return f"a number in {left}{self.lo:g}, {self.hi:g}]{unit}"
+
+    def accepts(self, value: float) -> bool:
+        if not math.isfinite(value):
+            return False
+        if self.integer and value != round(value):
+            return False
+        above = value > self.lo if self.lo_open else value >= self.lo
+        return above and value <= self.hi
+
+
+def _specs() -> tuple[ParamSpec, ...]:
+    s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
+    for i in range(1, 9):
+        s.append(ParamSpec(f"BS_K{i}", 0, 1e6, "1/s", f"backstepping rate k{i} (pole λ{i} = 1 − T·k{i})", lo_open=True))
+    for kind, unit in (("P", "1/s²"), ("D", "1/s")):
+        for ch in CHANNELS:
+            s.append(ParamSpec(f"PD_{ch}_{kind}", 0, 1e6, unit, f"PD {'kp' if kind == 'P' else 'kd'}, {ch.lower()}"))
+    s += [
+        ParamSpec("VM_MASS", 0, 1e4, "kg", "model mass m", lo_open=True),
+        ParamSpec("VM_IXX", 0, 1e4, "kg·m²", "model inertia Ix", lo_open=True),
+        ParamSpec("VM_IYY", 0, 1e4, "kg·m²", "model inertia Iy", lo_open=True),
+        ParamSpec("VM_IZZ", 0, 1e4, "kg·m²", "model inertia Iz", lo_open=True),
+    ]
+    for i in range(1, 7):
+        unit = "N·s/m" if i <= 3 else "N·s"
+        s.append(ParamSpec(f"VM_K{i}", 0, 1e4, unit, f"model drag coefficient K{i}"))
+    s += [
+        ParamSpec("VM_ARM_LEN", 0, 100, "m", "model arm length l", lo_open=True),
+        ParamSpec("VM_JR", 0, 1e4, "kg·m²", "model rotor inertia Jr"),
+        ParamSpec("VM_THRUST_B", 0, 1e4, "N·s²", "model thrust factor b", lo_open=True),
+        ParamSpec("VM_DRAG_D", 0, 1e4, "N·m·s²", "model rotor drag factor d", lo_open=True),
+        ParamSpec("VM_GRAVITY", 0, 100, "m/s²", "model gravity g"),
+        ParamSpec("ATT_TILT_MAX", 0, 1.5533, "rad", "bound on |roll|, |pitch| references", lo_open=True),
+        ParamSpec("THR_MIN", -1e7, 1e7, "N", "lower bound on u1 (total thrust)"),
+        ParamSpec("THR_MAX", -1e7, 1e7, "N", "upper bound on u1 (total thrust)"),
+        ParamSpec("COM_OF_LOSS_T", 0, 3600, "s", "offboard setpoint loss timeout (simulated time)", lo_open=True),
+        ParamSpec("MPC_LAND_SPEED", 0, 100, "m/s", "descent speed in LAND", lo_open=True),
+        ParamSpec("COM_DISARM_LAND", 0, 60, "s", "time on the ground before LAND disarms", lo_open=True),
+    ]
+    for spec in s:
+        assert len(spec.name) <= MAX_NAME, spec.name
+    return tuple(s)
+
+
+SPECS: tuple[ParamSpec, ...] = _specs()
+INDEX: dict[str, int] = {spec.name: i for i, spec in enumerate(SPECS)}
+
+
+def values_from(preset: Preset, controller: str, settings: CommanderSettings) -> dict[str, float]:
+    """The parameter values that describe ``preset`` flown with ``controller`` and ``settings``."""
+    v, c = preset.vehicle, preset.controller
+    rates = c.gains if c.gains is not None else rates_from_poles(preset.poles(), preset.sim.period)
+    out: dict[str, float] = {"CTL_TYPE": float(CONTROLLER_TYPES.index(controller))}
+    out.update({f"BS_K{i + 1}": float(k) for i, k in enumerate(rates)})
+    out.update({f"PD_{ch}_P": kp for ch, kp in zip(CHANNELS, c.pd_kp)})
+    out.update({f"PD_{ch}_D": kd for ch, kd in zip(CHANNELS, c.pd_kd)})
+    out.update(VM_MASS=v.mass, VM_IXX=v.ixx, VM_IYY=v.iyy, VM_IZZ=v.izz)
+    out.update({f"VM_K{i + 1}": k for i, k in enumerate(v.drag)})
+    out.update(VM_ARM_LEN=v.arm_length, VM_JR=v.rotor_inertia, VM_THRUST_B=v.thrust_factor)
+    out.update(VM_DRAG_D=v.drag_factor, VM_GRAVITY=v.gravity, ATT_TILT_MAX=c.max_tilt)
+    out.update(THR_MIN=c.thrust_min, THR_MAX=c.thrust_max, COM_OF_LOSS_T=settings.setpoint_timeout)
+    out.update(MPC_LAND_SPEED=settings.land_speed, COM_DISARM_LAND=settings.landed_time)
+    assert set(out) == set(INDEX), set(out) ^ set(INDEX)
+    return out
+
+
+@dataclass(frozen=True)
+class Applied:
+    """What a set of parameter values means for the autopilot: the model and gains (as a preset),
+    the controller kind, and the commander's settings."""
+
+    preset: Preset
+    controller: str
+    settings: CommanderSettings
+
+
+def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, float]) -> Applied:
+    """Values → the preset, controller kind and commander settings they describe. The preset's
+    actuators (the wire's scale) and simulation settings are not parameters and stay ``base``'s."""
+    vehicle = replace(
+        base.vehicle,
+        mass=values["VM_MASS"],
+        ixx=values["VM_IXX"],
+        iyy=values["VM_IYY"],
+        izz=values["VM_IZZ"],
+        drag=tuple(values[f"VM_K{i}"] for i in range(1, 7)),
+        arm_length=values["VM_ARM_LEN"],
+        rotor_inertia=values["VM_JR"],
+        thrust_factor=values["VM_THRUST_B"],
+        drag_factor=values["VM_DRAG_D"],
+        gravity=values["VM_GRAVITY"],
+    )
+    controller = replace(
+        base.controller,
+        gains=tuple(values[f"BS_K{i}"] for i in range(1, 9)),
+        poles=None,
+        max_tilt=values["ATT_TILT_MAX"],
+        thrust_min=values["THR_MIN"],
+        thrust_max=values["THR_MAX"],
+        pd_kp=tuple(values[f"PD_{ch}_P"] for ch in CHANNELS),
+        pd_kd=tuple(values[f"PD_{ch}_D"] for ch in CHANNELS),
+    )
+    settings = replace(
+        base_settings,
+        setpoint_timeout=values["COM_OF_LOSS_T"],
+        land_speed=values["MPC_LAND_SPEED"],
+        landed_time=values["COM_DISARM_LAND"],
+    )
+    kind = CONTROLLER_TYPES[int(values["CTL_TYPE"])]
+    return Applied(replace(base, vehicle=vehicle, controller=controller), kind, settings)
+
+
+class ParamStore:
+    """The parameter values of one autopilot, changed only through :meth:`set`."""
+
+    def __init__(self, preset: Preset, controller: str, settings: CommanderSettings) -> None:
+        self.base, self.base_settings = preset, settings
+        self.values = values_from(preset, controller, settings)
+
+    def __len__(self) -> int:
+        return len(SPECS)
+
+    def __iter__(self) -> Iterator[tuple[int, str, float]]:
+        """(index, name, value) in index order."""
+        for i, spec in enumerate(SPECS):
+            yield i, spec.name, self.values[spec.name]
+
+    def lookup(self, name: str | None = None, index: int = -1) -> tuple[int, str, float] | None:
+        """By name, or by index when ``index`` ≥ 0 (MAVLink's PARAM_REQUEST_READ rule). None if unknown."""
+        if index >= 0:
+            if index >= len(SPECS):
+                return None
+            name = SPECS[index].name
+        if name not in INDEX:
+            return None
+        return INDEX[name], name, self.values[name]
+
+    def set(self, name: str, value: float, build: Callable[[Applied], object] | None = None) -> str:
+        """Set ``name`` to ``value``. Returns "" when accepted, else the reason it was refused (the
+        values are then unchanged). ``build`` (default: make the controller) is called with the
+        candidate; a :class:`GainError` or ``ValueError`` it raises refuses the change."""
+        if name not in INDEX:
+            return f"{name}: no such parameter"
+        spec = SPECS[INDEX[name]]
+        if not spec.accepts(value):
+            return f"{name} = {value:g}: expected {spec.allowed()}"
+        candidate = {**self.values, name: float(value)}
+        if candidate["THR_MIN"] >= candidate["THR_MAX"]:
+            return f"{name} = {value:g}: THR_MIN must be below THR_MAX"
+        applied = apply(self.base, self.base_settings, candidate)
+        try:
+            (build or _build_controller)(applied)
+        except (GainError, ValueError) as exc:
+            return f"{name} = {value:g} refused: {exc}"
+        self.values = candidate
+        return ""
+
+    def applied(self) -> Applied:
+        return apply(self.base, self.base_settings, self.values)
+
+
+def _build_controller(applied: Applied) -> object:
+    # The backstepping gains are checked against (41)–(44) whichever controller flies.
+    make_controller(applied.preset, "backstepping")
+    return make_controller(applied.preset, applied.controller)

@@ -1,0 +1,77 @@
+"""Which telemetry message goes out at which tick: the autopilot's message intervals, pure.
+
+Intervals are counted in control ticks, so in lockstep the stream is tied to simulated time (and
+deterministic), and in real time it is tied to the wall clock. ``MAV_CMD_SET_MESSAGE_INTERVAL`` sets
+one message's interval (µs; −1 stops it, 0 restores the default); ``MAV_CMD_GET_MESSAGE_INTERVAL``
+reads it back. HEARTBEAT is not scheduled here: it goes out at 1 Hz of wall time, like PX4's.
+"""
+
+from __future__ import annotations
+
+from pymavlink.dialects.v20 import common as mavlink
+
+FAST = (
+    mavlink.MAVLINK_MSG_ID_ATTITUDE,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET,
+)
+"""The messages ``--telemetry-rate`` sets."""
+
+SLOW_RATES: dict[int, float] = {  # [Hz]
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
+    mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
+    mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS: 10.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+}
+
+MAX_INTERVAL_US = 60_000_000
+
+
+class MessageStreams:
+    """Per-message intervals, in ticks of ``period`` seconds; 0 ticks = off."""
+
+    def __init__(self, period: float, fast_rate: float) -> None:
+        self.period = period
+        self.defaults: dict[int, int] = {mid: self._ticks(1.0 / fast_rate) for mid in FAST}
+        self.defaults.update({mid: self._ticks(1.0 / hz) for mid, hz in SLOW_RATES.items()})
+        self.every = dict(self.defaults)
+        self._rebuild()
+
+    def _ticks(self, seconds: float) -> int:
+        return max(1, round(seconds / self.period))
+
+    def _rebuild(self) -> None:
+        self._active = sorted((mid, n) for mid, n in self.every.items() if n > 0)
+
+    def supported(self, msg_id: int) -> bool:
+        return msg_id in self.defaults
+
+    def set_interval(self, msg_id: int, interval_us: float) -> str:
+        """MAV_CMD_SET_MESSAGE_INTERVAL. Returns "" when done, else why not."""
+        if not self.supported(msg_id):
+            return f"Message interval: message id {msg_id:g} is not streamed"
+        if interval_us == -1:
+            self.every[msg_id] = 0
+        elif interval_us == 0:
+            self.every[msg_id] = self.defaults[msg_id]
+        elif 0 < interval_us <= MAX_INTERVAL_US:
+            self.every[msg_id] = self._ticks(interval_us * 1e-6)
+        else:
+            return f"Message interval {interval_us:g} us: expected -1, 0 or (0, {MAX_INTERVAL_US}]"
+        self._rebuild()
+        return ""
+
+    def interval_us(self, msg_id: int) -> int:
+        """MAV_CMD_GET_MESSAGE_INTERVAL's answer: µs, −1 when off, 0 when not streamed at all."""
+        if not self.supported(msg_id):
+            return 0
+        n = self.every[msg_id]
+        return -1 if n == 0 else round(n * self.period * 1e6)
+
+    def due(self, tick: int) -> list[int]:
+        """The message ids to send at ``tick``."""
+        return [mid for mid, n in self._active if tick % n == 0]

@@ -1,0 +1,233 @@
+"""The pure pieces behind the ground-station link: parameters, message intervals, telemetry messages,
+the home projection."""
+
+import math
+
+import pytest
+
+from autopilot import gcs_messages
+from autopilot.backstepping import BacksteppingController
+from autopilot.commander import Commander, CommanderSettings
+from autopilot.factory import make_controller
+from autopilot.params import INDEX, MAX_NAME, SPECS, ParamStore, apply
+from autopilot.pd import PDController
+from autopilot.streams import MessageStreams
+from quadsitl.config import load_preset
+from quadsitl.frames import geodetic_to_ned, ned_to_geodetic
+from quadsitl.state import Reference, VehicleState
+from quadsitl.wire import Mode, link, mavlink
+
+
+@pytest.fixture
+def store():
+    return ParamStore(load_preset("paper"), "backstepping", CommanderSettings())
+
+
+# ---- parameters ----------------------------------------------------------------------------------
+
+
+def test_parameter_names_fit_mavlink_and_indices_are_unique_and_stable(store):
+    names = [name for _, name, _ in store]
+    assert len(names) == len(set(names)) == len(store) == len(SPECS)
+    assert all(len(n) <= MAX_NAME for n in names)
+    assert [i for i, _, _ in store] == list(range(len(store)))
+    for required in [f"BS_K{i}" for i in range(1, 9)] + ["CTL_TYPE", "VM_MASS", "VM_IXX", "COM_OF_LOSS_T"]:
+        assert required in INDEX
+    store.set("BS_K1", 12.0)
+    assert [name for _, name, _ in store] == names  # a set never reorders
+
+
+def test_defaults_describe_the_preset_and_rebuild_the_same_controller(store):
+    preset = load_preset("paper")
+    assert store.lookup("BS_K3")[2] == 10.0
+    assert store.lookup("VM_MASS")[2] == preset.vehicle.mass
+    assert store.lookup("VM_IZZ")[2] == preset.vehicle.izz
+    assert store.lookup("COM_OF_LOSS_T")[2] == 1.0
+    a = store.applied()
+    assert a.preset.vehicle == preset.vehicle and a.controller == "backstepping"
+    assert make_controller(a.preset).poles == pytest.approx(make_controller(preset).poles, abs=1e-15)
+
+
+def test_x500_poles_round_trip_through_rates():
+    preset = load_preset("x500")
+    s = ParamStore(preset, "pd", CommanderSettings(setpoint_timeout=0.5))
+    assert s.lookup("CTL_TYPE")[2] == 1.0 and s.lookup("COM_OF_LOSS_T")[2] == 0.5
+    assert [s.lookup(f"BS_K{i}")[2] for i in range(1, 9)] == list(preset.controller.gains)
+    assert isinstance(make_controller(s.applied().preset, s.applied().controller), PDController)
+
+
+def test_lookup_by_name_and_by_index(store):
+    i, name, value = store.lookup("VM_MASS")
+    assert store.lookup(None, i) == (i, name, value)
+    assert store.lookup("VM_MASS", i) == (i, name, value)
+    assert store.lookup("NOPE") is None and store.lookup(None, len(store)) is None
+
+
+def test_an_accepted_set_changes_what_the_controller_is_built_from(store):
+    assert store.set("VM_MASS", 2.5) == ""
+    assert store.set("BS_K2", 20.0) == ""
+    assert store.set("COM_OF_LOSS_T", 0.25) == ""
+    assert store.set("CTL_TYPE", 1) == ""
+    a = store.applied()
+    assert a.preset.vehicle.mass == 2.5 and a.settings.setpoint_timeout == 0.25 and a.controller == "pd"
+    bs = make_controller(a.preset, "backstepping")
+    assert isinstance(bs, BacksteppingController) and bs.poles[1] == pytest.approx(1 - 0.001 * 20)
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "expect"),
+    [
+        ("VM_MASS", -1.0, "VM_MASS = -1: expected a number in (0, 10000] kg"),
+        ("VM_MASS", math.nan, "expected a number in (0, 10000] kg"),
+        ("CTL_TYPE", 0.5, "CTL_TYPE = 0.5: expected an integer in [0, 1]"),
+        ("CTL_TYPE", 2, "expected an integer in [0, 1]"),
+        ("BS_K1", 0.0, "BS_K1 = 0: expected a number in (0, 1e+06] 1/s"),
+        ("ATT_TILT_MAX", 1.6, "ATT_TILT_MAX = 1.6: expected a number in (0, 1.5533] rad"),
+        ("THR_MIN", 1e6, "THR_MIN must be below THR_MAX"),
+        ("NOT_A_PARAM", 1.0, "NOT_A_PARAM: no such parameter"),
+    ],
+)
+def test_out_of_range_values_are_refused_and_change_nothing(store, name, value, expect):
+    before = dict(store.values)
+    reason = store.set(name, value)
+    assert expect in reason
+    assert store.values == before
+
+
+def test_gains_that_break_the_stability_conditions_are_refused_naming_the_condition(store):
+    before = dict(store.values)
+    # k2 = 2000 1/s: λ2 = −1, so λ2² ≥ 1 − T² and condition (41) cannot hold for any ε.
+    reason = store.set("BS_K2", 2000.0)
+    assert "condition (41)" in reason and "λ2" in reason
+    assert store.values == before
+    # k1 = 0.001 1/s alone is a valid rate, but then (41) needs ε > 2 while (41)–(44) need ε < 0.02.
+    reason = store.set("BS_K1", 0.001)
+    assert "conflict" in reason and "λ1" in reason
+    assert store.values == before
+    assert store.set("BS_K1", 5.0) == ""
+
+
+def test_a_build_failure_refuses_the_set(store):
+    def fail(_applied):
+        raise ValueError("no")
+
+    assert "refused: no" in store.set("VM_MASS", 3.0, build=fail)
+    assert store.lookup("VM_MASS")[2] == 2.0
+
+
+def test_apply_keeps_the_wire_scale_and_simulation_settings(store):
+    preset = load_preset("paper")
+    a = apply(preset, CommanderSettings(), {**store.values, "VM_MASS": 9.0})
+    assert a.preset.actuators == preset.actuators and a.preset.sim == preset.sim
+    assert a.preset.vehicle.mass == 9.0
+
+
+# ---- message intervals ---------------------------------------------------------------------------
+
+
+def test_message_intervals_in_ticks():
+    s = MessageStreams(0.001, 50.0)
+    att = mavlink.MAVLINK_MSG_ID_ATTITUDE
+    gpi = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+    assert s.interval_us(att) == 20_000 and s.interval_us(gpi) == 100_000
+    sent = [t for t in range(1000) if att in s.due(t)]
+    assert len(sent) == 50
+    assert s.set_interval(att, 5_000) == "" and s.interval_us(att) == 5_000
+    assert sum(att in s.due(t) for t in range(1000)) == 200
+    assert s.set_interval(att, -1) == "" and s.interval_us(att) == -1
+    assert not any(att in s.due(t) for t in range(1000))
+    assert s.set_interval(att, 0) == "" and s.interval_us(att) == 20_000
+    assert "not streamed" in s.set_interval(mavlink.MAVLINK_MSG_ID_ODOMETRY, 1000)
+    assert "expected -1, 0" in s.set_interval(att, -5)
+    assert s.interval_us(mavlink.MAVLINK_MSG_ID_ODOMETRY) == 0
+
+
+# ---- telemetry messages --------------------------------------------------------------------------
+
+
+def snapshot(**kw):
+    st = VehicleState(x=3.0, y=-4.0, z=-10.0, vx=1.0, vy=2.0, vz=-0.5, roll=0.1, pitch=-0.2, yaw=-0.5)
+    base = dict(time_ms=1234, state=st, body_rates=(0.01, 0.02, 0.03), reference=Reference(10.0, 0.0, 0.0, 1.0),
+                u1=20.0, controls=(0.5, -0.5, 1.0, 0.0), reversible=True, max_total_thrust=40.0)  # fmt: skip
+    base.update(kw)
+    return gcs_messages.Snapshot(**base)
+
+
+def roundtrip(msg):
+    mav = link(1, 1)
+    return mav.parse_buffer(msg.pack(mav))[0]
+
+
+def test_every_stream_message_encodes_and_decodes():
+    c, home = Commander(), gcs_messages.Home()
+    s = MessageStreams(0.001, 50.0)
+    for mid in s.defaults:
+        m = roundtrip(gcs_messages.build(mid, snapshot(), c, home))
+        assert m.get_msgId() == mid
+
+
+def test_global_position_from_home_and_back():
+    home = gcs_messages.Home(47.397742, 8.545594, 488.0)
+    m = roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, snapshot(), Commander(), home))
+    north, east = geodetic_to_ned(m.lat * 1e-7, m.lon * 1e-7, home.lat, home.lon)
+    assert north == pytest.approx(3.0, abs=0.02) and east == pytest.approx(-4.0, abs=0.02)  # 1e-7 deg ≈ 1 cm
+    assert m.alt == 498_000 and m.relative_alt == 10_000
+    assert (m.vx, m.vy, m.vz) == (100, 200, -50)
+    assert m.hdg == round((360 - math.degrees(0.5)) * 100)
+
+
+def test_ned_geodetic_round_trip_far_from_home():
+    lat, lon = ned_to_geodetic(1500.0, -2500.0, -33.9, 151.2)
+    assert geodetic_to_ned(lat, lon, -33.9, 151.2) == pytest.approx((1500.0, -2500.0), abs=1e-6)
+    assert ned_to_geodetic(0.0, 0.0, 10.0, 20.0) == (10.0, 20.0)
+    # one arc-minute of latitude is 1852 m on PX4's sphere, near enough
+    assert ned_to_geodetic(1853.2, 0.0, 0.0, 0.0)[0] == pytest.approx(1 / 60, rel=1e-3)
+
+
+def test_heartbeat_carries_px4_modes_and_the_armed_bit():
+    c = Commander()
+    hb = gcs_messages.heartbeat(c)
+    assert hb.autopilot == mavlink.MAV_AUTOPILOT_PX4 and hb.type == mavlink.MAV_TYPE_QUADROTOR
+    assert hb.custom_mode == (4 << 16) | (3 << 24) and not hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    assert hb.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    c.arm()
+    c.last_setpoint_time = 0.0
+    c.set_mode(Mode.OFFBOARD)
+    hb = gcs_messages.heartbeat(c)
+    assert hb.custom_mode == 6 << 16 and hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    assert hb.system_status == mavlink.MAV_STATE_ACTIVE
+
+
+def test_landed_state_and_motor_outputs():
+    c = Commander()
+    ground = VehicleState()
+    assert gcs_messages.landed_state(c, ground) == mavlink.MAV_LANDED_STATE_ON_GROUND
+    c.arm()
+    assert gcs_messages.landed_state(c, ground) == mavlink.MAV_LANDED_STATE_ON_GROUND
+    assert gcs_messages.landed_state(c, VehicleState(z=-2.0)) == mavlink.MAV_LANDED_STATE_IN_AIR
+    c.set_mode(Mode.LAND)
+    assert gcs_messages.landed_state(c, VehicleState(z=-2.0)) == mavlink.MAV_LANDED_STATE_LANDING
+    assert [gcs_messages.pwm(x, True) for x in (-1.0, 0.0, 1.0, 2.0)] == [1000, 1500, 2000, 2000]
+    assert [gcs_messages.pwm(x, False) for x in (0.0, 0.25, 1.0, -1.0)] == [1000, 1250, 2000, 1000]
+    m = roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, snapshot(), c, gcs_messages.Home()))
+    assert (m.servo1_raw, m.servo2_raw, m.servo3_raw, m.servo4_raw) == (1750, 1250, 2000, 1500)
+
+
+def test_long_statustext_is_chunked_in_ascii_and_reassembles():
+    text = "Param set refused: condition (41) λ2² − 1 + 4T²λ2²/ε < 0 cannot hold for any ε > 0; allowed: λ2² < 1 − T²"
+    msgs = gcs_messages.statustext(4, text, 7)
+    assert len(msgs) > 1 and all(m.id == 7 for m in msgs) and [m.chunk_seq for m in msgs] == list(range(len(msgs)))
+    decoded = [roundtrip(m) for m in msgs]
+    assert all(len(m.text) == 50 for m in decoded[:-1]) and len(decoded[-1].text) < 50
+    whole = "".join(m.text for m in decoded)
+    assert whole.startswith("Param set refused: condition (41) l2^2 - 1 + 4T^2l2^2/eps < 0")
+    short = gcs_messages.statustext(6, "Armed", 8)
+    assert len(short) == 1 and short[0].id == 0
+
+
+def test_autopilot_version_says_what_we_support():
+    v = roundtrip(gcs_messages.autopilot_version(1))
+    assert v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    assert v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    assert not v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    assert gcs_messages.version_number("1.2.3") >> 8 == 0x010203
