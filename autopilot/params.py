@@ -198,7 +198,7 @@ class ParamStore:
         try:
             (build or _build_controller)(applied)
         except (GainError, ValueError) as exc:
-            return f"{name} = {value:g} refused: {exc}"
+            return f"{name} = {value:g}: {exc}"
         self.values = candidate
         return ""
 

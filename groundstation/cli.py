@@ -1,6 +1,8 @@
 """The ``quadsitl`` command.
 
     quadsitl sim      the closed loop in one process (no network): telemetry, metrics, figures
+    quadsitl fly      plant, autopilot and a scripted ground station as processes, one flight
+    quadsitl up       plant and autopilot on PX4 SITL's ports, for QGroundControl, MAVProxy, MAVSDK
     quadsitl presets  list the shipped presets, or show one
     quadsitl gains    check backstepping gains against the paper's conditions (41)–(44)
 
@@ -99,6 +101,35 @@ def cmd_fly(args: argparse.Namespace) -> int:
     return fly(args.preset, preset, args)
 
 
+EXAMPLES_UP = """examples:
+  quadsitl up                                   # then: mavproxy.py --master=udpin:127.0.0.1:14550
+  quadsitl up --preset x500 --controller pd
+  quadsitl up --speed 5                         # lockstep at 5× real time
+  quadsitl up --mode realtime                   # free-running plant on the wall clock
+  quadsitl up --gcs-remote 192.168.1.20:14550   # stream to a ground station on another machine
+"""
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    from autopilot.process import parse_home
+    from groundstation.launcher import up
+    from quadsitl.process_util import parse_address, parse_remote
+
+    preset = _load(args.preset)
+    if args.speed < 0 or args.speed > 1000:
+        raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
+    if not 1 <= args.system_id <= 255:
+        raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
+    for option in ("gcs_listen", "api_listen"):
+        if getattr(args, option) is not None:
+            parse_address("--" + option.replace("_", "-"), getattr(args, option))
+    for option in ("gcs_remote", "api_remote"):
+        if getattr(args, option) is not None:
+            parse_remote("--" + option.replace("_", "-"), getattr(args, option))
+    parse_home(args.home)
+    return up(args.preset, preset, args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="quadsitl",
@@ -153,6 +184,49 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     fl.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     fl.set_defaults(func=cmd_fly)
+
+    upp = sub.add_parser(
+        "up",
+        help="plant and autopilot on PX4 SITL's MAVLink ports, for QGroundControl, MAVProxy, MAVSDK",
+        epilog=EXAMPLES_UP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Start the plant and the autopilot and keep them running until Ctrl-C. Like PX4 SITL, the "
+        "autopilot streams MAVLink to 127.0.0.1:14550 (ground stations) and 127.0.0.1:14540 (offboard APIs) "
+        "and answers whoever talks to it; telemetry also goes to Zenoh.",
+    )
+    upp.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
+    upp.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+    upp.add_argument(
+        "--mode",
+        choices=("lockstep", "realtime"),
+        default="lockstep",
+        help="lockstep (default): deterministic, paced by --speed; realtime: the plant runs on the wall clock",
+    )
+    upp.add_argument(
+        "--speed", type=float, default=1.0, metavar="F", help="lockstep pace, × real time (default 1; 0 = no cap)"
+    )
+    for name, listen, remote in (("gcs", 18570, 14550), ("api", 14580, 14540)):
+        upp.add_argument(
+            f"--{name}-listen",
+            metavar="HOST:PORT",
+            help=f"the autopilot's local address for the {name} link (default: 127.0.0.1:{listen})",
+        )
+        upp.add_argument(
+            f"--{name}-remote",
+            metavar="HOST:PORT|none",
+            help=f"where the {name} link streams (default: 127.0.0.1:{remote})",
+        )
+    upp.add_argument("--system-id", type=int, default=1, help="MAVLink system id (default: 1)")
+    upp.add_argument("--home", metavar="LAT,LON,ALT", help="home position (default: PX4 SITL's, in Zürich)")
+    upp.add_argument(
+        "--zenoh-listen",
+        default="tcp/127.0.0.1:7447",
+        metavar="ENDPOINT",
+        help="where the autopilot's Zenoh session listens (default: tcp/127.0.0.1:7447)",
+    )
+    upp.add_argument("--no-zenoh", action="store_true", help="no Zenoh telemetry")
+    upp.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+    upp.set_defaults(func=cmd_up)
 
     for name, (_module, help_text) in PROCESSES.items():
         sub.add_parser(name, help=help_text, add_help=False)

@@ -1,9 +1,13 @@
-"""``quadsitl fly``: plant, autopilot and ground station as separate OS processes on free loopback ports.
+"""``quadsitl fly`` and ``quadsitl up``: the processes as separate OS processes on loopback ports.
 
-It waits for the ground station to finish the flight, then writes metrics.json and the figures from
-the Zenoh-logged telemetry.csv, exactly as ``quadsitl sim`` does. If any child fails, it exits non-zero
-naming the process. Every child is torn down on exit, Ctrl-C and SIGTERM (SIGTERM, then SIGKILL after
-3 s for a child that hangs), and each child asks the kernel to end it if the launcher itself dies.
+``fly`` starts plant, autopilot and ground station on free ports, waits for the ground station to finish
+the flight, then writes metrics.json and the figures from the Zenoh-logged telemetry.csv, exactly as
+``quadsitl sim`` does. ``up`` starts plant and autopilot only, on PX4 SITL's MAVLink ports, and runs
+until stopped, for QGroundControl, MAVProxy, MAVSDK or a script to fly.
+
+If any child fails, both exit non-zero naming the process. Every child is torn down on exit, Ctrl-C
+and SIGTERM (SIGTERM, then SIGKILL after 3 s for a child that hangs), and each child asks the kernel to
+end it if the launcher itself dies.
 """
 
 from __future__ import annotations
@@ -68,6 +72,70 @@ def describe(name: str, status: int) -> str:
     return f"the {name} process exited with status {status}"
 
 
+def on_sigterm(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def up(preset_name: str, preset: Preset, args) -> int:
+    """Plant and autopilot until Ctrl-C or SIGTERM (exit 0), or until one of them fails (exit 1)."""
+    plant_port = free_port()
+    children = Children()
+    old = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
+              "--system-id", str(args.system_id)]  # fmt: skip
+        for option in ("gcs_listen", "gcs_remote", "api_listen", "api_remote", "controller", "home"):
+            value = getattr(args, option)
+            if value is not None:
+                ap += ["--" + option.replace("_", "-"), str(value)]
+        if args.no_zenoh:
+            ap.append("--no-zenoh")
+        else:
+            ap += ["--zenoh-listen", args.zenoh_listen]
+        children.start("autopilot", ap)
+        plant = ["sitl", "--preset", preset_name, "--autopilot", f"127.0.0.1:{plant_port}", "--mode", args.mode]
+        if args.mode == "lockstep":
+            plant += ["--speed", str(args.speed)]
+        children.start("plant", plant)
+        if not args.quiet:
+            print(banner(preset, args), flush=True)
+        while True:
+            failure = children.first_failure(done="")
+            if failure:
+                print(f"quadsitl up: error: {describe(*failure)}; stopping the others", file=sys.stderr)
+                return 1
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        if not args.quiet:
+            print("quadsitl up: stopping plant and autopilot", file=sys.stderr)
+        return 0
+    finally:
+        children.stop()
+        signal.signal(signal.SIGTERM, old)
+
+
+def banner(preset: Preset, args) -> str:
+    kind = args.controller or preset.controller.type
+    pace = f"lockstep at {args.speed:g}× real time" if args.mode == "lockstep" else "real time (free-running plant)"
+    if args.mode == "lockstep" and args.speed == 0:
+        pace = "lockstep, as fast as possible"
+    lines = [f"quadsitl up: preset {preset.name}, {kind} controller, {pace}; system id {args.system_id}"]
+    for name, remote, tool in (
+        ("ground stations", args.gcs_remote or "127.0.0.1:14550", "mavproxy.py --master=udpin:{}"),
+        ("offboard APIs", args.api_remote or "127.0.0.1:14540", "MAVSDK: System().connect('udpin://{}')"),
+    ):
+        if remote.lower() == "none":
+            lines.append(f"  {name + ':':17}MAVLink only to whoever talks to the autopilot")
+        else:
+            lines.append(f"  {name + ':':17}MAVLink to udp {remote}    {tool.format(remote)}")
+    if not args.no_zenoh:
+        lines.append(
+            f"  telemetry:       Zenoh {args.zenoh_listen}, keys quadsitl/v1/{{state,setpoint,actuators,status}}"
+        )
+    lines.append("  Ctrl-C stops.")
+    return "\n".join(lines)
+
+
 def fly(preset_name: str, preset: Preset, args) -> int:
     """Run one flight; returns the exit status for the ``quadsitl fly`` command."""
     out = Path(args.out)
@@ -77,10 +145,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     quiet = ["--quiet"] if args.quiet else []
     children = Children()
 
-    def on_signal(signum: int, _frame: object) -> None:
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGTERM, on_signal)
+    old = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
               "--api-listen", f"127.0.0.1:{gcs_port}", "--api-remote", "none", "--gcs-listen",

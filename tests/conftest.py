@@ -5,6 +5,10 @@ from pathlib import Path
 
 import pytest
 
+# pymavlink's mavutil speaks MAVLink 2 with the common dialect only when told before it is imported.
+os.environ.setdefault("MAVLINK20", "1")
+os.environ.setdefault("MAVLINK_DIALECT", "common")
+
 BIN = Path(sys.executable).parent
 
 

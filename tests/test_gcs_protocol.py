@@ -111,7 +111,7 @@ def test_a_build_failure_refuses_the_set(store):
     def fail(_applied):
         raise ValueError("no")
 
-    assert "refused: no" in store.set("VM_MASS", 3.0, build=fail)
+    assert store.set("VM_MASS", 3.0, build=fail) == "VM_MASS = 3: no"
     assert store.lookup("VM_MASS")[2] == 2.0
 
 

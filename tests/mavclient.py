@@ -1,0 +1,134 @@
+"""Test helpers: start ``quadsitl up`` on free loopback ports, and a small raw pymavlink ground station."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Vehicle:
+    """A running ``quadsitl up``: the ports its two links stream to, and the process."""
+
+    proc: subprocess.Popen
+    gcs_port: int  # the ground-station link streams here (PX4: 14550)
+    api_port: int  # the offboard-API link streams here (PX4: 14540)
+    zenoh: str
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+        return self.proc.returncode
+
+
+@contextlib.contextmanager
+def quadsitl_up(*extra: str):
+    gcs, api = free_port(), free_port()
+    zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    argv = [sys.executable, "-m", "groundstation.cli", "up", "--quiet", "--gcs-listen", f"127.0.0.1:{free_port()}",
+            "--gcs-remote", f"127.0.0.1:{gcs}", "--api-listen", f"127.0.0.1:{free_port()}",
+            "--api-remote", f"127.0.0.1:{api}", "--zenoh-listen", zenoh, *extra]  # fmt: skip
+    proc = subprocess.Popen(argv, start_new_session=True)
+    v = Vehicle(proc, gcs, api, zenoh)
+    try:
+        yield v
+    finally:
+        v.stop()
+
+
+class Client:
+    """A raw pymavlink ground station listening where the vehicle streams (like QGroundControl on 14550)."""
+
+    def __init__(self, port: int) -> None:
+        self.conn = mavutil.mavlink_connection(
+            f"udpin:127.0.0.1:{port}", source_system=255, source_component=190, dialect="common"
+        )
+        self.latest: dict[str, object] = {}
+        self.texts: list[str] = []
+        self._chunks: dict[int, list[str]] = {}
+        self.acks: list[object] = []
+
+    def close(self) -> None:
+        self.conn.close()
+
+    def _note(self, m) -> None:
+        t = m.get_type()
+        self.latest[t] = m
+        if t == "STATUSTEXT":
+            if m.id == 0:
+                self.texts.append(m.text)
+            else:
+                parts = self._chunks.setdefault(m.id, [])
+                parts.append(m.text)
+                if len(m.text) < 50:
+                    self.texts.append("".join(self._chunks.pop(m.id)))
+        elif t == "COMMAND_ACK":
+            self.acks.append(m)
+
+    def pump(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            m = self.conn.recv_match(blocking=True, timeout=0.05)
+            if m is not None:
+                self._note(m)
+
+    def wait(self, msg_type: str, cond=lambda m: True, timeout: float = 10.0):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self.conn.recv_match(blocking=True, timeout=0.1)
+            if m is None:
+                continue
+            self._note(m)
+            if m.get_type() == msg_type and cond(m):
+                return m
+        raise AssertionError(f"no {msg_type} matching the condition within {timeout} s; latest: {self.latest}")
+
+    def heartbeat(self, timeout: float = 15.0):
+        return self.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1, timeout)
+
+    def command(self, cmd: int, *params: float, timeout: float = 5.0):
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        self.conn.mav.command_long_send(1, 1, cmd, 0, *p)
+        return self.wait("COMMAND_ACK", lambda m: m.command == cmd, timeout)
+
+    def text_containing(self, needle: str, timeout: float = 3.0) -> str:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for t in self.texts:
+                if needle in t:
+                    return t
+            self.pump(0.05)
+        raise AssertionError(f"no STATUSTEXT containing {needle!r}; got {self.texts}")
+
+    def param_set(self, name: str, value: float):
+        self.conn.mav.param_set_send(1, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
+        return self.wait("PARAM_VALUE", lambda m: m.param_id == name)
+
+    def setpoint(self, altitude: float, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0) -> None:
+        from quadsitl.frames import euler_to_quaternion
+
+        q = euler_to_quaternion(roll, pitch, yaw)
+        self.conn.mav.set_attitude_target_send(0, 1, 1, 7, q, 0.0, 0.0, 0.0, 0.5)
+        mask = 0b110111111011  # z only
+        self.conn.mav.set_position_target_local_ned_send(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask, 0, 0, -altitude,
+                                                        0, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip

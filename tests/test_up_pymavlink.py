@@ -1,0 +1,165 @@
+"""``quadsitl up`` driven by a raw pymavlink client, the way a script or a ground station does it:
+parameters, commands, message intervals, offboard flight and landing. Nothing of the project's own
+ground-station code is used on the client side."""
+
+import math
+import time
+
+import pytest
+
+from tests.mavclient import Client, M, quadsitl_up
+
+
+@pytest.fixture
+def client():
+    with quadsitl_up() as v:
+        c = Client(v.gcs_port)
+        try:
+            yield c
+        finally:
+            c.close()
+
+
+def fly_setpoints(c: Client, seconds: float, **ref) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        c.setpoint(**ref)
+        c.pump(0.05)
+
+
+def test_parameters_list_read_set_and_refuse(client):
+    c = client
+    hb = c.heartbeat()
+    assert hb.autopilot == M.MAV_AUTOPILOT_PX4 and hb.type == M.MAV_TYPE_QUADROTOR
+    assert c.conn.flightmode == "LOITER"  # pymavlink decodes PX4's auto/loiter custom mode
+
+    c.conn.mav.param_request_list_send(1, 1)
+    params = {}
+    end = time.monotonic() + 10
+    while time.monotonic() < end:
+        m = c.conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.5)
+        if m is not None:
+            params[m.param_index] = m
+            if len(params) == m.param_count:
+                break
+    count = {m.param_count for m in params.values()}
+    assert len(count) == 1 and len(params) == count.pop() >= 30
+    names = {m.param_id: m for m in params.values()}
+    assert len(names) == len(params)
+    assert {f"BS_K{i}" for i in range(1, 9)} <= set(names)
+    assert names["BS_K1"].param_value == 10.0 and names["VM_MASS"].param_value == 2.0
+    assert names["VM_IXX"].param_value == 1.25 and names["COM_OF_LOSS_T"].param_value == 1.0
+
+    # read by name (index −1) and by index
+    c.conn.mav.param_request_read_send(1, 1, b"VM_IZZ", -1)
+    m = c.wait("PARAM_VALUE", lambda m: m.param_id == "VM_IZZ")
+    assert m.param_value == pytest.approx(2.2) and m.param_index == names["VM_IZZ"].param_index
+    c.conn.mav.param_request_read_send(1, 1, b"", names["BS_K5"].param_index)
+    assert c.wait("PARAM_VALUE", lambda m: m.param_index == names["BS_K5"].param_index).param_id == "BS_K5"
+
+    # accepted: echoed with the new value, and read back
+    assert c.param_set("BS_K1", 8.0).param_value == 8.0
+    c.conn.mav.param_request_read_send(1, 1, b"BS_K1", -1)
+    assert c.wait("PARAM_VALUE", lambda m: m.param_id == "BS_K1").param_value == 8.0
+
+    # out of range: the echo carries the unchanged value, and a STATUSTEXT says why
+    echo = c.param_set("VM_MASS", -1.0)
+    assert echo.param_value == 2.0 and echo.param_index == names["VM_MASS"].param_index
+    assert "expected a number in (0, 10000] kg" in c.text_containing("VM_MASS = -1")
+
+    # gains that break (41)–(44): refused, naming the condition
+    assert c.param_set("BS_K2", 2000.0).param_value == 10.0
+    assert "(41)" in c.text_containing("BS_K2 = 2000")
+
+    # the count and the indices never change
+    c.conn.mav.param_request_read_send(1, 1, b"BS_K2", -1)
+    m = c.wait("PARAM_VALUE", lambda m: m.param_id == "BS_K2")
+    assert m.param_count == len(params) and m.param_index == names["BS_K2"].param_index
+
+
+def test_commands_versions_and_message_intervals(client):
+    c = client
+    c.heartbeat()
+    assert c.command(M.MAV_CMD_NAV_TAKEOFF).result == M.MAV_RESULT_UNSUPPORTED
+    ack = c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    assert ack.result == M.MAV_RESULT_ACCEPTED
+    ver = c.wait("AUTOPILOT_VERSION")
+    assert ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    assert c.command(M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1).result == M.MAV_RESULT_ACCEPTED
+    c.wait("AUTOPILOT_VERSION")
+    assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_HOME_POSITION).result == M.MAV_RESULT_ACCEPTED
+    home = c.wait("HOME_POSITION")
+    assert (home.latitude, home.longitude, home.altitude) == (473977420, 85455940, 488000)
+
+    # ATTITUDE at 10 Hz instead of 50 Hz; then off; then the default again
+    att = M.MAVLINK_MSG_ID_ATTITUDE
+    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, att, 100_000).result == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_GET_MESSAGE_INTERVAL, att).result == M.MAV_RESULT_ACCEPTED
+    assert c.wait("MESSAGE_INTERVAL", lambda m: m.message_id == att).interval_us == 100_000
+
+    def rate(msg_type: str, seconds: float = 2.0) -> float:
+        c.pump(0.3)
+        n, end = 0, time.monotonic() + seconds
+        while time.monotonic() < end:
+            m = c.conn.recv_match(blocking=True, timeout=0.05)
+            n += m is not None and m.get_type() == msg_type
+        return n / seconds
+
+    assert 5 <= rate("ATTITUDE") <= 15 and 25 <= rate("ATTITUDE_QUATERNION") <= 75
+    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, att, -1).result == M.MAV_RESULT_ACCEPTED
+    assert rate("ATTITUDE", 1.0) == 0
+    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, att, 0).result == M.MAV_RESULT_ACCEPTED
+    assert rate("ATTITUDE") >= 25
+    ack = c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ODOMETRY, 1000)
+    assert ack.result == M.MAV_RESULT_DENIED
+    # a command addressed to another system is not ours to answer
+    c.conn.mav.command_long_send(7, 1, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, 0)
+    c.pump(0.5)
+    assert not [a for a in c.acks if a.command == M.MAV_CMD_NAV_TAKEOFF][1:]
+
+
+def test_offboard_flight_with_telemetry_mass_mismatch_and_landing(client):
+    c = client
+    c.heartbeat()
+    # Pre-arm check: offboard needs a setpoint stream, both to switch to it and to arm in it.
+    ack = c.command(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0)
+    assert ack.result == M.MAV_RESULT_DENIED
+    c.text_containing("Offboard denied: no setpoint stream")
+    fly_setpoints(c, 0.3, altitude=3.0)
+    assert c.command(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0).result == M.MAV_RESULT_ACCEPTED
+    c.pump(1.6)  # the stream goes stale while disarmed in offboard
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_DENIED
+    c.text_containing("Arming denied: no offboard setpoint stream")
+
+    ref = dict(altitude=3.0, roll=0.1, pitch=-0.1, yaw=0.5)
+    fly_setpoints(c, 0.3, **ref)
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    fly_setpoints(c, 3.0, **ref)
+    hb = c.heartbeat()
+    assert hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and c.conn.flightmode == "OFFBOARD"
+    att, pos = c.latest["ATTITUDE"], c.latest["LOCAL_POSITION_NED"]
+    assert (att.roll, att.pitch, att.yaw) == pytest.approx((0.1, -0.1, 0.5), abs=2e-3)
+    assert pos.z == pytest.approx(-3.0, abs=2e-3)
+    assert c.latest["GLOBAL_POSITION_INT"].relative_alt == pytest.approx(3000, abs=5)
+    assert c.latest["EXTENDED_SYS_STATE"].landed_state == M.MAV_LANDED_STATE_IN_AIR
+    q = c.latest["ATTITUDE_QUATERNION"]
+    assert math.hypot(q.q1, q.q2, q.q3, q.q4) == pytest.approx(1.0, abs=1e-6)
+    assert c.latest["POSITION_TARGET_LOCAL_NED"].z == pytest.approx(-3.0)
+    servo = c.latest["SERVO_OUTPUT_RAW"]
+    assert all(1000 <= getattr(servo, f"servo{i}_raw") <= 2000 for i in range(1, 5))
+
+    # The autopilot's model is a parameter: a 20 % heavier model mass makes the backstepping (no
+    # integral action) hover above the reference by e1 = (m − m̂)·g / (m̂·k1·k2) = 0.4·9.8/(2.4·100) m.
+    assert c.param_set("VM_MASS", 2.4).param_value == pytest.approx(2.4)
+    fly_setpoints(c, 2.0, **ref)
+    assert -c.latest["LOCAL_POSITION_NED"].z - 3.0 == pytest.approx(0.4 * 9.8 / (2.4 * 100), abs=2e-3)
+
+    # Disarming in the air is refused unless forced; LAND descends and disarms on touchdown.
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0).result == M.MAV_RESULT_DENIED
+    assert c.command(M.MAV_CMD_NAV_LAND).result == M.MAV_RESULT_ACCEPTED
+    hb = c.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1 and not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED,
+                timeout=10)  # fmt: skip
+    assert c.conn.flightmode == "LAND"
+    c.wait("EXTENDED_SYS_STATE", lambda m: m.landed_state == M.MAV_LANDED_STATE_ON_GROUND)
+    assert c.latest["LOCAL_POSITION_NED"].z > -0.05
+    c.text_containing("Landed, disarmed")
