@@ -9,6 +9,7 @@ outputs as PWM 1000–2000 µs.
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 
 from autopilot.commander import Commander
@@ -150,10 +151,14 @@ SENSORS = (
 )
 
 
+# Health bits say 1 = healthy; a geofence we do not have is not in breach (MAVProxy says "fence breach" otherwise).
+HEALTH = SENSORS | mavlink.MAV_SYS_STATUS_GEOFENCE
+
+
 def sys_status(load: float = 0.0, errors_comm: int = 0) -> mavlink.MAVLink_sys_status_message:
     """``load`` is the fraction of the control period the tick used; no battery is simulated."""
     return mavlink.MAVLink_sys_status_message(
-        SENSORS, SENSORS, SENSORS, _clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0,
+        SENSORS, SENSORS, HEALTH, _clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0,
         min(errors_comm, 65535), 0, 0, 0, 0, 0, 0, 0,
     )  # fmt: skip
 
@@ -186,6 +191,20 @@ def autopilot_version(system_id: int) -> mavlink.MAVLink_autopilot_version_messa
     return mavlink.MAVLink_autopilot_version_message(
         CAPABILITIES, v, v, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5155414453000000 | system_id, [0] * 18
     )
+
+
+FTP_NAK = 129  # MAVLink FTP opcode
+FTP_ERR_UNKNOWN_COMMAND = 7
+_FTP_HEADER = struct.Struct("<HBBBBBBI")  # seq, session, opcode, size, req_opcode, burst_complete, padding, offset
+
+
+def ftp_refusal(request: bytes | list[int]) -> bytes:
+    """The FILE_TRANSFER_PROTOCOL payload that answers any MAVLink FTP request with NAK "unknown
+    command": we have no file system. Ground stations that try FTP first (MAVProxy's parameter
+    download, QGroundControl's component metadata) then fall back at once instead of timing out."""
+    seq, session, opcode, *_ = _FTP_HEADER.unpack_from(bytes(request[: _FTP_HEADER.size]))
+    head = _FTP_HEADER.pack((seq + 1) & 0xFFFF, session, FTP_NAK, 1, opcode, 0, 0, 0)
+    return (head + bytes([FTP_ERR_UNKNOWN_COMMAND])).ljust(251, b"\0")
 
 
 _ASCII = str.maketrans(

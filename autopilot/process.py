@@ -95,6 +95,7 @@ class Autopilot:
         self.errors_comm = 0  # undecodable ground-station datagrams
         self.load = 0.0  # fraction of the period the last tick took
         self.chunk_id = 0
+        self.said: dict[str, float] = {}  # topic → wall time of the last such warning
         act = preset.actuators
         self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
         self.d_over_b = preset.vehicle.d_over_b
@@ -192,6 +193,13 @@ class Autopilot:
         for msg in gcs_messages.statustext(severity, text, self.chunk_id):
             self._send_gcs(msg)
 
+    def _say_once(self, topic: str, text: str, every: float = 5.0) -> None:
+        """A warning about a repeated input (a stream of unsupported setpoints): at most once per ``every`` s."""
+        now = time.monotonic()
+        if now - self.said.get(topic, -math.inf) >= every:
+            self.said[topic] = now
+            self._say(mavlink.MAV_SEVERITY_WARNING, text)
+
     def _announce_commander(self) -> None:
         if self.commander.messages:
             for severity, text in self.commander.messages:
@@ -215,6 +223,9 @@ class Autopilot:
             self._attitude_target(m)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
             if m.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
+                self._say_once(
+                    "frame", f"Position setpoint ignored: frame {m.coordinate_frame}; use MAV_FRAME_LOCAL_NED (1)"
+                )
                 return
             z_ignored = bool(m.type_mask & 4)  # z is down: altitude = −z
             if z_ignored or math.isfinite(m.z):
@@ -228,6 +239,10 @@ class Autopilot:
                 self._send_param(*found)
         elif mid == mavlink.MAVLINK_MSG_ID_PARAM_SET:
             self._param_set(m)
+        elif mid == mavlink.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL and len(m.payload) >= 12:
+            refusal = gcs_messages.ftp_refusal(m.payload)
+            self._send_gcs(mavlink.MAVLink_file_transfer_protocol_message(0, m.get_srcSystem(), m.get_srcComponent(),
+                                                                          list(refusal)))  # fmt: skip
         self._announce_commander()
 
     def _for_me(self, system: int, component: int) -> bool:
@@ -238,6 +253,7 @@ class Autopilot:
         attitude we can fly (no body-rate control here), so it is not a setpoint. The thrust field is
         always ignored: in offboard an altitude reference always exists and the altitude loop makes u1."""
         if m.type_mask & 128:
+            self._say_once("rates", "Attitude setpoint ignored: body-rate setpoints (type_mask 128) not supported")
             return
         q = m.q
         n2 = sum(x * x for x in q)

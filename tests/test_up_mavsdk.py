@@ -1,0 +1,88 @@
+"""MAVSDK-Python (from PyPI, as its users install it) against ``quadsitl up`` on the offboard-API link:
+connect, see a PX4 vehicle, read and set parameters, arm, fly offboard attitude (and altitude) setpoints,
+hold, land."""
+
+import asyncio
+
+import pytest
+from mavsdk.asyncio import Autopilot, ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.offboard import Attitude, OffboardAsync, PositionNedYaw
+from mavsdk.asyncio.plugins.param import ParamAsync, ParamError
+from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
+
+from tests.mavclient import quadsitl_up
+
+
+async def first(stream):
+    async for item in stream:
+        return item
+
+
+async def until(stream, cond, timeout: float):
+    async def scan():
+        async for item in stream:
+            if cond(item):
+                return item
+
+    return await asyncio.wait_for(scan(), timeout)
+
+
+async def session(port: int) -> dict:
+    seen: dict = {}
+    config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+    async with Mavsdk(config) as m:
+        await m.add_any_connection(f"udpin://127.0.0.1:{port}")
+        system = await m.first_autopilot(timeout_s=20.0)
+        assert system is not None, "MAVSDK saw no autopilot"
+        seen["autopilot"] = await system.autopilot_type()
+        param, tel = ParamAsync(system), TelemetryAsync(system)
+        action, off = ActionAsync(system), OffboardAsync(system)
+
+        seen["BS_K1"] = await param.get_param_float("BS_K1")
+        await param.set_param_float("BS_K8", 12.0)
+        seen["BS_K8"] = await param.get_param_float("BS_K8")
+        try:
+            await param.set_param_float("VM_MASS", -1.0)
+            seen["refused"] = None
+        except ParamError as exc:
+            seen["refused"] = exc
+        seen["VM_MASS"] = await param.get_param_float("VM_MASS")
+        seen["mode_before"] = await first(tel.subscribe_flight_mode())
+        home = await first(tel.subscribe_home())
+        seen["home"] = (home.latitude_deg, home.longitude_deg, home.absolute_altitude_m)
+
+        await action.arm()
+        seen["armed"] = await until(tel.subscribe_armed(), bool, 5)
+        await off.set_position_ned(PositionNedYaw(0.0, 0.0, -2.0, 0.0))  # climb to 2 m first
+        await off.start()
+        await until(tel.subscribe_position_velocity_ned(), lambda p: abs(p.position.down_m + 2.0) < 0.01, 10)
+        await off.set_attitude(Attitude(5.0, -5.0, 30.0, 0.5))  # degrees; thrust ignored: the altitude loop holds 2 m
+        seen["mode"] = await until(tel.subscribe_flight_mode(), lambda m: m == FlightMode.OFFBOARD, 5)
+        seen["attitude"] = await until(
+            tel.subscribe_attitude_euler(),
+            lambda a: abs(a.roll_deg - 5) < 0.05 and abs(a.pitch_deg + 5) < 0.05 and abs(a.yaw_deg - 30) < 0.05,
+            10,
+        )
+        seen["down"] = (await first(tel.subscribe_position_velocity_ned())).position.down_m
+        seen["relative_alt"] = (await first(tel.subscribe_position())).relative_altitude_m
+        seen["in_air"] = await first(tel.subscribe_landed_state())
+        await off.stop()
+        seen["hold"] = await until(tel.subscribe_flight_mode(), lambda m: m == FlightMode.HOLD, 5)
+        await action.land()
+        seen["disarmed"] = await until(tel.subscribe_armed(), lambda a: not a, 15)
+        seen["landed"] = await until(tel.subscribe_landed_state(), lambda s: s == LandedState.ON_GROUND, 5)
+    return seen
+
+
+def test_mavsdk_connects_sets_parameters_arms_flies_offboard_attitude_and_lands():
+    with quadsitl_up() as v:
+        seen = asyncio.run(asyncio.wait_for(session(v.api_port), 120))
+        assert v.proc.poll() is None
+    assert seen["autopilot"] == Autopilot.PX4
+    assert seen["BS_K1"] == 10.0 and seen["BS_K8"] == 12.0
+    assert seen["refused"] is not None and seen["VM_MASS"] == 2.0  # the echo kept 2.0, so MAVSDK reports failure
+    assert seen["mode_before"] == FlightMode.HOLD and seen["home"] == pytest.approx((47.397742, 8.545594, 488.0))
+    assert seen["armed"] and seen["mode"] == FlightMode.OFFBOARD and seen["in_air"] == LandedState.IN_AIR
+    assert seen["down"] == pytest.approx(-2.0, abs=0.01) and seen["relative_alt"] == pytest.approx(2.0, abs=0.01)
+    assert seen["hold"] == FlightMode.HOLD and seen["disarmed"] is False and seen["landed"] == LandedState.ON_GROUND
