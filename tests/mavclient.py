@@ -14,11 +14,7 @@ from dataclasses import dataclass
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
 
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from groundstation.launcher import free_port
 
 
 @dataclass
