@@ -122,7 +122,7 @@ def banner(preset: Preset, args) -> str:
     lines = [f"quadsitl up: preset {preset.name}, {kind} controller, {pace}; system id {args.system_id}"]
     for name, remote, tool in (
         ("ground stations", args.gcs_remote or "127.0.0.1:14550", "mavproxy.py --master=udpin:{}"),
-        ("offboard APIs", args.api_remote or "127.0.0.1:14540", "MAVSDK: System().connect('udpin://{}')"),
+        ("offboard APIs", args.api_remote or "127.0.0.1:14540", "MAVSDK: add_any_connection('udpin://{}')"),
     ):
         if remote.lower() == "none":
             lines.append(f"  {name + ':':17}MAVLink only to whoever talks to the autopilot")
