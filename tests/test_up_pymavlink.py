@@ -163,3 +163,18 @@ def test_offboard_flight_with_telemetry_mass_mismatch_and_landing(client):
     c.wait("EXTENDED_SYS_STATE", lambda m: m.landed_state == M.MAV_LANDED_STATE_ON_GROUND)
     assert c.latest["LOCAL_POSITION_NED"].z > -0.05
     c.text_containing("Landed, disarmed")
+
+
+def test_a_busy_port_names_the_port_and_the_option(cli):
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
+        busy.bind(("127.0.0.1", 0))
+        port = busy.getsockname()[1]
+        r = cli("up", "-q", "--gcs-listen", f"127.0.0.1:{port}", "--api-listen", "127.0.0.1:0", "--no-zenoh",
+                timeout=60)  # fmt: skip
+    assert r.returncode == 1
+    assert f"--gcs-listen 127.0.0.1:{port}: cannot bind: Address already in use; choose another with --gcs-listen" in (
+        r.stderr
+    )
+    assert "the autopilot process exited with status 2" in r.stderr and "Traceback" not in r.stderr
