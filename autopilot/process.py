@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import select
 import socket
 import sys
 import time
@@ -38,22 +37,36 @@ from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
 from quadsitl.mixer import allocate
-from quadsitl.process_util import bind_udp, die_with_parent, exit_on_signals, parse_remote
+from quadsitl.process_util import bind_udp, die_with_parent, exit_on_signals, parse_remote, set_receive_timeout
 from quadsitl.state import Reference, VehicleState
 
 mavlink = wire.mavlink
 ZERO4 = (0.0, 0.0, 0.0, 0.0)
 PEER_TIMEOUT = 30.0  # [s] wall: stop streaming to a peer that has been silent this long
 FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
+GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
 
 
-class GcsLink:
-    """One ground-station socket: a bound local address, an optional fixed remote, and learned peers."""
+def as_int(value: float) -> int:
+    """A command parameter as an integer; −1 for NaN, infinities and values beyond 32 bits (never raises)."""
+    return int(value) if math.isfinite(value) and abs(value) < 2**31 else -1
 
-    def __init__(self, name: str, sock: socket.socket, remote: tuple[str, int] | None) -> None:
-        self.name, self.sock, self.remote = name, sock, remote
+
+class GcsLink:
+    """One ground-station socket: a bound local address, an optional fixed remote, learned peers, and
+    its own message intervals (SET_MESSAGE_INTERVAL applies to the link it arrives on, as in PX4)."""
+
+    def __init__(self, name: str, sock: socket.socket, remote: tuple[str, int] | None, streams: MessageStreams):
+        self.name, self.sock, self.remote, self.streams = name, sock, remote, streams
         self.peers: dict[tuple[str, int], float] = {}  # address → wall time last heard
+
+    def send(self, buf: bytes) -> None:
+        for peer in self.destinations():
+            try:
+                self.sock.sendto(buf, peer)
+            except OSError:
+                self.peers.pop(peer, None)
 
     def destinations(self) -> list[tuple[str, int]]:
         out = list(self.peers)
@@ -76,16 +89,18 @@ class Autopilot:
         self.params = ParamStore(preset, kind, settings)
         self.controller = make_controller(preset, kind)
         self.commander = Commander(settings)
-        self.streams = MessageStreams(self.period, args.telemetry_rate)
         self.home = Home(*args.home) if args.home else Home()
         self.sysid = args.system_id
         self.compid = wire.AUTOPILOT_COMPONENT_ID
         self.mav = wire.link(self.sysid, self.compid)
+        self.fast = wire.FastLink(self.sysid, self.compid)  # the per-tick plant link
         self.plant_sock = bind_udp("--plant-listen", args.plant_listen)
         self.links: list[GcsLink] = []
         for name in ("gcs", "api"):
             remote = parse_remote(f"--{name}-remote", getattr(args, f"{name}_remote"))
-            self.links.append(GcsLink(name, bind_udp(f"--{name}-listen", getattr(args, f"{name}_listen")), remote))
+            sock = bind_udp(f"--{name}-listen", getattr(args, f"{name}_listen"))
+            self.links.append(GcsLink(name, sock, remote, MessageStreams(self.period, args.telemetry_rate)))
+        self.streams = self.links[0].streams  # for what every link's streams share: which ids are streamed
         self.was_armed = False
         self.u = ZERO4
         self.forces = ZERO4
@@ -93,6 +108,7 @@ class Autopilot:
         self.last_state_usec = -1
         self.latest: tuple[int, object, VehicleState, Reference] | None = None  # tick, ODOMETRY, state, ref
         self.errors_comm = 0  # undecodable ground-station datagrams
+        self.errors_plant = 0  # undecodable or corrupt plant datagrams
         self.load = 0.0  # fraction of the period the last tick took
         self.chunk_id = 0
         self.said: dict[str, float] = {}  # topic → wall time of the last such warning
@@ -138,17 +154,22 @@ class Autopilot:
         self.latest = (tick, m, state, shown)
         if self.pubs:
             self._publish(tick, now, m, state, shown)
-        due = self.streams.due(tick)
-        if due:
-            snap = self._snapshot()
-            for mid in due:
-                self._send_gcs(gcs_messages.build(mid, snap, self.commander, self.home))
+        snap, built = None, {}
+        for link in self.links:
+            if link.remote is None and not link.peers:
+                continue
+            for mid in link.streams.due(tick):
+                if mid not in built:
+                    snap = snap or self._snapshot()
+                    built[mid] = gcs_messages.build(mid, snap, self.commander, self.home).pack(self.mav)
+                link.send(built[mid])
         self._announce_commander()
         self.load = (time.perf_counter() - started) / self.period
 
     def _answer(self, time_usec: int, sender: tuple[str, int]) -> None:
-        msg = wire.actuator_message(time_usec, self.forces, self.f_max, self.commander.armed)
-        self.plant_sock.sendto(msg.pack(self.mav), sender)
+        self.plant_sock.sendto(
+            self.fast.pack_actuators(time_usec, self.forces, self.f_max, self.commander.armed), sender
+        )
 
     def _publish(self, tick, now, m, state, ref) -> None:
         s = telemetry.STREAMS
@@ -182,11 +203,7 @@ class Autopilot:
     def _send_gcs(self, msg) -> None:
         buf = msg.pack(self.mav)
         for link in self.links:
-            for peer in link.destinations():
-                try:
-                    link.sock.sendto(buf, peer)
-                except OSError:
-                    link.peers.pop(peer, None)
+            link.send(buf)
 
     def _say(self, severity: int, text: str) -> None:
         self.chunk_id = self.chunk_id % 65535 + 1
@@ -218,7 +235,7 @@ class Autopilot:
             return
         mid = m.get_msgId()
         if mid in (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT):
-            self._command(m)
+            self._command(m, link)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
             self._attitude_target(m)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
@@ -296,7 +313,7 @@ class Autopilot:
 
     # ---- commands ------------------------------------------------------------------------------
 
-    def _command(self, m) -> None:
+    def _command(self, m, link: GcsLink) -> None:
         c = self.commander
         accepted, denied = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED
         result, reason, reply = accepted, "", None
@@ -309,7 +326,7 @@ class Autopilot:
                 in_air = self.latest is not None and gcs_messages.landed_state(c, self.latest[2]) == (
                     mavlink.MAV_LANDED_STATE_IN_AIR
                 )
-                if in_air and round(m.param2) != FORCE_DISARM:
+                if in_air and as_int(m.param2) != FORCE_DISARM:
                     result, reason = denied, f"Disarming denied: in the air (force with param2 = {FORCE_DISARM})"
                 else:
                     c.disarm()
@@ -317,8 +334,8 @@ class Autopilot:
                 result, reason = denied, f"Arm/disarm: param1 {m.param1:g} is neither 0 nor 1"
         elif cmd == mavlink.MAV_CMD_DO_SET_MODE:
             mode = None
-            if int(m.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-                mode = wire.Mode.from_px4((int(m.param2) << 16) | (int(m.param3) << 24))
+            if as_int(m.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+                mode = wire.Mode.from_px4(((as_int(m.param2) & 0xFF) << 16) | ((as_int(m.param3) & 0xFF) << 24))
             if mode is None:
                 result = mavlink.MAV_RESULT_UNSUPPORTED
                 reason = f"Mode main {m.param2:g} sub {m.param3:g}: supported are offboard (6), hold (4/3), land (4/6)"
@@ -335,11 +352,12 @@ class Autopilot:
         elif cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
             result, reason, reply = self._requested(m.param1)
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            reason = self.streams.set_interval(int(m.param1), m.param2) if math.isfinite(m.param2) else "NaN"
+            reason = link.streams.set_interval(as_int(m.param1), m.param2) if math.isfinite(m.param2) else "NaN"
             result = denied if reason else accepted
         elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
-            if self.streams.supported(int(m.param1)):
-                reply = mavlink.MAVLink_message_interval_message(int(m.param1), self.streams.interval_us(int(m.param1)))
+            mid = as_int(m.param1)
+            if link.streams.supported(mid):
+                reply = mavlink.MAVLink_message_interval_message(mid, link.streams.interval_us(mid))
             else:
                 result, reason = denied, f"Message interval: message id {m.param1:g} is not streamed"
         else:
@@ -352,7 +370,7 @@ class Autopilot:
 
     def _requested(self, msg_id: float) -> tuple[int, str, object]:
         """MAV_CMD_REQUEST_MESSAGE: (result, reason, the message to send)."""
-        mid = int(msg_id) if math.isfinite(msg_id) else -1
+        mid = as_int(msg_id)
         if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.autopilot_version(self.sysid)
         if mid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
@@ -369,32 +387,65 @@ class Autopilot:
     # ---- the loop ------------------------------------------------------------------------------
 
     def run(self) -> None:
-        by_sock = {link.sock: link for link in self.links}
-        socks = [self.plant_sock, *by_sock]
-        odometry = mavlink.MAVLINK_MSG_ID_ODOMETRY
+        """The plant socket drives the loop (a blocking receive, so a tick waits on nothing else); the
+        ground-station sockets and the heartbeat are serviced every ``GCS_POLL`` seconds of wall time, and
+        whenever the plant is quiet."""
+        set_receive_timeout(self.plant_sock, 0.02)
+        for link in self.links:
+            link.sock.setblocking(False)
+        next_poll = 0.0
         while True:
-            ready, _, _ = select.select(socks, [], [], 0.1)
-            for sock in ready:
-                data, sender = sock.recvfrom(65535)
+            try:
+                data, sender = self.plant_sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                data = None
+            if data is not None:
+                self.on_plant_datagram(data, sender)
+            wall = time.monotonic()
+            if wall >= next_poll:
+                next_poll = wall + GCS_POLL
+                self.poll_gcs()
+                if wall - self.last_heartbeat >= 1.0:
+                    self.last_heartbeat = wall
+                    self.heartbeat()
+                    for link in self.links:
+                        link.forget_silent(wall)
+
+    def on_plant_datagram(self, data: bytes, sender: tuple[str, int]) -> None:
+        try:
+            m = wire.parse_state(data)  # the per-tick fast path
+        except wire.FrameError:
+            self.errors_plant += 1
+            return
+        if m is not None:
+            self.on_state(m, sender)
+            return
+        try:
+            msgs = self.mav.parse_buffer(data) or []
+        except mavlink.MAVError:
+            self.errors_plant += 1
+            return
+        for msg in msgs:
+            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ODOMETRY:
+                self.on_state(msg, sender)
+
+    def poll_gcs(self) -> None:
+        """Everything waiting on the ground-station sockets."""
+        for link in self.links:
+            while True:
+                try:
+                    data, sender = link.sock.recvfrom(65535)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:
+                    break  # e.g. an ICMP error reported on the socket: nothing to read
                 try:
                     msgs = self.mav.parse_buffer(data) or []
                 except mavlink.MAVError:
-                    if sock is not self.plant_sock:
-                        self.errors_comm += 1
+                    self.errors_comm += 1
                     continue
-                if sock is self.plant_sock:
-                    for m in msgs:
-                        if m.get_msgId() == odometry:
-                            self.on_state(m, sender)
-                else:
-                    for m in msgs:
-                        self.on_gcs(m, by_sock[sock], sender)
-            wall = time.monotonic()
-            if wall - self.last_heartbeat >= 1.0:
-                self.last_heartbeat = wall
-                self.heartbeat()
-                for link in self.links:
-                    link.forget_silent(wall)
+                for m in msgs:
+                    self.on_gcs(m, link, sender)
 
     def close(self) -> None:
         for pub in self.pubs.values():

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import socket
 import struct
 import sys
@@ -38,6 +39,17 @@ from quadsitl.state import Reference
 mavlink = wire.mavlink
 MASK_IGNORE_RATES = 1 | 2 | 4  # SET_ATTITUDE_TARGET: attitude and thrust fields used
 MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
+
+
+UNNEEDED_STREAMS = (
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED,
+    mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
+    mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS,
+)
 
 
 class GcsError(Exception):
@@ -67,6 +79,7 @@ class GroundStation:
         self.heard = False
         self.sim_ms = 0
         self.acks: dict[int, int] = {}
+        self.flight_rate: tuple[float, float] | None = None
 
     # ---- MAVLink ---------------------------------------------------------------------------------
 
@@ -146,6 +159,10 @@ class GroundStation:
                 setpoints_sent += 1
             if phase == "connect" and self.heard:
                 phase = "prearm"
+                # This ground station logs telemetry from Zenoh and paces itself by ATTITUDE: the other
+                # MAVLink streams on its link would only cost both ends CPU at 10,000 ticks/s.
+                for msg_id in UNNEEDED_STREAMS:
+                    self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
             elif phase == "prearm" and setpoints_sent >= 5 and self.logger.last_status is not None:
                 # Arm only once the Zenoh telemetry reaches the logger: never fly what cannot be recorded.
                 phase, last_cmd = "arming", 0.0
@@ -169,6 +186,7 @@ class GroundStation:
                     last_cmd = now
             elif phase == "flying" and flight_t >= self.duration:
                 phase, last_cmd = "landing", 0.0
+                self.flight_rate = (flight_t, now - flight_wall_start)  # simulated s flown, wall s
             elif phase == "landing":
                 if not self.armed and self.acks.get(mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED:
                     phase = "done"
@@ -185,12 +203,18 @@ class GroundStation:
     def finish(self, wall: float) -> int:
         n = round(self.duration / self.period)
         t_end = time.monotonic() + 2.0
-        while time.monotonic() < t_end and any(k not in self.logger.rows for k in range(n)):
+        while time.monotonic() < t_end and not set(range(n)) <= self.logger.complete():
             time.sleep(0.01)
             self.logger.drain()
-        missing = [k for k in range(n) if k not in self.logger.rows]
-        rows = np.array([self.logger.rows[k] for k in range(n) if k in self.logger.rows])
+        logged = self.logger.rows()
+        missing = [k for k in range(n) if k not in logged]
+        rows = np.array([logged[k] for k in range(n) if k in logged])
         write_csv(self.out / "telemetry.csv", rows)
+        if self.flight_rate is not None:
+            sim, wall_flown = self.flight_rate
+            rate = {"simulated_s": sim, "wall_s": wall_flown, "ticks_per_s": sim / self.period / max(wall_flown, 1e-9),
+                    "real_time_factor": sim / max(wall_flown, 1e-9)}  # fmt: skip
+            (self.out / "rate.json").write_text(json.dumps(rate, indent=2) + "\n")
         if not self.args.quiet:
             print(f"gcs: landed and disarmed; {len(rows)} telemetry rows for {n} ticks, "
                   f"{len(missing)} missing; wall time {wall:.1f} s", file=sys.stderr)  # fmt: skip

@@ -1,78 +1,89 @@
 """A Zenoh subscriber that logs a vehicle's telemetry into telemetry.csv rows.
 
 It joins the four streams by tick and keeps the ticks flown in offboard (``offboard_tick`` ≥ 0), with
-t = (tick − offboard_tick)·T so that t = 0 is the first tick flown under the reference trajectory. The
-Zenoh callback only appends bytes to a list (it never blocks); decoding happens in ``drain``.
+t = (tick − offboard_tick)·T so that t = 0 is the first tick flown under the reference trajectory. Samples
+wait in Zenoh's FIFO channels until ``drain`` files them by tick; decoding happens in ``rows``.
 """
 
 from __future__ import annotations
 
-import threading
+import struct
 
 import zenoh
 
 from quadsitl import telemetry
 
+QUEUE = 1 << 17  # samples per stream the subscriber can hold between drains (13 s at 10,000 ticks/s)
+_TICK = struct.Struct("<Q")  # every stream's payload starts with the tick
+
 
 class TelemetryLogger:
+    """Live: the status stream (armed, offboard start, the newest tick) is decoded as it arrives. The
+    state, setpoint and actuator payloads are only filed by tick and decoded when :meth:`rows` is asked
+    for: at 10,000 ticks/s the logger must not compete with the vehicle for the machine's two cores."""
+
     def __init__(self, session: zenoh.Session, vehicle: str, period: float) -> None:
         self.period = period
-        self._lock = threading.Lock()
-        self._inbox: list[tuple[str, bytes]] = []
-        self._partial: dict[int, dict[str, dict]] = {}
-        self.rows: dict[int, list[float]] = {}  # flight tick → row in telemetry_csv.COLUMNS order
+        self._raw: dict[str, dict[int, bytes]] = {s: {} for s in telemetry.STREAMS if s != "status"}
+        self._flown: set[int] = set()  # ticks whose status says: armed, in this offboard flight
         self.last_tick = -1
         self.last_status: dict | None = None
         self.flight_start_tick = -1
         self.malformed = 0
+        # FIFO channels, drained from the caller's thread: no Python callback per sample (four per tick
+        # at 10,000 ticks/s would keep a core busy handing the GIL back and forth).
         self._subs = [
-            session.declare_subscriber(telemetry.key(vehicle, stream), self._callback(stream))
+            (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(QUEUE)))
             for stream in telemetry.STREAMS
         ]
 
-    def _callback(self, stream: str):
-        def cb(sample: zenoh.Sample) -> None:
-            data = sample.payload.to_bytes()
-            with self._lock:
-                self._inbox.append((stream, data))
-
-        return cb
+    def _received(self) -> list[tuple[str, bytes]]:
+        out = []
+        for stream, sub in self._subs:
+            while (sample := sub.try_recv()) is not None:
+                out.append((stream, sample.payload.to_bytes()))
+        return out
 
     def drain(self) -> None:
-        """Decode what arrived and assemble complete ticks into rows."""
-        with self._lock:
-            inbox, self._inbox = self._inbox, []
-        for stream, data in inbox:
-            try:
-                rec = telemetry.decode(stream, data)
-            except ValueError:
+        """File what arrived by tick; follow the status stream."""
+        for stream, data in self._received():
+            if len(data) != telemetry.STREAMS[stream].size:
                 self.malformed += 1
                 continue
-            tick = int(rec["tick"])
-            parts = self._partial.setdefault(tick, {})
-            parts[stream] = rec
-            if stream == "status":
-                self.last_status = rec
-                self.last_tick = max(self.last_tick, tick)
-            if len(parts) == len(telemetry.STREAMS):
-                del self._partial[tick]
-                self._row(tick, parts)
+            if stream != "status":
+                self._raw[stream][_TICK.unpack_from(data)[0]] = data
+                continue
+            rec = telemetry.decode("status", data)
+            tick, start = int(rec["tick"]), int(rec["offboard_tick"])
+            self.last_status = rec
+            self.last_tick = max(self.last_tick, tick)
+            if start < 0 or not rec["armed"]:
+                continue
+            if self.flight_start_tick < 0:
+                self.flight_start_tick = start
+            if start == self.flight_start_tick:  # a later offboard segment is not part of this flight
+                self._flown.add(tick)
 
-    def _row(self, tick: int, p: dict[str, dict]) -> None:
-        start = int(p["status"]["offboard_tick"])
-        if start < 0 or not p["status"]["armed"]:
-            return
-        if self.flight_start_tick < 0:
-            self.flight_start_tick = start
-        if start != self.flight_start_tick:
-            return  # a later offboard segment: not part of this flight
-        s, r, a = p["state"], p["setpoint"], p["actuators"]
-        t = (tick - start) * self.period
-        self.rows[tick - start] = [
-            t, s["x"], s["y"], s["z"], -s["z"], s["vx"], s["vy"], s["vz"], s["roll"], s["pitch"], s["yaw"],
-            s["p"], s["q"], s["r"], r["altitude_ref"], r["roll_ref"], r["pitch_ref"], r["yaw_ref"],
-            a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"], a["f4"],
-        ]  # fmt: skip
+    def complete(self) -> set[int]:
+        """Flight ticks (counted from the flight's start) for which all four streams arrived."""
+        start = self.flight_start_tick
+        raw = self._raw.values()
+        return {tick - start for tick in self._flown if all(tick in r for r in raw)}
+
+    def rows(self) -> dict[int, list[float]]:
+        """Flight tick → row in telemetry_csv.COLUMNS order, t = 0 at the flight's first tick."""
+        start = self.flight_start_tick
+        out: dict[int, list[float]] = {}
+        for k in sorted(self.complete()):
+            tick = k + start
+            s, r, a = (telemetry.decode(stream, self._raw[stream][tick]) for stream in ("state", "setpoint",
+                                                                                          "actuators"))  # fmt: skip
+            out[k] = [
+                k * self.period, s["x"], s["y"], s["z"], -s["z"], s["vx"], s["vy"], s["vz"], s["roll"], s["pitch"],
+                s["yaw"], s["p"], s["q"], s["r"], r["altitude_ref"], r["roll_ref"], r["pitch_ref"], r["yaw_ref"],
+                a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"], a["f4"],
+            ]  # fmt: skip
+        return out
 
     def flight_time(self) -> float:
         """Simulated seconds flown under the trajectory so far (−1 before the flight starts)."""
@@ -81,6 +92,6 @@ class TelemetryLogger:
         return (self.last_tick - self.flight_start_tick) * self.period
 
     def close(self) -> None:
-        for sub in self._subs:
+        for _stream, sub in self._subs:
             sub.undeclare()
         self._subs = []

@@ -23,9 +23,10 @@ from collections.abc import Sequence
 from quadsitl import wire
 from quadsitl.cli_util import UsageError, check_range
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.process_util import die_with_parent, exit_on_signals, parse_address
+from quadsitl.process_util import die_with_parent, exit_on_signals, parse_address, set_receive_timeout
 from sitl.plant import Plant
 
+HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
 
 
@@ -37,27 +38,41 @@ class PlantLink:
         self.sock.bind(bind)
         self.autopilot = autopilot
         self.mav = wire.link(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
+        self.fast = wire.FastLink(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
         self.max_thrust = max_thrust
         self.period = period
         self.last_usec = -1  # newest actuator stamp used
         self.discarded = 0
+        self.corrupt = 0
+        self.timeout = -1.0
 
     def send_state(self, tick: int, plant: Plant) -> None:
-        msg = wire.state_message(wire.usec_of(tick, self.period), plant.state)
-        self.sock.sendto(msg.pack(self.mav), self.autopilot)
+        self.sock.sendto(self.fast.pack_state(wire.usec_of(tick, self.period), plant.state), self.autopilot)
 
     def receive(self, timeout: float | None) -> list:
         """Actuator messages newer than the last used, from one datagram (empty on timeout)."""
-        self.sock.settimeout(timeout)
+        if timeout != self.timeout:
+            set_receive_timeout(self.sock, timeout)
+            self.timeout = timeout
         try:
             data = self.sock.recv(65535)
-        except (TimeoutError, BlockingIOError):
+        except (BlockingIOError, InterruptedError):
             return []
-        msgs = self.mav.parse_buffer(data) or []
+        try:
+            fast = wire.parse_actuators(data)  # the per-tick fast path
+        except wire.FrameError:
+            self.corrupt += 1
+            return []
+        if fast is not None:
+            msgs = [fast]
+        else:
+            try:
+                msgs = [m for m in self.mav.parse_buffer(data) or [] if m.get_msgId() == HIL_ACTUATOR_CONTROLS]
+            except wire.mavlink.MAVError:
+                self.corrupt += 1
+                return []
         out = []
         for m in msgs:
-            if m.get_msgId() != wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
-                continue
             if m.time_usec <= self.last_usec:
                 self.discarded += 1
                 continue

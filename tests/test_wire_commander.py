@@ -118,3 +118,55 @@ def test_trajectories(tmp_path):
     with pytest.raises(UsageError, match="expected step, ramp, sine"):
         trajectories.make("zigzag", ref)
     assert math.isfinite(trajectories.make("sine", ref)(123.4).altitude)
+
+
+# ---- the per-tick codec ----------------------------------------------------------------------------------
+
+
+def _pymavlink_send(msg, link) -> bytes:
+    """What pymavlink's ``link.send(msg)`` puts on the wire: the frame, then the sequence number advances."""
+    buf = msg.pack(link)
+    link.seq = (link.seq + 1) % 256
+    return buf
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_fast_codec_frames_are_byte_identical_to_pymavlink_and_both_sides_accept_each_other(seed):
+    import random
+
+    rng = random.Random(seed)
+    fast, ref = wire.FastLink(1, 25), wire.link(1, 25)
+    for i in range(600):  # > 256: the sequence number wraps
+        s = VehicleState(*(rng.uniform(-3, 3) for _ in range(12)))
+        usec = rng.randrange(0, 2**63) if i % 7 == 0 else i * 1000
+        forces = tuple(rng.choice([0.0, rng.uniform(-1e4, 1e4)]) for _ in range(4))  # zeros exercise trimming
+        armed = rng.random() < 0.5
+        a, b = fast.pack_state(usec, s), _pymavlink_send(wire.state_message(usec, s), ref)
+        assert a == b
+        m = wire.parse_state(a)
+        (p,) = wire.link(1, 1).parse_buffer(b)
+        assert m.time_usec == p.time_usec == usec
+        assert (m.x, m.y, m.z, *m.q, m.vx, m.vy, m.vz, m.rollspeed, m.pitchspeed, m.yawspeed) == (
+            p.x, p.y, p.z, *p.q, p.vx, p.vy, p.vz, p.rollspeed, p.pitchspeed, p.yawspeed)  # fmt: skip
+        assert wire.state_from_message(m) == wire.state_from_message(p)
+        a = fast.pack_actuators(usec, forces, 1e4, armed)
+        b = _pymavlink_send(wire.actuator_message(usec, forces, 1e4, armed), ref)
+        assert a == b
+        h = wire.parse_actuators(a)
+        (p,) = wire.link(1, 1).parse_buffer(b)
+        assert (h.time_usec, h.mode) == (p.time_usec, p.mode) and list(h.controls) == list(p.controls)
+        assert wire.forces_from_message(h, 1e4) == wire.forces_from_message(p, 1e4)
+
+
+def test_fast_parser_refuses_corrupt_frames_and_leaves_other_messages_to_pymavlink():
+    fast, mav = wire.FastLink(1, 25), wire.link(1, 25)
+    frame = bytearray(fast.pack_state(5000, VehicleState(z=-1.0)))
+    frame[20] ^= 0x01  # a flipped bit in the payload
+    with pytest.raises(wire.FrameError):
+        wire.parse_state(bytes(frame))
+    assert wire.parse_state(fast.pack_actuators(1, (0, 0, 0, 0), 1.0, False)) is None  # another message
+    hb = wire.mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3).pack(mav)
+    assert wire.parse_state(hb) is None and wire.parse_actuators(hb) is None
+    two = fast.pack_state(1, VehicleState()) + fast.pack_state(2, VehicleState())
+    assert wire.parse_state(two) is None  # two frames in one datagram: pymavlink's job
+    assert wire.parse_state(b"") is None and wire.parse_state(b"\xfd" * 300) is None
