@@ -37,13 +37,22 @@ from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
 from quadsitl.mixer import allocate
-from quadsitl.process_util import bind_udp, die_with_parent, exit_on_signals, parse_remote, set_receive_timeout
+from quadsitl.process_util import (
+    bind_udp,
+    die_with_parent,
+    exit_on_signals,
+    parse_remote,
+    quiet_garbage_collector,
+    set_receive_timeout,
+)
 from quadsitl.state import Reference, VehicleState
 
 mavlink = wire.mavlink
 ZERO4 = (0.0, 0.0, 0.0, 0.0)
 PEER_TIMEOUT = 30.0  # [s] wall: stop streaming to a peer that has been silent this long
 FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
+BATCH_WALL = 0.001  # [s] wall: Zenoh telemetry goes out at least this often (every tick at 1 kHz real time)
+BATCH_TICKS = 64  # and at the latest after this many ticks
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
 
@@ -117,8 +126,13 @@ class Autopilot:
         self.d_over_b = preset.vehicle.d_over_b
         self.session = None
         self.pubs: dict[str, zenoh.Publisher] = {}
+        self.batches = {stream: bytearray() for stream in telemetry.STREAMS}
+        self.batched = 0  # ticks in the batches
+        self.last_flush = 0.0
         if not args.no_zenoh:
             conf = telemetry.config_from_args(args)
+            if not args.zenoh_config:  # samples carry their publication time: subscribers can measure latency
+                conf.insert_json5("timestamping/enabled", "true")
             self.session = zenoh.open(conf)
             for stream in telemetry.STREAMS:
                 self.pubs[stream] = self.session.declare_publisher(
@@ -172,14 +186,26 @@ class Autopilot:
         )
 
     def _publish(self, tick, now, m, state, ref) -> None:
-        s = telemetry.STREAMS
-        c = self.commander
-        self.pubs["state"].put(s["state"].pack(
+        """Add this tick's records to the Zenoh batches (see :mod:`quadsitl.telemetry`)."""
+        s, b, c = telemetry.STREAMS, self.batches, self.commander
+        b["state"] += s["state"].pack(
             tick, now, state.x, state.y, state.z, state.vx, state.vy, state.vz, state.roll, state.pitch,
-            state.yaw, m.rollspeed, m.pitchspeed, m.yawspeed))  # fmt: skip
-        self.pubs["setpoint"].put(s["setpoint"].pack(tick, now, *ref))
-        self.pubs["actuators"].put(s["actuators"].pack(tick, now, *self.u, *self.forces))
-        self.pubs["status"].put(s["status"].pack(tick, now, c.armed, c.mode, c.failsafe, c.offboard_tick))
+            state.yaw, m.rollspeed, m.pitchspeed, m.yawspeed)  # fmt: skip
+        b["setpoint"] += s["setpoint"].pack(tick, now, *ref)
+        b["actuators"] += s["actuators"].pack(tick, now, *self.u, *self.forces)
+        b["status"] += s["status"].pack(tick, now, c.armed, c.mode, c.failsafe, c.offboard_tick)
+        self.batched += 1
+        if self.batched >= BATCH_TICKS:
+            self.flush_telemetry()
+
+    def flush_telemetry(self) -> None:
+        """Publish the batched records (every stream gets the same ticks)."""
+        if self.batched:
+            for stream, pub in self.pubs.items():
+                pub.put(bytes(self.batches[stream]))
+                self.batches[stream].clear()
+            self.batched = 0
+        self.last_flush = time.monotonic()
 
     def _snapshot(self) -> Snapshot | None:
         if self.latest is None:
@@ -402,6 +428,8 @@ class Autopilot:
             if data is not None:
                 self.on_plant_datagram(data, sender)
             wall = time.monotonic()
+            if self.batched and wall - self.last_flush >= BATCH_WALL:
+                self.flush_telemetry()
             if wall >= next_poll:
                 next_poll = wall + GCS_POLL
                 self.poll_gcs()
@@ -448,6 +476,8 @@ class Autopilot:
                     self.on_gcs(m, link, sender)
 
     def close(self) -> None:
+        if self.pubs:
+            self.flush_telemetry()
         for pub in self.pubs.values():
             pub.undeclare()
         if self.session is not None:
@@ -530,6 +560,7 @@ def parse_home(text: str | None) -> tuple[float, float, float] | None:
 def main(argv: Sequence[str] | None = None) -> int:
     die_with_parent()
     exit_on_signals()
+    quiet_garbage_collector()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

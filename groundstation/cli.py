@@ -86,6 +86,7 @@ PROCESSES = {
     "plant": ("sitl.process", "the simulated quadrotor process (MAVLink/UDP to the autopilot)"),
     "autopilot": ("autopilot.process", "the autopilot process (control loop, MAVLink, Zenoh telemetry)"),
     "gcs": ("groundstation.gcs", "the ground-station process (flies a trajectory, logs telemetry)"),
+    "bench": ("benchmarks.bench", "measure the SITL's speed against this machine's own baselines"),
 }
 
 

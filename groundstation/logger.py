@@ -7,14 +7,11 @@ wait in Zenoh's FIFO channels until ``drain`` files them by tick; decoding happe
 
 from __future__ import annotations
 
-import struct
+import threading
 
 import zenoh
 
 from quadsitl import telemetry
-
-QUEUE = 1 << 17  # samples per stream the subscriber can hold between drains (13 s at 10,000 ticks/s)
-_TICK = struct.Struct("<Q")  # every stream's payload starts with the tick
 
 
 class TelemetryLogger:
@@ -30,39 +27,54 @@ class TelemetryLogger:
         self.last_status: dict | None = None
         self.flight_start_tick = -1
         self.malformed = 0
-        # FIFO channels, drained from the caller's thread: no Python callback per sample (four per tick
-        # at 10,000 ticks/s would keep a core busy handing the GIL back and forth).
+        # The callbacks only append (one lock, no decoding): a Zenoh callback must never block.
+        self._lock = threading.Lock()
+        self._inbox: list[tuple[str, bytes]] = []
         self._subs = [
-            (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(QUEUE)))
+            (stream, session.declare_subscriber(telemetry.key(vehicle, stream), self._callback(stream)))
             for stream in telemetry.STREAMS
         ]
 
+    def _callback(self, stream: str):
+        inbox, lock = self._inbox, self._lock
+
+        def cb(sample: zenoh.Sample) -> None:
+            data = sample.payload.to_bytes()
+            with lock:
+                inbox.append((stream, data))
+
+        return cb
+
     def _received(self) -> list[tuple[str, bytes]]:
-        out = []
-        for stream, sub in self._subs:
-            while (sample := sub.try_recv()) is not None:
-                out.append((stream, sample.payload.to_bytes()))
+        with self._lock:
+            out = self._inbox[:]
+            del self._inbox[:]
         return out
 
     def drain(self) -> None:
         """File what arrived by tick; follow the status stream."""
         for stream, data in self._received():
-            if len(data) != telemetry.STREAMS[stream].size:
+            try:
+                recs = telemetry.records(stream, data)
+            except ValueError:
                 self.malformed += 1
                 continue
             if stream != "status":
-                self._raw[stream][_TICK.unpack_from(data)[0]] = data
+                size = telemetry.STREAMS[stream].size
+                raw = self._raw[stream]
+                for i, rec in enumerate(recs):
+                    raw[rec[0]] = data[i * size : (i + 1) * size]
                 continue
-            rec = telemetry.decode("status", data)
-            tick, start = int(rec["tick"]), int(rec["offboard_tick"])
-            self.last_status = rec
-            self.last_tick = max(self.last_tick, tick)
-            if start < 0 or not rec["armed"]:
-                continue
-            if self.flight_start_tick < 0:
-                self.flight_start_tick = start
-            if start == self.flight_start_tick:  # a later offboard segment is not part of this flight
-                self._flown.add(tick)
+            for tick, _t, armed, mode, failsafe, start in recs:
+                self.last_status = {"tick": tick, "armed": armed, "mode": mode, "failsafe": failsafe,
+                                    "offboard_tick": start}  # fmt: skip
+                self.last_tick = max(self.last_tick, tick)
+                if start < 0 or not armed:
+                    continue
+                if self.flight_start_tick < 0:
+                    self.flight_start_tick = start
+                if start == self.flight_start_tick:  # a later offboard segment is not part of this flight
+                    self._flown.add(tick)
 
     def complete(self) -> set[int]:
         """Flight ticks (counted from the flight's start) for which all four streams arrived."""

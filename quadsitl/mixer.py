@@ -36,7 +36,14 @@ def inputs_to_forces(u: tuple[float, float, float, float], d_over_b: float) -> t
 
 def rotor_speeds(forces: tuple[float, float, float, float], b: float) -> tuple[float, float, float, float]:
     """Signed rotor speeds Ω_j = sign(F_j)·sqrt(|F_j|/b) [rad/s] (reversible rotors keep the sign)."""
-    return tuple(math.copysign(math.sqrt(abs(f) / b), f) for f in forces)  # type: ignore[return-value]
+    f1, f2, f3, f4 = forces  # unrolled: this runs every control tick
+    copysign, sqrt = math.copysign, math.sqrt
+    return (
+        copysign(sqrt(abs(f1) / b), f1),
+        copysign(sqrt(abs(f2) / b), f2),
+        copysign(sqrt(abs(f3) / b), f3),
+        copysign(sqrt(abs(f4) / b), f4),
+    )
 
 
 def residual_rotor_speed(forces: tuple[float, float, float, float], b: float) -> float:

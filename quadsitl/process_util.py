@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import gc
+import select
 import signal
 import socket
 import struct
@@ -46,6 +48,25 @@ def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
     sock.settimeout(None)
     usec = 0 if seconds is None else max(1, round(seconds * 1e6))  # 0 = no timeout
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", usec // 1_000_000, usec % 1_000_000))
+
+
+def wait_readable(sock: socket.socket, seconds: float) -> bool:
+    """Wait up to ``seconds`` (microsecond resolution) for ``sock`` to have a datagram."""
+    try:
+        readable, _, _ = select.select([sock], [], [], max(seconds, 0.0))
+    except InterruptedError:
+        return False
+    return bool(readable)
+
+
+def quiet_garbage_collector() -> None:
+    """Keep the cyclic garbage collector out of the per-tick loop: objects made so far (modules, presets)
+    are frozen out of its view, and it runs only after 50,000 net allocations of container objects
+    instead of 700. The loops make no reference cycles, so reference counting frees what they allocate;
+    the collector stays on for anything else."""
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(50_000, 50, 100)
 
 
 def exit_on_signals() -> None:

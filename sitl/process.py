@@ -15,15 +15,25 @@ In both, actuator messages older than the last one used (by ``time_usec``) are d
 from __future__ import annotations
 
 import argparse
+import json
 import socket
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 from quadsitl import wire
 from quadsitl.cli_util import UsageError, check_range
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.process_util import die_with_parent, exit_on_signals, parse_address, set_receive_timeout
+from quadsitl.process_util import (
+    die_with_parent,
+    exit_on_signals,
+    parse_address,
+    quiet_garbage_collector,
+    set_receive_timeout,
+    wait_readable,
+)
+from quadsitl.timing import period_stats
 from sitl.plant import Plant
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
@@ -48,6 +58,14 @@ class PlantLink:
 
     def send_state(self, tick: int, plant: Plant) -> None:
         self.sock.sendto(self.fast.pack_state(wire.usec_of(tick, self.period), plant.state), self.autopilot)
+
+    def receive_within(self, seconds: float) -> list:
+        """Like :meth:`receive`, waiting at most ``seconds`` with microsecond precision (select), for the
+        real-time loop; SO_RCVTIMEO counts in kernel ticks (4–10 ms) and Python's socket timeout in
+        whole milliseconds, both too coarse for a 1 kHz schedule."""
+        if not wait_readable(self.sock, seconds):
+            return []
+        return self.receive(None)
 
     def receive(self, timeout: float | None) -> list:
         """Actuator messages newer than the last used, from one datagram (empty on timeout)."""
@@ -109,19 +127,23 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     return tick
 
 
-def run_realtime(plant: Plant, link: PlantLink, max_ticks: int | None) -> int:
+def run_realtime(plant: Plant, link: PlantLink, max_ticks: int | None, starts: list[float] | None = None) -> int:
+    """Integrate on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each tick's
+    actual start time [s, monotonic]."""
     period = plant.period
     forces: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
     tick = 0
     next_time = time.monotonic()
     while max_ticks is None or tick < max_ticks:
+        if starts is not None:
+            starts.append(time.monotonic())
         link.send_state(tick, plant)
         next_time += period
         while True:
             remaining = next_time - time.monotonic()
             if remaining <= 0:
                 break
-            for m in link.receive(remaining):
+            for m in link.receive_within(remaining):
                 forces = wire.forces_from_message(m, link.max_thrust)
                 link.last_usec = m.time_usec
         plant.step(forces)
@@ -161,12 +183,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--integrator", choices=("euler", "rk4"), help="default: the preset's")
     p.add_argument("--substeps", type=int, metavar="N", help="default: the preset's")
     p.add_argument("--ticks", type=int, metavar="N", help="stop after N ticks (default: run until stopped)")
+    p.add_argument("--stats", metavar="FILE", help="write the run's pace (and, in realtime, its timing) as JSON")
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     die_with_parent()
     exit_on_signals()
+    quiet_garbage_collector()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -183,16 +207,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{parser.prog}: error: cannot bind --bind {args.bind}: {exc.strerror}", file=sys.stderr)
         return 2
     start = time.monotonic()
+    starts: list[float] = []
     try:
         if args.mode == "lockstep":
             run_lockstep(plant, link, args.speed, args.ticks)
         else:
-            run_realtime(plant, link, args.ticks)
+            run_realtime(plant, link, args.ticks, starts if args.stats else None)
     except KeyboardInterrupt:
         pass
     finally:
         link.close()
     elapsed = time.monotonic() - start
+    if args.stats:
+        ticks = round(plant.time / preset.sim.period)
+        stats = {"mode": args.mode, "ticks": ticks, "wall_s": elapsed, "ticks_per_s": ticks / max(elapsed, 1e-9)}
+        if args.mode == "realtime":
+            stats.update(period_stats(starts, preset.sim.period))
+        Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
     print(
         f"plant: {plant.time:.3f} s simulated in {elapsed:.3f} s; {link.discarded} stale actuator messages discarded",
         file=sys.stderr,

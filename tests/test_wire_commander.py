@@ -170,3 +170,28 @@ def test_fast_parser_refuses_corrupt_frames_and_leaves_other_messages_to_pymavli
     two = fast.pack_state(1, VehicleState()) + fast.pack_state(2, VehicleState())
     assert wire.parse_state(two) is None  # two frames in one datagram: pymavlink's job
     assert wire.parse_state(b"") is None and wire.parse_state(b"\xfd" * 300) is None
+
+
+def test_telemetry_samples_carry_one_or_more_records():
+    one = telemetry.STREAMS["setpoint"].pack(5, 0.005, 1.0, 0.1, 0.2, 0.3)
+    two = one + telemetry.STREAMS["setpoint"].pack(6, 0.006, 1.5, 0.1, 0.2, 0.3)
+    assert telemetry.records("setpoint", one) == [(5, 0.005, 1.0, 0.1, 0.2, 0.3)]
+    assert [r[0] for r in telemetry.records("setpoint", two)] == [5, 6]
+    for bad in (b"", two[:-1]):
+        with pytest.raises(ValueError, match="multiple of 48"):
+            telemetry.records("setpoint", bad)
+
+
+def test_period_stats_jitter_and_deadline_misses():
+    from quadsitl.timing import percentile, period_stats
+
+    T = 0.001
+    perfect = period_stats([k * T for k in range(1000)], T)
+    assert perfect["jitter_max_us"] == pytest.approx(0.0, abs=1e-6) and perfect["deadline_miss_ratio"] == 0.0
+    assert perfect["mean_period_us"] == pytest.approx(1000.0)
+    starts = [k * T for k in range(100)]
+    starts[50] += 0.0015  # one tick starts 1.5 periods late: a miss, two periods off by 1.5 ms
+    late = period_stats(starts, T)
+    assert late["deadline_miss_ratio"] == pytest.approx(0.01)
+    assert late["jitter_max_us"] == pytest.approx(1500.0) and late["jitter_p50_us"] == pytest.approx(0.0, abs=1e-6)
+    assert percentile([3.0, 1.0, 2.0], 50) == 2.0 and percentile([], 99) == 0.0

@@ -1,0 +1,1 @@
+"""``quadsitl bench``: speed measured against this machine's own limits (see bench.py)."""

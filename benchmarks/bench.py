@@ -1,0 +1,351 @@
+"""``quadsitl bench [--json]``: the speed of the SITL against this machine's own limits.
+
+Every figure is printed next to a baseline measured in the same run, because absolute times on shared
+machines drift:
+
+1. lockstep: control ticks per second of the full ``quadsitl fly`` pipeline (plant and autopilot as
+   processes, MAVLink over UDP, Zenoh telemetry every tick, the ground station streaming setpoints and
+   logging all telemetry) against a bare UDP ping-pong between two Python processes with datagrams of the
+   same sizes. ``lockstep_ratio`` = fly rate / ping-pong rate.
+2. per-tick costs [µs]: controller steps, plant steps, encode and decode of the two per-tick messages
+   (ours and pymavlink's), Zenoh publish; against the ping-pong round trip.
+3. telemetry fan-out: 1, 3 and 10 subscriber processes on the autopilot's Zenoh session; delivered
+   samples per second, loss and latency at 1 kHz, and the lockstep tick rate with each, against none.
+4. real-time mode at 1 kHz: period jitter and deadline misses of the plant's loop against a bare loop
+   that keeps time the same way and does nothing else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import platform
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import timeit
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from benchmarks import pingpong
+from quadsitl.process_util import wait_readable
+from quadsitl.timing import percentile, period_stats
+
+
+@dataclass
+class Figure:
+    name: str
+    value: float
+    unit: str
+    baseline: float | None = None
+    baseline_name: str = ""
+    ratio: float | None = None
+
+
+class Report:
+    def __init__(self, quiet: bool) -> None:
+        self.figures: list[Figure] = []
+        self.quiet = quiet
+
+    def add(self, name: str, value: float, unit: str, baseline: float | None = None, baseline_name: str = "",
+            ratio: float | None = None) -> Figure:  # fmt: skip
+        if ratio is None and baseline:
+            ratio = value / baseline
+        f = Figure(name, value, unit, baseline, baseline_name, ratio)
+        self.figures.append(f)
+        if not self.quiet:
+            base = f"   baseline {baseline:,.1f} ({baseline_name})" if baseline is not None else ""
+            rat = f"   ratio {ratio:.3f}" if ratio is not None else ""
+            print(f"  {name:44s} {value:>12,.2f} {unit:10s}{base}{rat}", file=sys.stderr, flush=True)
+        return f
+
+    def section(self, title: str) -> None:
+        if not self.quiet:
+            print(f"\n{title}", file=sys.stderr, flush=True)
+
+
+def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _python(*args: str, **kw) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", *args], **kw)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+# ---- 1. the lockstep pipeline ------------------------------------------------------------------------
+
+
+def fly_rate(seconds: float, workdir: Path) -> float:
+    """Ticks per second of ``quadsitl fly`` (the flight itself, measured by its ground station)."""
+    out = workdir / "fly"
+    subprocess.run([sys.executable, "-m", "groundstation.cli", "fly", "--preset", "paper", "--duration", str(seconds),
+                    "--out", str(out), "--no-figures", "--quiet"], check=True, timeout=120)  # fmt: skip
+    return json.loads((out / "rate.json").read_text())["ticks_per_s"]
+
+
+def bench_lockstep(r: Report, workdir: Path, rounds: int) -> tuple[float, float]:
+    r.section("1. lockstep loop (quadsitl fly, paper preset) against a bare UDP ping-pong")
+    pings, flies = [], []
+    for _ in range(rounds):  # interleaved, so that both see the same machine
+        pings.append(pingpong.measure())
+        flies.append(fly_rate(10.0, workdir))
+    ping, fly = max(pings), max(flies)
+    r.add("ping-pong round trips", ping, "1/s")
+    r.add("fly ticks", fly, "1/s", ping, "ping-pong")
+    r.add("fly real-time factor at 1 kHz", fly / 1000.0, "x")
+    return fly, ping
+
+
+# ---- 2. per-tick costs ---------------------------------------------------------------------------------
+
+
+def per_tick(fn: Callable[[], object], number: int = 20000) -> float:
+    return min(timeit.repeat(fn, number=number, repeat=3)) / number * 1e6
+
+
+def bench_costs(r: Report, ping: float) -> None:
+    import zenoh
+
+    from autopilot.factory import make_controller
+    from quadsitl import telemetry, wire
+    from quadsitl.config import load_preset
+    from quadsitl.state import Reference, VehicleState
+    from sitl.plant import Plant
+
+    r.section("2. per-tick costs (baseline: one ping-pong round trip)")
+    rtt = 1e6 / ping
+    preset = load_preset("paper")
+    state = VehicleState(z=-1.0, vz=-0.2, roll=0.1, pitch=-0.05, yaw=0.3, roll_dot=0.2, pitch_dot=0.1, yaw_dot=0.05)
+    ref = Reference(5.0, 1.0, 1.0, 1.0)
+    for kind in ("backstepping", "pd"):
+        c = make_controller(preset, kind)
+        r.add(f"{kind} controller step", per_tick(lambda c=c: c.step(state, ref)), "us", rtt, "round trip")
+    for integrator in ("euler", "rk4"):
+        p = Plant(preset, integrator=integrator)
+        r.add(f"plant step ({integrator})", per_tick(lambda p=p: p.step((5.0, 5.0, 5.0, 5.0))), "us", rtt, "round trip")
+    fast, mav = wire.FastLink(1, 25), wire.link(1, 25)
+    odo, hil = fast.pack_state(1000, state), fast.pack_actuators(1000, (1.0, 2.0, 3.0, 4.0), 10.0, True)
+    msg_odo, msg_hil = wire.state_message(1000, state), wire.actuator_message(1000, (1.0, 2.0, 3.0, 4.0), 10.0, True)
+    parser = wire.link(1, 1)
+    costs = [
+        ("ODOMETRY encode", lambda: fast.pack_state(1000, state), lambda: wire.state_message(1000, state).pack(mav)),
+        ("ODOMETRY decode", lambda: wire.parse_state(odo), lambda: parser.parse_buffer(msg_odo.pack(mav))),
+        ("HIL_ACTUATOR_CONTROLS encode", lambda: fast.pack_actuators(1000, (1.0, 2.0, 3.0, 4.0), 10.0, True),
+         lambda: wire.actuator_message(1000, (1.0, 2.0, 3.0, 4.0), 10.0, True).pack(mav)),
+        ("HIL_ACTUATOR_CONTROLS decode", lambda: wire.parse_actuators(hil),
+         lambda: parser.parse_buffer(msg_hil.pack(mav))),
+    ]  # fmt: skip
+    for name, ours, theirs in costs:
+        theirs_us = per_tick(theirs, 5000)
+        if "decode" in name:  # pymavlink's decode was timed with a pack in front: take that out
+            theirs_us -= per_tick(lambda m=(msg_odo if "ODOMETRY" in name else msg_hil): m.pack(mav), 5000)
+        r.add(f"{name} (quadsitl.wire)", per_tick(ours), "us", theirs_us, "pymavlink")
+    session = zenoh.open(telemetry.zenoh_config("peer", listen=[f"tcp/127.0.0.1:{_free_port(socket.SOCK_STREAM)}"]))
+    try:
+        pubs = [session.declare_publisher(telemetry.key("bench", s), congestion_control=zenoh.CongestionControl.DROP)
+                for s in telemetry.STREAMS]  # fmt: skip
+        payloads = [bytes(f.size) for f in telemetry.STREAMS.values()]
+
+        def publish() -> None:
+            for pub, payload in zip(pubs, payloads):
+                pub.put(payload)
+
+        r.add("Zenoh publish, 4 streams, no subscriber", per_tick(publish), "us", rtt, "round trip")
+        for pub in pubs:
+            pub.undeclare()
+    finally:
+        session.close()
+
+
+# ---- 3. telemetry fan-out ---------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def autopilot_process(workdir: Path) -> Iterator[tuple[int, int, str]]:
+    """An armed autopilot (hold mode: the controller runs every tick) on free ports: (plant port, api
+    port, Zenoh endpoint)."""
+    from pymavlink import mavutil
+
+    plant_port, api_port = _free_port(), _free_port()
+    endpoint = f"tcp/127.0.0.1:{_free_port(socket.SOCK_STREAM)}"
+    ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
+                 f"127.0.0.1:{api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
+                 "none", "--zenoh-listen", endpoint)  # fmt: skip
+    try:
+        os.environ.setdefault("MAVLINK20", "1")
+        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{api_port}", source_system=255, dialect="common")
+        end = time.monotonic() + 20
+        while time.monotonic() < end:  # arm in hold: the controller then runs every tick
+            gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)
+            ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.5)
+            if ack is not None and ack.command == 400 and ack.result == 0:
+                break
+        else:
+            raise RuntimeError("the autopilot did not arm")
+        gcs.close()
+        yield plant_port, api_port, endpoint
+    finally:
+        _stop(ap)
+
+
+def run_plant(plant_port: int, workdir: Path, ticks: int, *extra: str) -> dict:
+    stats = workdir / f"plant-{time.monotonic_ns()}.json"
+    subprocess.run([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot", f"127.0.0.1:{plant_port}",
+                    "--ticks", str(ticks), "--stats", str(stats), *extra], check=True, timeout=120,
+                   stderr=subprocess.DEVNULL)  # fmt: skip
+    return json.loads(stats.read_text())
+
+
+@contextlib.contextmanager
+def subscribers(endpoint: str, count: int, nice: int) -> Iterator[list[dict]]:
+    procs = [_python("benchmarks.subscriber", endpoint, "v1", str(nice), stdout=subprocess.PIPE, text=True)
+             for _ in range(count)]  # fmt: skip
+    results: list[dict] = []
+    try:
+        for p in procs:
+            assert p.stdout.readline().strip() == "ready"
+        time.sleep(0.5)  # let the sessions finish declaring
+        yield results
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in procs:
+            try:
+                out, _ = p.communicate(timeout=20)
+                results.append(json.loads(out.strip().splitlines()[-1]))
+            except (subprocess.TimeoutExpired, ValueError, IndexError):
+                p.kill()
+                p.wait()
+
+
+def bench_fanout(r: Report, workdir: Path, nice: int) -> None:
+    r.section(f"3. telemetry fan-out: subscriber processes (nice {nice}) on the autopilot's Zenoh session")
+    ticks_fast, ticks_paced = 10000, 3000
+    with autopilot_process(workdir) as (plant_port, _api, endpoint):
+        run_plant(plant_port, workdir, 2000)  # warm-up
+        alone = run_plant(plant_port, workdir, ticks_fast)["ticks_per_s"]
+        r.add("lockstep ticks, no subscriber", alone, "1/s")
+        for n in (1, 3, 10):
+            with subscribers(endpoint, n, nice) as _res:
+                rate = run_plant(plant_port, workdir, ticks_fast)["ticks_per_s"]
+            r.add(f"lockstep ticks, {n} subscriber(s)", rate, "1/s", alone, "no subscriber")
+            with subscribers(endpoint, n, nice) as res:
+                paced = run_plant(plant_port, workdir, ticks_paced, "--speed", "1")
+                time.sleep(0.5)
+            expected = 4 * ticks_paced
+            got = [sum(x["counts"].values()) for x in res]
+            lat = sorted(v * 1e3 for x in res for v in x["latencies"])
+            delivered = sum(got) / paced["wall_s"]
+            r.add(f"  {n} sub: delivered samples at 1 kHz, all subs", delivered, "1/s", n * 4000.0, "4 streams x 1 kHz")
+            r.add(f"  {n} sub: loss", 100.0 * (1 - min(got, default=0) / expected), "% (worst)")
+            r.add(f"  {n} sub: latency p50", percentile(lat, 50), "ms")
+            r.add(f"  {n} sub: latency p99", percentile(lat, 99), "ms")
+
+
+# ---- 4. real time ---------------------------------------------------------------------------------------
+
+
+def bare_loop(ticks: int, period: float) -> dict:
+    """Keeps time as the plant's real-time loop does (absolute schedule, waiting for a datagram with
+    :func:`quadsitl.process_util.wait_readable`) and does nothing else."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    starts: list[float] = []
+    next_time = time.monotonic()
+    for _ in range(ticks):
+        starts.append(time.monotonic())
+        next_time += period
+        while (remaining := next_time - time.monotonic()) > 0:
+            wait_readable(sock, remaining)
+    sock.close()
+    return period_stats(starts, period)
+
+
+def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
+    r.section(f"4. real-time mode at 1 kHz over {seconds:g} s: the plant's loop against a bare loop")
+    ticks = round(seconds * 1000)
+    bare = bare_loop(ticks, 0.001)
+    with autopilot_process(workdir) as (plant_port, _api, _ep):
+        real = run_plant(plant_port, workdir, ticks, "--mode", "realtime")
+    for key, unit in (("jitter_p50_us", "us"), ("jitter_p99_us", "us"), ("jitter_max_us", "us"),
+                      ("deadline_miss_ratio", "ratio"), ("mean_period_us", "us")):  # fmt: skip
+        r.add(f"real time: {key}", real[key], unit, bare[key], "bare loop", ratio=None)
+
+
+# ---- the command ----------------------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="quadsitl bench",
+        description="Measure the SITL's speed against baselines taken in the same run on this machine.",
+        epilog="examples:\n  quadsitl bench\n  quadsitl bench --json > bench.json\n  quadsitl bench --only lockstep",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--json", action="store_true", help="print every figure as JSON on stdout")
+    p.add_argument("--only", choices=("lockstep", "costs", "fanout", "realtime"), action="append",
+                   help="run only these parts (repeatable; default: all)")  # fmt: skip
+    p.add_argument("--rounds", type=int, default=2, help="interleaved ping-pong/fly rounds, best of (default 2)")
+    p.add_argument("--realtime-seconds", type=float, default=10.0, help="real-time run length (default 10)")
+    p.add_argument("--subscriber-nice", type=int, default=10, help="niceness of fan-out subscribers (default 10)")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if not 1 <= args.rounds <= 10:
+        print(f"quadsitl bench: error: --rounds {args.rounds}: expected 1..10", file=sys.stderr)
+        return 2
+    if not 1.0 <= args.realtime_seconds <= 600.0:
+        print(f"quadsitl bench: error: --realtime-seconds {args.realtime_seconds:g}: expected 1..600", file=sys.stderr)
+        return 2
+    parts = args.only or ["lockstep", "costs", "fanout", "realtime"]
+    r = Report(quiet=False)
+    started = time.monotonic()
+    ratio, ping = None, None
+    try:
+        with tempfile.TemporaryDirectory(prefix="quadsitl-bench-") as tmp:
+            work = Path(tmp)
+            if "lockstep" in parts:
+                fly, ping = bench_lockstep(r, work, args.rounds)
+                ratio = fly / ping
+            if "costs" in parts:
+                bench_costs(r, ping or pingpong.measure())
+            if "fanout" in parts:
+                bench_fanout(r, work, args.subscriber_nice)
+            if "realtime" in parts:
+                bench_realtime(r, work, args.realtime_seconds)
+    except (subprocess.CalledProcessError, subprocess.TimeoutExpired, RuntimeError, OSError) as exc:
+        print(f"quadsitl bench: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("quadsitl bench: interrupted", file=sys.stderr)
+        return 130
+    elapsed = time.monotonic() - started
+    machine = {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
+               "processor": platform.processor() or platform.machine()}  # fmt: skip
+    if ratio is not None:
+        print(f"\nlockstep_ratio = {ratio:.3f} (goal >= 0.6); {elapsed:.0f} s", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"lockstep_ratio": ratio, "elapsed_s": elapsed, "machine": machine,
+                          "figures": [asdict(f) for f in r.figures]}, indent=2))  # fmt: skip
+    return 0
