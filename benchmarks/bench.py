@@ -60,9 +60,9 @@ class Report:
         f = Figure(name, value, unit, baseline, baseline_name, ratio)
         self.figures.append(f)
         if not self.quiet:
-            base = f"   baseline {baseline:,.1f} ({baseline_name})" if baseline is not None else ""
-            rat = f"   ratio {ratio:.3f}" if ratio is not None else ""
-            print(f"  {name:44s} {value:>12,.2f} {unit:10s}{base}{rat}", file=sys.stderr, flush=True)
+            base = f"   baseline {baseline:,.6g} ({baseline_name})" if baseline is not None else ""
+            rat = f"   ratio {ratio:.3g}" if ratio is not None else ""
+            print(f"  {name:46s} {value:>12,.6g} {unit:10s}{base}{rat}", file=sys.stderr, flush=True)
         return f
 
     def section(self, title: str) -> None:
@@ -288,7 +288,8 @@ def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
         real = run_plant(plant_port, workdir, ticks, "--mode", "realtime")
     for key, unit in (("jitter_p50_us", "us"), ("jitter_p99_us", "us"), ("jitter_max_us", "us"),
                       ("deadline_miss_ratio", "ratio"), ("mean_period_us", "us")):  # fmt: skip
-        r.add(f"real time: {key}", real[key], unit, bare[key], "bare loop", ratio=None)
+        ratio = real[key] / bare[key] if bare[key] else None
+        r.add(f"real time: {key}", real[key], unit, bare[key], "bare loop", ratio=ratio)
 
 
 # ---- the command ----------------------------------------------------------------------------------------
