@@ -33,7 +33,7 @@ from autopilot.gcs_messages import Home, Snapshot
 from autopilot.params import ParamStore
 from autopilot.streams import MessageStreams
 from quadsitl import telemetry, wire
-from quadsitl.cli_util import UsageError, check_range, parse_floats
+from quadsitl.cli_util import UsageError, add_preset_arguments, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
 from quadsitl.mixer import allocate
@@ -497,8 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
         "  quadsitl autopilot --gcs-remote none --api-listen 127.0.0.1:24580 --api-remote none",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--preset", default="paper", help="preset name or TOML path (default: paper)")
-    p.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+    add_preset_arguments(p)
     p.add_argument(
         "--plant-listen",
         default="127.0.0.1:14560",

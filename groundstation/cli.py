@@ -18,7 +18,7 @@ from pathlib import Path
 
 from autopilot.cli import GAINS_EPILOG, add_gains_arguments, run_gains
 from autopilot.gains import GainError, poles_from_rates
-from quadsitl.cli_util import UsageError, attach_negative_values, check_range, parse_floats
+from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
 from sitl.cli import add_presets_arguments, run_presets
 
@@ -147,8 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulate plant and controller in one process and write telemetry.csv, metrics.json "
         "and figures reproducing the paper's Figures 2–4.",
     )
-    sim.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
-    sim.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+    add_preset_arguments(sim)
     sim.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the preset's)")
     sim.add_argument("--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)")
     sim.add_argument("--substeps", type=int, metavar="N", help="integration sub-steps per control period")
@@ -169,8 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Start plant, autopilot and ground station on free loopback ports, fly the trajectory in "
         "lockstep, and write telemetry.csv (from Zenoh), flight.tlog, metrics.json and figures.",
     )
-    fl.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
-    fl.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+    add_preset_arguments(fl)
     fl.add_argument("--duration", type=float, metavar="S", help="simulated seconds of flight (default: the preset's)")
     fl.add_argument(
         "--speed",
@@ -195,8 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
         "autopilot streams MAVLink to 127.0.0.1:14550 (ground stations) and 127.0.0.1:14540 (offboard APIs) "
         "and answers whoever talks to it; telemetry also goes to Zenoh.",
     )
-    upp.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
-    upp.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+    add_preset_arguments(upp)
     upp.add_argument(
         "--mode",
         choices=("lockstep", "realtime"),

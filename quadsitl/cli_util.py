@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 import re
 
@@ -40,3 +41,10 @@ def attach_negative_values(argv: list[str], options: tuple[str, ...]) -> list[st
         out.append(a)
         i += 1
     return out
+
+
+def add_preset_arguments(p: argparse.ArgumentParser, controller: bool = True) -> None:
+    """``--preset`` (a shipped name or a TOML path) and, optionally, ``--controller``."""
+    p.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
+    if controller:
+        p.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from quadsitl import wire
-from quadsitl.cli_util import UsageError, check_range
+from quadsitl.cli_util import UsageError, add_preset_arguments, check_range
 from quadsitl.config import ConfigError, load_preset
 from quadsitl.process_util import (
     die_with_parent,
@@ -159,7 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
         "  quadsitl plant --preset x500 --mode realtime --autopilot 127.0.0.1:14560",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--preset", default="paper", help="preset name or TOML path (default: paper)")
+    add_preset_arguments(p, controller=False)
     p.add_argument(
         "--autopilot",
         default="127.0.0.1:14560",
