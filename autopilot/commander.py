@@ -34,6 +34,7 @@ class CommanderSettings:
     land_speed: float = 1.0  # [m/s]
     landed_time: float = 0.5  # [s]
     land_target: float = -0.5  # [m] the landing reference goes this far below the ground
+    altitude_max: float = 1000.0  # [m] altitude setpoints above this (or below 0) are refused
 
 
 class Commander:

@@ -44,7 +44,9 @@ class Snapshot:
     reversible: bool
     max_total_thrust: float  # 4·F_max [N]
     load: float = 0.0  # fraction of the control period the tick used
-    errors_comm: int = 0  # undecodable datagrams from ground stations
+    # SYS_STATUS errors_comm, errors_count1..4: bad ground-link frames, unknown messages, refused inputs,
+    # plant-link errors, messages for another system/component
+    errors: tuple[int, int, int, int, int] = (0, 0, 0, 0, 0)
 
 
 def heartbeat(c: Commander) -> mavlink.MAVLink_heartbeat_message:
@@ -129,7 +131,7 @@ def build(msg_id: int, s: Snapshot, c: Commander, home: Home):
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
         return home_position(home, s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
-        return sys_status(s.load, s.errors_comm)
+        return sys_status(s.load, s.errors)
     if msg_id == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
         return mavlink.MAVLink_extended_sys_state_message(mavlink.MAV_VTOL_STATE_UNDEFINED, landed_state(c, st))
     if msg_id == mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
@@ -155,11 +157,14 @@ SENSORS = (
 HEALTH = SENSORS | mavlink.MAV_SYS_STATUS_GEOFENCE
 
 
-def sys_status(load: float = 0.0, errors_comm: int = 0) -> mavlink.MAVLink_sys_status_message:
-    """``load`` is the fraction of the control period the tick used; no battery is simulated."""
+def sys_status(load: float = 0.0, errors: tuple[int, ...] = (0, 0, 0, 0, 0)) -> mavlink.MAVLink_sys_status_message:
+    """``load`` is the fraction of the control period the tick used; no battery is simulated. ``errors``:
+    errors_comm (bad frames on the ground link), errors_count1 (unknown messages), errors_count2 (refused
+    setpoints and parameter values), errors_count3 (plant-link errors), errors_count4 (messages for
+    another system or component); each saturates at 65535."""
+    comm, c1, c2, c3, c4 = (min(e, 65535) for e in errors)
     return mavlink.MAVLink_sys_status_message(
-        SENSORS, SENSORS, HEALTH, _clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0,
-        min(errors_comm, 65535), 0, 0, 0, 0, 0, 0, 0,
+        SENSORS, SENSORS, HEALTH, _clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1, c2, c3, c4, 0, 0, 0,
     )  # fmt: skip
 
 

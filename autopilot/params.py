@@ -83,6 +83,7 @@ def _specs() -> tuple[ParamSpec, ...]:
         ParamSpec("COM_OF_LOSS_T", 0, 3600, "s", "offboard setpoint loss timeout (simulated time)", lo_open=True),
         ParamSpec("MPC_LAND_SPEED", 0, 100, "m/s", "descent speed in LAND", lo_open=True),
         ParamSpec("COM_DISARM_LAND", 0, 60, "s", "time on the ground before LAND disarms", lo_open=True),
+        ParamSpec("SP_ALT_MAX", 0, 100000, "m", "altitude setpoints above this are refused", lo_open=True),
     ]
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
@@ -107,6 +108,7 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(VM_DRAG_D=v.drag_factor, VM_GRAVITY=v.gravity, ATT_TILT_MAX=c.max_tilt)
     out.update(THR_MIN=c.thrust_min, THR_MAX=c.thrust_max, COM_OF_LOSS_T=settings.setpoint_timeout)
     out.update(MPC_LAND_SPEED=settings.land_speed, COM_DISARM_LAND=settings.landed_time)
+    out.update(SP_ALT_MAX=settings.altitude_max)
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 
@@ -152,6 +154,7 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
         setpoint_timeout=values["COM_OF_LOSS_T"],
         land_speed=values["MPC_LAND_SPEED"],
         landed_time=values["COM_DISARM_LAND"],
+        altitude_max=values["SP_ALT_MAX"],
     )
     kind = CONTROLLER_TYPES[int(values["CTL_TYPE"])]
     return Applied(replace(base, vehicle=vehicle, controller=controller), kind, settings)

@@ -53,6 +53,7 @@ PEER_TIMEOUT = 30.0  # [s] wall: stop streaming to a peer that has been silent t
 FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
 BATCH_WALL = 0.001  # [s] wall: Zenoh telemetry goes out at least this often (every tick at 1 kHz real time)
 BATCH_TICKS = 64  # and at the latest after this many ticks
+PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
 
@@ -116,8 +117,15 @@ class Autopilot:
         self.last_heartbeat = 0.0
         self.last_state_usec = -1
         self.latest: tuple[int, object, VehicleState, Reference] | None = None  # tick, ODOMETRY, state, ref
-        self.errors_comm = 0  # undecodable ground-station datagrams
-        self.errors_plant = 0  # undecodable or corrupt plant datagrams
+        # Input counters, reported in SYS_STATUS (errors_comm, errors_count1..4):
+        self.errors_comm = 0  # ground-station datagrams that are not MAVLink or fail their CRC
+        self.unknown = 0  # well-formed messages we do not handle (ignored)
+        self.refused = 0  # setpoints and parameter values refused by validation
+        self.errors_plant = 0  # plant-link datagrams that are corrupt, non-finite, or from a stranger
+        self.not_for_us = 0  # messages addressed to another system or component (ignored)
+        self.internal_errors = 0  # exceptions while handling a ground-station message (bugs; reported)
+        self.plant_peer: tuple[str, int] | None = None  # the plant the link is locked to
+        self.plant_heard = 0.0  # wall time its last datagram arrived
         self.load = 0.0  # fraction of the period the last tick took
         self.chunk_id = 0
         self.said: dict[str, float] = {}  # topic → wall time of the last such warning
@@ -149,6 +157,10 @@ class Autopilot:
             return
         if self.last_state_usec - 1_000_000 < m.time_usec < self.last_state_usec:
             return  # stale or reordered; a jump back by more than 1 s is a restarted plant
+        if not all(map(math.isfinite, (m.x, m.y, m.z, m.vx, m.vy, m.vz, *m.q, m.rollspeed, m.pitchspeed,
+                                       m.yawspeed))):  # fmt: skip
+            self.errors_plant += 1  # never fly a broken state; the plant re-sends (lockstep) or moves on
+            return
         started = time.perf_counter()
         self.last_state_usec = m.time_usec
         tick = wire.tick_of(m.time_usec, self.period)
@@ -221,7 +233,7 @@ class Autopilot:
             reversible=self.reversible,
             max_total_thrust=4.0 * self.f_max,
             load=self.load,
-            errors_comm=self.errors_comm,
+            errors=(self.errors_comm, self.unknown, self.refused, self.errors_plant, self.not_for_us),
         )
 
     # ---- the ground-station links --------------------------------------------------------------
@@ -235,6 +247,12 @@ class Autopilot:
         self.chunk_id = self.chunk_id % 65535 + 1
         for msg in gcs_messages.statustext(severity, text, self.chunk_id):
             self._send_gcs(msg)
+
+    def _refuse(self, topic: str, text: str) -> None:
+        """A refused input: counted, and said (at most every few seconds per kind); the last valid
+        setpoint stays in force."""
+        self.refused += 1
+        self._say_once(topic, text)
 
     def _say_once(self, topic: str, text: str, every: float = 5.0) -> None:
         """A warning about a repeated input (a stream of unsupported setpoints): at most once per ``every`` s."""
@@ -257,9 +275,14 @@ class Autopilot:
         link.peers[sender] = time.monotonic()
         if new_peer:
             self.heartbeat()
-        if not hasattr(m, "target_system") or not self._for_me(m.target_system, m.target_component):
-            return
         mid = m.get_msgId()
+        if not hasattr(m, "target_system"):
+            if mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                self.unknown += 1
+            return
+        if not self._for_me(m.target_system, getattr(m, "target_component", 0)):  # SET_MODE has no component
+            self.not_for_us += 1
+            return
         if mid in (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT):
             self._command(m, link)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
@@ -271,8 +294,14 @@ class Autopilot:
                 )
                 return
             z_ignored = bool(m.type_mask & 4)  # z is down: altitude = −z
-            if z_ignored or math.isfinite(m.z):
-                self.commander.on_altitude_setpoint(None if z_ignored else -m.z)
+            if z_ignored:
+                self.commander.on_altitude_setpoint(None)
+            elif math.isfinite(m.z) and 0.0 <= -m.z <= self.commander.settings.altitude_max:
+                self.commander.on_altitude_setpoint(-m.z)
+            else:
+                top = self.commander.settings.altitude_max
+                self._refuse("alt", f"Altitude setpoint refused: z = {m.z:g} m; allowed: altitude 0..{top:g} m "
+                             "(z = -altitude, NED), parameter SP_ALT_MAX")  # fmt: skip
         elif mid == mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST:
             for index, name, value in self.params:
                 self._send_param(index, name, value)
@@ -286,6 +315,8 @@ class Autopilot:
             refusal = gcs_messages.ftp_refusal(m.payload)
             self._send_gcs(mavlink.MAVLink_file_transfer_protocol_message(0, m.get_srcSystem(), m.get_srcComponent(),
                                                                           list(refusal)))  # fmt: skip
+        else:
+            self.unknown += 1
         self._announce_commander()
 
     def _for_me(self, system: int, component: int) -> bool:
@@ -299,11 +330,18 @@ class Autopilot:
             self._say_once("rates", "Attitude setpoint ignored: body-rate setpoints (type_mask 128) not supported")
             return
         q = m.q
-        n2 = sum(x * x for x in q)
-        if not (math.isfinite(n2) and abs(n2 - 1.0) < QUATERNION_TOLERANCE):
+        n2 = sum(x * x for x in q) if all(map(math.isfinite, q)) else math.nan
+        if not abs(n2 - 1.0) < QUATERNION_TOLERANCE:  # False for NaN too
+            self._refuse("quat", f"Attitude setpoint refused: |q|^2 = {n2:.3g}, not a unit quaternion")
             return
         n = math.sqrt(n2)
-        self.commander.on_attitude_setpoint(*quaternion_to_euler(*(x / n for x in q)))
+        roll, pitch, yaw = quaternion_to_euler(*(x / n for x in q))
+        tilt = self.controller.max_tilt
+        if abs(roll) > tilt or abs(pitch) > tilt:
+            self._refuse("tilt", f"Attitude setpoint refused: roll {roll:.3f}, pitch {pitch:.3f} rad beyond "
+                                 f"ATT_TILT_MAX {tilt:.3f} rad")  # fmt: skip
+            return
+        self.commander.on_attitude_setpoint(roll, pitch, yaw)
 
     # ---- parameters ----------------------------------------------------------------------------
 
@@ -321,7 +359,9 @@ class Autopilot:
         if found is None:
             self._say(mavlink.MAV_SEVERITY_WARNING, f"Param set refused: {reason}")
             return
-        if not reason:
+        if reason:
+            self.refused += 1
+        else:
             self._apply_params()
         self._send_param(*found)  # the value in force: the new one, or the unchanged one when refused
         if reason:
@@ -440,6 +480,16 @@ class Autopilot:
                         link.forget_silent(wall)
 
     def on_plant_datagram(self, data: bytes, sender: tuple[str, int]) -> None:
+        """The plant link is locked to the first plant that talks to it; another sender is a stranger and
+        is dropped, until the locked plant has been silent for PLANT_SILENCE (then a restarted plant, on
+        a new port, takes over)."""
+        wall = time.monotonic()
+        if sender != self.plant_peer:
+            if self.plant_peer is not None and wall - self.plant_heard < PLANT_SILENCE:
+                self.errors_plant += 1
+                return
+            self.plant_peer = sender
+        self.plant_heard = wall
         try:
             m = wire.parse_state(data)  # the per-tick fast path
         except wire.FrameError:
@@ -469,11 +519,19 @@ class Autopilot:
                     break  # e.g. an ICMP error reported on the socket: nothing to read
                 try:
                     msgs = self.mav.parse_buffer(data) or []
-                except mavlink.MAVError:
+                except Exception:  # pymavlink raises MAVError, and others on hostile bytes: never crash
                     self.errors_comm += 1
+                    self.mav = wire.link(self.sysid, self.compid)  # a parser in an unknown state: start over
                     continue
                 for m in msgs:
-                    self.on_gcs(m, link, sender)
+                    if m.get_type() == "BAD_DATA":
+                        self.errors_comm += 1
+                        continue
+                    try:
+                        self.on_gcs(m, link, sender)
+                    except Exception as exc:  # a bug must not take the vehicle down: report it, fly on
+                        self.internal_errors += 1
+                        print(f"autopilot: error: handling {m.get_type()} from {sender}: {exc!r}", file=sys.stderr)
 
     def close(self) -> None:
         if self.pubs:

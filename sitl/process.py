@@ -15,7 +15,9 @@ In both, actuator messages older than the last one used (by ``time_usec``) are d
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
 import socket
 import sys
 import time
@@ -46,6 +48,7 @@ class PlantLink:
     def __init__(self, bind: tuple[str, int], autopilot: tuple[str, int], max_thrust: float, period: float):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(bind)
+        self.sock.connect(autopilot)  # the kernel drops datagrams from anyone but the autopilot
         self.autopilot = autopilot
         self.mav = wire.link(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
         self.fast = wire.FastLink(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
@@ -57,7 +60,8 @@ class PlantLink:
         self.timeout = -1.0
 
     def send_state(self, tick: int, plant: Plant) -> None:
-        self.sock.sendto(self.fast.pack_state(wire.usec_of(tick, self.period), plant.state), self.autopilot)
+        with contextlib.suppress(ConnectionRefusedError):  # no autopilot yet (an ICMP error): free-wheel
+            self.sock.send(self.fast.pack_state(wire.usec_of(tick, self.period), plant.state))
 
     def receive_within(self, seconds: float) -> list:
         """Like :meth:`receive`, waiting at most ``seconds`` with microsecond precision (select), for the
@@ -74,7 +78,7 @@ class PlantLink:
             self.timeout = timeout
         try:
             data = self.sock.recv(65535)
-        except (BlockingIOError, InterruptedError):
+        except (BlockingIOError, InterruptedError, ConnectionRefusedError):
             return []
         try:
             fast = wire.parse_actuators(data)  # the per-tick fast path
@@ -91,6 +95,9 @@ class PlantLink:
                 return []
         out = []
         for m in msgs:
+            if not all(map(math.isfinite, m.controls[:4])):
+                self.corrupt += 1  # never integrate a non-finite force
+                continue
             if m.time_usec <= self.last_usec:
                 self.discarded += 1
                 continue

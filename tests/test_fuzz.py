@@ -1,0 +1,183 @@
+"""Hostile input while the vehicle flies: 100,000 random and mutated datagrams at every listening port of
+the autopilot and the plant. Nothing crashes, no exception escapes a loop, the state stays finite, the
+vehicle keeps tracking its reference, and the refusals are counted in SYS_STATUS."""
+
+import math
+import os
+import random
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
+
+from groundstation.launcher import free_port
+from quadsitl.wire import link
+from tests.mavclient import Client
+
+HOSTILE_FLOATS = (math.nan, math.inf, -math.inf, 1e30, -1e30, 3.4e38, -3.4e38, 123456.75, -98765.5)
+# Commands that are valid whatever their parameters carry authority, not hostile values (signing is the
+# defence against strangers who send them): a fuzzer that sends NAV_LAND lands the vehicle, as it should.
+AUTHORITY = {M.MAV_CMD_NAV_LAND}
+TARGETED = [
+    M.MAVLink_command_long_message, M.MAVLink_command_int_message, M.MAVLink_set_attitude_target_message,
+    M.MAVLink_set_position_target_local_ned_message, M.MAVLink_param_set_message, M.MAVLink_param_request_read_message,
+    M.MAVLink_param_request_list_message, M.MAVLink_file_transfer_protocol_message, M.MAVLink_heartbeat_message,
+    M.MAVLink_odometry_message, M.MAVLink_hil_actuator_controls_message, M.MAVLink_statustext_message,
+]  # fmt: skip
+ALL = [c for c in vars(M).values() if isinstance(c, type) and issubclass(c, M.MAVLink_message) and hasattr(c, "id")]
+
+
+def hostile_message(rng: random.Random):
+    cls = rng.choice(TARGETED) if rng.random() < 0.8 else rng.choice(ALL)
+    lengths = dict(zip(cls.ordered_fieldnames, cls.lengths))
+    args = []
+    for name, ftype in zip(cls.fieldnames, cls.fieldtypes):
+        n = lengths.get(name, 1)
+        if name in ("target_system",):
+            value = rng.choice([1, 1, 1, 0, 7])
+        elif name in ("target_component",):
+            value = rng.choice([1, 1, 0, 190])
+        elif name == "command":
+            value = rng.choice(
+                [c for c in (400, 176, 512, 511, 510, 520, 410, rng.randrange(65536)) if c not in AUTHORITY]
+            )
+        elif name == "param_id":
+            value = rng.choice(
+                [b"BS_K1", b"VM_MASS", b"CTL_TYPE", b"SP_ALT_MAX", bytes(rng.randrange(256) for _ in range(16))]
+            )
+        elif ftype == "char":
+            value = bytes(rng.randrange(256) for _ in range(rng.randrange(n + 1)))
+            args.append(value)
+            continue
+        elif ftype in ("float", "double"):
+            value = [rng.choice(HOSTILE_FLOATS) for _ in range(n)] if n > 1 else rng.choice(HOSTILE_FLOATS)
+        else:
+            bits = {"uint8_t": 8, "int8_t": 8, "uint16_t": 16, "int16_t": 16, "uint32_t": 32, "int32_t": 32}.get(
+                ftype, 64
+            )
+            lo, hi = (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if ftype.startswith("int") else (0, 2**bits - 1)
+            value = [rng.randint(lo, hi) for _ in range(n)] if n > 1 else rng.randint(lo, hi)
+        args.append(value)
+    return cls(*args)  # fmt: skip
+
+
+def datagrams(rng: random.Random, count: int) -> list[bytes]:
+    """Valid frames with hostile field values, mutated frames, truncated frames and garbage."""
+    mav = link(rng.randrange(1, 256), rng.randrange(256))
+    out: list[bytes] = []
+    while len(out) < count:
+        kind = rng.random()
+        if kind < 0.1:
+            out.append(bytes(rng.randrange(256) for _ in range(rng.randrange(1, 300))))
+            continue
+        try:
+            frame = hostile_message(rng).pack(mav)
+        except Exception:  # a value pymavlink cannot pack (e.g. a float where it checks): try another
+            continue
+        if kind < 0.55:
+            out.append(frame)
+        elif kind < 0.75:
+            b = bytearray(frame)
+            for _ in range(rng.randrange(1, 4)):
+                b[rng.randrange(len(b))] = rng.randrange(256)
+            out.append(bytes(b))
+        elif kind < 0.9:
+            out.append(frame[: rng.randrange(1, len(frame))])
+        else:
+            out.append(frame + frame[: rng.randrange(len(frame))])  # one and a half frames
+    return out
+
+
+@pytest.fixture
+def flying_vehicle():
+    ports = {name: free_port() for name in ("plant_listen", "gcs", "api", "plant_bind")}
+    ap = subprocess.Popen([sys.executable, "-m", "autopilot", "--no-zenoh", "--plant-listen",
+                           f"127.0.0.1:{ports['plant_listen']}", "--gcs-listen", f"127.0.0.1:{ports['gcs']}",
+                           "--gcs-remote", "none", "--api-listen", f"127.0.0.1:{ports['api']}", "--api-remote", "none"],
+                          stderr=subprocess.PIPE, text=True)  # fmt: skip
+    plant = subprocess.Popen([sys.executable, "-m", "sitl", "--autopilot", f"127.0.0.1:{ports['plant_listen']}",
+                              "--bind", f"127.0.0.1:{ports['plant_bind']}", "--speed", "1"],
+                             stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        yield ap, plant, ports
+    finally:
+        for p in (plant, ap):
+            if p.poll() is None:
+                p.terminate()
+        for p in (plant, ap):
+            try:
+                p.wait(5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def test_100k_hostile_datagrams_while_flying(flying_vehicle):
+    ap, plant, ports = flying_vehicle
+    c = Client.__new__(Client)  # a GCS on the api link (udpout: it talks first)
+    from pymavlink import mavutil
+
+    c.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ports['api']}", source_system=255, source_component=190,
+                                        dialect="common")  # fmt: skip
+    c.latest, c.texts, c._chunks, c.acks = {}, [], {}, []
+    ref = dict(altitude=2.0, roll=0.1, pitch=-0.05, yaw=0.3)
+    stop = threading.Event()
+
+    def stream() -> None:
+        while not stop.is_set():
+            c.setpoint(**ref)
+            time.sleep(0.05)
+
+    streamer = threading.Thread(target=stream, daemon=True)
+    try:
+        end = time.monotonic() + 20
+        while time.monotonic() < end and "HEARTBEAT" not in c.latest:
+            c.conn.mav.heartbeat_send(6, 8, 0, 0, 0)
+            c.pump(0.3)
+        streamer.start()
+        time.sleep(0.3)
+        assert c.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_ACCEPTED
+        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+        c.pump(3.0)
+
+        rng = random.Random(int(os.environ.get("QUADSITL_FUZZ_SEED", "20261123")))
+        pool = datagrams(rng, 5000)
+        targets = [("127.0.0.1", ports[k]) for k in ("api", "gcs", "plant_listen", "plant_bind")]
+        import socket
+
+        fuzz = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sent, t0 = 0, time.monotonic()
+        while sent < 100_000:
+            for _ in range(200):
+                fuzz.sendto(pool[rng.randrange(len(pool))], targets[sent % len(targets)])
+                sent += 1
+            c.pump(0.005)  # ~40,000 datagrams/s, while the real GCS keeps listening
+            if ap.poll() is not None or plant.poll() is not None:
+                dead = ap if ap.poll() is not None else plant
+                pytest.fail(f"{dead.args[2]} died under fuzzing:\n{dead.stderr.read()[-3000:]}")
+        fuzz.close()
+        fuzz_seconds = time.monotonic() - t0
+        c.pump(3.0)
+        att, pos, hb = c.latest["ATTITUDE"], c.latest["LOCAL_POSITION_NED"], c.latest["HEARTBEAT"]
+        status = c.latest["SYS_STATUS"]
+    finally:
+        stop.set()
+        c.conn.close()
+
+    assert ap.poll() is None and plant.poll() is None
+    values = (att.roll, att.pitch, att.yaw, att.rollspeed, pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz)
+    assert all(map(math.isfinite, values))
+    assert hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and hb.custom_mode == 6 << 16  # still flying offboard
+    assert (att.roll, att.pitch, att.yaw) == pytest.approx((0.1, -0.05, 0.3), abs=5e-3)
+    assert pos.z == pytest.approx(-2.0, abs=5e-3)
+    # counted, not silent: bad frames, unknown messages, refused inputs, plant-link strangers, other targets
+    assert status.errors_comm > 100 and status.errors_count1 > 100 and status.errors_count2 > 100
+    assert status.errors_count3 > 100 and status.errors_count4 > 100
+    assert fuzz_seconds < 60
+    for p in (ap, plant):
+        p.terminate()
+        _, err = p.communicate(timeout=10)
+        assert "Traceback" not in err and "error: handling" not in err, err[-2000:]
