@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import socket
 import sys
 import time
@@ -102,7 +103,9 @@ class Autopilot:
         self.home = Home(*args.home) if args.home else Home()
         self.sysid = args.system_id
         self.compid = wire.AUTOPILOT_COMPONENT_ID
-        self.mav = wire.link(self.sysid, self.compid)
+        self.mav = wire.link(self.sysid, self.compid)  # the plant link's fallback parser
+        self.signing_key: bytes | None = args.signing_key
+        self.gcs_mav = self._gcs_link()  # ground-station links: signed when a key is given
         self.fast = wire.FastLink(self.sysid, self.compid)  # the per-tick plant link
         self.plant_sock = bind_udp("--plant-listen", args.plant_listen)
         self.links: list[GcsLink] = []
@@ -187,7 +190,7 @@ class Autopilot:
             for mid in link.streams.due(tick):
                 if mid not in built:
                     snap = snap or self._snapshot()
-                    built[mid] = gcs_messages.build(mid, snap, self.commander, self.home).pack(self.mav)
+                    built[mid] = gcs_messages.build(mid, snap, self.commander, self.home).pack(self.gcs_mav)
                 link.send(built[mid])
         self._announce_commander()
         self.load = (time.perf_counter() - started) / self.period
@@ -239,7 +242,7 @@ class Autopilot:
     # ---- the ground-station links --------------------------------------------------------------
 
     def _send_gcs(self, msg) -> None:
-        buf = msg.pack(self.mav)
+        buf = msg.pack(self.gcs_mav)
         for link in self.links:
             link.send(buf)
 
@@ -507,6 +510,16 @@ class Autopilot:
             if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ODOMETRY:
                 self.on_state(msg, sender)
 
+    def _gcs_link(self, old: mavlink.MAVLink | None = None) -> mavlink.MAVLink:
+        """A fresh ground-link parser/packer; with a key, signed (and keeping the old one's signing
+        state, so replay protection and the refusal count survive a reset)."""
+        mav = wire.link(self.sysid, self.compid)
+        if self.signing_key is not None:
+            wire.enable_signing(mav, self.signing_key)
+            if old is not None:
+                mav.signing = old.signing
+        return mav
+
     def poll_gcs(self) -> None:
         """Everything waiting on the ground-station sockets."""
         for link in self.links:
@@ -517,12 +530,16 @@ class Autopilot:
                     break
                 except OSError:
                     break  # e.g. an ICMP error reported on the socket: nothing to read
+                refused_before = wire.signing_refusals(self.gcs_mav)
                 try:
-                    msgs = self.mav.parse_buffer(data) or []
+                    msgs = self.gcs_mav.parse_buffer(data) or []
                 except Exception:  # pymavlink raises MAVError, and others on hostile bytes: never crash
                     self.errors_comm += 1
-                    self.mav = wire.link(self.sysid, self.compid)  # a parser in an unknown state: start over
+                    self.gcs_mav = self._gcs_link(self.gcs_mav)  # a parser in an unknown state: start over
                     continue
+                if wire.signing_refusals(self.gcs_mav) > refused_before:
+                    self._say_once("signing", f"Unsigned or badly signed message refused from {sender[0]} "
+                                              f"({wire.signing_refusals(self.gcs_mav)} so far)")  # fmt: skip
                 for m in msgs:
                     if m.get_type() == "BAD_DATA":
                         self.errors_comm += 1
@@ -599,6 +616,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="offboard setpoint loss failsafe, simulated seconds (default: 1; parameter COM_OF_LOSS_T)",
     )
+    p.add_argument(
+        "--signing-key",
+        metavar="HEX|FILE",
+        help="MAVLink 2 signing on the ground-station links: 64 hex digits or a file holding them; unsigned, "
+        f"wrongly signed and replayed messages are refused (default: ${wire.SIGNING_ENV}, else no signing). "
+        "A file or the environment keeps the key out of the process list",
+    )
     telemetry.add_zenoh_arguments(p)
     p.add_argument("--no-zenoh", action="store_true", help="do not publish telemetry to Zenoh")
     return p
@@ -627,6 +651,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not 1 <= args.system_id <= 255:
             raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
         args.home = parse_home(args.home)
+        key_text = args.signing_key or os.environ.get(wire.SIGNING_ENV)
+        args.signing_key = wire.load_signing_key("--signing-key", key_text) if key_text else None
         ap = Autopilot(preset, args)
     except (UsageError, ConfigError, GainError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

@@ -182,6 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--out", default="runs/fly", metavar="DIR", help="output folder (default: runs/fly)")
     fl.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     fl.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+    fl.add_argument("--signing-key", metavar="HEX|FILE", help="MAVLink 2 signing between ground station and autopilot")
     fl.set_defaults(func=cmd_fly)
 
     upp = sub.add_parser(
@@ -224,6 +225,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     upp.add_argument("--no-zenoh", action="store_true", help="no Zenoh telemetry")
     upp.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+    upp.add_argument(
+        "--signing-key",
+        metavar="HEX|FILE",
+        help="MAVLink 2 signing on both ground-station links: 64 hex digits or a file holding them (or set "
+        "$QUADSITL_SIGNING_KEY); unsigned, wrongly signed and replayed messages are refused",
+    )
     upp.set_defaults(func=cmd_up)
 
     for name, (_module, help_text) in PROCESSES.items():

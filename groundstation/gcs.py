@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import socket
 import struct
 import sys
@@ -69,6 +70,8 @@ class GroundStation:
         self.sock.connect(parse_address("--connect", args.connect))
         self.sock.settimeout(0.005)
         self.mav = wire.link(wire.GCS_SYSTEM_ID, wire.GCS_COMPONENT_ID)
+        if args.signing_key is not None:
+            wire.enable_signing(self.mav, args.signing_key)
         self.tlog = open(self.out / "flight.tlog", "wb")  # noqa: SIM115 - closed in close()
         conf = telemetry.config_from_args(args)
         self.session = zenoh.open(conf)
@@ -258,6 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/gcs", metavar="DIR", help="where telemetry.csv and flight.tlog go")
     p.add_argument("--timeout", type=float, default=600.0, metavar="S", help="give up after S wall seconds")
     p.add_argument("--quiet", "-q", action="store_true")
+    p.add_argument("--signing-key", metavar="HEX|FILE", help=f"sign the MAVLink link (default: ${wire.SIGNING_ENV})")
     telemetry.add_zenoh_arguments(p)
     return p
 
@@ -269,6 +273,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         check_range("--duration", args.duration, 0.0, 3600.0)
+        key_text = args.signing_key or os.environ.get(wire.SIGNING_ENV)
+        args.signing_key = wire.load_signing_key("--signing-key", key_text) if key_text else None
         gcs = GroundStation(args)
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

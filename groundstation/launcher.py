@@ -37,12 +37,27 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
         return s.getsockname()[1]
 
 
+def signing_env(key_text: str | None) -> dict[str, str] | None:
+    """The environment that hands a signing key to the children: the environment, not the command line,
+    so that the key stays out of the process list."""
+    if not key_text:
+        return None
+    import os
+
+    from quadsitl import wire
+
+    wire.load_signing_key("--signing-key", key_text)  # refuse a bad key here, with the option's name
+    return {**os.environ, wire.SIGNING_ENV: key_text}
+
+
 @dataclass
 class Children:
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
 
+    env: dict[str, str] | None = None  # the children's environment (None: this process's)
+
     def start(self, name: str, args: list[str]) -> None:
-        self.procs[name] = subprocess.Popen([sys.executable, "-m", *args])
+        self.procs[name] = subprocess.Popen([sys.executable, "-m", *args], env=self.env)
 
     def first_failure(self, done: str) -> tuple[str, int] | None:
         """(name, status) of a child that exited when it should not have; ``done`` may exit with 0."""
@@ -79,7 +94,7 @@ def on_sigterm(signum: int, _frame: object) -> None:
 def up(preset_name: str, preset: Preset, args) -> int:
     """Plant and autopilot until Ctrl-C or SIGTERM (exit 0), or until one of them fails (exit 1)."""
     plant_port = free_port()
-    children = Children()
+    children = Children(env=signing_env(args.signing_key))
     old = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
@@ -143,7 +158,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     plant_port, gcs_port, zenoh_port = free_port(), free_port(), free_port(socket.SOCK_STREAM)
     zenoh_ep = f"tcp/127.0.0.1:{zenoh_port}"
     quiet = ["--quiet"] if args.quiet else []
-    children = Children()
+    children = Children(env=signing_env(args.signing_key))
 
     old = signal.signal(signal.SIGTERM, on_sigterm)
     try:

@@ -227,3 +227,56 @@ def parse_actuators(data: bytes) -> ActuatorControls | None:
         return None
     fields = _HIL_STRUCT.unpack(payload)
     return ActuatorControls(fields[0], fields[2:18], fields[18])
+
+
+# ---- MAVLink 2 message signing on the ground-station links -------------------------------------------
+
+SIGNING_ENV = "QUADSITL_SIGNING_KEY"
+_SIGNING_EPOCH = 1420070400  # 2015-01-01T00:00:00Z: MAVLink signing timestamps count 10 µs from here
+
+
+def load_signing_key(option: str, text: str) -> bytes:
+    """A 32-byte signing key from 64 hex digits, or from a file holding them (or the 32 raw bytes).
+    Errors name the option and what is allowed, never the value: a key must not reach a log."""
+    from pathlib import Path
+
+    from quadsitl.cli_util import UsageError
+
+    candidate = text.strip()
+    if len(candidate) == 64:
+        try:
+            return bytes.fromhex(candidate)
+        except ValueError:
+            pass
+    path = Path(text)
+    if path.is_file():
+        data = path.read_bytes()
+        if len(data) == 32:
+            return data
+        try:
+            key = bytes.fromhex(data.decode("ascii").strip())
+        except (UnicodeDecodeError, ValueError):
+            key = b""
+        if len(key) == 32:
+            return key
+        raise UsageError(f"{option}: the file holds neither 64 hex digits nor 32 raw bytes")
+    raise UsageError(f"{option}: expected 64 hex digits (a 32-byte key) or the path of a file holding them")
+
+
+def enable_signing(mav: mavlink.MAVLink, key: bytes, link_id: int = 0) -> None:
+    """Sign everything ``mav`` packs and accept only correctly signed, fresh frames when it parses
+    (pymavlink refuses unsigned frames, bad signatures and replayed timestamps, and counts them in
+    ``mav.signing.badsig_count`` and ``reject_count``)."""
+    import time
+
+    mav.signing.secret_key = key
+    mav.signing.sign_outgoing = True
+    mav.signing.link_id = link_id
+    mav.signing.timestamp = int((time.time() - _SIGNING_EPOCH) * 100_000)
+    mav.signing.allow_unsigned_callback = None
+
+
+def signing_refusals(mav: mavlink.MAVLink) -> int:
+    """Frames refused for their signature: unsigned, wrongly signed or replayed."""
+    s = mav.signing
+    return s.badsig_count + s.reject_count if s.secret_key is not None else 0
