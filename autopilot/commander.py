@@ -26,6 +26,7 @@ from quadsitl.wire import Mode
 
 FAILSAFE_NONE = 0
 FAILSAFE_SETPOINT_LOST = 1
+FAILSAFE_PLANT_LOST = 2
 
 
 @dataclass
@@ -93,6 +94,18 @@ class Commander:
             self.armed = False
             self.offboard_tick = -1
             self.messages.append((6, reason))
+
+    def plant_lost(self) -> None:
+        """No vehicle state arrives: flying blind. Armed, switch to LAND (it resumes when states do)."""
+        self.messages.append((2, "Plant link lost: no vehicle state"))
+        if self.armed:
+            self.failsafe = FAILSAFE_PLANT_LOST
+            if self.mode != Mode.LAND:
+                self._enter(Mode.LAND)
+                self.messages.append((2, "Failsafe: landing"))
+
+    def plant_restored(self) -> None:
+        self.messages.append((5, "Plant link restored"))
 
     def set_mode(self, mode: Mode) -> tuple[bool, str]:
         if mode == self.mode:

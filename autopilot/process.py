@@ -54,6 +54,7 @@ PEER_TIMEOUT = 30.0  # [s] wall: stop streaming to a peer that has been silent t
 FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
 BATCH_WALL = 0.001  # [s] wall: Zenoh telemetry goes out at least this often (every tick at 1 kHz real time)
 BATCH_TICKS = 64  # and at the latest after this many ticks
+PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lost (failsafe)
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
@@ -129,6 +130,7 @@ class Autopilot:
         self.internal_errors = 0  # exceptions while handling a ground-station message (bugs; reported)
         self.plant_peer: tuple[str, int] | None = None  # the plant the link is locked to
         self.plant_heard = 0.0  # wall time its last datagram arrived
+        self.plant_lost = False
         self.load = 0.0  # fraction of the period the last tick took
         self.chunk_id = 0
         self.said: dict[str, float] = {}  # topic → wall time of the last such warning
@@ -471,6 +473,10 @@ class Autopilot:
             if data is not None:
                 self.on_plant_datagram(data, sender)
             wall = time.monotonic()
+            if self.plant_peer is not None and not self.plant_lost and wall - self.plant_heard > PLANT_LOST_AFTER:
+                self.plant_lost = True
+                self.commander.plant_lost()
+                self._announce_commander()
             if self.batched and wall - self.last_flush >= BATCH_WALL:
                 self.flush_telemetry()
             if wall >= next_poll:
@@ -492,7 +498,11 @@ class Autopilot:
                 self.errors_plant += 1
                 return
             self.plant_peer = sender
+            self.last_state_usec = -1  # a new plant: its clock starts afresh
         self.plant_heard = wall
+        if self.plant_lost:
+            self.plant_lost = False
+            self.commander.plant_restored()
         try:
             m = wire.parse_state(data)  # the per-tick fast path
         except wire.FrameError:

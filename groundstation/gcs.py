@@ -229,6 +229,24 @@ class GroundStation:
             return 1
         return 0
 
+    def save_partial(self) -> int:
+        """On SIGINT/SIGTERM: the flight so far, flushed. telemetry.csv gets every tick flown up to the
+        last one whose four streams all arrived (a gap-free prefix); the .tlog is flushed to disk."""
+        deadline = time.monotonic() + 0.3  # what is already on its way
+        while time.monotonic() < deadline:
+            self.logger.drain()
+            time.sleep(0.02)
+        logged = self.logger.rows()
+        n = 0
+        while n in logged:
+            n += 1
+        write_csv(self.out / "telemetry.csv", np.array([logged[k] for k in range(n)]))
+        self.tlog.flush()
+        os.fsync(self.tlog.fileno())
+        print(f"gcs: interrupted; telemetry.csv has the {n} ticks flown so far, flight.tlog is flushed",
+              file=sys.stderr)  # fmt: skip
+        return n
+
     def close(self) -> None:
         self.logger.close()
         self.session.close()
@@ -284,7 +302,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except GcsError as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        return 130
+    except (KeyboardInterrupt, SystemExit) as exc:  # SIGINT, or SIGTERM (exit_on_signals)
+        gcs.save_partial()
+        return exc.code if isinstance(exc, SystemExit) and isinstance(exc.code, int) else 130
     finally:
         gcs.close()

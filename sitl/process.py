@@ -40,6 +40,7 @@ from sitl.plant import Plant
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
+AUTOPILOT_LOST_AFTER = 0.5  # [s] wall without an actuator message: the autopilot is lost
 
 
 class PlantLink:
@@ -58,10 +59,29 @@ class PlantLink:
         self.discarded = 0
         self.corrupt = 0
         self.timeout = -1.0
+        self.last_heard: float | None = None  # wall time the autopilot was last heard (None: not yet)
+        self.lost = False
 
     def send_state(self, tick: int, plant: Plant) -> None:
         with contextlib.suppress(ConnectionRefusedError):  # no autopilot yet (an ICMP error): free-wheel
             self.sock.send(self.fast.pack_state(wire.usec_of(tick, self.period), plant.state))
+
+    def heard(self) -> None:
+        """An actuator message was used: the autopilot is there."""
+        self.last_heard = time.monotonic()
+        if self.lost:
+            self.lost = False
+            print("plant: autopilot back; following its commands", file=sys.stderr, flush=True)
+
+    def check_lost(self, action: str) -> bool:
+        """True while the autopilot has been silent for AUTOPILOT_LOST_AFTER (said once per loss)."""
+        if self.last_heard is None or time.monotonic() - self.last_heard <= AUTOPILOT_LOST_AFTER:
+            return False
+        if not self.lost:
+            self.lost = True
+            print(f"plant: autopilot lost (no answer for {AUTOPILOT_LOST_AFTER:g} s); {action}", file=sys.stderr,
+                  flush=True)  # fmt: skip
+        return True
 
     def receive_within(self, seconds: float) -> list:
         """Like :meth:`receive`, waiting at most ``seconds`` with microsecond precision (select), for the
@@ -121,9 +141,11 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
                 if m.time_usec == want:
                     forces = wire.forces_from_message(m, link.max_thrust)
                     link.last_usec = m.time_usec
+                    link.heard()
                 elif m.time_usec > want:  # from the future: not ours
                     link.discarded += 1
             if forces is None:
+                link.check_lost("holding: simulated time stops until it answers")
                 link.send_state(tick, plant)  # free-wheel: no answer yet
         plant.step(forces)
         tick += 1
@@ -134,7 +156,9 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     return tick
 
 
-def run_realtime(plant: Plant, link: PlantLink, max_ticks: int | None, starts: list[float] | None = None) -> int:
+def run_realtime(
+    plant: Plant, link: PlantLink, max_ticks: int | None, starts: list[float] | None = None, on_loss: str = "zero"
+) -> int:
     """Integrate on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each tick's
     actual start time [s, monotonic]."""
     period = plant.period
@@ -153,6 +177,11 @@ def run_realtime(plant: Plant, link: PlantLink, max_ticks: int | None, starts: l
             for m in link.receive_within(remaining):
                 forces = wire.forces_from_message(m, link.max_thrust)
                 link.last_usec = m.time_usec
+                link.heard()
+        if link.check_lost(f"applying {'zero thrust' if on_loss == 'zero' else 'the last command'}") and (
+            on_loss == "zero"
+        ):
+            forces = (0.0, 0.0, 0.0, 0.0)
         plant.step(forces)
         tick += 1
     return tick
@@ -190,6 +219,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--integrator", choices=("euler", "rk4"), help="default: the preset's")
     p.add_argument("--substeps", type=int, metavar="N", help="default: the preset's")
     p.add_argument("--ticks", type=int, metavar="N", help="stop after N ticks (default: run until stopped)")
+    p.add_argument(
+        "--on-autopilot-loss",
+        choices=("zero", "last"),
+        default="zero",
+        help="realtime mode, when the autopilot stops answering: zero thrust (default) or hold its last command",
+    )
     p.add_argument("--stats", metavar="FILE", help="write the run's pace (and, in realtime, its timing) as JSON")
     return p
 
@@ -219,7 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.mode == "lockstep":
             run_lockstep(plant, link, args.speed, args.ticks)
         else:
-            run_realtime(plant, link, args.ticks, starts if args.stats else None)
+            run_realtime(plant, link, args.ticks, starts if args.stats else None, args.on_autopilot_loss)
     except KeyboardInterrupt:
         pass
     finally:

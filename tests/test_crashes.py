@@ -1,0 +1,129 @@
+"""Crashed processes: kill -9 of the plant (the autopilot says so and fails safe, and takes the next
+plant), and of the autopilot (the plant holds and says so, and a restarted autopilot carries on with the
+same plant)."""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
+
+from groundstation.launcher import free_port
+from tests.mavclient import Client
+
+
+class Lines:
+    """A process's stderr, read as it comes."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self.lines: list[str] = []
+        threading.Thread(target=self._read, args=(proc,), daemon=True).start()
+
+    def _read(self, proc: subprocess.Popen) -> None:
+        for line in proc.stderr:
+            self.lines.append(line)
+
+    def wait_for(self, text: str, timeout: float = 10.0) -> str:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for line in self.lines:
+                if text in line:
+                    return line
+            time.sleep(0.05)
+        raise AssertionError(f"no line with {text!r} in {self.lines}")
+
+
+@pytest.fixture
+def system():
+    ports = {k: free_port() for k in ("plant", "api")}
+    procs: list[subprocess.Popen] = []
+
+    def autopilot() -> subprocess.Popen:
+        p = subprocess.Popen([sys.executable, "-m", "autopilot", "--no-zenoh", "--plant-listen",
+                              f"127.0.0.1:{ports['plant']}", "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none",
+                              "--api-listen", f"127.0.0.1:{ports['api']}", "--api-remote", "none"],
+                             stderr=subprocess.PIPE, text=True)  # fmt: skip
+        procs.append(p)
+        return p
+
+    def plant(*extra: str) -> subprocess.Popen:
+        p = subprocess.Popen([sys.executable, "-m", "sitl", "--autopilot", f"127.0.0.1:{ports['plant']}", *extra],
+                             stderr=subprocess.PIPE, text=True)  # fmt: skip
+        procs.append(p)
+        return p
+
+    c = Client.__new__(Client)
+    c.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ports['api']}", source_system=255, source_component=190,
+                                        dialect="common")  # fmt: skip
+    c.latest, c.texts, c._chunks, c.acks = {}, [], {}, []
+    try:
+        yield autopilot, plant, c
+    finally:
+        c.conn.close()
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+
+
+def connect(c: Client) -> None:
+    end = time.monotonic() + 20
+    while time.monotonic() < end and "HEARTBEAT" not in c.latest:
+        c.conn.mav.heartbeat_send(6, 8, 0, 0, 0)
+        c.pump(0.3)
+    assert "HEARTBEAT" in c.latest
+
+
+def test_plant_killed_autopilot_fails_safe_and_takes_a_new_plant(system):
+    autopilot, plant, c = system
+    ap = autopilot()
+    pl = plant("--speed", "1")
+    connect(c)
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    c.wait("ATTITUDE", lambda m: m.time_boot_ms > 500)
+    pl.send_signal(signal.SIGKILL)
+    pl.wait()
+    c.text_containing("Plant link lost", timeout=5)
+    hb = c.wait("HEARTBEAT", lambda m: m.system_status == M.MAV_STATE_CRITICAL, timeout=5)
+    assert hb.custom_mode == (4 << 16) | (6 << 24)  # land
+    assert ap.poll() is None
+    plant("--speed", "1")  # a new plant, from a new port: the autopilot takes it once the old one is silent
+    c.text_containing("Plant link restored", timeout=10)
+    c.wait("ATTITUDE", lambda m: m.time_boot_ms < 400, timeout=10)  # the new plant's clock, from 0
+
+
+def test_autopilot_killed_plant_holds_and_a_restarted_autopilot_carries_on(system):
+    autopilot, plant, c = system
+    ap = autopilot()
+    pl = plant("--speed", "1")
+    lines = Lines(pl)
+    connect(c)
+    c.wait("ATTITUDE", lambda m: m.time_boot_ms > 500)
+    os.kill(ap.pid, signal.SIGKILL)
+    ap.wait()
+    lines.wait_for("plant: autopilot lost (no answer for 0.5 s); holding")
+    assert pl.poll() is None
+    autopilot()  # same ports: the plant's free-wheeling state reaches it
+    lines.wait_for("plant: autopilot back")
+    c.latest.clear()
+    connect(c)
+    first = c.wait("ATTITUDE").time_boot_ms
+    later = c.wait("ATTITUDE", lambda m: m.time_boot_ms >= first + 300, timeout=5).time_boot_ms
+    assert later > first > 500  # the same plant's clock carries on
+
+
+def test_realtime_plant_applies_zero_thrust_when_the_autopilot_is_gone(system):
+    autopilot, plant, c = system
+    ap = autopilot()
+    pl = plant("--mode", "realtime")
+    lines = Lines(pl)
+    connect(c)
+    c.wait("ATTITUDE", lambda m: m.time_boot_ms > 500)
+    os.kill(ap.pid, signal.SIGKILL)
+    lines.wait_for("plant: autopilot lost (no answer for 0.5 s); applying zero thrust")
+    assert pl.poll() is None
