@@ -178,3 +178,34 @@ def test_a_busy_port_names_the_port_and_the_option(cli):
         r.stderr
     )
     assert "the autopilot process exited with status 2" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_setpoint_validation_normalises_near_unit_quaternions_and_refuses_the_rest(client):
+    from quadsitl.frames import euler_to_quaternion
+
+    c = client
+    c.heartbeat()
+    q = [1.04 * x for x in euler_to_quaternion(0.1, 0.0, 0.0)]  # 8 % off unit length: normalised
+
+    def stream(quat, seconds: float, z: float = -1.0) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            c.conn.mav.set_attitude_target_send(0, 1, 1, 7, quat, 0, 0, 0, 0.5)
+            c.conn.mav.set_position_target_local_ned_send(0, 1, 1, M.MAV_FRAME_LOCAL_NED, 0b110111111011, 0, 0, z,
+                                                          0, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip
+            c.pump(0.05)
+
+    stream(q, 0.3)
+    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    stream(q, 2.0)
+    assert c.latest["ATTITUDE"].roll == pytest.approx(0.1, abs=2e-3)
+    stream([2.0 * x for x in q], 1.0)  # far from unit length: refused, 0.1 rad stays in force
+    c.text_containing("not a unit quaternion")
+    stream(list(euler_to_quaternion(1.45, 0.0, 0.0)), 1.0)  # 83° > ATT_TILT_MAX (80°)
+    c.text_containing("beyond ATT_TILT_MAX")
+    stream(q, 1.0, z=-5000.0)  # above SP_ALT_MAX
+    c.text_containing("Altitude setpoint refused")
+    assert c.latest["ATTITUDE"].roll == pytest.approx(0.1, abs=2e-3)
+    assert c.latest["LOCAL_POSITION_NED"].z == pytest.approx(-1.0, abs=5e-3)
+    assert c.latest["SYS_STATUS"].errors_count2 > 10
