@@ -27,6 +27,8 @@ from quadsitl.wire import Mode
 FAILSAFE_NONE = 0
 FAILSAFE_SETPOINT_LOST = 1
 FAILSAFE_PLANT_LOST = 2
+FAILSAFE_GCS_LOST = 3
+DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
 
 
 @dataclass
@@ -36,6 +38,8 @@ class CommanderSettings:
     landed_time: float = 0.5  # [s]
     land_target: float = -0.5  # [m] the landing reference goes this far below the ground
     altitude_max: float = 1000.0  # [m] altitude setpoints above this (or below 0) are refused
+    datalink_timeout: float = 10.0  # [s] wall, like PX4's COM_DL_LOSS_T: ground-station heartbeat loss
+    datalink_action: int = 0  # index in DATALINK_ACTIONS, like PX4's NAV_DLL_ACT (0: do nothing)
 
 
 class Commander:
@@ -103,6 +107,19 @@ class Commander:
             if self.mode != Mode.LAND:
                 self._enter(Mode.LAND)
                 self.messages.append((2, "Failsafe: landing"))
+
+    def datalink_lost(self, seconds: float) -> None:
+        """No ground-station heartbeat for ``seconds``: the configured action (NAV_DLL_ACT)."""
+        action = DATALINK_ACTIONS[self.settings.datalink_action]
+        self.messages.append((2, f"Ground station lost: no heartbeat for {seconds:g} s; action: {action}"))
+        if self.armed and action != "none":
+            self.failsafe = FAILSAFE_GCS_LOST
+            mode = Mode.HOLD if action == "hold" else Mode.LAND
+            if self.mode != mode:
+                self._enter(mode)
+
+    def datalink_restored(self) -> None:
+        self.messages.append((5, "Ground station back"))
 
     def plant_restored(self) -> None:
         self.messages.append((5, "Plant link restored"))

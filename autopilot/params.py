@@ -84,6 +84,8 @@ def _specs() -> tuple[ParamSpec, ...]:
         ParamSpec("MPC_LAND_SPEED", 0, 100, "m/s", "descent speed in LAND", lo_open=True),
         ParamSpec("COM_DISARM_LAND", 0, 60, "s", "time on the ground before LAND disarms", lo_open=True),
         ParamSpec("SP_ALT_MAX", 0, 100000, "m", "altitude setpoints above this are refused", lo_open=True),
+        ParamSpec("COM_DL_LOSS_T", 0, 3600, "s", "ground-station heartbeat loss timeout (wall time)", lo_open=True),
+        ParamSpec("NAV_DLL_ACT", 0, 2, "", "on ground-station loss: 0 = nothing, 1 = hold, 2 = land", integer=True),
     ]
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
@@ -108,7 +110,8 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(VM_DRAG_D=v.drag_factor, VM_GRAVITY=v.gravity, ATT_TILT_MAX=c.max_tilt)
     out.update(THR_MIN=c.thrust_min, THR_MAX=c.thrust_max, COM_OF_LOSS_T=settings.setpoint_timeout)
     out.update(MPC_LAND_SPEED=settings.land_speed, COM_DISARM_LAND=settings.landed_time)
-    out.update(SP_ALT_MAX=settings.altitude_max)
+    out.update(SP_ALT_MAX=settings.altitude_max, COM_DL_LOSS_T=settings.datalink_timeout)
+    out.update(NAV_DLL_ACT=float(settings.datalink_action))
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 
@@ -155,6 +158,8 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
         land_speed=values["MPC_LAND_SPEED"],
         landed_time=values["COM_DISARM_LAND"],
         altitude_max=values["SP_ALT_MAX"],
+        datalink_timeout=values["COM_DL_LOSS_T"],
+        datalink_action=int(values["NAV_DLL_ACT"]),
     )
     kind = CONTROLLER_TYPES[int(values["CTL_TYPE"])]
     return Applied(replace(base, vehicle=vehicle, controller=controller), kind, settings)

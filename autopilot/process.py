@@ -131,6 +131,8 @@ class Autopilot:
         self.plant_peer: tuple[str, int] | None = None  # the plant the link is locked to
         self.plant_heard = 0.0  # wall time its last datagram arrived
         self.plant_lost = False
+        self.gcs_heard: float | None = None  # wall time of the last ground-station heartbeat (None: never)
+        self.gcs_lost = False
         self.load = 0.0  # fraction of the period the last tick took
         self.chunk_id = 0
         self.said: dict[str, float] = {}  # topic → wall time of the last such warning
@@ -284,6 +286,12 @@ class Autopilot:
         if not hasattr(m, "target_system"):
             if mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
                 self.unknown += 1
+            elif m.type == mavlink.MAV_TYPE_GCS:
+                self.gcs_heard = time.monotonic()
+                if self.gcs_lost:
+                    self.gcs_lost = False
+                    self.commander.datalink_restored()
+                    self._announce_commander()
             return
         if not self._for_me(m.target_system, getattr(m, "target_component", 0)):  # SET_MODE has no component
             self.not_for_us += 1
@@ -482,6 +490,11 @@ class Autopilot:
             if wall >= next_poll:
                 next_poll = wall + GCS_POLL
                 self.poll_gcs()
+                timeout = self.commander.settings.datalink_timeout
+                if self.gcs_heard is not None and not self.gcs_lost and wall - self.gcs_heard > timeout:
+                    self.gcs_lost = True
+                    self.commander.datalink_lost(timeout)
+                    self._announce_commander()
                 if wall - self.last_heartbeat >= 1.0:
                     self.last_heartbeat = wall
                     self.heartbeat()

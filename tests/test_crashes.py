@@ -127,3 +127,18 @@ def test_realtime_plant_applies_zero_thrust_when_the_autopilot_is_gone(system):
     os.kill(ap.pid, signal.SIGKILL)
     lines.wait_for("plant: autopilot lost (no answer for 0.5 s); applying zero thrust")
     assert pl.poll() is None
+
+
+def test_ground_station_heartbeat_loss_takes_the_configured_action(system):
+    autopilot, plant, c = system
+    autopilot()
+    plant("--speed", "1")
+    connect(c)  # connect() heartbeats as a GCS
+    assert c.param_set("NAV_DLL_ACT", 2).param_value == 2.0
+    assert c.param_set("COM_DL_LOSS_T", 1.0).param_value == 1.0
+    c.conn.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    c.text_containing("Ground station lost: no heartbeat for 1 s; action: land", timeout=5)
+    c.wait("HEARTBEAT", lambda m: m.custom_mode == (4 << 16) | (6 << 24) and m.system_status == M.MAV_STATE_CRITICAL)
+    c.conn.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    c.text_containing("Ground station back", timeout=5)
