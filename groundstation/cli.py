@@ -128,6 +128,12 @@ def cmd_up(args: argparse.Namespace) -> int:
         if getattr(args, option) is not None:
             parse_remote("--" + option.replace("_", "-"), getattr(args, option))
     parse_home(args.home)
+    if args.impair:
+        from sitl.impair import parse_impairment
+
+        parse_impairment("--impair", args.impair)
+        if args.mode != "realtime":
+            raise UsageError("--impair: needs --mode realtime (lockstep waits for every answer)")
     return up(args.preset, preset, args)
 
 
@@ -215,6 +221,12 @@ def build_parser() -> argparse.ArgumentParser:
             metavar="HOST:PORT|none",
             help=f"where the {name} link streams (default: 127.0.0.1:{remote})",
         )
+    upp.add_argument(
+        "--impair",
+        metavar="SPEC",
+        help="with --mode realtime: impair the plant link both ways, e.g. loss=5,jitter=0.002 "
+        "(loss %%, delay s, jitter s, dup %%, reorder %%)",
+    )
     upp.add_argument("--system-id", type=int, default=1, help="MAVLink system id (default: 1)")
     upp.add_argument("--home", metavar="LAT,LON,ALT", help="home position (default: PX4 SITL's, in Zürich)")
     upp.add_argument(

@@ -111,6 +111,8 @@ def up(preset_name: str, preset: Preset, args) -> int:
         plant = ["sitl", "--preset", preset_name, "--autopilot", f"127.0.0.1:{plant_port}", "--mode", args.mode]
         if args.mode == "lockstep":
             plant += ["--speed", str(args.speed)]
+        if args.impair:
+            plant += ["--impair", args.impair]
         children.start("plant", plant)
         if not args.quiet:
             print(banner(preset, args), flush=True)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import heapq
 import json
 import math
 import socket
@@ -36,6 +37,7 @@ from quadsitl.process_util import (
     wait_readable,
 )
 from quadsitl.timing import period_stats
+from sitl.impair import Impairment, parse_impairment
 from sitl.plant import Plant
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
@@ -46,7 +48,14 @@ AUTOPILOT_LOST_AFTER = 0.5  # [s] wall without an actuator message: the autopilo
 class PlantLink:
     """The plant's end of the UDP link: send states, receive actuator commands."""
 
-    def __init__(self, bind: tuple[str, int], autopilot: tuple[str, int], max_thrust: float, period: float):
+    def __init__(
+        self,
+        bind: tuple[str, int],
+        autopilot: tuple[str, int],
+        max_thrust: float,
+        period: float,
+        impairment: Impairment | None = None,
+    ):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(bind)
         self.sock.connect(autopilot)  # the kernel drops datagrams from anyone but the autopilot
@@ -61,10 +70,37 @@ class PlantLink:
         self.timeout = -1.0
         self.last_heard: float | None = None  # wall time the autopilot was last heard (None: not yet)
         self.lost = False
+        self.impairment = impairment  # real-time runs only: both directions go through its queues
+        self.outbox: list[tuple[float, int, bytes]] = []  # (release time, order, datagram), a heap
+        self.inbox: list[tuple[float, int, bytes]] = []
+        self.order = 0
 
     def send_state(self, tick: int, plant: Plant) -> None:
+        frame = self.fast.pack_state(wire.usec_of(tick, self.period), plant.state)
+        if self.impairment is not None:
+            self._queue(self.outbox, frame)
+            return
         with contextlib.suppress(ConnectionRefusedError):  # no autopilot yet (an ICMP error): free-wheel
-            self.sock.send(self.fast.pack_state(wire.usec_of(tick, self.period), plant.state))
+            self.sock.send(frame)
+
+    def _queue(self, queue: list, datagram: bytes) -> None:
+        for t in self.impairment.schedule(time.monotonic()):
+            self.order += 1
+            heapq.heappush(queue, (t, self.order, datagram))
+
+    def next_event(self) -> float:
+        """When the next impaired datagram is due [s, monotonic] (inf when none waits)."""
+        return min(self.outbox[0][0] if self.outbox else math.inf, self.inbox[0][0] if self.inbox else math.inf)
+
+    def _release(self) -> list:
+        """Send the due outgoing datagrams; parse the due incoming ones."""
+        now, out = time.monotonic(), []
+        while self.outbox and self.outbox[0][0] <= now:
+            with contextlib.suppress(ConnectionRefusedError):
+                self.sock.send(heapq.heappop(self.outbox)[2])
+        while self.inbox and self.inbox[0][0] <= now:
+            out += self._accept(heapq.heappop(self.inbox)[2])
+        return out
 
     def heard(self) -> None:
         """An actuator message was used: the autopilot is there."""
@@ -87,9 +123,14 @@ class PlantLink:
         """Like :meth:`receive`, waiting at most ``seconds`` with microsecond precision (select), for the
         real-time loop; SO_RCVTIMEO counts in kernel ticks (4–10 ms) and Python's socket timeout in
         whole milliseconds, both too coarse for a 1 kHz schedule."""
-        if not wait_readable(self.sock, seconds):
-            return []
-        return self.receive(None)
+        if self.impairment is None:
+            return self.receive(None) if wait_readable(self.sock, seconds) else []
+        out = self._release()
+        wait = min(seconds, max(0.0, self.next_event() - time.monotonic()))
+        if wait_readable(self.sock, wait):
+            with contextlib.suppress(BlockingIOError, InterruptedError, ConnectionRefusedError):
+                self._queue(self.inbox, self.sock.recv(65535))
+        return out + self._release()
 
     def receive(self, timeout: float | None) -> list:
         """Actuator messages newer than the last used, from one datagram (empty on timeout)."""
@@ -100,6 +141,10 @@ class PlantLink:
             data = self.sock.recv(65535)
         except (BlockingIOError, InterruptedError, ConnectionRefusedError):
             return []
+        return self._accept(data)
+
+    def _accept(self, data: bytes) -> list:
+        """Actuator messages in one datagram, newer than the last used (older and duplicates discarded)."""
         try:
             fast = wire.parse_actuators(data)  # the per-tick fast path
         except wire.FrameError:
@@ -220,6 +265,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--substeps", type=int, metavar="N", help="default: the preset's")
     p.add_argument("--ticks", type=int, metavar="N", help="stop after N ticks (default: run until stopped)")
     p.add_argument(
+        "--impair",
+        metavar="SPEC",
+        help="realtime mode: impair the link both ways, e.g. loss=5,jitter=0.002 (keys: loss %%, delay s, "
+        "jitter s, dup %%, reorder %%)",
+    )
+    p.add_argument(
         "--on-autopilot-loss",
         choices=("zero", "last"),
         default="zero",
@@ -241,7 +292,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         bind = parse_address("--bind", args.bind)
         autopilot = parse_address("--autopilot", args.autopilot)
         plant = Plant(preset, integrator=args.integrator, substeps=args.substeps)
-        link = PlantLink(bind, autopilot, preset.actuators.max_thrust, preset.sim.period)
+        impairment = None
+        if args.impair:
+            if args.mode != "realtime":
+                raise UsageError("--impair: needs --mode realtime (lockstep waits for every answer)")
+            impairment = Impairment(parse_impairment("--impair", args.impair))
+        link = PlantLink(bind, autopilot, preset.actuators.max_thrust, preset.sim.period, impairment)
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
@@ -249,6 +305,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{parser.prog}: error: cannot bind --bind {args.bind}: {exc.strerror}", file=sys.stderr)
         return 2
     start = time.monotonic()
+    status = 0
     starts: list[float] = []
     try:
         if args.mode == "lockstep":
@@ -257,6 +314,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             run_realtime(plant, link, args.ticks, starts if args.stats else None, args.on_autopilot_loss)
     except KeyboardInterrupt:
         pass
+    except SystemExit as exc:  # SIGTERM (exit_on_signals): still say what the run did
+        status = exc.code if isinstance(exc.code, int) else 1
     finally:
         link.close()
     elapsed = time.monotonic() - start
@@ -270,4 +329,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"plant: {plant.time:.3f} s simulated in {elapsed:.3f} s; {link.discarded} stale actuator messages discarded",
         file=sys.stderr,
     )
-    return 0
+    if link.impairment is not None:
+        im = link.impairment
+        print(f"plant: link impairment dropped {im.dropped}, duplicated {im.duplicated}, reordered {im.reordered} "
+              "datagrams", file=sys.stderr)  # fmt: skip
+    return status

@@ -64,6 +64,23 @@ class Client:
         self._chunks: dict[int, list[str]] = {}
         self.acks: list[object] = []
 
+    @classmethod
+    def to(cls, port: int) -> Client:
+        """A client that talks first (pymavlink ``udpout``) to the autopilot's socket at ``port``."""
+        c = cls.__new__(cls)
+        c.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190,
+                                            dialect="common")  # fmt: skip
+        c.latest, c.texts, c._chunks, c.acks = {}, [], {}, []
+        return c
+
+    def connect(self, timeout: float = 20.0) -> None:
+        """Heartbeat as a ground station until the vehicle's heartbeat arrives."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and "HEARTBEAT" not in self.latest:
+            self.conn.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            self.pump(0.3)
+        assert "HEARTBEAT" in self.latest, "no heartbeat from the vehicle"
+
     def close(self) -> None:
         self.conn.close()
 

@@ -10,7 +10,6 @@ import threading
 import time
 
 import pytest
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
 
 from groundstation.launcher import free_port
@@ -57,10 +56,7 @@ def system():
         procs.append(p)
         return p
 
-    c = Client.__new__(Client)
-    c.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{ports['api']}", source_system=255, source_component=190,
-                                        dialect="common")  # fmt: skip
-    c.latest, c.texts, c._chunks, c.acks = {}, [], {}, []
+    c = Client.to(ports["api"])
     try:
         yield autopilot, plant, c
     finally:
@@ -71,19 +67,11 @@ def system():
             p.wait()
 
 
-def connect(c: Client) -> None:
-    end = time.monotonic() + 20
-    while time.monotonic() < end and "HEARTBEAT" not in c.latest:
-        c.conn.mav.heartbeat_send(6, 8, 0, 0, 0)
-        c.pump(0.3)
-    assert "HEARTBEAT" in c.latest
-
-
 def test_plant_killed_autopilot_fails_safe_and_takes_a_new_plant(system):
     autopilot, plant, c = system
     ap = autopilot()
     pl = plant("--speed", "1")
-    connect(c)
+    c.connect()
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
     c.wait("ATTITUDE", lambda m: m.time_boot_ms > 500)
     pl.send_signal(signal.SIGKILL)
@@ -102,7 +90,7 @@ def test_autopilot_killed_plant_holds_and_a_restarted_autopilot_carries_on(syste
     ap = autopilot()
     pl = plant("--speed", "1")
     lines = Lines(pl)
-    connect(c)
+    c.connect()
     c.wait("ATTITUDE", lambda m: m.time_boot_ms > 500)
     os.kill(ap.pid, signal.SIGKILL)
     ap.wait()
@@ -111,7 +99,7 @@ def test_autopilot_killed_plant_holds_and_a_restarted_autopilot_carries_on(syste
     autopilot()  # same ports: the plant's free-wheeling state reaches it
     lines.wait_for("plant: autopilot back")
     c.latest.clear()
-    connect(c)
+    c.connect()
     first = c.wait("ATTITUDE").time_boot_ms
     later = c.wait("ATTITUDE", lambda m: m.time_boot_ms >= first + 300, timeout=5).time_boot_ms
     assert later > first > 500  # the same plant's clock carries on
@@ -122,7 +110,7 @@ def test_realtime_plant_applies_zero_thrust_when_the_autopilot_is_gone(system):
     ap = autopilot()
     pl = plant("--mode", "realtime")
     lines = Lines(pl)
-    connect(c)
+    c.connect()
     c.wait("ATTITUDE", lambda m: m.time_boot_ms > 500)
     os.kill(ap.pid, signal.SIGKILL)
     lines.wait_for("plant: autopilot lost (no answer for 0.5 s); applying zero thrust")
@@ -133,7 +121,7 @@ def test_ground_station_heartbeat_loss_takes_the_configured_action(system):
     autopilot, plant, c = system
     autopilot()
     plant("--speed", "1")
-    connect(c)  # connect() heartbeats as a GCS
+    c.connect()  # heartbeats as a GCS
     assert c.param_set("NAV_DLL_ACT", 2).param_value == 2.0
     assert c.param_set("COM_DL_LOSS_T", 1.0).param_value == 1.0
     c.conn.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
