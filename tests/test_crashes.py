@@ -4,10 +4,12 @@ same plant)."""
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
@@ -42,10 +44,11 @@ def system():
     ports = {k: free_port() for k in ("plant", "api")}
     procs: list[subprocess.Popen] = []
 
-    def autopilot() -> subprocess.Popen:
-        p = subprocess.Popen([sys.executable, "-m", "autopilot", "--no-zenoh", "--plant-listen",
-                              f"127.0.0.1:{ports['plant']}", "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none",
-                              "--api-listen", f"127.0.0.1:{ports['api']}", "--api-remote", "none"],
+    def autopilot(*extra: str) -> subprocess.Popen:
+        zenoh = list(extra) or ["--no-zenoh"]
+        p = subprocess.Popen([sys.executable, "-m", "autopilot", "--plant-listen", f"127.0.0.1:{ports['plant']}",
+                              "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--api-listen",
+                              f"127.0.0.1:{ports['api']}", "--api-remote", "none", *zenoh],
                              stderr=subprocess.PIPE, text=True)  # fmt: skip
         procs.append(p)
         return p
@@ -57,6 +60,13 @@ def system():
         return p
 
     c = Client.to(ports["api"])
+
+    def gcs(*args: str) -> subprocess.Popen:
+        p = subprocess.Popen([sys.executable, "-m", "groundstation", "--connect", f"127.0.0.1:{ports['api']}", *args])
+        procs.append(p)
+        return p
+
+    autopilot.gcs = gcs  # type: ignore[attr-defined]
     try:
         yield autopilot, plant, c
     finally:
@@ -130,3 +140,45 @@ def test_ground_station_heartbeat_loss_takes_the_configured_action(system):
     c.wait("HEARTBEAT", lambda m: m.custom_mode == (4 << 16) | (6 << 24) and m.system_status == M.MAV_STATE_CRITICAL)
     c.conn.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
     c.text_containing("Ground station back", timeout=5)
+
+
+def test_ground_station_killed_mid_flight_triggers_the_setpoint_loss_failsafe(system, tmp_path):
+    autopilot, plant, c = system
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    autopilot("--zenoh-listen", endpoint)
+    plant("--speed", "1")
+    c.connect()  # a second ground station that only watches
+    gcs = autopilot.gcs("--zenoh-connect", endpoint, "--duration", "60", "--out", str(tmp_path), "--quiet")
+    c.wait("HEARTBEAT", lambda m: m.custom_mode == 6 << 16 and m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, timeout=20)
+    c.pump(1.0)
+    gcs.send_signal(signal.SIGKILL)
+    gcs.wait()
+    c.text_containing("Failsafe: offboard setpoints lost for 1 s, landing", timeout=5)
+    c.wait("HEARTBEAT", lambda m: m.custom_mode == (4 << 16) | (6 << 24))
+    c.text_containing("Landed, disarmed", timeout=20)
+
+
+def test_up_names_the_child_that_died_and_leaves_no_orphans():
+    from tests.test_fly import alive, children_of, quadsitl
+
+    up = subprocess.Popen(quadsitl("up", "-q", "--no-zenoh", "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none",
+                                   "--api-listen", "127.0.0.1:0", "--api-remote", "none"),
+                          stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        end = time.monotonic() + 20
+        while time.monotonic() < end and len(children_of(up.pid)) < 2:
+            time.sleep(0.1)
+        kids = children_of(up.pid)
+        assert len(kids) == 2
+        time.sleep(1.0)
+        plant_pid = next(p for p in kids if b"sitl" in Path(f"/proc/{p}/cmdline").read_bytes())
+        os.kill(plant_pid, signal.SIGKILL)
+        _, err = up.communicate(timeout=15)
+        assert up.returncode == 1
+        assert "the plant process was killed by signal 9 (SIGKILL); stopping the others" in err
+        time.sleep(0.2)
+        assert not [p for p in kids if alive(p)]
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.wait()
