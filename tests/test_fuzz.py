@@ -1,10 +1,13 @@
-"""Hostile input while the vehicle flies: 100,000 random and mutated datagrams at every listening port of
-the autopilot and the plant. Nothing crashes, no exception escapes a loop, the state stays finite, the
-vehicle keeps tracking its reference, and the refusals are counted in SYS_STATUS."""
+"""Hostile input while the vehicle flies: 100,000 random and mutated datagrams at every UDP port of the
+autopilot and the plant, and garbage over TCP at the autopilot's Zenoh listener. Nothing crashes, no
+exception escapes a loop, the state stays finite, the vehicle keeps tracking its reference, and the
+refusals are counted in SYS_STATUS."""
 
+import contextlib
 import math
 import os
 import random
+import socket
 import subprocess
 import sys
 import threading
@@ -94,7 +97,9 @@ def datagrams(rng: random.Random, count: int) -> list[bytes]:
 @pytest.fixture
 def flying_vehicle():
     ports = {name: free_port() for name in ("plant_listen", "gcs", "api", "plant_bind")}
-    ap = subprocess.Popen([sys.executable, "-m", "autopilot", "--no-zenoh", "--plant-listen",
+    ports["zenoh"] = free_port(socket.SOCK_STREAM)
+    ap = subprocess.Popen([sys.executable, "-m", "autopilot", "--zenoh-listen", f"tcp/127.0.0.1:{ports['zenoh']}",
+                           "--plant-listen",
                            f"127.0.0.1:{ports['plant_listen']}", "--gcs-listen", f"127.0.0.1:{ports['gcs']}",
                            "--gcs-remote", "none", "--api-listen", f"127.0.0.1:{ports['api']}", "--api-remote", "none"],
                           stderr=subprocess.PIPE, text=True)  # fmt: skip
@@ -138,8 +143,6 @@ def test_100k_hostile_datagrams_while_flying(flying_vehicle):
         rng = random.Random(int(os.environ.get("QUADSITL_FUZZ_SEED", "20261123")))
         pool = datagrams(rng, 5000)
         targets = [("127.0.0.1", ports[k]) for k in ("api", "gcs", "plant_listen", "plant_bind")]
-        import socket
-
         fuzz = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sent, t0 = 0, time.monotonic()
         while sent < 100_000:
@@ -151,6 +154,13 @@ def test_100k_hostile_datagrams_while_flying(flying_vehicle):
                 dead = ap if ap.poll() is not None else plant
                 pytest.fail(f"{dead.args[2]} died under fuzzing:\n{dead.stderr.read()[-3000:]}")
         fuzz.close()
+        # The Zenoh listener is a listening port too: garbage over TCP, 200 connections.
+        for i in range(200):
+            with (
+                socket.create_connection(("127.0.0.1", ports["zenoh"]), timeout=2) as tcp,
+                contextlib.suppress(OSError),
+            ):
+                tcp.sendall(pool[i] * 3)
         fuzz_seconds = time.monotonic() - t0
         c.pump(3.0)
         att, pos, hb = c.latest["ATTITUDE"], c.latest["LOCAL_POSITION_NED"], c.latest["HEARTBEAT"]
