@@ -94,7 +94,6 @@ class GcsLink:
 
 class Autopilot:
     def __init__(self, preset: Preset, args: argparse.Namespace) -> None:
-        self.preset = preset
         self.period = preset.sim.period
         kind = args.controller or preset.controller.type
         settings = CommanderSettings(setpoint_timeout=args.setpoint_timeout)
@@ -127,7 +126,6 @@ class Autopilot:
         self.refused = 0  # setpoints and parameter values refused by validation
         self.errors_plant = 0  # plant-link datagrams that are corrupt, non-finite, or from a stranger
         self.not_for_us = 0  # messages addressed to another system or component (ignored)
-        self.internal_errors = 0  # exceptions while handling a ground-station message (bugs; reported)
         self.plant_peer: tuple[str, int] | None = None  # the plant the link is locked to
         self.plant_heard = 0.0  # wall time its last datagram arrived
         self.plant_lost = False
@@ -570,7 +568,6 @@ class Autopilot:
                     try:
                         self.on_gcs(m, link, sender)
                     except Exception as exc:  # a bug must not take the vehicle down: report it, fly on
-                        self.internal_errors += 1
                         print(f"autopilot: error: handling {m.get_type()} from {sender}: {exc!r}", file=sys.stderr)
 
     def close(self) -> None:

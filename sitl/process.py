@@ -59,7 +59,6 @@ class PlantLink:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(bind)
         self.sock.connect(autopilot)  # the kernel drops datagrams from anyone but the autopilot
-        self.autopilot = autopilot
         self.mav = wire.link(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
         self.fast = wire.FastLink(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
         self.max_thrust = max_thrust
