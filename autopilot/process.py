@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import socket
 import sys
 import time
@@ -38,14 +37,7 @@ from quadsitl.cli_util import UsageError, add_preset_arguments, check_range, par
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
 from quadsitl.mixer import allocate
-from quadsitl.process_util import (
-    bind_udp,
-    die_with_parent,
-    exit_on_signals,
-    parse_remote,
-    quiet_garbage_collector,
-    set_receive_timeout,
-)
+from quadsitl.process_util import bind_udp, parse_remote, set_receive_timeout, start_process
 from quadsitl.state import Reference, VehicleState
 
 mavlink = wire.mavlink
@@ -659,9 +651,7 @@ def parse_home(text: str | None) -> tuple[float, float, float] | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    die_with_parent()
-    exit_on_signals()
-    quiet_garbage_collector()
+    start_process()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -671,8 +661,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not 1 <= args.system_id <= 255:
             raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
         args.home = parse_home(args.home)
-        key_text = args.signing_key or os.environ.get(wire.SIGNING_ENV)
-        args.signing_key = wire.load_signing_key("--signing-key", key_text) if key_text else None
+        args.signing_key = wire.resolve_signing_key(args.signing_key)
         ap = Autopilot(preset, args)
     except (UsageError, ConfigError, GainError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

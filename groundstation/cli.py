@@ -21,6 +21,7 @@ from autopilot.gains import GainError, poles_from_rates
 from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
 from sitl.cli import add_presets_arguments, run_presets
+from sitl.impair import add_impair_argument, impairment_from
 
 EXAMPLES_SIM = """examples:
   quadsitl sim --preset paper --compare --out runs/paper
@@ -128,12 +129,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         if getattr(args, option) is not None:
             parse_remote("--" + option.replace("_", "-"), getattr(args, option))
     parse_home(args.home)
-    if args.impair:
-        from sitl.impair import parse_impairment
-
-        parse_impairment("--impair", args.impair)
-        if args.mode != "realtime":
-            raise UsageError("--impair: needs --mode realtime (lockstep waits for every answer)")
+    impairment_from(args.impair, args.mode)  # refuse a bad --impair here, before starting anything
     return up(args.preset, preset, args)
 
 
@@ -221,12 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
             metavar="HOST:PORT|none",
             help=f"where the {name} link streams (default: 127.0.0.1:{remote})",
         )
-    upp.add_argument(
-        "--impair",
-        metavar="SPEC",
-        help="with --mode realtime: impair the plant link both ways, e.g. loss=5,jitter=0.002 "
-        "(loss %%, delay s, jitter s, dup %%, reorder %%)",
-    )
+    add_impair_argument(upp)
     upp.add_argument("--system-id", type=int, default=1, help="MAVLink system id (default: 1)")
     upp.add_argument("--home", metavar="LAT,LON,ALT", help="home position (default: PX4 SITL's, in Zürich)")
     upp.add_argument(

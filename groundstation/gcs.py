@@ -34,7 +34,7 @@ from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, check_range
 from quadsitl.config import ConfigError, load_preset
 from quadsitl.frames import euler_to_quaternion
-from quadsitl.process_util import die_with_parent, exit_on_signals, parse_address
+from quadsitl.process_util import parse_address, start_process
 from quadsitl.state import Reference
 
 mavlink = wire.mavlink
@@ -285,14 +285,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    die_with_parent()
-    exit_on_signals()
+    start_process(quiet_gc=False)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         check_range("--duration", args.duration, 0.0, 3600.0)
-        key_text = args.signing_key or os.environ.get(wire.SIGNING_ENV)
-        args.signing_key = wire.load_signing_key("--signing-key", key_text) if key_text else None
+        args.signing_key = wire.resolve_signing_key(args.signing_key)
         gcs = GroundStation(args)
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

@@ -46,7 +46,7 @@ def signing_env(key_text: str | None) -> dict[str, str] | None:
 
     from quadsitl import wire
 
-    wire.load_signing_key("--signing-key", key_text)  # refuse a bad key here, with the option's name
+    wire.resolve_signing_key(key_text)  # refuse a bad key here, with the option's name
     return {**os.environ, wire.SIGNING_ENV: key_text}
 
 

@@ -69,6 +69,15 @@ def quiet_garbage_collector() -> None:
     gc.set_threshold(50_000, 50, 100)
 
 
+def start_process(quiet_gc: bool = True) -> None:
+    """What every process's main() does first: die with the parent, exit cleanly on SIGTERM and, for the
+    per-tick loops, keep the garbage collector quiet."""
+    die_with_parent()
+    exit_on_signals()
+    if quiet_gc:
+        quiet_garbage_collector()
+
+
 def exit_on_signals() -> None:
     """Turn SIGTERM into SystemExit so ``finally`` blocks run (sockets and Zenoh sessions close)."""
 

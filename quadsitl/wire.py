@@ -263,6 +263,14 @@ def load_signing_key(option: str, text: str) -> bytes:
     raise UsageError(f"{option}: expected 64 hex digits (a 32-byte key) or the path of a file holding them")
 
 
+def resolve_signing_key(text: str | None, option: str = "--signing-key") -> bytes | None:
+    """The key an option gives, else ``$QUADSITL_SIGNING_KEY``, else None (no signing)."""
+    import os
+
+    text = text or os.environ.get(SIGNING_ENV)
+    return load_signing_key(option, text) if text else None
+
+
 def enable_signing(mav: mavlink.MAVLink, key: bytes, link_id: int = 0) -> None:
     """Sign everything ``mav`` packs and accept only correctly signed, fresh frames when it parses
     (pymavlink refuses unsigned frames, bad signatures and replayed timestamps, and counts them in

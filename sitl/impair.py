@@ -8,6 +8,7 @@ messages reach the receivers, which discard them by ``time_usec``.
 
 from __future__ import annotations
 
+import argparse
 import random
 from dataclasses import dataclass
 
@@ -71,3 +72,22 @@ class Impairment:
                 self.reordered += 1
             times.append(t)
         return times
+
+
+def add_impair_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--impair",
+        metavar="SPEC",
+        help="with --mode realtime: impair the plant link both ways, e.g. loss=5,jitter=0.002 "
+        "(keys: loss %%, delay s, jitter s, dup %%, reorder %%)",
+    )
+
+
+def impairment_from(text: str | None, mode: str) -> Impairment | None:
+    """The ``--impair`` option → an Impairment (None without one); a UsageError names what is wrong."""
+    if not text:
+        return None
+    spec = parse_impairment("--impair", text)
+    if mode != "realtime":
+        raise UsageError("--impair: needs --mode realtime (lockstep waits for every answer)")
+    return Impairment(spec)

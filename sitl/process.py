@@ -28,16 +28,9 @@ from pathlib import Path
 from quadsitl import wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, check_range
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.process_util import (
-    die_with_parent,
-    exit_on_signals,
-    parse_address,
-    quiet_garbage_collector,
-    set_receive_timeout,
-    wait_readable,
-)
+from quadsitl.process_util import parse_address, set_receive_timeout, start_process, wait_readable
 from quadsitl.timing import period_stats
-from sitl.impair import Impairment, parse_impairment
+from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
@@ -263,12 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--integrator", choices=("euler", "rk4"), help="default: the preset's")
     p.add_argument("--substeps", type=int, metavar="N", help="default: the preset's")
     p.add_argument("--ticks", type=int, metavar="N", help="stop after N ticks (default: run until stopped)")
-    p.add_argument(
-        "--impair",
-        metavar="SPEC",
-        help="realtime mode: impair the link both ways, e.g. loss=5,jitter=0.002 (keys: loss %%, delay s, "
-        "jitter s, dup %%, reorder %%)",
-    )
+    add_impair_argument(p)
     p.add_argument(
         "--on-autopilot-loss",
         choices=("zero", "last"),
@@ -280,9 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    die_with_parent()
-    exit_on_signals()
-    quiet_garbage_collector()
+    start_process()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -291,11 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         bind = parse_address("--bind", args.bind)
         autopilot = parse_address("--autopilot", args.autopilot)
         plant = Plant(preset, integrator=args.integrator, substeps=args.substeps)
-        impairment = None
-        if args.impair:
-            if args.mode != "realtime":
-                raise UsageError("--impair: needs --mode realtime (lockstep waits for every answer)")
-            impairment = Impairment(parse_impairment("--impair", args.impair))
+        impairment = impairment_from(args.impair, args.mode)
         link = PlantLink(bind, autopilot, preset.actuators.max_thrust, preset.sim.period, impairment)
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
