@@ -18,6 +18,7 @@ from pathlib import Path
 
 from autopilot.cli import GAINS_EPILOG, add_gains_arguments, run_gains
 from autopilot.gains import GainError, poles_from_rates
+from groundstation.launcher import add_dashboard_arguments
 from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
 from sitl.cli import add_presets_arguments, run_presets
@@ -81,6 +82,7 @@ EXAMPLES_FLY = """examples:
   quadsitl fly --preset paper --out runs/fly
   quadsitl fly --preset paper --speed 1 --duration 10 --out runs/realtime-pace
   quadsitl fly --preset x500 --trajectory sine --duration 10 --out runs/x500-sine
+  quadsitl fly --dashboard --speed 1 --trajectory sine --duration 30   # watch it at http://127.0.0.1:8050
 """
 
 PROCESSES = {
@@ -88,6 +90,8 @@ PROCESSES = {
     "autopilot": ("autopilot.process", "the autopilot process (control loop, MAVLink, Zenoh telemetry)"),
     "gcs": ("groundstation.gcs", "the ground-station process (flies a trajectory, logs telemetry)"),
     "bench": ("benchmarks.bench", "measure the SITL's speed against this machine's own baselines"),
+    "dashboard": ("groundstation.dashboard.server", "live telemetry dashboard in the browser, fed by Zenoh"),
+    "replay": ("groundstation.replay", "play a recorded telemetry.csv or .tlog back onto Zenoh"),
 }
 
 
@@ -109,6 +113,7 @@ EXAMPLES_UP = """examples:
   quadsitl up --speed 5                         # lockstep at 5× real time
   quadsitl up --mode realtime                   # free-running plant on the wall clock
   quadsitl up --gcs-remote 192.168.1.20:14550   # stream to a ground station on another machine
+  quadsitl up --dashboard                       # and the live dashboard at http://127.0.0.1:8050
 """
 
 
@@ -185,6 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     fl.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     fl.add_argument("--signing-key", metavar="HEX|FILE", help="MAVLink 2 signing between ground station and autopilot")
+    add_dashboard_arguments(fl)
     fl.set_defaults(func=cmd_fly)
 
     upp = sub.add_parser(
@@ -227,6 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="where the autopilot's Zenoh session listens (default: tcp/127.0.0.1:7447)",
     )
     upp.add_argument("--no-zenoh", action="store_true", help="no Zenoh telemetry")
+    add_dashboard_arguments(upp)
     upp.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     upp.add_argument(
         "--signing-key",

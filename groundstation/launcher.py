@@ -22,11 +22,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from groundstation.figures import write_figures
-from groundstation.metrics import outputs_from_columns, run_metrics
-from groundstation.telemetry_csv import read_csv
 from quadsitl.config import Preset
 
 
@@ -67,6 +62,16 @@ class Children:
                 return name, rc
         return None
 
+    def stop_one(self, name: str, grace: float = 3.0) -> None:
+        p = self.procs[name]
+        if p.poll() is None:
+            p.terminate()
+            try:
+                p.wait(grace)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
     def stop(self, grace: float = 3.0) -> None:
         for p in self.procs.values():
             if p.poll() is None:
@@ -91,10 +96,59 @@ def on_sigterm(signum: int, _frame: object) -> None:
     raise KeyboardInterrupt
 
 
+def add_dashboard_arguments(p) -> None:
+    """``--dashboard`` and ``--dashboard-port`` for ``fly`` and ``up``."""
+    p.add_argument("--dashboard", action="store_true", help="also serve the live dashboard and print its URL")
+    p.add_argument(
+        "--dashboard-port", type=int, default=8050, metavar="P", help="its port (default: 8050; 0 = any free port)"
+    )
+
+
+def dashboard_port(port: int) -> int:
+    """The port the dashboard will serve on: checked free now, so that a busy one is refused before anything
+    starts, with the option to change it; 0 picks a free one."""
+    from quadsitl.cli_util import UsageError
+
+    if not 0 <= port <= 65535:
+        raise UsageError(f"--dashboard-port {port}: expected 0..65535 (0 = any free port)")
+    if port == 0:
+        return free_port(socket.SOCK_STREAM)
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError as exc:
+            raise UsageError(
+                f"--dashboard-port {port}: cannot listen on 127.0.0.1:{port}: {exc.strerror}; "
+                "choose another with --dashboard-port (0 picks a free one)"
+            ) from None
+    return port
+
+
+def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout: float = 15.0) -> str:
+    """Start ``quadsitl dashboard`` on ``port`` subscribed to ``zenoh_endpoint``; returns its URL once it
+    accepts connections."""
+    children.start("dashboard", ["groundstation.dashboard.server", "--port", str(port), "--zenoh-connect",
+                                 zenoh_endpoint, "--quiet"])  # fmt: skip
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if children.procs["dashboard"].poll() is not None:
+            break
+        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.2):
+            return f"http://127.0.0.1:{port}/"
+        time.sleep(0.05)
+    raise RuntimeError("the dashboard did not start")
+
+
 def up(preset_name: str, preset: Preset, args) -> int:
     """Plant and autopilot until Ctrl-C or SIGTERM (exit 0), or until one of them fails (exit 1)."""
     plant_port = free_port()
     children = Children(env=signing_env(args.signing_key))
+    if args.dashboard and args.no_zenoh:
+        from quadsitl.cli_util import UsageError
+
+        raise UsageError("--dashboard needs the Zenoh telemetry: drop --no-zenoh")
+    web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
     old = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
@@ -114,8 +168,9 @@ def up(preset_name: str, preset: Preset, args) -> int:
         if args.impair:
             plant += ["--impair", args.impair]
         children.start("plant", plant)
+        url = start_dashboard(children, web_port, args.zenoh_listen) if web_port is not None else None
         if not args.quiet:
-            print(banner(preset, args), flush=True)
+            print(banner(preset, args, url), flush=True)
         while True:
             failure = children.first_failure(done="")
             if failure:
@@ -124,14 +179,17 @@ def up(preset_name: str, preset: Preset, args) -> int:
             time.sleep(0.1)
     except KeyboardInterrupt:
         if not args.quiet:
-            print("quadsitl up: stopping plant and autopilot", file=sys.stderr)
+            print("quadsitl up: stopping " + ", ".join(children.procs), file=sys.stderr)
         return 0
+    except RuntimeError as exc:
+        print(f"quadsitl up: error: {exc}; stopping the others", file=sys.stderr)
+        return 1
     finally:
         children.stop()
         signal.signal(signal.SIGTERM, old)
 
 
-def banner(preset: Preset, args) -> str:
+def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:
     kind = args.controller or preset.controller.type
     pace = f"lockstep at {args.speed:g}× real time" if args.mode == "lockstep" else "real time (free-running plant)"
     if args.mode == "lockstep" and args.speed == 0:
@@ -149,6 +207,8 @@ def banner(preset: Preset, args) -> str:
         lines.append(
             f"  telemetry:       Zenoh {args.zenoh_listen}, keys quadsitl/v1/{{state,setpoint,actuators,status}}"
         )
+    if dashboard_url:
+        lines.append(f"  dashboard:       {dashboard_url}")
     lines.append("  Ctrl-C stops.")
     return "\n".join(lines)
 
@@ -161,6 +221,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     zenoh_ep = f"tcp/127.0.0.1:{zenoh_port}"
     quiet = ["--quiet"] if args.quiet else []
     children = Children(env=signing_env(args.signing_key))
+    web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
 
     old = signal.signal(signal.SIGTERM, on_sigterm)
     try:
@@ -170,6 +231,9 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         if args.controller:
             ap += ["--controller", args.controller]
         children.start("autopilot", ap)
+        if web_port is not None:
+            url = start_dashboard(children, web_port, zenoh_ep)
+            print(f"quadsitl fly: dashboard at {url}", flush=True)
         plant = [
             "sitl",
             "--preset",
@@ -195,18 +259,41 @@ def fly(preset_name: str, preset: Preset, args) -> int:
             if children.procs["gcs"].poll() == 0:
                 break
             time.sleep(0.05)
+        for name in ("plant", "autopilot", "gcs"):  # the flight is over; a dashboard stays, below
+            children.stop_one(name)
+        write_report(out, preset, args)
+        if web_port is not None:
+            keep_dashboard(children)
     except KeyboardInterrupt:
-        print("quadsitl fly: interrupted; stopping plant, autopilot and ground station", file=sys.stderr)
+        if "dashboard" in children.procs and children.procs["gcs"].poll() == 0:
+            return 0  # Ctrl-C after the flight: that is how the dashboard is closed
+        print("quadsitl fly: interrupted; stopping " + ", ".join(children.procs), file=sys.stderr)
         return 130
+    except RuntimeError as exc:
+        print(f"quadsitl fly: error: {exc}; stopping the others", file=sys.stderr)
+        return 1
     finally:
         children.stop()
         signal.signal(signal.SIGTERM, old)
-    write_report(out, preset, args)
     return 0
+
+
+def keep_dashboard(children: Children) -> None:
+    """After a flight with ``--dashboard``: keep the page up, showing the finished run, until Ctrl-C."""
+    print("quadsitl fly: flight done; the dashboard keeps showing it until Ctrl-C", file=sys.stderr, flush=True)
+    while children.procs["dashboard"].poll() is None:
+        time.sleep(0.2)
+    print(f"quadsitl fly: error: {describe('dashboard', children.procs['dashboard'].returncode)}", file=sys.stderr)
 
 
 def write_report(out: Path, preset: Preset, args) -> None:
     """metrics.json and the figures from telemetry.csv."""
+    import numpy as np  # here, not at the top: `quadsitl --help` should not wait for matplotlib
+
+    from groundstation.figures import write_figures
+    from groundstation.metrics import outputs_from_columns, run_metrics
+    from groundstation.telemetry_csv import read_csv
+
     data = read_csv(out / "telemetry.csv")
     t = data["t"]
     y = outputs_from_columns(data["altitude"], data["roll"], data["pitch"], data["yaw"])

@@ -93,11 +93,12 @@ def _json_list(items: Sequence[str]) -> str:
     return "[" + ",".join(f'"{i}"' for i in items) + "]"
 
 
-def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
-    """The Zenoh options every process that touches telemetry takes."""
-    p.add_argument(
-        "--vehicle", default="v1", help="vehicle name in the Zenoh keys quadsitl/<vehicle>/... (default: v1)"
-    )
+def add_zenoh_arguments(p: argparse.ArgumentParser, vehicle: bool = True) -> None:
+    """The Zenoh options every process that touches telemetry takes (``--vehicle`` unless it sees all)."""
+    if vehicle:
+        p.add_argument(
+            "--vehicle", default="v1", help="vehicle name in the Zenoh keys quadsitl/<vehicle>/... (default: v1)"
+        )
     p.add_argument("--zenoh-mode", choices=("peer", "client", "router"), default="peer", help="default: peer")
     p.add_argument(
         "--zenoh-listen",

@@ -1,0 +1,216 @@
+"""What the dashboard knows about each vehicle: pure, no I/O (the server feeds it Zenoh samples).
+
+For each vehicle seen on ``quadsitl/<vehicle>/<stream>`` (:mod:`quadsitl.telemetry`, schema v2) it keeps
+
+* the latest record of every stream (for ``/api/vehicles`` and the status panel), decoding only the last
+  record of each sample;
+* a plot series decimated in simulated time: the ticks that are multiples of ``decimation`` (one every
+  ``1/plot_rate`` simulated seconds), picked out of each sample by offset without decoding the rest, and
+  joined across the four streams by tick. The full-rate stream stays on Zenoh; the page gets at most
+  ``plot_rate`` rows per simulated second whatever the run's speed;
+* the tick rate and real-time factor, from the status records' ticks and simulated times against the wall
+  clock over the last ``RATE_WINDOW`` seconds.
+
+Rows carry display units: metres, degrees (angles and their errors), newtons and newton-metres.
+A vehicle whose ticks jump back (a new run, a replay that loops) starts a new ``generation``: its series
+is cleared so that the page never draws two runs as one line.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections import deque
+from dataclasses import dataclass, field
+
+from quadsitl import telemetry
+from quadsitl.frames import wrap_pi
+
+RATE_WINDOW = 2.0  # [s] wall: tick rate and real-time factor are averaged over this
+STALE_AFTER = 1.0  # [s] wall without telemetry: the link shows as stale
+MAX_VEHICLES = 64  # more names than this are ignored (and counted): a stranger must not exhaust memory
+MODES = {0: "hold", 1: "offboard", 2: "land"}
+FAILSAFES = {0: "none", 1: "setpoint stream lost", 2: "plant link lost", 3: "ground station lost"}
+
+# A row of the plot series, in this order (the page receives columns by these names).
+ROW_FIELDS = (
+    "t", "altitude", "altitude_ref", "roll", "roll_ref", "pitch", "pitch_ref", "yaw", "yaw_ref",
+    "e_altitude", "e_roll", "e_pitch", "e_yaw", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4", "x", "y",
+)  # fmt: skip
+_TICK = struct.Struct("<Q")
+_RAD = 180.0 / math.pi
+
+
+def plot_row(state: tuple, setpoint: tuple, actuators: tuple) -> tuple[float, ...]:
+    """One tick's records (in telemetry.FIELDS order) → a row in ROW_FIELDS order, display units.
+    Errors are reference − measured; the yaw error is wrapped to (−180°, 180°]."""
+    _tick, t, x, y, z, _vx, _vy, _vz, roll, pitch, yaw = state[:11]
+    _, _, alt_ref, roll_ref, pitch_ref, yaw_ref = setpoint
+    altitude = -z  # NED: z down
+    return (
+        t, altitude, alt_ref, roll * _RAD, roll_ref * _RAD, pitch * _RAD, pitch_ref * _RAD, yaw * _RAD,
+        yaw_ref * _RAD, alt_ref - altitude, (roll_ref - roll) * _RAD, (pitch_ref - pitch) * _RAD,
+        wrap_pi(yaw_ref - yaw) * _RAD, *actuators[2:10], x, y,
+    )  # fmt: skip
+
+
+@dataclass
+class Vehicle:
+    name: str
+    plot_rate: float
+    window: float
+    latest: dict[str, tuple] = field(default_factory=dict)
+    rows: deque = field(default_factory=deque)  # (seq, row)
+    seq: int = 0  # rows ever appended (across generations)
+    generation: int = 0
+    decimation: int = 0  # ticks between plotted rows; 0 until the period is known
+    period: float = 0.0  # [s] simulated, the control period, learnt from the records
+    last_tick: int = -1
+    last_wall: float = -math.inf
+    samples: int = 0
+    malformed: int = 0
+    _pending: dict[int, dict[str, tuple]] = field(default_factory=dict)
+    _rate: deque = field(default_factory=deque)  # (wall, tick, t) of status records
+
+    # ---- ingest ---------------------------------------------------------------------------------------
+
+    def ingest(self, stream: str, payload: bytes, wall: float) -> None:
+        fmt = telemetry.STREAMS[stream]
+        size = len(payload)
+        if not size or size % fmt.size:
+            self.malformed += 1
+            return
+        n = size // fmt.size
+        last = fmt.unpack_from(payload, size - fmt.size)
+        if not all(map(math.isfinite, last[1:])):
+            self.malformed += 1
+            return
+        first_tick = _TICK.unpack_from(payload, 0)[0]
+        self.samples += 1
+        self.last_wall = wall
+        if stream == "status":
+            self._new_ticks(first_tick, last, wall)
+        self.latest[stream] = last
+        if not self.decimation:
+            self._learn_period(last)
+            if not self.decimation:
+                return
+        d = self.decimation
+        k = -(-first_tick // d) * d  # the first multiple of d at or after the sample's first tick
+        while k < first_tick + n:
+            rec = fmt.unpack_from(payload, (k - first_tick) * fmt.size)
+            self._join(k, stream, rec)
+            k += d
+
+    def _learn_period(self, rec: tuple) -> None:
+        tick, t = rec[0], rec[1]
+        if tick > 0 and t > 0:
+            self.period = t / tick
+            self.decimation = max(1, round(1.0 / (self.plot_rate * self.period)))
+
+    def _new_ticks(self, first_tick: int, last: tuple, wall: float) -> None:
+        if first_tick < self.last_tick - 1:  # ticks went back: a new run under the same name
+            self.generation += 1
+            self.rows.clear()
+            self._pending.clear()
+            self._rate.clear()
+        self.last_tick = last[0]
+        self._rate.append((wall, last[0], last[1]))
+        while len(self._rate) > 2 and wall - self._rate[1][0] >= RATE_WINDOW:
+            self._rate.popleft()
+
+    def _join(self, tick: int, stream: str, rec: tuple) -> None:
+        got = self._pending.setdefault(tick, {})
+        got[stream] = rec
+        if len(got) < len(telemetry.STREAMS):
+            if len(self._pending) > 64:  # a stream that never completes a tick must not grow this
+                del self._pending[min(self._pending)]
+            return
+        del self._pending[tick]
+        self.seq += 1
+        self.rows.append((self.seq, plot_row(got["state"], got["setpoint"], got["actuators"])))
+        t_now = self.rows[-1][1][0]
+        while self.rows and self.rows[0][1][0] < t_now - self.window:
+            self.rows.popleft()
+
+    # ---- views ----------------------------------------------------------------------------------------
+
+    def rates(self) -> tuple[float | None, float | None]:
+        """(ticks per wall second, simulated seconds per wall second) over the last RATE_WINDOW."""
+        if len(self._rate) < 2:
+            return None, None
+        (w0, k0, t0), (w1, k1, t1) = self._rate[0], self._rate[-1]
+        if w1 - w0 < 0.2:
+            return None, None
+        return (k1 - k0) / (w1 - w0), (t1 - t0) / (w1 - w0)
+
+    def summary(self, wall: float) -> dict:
+        """The vehicle as ``/api/vehicles`` lists it: latest records by field name, status, rates."""
+        age = wall - self.last_wall
+        rate, rtf = self.rates()
+        if age > STALE_AFTER:
+            rate, rtf = 0.0, 0.0
+        out: dict = {"name": self.name}
+        for stream in ("state", "setpoint", "actuators"):
+            rec = self.latest.get(stream)
+            out[stream] = dict(zip(telemetry.FIELDS[stream][1:], rec[1:])) if rec else None
+        st = self.latest.get("status")
+        out["status"] = (
+            {
+                "tick": st[0],
+                "t": st[1],
+                "armed": bool(st[2]),
+                "mode": MODES.get(st[3], f"unknown ({st[3]})"),
+                "failsafe": FAILSAFES.get(st[4], f"unknown ({st[4]})"),
+                "offboard_tick": st[5],
+            }
+            if st
+            else None
+        )
+        out["link"] = {
+            "telemetry": "live" if age <= STALE_AFTER else "stale",
+            "age_s": round(age, 3),
+            "samples": self.samples,
+            "malformed": self.malformed,
+        }
+        out["tick_rate"] = rate
+        out["real_time_factor"] = rtf
+        out["period"] = self.period or None
+        out["generation"] = self.generation
+        return out
+
+    def rows_since(self, seq: int) -> list[tuple]:
+        """Rows appended after ``seq`` (all rows of the window if ``seq`` is older than the window)."""
+        rows = self.rows
+        if not rows or rows[-1][0] <= seq:
+            return []
+        if rows[0][0] > seq:
+            return [r for _, r in rows]
+        return [r for s, r in rows if s > seq]
+
+
+class Fleet:
+    """Every vehicle seen, by name."""
+
+    def __init__(self, plot_rate: float = 50.0, window: float = 20.0) -> None:
+        self.plot_rate = plot_rate
+        self.window = window
+        self.vehicles: dict[str, Vehicle] = {}
+        self.ignored = 0  # samples on keys that are not telemetry, or beyond MAX_VEHICLES
+
+    def ingest(self, key: str, payload: bytes, wall: float) -> None:
+        """A Zenoh sample on ``key`` (``quadsitl/<vehicle>/<stream>``) received at ``wall`` [s]."""
+        parts = key.split("/")
+        if len(parts) != 3 or parts[0] != telemetry.PREFIX or parts[2] not in telemetry.STREAMS:
+            self.ignored += 1
+            return
+        v = self.vehicles.get(parts[1])
+        if v is None:
+            if len(self.vehicles) >= MAX_VEHICLES:
+                self.ignored += 1
+                return
+            v = self.vehicles[parts[1]] = Vehicle(parts[1], self.plot_rate, self.window)
+        v.ingest(parts[2], payload, wall)
+
+    def summaries(self, wall: float) -> list[dict]:
+        return [v.summary(wall) for _, v in sorted(self.vehicles.items())]
