@@ -42,6 +42,7 @@ def _load(name: str) -> Preset:
 def cmd_sim(args: argparse.Namespace) -> int:
     from groundstation.metrics import format_table
     from groundstation.offline import run_offline, write_outputs
+    from groundstation.progress import FlightProgress
 
     preset = _load(args.preset)
     check_range("--duration", args.duration, 0.0, 3600.0)
@@ -54,15 +55,18 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if (rates or poles) and "backstepping" not in kinds:
         raise UsageError("--gains/--poles set the backstepping gains; add --compare or --controller backstepping")
     integrator = args.integrator or preset.sim.integrator
+    duration = args.duration or preset.sim.duration
+    label = "sim:" if len(kinds) == 1 else f"sim ({' + '.join(kinds)}):"
     try:
-        results, metrics = run_offline(
-            preset, kinds, args.duration, integrator, args.substeps, rates=rates, poles=poles
-        )
+        with FlightProgress(duration * len(kinds), enabled=not args.quiet, label=label) as bar:
+            results, metrics = run_offline(
+                preset, kinds, duration, integrator, args.substeps, rates=rates, poles=poles, progress=bar.update
+            )
     except GainError as exc:
         raise UsageError(f"inadmissible gains: {exc}") from None
     settings = {
         "integrator": integrator,
-        "duration": args.duration or preset.sim.duration,
+        "duration": duration,
         "period": preset.sim.period,
         "poles": list(poles_from_rates(rates, preset.sim.period) if rates else poles or preset.poles()),
     }

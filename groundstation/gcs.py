@@ -29,6 +29,7 @@ import zenoh
 
 from groundstation import trajectories
 from groundstation.logger import TelemetryLogger
+from groundstation.progress import FlightProgress
 from groundstation.telemetry_csv import write_csv
 from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, check_range
@@ -83,6 +84,7 @@ class GroundStation:
         self.sim_ms = 0
         self.acks: dict[int, int] = {}
         self.flight_rate: tuple[float, float] | None = None
+        self.progress: FlightProgress | None = None  # from the switch to offboard until landing
 
     # ---- MAVLink ---------------------------------------------------------------------------------
 
@@ -140,7 +142,7 @@ class GroundStation:
         args = self.args
         phase = "connect"
         deadline = time.monotonic() + args.timeout
-        last_sp_ms, last_sp_wall, last_hb, last_cmd, last_progress = -1e9, 0.0, 0.0, 0.0, time.monotonic()
+        last_sp_ms, last_sp_wall, last_hb, last_cmd = -1e9, 0.0, 0.0, 0.0
         setpoints_sent = 0
         wall_start, flight_wall_start = time.monotonic(), None
         while phase != "done":
@@ -182,6 +184,7 @@ class GroundStation:
                 result = self.acks.get(mavlink.MAV_CMD_DO_SET_MODE)
                 if result == mavlink.MAV_RESULT_ACCEPTED:
                     phase, flight_wall_start = "flying", now
+                    self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: flight")
                 elif result is not None:
                     raise GcsError(f"offboard mode refused (MAV_RESULT {result})")
                 elif now - last_cmd > 0.5:
@@ -190,17 +193,16 @@ class GroundStation:
             elif phase == "flying" and flight_t >= self.duration:
                 phase, last_cmd = "landing", 0.0
                 self.flight_rate = (flight_t, now - flight_wall_start)  # simulated s flown, wall s
+                self.progress.update(flight_t)
+                self.progress.close()
             elif phase == "landing":
                 if not self.armed and self.acks.get(mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED:
                     phase = "done"
                 elif now - last_cmd > 0.5 and self.acks.get(mavlink.MAV_CMD_NAV_LAND) is None:
                     self.command(mavlink.MAV_CMD_NAV_LAND)
                     last_cmd = now
-            if not args.quiet and now - last_progress >= 1.0 and flight_t >= 0 and flight_wall_start:
-                last_progress = now
-                rtf = flight_t / max(now - flight_wall_start, 1e-9)
-                print(f"gcs: flight t = {min(flight_t, self.duration):.2f} / {self.duration:g} s, "
-                      f"{rtf:.1f}× real time", file=sys.stderr)  # fmt: skip
+            if phase == "flying":
+                self.progress.update(flight_t)
         return self.finish(time.monotonic() - wall_start)
 
     def finish(self, wall: float) -> int:
@@ -232,6 +234,7 @@ class GroundStation:
     def save_partial(self) -> int:
         """On SIGINT/SIGTERM: the flight so far, flushed. telemetry.csv gets every tick flown up to the
         last one whose four streams all arrived (a gap-free prefix); the .tlog is flushed to disk."""
+        self.stop_progress()
         deadline = time.monotonic() + 0.3  # what is already on its way
         while time.monotonic() < deadline:
             self.logger.drain()
@@ -247,7 +250,14 @@ class GroundStation:
               file=sys.stderr)  # fmt: skip
         return n
 
+    def stop_progress(self) -> None:
+        """Take the progress bar off the terminal before an error or interruption is reported (a no-op
+        once the flight is complete)."""
+        if self.progress is not None:
+            self.progress.close(completed=False)
+
     def close(self) -> None:
+        self.stop_progress()
         self.logger.close()
         self.session.close()
         self.tlog.close()
@@ -298,6 +308,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return gcs.fly()
     except GcsError as exc:
+        gcs.stop_progress()
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 1
     except (KeyboardInterrupt, SystemExit) as exc:  # SIGINT, or SIGTERM (exit_on_signals)

@@ -7,7 +7,7 @@ and writes telemetry CSV(s), ``metrics.json`` and the figures.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,9 +38,13 @@ def run_offline(
     substeps: int | None = None,
     rates: Sequence[float] | None = None,
     poles: Sequence[float] | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> tuple[dict[str, SimResult], dict[str, dict]]:
     """Simulate each controller on a fresh plant. All controllers are built (and their gains checked)
-    before any simulation starts, so inadmissible gains fail fast."""
+    before any simulation starts, so inadmissible gains fail fast.
+
+    ``progress``, when given, is called now and then with the simulated seconds done so far over all
+    the runs: it reaches ``len(controllers) × duration`` at the end."""
     built = {kind: make_controller(preset, kind, rates=rates, poles=poles) for kind in controllers}
     duration = duration or preset.sim.duration
     act = preset.actuators
@@ -50,9 +54,10 @@ def run_offline(
         return allocate(u, d_over_b, act.min_thrust, act.max_thrust)
 
     results, metrics = {}, {}
-    for kind, controller in built.items():
+    for i, (kind, controller) in enumerate(built.items()):
         plant = Plant(preset, integrator=integrator, substeps=substeps)
-        res = simulate(plant, controller, preset.reference, duration, alloc)
+        done = None if progress is None else (lambda s, before=i * duration: progress(before + s))
+        res = simulate(plant, controller, preset.reference, duration, alloc, progress=done)
         results[kind] = res
         metrics[kind] = run_metrics(res.t, channel_outputs(res.state), res.reference, res.inputs)
     return results, metrics

@@ -23,6 +23,7 @@ class Controller(Protocol):
 
 
 ReferenceSource = Callable[[float], Reference]
+PROGRESS_TICKS = 500  # simulate() reports progress every this many ticks (0.5 s simulated at T = 1 ms)
 
 
 @dataclass
@@ -48,11 +49,15 @@ def simulate(
     duration: float,
     allocate: Callable[[Inputs], tuple[float, float, float, float]],
     omega_r_from: Callable[[], float] | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> SimResult:
     """Run the loop for ``duration`` seconds of simulated time (round(duration / T) ticks).
 
     ``omega_r_from``, when given, supplies the Ωr the plant uses each tick (for example the one the
     controller assumed), instead of the one the applied motor forces make.
+
+    ``progress``, when given, is called with the simulated seconds done every ``PROGRESS_TICKS`` ticks
+    and once at the end; it only observes, the result is the same with or without it.
     """
     period = plant.period
     n = round(duration / period)
@@ -63,6 +68,8 @@ def simulate(
     inputs = np.empty((n, 4))
     forces = np.empty((n, 4))
     for k in range(n):
+        if progress is not None and k % PROGRESS_TICKS == 0:
+            progress(k * period)
         state = plant.state
         ref = ref_of(k * period)
         u = controller.step(state, ref)
@@ -72,4 +79,6 @@ def simulate(
         inputs[k] = u
         forces[k] = f
         plant.step(f, omega_r=None if omega_r_from is None else omega_r_from())
+    if progress is not None:
+        progress(n * period)
     return SimResult(t, states, refs, inputs, forces)

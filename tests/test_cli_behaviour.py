@@ -1,0 +1,184 @@
+"""What every command promises its user: --help with examples, one-line errors (never a traceback),
+and progress on stderr that --quiet silences."""
+
+import io
+import os
+import re
+import socket
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from groundstation.offline import run_offline
+from groundstation.progress import FlightProgress, format_eta
+from quadsitl.config import load_preset
+
+COMMANDS = ["sim", "fly", "up", "presets", "gains", "plant", "autopilot", "gcs", "bench"]
+# "gcs: flight t = 4.10 / 5 s, 2.0× real time, ETA 1 s"
+PROGRESS_LINE = re.compile(r"^gcs: flight t = \d+\.\d\d / 5 s, \d+\.\d× real time, ETA (\d+ s|\d+:\d\d)$", re.M)
+DONE_LINE = re.compile(r"^gcs: flight t = 5\.00 / 5 s, \d+\.\d× real time, done in \d+\.\d s$", re.M)
+
+
+def quadsitl(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """The ``quadsitl`` command as a real process, output captured (so stderr is not a terminal)."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    cmd = [sys.executable, "-m", "groundstation.cli", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+# ---- --help ----------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_has_help_with_examples(command):
+    r = quadsitl(command, "--help")
+    assert r.returncode == 0, r.stderr
+    assert "examples:" in r.stdout
+    assert f"quadsitl {command}" in r.stdout.split("examples:", 1)[1]  # the examples are of this command
+
+
+# ---- one-line errors -------------------------------------------------------------------------------
+
+
+def assert_one_line_error(r: subprocess.CompletedProcess) -> str:
+    assert "Traceback" not in r.stderr and "Traceback" not in r.stdout
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize("command", ["sim", "fly", "up", "gcs", "presets"])
+def test_unknown_preset_names_the_available_ones(command, tmp_path):
+    args = ["nosuch"] if command == "presets" else ["--preset", "nosuch"]
+    out = ["--out", str(tmp_path / "out")] if command in ("sim", "fly", "gcs") else []
+    r = quadsitl(command, *args, *out, timeout=30)
+    assert r.returncode == 2
+    line = assert_one_line_error(r)
+    assert line.startswith(f"quadsitl {command}: error: ")
+    assert "unknown preset 'nosuch'" in line and "paper" in line and "x500" in line
+    assert r.stdout == ""
+
+
+@pytest.fixture
+def busy_port():
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    yield sock.getsockname()[1]
+    sock.close()
+
+
+@pytest.mark.parametrize(
+    ("command", "option", "extra"),
+    [
+        ("autopilot", "--gcs-listen", ["--no-zenoh"]),
+        ("autopilot", "--api-listen", ["--no-zenoh"]),
+        ("autopilot", "--plant-listen", ["--no-zenoh"]),
+        ("plant", "--bind", ["--autopilot", "127.0.0.1:9"]),
+    ],
+)
+def test_busy_port_names_the_port_and_the_option(busy_port, command, option, extra):
+    r = quadsitl(command, option, f"127.0.0.1:{busy_port}", *extra, timeout=30)
+    assert r.returncode != 0
+    line = assert_one_line_error(r)
+    assert str(busy_port) in line and option in line and "in use" in line
+
+
+# ---- progress --------------------------------------------------------------------------------------
+
+
+def test_short_sim_prints_no_progress_when_piped_and_quiet_prints_nothing(tmp_path):
+    r = quadsitl("sim", "--preset", "paper", "--duration", "2", "--no-figures", "--out", str(tmp_path / "a"))
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == ""  # plain progress only for runs longer than ~2 s of wall time
+    assert "2000 ticks" in r.stdout
+    q = quadsitl("sim", "--preset", "paper", "--duration", "2", "--no-figures", "--quiet", "--out", str(tmp_path / "b"))
+    assert q.returncode == 0, q.stderr
+    assert (q.stdout, q.stderr) == ("", "")
+    assert (tmp_path / "b" / "telemetry.csv").exists()
+
+
+def test_fly_progress_is_a_plain_line_when_piped_and_quiet_silences_it(tmp_path):
+    # --speed 2 caps the pace: 5 simulated seconds take 2.5 s of wall time, so one line every ~2 s shows.
+    r = quadsitl("fly", "--duration", "5", "--speed", "2", "--no-figures", "--out", str(tmp_path / "a"), timeout=180)
+    assert r.returncode == 0, r.stderr
+    assert PROGRESS_LINE.search(r.stderr), r.stderr
+    assert len(DONE_LINE.findall(r.stderr)) == 1, r.stderr
+    assert "\x1b[" not in r.stderr  # no terminal control codes in a pipe
+    q = quadsitl(
+        "fly", "--duration", "5", "--speed", "2", "--no-figures", "--quiet", "--out", str(tmp_path / "b"), timeout=180
+    )
+    assert q.returncode == 0, q.stderr
+    assert "real time" not in q.stderr and "gcs:" not in q.stderr
+    assert q.stdout == ""
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_progress_plain_lines_are_rate_limited_with_rtf_and_eta():
+    clock, buf = FakeClock(), io.StringIO()
+    p = FlightProgress(10.0, label="x:", stream=buf, clock=clock, interactive=False)
+    for now, sim in [(0.05, 0.1), (1.0, 2.0), (2.0, 4.0), (2.05, 4.1), (3.0, 6.0), (4.0, 8.0), (4.5, 10.0)]:
+        clock.now = now
+        p.update(sim)
+    clock.now = 5.0
+    p.close()
+    p.close()  # idempotent
+    p.update(3.0)  # ignored once closed
+    assert buf.getvalue().splitlines() == [
+        "x: t = 4.00 / 10 s, 2.0× real time, ETA 3 s",  # 6 s left at 2 s per wall s
+        "x: t = 8.00 / 10 s, 2.0× real time, ETA 1 s",  # 2 s after the previous line
+        "x: t = 10.00 / 10 s, 2.0× real time, done in 5.0 s",
+    ]
+
+
+def test_progress_is_silent_for_short_runs_when_disabled_and_after_failure():
+    for enabled, steps, completed in [(True, [(1.0, 5.0)], True), (False, [(3.0, 5.0)], True), (True, [], False)]:
+        clock, buf = FakeClock(), io.StringIO()
+        p = FlightProgress(10.0, enabled, stream=buf, clock=clock, interactive=False)
+        for now, sim in steps:
+            clock.now = now
+            p.update(sim)
+        clock.now = 4.0
+        p.close(completed=completed)
+        assert buf.getvalue() == ""
+    clock, buf = FakeClock(), io.StringIO()
+    with pytest.raises(KeyboardInterrupt), FlightProgress(10.0, stream=buf, clock=clock, interactive=False) as p:
+        clock.now = 2.0
+        p.update(5.0)
+        raise KeyboardInterrupt
+    assert buf.getvalue() == "flight t = 5.00 / 10 s, 2.5× real time, ETA 2 s\n"  # no "done" line
+
+
+def test_progress_rich_bar_ends_with_the_final_numbers():
+    clock, buf = FakeClock(), io.StringIO()
+    with FlightProgress(4.0, label="sim:", stream=buf, clock=clock, interactive=True) as p:
+        clock.now = 1.0
+        p.update(2.0)
+        clock.now = 2.0
+        p.update(4.0)
+    out = buf.getvalue()
+    assert "sim:" in out and "4.00 / 4 s" in out and "2.0× real time" in out and "done in 2.0 s" in out
+
+
+def test_format_eta():
+    assert [format_eta(s) for s in (0.4, 7, 59.4, 125, 3723)] == ["0 s", "7 s", "59 s", "2:05", "1:02:03"]
+
+
+def test_sim_progress_observes_without_changing_the_results():
+    preset = load_preset("paper")
+    seen: list[float] = []
+    with_progress, _ = run_offline(preset, ["backstepping", "pd"], 1.2, progress=seen.append)
+    without, _ = run_offline(preset, ["backstepping", "pd"], 1.2)
+    for kind in without:
+        for name in ("t", "state", "reference", "inputs", "forces"):
+            assert np.array_equal(getattr(with_progress[kind], name), getattr(without[kind], name)), (kind, name)
+    # Cumulative over both runs: every 500 ticks (0.5 s at T = 1 ms) and at the end of each run.
+    assert seen == pytest.approx([0.0, 0.5, 1.0, 1.2, 1.2, 1.7, 2.2, 2.4])
