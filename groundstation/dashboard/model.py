@@ -29,6 +29,7 @@ from quadsitl.frames import wrap_pi
 RATE_WINDOW = 2.0  # [s] wall: tick rate and real-time factor are averaged over this
 STALE_AFTER = 1.0  # [s] wall without telemetry: the link shows as stale
 MAX_VEHICLES = 64  # more names than this are ignored (and counted): a stranger must not exhaust memory
+MAX_PENDING = 4096  # decimated ticks waiting for their other streams (a sample of 64 ticks holds a few)
 MODES = {0: "hold", 1: "offboard", 2: "land"}
 FAILSAFES = {0: "none", 1: "setpoint stream lost", 2: "plant link lost", 3: "ground station lost"}
 
@@ -71,6 +72,7 @@ class Vehicle:
     malformed: int = 0
     _pending: dict[int, dict[str, tuple]] = field(default_factory=dict)
     _rate: deque = field(default_factory=deque)  # (wall, tick, t) of status records
+    _stream_tick: dict[str, int] = field(default_factory=dict)  # the newest tick of each stream
 
     # ---- ingest ---------------------------------------------------------------------------------------
 
@@ -88,8 +90,14 @@ class Vehicle:
         first_tick = _TICK.unpack_from(payload, 0)[0]
         self.samples += 1
         self.last_wall = wall
+        if first_tick < self._stream_tick.get(stream, -1) - 1:  # ticks went back: a new run, same name
+            self._restart()
+        self._stream_tick[stream] = last[0]
         if stream == "status":
-            self._new_ticks(first_tick, last, wall)
+            self.last_tick = last[0]
+            self._rate.append((wall, last[0], last[1]))
+            while len(self._rate) > 2 and wall - self._rate[1][0] >= RATE_WINDOW:
+                self._rate.popleft()
         self.latest[stream] = last
         if not self.decimation:
             self._learn_period(last)
@@ -108,22 +116,18 @@ class Vehicle:
             self.period = t / tick
             self.decimation = max(1, round(1.0 / (self.plot_rate * self.period)))
 
-    def _new_ticks(self, first_tick: int, last: tuple, wall: float) -> None:
-        if first_tick < self.last_tick - 1:  # ticks went back: a new run under the same name
-            self.generation += 1
-            self.rows.clear()
-            self._pending.clear()
-            self._rate.clear()
-        self.last_tick = last[0]
-        self._rate.append((wall, last[0], last[1]))
-        while len(self._rate) > 2 and wall - self._rate[1][0] >= RATE_WINDOW:
-            self._rate.popleft()
+    def _restart(self) -> None:
+        self.generation += 1
+        self.rows.clear()
+        self._pending.clear()
+        self._rate.clear()
+        self._stream_tick.clear()
 
     def _join(self, tick: int, stream: str, rec: tuple) -> None:
         got = self._pending.setdefault(tick, {})
         got[stream] = rec
         if len(got) < len(telemetry.STREAMS):
-            if len(self._pending) > 64:  # a stream that never completes a tick must not grow this
+            if len(self._pending) > MAX_PENDING:  # a stream that never completes a tick must not grow this
                 del self._pending[min(self._pending)]
             return
         del self._pending[tick]

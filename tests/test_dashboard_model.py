@@ -1,0 +1,124 @@
+"""The dashboard's pure model: decimation, the join across streams, runs that restart, rates, and input
+that must not hurt it (malformed payloads, strangers' keys, too many vehicles)."""
+
+import math
+
+import pytest
+
+from groundstation.dashboard.model import MAX_PENDING, MAX_VEHICLES, ROW_FIELDS, Fleet, plot_row
+from quadsitl import telemetry
+
+T = 0.001
+
+
+def records(stream: str, ticks, **values) -> bytes:
+    """A schema-v2 sample of consecutive ticks; fields not given are tick-dependent so they can be checked."""
+    fmt, fields = telemetry.STREAMS[stream], telemetry.FIELDS[stream]
+    out = []
+    for k in ticks:
+        rec = [k, k * T]
+        for f in fields[2:]:
+            rec.append(values.get(f, 0 if stream == "status" else k * 1e-3))
+        out.append(fmt.pack(*rec))
+    return b"".join(out)
+
+
+def feed(fleet: Fleet, ticks, wall: float, vehicle: str = "v1", **status) -> None:
+    st = {"armed": 1, "mode": 1, "failsafe": 0, "offboard_tick": 0, **status}
+    for stream in ("state", "setpoint", "actuators"):
+        fleet.ingest(f"quadsitl/{vehicle}/{stream}", records(stream, ticks), wall)
+    fleet.ingest(f"quadsitl/{vehicle}/status", records("status", ticks, **st), wall)
+
+
+def test_rows_are_every_nth_tick_joined_across_streams_in_display_units():
+    fleet = Fleet(plot_rate=50.0, window=20.0)  # T = 1 ms → one row every 20 ticks
+    for first in range(1, 1001, 7):  # samples of 7 ticks, not aligned with the decimation
+        feed(fleet, range(first, first + 7), wall=first * T)
+    v = fleet.vehicles["v1"]
+    assert v.decimation == 20 and v.period == pytest.approx(T)
+    rows = v.rows_since(0)
+    ticks = [round(r[0] / T) for r in rows]
+    assert ticks == list(range(20, 1001, 20))  # every multiple, none twice, none from a partial join
+    r = dict(zip(ROW_FIELDS, rows[-1]))
+    k = 1000
+    assert r["altitude"] == pytest.approx(-k * 1e-3)  # −z
+    assert r["roll"] == pytest.approx(math.degrees(k * 1e-3))
+    assert r["e_altitude"] == pytest.approx(r["altitude_ref"] - r["altitude"])
+    assert r["u1"] == pytest.approx(k * 1e-3) and r["f4"] == pytest.approx(k * 1e-3)
+    # a page that saw up to row 40 gets only the newer ones
+    seq_40 = v.rows[39][0]
+    assert [round(x[0] / T) for x in v.rows_since(seq_40)] == list(range(820, 1001, 20))
+    assert v.rows_since(v.seq) == []
+
+
+def test_the_window_keeps_only_the_last_seconds_of_simulated_time():
+    fleet = Fleet(plot_rate=10.0, window=1.0)
+    for first in range(1, 5001, 50):
+        feed(fleet, range(first, first + 50), wall=first * T)
+    ts = [r[0] for r in fleet.vehicles["v1"].rows_since(0)]
+    assert ts[-1] == pytest.approx(5.0) and ts[0] >= 4.0 - 1e-9 and len(ts) == 11
+
+
+def test_a_run_that_restarts_under_the_same_name_starts_a_new_generation():
+    fleet = Fleet()
+    feed(fleet, range(1, 2001), wall=1.0)
+    v = fleet.vehicles["v1"]
+    assert v.generation == 0 and len(v.rows) == 100
+    feed(fleet, range(1, 101), wall=2.0)  # ticks back to the start: a new fly, a looping replay
+    assert v.generation == 1
+    assert [round(r[0] / T) for r in v.rows_since(0)] == list(range(20, 101, 20))
+
+
+def test_tick_rate_and_real_time_factor_follow_the_wall_clock():
+    fleet = Fleet()
+    wall = 0.0
+    for first in range(1, 30001, 100):  # 100 ticks every 10 ms of wall time: 10,000 ticks/s, 10×
+        feed(fleet, range(first, first + 100), wall=wall)
+        wall += 0.01
+    s = fleet.summaries(wall - 0.01)[0]
+    assert s["tick_rate"] == pytest.approx(10000, rel=0.01)
+    assert s["real_time_factor"] == pytest.approx(10.0, rel=0.01)
+    assert s["link"]["telemetry"] == "live"
+    stale = fleet.summaries(wall + 5.0)[0]
+    assert stale["link"]["telemetry"] == "stale" and stale["tick_rate"] == 0.0
+
+
+def test_status_names_mode_and_failsafe():
+    fleet = Fleet()
+    feed(fleet, range(1, 10), wall=0.0, armed=0, mode=2, failsafe=2, offboard_tick=-1)
+    st = fleet.summaries(0.0)[0]["status"]
+    assert st == {"tick": 9, "t": pytest.approx(0.009), "armed": False, "mode": "land",
+                  "failsafe": "plant link lost", "offboard_tick": -1}  # fmt: skip
+
+
+def test_bad_input_is_counted_and_ignored():
+    fleet = Fleet()
+    feed(fleet, range(1, 101), wall=0.0)
+    v = fleet.vehicles["v1"]
+    rows = len(v.rows)
+    fleet.ingest("quadsitl/v1/state", b"\x00" * 13, 0.1)  # not a whole record
+    fleet.ingest("quadsitl/v1/state", b"", 0.1)
+    nan = telemetry.STREAMS["state"].pack(101, 0.101, *([float("nan")] * 12))
+    fleet.ingest("quadsitl/v1/state", nan, 0.1)
+    assert v.malformed == 3 and len(v.rows) == rows
+    fleet.ingest("quadsitl/v1/telemetry", b"x" * 8, 0.1)  # unknown stream
+    fleet.ingest("someone/else/state", b"x" * 8, 0.1)
+    fleet.ingest("quadsitl/v1/state/extra", b"x" * 8, 0.1)
+    assert fleet.ignored == 3
+    for i in range(MAX_VEHICLES + 10):
+        feed(fleet, range(1, 3), wall=0.2, vehicle=f"x{i}")
+    assert len(fleet.vehicles) == MAX_VEHICLES and fleet.ignored == 3 + 4 * 11
+
+
+def test_a_stream_that_never_completes_a_tick_does_not_grow_memory():
+    fleet = Fleet()
+    fleet.ingest("quadsitl/v1/state", records("state", range(1, 100001)), 0.0)
+    v = fleet.vehicles["v1"]
+    assert len(v._pending) <= MAX_PENDING + 1 and len(v.rows) == 0
+
+
+def test_yaw_error_wraps_across_pi():
+    state = (1, T, 0, 0, 0, 0, 0, 0, 0, 0, math.radians(179), 0, 0, 0)
+    setpoint = (1, T, 0, 0, 0, math.radians(-179))
+    row = dict(zip(ROW_FIELDS, plot_row(state, setpoint, (1, T, 0, 0, 0, 0, 0, 0, 0, 0))))
+    assert row["e_yaw"] == pytest.approx(2.0)
