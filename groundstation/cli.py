@@ -3,6 +3,8 @@
     quadsitl sim      the closed loop in one process (no network): telemetry, metrics, figures
     quadsitl fly      plant, autopilot and a scripted ground station as processes, one flight
     quadsitl up       plant and autopilot on PX4 SITL's ports, for QGroundControl, MAVProxy, MAVSDK
+    quadsitl dashboard  live telemetry of every vehicle on Zenoh, in the browser
+    quadsitl replay   play a recorded telemetry.csv or .tlog back onto Zenoh
     quadsitl presets  list the shipped presets, or show one
     quadsitl gains    check backstepping gains against the paper's conditions (41)–(44)
 
@@ -146,7 +148,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="quadsitl",
         description="MAVLink software-in-the-loop quadrotor with a discrete-time backstepping autopilot.",
-        epilog="Run 'quadsitl COMMAND --help' for the options and examples of each command.",
+        epilog="""examples:
+  quadsitl sim --preset paper --compare --out runs/paper     # the paper's experiment, one process
+  quadsitl fly --preset paper --out runs/fly                 # three processes over MAVLink/UDP, lockstep
+  quadsitl up --dashboard                                    # PX4 SITL's ports, live dashboard in the browser
+  quadsitl replay runs/fly/telemetry.csv                     # an old run back onto Zenoh
+
+Run 'quadsitl COMMAND --help' for the options and examples of each command.""",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 

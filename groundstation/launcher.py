@@ -149,6 +149,7 @@ def up(preset_name: str, preset: Preset, args) -> int:
 
         raise UsageError("--dashboard needs the Zenoh telemetry: drop --no-zenoh")
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
+    check_ports_free(args)
     old = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
@@ -167,7 +168,7 @@ def up(preset_name: str, preset: Preset, args) -> int:
             plant += ["--speed", str(args.speed)]
         if args.impair:
             plant += ["--impair", args.impair]
-        children.start("plant", plant)
+        children.start("plant", plant + (["--quiet"] if args.quiet else []))
         url = start_dashboard(children, web_port, args.zenoh_listen) if web_port is not None else None
         if not args.quiet:
             print(banner(preset, args, url), flush=True)
@@ -187,6 +188,25 @@ def up(preset_name: str, preset: Preset, args) -> int:
     finally:
         children.stop()
         signal.signal(signal.SIGTERM, old)
+
+
+def check_ports_free(args) -> None:
+    """Refuse, before starting anything, the ports ``up`` would find busy: each named with its option."""
+    from quadsitl.cli_util import UsageError
+    from quadsitl.process_util import bind_udp
+
+    for option, default in (("gcs_listen", "127.0.0.1:18570"), ("api_listen", "127.0.0.1:14580")):
+        bind_udp("--" + option.replace("_", "-"), getattr(args, option) or default).close()
+    if not args.no_zenoh and args.zenoh_listen.startswith("tcp/"):
+        host, _, port = args.zenoh_listen[4:].rpartition(":")
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind((host, int(port)))
+            except (OSError, ValueError) as exc:
+                reason = exc.strerror if isinstance(exc, OSError) else "not HOST:PORT"
+                raise UsageError(f"--zenoh-listen {args.zenoh_listen}: cannot listen: {reason}; choose another "
+                                 "with --zenoh-listen tcp/HOST:PORT, or --no-zenoh") from None  # fmt: skip
 
 
 def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:
@@ -245,7 +265,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         ]
         if args.integrator:
             plant += ["--integrator", args.integrator]
-        children.start("plant", plant)
+        children.start("plant", plant + quiet)
         gcs = ["groundstation", "--preset", preset_name, "--connect", f"127.0.0.1:{gcs_port}",
                "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out), *quiet]  # fmt: skip
         if args.duration:

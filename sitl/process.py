@@ -28,7 +28,7 @@ from pathlib import Path
 from quadsitl import wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, check_range
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.process_util import parse_address, set_receive_timeout, start_process, wait_readable
+from quadsitl.process_util import bind_udp, parse_address, set_receive_timeout, start_process, wait_readable
 from quadsitl.timing import period_stats
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant
@@ -43,14 +43,13 @@ class PlantLink:
 
     def __init__(
         self,
-        bind: tuple[str, int],
+        sock: socket.socket,
         autopilot: tuple[str, int],
         max_thrust: float,
         period: float,
         impairment: Impairment | None = None,
     ):
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(bind)
+        self.sock = sock  # bound (process_util.bind_udp)
         self.sock.connect(autopilot)  # the kernel drops datagrams from anyone but the autopilot
         self.mav = wire.link(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
         self.fast = wire.FastLink(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
@@ -264,6 +263,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="realtime mode, when the autopilot stops answering: zero thrust (default) or hold its last command",
     )
     p.add_argument("--stats", metavar="FILE", help="write the run's pace (and, in realtime, its timing) as JSON")
+    p.add_argument("--quiet", "-q", action="store_true", help="no summary at the end (errors still print)")
     return p
 
 
@@ -274,16 +274,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         preset = load_preset(args.preset)
         check_range("--speed", args.speed if args.speed != 0 else None, 0.0, 1000.0)
-        bind = parse_address("--bind", args.bind)
         autopilot = parse_address("--autopilot", args.autopilot)
         plant = Plant(preset, integrator=args.integrator, substeps=args.substeps)
         impairment = impairment_from(args.impair, args.mode)
-        link = PlantLink(bind, autopilot, preset.actuators.max_thrust, preset.sim.period, impairment)
+        link = PlantLink(bind_udp("--bind", args.bind), autopilot, preset.actuators.max_thrust, preset.sim.period,
+                         impairment)  # fmt: skip
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"{parser.prog}: error: cannot bind --bind {args.bind}: {exc.strerror}", file=sys.stderr)
         return 2
     start = time.monotonic()
     status = 0
@@ -306,6 +303,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.mode == "realtime":
             stats.update(period_stats(starts, preset.sim.period))
         Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
+    if args.quiet:
+        return status
     print(
         f"plant: {plant.time:.3f} s simulated in {elapsed:.3f} s; {link.discarded} stale actuator messages discarded",
         file=sys.stderr,

@@ -18,7 +18,7 @@ def run_cli(*args: str, timeout: float = 120, module: str | None = None) -> subp
         cmd = [sys.executable, "-m", module, *args]
     else:
         exe = BIN / "quadsitl"
-        cmd = [str(exe), *args] if exe.exists() else [sys.executable, "-m", "groundstation", *args]
+        cmd = [str(exe), *args] if exe.exists() else [sys.executable, "-m", "groundstation.cli", *args]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
 

@@ -33,7 +33,7 @@ import zenoh
 from groundstation.dashboard.model import ROW_FIELDS, Fleet
 from quadsitl import telemetry
 from quadsitl.cli_util import UsageError, check_range
-from quadsitl.process_util import parse_address, start_process
+from quadsitl.process_util import start_process
 
 STATIC = Path(__file__).parent / "static"
 POLL = 0.02  # [s] wall between drains of the Zenoh ring channel
@@ -140,18 +140,22 @@ def make_app(dash: Dashboard):
     )
 
 
-def bind_tcp(option: str, host: str, port: int) -> socket.socket:
-    """A listening TCP socket, or a UsageError naming the option, the address and how to choose another."""
-    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+def bind_tcp(host: str, port: int) -> socket.socket:
+    """The dashboard's listening socket, or a UsageError naming the option at fault (``--port`` for a busy
+    port, with how to choose another; ``--host`` for an address this machine cannot listen on)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))
         sock.listen(128)
     except OSError as exc:
         sock.close()
-        hint = f"; choose another with {option} (0 picks a free one)" if exc.errno == errno.EADDRINUSE else ""
-        raise UsageError(f"{option} {port}: cannot listen on {host}:{port}: {exc.strerror}{hint}") from None
-    sock.set_inheritable(True)
+        reason = exc.strerror or str(exc)
+        if exc.errno == errno.EADDRINUSE:
+            raise UsageError(f"--port {port}: cannot listen on {host}:{port}: {reason}; choose another with "
+                             "--port (0 picks a free one)") from None  # fmt: skip
+        raise UsageError(f"--host {host}: cannot listen on {host}:{port}: {reason}") from None
     return sock
 
 
@@ -191,10 +195,9 @@ def serve(args: argparse.Namespace) -> int:
     check_range("--plot-rate", args.plot_rate, 1.0, 1000.0)
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: expected 0..65535")
-    parse_address("--host", f"{args.host}:0")
     if not (args.zenoh_connect or args.zenoh_listen or args.zenoh_config):
         args.zenoh_connect = [DEFAULT_CONNECT]
-    sock = bind_tcp("--port", args.host, args.port)
+    sock = bind_tcp(args.host, args.port)
     try:
         session = zenoh.open(telemetry.config_from_args(args))
     except zenoh.ZError as exc:

@@ -1,0 +1,86 @@
+"""``quadsitl fly --dashboard`` and the dashboard's command line: URL printed, the run visible on
+/api/vehicles, the page kept up after the flight until Ctrl-C, no orphans, and one-line errors."""
+
+import json
+import signal
+import socket
+import subprocess
+import time
+import urllib.request
+
+import pytest
+
+from groundstation.launcher import free_port
+from tests.test_fly import alive, children_of, procs, quadsitl  # noqa: F401 (procs is a fixture)
+
+
+def vehicles(url: str) -> list[dict]:
+    with urllib.request.urlopen(url + "api/vehicles", timeout=5) as r:
+        return json.loads(r.read())["vehicles"]
+
+
+@pytest.mark.timeout(90)
+def test_fly_dashboard_prints_its_url_shows_the_run_and_stays_until_ctrl_c(tmp_path, procs):  # noqa: F811
+    port = free_port(socket.SOCK_STREAM)
+    err = open(tmp_path / "stderr.txt", "w+")  # noqa: SIM115 - closed below
+    fly = subprocess.Popen(quadsitl("fly", "--dashboard", "--dashboard-port", str(port), "--speed", "2", "--duration",
+                                    "3", "--no-figures", "--out", str(tmp_path / "run")),
+                           stdout=subprocess.PIPE, stderr=err, text=True)  # fmt: skip
+    procs.append(fly)
+    line = fly.stdout.readline()
+    url = f"http://127.0.0.1:{port}/"
+    assert line.strip() == f"quadsitl fly: dashboard at {url}"
+    modes, rates = set(), []
+    deadline = time.monotonic() + 40
+    while time.monotonic() < deadline and "flight done" not in (tmp_path / "stderr.txt").read_text():
+        vs = vehicles(url)
+        if vs and vs[0]["status"] and vs[0]["status"]["armed"]:
+            modes.add(vs[0]["status"]["mode"])
+            assert vs[0]["link"]["telemetry"] == "live"
+            if vs[0]["real_time_factor"] is not None:  # None until it has 0.2 s of wall time to go by
+                rates.append(vs[0]["real_time_factor"])
+        time.sleep(0.2)
+    assert "offboard" in modes and rates
+    assert 1.0 < max(rates) < 3.0  # --speed 2
+    assert "flight done" in (tmp_path / "stderr.txt").read_text()
+    assert (tmp_path / "run" / "metrics.json").exists()
+    kids = children_of(fly.pid)
+    assert len(kids) == 1  # plant, autopilot and ground station are gone; the dashboard stays
+    time.sleep(1.2)  # longer than the dashboard waits before it calls the telemetry stale
+    (v,) = vehicles(url)
+    assert v["status"]["armed"] is False and v["status"]["mode"] == "land"
+    assert v["link"]["telemetry"] == "stale" and v["tick_rate"] == 0.0  # the autopilot has stopped
+    fly.send_signal(signal.SIGINT)
+    assert fly.wait(15) == 0
+    time.sleep(0.2)
+    assert not [pid for pid in kids if alive(pid)]
+    err.close()
+
+
+def test_a_busy_dashboard_port_is_refused_before_anything_starts(cli):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        for argv, option in ((["dashboard", "--port", str(port)], "--port"),
+                             (["up", "--dashboard", "--dashboard-port", str(port)], "--dashboard-port"),
+                             (["fly", "--dashboard", "--dashboard-port", str(port)], "--dashboard-port")):  # fmt: skip
+            r = cli(*argv, timeout=60)
+            assert r.returncode == 2, (argv, r.stderr)
+            assert f"{option} {port}" in r.stderr and f"choose another with {option}" in r.stderr
+            assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["dashboard", "--plot-rate", "0"], "--plot-rate 0"),
+        (["dashboard", "--window", "nan"], "--window nan"),
+        (["dashboard", "--port", "70000"], "--port 70000"),
+        (["dashboard", "--host", "not a host"], "--host"),
+        (["up", "--dashboard", "--no-zenoh"], "--dashboard needs the Zenoh telemetry"),
+    ],
+)
+def test_dashboard_options_are_checked(cli, argv, needle):
+    r = cli(*argv, timeout=60)
+    assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
