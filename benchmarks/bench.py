@@ -266,6 +266,56 @@ def bench_fanout(r: Report, workdir: Path, nice: int) -> None:
             r.add(f"  {n} sub: latency p99", percentile(lat, 99), "ms")
 
 
+# ---- 5. the dashboard ------------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def dashboard_page(endpoint: str) -> Iterator[object]:
+    """``quadsitl dashboard`` on the autopilot's Zenoh session, its page open in headless Chromium."""
+    from benchmarks.browser import chromium
+
+    port = _free_port(socket.SOCK_STREAM)
+    dash = _python("groundstation.dashboard.server", "--port", str(port), "--zenoh-connect", endpoint, "--quiet")
+    try:
+        with chromium() as browser:
+            page = browser.new_page(viewport={"width": 1400, "height": 1100})
+            end = time.monotonic() + 20
+            while True:
+                try:
+                    page.goto(f"http://127.0.0.1:{port}/")
+                    break
+                except Exception:  # Playwright's error while the server is still starting
+                    if time.monotonic() > end or dash.poll() is not None:
+                        raise RuntimeError("the dashboard did not start") from None
+                    time.sleep(0.2)
+            page.wait_for_function("() => quadsitl.updates > 0", timeout=20000)  # connected to the stream
+            yield page
+    finally:
+        _stop(dash)
+
+
+def bench_dashboard(r: Report, workdir: Path, rounds: int) -> dict:
+    """Lockstep tick rate with the dashboard serving an open page against the same run without it."""
+    r.section("5. dashboard: lockstep ticks with the page open in headless Chromium, against without")
+    ticks = 20000
+    alone, watched, seen = [], [], {}
+    with autopilot_process(workdir) as (plant_port, _api, endpoint):
+        run_plant(plant_port, workdir, 2000)  # warm-up
+        with dashboard_page(endpoint) as page:
+            for _ in range(rounds):  # interleaved: both see the same machine
+                watched.append(run_plant(plant_port, workdir, ticks)["ticks_per_s"])
+            seen = page.evaluate("() => ({redraws: quadsitl.redraws, lastT: quadsitl.lastT})")
+            if not seen["redraws"] or not seen["lastT"]:  # a page that saw nothing would measure nothing
+                raise RuntimeError(f"the dashboard page drew no telemetry during the runs: {seen}")
+        for _ in range(rounds):
+            alone.append(run_plant(plant_port, workdir, ticks)["ticks_per_s"])
+    base = max(alone)
+    r.add("lockstep ticks, no dashboard", base, "1/s")
+    r.add("lockstep ticks, dashboard + open page", max(watched), "1/s", base, "no dashboard")
+    r.add("  page redraws during the runs", seen["redraws"], "")
+    return {"dashboard_ratio": max(watched) / base}
+
+
 # ---- 4. real time ---------------------------------------------------------------------------------------
 
 
@@ -308,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--json", action="store_true", help="print every figure as JSON on stdout")
-    p.add_argument("--only", choices=("lockstep", "costs", "fanout", "realtime"), action="append",
+    p.add_argument("--only", choices=("lockstep", "costs", "fanout", "realtime", "dashboard"), action="append",
                    help="run only these parts (repeatable; default: all)")  # fmt: skip
     p.add_argument("--rounds", type=int, default=2, help="interleaved ping-pong/fly rounds, best of (default 2)")
     p.add_argument("--realtime-seconds", type=float, default=10.0, help="real-time run length (default 10)")
@@ -324,10 +374,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not 1.0 <= args.realtime_seconds <= 600.0:
         print(f"quadsitl bench: error: --realtime-seconds {args.realtime_seconds:g}: expected 1..600", file=sys.stderr)
         return 2
-    parts = args.only or ["lockstep", "costs", "fanout", "realtime"]
+    parts = args.only or ["lockstep", "costs", "fanout", "realtime", "dashboard"]
     r = Report(quiet=False)
     started = time.monotonic()
     ratio, ping = None, None
+    extra: dict[str, float] = {}
     try:
         with tempfile.TemporaryDirectory(prefix="quadsitl-bench-") as tmp:
             work = Path(tmp)
@@ -340,6 +391,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 bench_fanout(r, work, args.subscriber_nice)
             if "realtime" in parts:
                 bench_realtime(r, work, args.realtime_seconds)
+            if "dashboard" in parts:
+                extra.update(bench_dashboard(r, work, args.rounds))
     except (subprocess.CalledProcessError, subprocess.TimeoutExpired, RuntimeError, OSError) as exc:
         print(f"quadsitl bench: error: {exc}", file=sys.stderr)
         return 1
@@ -352,6 +405,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if ratio is not None:
         print(f"\nlockstep_ratio = {ratio:.3f} (goal >= 0.6); {elapsed:.0f} s", file=sys.stderr)
     if args.json:
-        print(json.dumps({"lockstep_ratio": ratio, "elapsed_s": elapsed, "machine": machine,
+        print(json.dumps({"lockstep_ratio": ratio, **extra, "elapsed_s": elapsed, "machine": machine,
                           "figures": [asdict(f) for f in r.figures]}, indent=2))  # fmt: skip
     return 0

@@ -14,28 +14,18 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.browser import chromium
 from groundstation.launcher import free_port
 from tests.mavclient import Client, M, quadsitl_up
-
-CHROMIUM = os.environ.get("QUADSITL_CHROMIUM", "/usr/bin/chromium")
-# As root in a container, without a GPU, and on a machine with no route out: no sandbox, no GPU, and none
-# of Chromium's background connections to Google's hosts.
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")
 def browser():
-    from playwright.sync_api import sync_playwright
-
-    if not Path(CHROMIUM).exists():  # not a skip: CI installs Debian's chromium (.ci/run)
-        pytest.fail(f"no Chromium at {CHROMIUM}: apt-get install chromium, or set QUADSITL_CHROMIUM")
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
+    try:
+        with chromium() as b:  # not a skip when Chromium is missing: CI installs it (.ci/run)
             yield b
-        finally:
-            b.close()
+    except RuntimeError as exc:
+        pytest.fail(str(exc))
 
 
 @pytest.fixture

@@ -49,9 +49,9 @@ function makePlots() {
     const units = [...new Set(spec.series.map(s => s[4]).filter(Boolean))];
     units.forEach((u, i) => {
       scales[u] = {};
-      axes.push({ scale: u, side: i === 0 ? 3 : 1, grid: { show: i === 0 } });
+      axes.push({ scale: u, side: i === 0 ? 3 : 1, grid: { show: i === 0 }, size: 60 });
     });
-    if (!units.length) axes.push({});
+    if (!units.length) axes.push({ size: 60 });
     const opts = {
       title: spec.title, width: box.clientWidth - 8, height: 220,
       scales, axes, legend: { live: false },
