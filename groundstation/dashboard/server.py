@@ -22,6 +22,7 @@ import asyncio
 import contextlib
 import errno
 import json
+import os
 import socket
 import sys
 import time
@@ -222,8 +223,20 @@ def serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def yield_to_the_vehicle() -> None:
+    """Run at idle priority (Linux SCHED_IDLE; elsewhere nice 19): the dashboard gets only the CPU time that
+    the plant and the autopilot leave, and their wake-ups always preempt it. On a 2-core machine a lockstep
+    run keeps both cores busy, so a dashboard at normal priority would cost the vehicle ticks."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        with contextlib.suppress(OSError):
+            os.nice(19)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     start_process(quiet_gc=False)
+    yield_to_the_vehicle()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
