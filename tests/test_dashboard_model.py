@@ -98,9 +98,13 @@ def test_bad_input_is_counted_and_ignored():
     rows = len(v.rows)
     fleet.ingest("quadsitl/v1/state", b"\x00" * 13, 0.1)  # not a whole record
     fleet.ingest("quadsitl/v1/state", b"", 0.1)
-    nan = telemetry.STREAMS["state"].pack(101, 0.101, *([float("nan")] * 12))
-    fleet.ingest("quadsitl/v1/state", nan, 0.1)
+    no_time = telemetry.STREAMS["state"].pack(101, float("nan"), *([0.0] * 12))
+    fleet.ingest("quadsitl/v1/state", no_time, 0.1)
     assert v.malformed == 3 and len(v.rows) == rows
+    # NaN fields are "not known" (a replayed tlog has no u1..u4): kept, and shown as gaps (null in JSON)
+    unknown = telemetry.STREAMS["actuators"].pack(120, 0.120, *([float("nan")] * 8))
+    fleet.ingest("quadsitl/v1/actuators", unknown, 0.1)
+    assert v.malformed == 3 and math.isnan(fleet.summaries(0.1)[0]["actuators"]["u1"])
     fleet.ingest("quadsitl/v1/telemetry", b"x" * 8, 0.1)  # unknown stream
     fleet.ingest("someone/else/state", b"x" * 8, 0.1)
     fleet.ingest("quadsitl/v1/state/extra", b"x" * 8, 0.1)
