@@ -196,7 +196,11 @@ class GroundStation:
                 self.progress.update(flight_t)
                 self.progress.close()
             elif phase == "landing":
-                if not self.armed and self.acks.get(mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED:
+                # Disarmed as the telemetry says, tick by tick: the 1 Hz (wall) heartbeat may not have come
+                # since arming in a short sped-up flight, and would end the flight before the landing.
+                status = self.logger.last_status
+                landed = status is not None and status["mode"] == wire.Mode.LAND and not status["armed"]
+                if landed and self.acks.get(mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED:
                     phase = "done"
                 elif now - last_cmd > 0.5 and self.acks.get(mavlink.MAV_CMD_NAV_LAND) is None:
                     self.command(mavlink.MAV_CMD_NAV_LAND)
