@@ -37,7 +37,7 @@ from quadsitl.cli_util import UsageError, add_preset_arguments, check_range, par
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
 from quadsitl.mixer import allocate
-from quadsitl.process_util import bind_udp, parse_remote, set_receive_timeout, start_process
+from quadsitl.process_util import SpinThenBlock, bind_udp, parse_remote, set_receive_timeout, start_process
 from quadsitl.state import Reference, VehicleState
 
 mavlink = wire.mavlink
@@ -129,6 +129,7 @@ class Autopilot:
         act = preset.actuators
         self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
         self.d_over_b = preset.vehicle.d_over_b
+        self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom)  # polls while the plant answers fast
         self.session = None
         self.pubs: dict[str, zenoh.Publisher] = {}
         self.batches = {stream: bytearray() for stream in telemetry.STREAMS}
@@ -463,9 +464,10 @@ class Autopilot:
         for link in self.links:
             link.sock.setblocking(False)
         next_poll = 0.0
+        receive = self.plant_wait
         while True:
             try:
-                data, sender = self.plant_sock.recvfrom(65535)
+                data, sender = receive()
             except (BlockingIOError, InterruptedError):
                 data = None
             if data is not None:

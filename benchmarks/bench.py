@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from benchmarks import pingpong
-from quadsitl.process_util import wait_readable
+from quadsitl.process_util import SPIN_ENV, wait_readable
 from quadsitl.timing import percentile, period_stats
 
 
@@ -93,25 +93,58 @@ def _stop(proc: subprocess.Popen) -> None:
 # ---- 1. the lockstep pipeline ------------------------------------------------------------------------
 
 
-def fly_rate(seconds: float, workdir: Path) -> float:
+BLOCKING = {**os.environ, SPIN_ENV: "0"}  # the environment that turns polling off (SpinThenBlock)
+
+
+def fly_rate(seconds: float, workdir: Path, env: dict[str, str] | None = None) -> float:
     """Ticks per second of ``quadsitl fly`` (the flight itself, measured by its ground station)."""
     out = workdir / "fly"
     subprocess.run([sys.executable, "-m", "groundstation.cli", "fly", "--preset", "paper", "--duration", str(seconds),
-                    "--out", str(out), "--no-figures", "--quiet"], check=True, timeout=120)  # fmt: skip
+                    "--out", str(out), "--no-figures", "--quiet"], check=True, timeout=120, env=env)  # fmt: skip
     return json.loads((out / "rate.json").read_text())["ticks_per_s"]
 
 
 def bench_lockstep(r: Report, workdir: Path, rounds: int) -> tuple[float, float]:
     r.section("1. lockstep loop (quadsitl fly, paper preset) against a bare UDP ping-pong")
-    pings, flies = [], []
-    for _ in range(rounds):  # interleaved, so that both see the same machine
-        pings.append(pingpong.measure())
-        flies.append(fly_rate(10.0, workdir))
-    ping, fly = max(pings), max(flies)
-    r.add("ping-pong round trips", ping, "1/s")
+    runs: dict[str, list[float]] = {}
+    for _ in range(rounds):  # interleaved, so that all see the same machine
+        for name, measure in (
+            ("ping", pingpong.measure),
+            ("ping polling", lambda: pingpong.measure(spin=True)),
+            ("ping one core", lambda: pingpong.measure(cpu=0)),
+            ("fly", lambda: fly_rate(10.0, workdir)),
+            ("fly blocking", lambda: fly_rate(10.0, workdir, BLOCKING)),
+        ):
+            runs.setdefault(name, []).append(measure())
+    best = {name: max(values) for name, values in runs.items()}
+    ping, fly = best["ping"], best["fly"]
+    r.add("ping-pong round trips (blocking receive)", ping, "1/s")
     r.add("fly ticks", fly, "1/s", ping, "ping-pong")
     r.add("fly real-time factor at 1 kHz", fly / 1000.0, "x")
+    r.add("fly ticks, polling off ($QUADSITL_SPIN_US=0)", best["fly blocking"], "1/s", ping, "ping-pong")
+    r.add("ping-pong, both sides polling (SpinThenBlock)", best["ping polling"], "1/s")
+    r.add("fly ticks against the polling ping-pong", fly, "1/s", best["ping polling"], "polling ping-pong")
+    r.add("ping-pong, both processes on one core", best["ping one core"], "1/s")
+    r.add("fly ticks against the one-core ping-pong", fly, "1/s", best["ping one core"], "one-core ping-pong")
     return fly, ping
+
+
+def bench_contention(r: Report, workdir: Path) -> None:
+    """Polling only pays while plant and autopilot have a core each: with a CPU hog on the machine it must
+    back off to blocking (SpinThenBlock's verdicts), not collapse."""
+    r.section("1b. lockstep with a busy-looping process on the machine: polling (default) against blocking")
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        rates = {}
+        for name, env in (("polling", None), ("blocking", BLOCKING)):
+            with autopilot_process(workdir, env) as (plant_port, _api, _ep):
+                run_plant(plant_port, workdir, 2000, env=env)  # warm-up
+                rates[name] = max(run_plant(plant_port, workdir, 10000, env=env)["ticks_per_s"] for _ in range(2))
+    finally:
+        hog.kill()
+        hog.wait()
+    r.add("plant + autopilot ticks, one CPU hog, blocking", rates["blocking"], "1/s")
+    r.add("plant + autopilot ticks, one CPU hog, polling", rates["polling"], "1/s", rates["blocking"], "blocking")
 
 
 # ---- 2. per-tick costs ---------------------------------------------------------------------------------
@@ -179,7 +212,7 @@ def bench_costs(r: Report, ping: float) -> None:
 
 
 @contextlib.contextmanager
-def autopilot_process(workdir: Path) -> Iterator[tuple[int, int, str]]:
+def autopilot_process(workdir: Path, env: dict[str, str] | None = None) -> Iterator[tuple[int, int, str]]:
     """An armed autopilot (hold mode: the controller runs every tick) on free ports: (plant port, api
     port, Zenoh endpoint)."""
     from pymavlink import mavutil
@@ -188,7 +221,7 @@ def autopilot_process(workdir: Path) -> Iterator[tuple[int, int, str]]:
     endpoint = f"tcp/127.0.0.1:{_free_port(socket.SOCK_STREAM)}"
     ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
                  f"127.0.0.1:{api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
-                 "none", "--zenoh-listen", endpoint)  # fmt: skip
+                 "none", "--zenoh-listen", endpoint, env=env)  # fmt: skip
     try:
         os.environ.setdefault("MAVLINK20", "1")
         gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{api_port}", source_system=255, dialect="common")
@@ -206,11 +239,11 @@ def autopilot_process(workdir: Path) -> Iterator[tuple[int, int, str]]:
         _stop(ap)
 
 
-def run_plant(plant_port: int, workdir: Path, ticks: int, *extra: str) -> dict:
+def run_plant(plant_port: int, workdir: Path, ticks: int, *extra: str, env: dict[str, str] | None = None) -> dict:
     stats = workdir / f"plant-{time.monotonic_ns()}.json"
     subprocess.run([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot", f"127.0.0.1:{plant_port}",
                     "--ticks", str(ticks), "--stats", str(stats), *extra], check=True, timeout=120,
-                   stderr=subprocess.DEVNULL)  # fmt: skip
+                   stderr=subprocess.DEVNULL, env=env)  # fmt: skip
     return json.loads(stats.read_text())
 
 
@@ -386,6 +419,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if "lockstep" in parts:
                 fly, ping = bench_lockstep(r, work, args.rounds)
                 ratio = fly / ping
+                bench_contention(r, work)
             if "costs" in parts:
                 bench_costs(r, ping or pingpong.measure())
             if "fanout" in parts:

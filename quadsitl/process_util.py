@@ -5,11 +5,14 @@ from __future__ import annotations
 import ctypes
 import errno
 import gc
+import os
 import select
 import signal
 import socket
 import struct
 import sys
+import time
+from collections.abc import Callable
 
 from quadsitl.cli_util import UsageError
 
@@ -48,6 +51,94 @@ def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
     sock.settimeout(None)
     usec = 0 if seconds is None else max(1, round(seconds * 1e6))  # 0 = no timeout
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", usec // 1_000_000, usec % 1_000_000))
+
+
+SPIN_ENV = "QUADSITL_SPIN_US"  # the polling budget in µs (0: always block)
+SPIN_BUDGET = 200e-6  # [s] how long a hot lockstep loop polls for the next datagram before it blocks
+SPIN_WINDOW = 256  # waits per verdict on whether polling pays
+SPIN_MISSES = 32  # polls that ran out of budget in a window, beyond which polling stops for a while
+SPIN_COOL = (0.25, 4.0)  # [s] how long it stops: doubling from the first to the second while it keeps failing
+
+
+def spin_budget() -> float:
+    """The polling budget [s]: ``$QUADSITL_SPIN_US`` µs if set (0 turns polling off), else SPIN_BUDGET."""
+    text = os.environ.get(SPIN_ENV)
+    if not text:
+        return SPIN_BUDGET
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0.0 <= value <= 100_000.0:
+        raise UsageError(f"${SPIN_ENV} = {text!r}: expected microseconds in [0, 100000] (0 = always block)")
+    return value * 1e-6
+
+
+class SpinThenBlock:
+    """Receive for a lockstep loop: poll without blocking for up to ``budget`` seconds, then block.
+
+    A process that blocks in ``recv`` pays a wake-up when the datagram comes, and on a virtual machine the
+    wake-up of a halted core: tens of µs, more than the per-tick work of either side. A loop that is hot
+    (its previous wait was shorter than the budget: the other side answers within microseconds) polls
+    instead and does not sleep. A loop that is paced (``--speed 1``: a millisecond between datagrams) or
+    whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to blocking,
+    so it spends no CPU on polling.
+
+    Polling only pays while both processes have a core each. On a machine whose cores are taken by
+    something else, a poller holds a core its peer needs, and the loop slows down instead: the polls
+    then run out of budget. When more than SPIN_MISSES of SPIN_WINDOW polls do, polling stops for
+    SPIN_COOL seconds (doubling while it keeps failing), and the loop blocks as it would without it.
+    Only the waiting changes: every datagram is received and handled exactly as before, so lockstep
+    results are unchanged.
+    """
+
+    def __init__(self, recv: Callable[..., object], budget: float | None = None) -> None:
+        self.recv = recv  # sock.recv or sock.recvfrom (a blocking socket, with SO_RCVTIMEO as needed)
+        self.budget = spin_budget() if budget is None else budget
+        self.hot = False
+        self.polled = 0  # datagrams that came while polling
+        self.blocked = 0  # waits that blocked
+        self.cooled = 0  # times polling was stopped for not paying
+        self._polls = self._misses = 0
+        self._cool_until = 0.0
+        self._cool = SPIN_COOL[0]
+
+    def __call__(self):
+        """What ``recv(65535)`` returns; raises as it does (BlockingIOError on SO_RCVTIMEO's timeout)."""
+        start = time.perf_counter()
+        if self.hot and start >= self._cool_until:
+            end, recv = start + self.budget, self.recv
+            while True:
+                try:
+                    out = recv(65535, socket.MSG_DONTWAIT)
+                except (BlockingIOError, InterruptedError):
+                    if time.perf_counter() < end:
+                        continue
+                    self._verdict(miss=True)
+                    break
+                self.polled += 1
+                # A datagram that took more than half the budget to come was late: the peer had to wait for
+                # a core. Counted as a miss, as is a poll that ran out of budget.
+                self._verdict(miss=time.perf_counter() - start > 0.5 * self.budget)
+                return out  # still hot
+        self.blocked += 1
+        try:
+            return self.recv(65535)
+        finally:
+            self.hot = time.perf_counter() - start < self.budget
+
+    def _verdict(self, miss: bool) -> None:
+        self._polls += 1
+        self._misses += miss
+        if self._polls < SPIN_WINDOW:
+            return
+        if self._misses > SPIN_MISSES:
+            self._cool_until = time.perf_counter() + self._cool
+            self._cool = min(2 * self._cool, SPIN_COOL[1])
+            self.cooled += 1
+        else:
+            self._cool = SPIN_COOL[0]
+        self._polls = self._misses = 0
 
 
 def wait_readable(sock: socket.socket, seconds: float) -> bool:

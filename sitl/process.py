@@ -28,7 +28,14 @@ from pathlib import Path
 from quadsitl import wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, check_range
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.process_util import bind_udp, parse_address, set_receive_timeout, start_process, wait_readable
+from quadsitl.process_util import (
+    SpinThenBlock,
+    bind_udp,
+    parse_address,
+    set_receive_timeout,
+    start_process,
+    wait_readable,
+)
 from quadsitl.timing import period_stats
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant
@@ -50,6 +57,7 @@ class PlantLink:
         impairment: Impairment | None = None,
     ):
         self.sock = sock  # bound (process_util.bind_udp)
+        self.wait = SpinThenBlock(sock.recv)  # lockstep's receive: polls while the autopilot answers fast
         self.sock.connect(autopilot)  # the kernel drops datagrams from anyone but the autopilot
         self.mav = wire.link(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
         self.fast = wire.FastLink(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
@@ -60,6 +68,7 @@ class PlantLink:
         self.corrupt = 0
         self.timeout = -1.0
         self.last_heard: float | None = None  # wall time the autopilot was last heard (None: not yet)
+        self.first_heard: float | None = None  # ... and first: the run's pace counts from its first answer
         self.lost = False
         self.impairment = impairment  # real-time runs only: both directions go through its queues
         self.outbox: list[tuple[float, int, bytes]] = []  # (release time, order, datagram), a heap
@@ -96,6 +105,8 @@ class PlantLink:
     def heard(self) -> None:
         """An actuator message was used: the autopilot is there."""
         self.last_heard = time.monotonic()
+        if self.first_heard is None:
+            self.first_heard = self.last_heard
         if self.lost:
             self.lost = False
             print("plant: autopilot back; following its commands", file=sys.stderr, flush=True)
@@ -129,7 +140,7 @@ class PlantLink:
             set_receive_timeout(self.sock, timeout)
             self.timeout = timeout
         try:
-            data = self.sock.recv(65535)
+            data = self.wait()
         except (BlockingIOError, InterruptedError, ConnectionRefusedError):
             return []
         return self._accept(data)
@@ -299,7 +310,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     elapsed = time.monotonic() - start
     if args.stats:
         ticks = round(plant.time / preset.sim.period)
-        stats = {"mode": args.mode, "ticks": ticks, "wall_s": elapsed, "ticks_per_s": ticks / max(elapsed, 1e-9)}
+        # The pace from the autopilot's first answer on (tick 0 waits for the autopilot to start or to
+        # take this plant over, which is not the loop's speed); the whole run's wall time next to it.
+        flying = time.monotonic() - (link.first_heard or start)
+        stats = {"mode": args.mode, "ticks": ticks, "wall_s": elapsed, "answered_wall_s": flying,
+                 "ticks_per_s": max(ticks - 1, 0) / max(flying, 1e-9),
+                 "receives_polled": link.wait.polled, "receives_blocked": link.wait.blocked}  # fmt: skip
         if args.mode == "realtime":
             stats.update(period_stats(starts, preset.sim.period))
         Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")

@@ -1,0 +1,78 @@
+"""SpinThenBlock, the lockstep loops' receive: polls while the peer answers fast, blocks when paced, and
+stops polling when polling does not pay (the peer waits for a core)."""
+
+import socket
+import threading
+import time
+
+import pytest
+
+from quadsitl.cli_util import UsageError
+from quadsitl.process_util import SPIN_ENV, SPIN_WINDOW, SpinThenBlock, spin_budget
+
+
+@pytest.fixture
+def pair():
+    a, b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM), socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    a.bind(("127.0.0.1", 0))
+    b.connect(a.getsockname())
+    yield a, b
+    a.close()
+    b.close()
+
+
+def test_a_fast_peer_is_polled_and_a_paced_one_is_waited_for(pair):
+    a, b = pair
+    wait = SpinThenBlock(a.recv, budget=0.05)
+    b.send(b"1")
+    assert wait() == b"1" and wait.blocked == 1 and wait.hot  # a first wait blocks; it was quick: hot
+    for i in range(5):
+        b.send(str(i).encode())
+        assert wait() == str(i).encode()
+    assert wait.polled == 5 and wait.blocked == 1
+    # A paced peer: nothing for longer than the budget, so the poll gives up and the wait blocks.
+    threading.Timer(0.12, lambda: b.send(b"late")).start()
+    assert wait() == b"late" and wait.blocked == 2 and not wait.hot
+    b.send(b"next")
+    time.sleep(0.01)
+    assert wait() == b"next" and wait.blocked == 3  # not hot: blocks (the datagram is there: at once)
+
+
+def test_polling_stops_for_a_while_when_it_does_not_pay():
+    calls = {"poll": 0, "block": 0}
+
+    def late_peer(n, flags=0):  # every datagram comes late: after more than half the budget
+        if flags:
+            calls["poll"] += 1
+            time.sleep(0.0012)
+            return b"x"
+        calls["block"] += 1
+        return b"x"
+
+    wait = SpinThenBlock(late_peer, budget=0.002)
+    wait()  # a first blocking wait makes it hot
+    for _ in range(SPIN_WINDOW):
+        wait()
+    assert wait.cooled == 1
+    polls = calls["poll"]
+    for _ in range(20):
+        wait()
+    assert calls["poll"] == polls  # cooling off: every wait blocks
+    assert wait.blocked == 21
+
+
+def test_the_budget_comes_from_the_environment_and_is_checked(monkeypatch):
+    monkeypatch.setenv(SPIN_ENV, "0")
+    assert spin_budget() == 0.0
+    monkeypatch.setenv(SPIN_ENV, "150")
+    assert spin_budget() == pytest.approx(150e-6)
+    for bad in ("abc", "-1", "1e9", "nan"):
+        monkeypatch.setenv(SPIN_ENV, bad)
+        with pytest.raises(UsageError, match=rf"\${SPIN_ENV} = '{bad}': expected microseconds in \[0, 100000\]"):
+            spin_budget()
+
+
+def test_a_bad_budget_is_one_line_from_the_plant(cli, monkeypatch):
+    monkeypatch.setenv(SPIN_ENV, "fast")
+    r = cli("plant", "--ticks", "1", timeout=60)
+    assert r.returncode == 2 and f"${SPIN_ENV} = 'fast'" in r.stderr and "Traceback" not in r.stderr
