@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from groundstation import replay
+from groundstation import recording
 from groundstation.launcher import free_port
 from groundstation.logger import TelemetryLogger
 from groundstation.telemetry_csv import COLUMNS, read_csv
@@ -177,7 +177,7 @@ def test_csv_every_tick_arrives_in_order_with_the_csv_values(sim_csv):
 
 
 def test_csv_pure_part_matches_the_file(sim_csv):
-    rec = replay.records_from_csv(sim_csv)
+    rec = recording.records_from_csv(sim_csv)
     assert len(rec) == 500 and rec.period == pytest.approx(0.001)
     assert list(rec.ticks) == list(range(500)) and rec.duration == pytest.approx(0.5)
     csv = read_csv(sim_csv)
@@ -291,7 +291,7 @@ def test_tlog_falls_back_on_the_ground_stations_setpoints_and_servo_outputs(tmp_
         assert sp[2] == 3.0 and sp[3:] == pytest.approx((0.4, -0.3, 1.0), abs=1e-6)
     # SERVO_OUTPUT_RAW, reversible motors (paper preset): 1000..2000 µs = −F_max..F_max; 0 µs = off
     assert actuators[-1][6:] == (0.5 * F_MAX, 0.0, -F_MAX, 0.0)
-    assert sub.records("status")[0][2:] == (0, replay.MODE_UNKNOWN, 0, -1)  # nothing known yet
+    assert sub.records("status")[0][2:] == (0, recording.MODE_UNKNOWN, 0, -1)  # nothing known yet
     assert "no LOCAL_POSITION_NED" in r.stderr and "from SET_ATTITUDE_TARGET" in r.stderr
 
 
@@ -301,7 +301,7 @@ def test_real_fly_tlog_matches_the_flights_csv(fly_run):
     same tick (to float32), and the offboard start it infers is within one ATTITUDE interval of the truth."""
     csv = read_csv(fly_run / "telemetry.csv")
     n = len(csv["t"])
-    rec = replay.records_from_tlog(fly_run / "flight.tlog", 0.001, F_MAX, True)
+    rec = recording.records_from_tlog(fly_run / "flight.tlog", 0.001, F_MAX, True)
     assert len(rec) > 10
     with subscriber("fly") as sub:
         r = run_replay(str(fly_run / "flight.tlog"), "--vehicle", "fly", "--zenoh-connect", sub.endpoint,
@@ -335,7 +335,7 @@ def test_tlog_scanner_resynchronises_after_garbage():
         w.add(w.vehicle, M.MAVLink_attitude_message(ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
         w.garbage(7)
     w.data += b"\x00" * 8 + b"\xfd\x30\x00"  # a truncated last frame
-    scan = replay.tlog_messages(bytes(w.data))
+    scan = recording.tlog_messages(bytes(w.data))
     assert [m.time_boot_ms for m in scan.messages] == list(range(5))
     assert scan.skipped == 50 + 5 * 7 + 11 and scan.unknown == 0
 
