@@ -64,8 +64,10 @@ NAN = math.nan
 DEFAULT_PERIOD = 0.001  # [s]
 MODE_UNKNOWN = 255
 TARGET_STALE = 1.0  # [s] of vehicle time: an older ATTITUDE_TARGET / POSITION_TARGET_LOCAL_NED is not used
-CSV_REQUIRED = tuple(c for c in COLUMNS if c != "altitude")  # altitude is −z, redundant
 STATE, SETPOINT = telemetry.FIELDS["state"][2:], telemetry.FIELDS["setpoint"][2:]  # the CSV columns they take
+# The CSV columns read, by name, in record order: t, then each stream's fields (altitude = −z is redundant).
+CSV_REQUIRED = ("t", *STATE, *SETPOINT, *telemetry.FIELDS["actuators"][2:])
+assert set(CSV_REQUIRED) == set(COLUMNS) - {"altitude"}, "telemetry CSV columns and Zenoh fields diverged"
 
 
 class ReplayError(Exception):

@@ -27,8 +27,10 @@ import argparse
 import struct
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import zenoh
+if TYPE_CHECKING:  # the schema needs no Zenoh: pure modules (dashboard model, recordings) import it
+    import zenoh
 
 PREFIX = "quadsitl"
 STREAMS: dict[str, struct.Struct] = {
@@ -50,6 +52,8 @@ def key(vehicle: str, stream: str) -> str:
 
 
 def encoding(stream: str) -> zenoh.Encoding:
+    import zenoh
+
     return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(f"quadsitl.{stream}.v2")
 
 
@@ -77,6 +81,8 @@ def zenoh_config(
 ) -> zenoh.Config:
     """A Zenoh configuration: from ``config_file`` (Zenoh's own JSON5 format) if given, else peer mode
     with multicast scouting off (it fails inside containers) and the given endpoints."""
+    import zenoh
+
     conf = zenoh.Config.from_file(str(Path(config_file))) if config_file else zenoh.Config()
     if mode:
         conf.insert_json5("mode", f'"{mode}"')
