@@ -436,7 +436,8 @@ def records_from_tlog(
             f"{path}: {len(messages)} MAVLink message{'s' if len(messages) != 1 else ''} but no ATTITUDE from an "
             "autopilot (component 1): nothing to replay"
         )
-    kinds = {m.get_type() for m in messages if m.get_srcSystem() == system}
+    kinds = {m.get_type() for m in messages  # what the vehicle's autopilot itself sent, as _TlogState hears it
+             if m.get_srcSystem() == system and m.get_srcComponent() == wire.AUTOPILOT_COMPONENT_ID}  # fmt: skip
     state = _TlogState(system, max_thrust, reversible, use_servo="ACTUATOR_OUTPUT_STATUS" not in kinds)
     rec = Recording(str(path), period)
     pending: tuple[int, float, tuple[float, ...]] | None = None  # tick, t, ATTITUDE fields
@@ -486,8 +487,9 @@ def _tlog_notes(
         notes.append("no LOCAL_POSITION_NED from the vehicle: x, y, z, vx, vy, vz are NaN")
     for what, fields in (("attitude", "roll_ref, pitch_ref, yaw_ref"), ("altitude", "altitude_ref")):
         sources = state.target_sources[what]
-        named = " and ".join(sorted(s for s in sources if s)) or "nothing: NaN"
-        notes.append(f"{fields} from {named}" + (" (NaN until the first)" if "" in sources and named[0] != "n" else ""))
+        known = sorted(s for s in sources if s)
+        named = " and ".join(known) or "nothing: NaN"
+        notes.append(f"{fields} from {named}" + (" (NaN until the first)" if "" in sources and known else ""))
     if max_thrust is None or not heard & {"ACTUATOR_OUTPUT_STATUS", "SERVO_OUTPUT_RAW"}:
         notes.append("no ACTUATOR_OUTPUT_STATUS or SERVO_OUTPUT_RAW from the vehicle: f1..f4 are NaN")
     else:
