@@ -84,3 +84,44 @@ def test_a_busy_dashboard_port_is_refused_before_anything_starts(cli):
 def test_dashboard_options_are_checked(cli, argv, needle):
     r = cli(*argv, timeout=60)
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+@pytest.mark.timeout(90)
+def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
+    """Garbage on the telemetry keys, strangers' keys and hundreds of made-up vehicles, from a real Zenoh
+    session, while the vehicle runs: the dashboard stays up, counts what it refuses, keeps showing the
+    vehicle, and never holds more than MAX_VEHICLES."""
+    import random
+
+    import zenoh
+
+    from groundstation.dashboard.model import MAX_VEHICLES
+    from quadsitl import telemetry
+    from tests.mavclient import quadsitl_up
+    from tests.test_dashboard_browser import wait_http
+
+    port = free_port(socket.SOCK_STREAM)
+    url = f"http://127.0.0.1:{port}/"
+    with quadsitl_up("--dashboard", "--dashboard-port", str(port)) as v:
+        wait_http(url)
+        session = zenoh.open(telemetry.zenoh_config(connect=[v.zenoh]))
+        try:
+            rng = random.Random(5)
+            for i in range(3000):
+                stream = rng.choice([*telemetry.STREAMS, "junk"])
+                vehicle = "v1" if i % 3 else f"x{rng.randrange(500)}"
+                payload = rng.randbytes(rng.choice([0, 1, 7, 13, 50, 112, 113, 400]))
+                session.put(f"quadsitl/{vehicle}/{stream}", payload)
+                if i % 500 == 0:
+                    session.put("quadsitl/a/b/c/d", b"deep")
+                    session.put("elsewhere/v1/state", b"x")
+            time.sleep(1.0)
+        finally:
+            session.close()
+        vs = {x["name"]: x for x in vehicles(url)}
+        assert len(vs) <= MAX_VEHICLES and "v1" in vs
+        v1 = vs["v1"]
+        assert v1["link"]["telemetry"] == "live" and v1["link"]["malformed"] > 100
+        assert v1["status"]["mode"] == "hold" and v1["tick_rate"] and 500 < v1["tick_rate"] < 2000
+        with urllib.request.urlopen(url, timeout=5) as r:
+            assert r.status == 200 and b"quadsitl" in r.read()
