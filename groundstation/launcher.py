@@ -54,12 +54,22 @@ class Children:
     def start(self, name: str, args: list[str]) -> None:
         self.procs[name] = subprocess.Popen([sys.executable, "-m", *args], env=self.env)
 
-    def first_failure(self, done: str) -> tuple[str, int] | None:
-        """(name, status) of a child that exited when it should not have; ``done`` may exit with 0."""
+    optional: tuple[str, ...] = ("dashboard",)  # a viewer: its end is reported, and the vehicle flies on
+    reported: set[str] = field(default_factory=set)
+
+    def first_failure(self, done: str, prog: str = "quadsitl") -> tuple[str, int] | None:
+        """(name, status) of a child that exited when it should not have; ``done`` may exit with 0. An
+        optional child that ends is reported once on stderr (as ``prog``) and is not a failure."""
         for name, p in self.procs.items():
             rc = p.poll()
-            if rc is not None and not (name == done and rc == 0):
-                return name, rc
+            if rc is None or (name == done and rc == 0):
+                continue
+            if name in self.optional:
+                if name not in self.reported:
+                    self.reported.add(name)
+                    print(f"{prog}: warning: {describe(name, rc)}; the others go on", file=sys.stderr, flush=True)
+                continue
+            return name, rc
         return None
 
     def stop_one(self, name: str, grace: float = 3.0) -> None:
@@ -173,7 +183,7 @@ def up(preset_name: str, preset: Preset, args) -> int:
         if not args.quiet:
             print(banner(preset, args, url), flush=True)
         while True:
-            failure = children.first_failure(done="")
+            failure = children.first_failure(done="", prog="quadsitl up")
             if failure:
                 print(f"quadsitl up: error: {describe(*failure)}; stopping the others", file=sys.stderr)
                 return 1
@@ -272,7 +282,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
             gcs += ["--duration", str(args.duration)]
         children.start("gcs", gcs)
         while True:
-            failure = children.first_failure(done="gcs")
+            failure = children.first_failure(done="gcs", prog="quadsitl fly")
             if failure:
                 print(f"quadsitl fly: error: {describe(*failure)}; stopping the others", file=sys.stderr)
                 return 1

@@ -2,11 +2,13 @@
 /api/vehicles, the page kept up after the flight until Ctrl-C, no orphans, and one-line errors."""
 
 import json
+import os
 import signal
 import socket
 import subprocess
 import time
 import urllib.request
+from pathlib import Path
 
 import pytest
 
@@ -125,3 +127,36 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
         assert v1["status"]["mode"] == "hold" and v1["tick_rate"] and 500 < v1["tick_rate"] < 2000
         with urllib.request.urlopen(url, timeout=5) as r:
             assert r.status == 200 and b"quadsitl" in r.read()
+
+
+@pytest.mark.timeout(60)
+def test_a_dashboard_that_dies_is_reported_and_the_vehicle_flies_on(tmp_path, procs):  # noqa: F811
+    from tests.mavclient import Client
+
+    port, gcs = free_port(socket.SOCK_STREAM), free_port()
+    zenoh_ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    err = tmp_path / "stderr.txt"
+    with open(err, "w") as f:
+        up = subprocess.Popen(quadsitl("up", "-q", "--dashboard", "--dashboard-port", str(port), "--gcs-listen",
+                                       f"127.0.0.1:{free_port()}", "--gcs-remote", f"127.0.0.1:{gcs}", "--api-listen",
+                                       f"127.0.0.1:{free_port()}", "--api-remote", "none", "--zenoh-listen", zenoh_ep),
+                              stderr=f)  # fmt: skip
+    procs.append(up)
+    url = f"http://127.0.0.1:{port}/"
+    from tests.test_dashboard_browser import wait_http
+
+    wait_http(url)
+    (dash,) = [pid for pid in children_of(up.pid) if b"dashboard" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+    os.kill(dash, signal.SIGKILL)
+    time.sleep(1.0)
+    assert up.poll() is None  # plant and autopilot go on
+    assert "quadsitl up: warning: the dashboard process was killed by signal 9 (SIGKILL); the others go on" in (
+        err.read_text()
+    )
+    c = Client(gcs)
+    try:
+        c.heartbeat()  # the vehicle still answers
+    finally:
+        c.close()
+    up.send_signal(signal.SIGTERM)
+    assert up.wait(15) == 0
