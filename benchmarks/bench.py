@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from benchmarks import pingpong
-from quadsitl.process_util import SPIN_ENV, wait_readable
+from quadsitl.process_util import SPIN_ENV, free_port, wait_readable
 from quadsitl.timing import percentile, period_stats
 
 
@@ -68,12 +68,6 @@ class Report:
     def section(self, title: str) -> None:
         if not self.quiet:
             print(f"\n{title}", file=sys.stderr, flush=True)
-
-
-def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _python(*args: str, **kw) -> subprocess.Popen:
@@ -191,7 +185,7 @@ def bench_costs(r: Report, ping: float) -> None:
         if "decode" in name:  # pymavlink's decode was timed with a pack in front: take that out
             theirs_us -= per_tick(lambda m=(msg_odo if "ODOMETRY" in name else msg_hil): m.pack(mav), 5000)
         r.add(f"{name} (quadsitl.wire)", per_tick(ours), "us", theirs_us, "pymavlink")
-    session = zenoh.open(telemetry.zenoh_config("peer", listen=[f"tcp/127.0.0.1:{_free_port(socket.SOCK_STREAM)}"]))
+    session = zenoh.open(telemetry.zenoh_config("peer", listen=[f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]))
     try:
         pubs = [session.declare_publisher(telemetry.key("bench", s), congestion_control=zenoh.CongestionControl.DROP)
                 for s in telemetry.STREAMS]  # fmt: skip
@@ -217,8 +211,8 @@ def autopilot_process(workdir: Path, env: dict[str, str] | None = None) -> Itera
     port, Zenoh endpoint)."""
     from pymavlink import mavutil
 
-    plant_port, api_port = _free_port(), _free_port()
-    endpoint = f"tcp/127.0.0.1:{_free_port(socket.SOCK_STREAM)}"
+    plant_port, api_port = free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
                  f"127.0.0.1:{api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
                  "none", "--zenoh-listen", endpoint, env=env)  # fmt: skip
@@ -307,7 +301,7 @@ def dashboard_page(endpoint: str) -> Iterator[object]:
     """``quadsitl dashboard`` on the autopilot's Zenoh session, its page open in headless Chromium."""
     from benchmarks.browser import chromium
 
-    port = _free_port(socket.SOCK_STREAM)
+    port = free_port(socket.SOCK_STREAM)
     dash = _python("groundstation.dashboard.server", "--port", str(port), "--zenoh-connect", endpoint, "--quiet")
     try:
         with chromium() as browser:

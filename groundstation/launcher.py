@@ -22,14 +22,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from quadsitl.cli_util import UsageError
 from quadsitl.config import Preset
-
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    """A port the OS says is free on 127.0.0.1 now (UDP by default, TCP with SOCK_STREAM)."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from quadsitl.process_util import bind_tcp, bind_udp, free_port
 
 
 def signing_env(key_text: str | None) -> dict[str, str] | None:
@@ -117,21 +112,11 @@ def add_dashboard_arguments(p) -> None:
 def dashboard_port(port: int) -> int:
     """The port the dashboard will serve on: checked free now, so that a busy one is refused before anything
     starts, with the option to change it; 0 picks a free one."""
-    from quadsitl.cli_util import UsageError
-
     if not 0 <= port <= 65535:
         raise UsageError(f"--dashboard-port {port}: expected 0..65535 (0 = any free port)")
     if port == 0:
         return free_port(socket.SOCK_STREAM)
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError as exc:
-            raise UsageError(
-                f"--dashboard-port {port}: cannot listen on 127.0.0.1:{port}: {exc.strerror}; "
-                "choose another with --dashboard-port (0 picks a free one)"
-            ) from None
+    bind_tcp("--dashboard-port", str(port), "127.0.0.1", port, "(0 picks a free one)").close()
     return port
 
 
@@ -155,8 +140,6 @@ def up(preset_name: str, preset: Preset, args) -> int:
     plant_port = free_port()
     children = Children(env=signing_env(args.signing_key))
     if args.dashboard and args.no_zenoh:
-        from quadsitl.cli_util import UsageError
-
         raise UsageError("--dashboard needs the Zenoh telemetry: drop --no-zenoh")
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
     check_ports_free(args)
@@ -202,21 +185,13 @@ def up(preset_name: str, preset: Preset, args) -> int:
 
 def check_ports_free(args) -> None:
     """Refuse, before starting anything, the ports ``up`` would find busy: each named with its option."""
-    from quadsitl.cli_util import UsageError
-    from quadsitl.process_util import bind_udp
-
     for option, default in (("gcs_listen", "127.0.0.1:18570"), ("api_listen", "127.0.0.1:14580")):
         bind_udp("--" + option.replace("_", "-"), getattr(args, option) or default).close()
     if not args.no_zenoh and args.zenoh_listen.startswith("tcp/"):
         host, _, port = args.zenoh_listen[4:].rpartition(":")
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            try:
-                s.bind((host, int(port)))
-            except (OSError, ValueError) as exc:
-                reason = exc.strerror if isinstance(exc, OSError) else "not HOST:PORT"
-                raise UsageError(f"--zenoh-listen {args.zenoh_listen}: cannot listen: {reason}; choose another "
-                                 "with --zenoh-listen tcp/HOST:PORT, or --no-zenoh") from None  # fmt: skip
+        if not port.isdigit():
+            raise UsageError(f"--zenoh-listen {args.zenoh_listen}: expected tcp/HOST:PORT")
+        bind_tcp("--zenoh-listen", args.zenoh_listen, host, int(port), "tcp/HOST:PORT, or --no-zenoh").close()
 
 
 def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:

@@ -30,6 +30,33 @@ def parse_remote(option: str, text: str) -> tuple[str, int] | None:
     return None if text.lower() == "none" else parse_address(option, text)
 
 
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """A port the OS says is free on 127.0.0.1 now (UDP by default, TCP with SOCK_STREAM)."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def bind_tcp(
+    option: str, value: str, host: str, port: int, choose: str, host_option: str | None = None
+) -> socket.socket:
+    """A listening TCP socket on host:port, or a UsageError naming the option and its value; a busy port
+    says how to choose another (``choose`` follows the option's name in that hint). Other failures are
+    blamed on ``host_option`` when the host has an option of its own."""
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+        sock.listen(128)
+    except OSError as exc:
+        sock.close()
+        where = f"cannot listen on {host}:{port}: {exc.strerror or exc}"
+        if exc.errno == errno.EADDRINUSE:
+            raise UsageError(f"{option} {value}: {where}; choose another with {option} {choose}") from None
+        raise UsageError(f"{host_option} {host}: {where}" if host_option else f"{option} {value}: {where}") from None
+    return sock
+
+
 def bind_udp(option: str, text: str) -> socket.socket:
     """A UDP socket bound to the option's HOST:PORT, or a UsageError that names the option, the address
     and, for a busy port, how to choose another."""

@@ -20,10 +20,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import errno
 import json
 import os
-import socket
 import sys
 import time
 from collections.abc import AsyncIterator, Sequence
@@ -34,7 +32,7 @@ import zenoh
 from groundstation.dashboard.model import ROW_FIELDS, Fleet
 from quadsitl import telemetry
 from quadsitl.cli_util import UsageError, check_range
-from quadsitl.process_util import start_process
+from quadsitl.process_util import bind_tcp, start_process
 
 STATIC = Path(__file__).parent / "static"
 POLL = 0.02  # [s] wall between drains of the Zenoh ring channel
@@ -141,25 +139,6 @@ def make_app(dash: Dashboard):
     )
 
 
-def bind_tcp(host: str, port: int) -> socket.socket:
-    """The dashboard's listening socket, or a UsageError naming the option at fault (``--port`` for a busy
-    port, with how to choose another; ``--host`` for an address this machine cannot listen on)."""
-    family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    sock = socket.socket(family, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    try:
-        sock.bind((host, port))
-        sock.listen(128)
-    except OSError as exc:
-        sock.close()
-        reason = exc.strerror or str(exc)
-        if exc.errno == errno.EADDRINUSE:
-            raise UsageError(f"--port {port}: cannot listen on {host}:{port}: {reason}; choose another with "
-                             "--port (0 picks a free one)") from None  # fmt: skip
-        raise UsageError(f"--host {host}: cannot listen on {host}:{port}: {reason}") from None
-    return sock
-
-
 EXAMPLES = """examples:
   quadsitl dashboard                                   # the vehicle of `quadsitl up`, at http://127.0.0.1:8050
   quadsitl dashboard --port 0                          # any free port (the URL is printed)
@@ -198,7 +177,7 @@ def serve(args: argparse.Namespace) -> int:
         raise UsageError(f"--port {args.port}: expected 0..65535")
     if not (args.zenoh_connect or args.zenoh_listen or args.zenoh_config):
         args.zenoh_connect = [DEFAULT_CONNECT]
-    sock = bind_tcp(args.host, args.port)
+    sock = bind_tcp("--port", str(args.port), args.host, args.port, "(0 picks a free one)", host_option="--host")
     try:
         session = zenoh.open(telemetry.config_from_args(args))
     except zenoh.ZError as exc:
