@@ -39,7 +39,6 @@ ROW_FIELDS = (
     "e_altitude", "e_roll", "e_pitch", "e_yaw", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4", "x", "y",
 )  # fmt: skip
 _TICK = struct.Struct("<Q")
-_RAD = 180.0 / math.pi
 
 
 def plot_row(state: tuple, setpoint: tuple, actuators: tuple) -> tuple[float, ...]:
@@ -47,11 +46,11 @@ def plot_row(state: tuple, setpoint: tuple, actuators: tuple) -> tuple[float, ..
     Errors are reference − measured; the yaw error is wrapped to (−180°, 180°]."""
     _tick, t, x, y, z, _vx, _vy, _vz, roll, pitch, yaw = state[:11]
     _, _, alt_ref, roll_ref, pitch_ref, yaw_ref = setpoint
-    altitude = -z  # NED: z down
+    altitude, deg = -z, math.degrees  # NED: z down
     return (
-        t, altitude, alt_ref, roll * _RAD, roll_ref * _RAD, pitch * _RAD, pitch_ref * _RAD, yaw * _RAD,
-        yaw_ref * _RAD, alt_ref - altitude, (roll_ref - roll) * _RAD, (pitch_ref - pitch) * _RAD,
-        wrap_pi(yaw_ref - yaw) * _RAD, *actuators[2:10], x, y,
+        t, altitude, alt_ref, deg(roll), deg(roll_ref), deg(pitch), deg(pitch_ref), deg(yaw), deg(yaw_ref),
+        alt_ref - altitude, deg(roll_ref - roll), deg(pitch_ref - pitch), deg(wrap_pi(yaw_ref - yaw)),
+        *actuators[2:10], x, y,
     )  # fmt: skip
 
 
@@ -66,7 +65,6 @@ class Vehicle:
     generation: int = 0
     decimation: int = 0  # ticks between plotted rows; 0 until the period is known
     period: float = 0.0  # [s] simulated, the control period, learnt from the records
-    last_tick: int = -1
     last_wall: float = -math.inf
     samples: int = 0
     malformed: int = 0
@@ -94,7 +92,6 @@ class Vehicle:
             self._restart()
         self._stream_tick[stream] = last[0]
         if stream == "status":
-            self.last_tick = last[0]
             self._rate.append((wall, last[0], last[1]))
             while len(self._rate) > 2 and wall - self._rate[1][0] >= RATE_WINDOW:
                 self._rate.popleft()
