@@ -182,7 +182,7 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     while max_ticks is None or tick < max_ticks:
         want = wire.usec_of(tick, period)
         link.send_state(tick, plant)
-        forces = None
+        forces, held = None, False
         while forces is None:
             for m in link.receive(FREEWHEEL_PERIOD):
                 if m.time_usec == want:
@@ -192,8 +192,11 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
                 elif m.time_usec > want:  # from the future: not ours
                     link.discarded += 1
             if forces is None:
+                held = True
                 link.check_lost("holding: simulated time stops until it answers")
                 link.send_state(tick, plant)  # free-wheel: no answer yet
+        if held and speed > 0:  # the pace resumes from here: no burst to catch up with time spent holding
+            start = time.monotonic() - tick * period / speed
         plant.step(forces)
         tick += 1
         if speed > 0:

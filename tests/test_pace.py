@@ -1,0 +1,34 @@
+"""Lockstep pacing: ``--speed F`` holds F × real time from the autopilot's first answer on. Time spent
+holding (waiting for an autopilot that starts late) is not caught up afterwards in a burst."""
+
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+
+from quadsitl.process_util import free_port
+
+
+@pytest.mark.timeout(60)
+def test_a_late_autopilot_does_not_make_the_plant_race_to_catch_up(tmp_path):
+    port, stats = free_port(), tmp_path / "stats.json"
+    plant = subprocess.Popen([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot", f"127.0.0.1:{port}",
+                              "--speed", "5", "--ticks", "3000", "--stats", str(stats), "--quiet"])  # fmt: skip
+    autopilot = None
+    try:
+        time.sleep(1.5)  # the plant holds tick 0 meanwhile
+        autopilot = subprocess.Popen([sys.executable, "-m", "autopilot", "--preset", "paper", "--plant-listen",
+                                      f"127.0.0.1:{port}", "--api-listen", "127.0.0.1:0", "--api-remote", "none",
+                                      "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--no-zenoh"])  # fmt: skip
+        assert plant.wait(30) == 0
+    finally:
+        for p in (plant, autopilot):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait()
+    s = json.loads(stats.read_text())
+    assert s["ticks"] == 3000
+    # 5 × real time at 1 kHz; with the 1.5 s of holding caught up it would run at the machine's full speed
+    assert 4000 < s["ticks_per_s"] < 5500, s
