@@ -9,7 +9,8 @@ Routes (Starlette on uvicorn):
 
     GET /               the page (uPlot, vendored under static/vendor/uplot)
     GET /api/vehicles   JSON: every vehicle with its latest state, references, actuators, status, rates
-    GET /api/stream     server-sent events: every PUSH seconds, each vehicle's status and its new plot rows
+    GET /api/stream     server-sent events: every PUSH seconds (PUSH_FAST while a vehicle runs faster than
+                        FAST_RTF × real time), each vehicle's status and its new plot rows
     GET /static/...     the page's scripts and styles
 
 Any number of tabs: each stream keeps its own cursor into the shared, decimated series.
@@ -36,7 +37,10 @@ from quadsitl.process_util import bind_tcp, start_process
 
 STATIC = Path(__file__).parent / "static"
 POLL = 0.02  # [s] wall between drains of the Zenoh ring channel
-PUSH = 0.25  # [s] wall between server-sent events to each page
+PUSH = 0.25  # [s] wall between server-sent events to each page (the page redraws on each)...
+PUSH_FAST = 1.0  # ...and while a run goes faster than FAST_RTF × real time: such a run wants every core, and
+FAST_RTF = 2.0  # the page's work (and this server's) would take ticks from it
+MAX_ROWS = 250  # plot rows per vehicle in one update, at most (every n-th when more are new)
 RING = 16384  # samples the ring channel holds between drains (≈ 4 s of a 1 kHz run's four streams)
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"  # where `quadsitl up` listens
 
@@ -63,6 +67,12 @@ class Dashboard:
             self.drain()
             await asyncio.sleep(POLL)
 
+    def push_interval(self) -> float:
+        """Wall seconds until a page's next update: PUSH, or PUSH_FAST while any vehicle runs fast."""
+        now = time.monotonic()
+        fast = any((v.summary(now)["real_time_factor"] or 0.0) > FAST_RTF for v in self.fleet.vehicles.values())
+        return PUSH_FAST if fast else PUSH
+
     def update(self, cursors: dict[str, tuple[int, int]]) -> dict:
         """What a page has not seen yet: each vehicle's summary and the plot rows after its cursor
         (generation, seq), as columns. ``reset`` tells the page to drop what it drew for that vehicle."""
@@ -72,6 +82,8 @@ class Dashboard:
             gen, seq = cursors.get(name, (-1, 0))
             reset = gen != v.generation
             rows = v.rows_since(0 if reset else seq)
+            if len(rows) > MAX_ROWS:  # a run faster than the eye: thin what this update carries
+                rows = rows[:: -(-len(rows) // MAX_ROWS)]
             cursors[name] = (v.generation, v.seq)
             cols = {f: [round(r[i], 5) for r in rows] for i, f in enumerate(ROW_FIELDS)}
             out.append({**v.summary(now), "reset": reset, "rows": cols})
@@ -111,7 +123,7 @@ def make_app(dash: Dashboard):
             yield f"event: hello\ndata: {json.dumps(hello)}\n\n"
             while not dash.stopping and not await request.is_disconnected():
                 yield f"data: {json.dumps(_json_safe(dash.update(cursors)), separators=(',', ':'))}\n\n"
-                await asyncio.sleep(PUSH)
+                await asyncio.sleep(dash.push_interval())
 
         return StreamingResponse(
             events(), media_type="text/event-stream", headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}

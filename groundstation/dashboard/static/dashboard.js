@@ -1,6 +1,7 @@
 // quadsitl dashboard: server-sent events from /api/stream → uPlot charts and the status panel.
 // The server sends decimated rows (display units: m, degrees, N, N·m); this page only keeps the last
-// `window` simulated seconds of the selected vehicle and redraws at most every REDRAW_MS.
+// `window` simulated seconds of the selected vehicle and redraws at most every REDRAW_MS, when new rows
+// came (the server sends them four times a second, once a second while a run goes faster than 2× real time).
 "use strict";
 
 const REDRAW_MS = 250;
