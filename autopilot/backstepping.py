@@ -19,6 +19,9 @@ to [−π, π) so that ψ = ±π is one heading.
 
 Errata applied (DESIGN.md §3): (14) x5⁺ = x5 + T·x6; (17) and (25)/(31) use (1 − T·K6/Iz)·x8;
 (28) −(1 − T·K3/m)·x2 + T·g; Ωr = Ω1 − Ω2 + Ω3 − Ω4; gains as poles λ_i = 1 − T·k_i.
+
+:func:`backstepping` is the law, compiled (:mod:`quadsitl.jit`); :class:`BacksteppingController` keeps
+its memory (the previous command, for Ωr) between calls.
 """
 
 from __future__ import annotations
@@ -26,12 +29,115 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
+from autopilot.control_params import (
+    BACKSTEPPING,
+    COS_MAX_TILT,
+    MAX_TILT,
+    MEM_ERRORS,
+    MEM_OMEGA_R,
+    MEM_SIZE,
+    MEM_U,
+    PERIOD,
+    POLES,
+    THRUST_MAX,
+    THRUST_MIN,
+    control_array,
+)
 from autopilot.gains import stability_interval
-from autopilot.limits import clamp, limit_reference, tilt_factor
+from autopilot.limits import clamp, tilt_factor
 from quadsitl.config import VehicleParams
 from quadsitl.frames import wrap_pi
+from quadsitl.jit import jit
 from quadsitl.mixer import inputs_to_forces, residual_rotor_speed
+from quadsitl.param_arrays import ARM, D_OVER_B, IXX, IYY, IZZ, JR, K3, K4, K5, K6, MASS, B, G, vehicle_array
 from quadsitl.state import Inputs, Reference, VehicleState
+
+Errors = tuple[float, float, float, float, float, float, float, float]
+
+
+@jit
+def backstepping(
+    x: tuple[float, ...], ref: tuple[float, float, float, float], last: tuple[float, float, float, float],
+    v: np.ndarray, c: np.ndarray,
+) -> tuple[Inputs, Errors, float]:  # fmt: skip
+    """One step of the law for the state ``x`` (the 12 VehicleState fields) and the reference (altitude,
+    roll, pitch, yaw): (u1..u4, the errors e1..e8, the Ωr assumed). ``last`` is the previous command
+    (u1..u4), whose Ωr the step assumes: the current command's is not known before it is computed."""
+    T = c[PERIOD]
+    l1, l2, l3, l4 = c[POLES], c[POLES + 1], c[POLES + 2], c[POLES + 3]
+    l5, l6, l7, l8 = c[POLES + 4], c[POLES + 5], c[POLES + 6], c[POLES + 7]
+    max_tilt = c[MAX_TILT]
+    m, ix, iy, iz, arm, jr, g = v[MASS], v[IXX], v[IYY], v[IZZ], v[ARM], v[JR], v[G]
+    k3, k4, k5, k6 = v[K3], v[K4], v[K5], v[K6]
+    x1, x2 = -x[2], -x[5]  # altitude and climb rate (NED z and vz are down)
+    x3, x4, x5, x6, x7, x8 = x[6], x[9], x[7], x[10], x[8], x[11]
+    # Ωr from the previous command (eq (8) inverse, Ω = sign(F)·sqrt(|F|/b)).
+    omega_r = residual_rotor_speed(inputs_to_forces(last, v[D_OVER_B]), v[B])
+
+    # (18): position errors; the yaw error is wrapped, the roll and pitch references bounded (erratum 8).
+    e1 = x1 - ref[0]
+    e3 = x3 - clamp(ref[1], -max_tilt, max_tilt)
+    e5 = x5 - clamp(ref[2], -max_tilt, max_tilt)
+    e7 = wrap_pi(x7 - ref[3])
+    # (26) virtual controls and (19) rate errors.
+    e2 = x2 - (l1 - 1.0) / T * e1
+    e4 = x4 - (l3 - 1.0) / T * e3
+    e6 = x6 - (l5 - 1.0) / T * e5
+    e8 = x8 - (l7 - 1.0) / T * e7
+    # (20) predicted position errors and (32) next virtual controls x_(i+1)d⁺.
+    x2d_next = (l1 - 1.0) / T * (e1 + T * x2)
+    x4d_next = (l3 - 1.0) / T * (e3 + T * x4)
+    x6d_next = (l5 - 1.0) / T * (e5 + T * x6)
+    x8d_next = (l7 - 1.0) / T * (e7 + T * x8)
+
+    # (28), errata 4: −(1 − T·K3/m)·x2 + T·g; the paper's −k2·e2 is +λ2·e2.
+    cc = tilt_factor(x3, x5, c[COS_MAX_TILT])
+    u1 = m / (T * cc) * (-(1.0 - T * k3 / m) * x2 + T * g + x2d_next + l2 * e2)
+    # (29)
+    u2 = (
+        ix
+        / (T * arm)
+        * (
+            -(1.0 - T * k4 * arm / ix) * x4
+            - T * x6 * x8 * (iy - iz) / ix
+            - T * jr / ix * x6 * omega_r
+            + x4d_next
+            + l4 * e4
+        )
+    )
+    # (30)
+    u3 = (
+        iy
+        / (T * arm)
+        * (
+            -(1.0 - T * k5 * arm / iy) * x6
+            - T * x4 * x8 * (iz - ix) / iy
+            - T * jr / iy * x4 * omega_r
+            + x6d_next
+            + l6 * e6
+        )
+    )
+    # (31), errata 3: (1 − T·K6/Iz), not (1 − T·K6/m).
+    u4 = iz / T * (-(1.0 - T * k6 / iz) * x8 - T * x4 * x6 * (ix - iy) / iz + x8d_next + l8 * e8)
+
+    u = Inputs(clamp(u1, c[THRUST_MIN], c[THRUST_MAX]), u2, u3, u4)
+    return u, (e1, e2, e3, e4, e5, e6, e7, e8), omega_r
+
+
+@jit
+def step_arrays(x: np.ndarray, ref: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray) -> None:
+    """:func:`backstepping` on arrays, in place: ``x`` (12) the state, ``ref`` (4) the reference, ``mem``
+    (MEM_SIZE) the previous command on entry, then the new one with the errors and Ωr."""
+    s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
+    last = (mem[MEM_U], mem[MEM_U + 1], mem[MEM_U + 2], mem[MEM_U + 3])
+    u, errors, omega_r = backstepping(s, (ref[0], ref[1], ref[2], ref[3]), last, v, c)
+    for i in range(4):
+        mem[MEM_U + i] = u[i]
+    for i in range(8):
+        mem[MEM_ERRORS + i] = errors[i]
+    mem[MEM_OMEGA_R] = omega_r
 
 
 class BacksteppingController:
@@ -45,6 +151,8 @@ class BacksteppingController:
     (the current command is not known before it is computed).
     """
 
+    kind = BACKSTEPPING
+
     def __init__(
         self,
         vehicle: VehicleParams,
@@ -53,15 +161,22 @@ class BacksteppingController:
         max_tilt: float = math.radians(80.0),
         thrust_min: float = -math.inf,
         thrust_max: float = math.inf,
+        kp: Sequence[float] = (0.0,) * 4,
+        kd: Sequence[float] = (0.0,) * 4,
     ) -> None:
         self.vehicle = vehicle
         self.period = period
         self.poles = tuple(float(p) for p in poles)
         self.epsilon_interval = stability_interval(self.poles, period)
-        self.max_tilt = max_tilt
-        self.cos_max_tilt = math.cos(max_tilt)
-        self.thrust_min, self.thrust_max = thrust_min, thrust_max
+        self.v = vehicle_array(vehicle)
+        self.c = control_array(self.poles, period, kp, kd, max_tilt, thrust_min, thrust_max)
+        self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
         self.reset()
+
+    @property
+    def max_tilt(self) -> float:
+        """The bound on the roll and pitch references [rad]."""
+        return float(self.c[MAX_TILT])
 
     def reset(self) -> None:
         self.last = Inputs()
@@ -69,68 +184,9 @@ class BacksteppingController:
         self.errors = (0.0,) * 8
 
     def step(self, state: VehicleState, reference: Reference) -> Inputs:
-        v, T = self.vehicle, self.period
-        l1, l2, l3, l4, l5, l6, l7, l8 = self.poles
-        ref = limit_reference(reference, self.max_tilt)
-        m, ix, iy, iz, arm, jr, g = v.mass, v.ixx, v.iyy, v.izz, v.arm_length, v.rotor_inertia, v.gravity
-        k3, k4, k5, k6 = v.drag[2], v.drag[3], v.drag[4], v.drag[5]
-        x1, x2 = state.altitude, state.climb_rate
-        x3, x4, x5, x6, x7, x8 = (
-            state.roll,
-            state.roll_dot,
-            state.pitch,
-            state.pitch_dot,
-            state.yaw,
-            state.yaw_dot,
-        )
-        # Ωr from the previous command (eq (8) inverse, Ω = sign(F)·sqrt(|F|/b)).
-        omega_r = residual_rotor_speed(inputs_to_forces(self.last, v.d_over_b), v.thrust_factor)
-
-        # (18): position errors; the yaw error is wrapped.
-        e1, e3, e5, e7 = x1 - ref.altitude, x3 - ref.roll, x5 - ref.pitch, wrap_pi(x7 - ref.yaw)
-        # (26) virtual controls and (19) rate errors.
-        e2 = x2 - (l1 - 1.0) / T * e1
-        e4 = x4 - (l3 - 1.0) / T * e3
-        e6 = x6 - (l5 - 1.0) / T * e5
-        e8 = x8 - (l7 - 1.0) / T * e7
-        # (20) predicted position errors and (32) next virtual controls x_(i+1)d⁺.
-        x2d_next = (l1 - 1.0) / T * (e1 + T * x2)
-        x4d_next = (l3 - 1.0) / T * (e3 + T * x4)
-        x6d_next = (l5 - 1.0) / T * (e5 + T * x6)
-        x8d_next = (l7 - 1.0) / T * (e7 + T * x8)
-
-        # (28), errata 4: −(1 − T·K3/m)·x2 + T·g; the paper's −k2·e2 is +λ2·e2.
-        c = tilt_factor(x3, x5, self.cos_max_tilt)
-        u1 = m / (T * c) * (-(1.0 - T * k3 / m) * x2 + T * g + x2d_next + l2 * e2)
-        # (29)
-        u2 = (
-            ix
-            / (T * arm)
-            * (
-                -(1.0 - T * k4 * arm / ix) * x4
-                - T * x6 * x8 * (iy - iz) / ix
-                - T * jr / ix * x6 * omega_r
-                + x4d_next
-                + l4 * e4
-            )
-        )
-        # (30)
-        u3 = (
-            iy
-            / (T * arm)
-            * (
-                -(1.0 - T * k5 * arm / iy) * x6
-                - T * x4 * x8 * (iz - ix) / iy
-                - T * jr / iy * x4 * omega_r
-                + x6d_next
-                + l6 * e6
-            )
-        )
-        # (31), errata 3: (1 − T·K6/Iz), not (1 − T·K6/m).
-        u4 = iz / T * (-(1.0 - T * k6 / iz) * x8 - T * x4 * x6 * (ix - iy) / iz + x8d_next + l8 * e8)
-
-        out = Inputs(clamp(u1, self.thrust_min, self.thrust_max), u2, u3, u4)
-        self.errors = (e1, e2, e3, e4, e5, e6, e7, e8)
-        self.omega_r = omega_r
-        self.last = out
-        return out
+        self.x[:], self.ref[:], self.mem[MEM_U : MEM_U + 4] = state, reference, self.last
+        step_arrays(self.x, self.ref, self.mem, self.v, self.c)
+        self.last = Inputs._make(self.mem[MEM_U : MEM_U + 4].tolist())
+        self.errors = tuple(self.mem[MEM_ERRORS : MEM_ERRORS + 8].tolist())
+        self.omega_r = float(self.mem[MEM_OMEGA_R])
+        return self.last

@@ -5,11 +5,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from autopilot.backstepping import BacksteppingController
+from autopilot.control_params import KINDS
 from autopilot.gains import poles_from_rates
 from autopilot.pd import PDController
 from quadsitl.config import Preset
 
-CONTROLLERS = ("backstepping", "pd")
+CONTROLLERS = tuple(KINDS)  # backstepping, pd
 
 
 def make_controller(
@@ -22,9 +23,7 @@ def make_controller(
     preset's backstepping gains. Raises :class:`autopilot.gains.GainError` for inadmissible gains."""
     kind = kind or preset.controller.type
     c = preset.controller
-    if kind == "pd":
-        return PDController(preset.vehicle, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min, c.thrust_max)
-    if kind != "backstepping":
+    if kind not in CONTROLLERS:
         raise ValueError(f"controller {kind!r}: expected one of {', '.join(CONTROLLERS)}")
     if rates is not None and poles is not None:
         raise ValueError("give rates or poles, not both")
@@ -34,4 +33,7 @@ def make_controller(
         lam = tuple(poles)
     else:
         lam = preset.poles()
-    return BacksteppingController(preset.vehicle, preset.sim.period, lam, c.max_tilt, c.thrust_min, c.thrust_max)
+    T = preset.sim.period
+    if kind == "pd":  # the backstepping's poles ride along: the autopilot switches controllers (CTL_TYPE)
+        return PDController(preset.vehicle, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min, c.thrust_max, T, lam)
+    return BacksteppingController(preset.vehicle, T, lam, c.max_tilt, c.thrust_min, c.thrust_max, c.pd_kp, c.pd_kd)

@@ -13,6 +13,9 @@ Fair tuning: the shipped presets set kp = k_i·k_(i+1) and kd = k_i + k_(i+1), w
 linearised poles at −k_i and −k_(i+1), where the backstepping puts its (continuous-time equivalent)
 poles. What differs is structure, not bandwidth: the PD does not cancel drag, gyroscopic and
 cross-coupling terms, and it does not anticipate the discrete step.
+
+:func:`pd` is the law, compiled (:mod:`quadsitl.jit`); it reads the same parameter array as the
+backstepping (:mod:`autopilot.control_params`).
 """
 
 from __future__ import annotations
@@ -20,14 +23,58 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from autopilot.limits import clamp, limit_reference, tilt_factor
+import numpy as np
+
+from autopilot.control_params import (
+    COS_MAX_TILT,
+    KD,
+    KP,
+    MAX_TILT,
+    MEM_SIZE,
+    MEM_U,
+    PD,
+    THRUST_MAX,
+    THRUST_MIN,
+    control_array,
+)
+from autopilot.limits import clamp, tilt_factor
 from quadsitl.config import VehicleParams
 from quadsitl.frames import wrap_pi
+from quadsitl.jit import jit
+from quadsitl.param_arrays import ARM, IXX, IYY, IZZ, MASS, G, vehicle_array
 from quadsitl.state import Inputs, Reference, VehicleState
+
+
+@jit
+def pd(x: tuple[float, ...], ref: tuple[float, float, float, float], v: np.ndarray, c: np.ndarray) -> Inputs:
+    """One step of the PD law for the state ``x`` (the 12 VehicleState fields) and the reference (altitude,
+    roll, pitch, yaw)."""
+    max_tilt = c[MAX_TILT]
+    roll_ref = clamp(ref[1], -max_tilt, max_tilt)
+    pitch_ref = clamp(ref[2], -max_tilt, max_tilt)
+    roll, pitch, yaw = x[6], x[7], x[8]
+    cc = tilt_factor(roll, pitch, c[COS_MAX_TILT])
+    u1 = v[MASS] * (v[G] + c[KP] * (ref[0] - -x[2]) - c[KD] * -x[5]) / cc
+    u2 = v[IXX] / v[ARM] * (c[KP + 1] * (roll_ref - roll) - c[KD + 1] * x[9])
+    u3 = v[IYY] / v[ARM] * (c[KP + 2] * (pitch_ref - pitch) - c[KD + 2] * x[10])
+    u4 = v[IZZ] * (c[KP + 3] * wrap_pi(ref[3] - yaw) - c[KD + 3] * x[11])
+    return Inputs(clamp(u1, c[THRUST_MIN], c[THRUST_MAX]), u2, u3, u4)
+
+
+@jit
+def step_arrays(x: np.ndarray, ref: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray) -> None:
+    """:func:`pd` on arrays, in place: ``x`` (12) the state, ``ref`` (4) the reference, the command into
+    ``mem`` (MEM_SIZE)."""
+    s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
+    u = pd(s, (ref[0], ref[1], ref[2], ref[3]), v, c)
+    for i in range(4):
+        mem[MEM_U + i] = u[i]
 
 
 class PDController:
     """PD baseline. ``kp`` [1/s²] and ``kd`` [1/s] per channel (altitude, roll, pitch, yaw)."""
+
+    kind = PD
 
     def __init__(
         self,
@@ -37,24 +84,27 @@ class PDController:
         max_tilt: float = math.radians(80.0),
         thrust_min: float = -math.inf,
         thrust_max: float = math.inf,
+        period: float = 0.0,
+        poles: Sequence[float] = (0.0,) * 8,
     ) -> None:
         self.vehicle = vehicle
         self.kp = tuple(kp)
         self.kd = tuple(kd)
-        self.max_tilt = max_tilt
-        self.cos_max_tilt = math.cos(max_tilt)
-        self.thrust_min, self.thrust_max = thrust_min, thrust_max
+        self.v = vehicle_array(vehicle)
+        self.c = control_array(poles, period, kp, kd, max_tilt, thrust_min, thrust_max)
+        self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
+        self.last = Inputs()
+
+    @property
+    def max_tilt(self) -> float:
+        """The bound on the roll and pitch references [rad]."""
+        return float(self.c[MAX_TILT])
 
     def reset(self) -> None:
-        pass
+        self.last = Inputs()
 
     def step(self, state: VehicleState, reference: Reference) -> Inputs:
-        v = self.vehicle
-        kp, kd = self.kp, self.kd
-        ref = limit_reference(reference, self.max_tilt)
-        c = tilt_factor(state.roll, state.pitch, self.cos_max_tilt)
-        u1 = v.mass * (v.gravity + kp[0] * (ref.altitude - state.altitude) - kd[0] * state.climb_rate) / c
-        u2 = v.ixx / v.arm_length * (kp[1] * (ref.roll - state.roll) - kd[1] * state.roll_dot)
-        u3 = v.iyy / v.arm_length * (kp[2] * (ref.pitch - state.pitch) - kd[2] * state.pitch_dot)
-        u4 = v.izz * (kp[3] * wrap_pi(ref.yaw - state.yaw) - kd[3] * state.yaw_dot)
-        return Inputs(clamp(u1, self.thrust_min, self.thrust_max), u2, u3, u4)
+        self.x[:], self.ref[:] = state, reference
+        step_arrays(self.x, self.ref, self.mem, self.v, self.c)
+        self.last = Inputs._make(self.mem[MEM_U : MEM_U + 4].tolist())
+        return self.last

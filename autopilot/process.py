@@ -23,29 +23,31 @@ import sys
 import time
 from collections.abc import Sequence
 
+import numpy as np
 import zenoh
 
 from autopilot import gcs_messages
+from autopilot import tick as kernel
 from autopilot.commander import Commander, CommanderSettings
+from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
 from autopilot.factory import make_controller
 from autopilot.gains import GainError
 from autopilot.gcs_messages import Home, Snapshot
 from autopilot.params import ParamStore
 from autopilot.streams import MessageStreams
+from autopilot.tick import Batch, autopilot_tick, warm_up
 from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
-from quadsitl.mixer import allocate
 from quadsitl.process_util import SpinThenBlock, bind_udp, parse_remote, set_receive_timeout, start_process
 from quadsitl.state import Reference, VehicleState
 
 mavlink = wire.mavlink
-ZERO4 = (0.0, 0.0, 0.0, 0.0)
 PEER_TIMEOUT = 30.0  # [s] wall: stop streaming to a peer that has been silent this long
 FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
-BATCH_WALL = 0.001  # [s] wall: Zenoh telemetry goes out at least this often (every tick at 1 kHz real time)
-BATCH_TICKS = 64  # and at the latest after this many ticks
+BATCH_WALL = 0.005  # [s] wall: Zenoh telemetry goes out at least this often (every 5 ticks at 1 kHz real time)
+BATCH_TICKS = 512  # and at the latest after this many ticks
 PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lost (failsafe)
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
@@ -98,7 +100,13 @@ class Autopilot:
         self.mav = wire.link(self.sysid, self.compid)  # the plant link's fallback parser
         self.signing_key: bytes | None = args.signing_key
         self.gcs_mav = self._gcs_link()  # ground-station links: signed when a key is given
-        self.fast = wire.FastLink(self.sysid, self.compid)  # the per-tick plant link
+        self.rx = bytearray(65535)  # the plant link's datagrams, read in place by the compiled decoder
+        self.rx_array = np.frombuffer(self.rx, dtype=np.uint8)
+        self.tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)  # the answer, written by control_tick
+        self.tx_view = memoryview(self.tx)  # type: ignore[arg-type]
+        self.st = np.zeros(wire.DECODED_SIZE)  # the decoded state (VehicleState fields, then p, q, r)
+        self.scratch = np.zeros(wire.DECODED_SIZE)  # a state being decoded
+        self.mem = np.zeros(MEM_SIZE)  # the command, forces, errors and Ωr of the last tick (autopilot.tick)
         self.plant_sock = bind_udp("--plant-listen", args.plant_listen)
         self.links: list[GcsLink] = []
         for name in ("gcs", "api"):
@@ -106,12 +114,7 @@ class Autopilot:
             sock = bind_udp(f"--{name}-listen", getattr(args, f"{name}_listen"))
             self.links.append(GcsLink(name, sock, remote, MessageStreams(self.period, args.telemetry_rate)))
         self.streams = self.links[0].streams  # for what every link's streams share: which ids are streamed
-        self.was_armed = False
-        self.u = ZERO4
-        self.forces = ZERO4
         self.last_heartbeat = 0.0
-        self.last_state_usec = -1
-        self.latest: tuple[int, object, VehicleState, Reference] | None = None  # tick, ODOMETRY, state, ref
         # Input counters, reported in SYS_STATUS (errors_comm, errors_count1..4):
         self.errors_comm = 0  # ground-station datagrams that are not MAVLink or fail their CRC
         self.unknown = 0  # well-formed messages we do not handle (ignored)
@@ -128,12 +131,13 @@ class Autopilot:
         self.said: dict[str, float] = {}  # topic → wall time of the last such warning
         act = preset.actuators
         self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
-        self.d_over_b = preset.vehicle.d_over_b
-        self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom)  # polls while the plant answers fast
+        self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom_into, self.rx)  # polls while the plant answers fast
         self.session = None
         self.pubs: dict[str, zenoh.Publisher] = {}
-        self.batches = {stream: bytearray() for stream in telemetry.STREAMS}
-        self.batched = 0  # ticks in the batches
+        self.batch = Batch(BATCH_TICKS)
+        self.io = np.zeros(kernel.IO_SIZE, dtype=np.int64)  # the tick's bookkeeping (autopilot.tick)
+        self.io[kernel.LAST_USEC] = -1
+        self.io[kernel.SYSTEM], self.io[kernel.COMPONENT] = self.sysid, self.compid
         self.last_flush = 0.0
         if not args.no_zenoh:
             conf = telemetry.config_from_args(args)
@@ -146,88 +150,111 @@ class Autopilot:
                     encoding=telemetry.encoding(stream),
                     congestion_control=zenoh.CongestionControl.DROP,
                 )
+            self.io[kernel.CAPACITY] = BATCH_TICKS  # records are batched only while there is a session
 
     # ---- the control tick ----------------------------------------------------------------------
 
-    def on_state(self, m: mavlink.MAVLink_odometry_message, sender: tuple[str, int]) -> None:
-        if m.time_usec == self.last_state_usec:
-            self._answer(m.time_usec, sender)  # a re-sent (free-wheeling) state: same answer
-            return
-        if self.last_state_usec - 1_000_000 < m.time_usec < self.last_state_usec:
-            return  # stale or reordered; a jump back by more than 1 s is a restarted plant
-        if not all(map(math.isfinite, (m.x, m.y, m.z, m.vx, m.vy, m.vz, *m.q, m.rollspeed, m.pitchspeed,
-                                       m.yawspeed))):  # fmt: skip
-            self.errors_plant += 1  # never fly a broken state; the plant re-sends (lockstep) or moves on
-            return
+    def on_plant_datagram(self, nbytes: int, sender: tuple[str, int]) -> None:
+        """A datagram from the plant (in ``self.rx``). The plant link is locked to the first plant that talks
+        to it; another sender is a stranger and is dropped, until the locked plant has been silent for
+        PLANT_SILENCE (then a restarted plant, on a new port, takes over)."""
+        wall = time.monotonic()
+        if sender != self.plant_peer:
+            if self.plant_peer is not None and wall - self.plant_heard < PLANT_SILENCE:
+                self.errors_plant += 1
+                return
+            self.plant_peer = sender
+            self.io[kernel.LAST_USEC] = -1  # a new plant: its clock starts afresh
+            self.io[kernel.NEXT_STREAM_TICK] = 0
+        self.plant_heard = wall
+        if self.plant_lost:
+            self.plant_lost = False
+            self.commander.plant_restored()
         started = time.perf_counter()
-        self.last_state_usec = m.time_usec
-        tick = wire.tick_of(m.time_usec, self.period)
-        now = tick * self.period
-        state = wire.state_from_message(m)
-        ref = self.commander.update(tick, now, state)
-        if ref is None:
-            self.u, self.forces = ZERO4, ZERO4
-        else:
-            if not self.was_armed:
-                self.controller.reset()
-            self.u = self.controller.step(state, ref)
-            self.forces = allocate(self.u, self.d_over_b, self.f_min, self.f_max)
-        self.was_armed = ref is not None
-        self._answer(m.time_usec, sender)
-        shown = ref if ref is not None else self.commander.hold
-        self.latest = (tick, m, state, shown)
-        if self.pubs:
-            self._publish(tick, now, m, state, shown)
+        ctl = self.controller
+        flags = autopilot_tick(self.rx_array, nbytes, self.scratch, self.st, self.period, ctl.kind, self.commander.cm,
+                               self.mem, ctl.v, ctl.c, self.f_min, self.f_max, self.tx, self.io,
+                               self.batch.records)  # fmt: skip
+        if flags & kernel.ANSWER:
+            self.plant_sock.sendto(self.tx_view[: self.io[kernel.TX_LEN]], sender)
+        if flags > kernel.ANSWER:
+            self._after_tick(flags, nbytes, sender)
+        self.load = (time.perf_counter() - started) / self.period
+
+    def _after_tick(self, flags: int, nbytes: int, sender: tuple[str, int]) -> None:
+        """What a tick leaves to Python, now and then: telemetry messages, announcements, a full batch, and the
+        datagrams the compiled decoder does not take."""
+        if flags & kernel.STREAM:
+            self._stream(int(self.io[kernel.TICK]))
+        if flags & kernel.EVENT_DUE:
+            self.commander.announce(int(self.io[kernel.EVENT]))
+        if self.commander.messages:
+            self._announce_commander()
+        if flags & kernel.BATCH_FULL:
+            self.flush_telemetry()
+        if flags & kernel.REFUSED:
+            self.errors_plant += 1  # a corrupt frame, or a state never to fly: the plant re-sends or moves on
+        if flags & kernel.NOT_MINE:
+            self._parse_slowly(nbytes, sender)
+
+    def _parse_slowly(self, nbytes: int, sender: tuple[str, int]) -> None:
+        """A plant datagram that is not exactly one unsigned ODOMETRY frame: pymavlink's to parse."""
+        try:
+            msgs = self.mav.parse_buffer(bytes(self.rx[:nbytes])) or []
+        except mavlink.MAVError:
+            self.errors_plant += 1
+            return
+        for msg in msgs:
+            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ODOMETRY:  # re-framed alone, for the compiled path
+                frame = msg.pack(wire.link(msg.get_srcSystem(), msg.get_srcComponent()))
+                self.rx[: len(frame)] = frame
+                self.on_plant_datagram(len(frame), sender)
+
+    def latest(self) -> tuple[int, VehicleState, Reference] | None:
+        """The last tick flown: (tick, state, the reference flown or held); None before the first."""
+        if self.io[kernel.LAST_USEC] < 0:
+            return None
+        c = self.commander
+        return int(self.io[kernel.TICK]), VehicleState._make(self.st[:12].tolist()), c.reference if c.armed else c.hold
+
+    def _stream(self, tick: int) -> None:
+        """The telemetry messages due at ``tick`` on each link."""
         snap, built = None, {}
         for link in self.links:
             if link.remote is None and not link.peers:
                 continue
+            frames = []
             for mid in link.streams.due(tick):
                 if mid not in built:
                     snap = snap or self._snapshot()
-                    built[mid] = gcs_messages.build(mid, snap, self.commander, self.home).pack(self.gcs_mav)
-                link.send(built[mid])
-        self._announce_commander()
-        self.load = (time.perf_counter() - started) / self.period
-
-    def _answer(self, time_usec: int, sender: tuple[str, int]) -> None:
-        self.plant_sock.sendto(
-            self.fast.pack_actuators(time_usec, self.forces, self.f_max, self.commander.armed), sender
-        )
-
-    def _publish(self, tick, now, m, state, ref) -> None:
-        """Add this tick's records to the Zenoh batches (see :mod:`quadsitl.telemetry`)."""
-        s, b, c = telemetry.STREAMS, self.batches, self.commander
-        b["state"] += s["state"].pack(
-            tick, now, state.x, state.y, state.z, state.vx, state.vy, state.vz, state.roll, state.pitch,
-            state.yaw, m.rollspeed, m.pitchspeed, m.yawspeed)  # fmt: skip
-        b["setpoint"] += s["setpoint"].pack(tick, now, *ref)
-        b["actuators"] += s["actuators"].pack(tick, now, *self.u, *self.forces)
-        b["status"] += s["status"].pack(tick, now, c.armed, c.mode, c.failsafe, c.offboard_tick)
-        self.batched += 1
-        if self.batched >= BATCH_TICKS:
-            self.flush_telemetry()
+                    built[mid] = wire.pack(gcs_messages.build(mid, snap, self.commander, self.home), self.gcs_mav)
+                frames.append(built[mid])
+            if frames:  # one datagram per link and tick, as PX4 fills its UDP buffer
+                link.send(b"".join(frames))
+        self.io[kernel.NEXT_STREAM_TICK] = min(link.streams.next_due(tick) for link in self.links)
 
     def flush_telemetry(self) -> None:
         """Publish the batched records (every stream gets the same ticks)."""
-        if self.batched:
+        rows = int(self.io[kernel.ROWS])
+        if rows:
             for stream, pub in self.pubs.items():
-                pub.put(bytes(self.batches[stream]))
-                self.batches[stream].clear()
-            self.batched = 0
+                pub.put(self.batch.payload(stream, rows))
+            self.io[kernel.ROWS] = 0
         self.last_flush = time.monotonic()
 
     def _snapshot(self) -> Snapshot | None:
-        if self.latest is None:
+        latest = self.latest()
+        if latest is None:
             return None
-        tick, m, state, ref = self.latest
+        tick, state, ref = latest
+        forces = self.mem[MEM_FORCES : MEM_FORCES + 4].tolist()
         return Snapshot(
             time_ms=round(tick * self.period * 1000),
             state=state,
-            body_rates=(m.rollspeed, m.pitchspeed, m.yawspeed),
+            body_rates=tuple(self.st[wire.BODY_RATES : wire.BODY_RATES + 3].tolist()),
             reference=ref,
-            u1=self.u[0],
-            controls=tuple(f / self.f_max for f in self.forces),
+            u1=float(self.mem[MEM_U]),
+            controls=tuple(f / self.f_max for f in forces),
             reversible=self.reversible,
             max_total_thrust=4.0 * self.f_max,
             load=self.load,
@@ -237,7 +264,7 @@ class Autopilot:
     # ---- the ground-station links --------------------------------------------------------------
 
     def _send_gcs(self, msg) -> None:
-        buf = msg.pack(self.gcs_mav)
+        buf = wire.pack(msg, self.gcs_mav)
         for link in self.links:
             link.send(buf)
 
@@ -374,12 +401,8 @@ class Autopilot:
     def _apply_params(self) -> None:
         """Make the accepted parameter values the ones the next tick uses."""
         applied = self.params.applied()
-        new = make_controller(applied.preset, applied.controller)
-        if hasattr(new, "last") and hasattr(self.controller, "last"):
-            new.last = self.controller.last  # Ωr comes from the command in force
-        self.controller = new
+        self.controller = make_controller(applied.preset, applied.controller)  # Ωr: the command in self.mem
         self.commander.settings = applied.settings
-        self.d_over_b = applied.preset.vehicle.d_over_b
 
     # ---- commands ------------------------------------------------------------------------------
 
@@ -393,7 +416,8 @@ class Autopilot:
                 ok, reason = c.arm()
                 result = accepted if ok else denied
             elif m.param1 == 0.0:
-                in_air = self.latest is not None and gcs_messages.landed_state(c, self.latest[2]) == (
+                latest = self.latest()
+                in_air = latest is not None and gcs_messages.landed_state(c, latest[1]) == (
                     mavlink.MAV_LANDED_STATE_IN_AIR
                 )
                 if in_air and as_int(m.param2) != FORCE_DISARM:
@@ -424,6 +448,7 @@ class Autopilot:
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             reason = link.streams.set_interval(as_int(m.param1), m.param2) if math.isfinite(m.param2) else "NaN"
             result = denied if reason else accepted
+            self.io[kernel.NEXT_STREAM_TICK] = 0  # recomputed at the next tick
         elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
             mid = as_int(m.param1)
             if link.streams.supported(mid):
@@ -467,17 +492,17 @@ class Autopilot:
         receive = self.plant_wait
         while True:
             try:
-                data, sender = receive()
+                nbytes, sender = receive()
             except (BlockingIOError, InterruptedError):
-                data = None
-            if data is not None:
-                self.on_plant_datagram(data, sender)
+                nbytes = -1
+            if nbytes >= 0:
+                self.on_plant_datagram(nbytes, sender)
             wall = time.monotonic()
             if self.plant_peer is not None and not self.plant_lost and wall - self.plant_heard > PLANT_LOST_AFTER:
                 self.plant_lost = True
                 self.commander.plant_lost()
                 self._announce_commander()
-            if self.batched and wall - self.last_flush >= BATCH_WALL:
+            if self.io[kernel.ROWS] and wall - self.last_flush >= BATCH_WALL:
                 self.flush_telemetry()
             if wall >= next_poll:
                 next_poll = wall + GCS_POLL
@@ -492,38 +517,6 @@ class Autopilot:
                     self.heartbeat()
                     for link in self.links:
                         link.forget_silent(wall)
-
-    def on_plant_datagram(self, data: bytes, sender: tuple[str, int]) -> None:
-        """The plant link is locked to the first plant that talks to it; another sender is a stranger and
-        is dropped, until the locked plant has been silent for PLANT_SILENCE (then a restarted plant, on
-        a new port, takes over)."""
-        wall = time.monotonic()
-        if sender != self.plant_peer:
-            if self.plant_peer is not None and wall - self.plant_heard < PLANT_SILENCE:
-                self.errors_plant += 1
-                return
-            self.plant_peer = sender
-            self.last_state_usec = -1  # a new plant: its clock starts afresh
-        self.plant_heard = wall
-        if self.plant_lost:
-            self.plant_lost = False
-            self.commander.plant_restored()
-        try:
-            m = wire.parse_state(data)  # the per-tick fast path
-        except wire.FrameError:
-            self.errors_plant += 1
-            return
-        if m is not None:
-            self.on_state(m, sender)
-            return
-        try:
-            msgs = self.mav.parse_buffer(data) or []
-        except mavlink.MAVError:
-            self.errors_plant += 1
-            return
-        for msg in msgs:
-            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ODOMETRY:
-                self.on_state(msg, sender)
 
     def _gcs_link(self, old: mavlink.MAVLink | None = None) -> mavlink.MAVLink:
         """A fresh ground-link parser/packer; with a key, signed (and keeping the old one's signing
@@ -664,6 +657,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
         args.home = parse_home(args.home)
         args.signing_key = wire.resolve_signing_key(args.signing_key)
+        warm_up()  # compiled before the first tick (numba's cache makes this quick after the first run)
         ap = Autopilot(preset, args)
     except (UsageError, ConfigError, GainError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

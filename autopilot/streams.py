@@ -75,3 +75,7 @@ class MessageStreams:
     def due(self, tick: int) -> list[int]:
         """The message ids to send at ``tick``."""
         return [mid for mid, n in self._active if tick % n == 0]
+
+    def next_due(self, tick: int) -> int:
+        """The first tick after ``tick`` at which a message is due (so the loop need not ask every tick)."""
+        return min(((tick // n + 1) * n for _, n in self._active), default=tick + 2**62)

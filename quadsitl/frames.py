@@ -2,20 +2,26 @@
 
 Conventions: local NED, body FRD, ZYX Euler angles (roll φ, pitch θ, yaw ψ), radians, SI units.
 Quaternions are [w, x, y, z] and rotate FRD vectors into NED, as MAVLink's ``q`` fields do.
+
+The per-tick conversions are compiled (:mod:`quadsitl.jit`); call them with floats.
 """
 
 from __future__ import annotations
 
 import math
 
+from quadsitl.jit import jit
+
 TWO_PI = 2.0 * math.pi
 
 
+@jit
 def wrap_pi(angle: float) -> float:
     """Wrap an angle [rad] into [−π, π)."""
     return (angle + math.pi) % TWO_PI - math.pi
 
 
+@jit
 def euler_rates_to_body_rates(
     roll: float, pitch: float, roll_dot: float, pitch_dot: float, yaw_dot: float
 ) -> tuple[float, float, float]:
@@ -28,6 +34,7 @@ def euler_rates_to_body_rates(
     return p, q, r
 
 
+@jit
 def body_rates_to_euler_rates(roll: float, pitch: float, p: float, q: float, r: float) -> tuple[float, float, float]:
     """Inverse of paper eq (1): body rates (p, q, r) → Euler-angle rates (φ̇, θ̇, ψ̇).
 
@@ -42,6 +49,7 @@ def body_rates_to_euler_rates(roll: float, pitch: float, p: float, q: float, r: 
     return roll_dot, pitch_dot, yaw_dot
 
 
+@jit
 def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
     """ZYX Euler angles → unit quaternion [w, x, y, z] (FRD → NED)."""
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
@@ -55,6 +63,7 @@ def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, f
     )
 
 
+@jit
 def quaternion_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
     """Unit quaternion [w, x, y, z] (FRD → NED) → ZYX Euler angles (roll, pitch, yaw) [rad]."""
     roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))

@@ -10,22 +10,29 @@ other. Forces F_j [N] act along −z_body (up when level).
     u4 = (d/b)(−F1 + F2 − F3 + F4)      yaw torque [N·m]
 
 with F_j = b·Ω_j² (b thrust factor [N·s²]) and the rotor drag torque d·Ω_j² (d [N·m·s²]).
+
+Compiled (:mod:`quadsitl.jit`): forces and inputs are 4-tuples of floats.
 """
 
 from __future__ import annotations
 
 import math
 
+from quadsitl.jit import jit
 from quadsitl.state import Inputs
 
+Forces = tuple[float, float, float, float]
 
-def forces_to_inputs(forces: tuple[float, float, float, float], d_over_b: float) -> Inputs:
+
+@jit
+def forces_to_inputs(forces: Forces, d_over_b: float) -> Inputs:
     """Paper eq (8): motor forces (F1..F4) [N] → inputs (u1..u4)."""
     f1, f2, f3, f4 = forces
     return Inputs(f1 + f2 + f3 + f4, f4 - f2, f3 - f1, d_over_b * (-f1 + f2 - f3 + f4))
 
 
-def inputs_to_forces(u: tuple[float, float, float, float], d_over_b: float) -> tuple[float, float, float, float]:
+@jit
+def inputs_to_forces(u: tuple[float, float, float, float], d_over_b: float) -> Forces:
     """Inverse of eq (8): inputs (u1..u4) → motor forces (F1..F4) [N]."""
     u1, u2, u3, u4 = u
     yaw_share = u4 / d_over_b  # = (F2 + F4) − (F1 + F3)
@@ -34,27 +41,28 @@ def inputs_to_forces(u: tuple[float, float, float, float], d_over_b: float) -> t
     return 0.5 * (s13 - u3), 0.5 * (s24 - u2), 0.5 * (s13 + u3), 0.5 * (s24 + u2)
 
 
-def rotor_speeds(forces: tuple[float, float, float, float], b: float) -> tuple[float, float, float, float]:
-    """Signed rotor speeds Ω_j = sign(F_j)·sqrt(|F_j|/b) [rad/s] (reversible rotors keep the sign)."""
-    f1, f2, f3, f4 = forces  # unrolled: this runs every control tick
-    copysign, sqrt = math.copysign, math.sqrt
-    return (
-        copysign(sqrt(abs(f1) / b), f1),
-        copysign(sqrt(abs(f2) / b), f2),
-        copysign(sqrt(abs(f3) / b), f3),
-        copysign(sqrt(abs(f4) / b), f4),
-    )
+@jit
+def rotor_speed(force: float, b: float) -> float:
+    """Signed rotor speed Ω = sign(F)·sqrt(|F|/b) [rad/s] (reversible rotors keep the sign)."""
+    return math.copysign(math.sqrt(abs(force) / b), force)
 
 
-def residual_rotor_speed(forces: tuple[float, float, float, float], b: float) -> float:
+@jit
+def rotor_speeds(forces: Forces, b: float) -> Forces:
+    """Ω_j of each motor [rad/s]."""
+    f1, f2, f3, f4 = forces
+    return rotor_speed(f1, b), rotor_speed(f2, b), rotor_speed(f3, b), rotor_speed(f4, b)
+
+
+@jit
+def residual_rotor_speed(forces: Forces, b: float) -> float:
     """Ωr = Ω1 − Ω2 + Ω3 − Ω4 [rad/s] (erratum 5: the paper prints + Ω4)."""
     w1, w2, w3, w4 = rotor_speeds(forces, b)
     return w1 - w2 + w3 - w4
 
 
-def allocate(
-    u: tuple[float, float, float, float], d_over_b: float, f_min: float, f_max: float
-) -> tuple[float, float, float, float]:
+@jit
+def allocate(u: tuple[float, float, float, float], d_over_b: float, f_min: float, f_max: float) -> Forces:
     """Control allocation with saturation: inputs → motor forces within [f_min, f_max].
 
     When the exact inverse of eq (8) fits, it is returned unchanged. Otherwise the torques are kept
@@ -63,16 +71,24 @@ def allocate(
     mixer). The result always lies in [f_min, f_max].
     """
     forces = inputs_to_forces(u, d_over_b)
-    lo, hi = min(forces), max(forces)
+    f1, f2, f3, f4 = forces
+    lo, hi = min(min(f1, f2), min(f3, f4)), max(max(f1, f2), max(f3, f4))
     if lo >= f_min and hi <= f_max:
         return forces
     mean = 0.25 * u[0]
-    dev = [f - mean for f in forces]  # the torque part, zero-sum
-    spread_lo, spread_hi = min(dev), max(dev)
+    d1, d2, d3, d4 = f1 - mean, f2 - mean, f3 - mean, f4 - mean  # the torque part, zero-sum
+    spread_lo, spread_hi = lo - mean, hi - mean
     span = f_max - f_min
     if spread_hi - spread_lo > span:
         scale = span / (spread_hi - spread_lo)
-        dev = [scale * x for x in dev]
+        d1, d2, d3, d4 = scale * d1, scale * d2, scale * d3, scale * d4
         spread_lo, spread_hi = spread_lo * scale, spread_hi * scale
     mean = min(max(mean, f_min - spread_lo), f_max - spread_hi)
-    return tuple(min(max(mean + x, f_min), f_max) for x in dev)  # type: ignore[return-value]
+    return clamp4((mean + d1, mean + d2, mean + d3, mean + d4), f_min, f_max)
+
+
+@jit
+def clamp4(forces: Forces, lo: float, hi: float) -> Forces:
+    """Each of four values clamped to [lo, hi]."""
+    f1, f2, f3, f4 = forces
+    return min(max(f1, lo), hi), min(max(f2, lo), hi), min(max(f3, lo), hi), min(max(f4, lo), hi)

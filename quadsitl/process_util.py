@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import functools
 import gc
 import os
 import select
@@ -119,8 +120,12 @@ class SpinThenBlock:
     results are unchanged.
     """
 
-    def __init__(self, recv: Callable[..., object], budget: float | None = None) -> None:
-        self.recv = recv  # sock.recv or sock.recvfrom (a blocking socket, with SO_RCVTIMEO as needed)
+    def __init__(self, recv: Callable[..., object], into: bytearray | None = None, budget: float | None = None) -> None:
+        # ``recv`` is sock.recv or sock.recvfrom (a blocking socket, with SO_RCVTIMEO as needed); with a buffer
+        # ``into``, sock.recv_into or sock.recvfrom_into, which read into it instead of making bytes.
+        args = (65535,) if into is None else (into, 0)
+        self.poll = functools.partial(recv, *args, socket.MSG_DONTWAIT)
+        self.block = functools.partial(recv, *args)
         self.budget = spin_budget() if budget is None else budget
         self.hot = False
         self.polled = 0  # datagrams that came while polling
@@ -131,13 +136,13 @@ class SpinThenBlock:
         self._cool = SPIN_COOL[0]
 
     def __call__(self):
-        """What ``recv(65535)`` returns; raises as it does (BlockingIOError on SO_RCVTIMEO's timeout)."""
+        """What ``recv`` returns; raises as it does (BlockingIOError on SO_RCVTIMEO's timeout)."""
         start = time.perf_counter()
         if self.hot and start >= self._cool_until:
-            end, recv = start + self.budget, self.recv
+            end, poll = start + self.budget, self.poll
             while True:
                 try:
-                    out = recv(65535, socket.MSG_DONTWAIT)
+                    out = poll()
                 except (BlockingIOError, InterruptedError):
                     if time.perf_counter() < end:
                         continue
@@ -150,7 +155,7 @@ class SpinThenBlock:
                 return out  # still hot
         self.blocked += 1
         try:
-            return self.recv(65535)
+            return self.block()
         finally:
             self.hot = time.perf_counter() - start < self.budget
 

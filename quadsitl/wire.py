@@ -24,7 +24,7 @@ from quadsitl.frames import (
     euler_to_quaternion,
     quaternion_to_euler,
 )
-from quadsitl.state import VehicleState
+from quadsitl.state import VehicleState, floats
 
 PLANT_SYSTEM_ID = 1
 PLANT_COMPONENT_ID = mavlink.MAV_COMP_ID_USER1  # the simulator, as PX4's SIH/Gazebo bridges use a separate component
@@ -106,34 +106,188 @@ def usec_of(tick: int, period: float) -> int:
     return round(tick * period * 1e6)
 
 
-# ---- the per-tick hot path: the two lockstep messages without pymavlink's object machinery -------------
+# ---- the per-tick hot path: the two lockstep messages, compiled -----------------------------------------
 #
 # pymavlink builds a message object, then packs it (≈ 6 µs) and parses a frame through a generic state
-# machine (≈ 12 µs for ODOMETRY). At 10,000 ticks/s those microseconds are the budget, so the two messages
-# exchanged every tick are framed here with ``struct`` and the same CRC library pymavlink uses. The layouts
-# come from pymavlink's own generated metadata (checked at import), and a test shows the frames are
-# byte-identical to pymavlink's and that each side accepts the other's. Anything else on the link (signed
-# frames, several messages in one datagram, other messages) goes through pymavlink.
+# machine (≈ 12 µs for ODOMETRY). At tens of thousands of ticks per second those microseconds are the
+# budget, so the two messages exchanged every tick are framed here by compiled functions (:mod:`quadsitl.jit`)
+# that write into and read from byte buffers (numpy uint8 arrays) in place. The layouts come from
+# pymavlink's own generated metadata (checked at import), and a test shows the frames are byte-identical to
+# pymavlink's and that each side accepts the other's. Anything else on the link (signed frames, several
+# messages in one datagram, other messages) goes through pymavlink.
 
 import struct  # noqa: E402
 from typing import NamedTuple  # noqa: E402
 
+import numpy as np  # noqa: E402
 from fastcrc.crc16 import mcrf4xx  # noqa: E402
 
+from quadsitl.jit import jit  # noqa: E402
+
 MAVLINK2_STX = 0xFD
-_HEADER = struct.Struct("<BBBBBBBHB")  # stx, len, incompat, compat, seq, sysid, compid, msgid (24 bit)
-_CRC = struct.Struct("<H")
+HEADER_SIZE = 10  # stx, len, incompat, compat, seq, sysid, compid, msgid (24 bit)
+FRAME_MAX = 280  # a MAVLink 2 frame's largest size: header, 255 bytes of payload, CRC, 13-byte signature
 _ODOMETRY = mavlink.MAVLink_odometry_message
 _HIL = mavlink.MAVLink_hil_actuator_controls_message
 _ODO_STRUCT = struct.Struct("<Qfff4fffffff21f21fBBBBb")
 _HIL_STRUCT = struct.Struct("<QQ16fB")
 assert _ODO_STRUCT.format == _ODOMETRY.unpacker.format and _HIL_STRUCT.format == _HIL.unpacker.format
-_ODO_HEAD = struct.Struct("<Qfff4fffffff")  # the per-tick fields; the rest of the payload is constant
-_ODO_TAIL = struct.pack(
+ODOMETRY_ID, ODOMETRY_CRC_EXTRA, ODOMETRY_SIZE = _ODOMETRY.id, _ODOMETRY.crc_extra, _ODO_STRUCT.size
+HIL_ID, HIL_CRC_EXTRA, HIL_SIZE = _HIL.id, _HIL.crc_extra, _HIL_STRUCT.size
+# The ODOMETRY fields after the per-tick ones: unknown covariances, frames, estimator type, quality.
+ODOMETRY_TAIL = np.frombuffer(struct.pack(
     "<21f21fBBBBb", *_NAN21, *_NAN21, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED, 0,
     mavlink.MAV_ESTIMATOR_TYPE_NAIVE, 100,
-)  # fmt: skip
-_HIL_ZEROS = (0.0,) * 12
+), dtype=np.uint8).copy()  # fmt: skip
+ODOMETRY_TAIL_AT = 60  # payload offset of the first covariance
+# Decoded plant state (decode_state's ``out``): the 12 VehicleState fields, then body rates p, q, r [rad/s].
+BODY_RATES = 12
+DECODED_SIZE = 15
+# Return codes of the decoders (a time_usec is >= 0).
+NOT_THIS_FRAME, BAD_CRC, NOT_FINITE = -1, -2, -3
+
+
+def _crc_table() -> np.ndarray:
+    """CRC-16/MCRF4XX (X.25), MAVLink's checksum, one byte at a time."""
+    table = np.zeros(256, dtype=np.uint16)
+    for i in range(256):
+        tmp = i  # crc_accumulate with crc = 0: tmp = byte ^ (crc & 0xff)
+        tmp = (tmp ^ (tmp << 4)) & 0xFF
+        table[i] = ((tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
+    return table
+
+
+CRC_TABLE = _crc_table()
+
+
+@jit
+def crc16(buf: np.ndarray, start: int, end: int, crc_extra: int) -> int:
+    """MAVLink's CRC of buf[start:end] followed by the message's CRC_EXTRA byte."""
+    crc = 0xFFFF
+    for i in range(start, end):
+        crc = (crc >> 8) ^ int(CRC_TABLE[(crc ^ int(buf[i])) & 0xFF])
+    return (crc >> 8) ^ int(CRC_TABLE[(crc ^ crc_extra) & 0xFF])
+
+
+@jit
+def finish_frame(buf: np.ndarray, size: int, seq: int, system: int, component: int, msg_id: int,
+                 crc_extra: int) -> int:  # fmt: skip
+    """Frame the ``size``-byte payload at buf[HEADER_SIZE:]: drop its trailing zero bytes (MAVLink 2 does),
+    write the header and the CRC. Returns the frame's length."""
+    n = size
+    while n > 1 and buf[HEADER_SIZE + n - 1] == 0:
+        n -= 1
+    buf[0], buf[1], buf[2], buf[3], buf[4] = MAVLINK2_STX, n, 0, 0, seq & 0xFF
+    buf[5], buf[6] = system, component
+    buf[7], buf[8], buf[9] = msg_id & 0xFF, (msg_id >> 8) & 0xFF, msg_id >> 16
+    crc = crc16(buf, 1, HEADER_SIZE + n, crc_extra)
+    buf[HEADER_SIZE + n], buf[HEADER_SIZE + n + 1] = crc & 0xFF, crc >> 8
+    return HEADER_SIZE + n + 2
+
+
+@jit
+def check_frame(buf: np.ndarray, length: int, msg_id: int, crc_extra: int, size: int) -> int:
+    """If buf[:length] is exactly one unsigned MAVLink 2 frame of ``msg_id``: zero-pad its payload to
+    ``size`` bytes in place (the CRC bytes after it are not needed again) and return 0; NOT_THIS_FRAME when
+    it is something else (for pymavlink to parse), BAD_CRC when its CRC does not match."""
+    if length < 12 or buf[0] != MAVLINK2_STX or buf[2] != 0:
+        return NOT_THIS_FRAME
+    n = int(buf[1])
+    if length != n + 12 or (int(buf[7]) | int(buf[8]) << 8 | int(buf[9]) << 16) != msg_id:
+        return NOT_THIS_FRAME
+    if crc16(buf, 1, HEADER_SIZE + n, crc_extra) != (int(buf[HEADER_SIZE + n]) | int(buf[HEADER_SIZE + n + 1]) << 8):
+        return BAD_CRC
+    for i in range(HEADER_SIZE + n, HEADER_SIZE + size):
+        buf[i] = 0
+    return 0
+
+
+@jit
+def _put_f32(buf: np.ndarray, at: int, value: float) -> None:
+    buf[HEADER_SIZE + at : HEADER_SIZE + at + 4].view(np.float32)[0] = value
+
+
+@jit
+def _get_f32(buf: np.ndarray, at: int) -> float:
+    return np.float64(buf[HEADER_SIZE + at : HEADER_SIZE + at + 4].view(np.float32)[0])  # float() keeps float32
+
+
+@jit
+def encode_state(buf: np.ndarray, seq: int, system: int, component: int, time_usec: int, s: tuple) -> int:
+    """ODOMETRY (= :func:`state_message`) for the 12 VehicleState fields ``s`` into ``buf`` (FRAME_MAX bytes);
+    returns the frame's length."""
+    roll, pitch, yaw = s[6], s[7], s[8]
+    q = euler_to_quaternion(roll, pitch, yaw)
+    p, qr, r = euler_rates_to_body_rates(roll, pitch, s[9], s[10], s[11])
+    buf[HEADER_SIZE : HEADER_SIZE + 8].view(np.uint64)[0] = time_usec
+    _put_f32(buf, 8, s[0])
+    _put_f32(buf, 12, s[1])
+    _put_f32(buf, 16, s[2])
+    for i in range(4):
+        _put_f32(buf, 20 + 4 * i, q[i])
+    _put_f32(buf, 36, s[3])
+    _put_f32(buf, 40, s[4])
+    _put_f32(buf, 44, s[5])
+    _put_f32(buf, 48, p)
+    _put_f32(buf, 52, qr)
+    _put_f32(buf, 56, r)
+    buf[HEADER_SIZE + ODOMETRY_TAIL_AT : HEADER_SIZE + ODOMETRY_SIZE] = ODOMETRY_TAIL
+    return finish_frame(buf, ODOMETRY_SIZE, seq, system, component, ODOMETRY_ID, ODOMETRY_CRC_EXTRA)
+
+
+@jit
+def decode_state(buf: np.ndarray, length: int, out: np.ndarray) -> int:
+    """An ODOMETRY frame in buf[:length] → ``out`` (DECODED_SIZE: the VehicleState fields, Euler-angle rates
+    by the inverse of eq (1), then body rates p, q, r). Returns its time_usec, or NOT_THIS_FRAME, BAD_CRC,
+    NOT_FINITE (a state never to fly: ``out`` is then not written)."""
+    status = check_frame(buf, length, ODOMETRY_ID, ODOMETRY_CRC_EXTRA, ODOMETRY_SIZE)
+    if status < 0:
+        return status
+    x, y, z = _get_f32(buf, 8), _get_f32(buf, 12), _get_f32(buf, 16)
+    q0, q1, q2, q3 = _get_f32(buf, 20), _get_f32(buf, 24), _get_f32(buf, 28), _get_f32(buf, 32)
+    vx, vy, vz = _get_f32(buf, 36), _get_f32(buf, 40), _get_f32(buf, 44)
+    p, q, r = _get_f32(buf, 48), _get_f32(buf, 52), _get_f32(buf, 56)
+    total = x + y + z + q0 + q1 + q2 + q3 + vx + vy + vz + p + q + r
+    if not math.isfinite(total):  # a NaN or an infinity in any field (or an overflow of their sum)
+        for v in (x, y, z, q0, q1, q2, q3, vx, vy, vz, p, q, r):
+            if not math.isfinite(v):
+                return NOT_FINITE
+    roll, pitch, yaw = quaternion_to_euler(q0, q1, q2, q3)
+    rd, pd, yd = body_rates_to_euler_rates(roll, pitch, p, q, r)
+    out[0], out[1], out[2], out[3], out[4], out[5] = x, y, z, vx, vy, vz
+    out[6], out[7], out[8], out[9], out[10], out[11] = roll, pitch, yaw, rd, pd, yd
+    out[12], out[13], out[14] = p, q, r
+    return int(buf[HEADER_SIZE : HEADER_SIZE + 8].view(np.uint64)[0] & 0x7FFFFFFFFFFFFFFF)
+
+
+@jit
+def encode_actuators(buf: np.ndarray, seq: int, system: int, component: int, time_usec: int, forces: tuple,
+                     max_thrust: float, armed: bool) -> int:  # fmt: skip
+    """HIL_ACTUATOR_CONTROLS (= :func:`actuator_message`) into ``buf``: controls[j] = F_j / F_max."""
+    buf[HEADER_SIZE : HEADER_SIZE + 16].view(np.uint64)[:] = (time_usec, 0)
+    for i in range(4):
+        _put_f32(buf, 16 + 4 * i, forces[i] / max_thrust)
+    buf[HEADER_SIZE + 32 : HEADER_SIZE + HIL_SIZE - 1] = 0
+    buf[HEADER_SIZE + HIL_SIZE - 1] = SAFETY_ARMED if armed else 0
+    return finish_frame(buf, HIL_SIZE, seq, system, component, HIL_ID, HIL_CRC_EXTRA)
+
+
+@jit
+def decode_actuators(buf: np.ndarray, length: int, out: np.ndarray, scale: float) -> int:
+    """A HIL_ACTUATOR_CONTROLS frame in buf[:length] → ``out`` (4): controls[0..3] × ``scale`` (F_max gives
+    the commanded motor forces [N], :func:`forces_from_message`). Returns its time_usec, or NOT_THIS_FRAME,
+    BAD_CRC, NOT_FINITE (a non-finite control, never to apply: ``out`` is then not written)."""
+    status = check_frame(buf, length, HIL_ID, HIL_CRC_EXTRA, HIL_SIZE)
+    if status < 0:
+        return status
+    c0, c1, c2, c3 = _get_f32(buf, 16), _get_f32(buf, 20), _get_f32(buf, 24), _get_f32(buf, 28)
+    if not (math.isfinite(c0) and math.isfinite(c1) and math.isfinite(c2) and math.isfinite(c3)):
+        return NOT_FINITE
+    out[0], out[1], out[2], out[3] = c0 * scale, c1 * scale, c2 * scale, c3 * scale
+    return int(buf[HEADER_SIZE : HEADER_SIZE + 8].view(np.uint64)[0] & 0x7FFFFFFFFFFFFFFF)
+
+
+SAFETY_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 
 
 class Odometry(NamedTuple):
@@ -163,70 +317,93 @@ class FrameError(Exception):
 
 
 class FastLink:
-    """Packs and parses the two per-tick messages as MAVLink 2 frames (unsigned), like pymavlink's
-    ``msg.pack(link)`` and ``link.parse_buffer`` but for these two messages only."""
+    """Packs the two per-tick messages as MAVLink 2 frames (unsigned) with the compiled encoders, like
+    pymavlink's ``msg.pack(link)`` but for these two messages only, into ``self.buf``."""
 
     def __init__(self, system: int, component: int) -> None:
         self.system, self.component = system, component
         self.seq = 0
+        self.buf = np.zeros(FRAME_MAX, dtype=np.uint8)
 
-    def _frame(self, msg_id: int, crc_extra: int, payload: bytes) -> bytes:
-        n = len(payload)
-        while n > 1 and payload[n - 1] == 0:  # MAVLink 2 drops trailing zero bytes of the payload
-            n -= 1
-        header = _HEADER.pack(MAVLINK2_STX, n, 0, 0, self.seq, self.system, self.component, msg_id & 0xFFFF,
-                              msg_id >> 16)  # fmt: skip
-        self.seq = (self.seq + 1) & 0xFF
-        body = header[1:] + payload[:n]
-        crc = mcrf4xx(bytes((crc_extra,)), mcrf4xx(body, 0xFFFF))
-        return b"\xfd" + body + _CRC.pack(crc)
+    def _next_seq(self) -> int:
+        seq, self.seq = self.seq, (self.seq + 1) & 0xFF
+        return seq
 
     def pack_state(self, time_usec: int, s: VehicleState) -> bytes:
         """= ``state_message(time_usec, s).pack(link)``."""
-        q = euler_to_quaternion(s.roll, s.pitch, s.yaw)
-        p, qr, r = euler_rates_to_body_rates(s.roll, s.pitch, s.roll_dot, s.pitch_dot, s.yaw_dot)
-        head = _ODO_HEAD.pack(time_usec, s.x, s.y, s.z, *q, s.vx, s.vy, s.vz, p, qr, r)
-        return self._frame(_ODOMETRY.id, _ODOMETRY.crc_extra, head + _ODO_TAIL)
+        n = encode_state(self.buf, self._next_seq(), self.system, self.component, time_usec, floats(s))
+        return self.buf[:n].tobytes()
 
     def pack_actuators(self, time_usec: int, forces: tuple[float, ...], max_thrust: float, armed: bool) -> bytes:
         """= ``actuator_message(time_usec, forces, max_thrust, armed).pack(link)``."""
-        f0, f1, f2, f3 = forces
-        mode = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
-        payload = _HIL_STRUCT.pack(time_usec, 0, f0 / max_thrust, f1 / max_thrust, f2 / max_thrust, f3 / max_thrust,
-                                   *_HIL_ZEROS, mode)  # fmt: skip
-        return self._frame(_HIL.id, _HIL.crc_extra, payload)
+        n = encode_actuators(self.buf, self._next_seq(), self.system, self.component, time_usec, floats(forces),
+                             float(max_thrust), armed)  # fmt: skip
+        return self.buf[:n].tobytes()
 
 
-def _payload(data: bytes, msg_id: int, crc_extra: int, size: int) -> bytes | None:
-    """The zero-padded payload if ``data`` is exactly one unsigned MAVLink 2 frame of ``msg_id``; None if it
-    is something else (for pymavlink to parse); FrameError if the CRC is wrong."""
-    if len(data) < 12 or data[0] != MAVLINK2_STX or data[2] != 0:
-        return None
-    n = data[1]
-    if len(data) != n + 12 or (data[7] | data[8] << 8 | data[9] << 16) != msg_id:
-        return None
-    if mcrf4xx(bytes((crc_extra,)), mcrf4xx(data[1 : 10 + n], 0xFFFF)) != _CRC.unpack_from(data, 10 + n)[0]:
-        raise FrameError(f"message {msg_id}: CRC mismatch")
-    payload = data[10 : 10 + n]
-    return payload + bytes(size - n) if n < size else payload[:size]
+def _received(data: bytes) -> np.ndarray:
+    buf = np.zeros(max(len(data), FRAME_MAX), dtype=np.uint8)
+    buf[: len(data)] = np.frombuffer(data, dtype=np.uint8)
+    return buf
 
 
 def parse_state(data: bytes) -> Odometry | None:
-    """One ODOMETRY frame → :class:`Odometry`; None when ``data`` is not exactly one such frame."""
-    payload = _payload(data, _ODOMETRY.id, _ODOMETRY.crc_extra, _ODO_STRUCT.size)
-    if payload is None:
+    """One ODOMETRY frame → :class:`Odometry` (float32 values as sent); None when ``data`` is not exactly one
+    such frame; FrameError when its CRC is wrong."""
+    out = np.zeros(DECODED_SIZE)
+    status = decode_state(_received(data), len(data), out)
+    if status == NOT_THIS_FRAME:
         return None
-    t, x, y, z, q0, q1, q2, q3, vx, vy, vz, p, q, r = _ODO_HEAD.unpack_from(payload)
+    if status == BAD_CRC:
+        raise FrameError(f"message {ODOMETRY_ID}: CRC mismatch")
+    payload = data[HEADER_SIZE : HEADER_SIZE + data[1]].ljust(ODOMETRY_SIZE, b"\0")
+    t, x, y, z, q0, q1, q2, q3, vx, vy, vz, p, q, r = struct.unpack_from("<Qfff4fffffff", payload)
     return Odometry(t, x, y, z, (q0, q1, q2, q3), vx, vy, vz, p, q, r)
 
 
 def parse_actuators(data: bytes) -> ActuatorControls | None:
-    """One HIL_ACTUATOR_CONTROLS frame → :class:`ActuatorControls`; None when it is not exactly one."""
-    payload = _payload(data, _HIL.id, _HIL.crc_extra, _HIL_STRUCT.size)
-    if payload is None:
+    """One HIL_ACTUATOR_CONTROLS frame → :class:`ActuatorControls`; None when it is not exactly one;
+    FrameError when its CRC is wrong."""
+    status = decode_actuators(_received(data), len(data), np.zeros(4), 1.0)
+    if status == NOT_THIS_FRAME:
         return None
-    fields = _HIL_STRUCT.unpack(payload)
+    if status == BAD_CRC:
+        raise FrameError(f"message {HIL_ID}: CRC mismatch")
+    fields = _HIL_STRUCT.unpack(data[HEADER_SIZE : HEADER_SIZE + data[1]].ljust(HIL_SIZE, b"\0"))
     return ActuatorControls(fields[0], fields[2:18], fields[18])
+
+
+# ---- any other message, for the ground-station links ---------------------------------------------------
+
+_HEADER = struct.Struct("<BBBBBBBHB")  # stx, len, incompat, compat, seq, sysid, compid, msgid (24 bit)
+
+
+def _payload_only(mav: object, crc_extra: int, payload: bytes, force_mavlink1: bool = False) -> bytes:
+    return payload
+
+
+def pack(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
+    """= what ``mav.send(msg)`` puts on the wire (the frame, then ``mav.seq`` advances), without pymavlink's
+    per-message framing machinery (≈ 10 µs a message, a third of it) on an unsigned link: pymavlink makes
+    the payload (its generated ``pack`` with the framing step replaced), and the frame is put together here.
+    A signed link goes through pymavlink whole."""
+    if mav.signing.sign_outgoing:
+        frame = msg.pack(mav)
+    else:
+        msg._pack = _payload_only  # the generated pack() hands its payload to _pack: take it as it is
+        try:
+            payload = msg.pack(mav)
+        finally:
+            del msg._pack
+        n = len(payload)
+        while n > 1 and payload[n - 1] == 0:  # MAVLink 2 drops trailing zero bytes of the payload
+            n -= 1
+        msg_id = msg.get_msgId()  # not msg.id: STATUSTEXT has a field of that name
+        body = _HEADER.pack(MAVLINK2_STX, n, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent, msg_id & 0xFFFF,
+                            msg_id >> 16)[1:] + payload[:n]  # fmt: skip
+        frame = b"\xfd" + body + struct.pack("<H", mcrf4xx(bytes((msg.crc_extra,)), mcrf4xx(body, 0xFFFF)))
+    mav.seq = (mav.seq + 1) & 0xFF
+    return frame
 
 
 # ---- MAVLink 2 message signing on the ground-station links -------------------------------------------

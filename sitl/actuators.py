@@ -3,53 +3,45 @@
 ``ideal`` (the paper's assumption): reversible, clamped to [−F_max, F_max], no lag.
 ``realistic``: clamped to [0, F_max] with an optional first-order lag (separate time constants for
 spinning up and down, as PX4's Gazebo motor model has).
+
+Compiled (:mod:`quadsitl.jit`); ``a`` is the preset's :func:`quadsitl.param_arrays.actuator_array`.
 """
 
 from __future__ import annotations
 
 import math
 
-from quadsitl.config import ActuatorParams
+import numpy as np
 
-Forces = tuple[float, float, float, float]
+from quadsitl.jit import jit
+from quadsitl.mixer import Forces, clamp4
+from quadsitl.param_arrays import F_MAX, F_MIN, TAU_DOWN, TAU_UP
 
 
-class Actuators:
-    """Holds the motor forces between steps (needed for the lag)."""
+@jit
+def motor_lag(f0: float, target: float, h: float, tau_up: float, tau_down: float) -> tuple[float, float]:
+    """One motor over h seconds towards ``target``: (force at the end, mean force over the interval).
 
-    def __init__(self, params: ActuatorParams) -> None:
-        self.params = params
-        self.f_min = params.min_thrust
-        self.f_max = params.max_thrust
-        self.forces: Forces = (0.0, 0.0, 0.0, 0.0)
+    The exact solution of τ·Ḟ = F_cmd − F: F(t) = c + (F0 − c)·e^(−t/τ), whose mean over [0, h] is
+    c + (F0 − c)·(τ/h)·(1 − e^(−h/τ)); τ = 0 is no lag.
+    """
+    tau = tau_up if target > f0 else tau_down
+    if tau == 0.0:
+        return target, target
+    decay = math.exp(-h / tau)
+    return target + (f0 - target) * decay, target + (f0 - target) * (tau / h) * (1.0 - decay)
 
-    def reset(self, forces: Forces = (0.0, 0.0, 0.0, 0.0)) -> None:
-        self.forces = forces
 
-    def clamp(self, commanded: Forces) -> Forces:
-        lo, hi = self.f_min, self.f_max
-        return tuple(min(max(f, lo), hi) for f in commanded)  # type: ignore[return-value]
-
-    def advance(self, commanded: Forces, h: float) -> Forces:
-        """Advance the motors by h seconds under ``commanded``; return the mean force over the interval.
-
-        With lag, the exact solution of τ·Ḟ = F_cmd − F is used: F(t) = c + (F0 − c)·e^(−t/τ), and its
-        mean over [0, h] is c + (F0 − c)·(τ/h)·(1 − e^(−h/τ)).
-        """
-        target = self.clamp(commanded)
-        up, down = self.params.time_constant_up, self.params.time_constant_down
-        if up == 0.0 and down == 0.0:
-            self.forces = target
-            return target
-        new, mean = [], []
-        for f0, c in zip(self.forces, target):
-            tau = up if c > f0 else down
-            if tau == 0.0:
-                new.append(c)
-                mean.append(c)
-                continue
-            decay = math.exp(-h / tau)
-            new.append(c + (f0 - c) * decay)
-            mean.append(c + (f0 - c) * (tau / h) * (1.0 - decay))
-        self.forces = tuple(new)  # type: ignore[assignment]
-        return tuple(mean)  # type: ignore[return-value]
+@jit
+def advance(motors: Forces, commanded: Forces, h: float, a: np.ndarray) -> tuple[Forces, Forces]:
+    """Advance the four motors by h seconds under ``commanded`` (clamped to the motors' range): (the motor
+    forces at the end, their means over the interval, which act on the airframe)."""
+    c1, c2, c3, c4 = clamp4(commanded, a[F_MIN], a[F_MAX])
+    up, down = a[TAU_UP], a[TAU_DOWN]
+    if up == 0.0 and down == 0.0:
+        return (c1, c2, c3, c4), (c1, c2, c3, c4)
+    n1, m1 = motor_lag(motors[0], c1, h, up, down)
+    n2, m2 = motor_lag(motors[1], c2, h, up, down)
+    n3, m3 = motor_lag(motors[2], c3, h, up, down)
+    n4, m4 = motor_lag(motors[3], c4, h, up, down)
+    return (n1, n2, n3, n4), (m1, m2, m3, m4)

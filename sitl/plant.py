@@ -1,7 +1,8 @@
 """The plant: actuators, rigid-body dynamics, integrator and ground plane, one control period at a time.
 
-Pure computation, no I/O. ``Plant.step(commanded_forces)`` advances the truth state by the control
-period T, using ``substeps`` integration steps with the inputs held (zero-order hold).
+Pure computation, no I/O. :func:`step` (compiled, :mod:`quadsitl.jit`) advances the truth state by the
+control period T, using ``substeps`` integration steps with the inputs held (zero-order hold); the
+:class:`Plant` object keeps its arrays between calls for the processes and ``quadsitl sim``.
 
 Ground plane (altitude 0, NED z = 0): after every sub-step, a vehicle at or below the ground that is
 not climbing is put on it (z = 0) and stopped (velocity zero: ground friction). A vehicle whose
@@ -11,13 +12,22 @@ from the ground is not touched, so the paper's experiment is unaltered by starti
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from quadsitl.config import Preset
 from quadsitl.frames import wrap_pi
-from quadsitl.mixer import forces_to_inputs, residual_rotor_speed
+from quadsitl.jit import jit
+from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
+from quadsitl.param_arrays import D_OVER_B, B, actuator_array, vehicle_array
 from quadsitl.state import Inputs, VehicleState
-from sitl.actuators import Actuators, Forces
-from sitl.dynamics import derivatives
-from sitl.integrators import INTEGRATORS
+from sitl.actuators import advance
+from sitl.dynamics import State
+from sitl.integrators import INTEGRATORS, integrate
+
+# The outputs of a step besides the state, in Plant.out: mean motor forces (4), inputs u1..u4 (4), Ωr, on ground.
+OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_SIZE = 0, 4, 8, 9, 10
 
 
 def initial_state(preset: Preset) -> VehicleState:
@@ -26,12 +36,62 @@ def initial_state(preset: Preset) -> VehicleState:
     return VehicleState(z=-i.altitude, roll=i.roll, pitch=i.pitch, yaw=i.yaw)
 
 
+@jit
+def ground(s: State) -> tuple[State, bool]:
+    """The ground plane: (the state, whether the vehicle rests on the ground)."""
+    if s[2] >= 0.0 and s[5] >= 0.0:  # at/below ground and not climbing (NED: z, vz down)
+        return (s[0], s[1], 0.0, 0.0, 0.0, 0.0, s[6], s[7], s[8], s[9], s[10], s[11]), True
+    return s, False
+
+
+@jit
+def step(s: State, motors: Forces, commanded: Forces, v: np.ndarray, a: np.ndarray, period: float, substeps: int,
+         method: int, omega_r: float) -> tuple[State, Forces, Forces, Inputs, float, bool]:  # fmt: skip
+    """One control period under the commanded motor forces [N]: (state, motor forces at the end, mean
+    motor forces over the last sub-step, the inputs u1..u4 they make (eq (8)), Ωr, on ground).
+
+    ``omega_r`` overrides the residual rotor speed Ωr that eqs (5)–(6) use; NaN computes it from the
+    applied forces (tests give the plant the Ωr the controller assumed)."""
+    h = period / substeps
+    forces = motors
+    u = Inputs(0.0, 0.0, 0.0, 0.0)
+    wr = 0.0
+    on_ground = False
+    for _ in range(substeps):
+        motors, forces = advance(motors, commanded, h, a)
+        u = forces_to_inputs(forces, v[D_OVER_B])  # eq (8)
+        wr = residual_rotor_speed(forces, v[B]) if math.isnan(omega_r) else omega_r
+        s, on_ground = ground(integrate(method, s, u, wr, v, h))
+    s = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], wrap_pi(s[8]), s[9], s[10], s[11])
+    return s, motors, forces, u, wr, on_ground
+
+
+@jit
+def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: np.ndarray, v: np.ndarray,
+                a: np.ndarray, period: float, substeps: int, method: int, omega_r: float) -> None:  # fmt: skip
+    """:func:`step` on arrays, in place: ``x`` (12) the state, ``motors`` (4) the motor forces [N],
+    ``out`` (OUT_SIZE) the step's other outputs."""
+    s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
+    m = (motors[0], motors[1], motors[2], motors[3])
+    c = (commanded[0], commanded[1], commanded[2], commanded[3])
+    s, m, forces, u, wr, on_ground = step(s, m, c, v, a, period, substeps, method, omega_r)
+    for i in range(12):
+        x[i] = s[i]
+    for i in range(4):
+        motors[i] = m[i]
+        out[OUT_FORCES + i] = forces[i]
+        out[OUT_INPUTS + i] = u[i]
+    out[OUT_OMEGA_R] = wr
+    out[OUT_ON_GROUND] = 1.0 if on_ground else 0.0
+
+
 class Plant:
     """The simulated quadrotor of a preset.
 
     Attributes after each step: ``state`` (VehicleState), ``forces`` (the mean motor forces applied
     over the last sub-step [N]), ``inputs`` (u1..u4 they make, eq (8)), ``omega_r`` [rad/s],
-    ``on_ground`` (bool), ``time`` [s].
+    ``on_ground`` (bool), ``time`` [s]. The arrays ``x`` (the state) and ``motors`` are what the compiled
+    step works on.
     """
 
     def __init__(self, preset: Preset, integrator: str | None = None, substeps: int | None = None) -> None:
@@ -40,44 +100,49 @@ class Plant:
         name = integrator or preset.sim.integrator
         if name not in INTEGRATORS:
             raise ValueError(f"integrator {name!r}: expected one of {', '.join(INTEGRATORS)}")
-        self.integrate = INTEGRATORS[name]
+        self.method = INTEGRATORS[name]
         self.substeps = substeps or preset.sim.substeps
-        self.actuators = Actuators(preset.actuators)
-        self.state = initial_state(preset)
-        self.forces: Forces = (0.0, 0.0, 0.0, 0.0)
-        self.inputs = Inputs()
-        self.omega_r = 0.0
+        self.v = vehicle_array(preset.vehicle)
+        self.a = actuator_array(preset.actuators)
+        self.x = np.array(initial_state(preset), dtype=np.float64)
+        self.motors = np.zeros(4)
+        self.commanded = np.zeros(4)
+        self.out = np.zeros(OUT_SIZE)
+        self.out[OUT_ON_GROUND] = self.x[2] >= 0.0
         self.time = 0.0
-        self.on_ground = self.state.z >= 0.0
 
-    def step(self, commanded: Forces, omega_r: float | None = None) -> VehicleState:
-        """Advance one control period under the commanded motor forces [N].
+    @property
+    def state(self) -> VehicleState:
+        return VehicleState._make(self.x.tolist())
+
+    @state.setter
+    def state(self, state: VehicleState) -> None:
+        self.x[:] = state
+
+    @property
+    def forces(self) -> Forces:
+        return tuple(self.out[OUT_FORCES : OUT_FORCES + 4].tolist())  # type: ignore[return-value]
+
+    @property
+    def inputs(self) -> Inputs:
+        return Inputs._make(self.out[OUT_INPUTS : OUT_INPUTS + 4].tolist())
+
+    @property
+    def omega_r(self) -> float:
+        return float(self.out[OUT_OMEGA_R])
+
+    @property
+    def on_ground(self) -> bool:
+        return bool(self.out[OUT_ON_GROUND])
+
+    def step(self, commanded: Forces | None = None, omega_r: float | None = None) -> None:
+        """Advance one control period under the commanded motor forces [N] (default: ``self.commanded``).
 
         ``omega_r`` overrides the residual rotor speed Ωr that eqs (5)–(6) use (the default computes it
         from the applied forces); tests use it to give the plant the Ωr the controller assumed.
         """
-        p = self.params
-        h = self.period / self.substeps
-        d_over_b, b = p.d_over_b, p.thrust_factor
-        s: tuple[float, ...] = self.state
-        for _ in range(self.substeps):
-            forces = self.actuators.advance(commanded, h)
-            u = forces_to_inputs(forces, d_over_b)  # eq (8)
-            wr = residual_rotor_speed(forces, b) if omega_r is None else omega_r
-
-            def f(x: tuple[float, ...], u: Inputs = u, wr: float = wr) -> tuple[float, ...]:
-                return derivatives(x, u, wr, p)
-
-            s = self.integrate(f, s, h)
-            s = self._ground(s)
-        self.forces, self.inputs, self.omega_r = forces, u, wr
-        self.state = VehicleState(*s[:8], wrap_pi(s[8]), *s[9:])
+        if commanded is not None:
+            self.commanded[:] = commanded
+        step_arrays(self.x, self.motors, self.commanded, self.out, self.v, self.a, self.period, self.substeps,
+                    self.method, math.nan if omega_r is None else omega_r)  # fmt: skip
         self.time += self.period
-        return self.state
-
-    def _ground(self, s: tuple[float, ...]) -> tuple[float, ...]:
-        if s[2] >= 0.0 and s[5] >= 0.0:  # at/below ground and not climbing (NED: z, vz down)
-            self.on_ground = True
-            return (s[0], s[1], 0.0, 0.0, 0.0, 0.0, *s[6:])
-        self.on_ground = False
-        return s

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import copy
 import heapq
 import json
 import math
@@ -24,6 +25,8 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+
+import numpy as np
 
 from quadsitl import wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, check_range
@@ -37,6 +40,7 @@ from quadsitl.process_util import (
     wait_readable,
 )
 from quadsitl.timing import period_stats
+from sitl import tick
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant
 
@@ -46,7 +50,8 @@ AUTOPILOT_LOST_AFTER = 0.5  # [s] wall without an actuator message: the autopilo
 
 
 class PlantLink:
-    """The plant's end of the UDP link: send states, receive actuator commands."""
+    """The plant's end of the UDP link: send states, receive actuator commands. The two per-tick messages
+    are encoded and decoded in place by the compiled codec (:mod:`quadsitl.wire`, :mod:`sitl.tick`)."""
 
     def __init__(
         self,
@@ -57,15 +62,19 @@ class PlantLink:
         impairment: Impairment | None = None,
     ):
         self.sock = sock  # bound (process_util.bind_udp)
-        self.wait = SpinThenBlock(sock.recv)  # lockstep's receive: polls while the autopilot answers fast
+        self.rx = bytearray(65535)
+        self.rx_array = np.frombuffer(self.rx, dtype=np.uint8)
+        self.tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+        self.tx_view = memoryview(self.tx)  # type: ignore[arg-type]
+        self.io = np.zeros(tick.IO_SIZE, dtype=np.int64)  # sequence, frame length, last stamp used, refusals
+        self.io[tick.LAST_USEC] = -1
+        self.io[tick.SYSTEM], self.io[tick.COMPONENT] = wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID
+        self.received = np.zeros(4)  # the commanded forces [N] of the last actuator message decoded
+        self.wait = SpinThenBlock(sock.recv_into, self.rx)  # lockstep's receive: polls while the autopilot answers fast
         self.sock.connect(autopilot)  # the kernel drops datagrams from anyone but the autopilot
         self.mav = wire.link(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
-        self.fast = wire.FastLink(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID)
         self.max_thrust = max_thrust
         self.period = period
-        self.last_usec = -1  # newest actuator stamp used
-        self.discarded = 0
-        self.corrupt = 0
         self.timeout = -1.0
         self.last_heard: float | None = None  # wall time the autopilot was last heard (None: not yet)
         self.first_heard: float | None = None  # ... and first: the run's pace counts from its first answer
@@ -75,13 +84,32 @@ class PlantLink:
         self.inbox: list[tuple[float, int, bytes]] = []
         self.order = 0
 
-    def send_state(self, tick: int, plant: Plant) -> None:
-        frame = self.fast.pack_state(wire.usec_of(tick, self.period), plant.state)
+    @property
+    def discarded(self) -> int:
+        """Actuator messages discarded: stale, duplicates, or (lockstep) from the future."""
+        return int(self.io[tick.DISCARDED])
+
+    @property
+    def corrupt(self) -> int:
+        """Datagrams refused: corrupt frames, non-finite forces."""
+        return int(self.io[tick.CORRUPT])
+
+    def encode(self, k: int, plant: Plant) -> None:
+        """The plant's state as tick ``k``'s ODOMETRY, into tx."""
+        tick.encode_tick(self.tx, self.io, plant.x, k, self.period)
+
+    def send(self) -> None:
+        """Send the state frame in tx."""
+        frame = self.tx_view[: self.io[tick.TX_LEN]]
         if self.impairment is not None:
-            self._queue(self.outbox, frame)
+            self._queue(self.outbox, bytes(frame))
             return
         with contextlib.suppress(ConnectionRefusedError):  # no autopilot yet (an ICMP error): free-wheel
             self.sock.send(frame)
+
+    def send_state(self, k: int, plant: Plant) -> None:
+        self.encode(k, plant)
+        self.send()
 
     def _queue(self, queue: list, datagram: bytes) -> None:
         for t in self.impairment.schedule(time.monotonic()):
@@ -91,16 +119,6 @@ class PlantLink:
     def next_event(self) -> float:
         """When the next impaired datagram is due [s, monotonic] (inf when none waits)."""
         return min(self.outbox[0][0] if self.outbox else math.inf, self.inbox[0][0] if self.inbox else math.inf)
-
-    def _release(self) -> list:
-        """Send the due outgoing datagrams; parse the due incoming ones."""
-        now, out = time.monotonic(), []
-        while self.outbox and self.outbox[0][0] <= now:
-            with contextlib.suppress(ConnectionRefusedError):
-                self.sock.send(heapq.heappop(self.outbox)[2])
-        while self.inbox and self.inbox[0][0] <= now:
-            out += self._accept(heapq.heappop(self.inbox)[2])
-        return out
 
     def heard(self) -> None:
         """An actuator message was used: the autopilot is there."""
@@ -121,89 +139,143 @@ class PlantLink:
                   flush=True)  # fmt: skip
         return True
 
-    def receive_within(self, seconds: float) -> list:
-        """Like :meth:`receive`, waiting at most ``seconds`` with microsecond precision (select), for the
-        real-time loop; SO_RCVTIMEO counts in kernel ticks (4–10 ms) and Python's socket timeout in
-        whole milliseconds, both too coarse for a 1 kHz schedule."""
-        if self.impairment is None:
-            return self.receive(None) if wait_readable(self.sock, seconds) else []
-        out = self._release()
-        wait = min(seconds, max(0.0, self.next_event() - time.monotonic()))
-        if wait_readable(self.sock, wait):
-            with contextlib.suppress(BlockingIOError, InterruptedError, ConnectionRefusedError):
-                self._queue(self.inbox, self.sock.recv(65535))
-        return out + self._release()
-
-    def receive(self, timeout: float | None) -> list:
-        """Actuator messages newer than the last used, from one datagram (empty on timeout)."""
+    def receive(self, timeout: float | None) -> int:
+        """One datagram into rx: its length, or −1 when none came within ``timeout`` seconds."""
         if timeout != self.timeout:
             set_receive_timeout(self.sock, timeout)
             self.timeout = timeout
         try:
-            data = self.wait()
+            return self.wait()
         except (BlockingIOError, InterruptedError, ConnectionRefusedError):
-            return []
-        return self._accept(data)
+            return -1
 
-    def _accept(self, data: bytes) -> list:
-        """Actuator messages in one datagram, newer than the last used (older and duplicates discarded)."""
+    def decode(self, nbytes: int) -> int:
+        """The stamp of the actuator message in rx[:nbytes] (its forces in ``self.received``); −1 when there
+        is none (corrupt and non-finite ones counted)."""
+        t = wire.decode_actuators(self.rx_array, nbytes, self.received, self.max_thrust)
+        if t == wire.NOT_THIS_FRAME:
+            return self._decode_slowly(nbytes)
+        if t < 0:
+            self.io[tick.CORRUPT] += 1
+        return t
+
+    def _decode_slowly(self, nbytes: int) -> int:
+        """What pymavlink finds in a datagram the compiled decoder does not take (several messages, signed):
+        the newest finite HIL_ACTUATOR_CONTROLS, its forces in ``self.received``; −1 when there is none."""
         try:
-            fast = wire.parse_actuators(data)  # the per-tick fast path
-        except wire.FrameError:
-            self.corrupt += 1
-            return []
-        if fast is not None:
-            msgs = [fast]
-        else:
-            try:
-                msgs = [m for m in self.mav.parse_buffer(data) or [] if m.get_msgId() == HIL_ACTUATOR_CONTROLS]
-            except wire.mavlink.MAVError:
-                self.corrupt += 1
-                return []
-        out = []
+            msgs = [m for m in self.mav.parse_buffer(bytes(self.rx[:nbytes])) or []
+                    if m.get_msgId() == HIL_ACTUATOR_CONTROLS]  # fmt: skip
+        except wire.mavlink.MAVError:
+            self.io[tick.CORRUPT] += 1
+            return -1
+        best = -1
         for m in msgs:
             if not all(map(math.isfinite, m.controls[:4])):
-                self.corrupt += 1  # never integrate a non-finite force
-                continue
-            if m.time_usec <= self.last_usec:
-                self.discarded += 1
-                continue
-            out.append(m)
-        return out
+                self.io[tick.CORRUPT] += 1  # never integrate a non-finite force
+            elif m.time_usec > best:
+                best = m.time_usec
+                self.received[:] = wire.forces_from_message(m, self.max_thrust)
+        return best
+
+    def apply(self, plant: Plant, t: int) -> bool:
+        """Real time: make the actuator message stamped ``t`` (forces in ``self.received``) the command,
+        unless it is older than the last used."""
+        if t < 0:
+            return False
+        if t <= self.io[tick.LAST_USEC]:
+            self.io[tick.DISCARDED] += 1
+            return False
+        self.io[tick.LAST_USEC] = t
+        plant.commanded[:] = self.received
+        self.heard()
+        return True
+
+    def receive_within(self, seconds: float, plant: Plant) -> None:
+        """Real time: apply every actuator message that arrives within ``seconds`` (microsecond precision:
+        select); SO_RCVTIMEO counts in kernel ticks (4–10 ms) and Python's socket timeout in whole
+        milliseconds, both too coarse for a 1 kHz schedule."""
+        if self.impairment is None:
+            if wait_readable(self.sock, seconds):
+                nbytes = self.receive(None)
+                if nbytes >= 0:
+                    self.apply(plant, self.decode(nbytes))
+            return
+        self._release(plant)
+        wait = min(seconds, max(0.0, self.next_event() - time.monotonic()))
+        if wait_readable(self.sock, wait):
+            with contextlib.suppress(BlockingIOError, InterruptedError, ConnectionRefusedError):
+                self._queue(self.inbox, self.sock.recv(65535))
+        self._release(plant)
+
+    def _release(self, plant: Plant) -> None:
+        """Send the due outgoing datagrams; apply the due incoming ones."""
+        now = time.monotonic()
+        while self.outbox and self.outbox[0][0] <= now:
+            with contextlib.suppress(ConnectionRefusedError):
+                self.sock.send(heapq.heappop(self.outbox)[2])
+        while self.inbox and self.inbox[0][0] <= now:
+            datagram = heapq.heappop(self.inbox)[2]
+            self.rx[: len(datagram)] = datagram
+            self.apply(plant, self.decode(len(datagram)))
 
     def close(self) -> None:
         self.sock.close()
 
 
+def warm_up(plant: Plant) -> None:
+    """Compile (or load from numba's cache) everything a tick calls, before the first tick, on a copy."""
+    twin = copy.deepcopy(plant)
+    link = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    io = np.zeros(tick.IO_SIZE, dtype=np.int64)
+    n = wire.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
+    tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, twin.x, twin.motors, twin.out, twin.v,
+                       twin.a, twin.period, twin.substeps, twin.method, link, io, 0)  # fmt: skip
+    tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), twin.x, twin.motors, twin.out, twin.v, twin.a,
+                       twin.period, twin.substeps, twin.method, link, io, 0)  # fmt: skip
+    wire.decode_actuators(link, n, twin.commanded, 1.0)
+    twin.step()
+
+
 def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | None) -> int:
+    """The plant as the clock: send tick k's state, wait for the answer to it, integrate, until ``max_ticks``.
+    The state frame goes out first; each answer to it is decoded, taken and integrated and the next state
+    encoded by one compiled call (:func:`sitl.tick.lockstep_tick`)."""
     period = plant.period
-    tick = 0
+    k = 0
     start = time.monotonic()
-    while max_ticks is None or tick < max_ticks:
-        want = wire.usec_of(tick, period)
-        link.send_state(tick, plant)
-        forces, held = None, False
-        while forces is None:
-            for m in link.receive(FREEWHEEL_PERIOD):
-                if m.time_usec == want:
-                    forces = wire.forces_from_message(m, link.max_thrust)
-                    link.last_usec = m.time_usec
-                    link.heard()
-                elif m.time_usec > want:  # from the future: not ours
-                    link.discarded += 1
-            if forces is None:
+    link.encode(0, plant)
+    rx, received, commanded, io, tx = link.rx_array, link.received, plant.commanded, link.io, link.tx
+    args = (plant.x, plant.motors, plant.out, plant.v, plant.a, period, plant.substeps, plant.method, tx, io)
+    max_thrust, monotonic, receive = link.max_thrust, time.monotonic, link.receive
+    while max_ticks is None or k < max_ticks:
+        want = round(k * period * 1e6)  # = wire.usec_of(k, period)
+        link.send()
+        held = link.first_heard is None
+        while True:
+            nbytes = receive(FREEWHEEL_PERIOD)
+            if nbytes < 0:
                 held = True
                 link.check_lost("holding: simulated time stops until it answers")
-                link.send_state(tick, plant)  # free-wheel: no answer yet
-        if held and speed > 0:  # the pace resumes from here: no burst to catch up with time spent holding
-            start = time.monotonic() - tick * period / speed
-        plant.step(forces)
-        tick += 1
+                link.send()  # free-wheel: no answer yet
+                continue
+            r = tick.lockstep_tick(rx, nbytes, want, max_thrust, received, commanded, *args, k)
+            if r == tick.ANOTHER_FRAME:  # for pymavlink (several messages, signed)
+                r = tick.take_and_step(link.decode(nbytes), want, commanded, received, *args, k)
+            if r == tick.STEPPED:
+                break
+        if held:
+            link.heard()
+            if speed > 0:  # the pace resumes from here: no burst to catch up with time spent holding
+                start = monotonic() - k * period / speed
+        else:
+            link.last_heard = monotonic()
+        plant.time += period
+        k += 1
         if speed > 0:
-            delay = start + tick * period / speed - time.monotonic()
+            delay = start + k * period / speed - monotonic()
             if delay > 0:
                 time.sleep(delay)
-    return tick
+    return k
 
 
 def run_realtime(
@@ -212,29 +284,25 @@ def run_realtime(
     """Integrate on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each tick's
     actual start time [s, monotonic]."""
     period = plant.period
-    forces: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
-    tick = 0
+    k = 0
     next_time = time.monotonic()
-    while max_ticks is None or tick < max_ticks:
+    while max_ticks is None or k < max_ticks:
         if starts is not None:
             starts.append(time.monotonic())
-        link.send_state(tick, plant)
+        link.send_state(k, plant)
         next_time += period
         while True:
             remaining = next_time - time.monotonic()
             if remaining <= 0:
                 break
-            for m in link.receive_within(remaining):
-                forces = wire.forces_from_message(m, link.max_thrust)
-                link.last_usec = m.time_usec
-                link.heard()
+            link.receive_within(remaining, plant)
         if link.check_lost(f"applying {'zero thrust' if on_loss == 'zero' else 'the last command'}") and (
             on_loss == "zero"
         ):
-            forces = (0.0, 0.0, 0.0, 0.0)
-        plant.step(forces)
-        tick += 1
-    return tick
+            plant.commanded[:] = 0.0
+        plant.step()
+        k += 1
+    return k
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -290,6 +358,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_range("--speed", args.speed if args.speed != 0 else None, 0.0, 1000.0)
         autopilot = parse_address("--autopilot", args.autopilot)
         plant = Plant(preset, integrator=args.integrator, substeps=args.substeps)
+        warm_up(plant)
         impairment = impairment_from(args.impair, args.mode)
         link = PlantLink(bind_udp("--bind", args.bind), autopilot, preset.actuators.max_thrust, preset.sim.period,
                          impairment)  # fmt: skip

@@ -23,6 +23,19 @@ def run_cli(*args: str, timeout: float = 120, module: str | None = None) -> subp
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def compiled():
+    """Compile every per-tick function into numba's cache once, before the processes the tests start need it
+    (a fresh checkout has no cache: each process would otherwise compile on its own, several at a time)."""
+    from autopilot.tick import warm_up
+    from quadsitl.config import load_preset
+    from sitl import process
+    from sitl.plant import Plant
+
+    warm_up()
+    process.warm_up(Plant(load_preset("paper")))
+
+
 @pytest.fixture
 def cli():
     return run_cli

@@ -8,15 +8,21 @@ import pytest
 
 from quadsitl.config import ActuatorParams, load_preset
 from quadsitl.mixer import inputs_to_forces
+from quadsitl.param_arrays import actuator_array, vehicle_array
 from quadsitl.state import VehicleState
-from sitl.actuators import Actuators
-from sitl.dynamics import derivatives
+from sitl import dynamics
+from sitl.actuators import advance
 from sitl.integrators import euler, rk4
 from sitl.plant import Plant
 
 PAPER = load_preset("paper")
 V = PAPER.vehicle
 T = PAPER.sim.period
+
+
+def derivatives(s, u, wr, v):
+    """The compiled eqs (2)–(7) for a VehicleState and a VehicleParams."""
+    return dynamics.derivatives(tuple(map(float, s)), tuple(map(float, u)), float(wr), vehicle_array(v))
 
 
 def test_hover_is_an_equilibrium():
@@ -57,8 +63,8 @@ def test_eq5_to_eq7_hand_values():
     assert d[11] == pytest.approx(0.2 * -0.3 * (ix - iy) / iz + 3.0 / iz - k6 / iz * 0.5)
 
 
-def _euler_plant_step(s, u, wr=0.0):
-    return euler(lambda x: derivatives(x, u, wr, V), tuple(s), T)
+def _euler_plant_step(s, u, wr=0.0, v=V):
+    return euler(tuple(map(float, s)), tuple(map(float, u)), wr, vehicle_array(v), T)
 
 
 def test_erratum1_pitch_integrates_pitch_rate():
@@ -74,42 +80,48 @@ def test_erratum2_yaw_rate_update():
     v = dataclasses.replace(V, ixx=1.0, iyy=1.5)  # make the coupling term non-zero
     s = VehicleState(z=-1.0, roll_dot=0.3, pitch_dot=-0.2, yaw_dot=0.7)
     u4 = 2.0
-    out = euler(lambda x: derivatives(x, (v.mass * v.gravity, 0, 0, u4), 0.0, v), tuple(s), T)
+    out = _euler_plant_step(s, (v.mass * v.gravity, 0, 0, u4), 0.0, v)
     k6 = v.drag[5]
     expected = (1 - T * k6 / v.izz) * 0.7 + T * 0.3 * -0.2 * (v.ixx - v.iyy) / v.izz + T / v.izz * u4
     assert out[11] == pytest.approx(expected, abs=1e-15)
 
 
 def test_rk4_is_fourth_order():
-    # ẏ = −y from 1 over 1 s: error shrinks ~16× when the step halves.
+    # Level free fall with drag from rest over 1 s, u1 = 0: vz(t) = (m·g/K3)·(1 − e^(−K3·t/m)) exactly;
+    # the error shrinks ~16× when the step halves.
+    v, s0, u = vehicle_array(V), (0.0,) * 12, (0.0,) * 4
+    m, g, k3 = V.mass, V.gravity, V.drag[2]
+
     def run(n):
-        y = (1.0,)
+        s = s0
         for _ in range(n):
-            y = rk4(lambda x: (-x[0],), y, 1.0 / n)
-        return abs(y[0] - math.exp(-1))
+            s = rk4(s, u, 0.0, v, 1.0 / n)
+        return abs(s[5] - m * g / k3 * (1.0 - math.exp(-k3 / m)))
 
     ratio = run(10) / run(20)
     assert 14 < ratio < 18
-    assert abs(euler(lambda x: (-x[0],), (1.0,), 0.1)[0] - 0.9) < 1e-15
+    assert abs(euler(s0, u, 0.0, v, 0.1)[5] - 0.1 * g) < 1e-15
 
 
 def test_realistic_actuators_clamp_and_lag():
-    a = Actuators(ActuatorParams("realistic", 8.0, time_constant_up=0.02, time_constant_down=0.04))
-    assert a.clamp((-1.0, 4.0, 9.0, 8.0)) == (0.0, 4.0, 8.0, 8.0)
+    a = actuator_array(ActuatorParams("realistic", 8.0, time_constant_up=0.02, time_constant_down=0.04))
+    a_no_lag = actuator_array(ActuatorParams("realistic", 8.0))
+    assert advance((0.0,) * 4, (-1.0, 4.0, 9.0, 8.0), 0.001, a_no_lag)[0] == (0.0, 4.0, 8.0, 8.0)
     # Spin-up: after one time constant the force reaches 1 − 1/e of the step.
+    motors = (0.0,) * 4
     for _ in range(20):
-        a.advance((8.0,) * 4, 0.001)
-    assert a.forces[0] == pytest.approx(8.0 * (1 - math.exp(-1)), rel=1e-12)
+        motors, _mean = advance(motors, (8.0,) * 4, 0.001, a)
+    assert motors[0] == pytest.approx(8.0 * (1 - math.exp(-1)), rel=1e-12)
     # Spin-down uses the slower constant.
-    a.reset((8.0,) * 4)
+    motors = (8.0,) * 4
     for _ in range(40):
-        a.advance((0.0,) * 4, 0.001)
-    assert a.forces[0] == pytest.approx(8.0 * math.exp(-1), rel=1e-12)
+        motors, _mean = advance(motors, (0.0,) * 4, 0.001, a)
+    assert motors[0] == pytest.approx(8.0 * math.exp(-1), rel=1e-12)
 
 
 def test_ideal_actuators_are_reversible_without_lag():
-    a = Actuators(PAPER.actuators)
-    assert a.advance((-130.0, 600.0, 0.0, 2e4), 0.001) == (-130.0, 600.0, 0.0, 1e4)
+    new, mean = advance((0.0,) * 4, (-130.0, 600.0, 0.0, 2e4), 0.001, actuator_array(PAPER.actuators))
+    assert new == mean == (-130.0, 600.0, 0.0, 1e4)
 
 
 def test_ground_plane_holds_a_disarmed_vehicle():

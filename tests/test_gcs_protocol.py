@@ -15,7 +15,7 @@ from autopilot.streams import MessageStreams
 from quadsitl.config import load_preset
 from quadsitl.frames import geodetic_to_ned, ned_to_geodetic
 from quadsitl.state import Reference, VehicleState
-from quadsitl.wire import Mode, link, mavlink
+from quadsitl.wire import Mode, link, mavlink, pack
 
 
 @pytest.fixture
@@ -164,6 +164,28 @@ def test_every_stream_message_encodes_and_decodes():
     for mid in s.defaults:
         m = roundtrip(gcs_messages.build(mid, snapshot(), c, home))
         assert m.get_msgId() == mid
+
+
+def test_wire_pack_is_what_pymavlink_sends():
+    # The ground links frame messages with quadsitl.wire.pack: the same bytes as pymavlink's mav.send(msg),
+    # sequence numbers counting, for every streamed message, STATUSTEXT (whose field "id" is not its message
+    # id) in chunks, acks and parameters; several frames in one datagram parse as several messages.
+    c, home = Commander(), gcs_messages.Home()
+    msgs = [gcs_messages.build(mid, snapshot(), c, home) for mid in MessageStreams(0.001, 50.0).defaults]
+    msgs += list(gcs_messages.statustext(4, "A warning long enough to need two chunks of fifty characters each", 7))
+    msgs += [mavlink.MAVLink_command_ack_message(400, 0, 0, 0, 255, 190),
+             mavlink.MAVLink_param_value_message(b"BS_K1", 10.0, mavlink.MAV_PARAM_TYPE_REAL32, 41, 3),
+             gcs_messages.heartbeat(c)]  # fmt: skip
+    ours, theirs = link(1, 1), link(1, 1)
+    frames = []
+    for msg in msgs:
+        expected = msg.pack(theirs)
+        theirs.seq = (theirs.seq + 1) % 256
+        frames.append(pack(msg, ours))
+        assert frames[-1] == expected, msg.get_type()
+    assert ours.seq == len(msgs) % 256
+    parsed = link(2, 1).parse_buffer(b"".join(frames))
+    assert [m.get_msgId() for m in parsed] == [m.get_msgId() for m in msgs]
 
 
 def test_global_position_from_home_and_back():

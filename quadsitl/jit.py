@@ -1,0 +1,69 @@
+"""The one compiler every equation goes through: numba in nopython mode, with its on-disk cache.
+
+The equations (dynamics, mixer, actuators, integrators, controllers, the per-tick wire codec) are plain
+Python functions on plain numbers, decorated with :func:`jit`. numba compiles each one to machine code the
+first time it is called with a new combination of argument types and keeps the result on disk, so every
+later process loads it instead of compiling.
+
+numba checks a cached function against its own file only, not against the functions it calls (a kernel
+in one module inlines equations from others). The cache therefore lives in a folder named by a hash of
+every source file of the three packages (:func:`cache_dir`): change any equation and everything is
+compiled afresh, once.
+
+One source serves every runtime: the plant and autopilot processes, ``quadsitl sim`` and the batch
+engine call the same compiled functions, and ``NUMBA_DISABLE_JIT=1`` runs the very same source as
+ordinary Python (the reference the tests compare the compiled code with, and the "pure Python" figure of
+``quadsitl bench``). The processes run one tick on made-up data before their first real one, so no
+compilation ever happens on the per-tick path.
+
+Settings, the same for every function: no ``fastmath`` (IEEE semantics, so results equal Python's to the
+last bit or nearly: the tests allow 1e-12), and numpy's error model (a division by zero gives inf or NaN
+instead of raising; inputs are validated before they get here, see :mod:`quadsitl.config`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+import numba
+
+F = TypeVar("F", bound=Callable)
+
+DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
+"""True when ``NUMBA_DISABLE_JIT=1``: every :func:`jit` function runs as ordinary Python."""
+
+
+PACKAGES = ("quadsitl", "sitl", "autopilot")  # where compiled functions live (and what they call)
+
+
+def cache_dir() -> Path:
+    """Where numba keeps the compiled functions: ``$NUMBA_CACHE_DIR`` (default ``~/.cache/quadsitl``), in a
+    folder named by a hash of the packages' sources; folders of other sources are removed when a new one
+    is made."""
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(path.relative_to(root).as_posix().encode())
+            digest.update(path.read_bytes())
+    base = Path(os.environ.get("NUMBA_CACHE_DIR") or Path.home() / ".cache" / "quadsitl") / "numba"
+    folder = base / digest.hexdigest()[:16]
+    if not folder.is_dir():
+        if base.is_dir():
+            for old in base.iterdir():
+                shutil.rmtree(old, ignore_errors=True)
+        folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+numba.config.CACHE_DIR = str(cache_dir())
+
+
+def jit(fn: F) -> F:
+    """Compile ``fn`` in nopython mode, cached on disk (see the module's docstring)."""
+    return numba.njit(cache=True, error_model="numpy")(fn)  # type: ignore[return-value]

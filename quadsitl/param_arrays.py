@@ -1,0 +1,36 @@
+"""The parameters the compiled equations read, as flat float64 arrays, with one name per index.
+
+numba takes a numpy array in a fraction of a microsecond, where a dataclass or a tuple of a dozen fields
+costs it microseconds to inspect on every call. Each array is made once (when a preset is loaded or a
+parameter changes) from the validated dataclasses of :mod:`quadsitl.config`; the index names are module
+constants, which numba compiles in as literals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from quadsitl.config import ActuatorParams, VehicleParams
+
+# ---- the vehicle: paper Table 1 symbols, SI units ------------------------------------------------------
+MASS, IXX, IYY, IZZ, K1, K2, K3, K4, K5, K6, ARM, JR, B, D, G, D_OVER_B = range(16)
+VEHICLE_SIZE = 16
+
+
+def vehicle_array(v: VehicleParams) -> np.ndarray:
+    """m, Ix, Iy, Iz, K1..K6, l, Jr, b, d, g, d/b."""
+    return np.array(
+        [v.mass, v.ixx, v.iyy, v.izz, *v.drag, v.arm_length, v.rotor_inertia, v.thrust_factor, v.drag_factor,
+         v.gravity, v.d_over_b],
+        dtype=np.float64,
+    )  # fmt: skip
+
+
+# ---- the motors ----------------------------------------------------------------------------------------
+F_MIN, F_MAX, TAU_UP, TAU_DOWN = range(4)
+ACTUATOR_SIZE = 4
+
+
+def actuator_array(a: ActuatorParams) -> np.ndarray:
+    """Force range [N] and first-order lag time constants [s] (0 = no lag)."""
+    return np.array([a.min_thrust, a.max_thrust, a.time_constant_up, a.time_constant_down], dtype=np.float64)
