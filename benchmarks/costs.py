@@ -1,0 +1,79 @@
+"""Per-call costs of the compiled equations, called from Python as the processes and ``quadsitl sim`` call
+them: ``python -m benchmarks.costs`` prints them as JSON [µs]. ``quadsitl bench`` runs it twice, as it is and
+with ``NUMBA_DISABLE_JIT=1`` (the same source as ordinary Python), and reports the two side by side."""
+
+from __future__ import annotations
+
+import json
+import timeit
+
+import numpy as np
+
+
+def per_call(fn, number: int) -> float:
+    """The best of three timings of ``number`` calls [µs per call]."""
+    return min(timeit.repeat(fn, number=number, repeat=3)) / number * 1e6
+
+
+def measure(number: int) -> dict[str, float]:
+    from autopilot import backstepping, pd
+    from autopilot.commander import Commander
+    from autopilot.control_params import BACKSTEPPING, MEM_SIZE, control_array
+    from autopilot.tick import IO_SIZE, LAST_USEC, Batch, autopilot_tick
+    from quadsitl import wire
+    from quadsitl.config import load_preset
+    from quadsitl.param_arrays import actuator_array, vehicle_array
+    from sitl import tick
+    from sitl.plant import OUT_SIZE, step_arrays
+
+    preset = load_preset("paper")
+    T = preset.sim.period
+    v, a = vehicle_array(preset.vehicle), actuator_array(preset.actuators)
+    c = control_array(preset.poles(), T, preset.controller.pd_kp, preset.controller.pd_kd)
+    x = np.array([0.0, 0.0, -1.0, 0.0, 0.0, -0.2, 0.1, -0.05, 0.3, 0.2, 0.1, 0.05])
+    ref, mem = np.array([5.0, 1.0, 1.0, 1.0]), np.zeros(MEM_SIZE)
+    motors, commanded, out = np.zeros(4), np.full(4, 5.0), np.zeros(OUT_SIZE)
+    figures = {
+        "backstepping controller step": per_call(lambda: backstepping.step_arrays(x, ref, mem, v, c), number),
+        "pd controller step": per_call(lambda: pd.step_arrays(x, ref, mem, v, c), number),
+    }
+    for name, method, substeps in (("euler", 0, 1), ("rk4", 1, 1)):
+        xs = x.copy()
+        figures[f"plant step ({name})"] = per_call(
+            lambda xs=xs, method=method, substeps=substeps: step_arrays(
+                xs, motors, commanded, out, v, a, T, substeps, method, np.nan), number)  # fmt: skip
+
+    # The processes' whole ticks, frame in to frame out (no sockets).
+    state_frame, answer = np.zeros(wire.FRAME_MAX, np.uint8), np.zeros(wire.FRAME_MAX, np.uint8)
+    n_state = wire.encode_state(state_frame, 0, 1, 25, 1000, x)
+    st, scratch = np.zeros(wire.DECODED_SIZE), np.zeros(wire.DECODED_SIZE)
+    commander, batch = Commander(), Batch(64)
+    commander.arm()
+    io = np.zeros(IO_SIZE, dtype=np.int64)
+    stamp = [0]
+
+    def autopilot_side() -> None:
+        io[LAST_USEC] = -1  # every call a new state
+        autopilot_tick(state_frame, n_state, scratch, st, T, BACKSTEPPING, commander.cm, mem, v, c, -1e4, 1e4,
+                       answer, io, batch.records)  # fmt: skip
+
+    autopilot_side()
+    n_answer = int(io[1])
+    pio = np.zeros(tick.IO_SIZE, dtype=np.int64)
+    received, xs = np.zeros(4), x.copy()
+
+    def plant_side() -> None:
+        pio[tick.LAST_USEC] = -1  # every call the answer to the tick
+        tick.lockstep_tick(answer, n_answer, stamp[0], 1e4, received, commanded, xs, motors, out, v, a, T, 1, 0,
+                           state_frame, pio, 0)  # fmt: skip
+
+    stamp[0] = int(answer[10:18].view(np.uint64)[0])
+    figures["autopilot tick: state frame in, answer out"] = per_call(autopilot_side, number)
+    figures["plant tick: answer in, next state out (euler)"] = per_call(plant_side, number)
+    return figures
+
+
+if __name__ == "__main__":
+    from quadsitl.jit import DISABLED
+
+    print(json.dumps(measure(2000 if DISABLED else 50000)))
