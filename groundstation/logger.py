@@ -2,27 +2,45 @@
 
 It joins the four streams by tick and keeps the ticks flown in offboard (``offboard_tick`` ≥ 0), with
 t = (tick − offboard_tick)·T so that t = 0 is the first tick flown under the reference trajectory. Samples
-wait in Zenoh's FIFO channels until ``drain`` files them by tick; decoding happens in ``rows``.
+wait in a list until ``drain`` files them (numpy views of the samples: no Python per record); joining and
+decoding happen in ``rows``.
 """
 
 from __future__ import annotations
 
+import re
 import threading
 
+import numpy as np
 import zenoh
 
 from quadsitl import telemetry
 
 
+def _dtype(stream: str) -> np.dtype:
+    """A record of ``stream`` as a numpy structured type: the telemetry struct's layout, packed."""
+    kinds = {"Q": "<u8", "d": "<f8", "B": "u1", "q": "<i8"}
+    codes = re.findall(r"(\d*)([QdBq])", telemetry.STREAMS[stream].format)
+    types = [kinds[code] for count, code in codes for _ in range(int(count or 1))]
+    dtype = np.dtype(list(zip(telemetry.FIELDS[stream], types)))
+    assert dtype.itemsize == telemetry.STREAMS[stream].size
+    return dtype
+
+
+DTYPES = {stream: _dtype(stream) for stream in telemetry.STREAMS}
+STATUS_FIELDS = ("tick", "armed", "mode", "failsafe", "offboard_tick")
+
+
 class TelemetryLogger:
-    """Live: the status stream (armed, offboard start, the newest tick) is decoded as it arrives. The
-    state, setpoint and actuator payloads are only filed by tick and decoded when :meth:`rows` is asked
-    for: at 10,000 ticks/s the logger must not compete with the vehicle for the machine's two cores."""
+    """Live: the status stream (armed, offboard start, the newest tick) is followed as it arrives, a sample
+    (up to hundreds of ticks) at a time with numpy. The state, setpoint and actuator samples are only kept,
+    and joined by tick when :meth:`rows` is asked for: at tens of thousands of ticks per second the logger
+    must not compete with the vehicle for the machine's two cores."""
 
     def __init__(self, session: zenoh.Session, vehicle: str, period: float) -> None:
         self.period = period
-        self._raw: dict[str, dict[int, bytes]] = {s: {} for s in telemetry.STREAMS if s != "status"}
-        self._flown: set[int] = set()  # ticks whose status says: armed, in this offboard flight
+        self._raw: dict[str, list[np.ndarray]] = {s: [] for s in telemetry.STREAMS if s != "status"}
+        self._flown: list[np.ndarray] = []  # ticks whose status says: armed, in this offboard flight
         self.last_tick = -1
         self.last_status: dict | None = None
         self.flight_start_tick = -1
@@ -52,50 +70,54 @@ class TelemetryLogger:
         return out
 
     def drain(self) -> None:
-        """File what arrived by tick; follow the status stream."""
+        """File what arrived; follow the status stream."""
         for stream, data in self._received():
-            try:
-                recs = telemetry.records(stream, data)
-            except ValueError:
+            size = DTYPES[stream].itemsize
+            if not data or len(data) % size:
                 self.malformed += 1
                 continue
+            recs = np.frombuffer(data, dtype=DTYPES[stream])
             if stream != "status":
-                size = telemetry.STREAMS[stream].size
-                raw = self._raw[stream]
-                for i, rec in enumerate(recs):
-                    raw[rec[0]] = data[i * size : (i + 1) * size]
+                self._raw[stream].append(recs)
                 continue
-            for tick, _t, armed, mode, failsafe, start in recs:
-                self.last_status = {"tick": tick, "armed": armed, "mode": mode, "failsafe": failsafe,
-                                    "offboard_tick": start}  # fmt: skip
-                self.last_tick = max(self.last_tick, tick)
-                if start < 0 or not armed:
-                    continue
-                if self.flight_start_tick < 0:
-                    self.flight_start_tick = start
-                if start == self.flight_start_tick:  # a later offboard segment is not part of this flight
-                    self._flown.add(tick)
+            self.last_status = {name: int(recs[-1][name]) for name in STATUS_FIELDS}
+            self.last_tick = max(self.last_tick, int(recs["tick"].max()))
+            start, armed = recs["offboard_tick"], recs["armed"] != 0
+            if self.flight_start_tick < 0:
+                flying = np.flatnonzero((start >= 0) & armed)
+                if flying.size:
+                    self.flight_start_tick = int(start[flying[0]])
+            if self.flight_start_tick >= 0:  # a later offboard segment is not part of this flight
+                self._flown.append(recs["tick"][(start == self.flight_start_tick) & armed])
+
+    def _joined(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The flight's ticks for which all four streams arrived, sorted, and each stream's records for them
+        (the newest record of a tick that came twice)."""
+        flown = np.unique(np.concatenate(self._flown)) if self._flown else np.zeros(0, dtype=np.uint64)
+        latest = {}
+        for stream, chunks in self._raw.items():
+            recs = np.concatenate(chunks) if chunks else np.zeros(0, dtype=DTYPES[stream])
+            ticks = recs["tick"][::-1]  # the newest first, so that unique keeps it
+            _, first = np.unique(ticks, return_index=True)
+            latest[stream] = recs[::-1][first]
+            flown = np.intersect1d(flown, latest[stream]["tick"], assume_unique=True)
+        return flown, {s: r[np.searchsorted(r["tick"], flown)] for s, r in latest.items()}
 
     def complete(self) -> set[int]:
         """Flight ticks (counted from the flight's start) for which all four streams arrived."""
-        start = self.flight_start_tick
-        raw = self._raw.values()
-        return {tick - start for tick in self._flown if all(tick in r for r in raw)}
+        flown, _ = self._joined()
+        return set((flown.astype(np.int64) - self.flight_start_tick).tolist())
 
     def rows(self) -> dict[int, list[float]]:
         """Flight tick → row in telemetry_csv.COLUMNS order, t = 0 at the flight's first tick."""
-        start = self.flight_start_tick
-        out: dict[int, list[float]] = {}
-        for k in sorted(self.complete()):
-            tick = k + start
-            s, r, a = (telemetry.decode(stream, self._raw[stream][tick]) for stream in ("state", "setpoint",
-                                                                                          "actuators"))  # fmt: skip
-            out[k] = [
-                k * self.period, s["x"], s["y"], s["z"], -s["z"], s["vx"], s["vy"], s["vz"], s["roll"], s["pitch"],
-                s["yaw"], s["p"], s["q"], s["r"], r["altitude_ref"], r["roll_ref"], r["pitch_ref"], r["yaw_ref"],
-                a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"], a["f4"],
-            ]  # fmt: skip
-        return out
+        flown, recs = self._joined()
+        s, r, a = recs["state"], recs["setpoint"], recs["actuators"]
+        k = flown.astype(np.int64) - self.flight_start_tick
+        columns = [k * self.period, s["x"], s["y"], s["z"], -s["z"], s["vx"], s["vy"], s["vz"], s["roll"],
+                   s["pitch"], s["yaw"], s["p"], s["q"], s["r"], r["altitude_ref"], r["roll_ref"], r["pitch_ref"],
+                   r["yaw_ref"], a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"], a["f4"]]  # fmt: skip
+        table = np.column_stack(columns) if len(k) else np.zeros((0, len(columns)))
+        return dict(zip(k.tolist(), table.tolist()))
 
     def flight_time(self) -> float:
         """Simulated seconds flown under the trajectory so far (−1 before the flight starts)."""

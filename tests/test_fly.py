@@ -114,7 +114,7 @@ def test_sigterm_tears_everything_down(tmp_path, procs):
         time.sleep(0.1)
     kids = children_of(fly.pid)
     assert len(kids) == 3
-    time.sleep(3.0)  # fly for a while (real time) before the interruption
+    time.sleep(4.0)  # fly for a while (real time) before the interruption
     fly.send_signal(signal.SIGTERM)
     _, err = fly.communicate(timeout=15)
     assert fly.returncode != 0 and "interrupted" in err
