@@ -4,6 +4,7 @@ refused before anything is compiled."""
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -38,3 +39,42 @@ def test_compiled_equals_the_reference_to_1e_12(reference):
     # and the cases are not trivial: the closed loop moved, the paper's step was flown
     assert np.ptp(reference["paper/backstepping/state"][:, 2]) > 1.0
     assert np.ptp(reference["ticks/values"][:, 2]) > 0.0
+
+
+PAPER_TOML = Path(__file__).resolve().parent.parent / "quadsitl" / "presets" / "paper.toml"
+
+
+@pytest.mark.parametrize(
+    ("command", "line", "replacement", "message"),
+    [
+        ("sim", "mass = 2.0", "mass = nan", "vehicle.mass = nan: expected a finite number > 0"),
+        ("sim", "period = 0.001", "period = inf", "sim.period = inf: expected a number in [1e-5, 0.1] s"),
+        ("fly", "max_thrust = 10000.0", "max_thrust = 1e400", "actuators.max_thrust = inf: expected a finite"),
+        ("up", "gains = [10.0, 10.0,", "gains = [10.0, nan,", "controller.gains = [10.0, nan, 10.0"),
+        ("sim", "gravity = 9.8", "gravity = -9.8", "vehicle.gravity = -9.8"),
+    ],
+)
+def test_values_the_compiled_code_cannot_take_are_refused_before_anything_compiles(
+    tmp_path, command, line, replacement, message
+):
+    text = "\n".join(replacement + row[len(line):] if row.startswith(line) else row
+                     for row in PAPER_TOML.read_text().splitlines())  # fmt: skip
+    preset = tmp_path / "bad.toml"
+    preset.write_text(text + "\n")
+    cache = tmp_path / "cache"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", command, "--preset", str(preset)],
+                       capture_output=True, text=True, timeout=60, env=env)  # fmt: skip
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and message in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not [p for p in cache.rglob("*") if p.is_file()], "something was compiled before the refusal"
+
+
+def test_cli_gains_that_are_not_finite_are_refused_before_anything_compiles(tmp_path):
+    cache = tmp_path / "cache"
+    for option in ("--gains", "--poles"):
+        r = subprocess.run([sys.executable, "-m", "groundstation.cli", "sim", option, "nan,1,1,1,1,1,1,1"],
+                           capture_output=True, text=True, timeout=60,
+                           env={**os.environ, "NUMBA_CACHE_DIR": str(cache)})  # fmt: skip
+        assert r.returncode == 2 and "expected 8 comma-separated finite numbers" in r.stderr, r.stderr
+    assert not [p for p in cache.rglob("*") if p.is_file()]
