@@ -41,6 +41,7 @@ from quadsitl.state import Reference
 mavlink = wire.mavlink
 MASK_IGNORE_RATES = 1 | 2 | 4  # SET_ATTITUDE_TARGET: attitude and thrust fields used
 MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
+LOOP = 0.005  # [s] wall: how often the ground station reads its socket and Zenoh channels
 
 
 UNNEEDED_STREAMS = (
@@ -85,6 +86,7 @@ class GroundStation:
         self.acks: dict[int, int] = {}
         self.flight_rate: tuple[float, float] | None = None
         self.progress: FlightProgress | None = None  # from the switch to offboard until landing
+        self.next_poll = 0.0  # monotonic time of the next socket read (poll)
 
     # ---- MAVLink ---------------------------------------------------------------------------------
 
@@ -98,12 +100,15 @@ class GroundStation:
             self.sock.send(buf)
 
     def poll(self) -> None:
-        """Read everything waiting (the first read waits up to 5 ms)."""
-        for i in range(200):
-            self.sock.settimeout(0.005 if i == 0 else 0.0)
+        """Read everything waiting, at most every LOOP seconds: between reads the datagrams wait in the socket
+        (a ground station that woke for each one would take a core from the lockstep pair each time)."""
+        time.sleep(max(0.0, self.next_poll - time.monotonic()))
+        self.next_poll = time.monotonic() + LOOP
+        self.sock.settimeout(0.0)
+        for _ in range(1000):
             try:
                 data = self.sock.recv(65535)
-            except (TimeoutError, BlockingIOError, ConnectionRefusedError):
+            except (BlockingIOError, ConnectionRefusedError):
                 return
             self._handle(data)
 

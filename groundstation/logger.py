@@ -2,14 +2,13 @@
 
 It joins the four streams by tick and keeps the ticks flown in offboard (``offboard_tick`` ≥ 0), with
 t = (tick − offboard_tick)·T so that t = 0 is the first tick flown under the reference trajectory. Samples
-wait in a list until ``drain`` files them (numpy views of the samples: no Python per record); joining and
+wait in Zenoh's FIFO channels until ``drain`` files them (numpy views of the samples: no Python per record); joining and
 decoding happen in ``rows``.
 """
 
 from __future__ import annotations
 
 import re
-import threading
 
 import numpy as np
 import zenoh
@@ -29,6 +28,7 @@ def _dtype(stream: str) -> np.dtype:
 
 DTYPES = {stream: _dtype(stream) for stream in telemetry.STREAMS}
 STATUS_FIELDS = ("tick", "armed", "mode", "failsafe", "offboard_tick")
+CHANNEL = 1 << 20  # samples per stream that may wait for drain()
 
 
 class TelemetryLogger:
@@ -45,28 +45,19 @@ class TelemetryLogger:
         self.last_status: dict | None = None
         self.flight_start_tick = -1
         self.malformed = 0
-        # The callbacks only append (one lock, no decoding): a Zenoh callback must never block.
-        self._lock = threading.Lock()
-        self._inbox: list[tuple[str, bytes]] = []
+        # Each stream's samples wait in a FIFO channel inside Zenoh (no Python runs when one arrives, so the
+        # logger wakes no thread per sample); drain() takes them. A full channel holds Zenoh back, and the
+        # vehicle's publishers drop rather than wait: the capacity covers minutes of samples.
         self._subs = [
-            (stream, session.declare_subscriber(telemetry.key(vehicle, stream), self._callback(stream)))
+            (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(CHANNEL)))
             for stream in telemetry.STREAMS
         ]
 
-    def _callback(self, stream: str):
-        inbox, lock = self._inbox, self._lock
-
-        def cb(sample: zenoh.Sample) -> None:
-            data = sample.payload.to_bytes()
-            with lock:
-                inbox.append((stream, data))
-
-        return cb
-
     def _received(self) -> list[tuple[str, bytes]]:
-        with self._lock:
-            out = self._inbox[:]
-            del self._inbox[:]
+        out = []
+        for stream, sub in self._subs:
+            while (sample := sub.try_recv()) is not None:
+                out.append((stream, sample.payload.to_bytes()))
         return out
 
     def drain(self) -> None:
