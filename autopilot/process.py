@@ -143,6 +143,9 @@ class Autopilot:
             conf = telemetry.config_from_args(args)
             if not args.zenoh_config:  # samples carry their publication time: subscribers can measure latency
                 conf.insert_json5("timestamping/enabled", "true")
+                # Room for 16 batches (Zenoh's most; its default is 2) before a put drops: Zenoh's sending
+                # thread shares two cores with a lockstep pair that polls, and may wait a few ms for one.
+                conf.insert_json5("transport/link/tx/queue/size/data", "16")
             self.session = zenoh.open(conf)
             for stream in telemetry.STREAMS:
                 self.pubs[stream] = self.session.declare_publisher(

@@ -41,7 +41,7 @@ from quadsitl.state import Reference
 mavlink = wire.mavlink
 MASK_IGNORE_RATES = 1 | 2 | 4  # SET_ATTITUDE_TARGET: attitude and thrust fields used
 MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
-LOOP = 0.005  # [s] wall: how often the ground station reads its socket and Zenoh channels
+LOOP = 0.002  # [s] wall: how often the ground station reads its socket and Zenoh channels, and may send
 
 
 UNNEEDED_STREAMS = (
