@@ -23,6 +23,7 @@ from autopilot.gains import GainError, poles_from_rates
 from groundstation.launcher import add_dashboard_arguments
 from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
+from quadsitl.process_util import handle_stop_signals, stop_status
 from sitl.cli import add_presets_arguments, run_presets
 from sitl.impair import add_impair_argument, impairment_from
 
@@ -280,6 +281,9 @@ Run 'quadsitl COMMAND --help' for the options and examples of each command.""",
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The ``quadsitl`` command: every command stops cleanly on SIGINT and SIGTERM, also when started with SIGINT
+    ignored (a script's background job); the process commands install the same handlers themselves."""
+    handle_stop_signals()
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in PROCESSES:  # the process commands parse their own options
         import importlib
@@ -294,9 +298,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"quadsitl {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # SIGINT or SIGTERM (StopRequested), when a command did not handle it
         print(f"quadsitl {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return stop_status(exc)
 
 
 if __name__ == "__main__":

@@ -235,8 +235,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, SystemExit) as exc:
-        return exc.code if isinstance(exc, SystemExit) and isinstance(exc.code, int) else 130
+    except KeyboardInterrupt:  # SIGINT or SIGTERM (StopRequested): it serves until stopped, so that is its end
+        return 0
 
 
 if __name__ == "__main__":
