@@ -155,7 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
   quadsitl up --dashboard                                    # PX4 SITL's ports, live dashboard in the browser
   quadsitl replay runs/fly/telemetry.csv                     # an old run back onto Zenoh
 
-Run 'quadsitl COMMAND --help' for the options and examples of each command.""",
+Run 'quadsitl COMMAND --help' for the options and examples of each command. The reference (commands,
+the MAVLink interface, the Zenoh schema, failure behaviour, performance) is in the documentation: docs/ in
+the source, or 'mkdocs serve' there.""",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -212,7 +214,8 @@ Run 'quadsitl COMMAND --help' for the options and examples of each command.""",
         help="plant and autopilot on PX4 SITL's MAVLink ports, for QGroundControl, MAVProxy, MAVSDK",
         epilog=EXAMPLES_UP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Start the plant and the autopilot and keep them running until Ctrl-C. Like PX4 SITL, the "
+        description="Start the plant and the autopilot and keep them running until Ctrl-C or SIGTERM (exit 0; "
+        "also from a script that starts it in the background). Like PX4 SITL, the "
         "autopilot streams MAVLink to 127.0.0.1:14550 (ground stations) and 127.0.0.1:14540 (offboard APIs) "
         "and answers whoever talks to it; telemetry also goes to Zenoh.",
     )
