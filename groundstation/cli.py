@@ -23,7 +23,7 @@ from autopilot.gains import GainError, poles_from_rates
 from groundstation.launcher import add_dashboard_arguments
 from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
-from quadsitl.process_util import handle_stop_signals, stop_status
+from quadsitl.process_util import handle_stop_signals, run_stoppable, stop_status
 from sitl.cli import add_presets_arguments, run_presets
 from sitl.impair import add_impair_argument, impairment_from
 
@@ -291,11 +291,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv and argv[0] in PROCESSES:  # the process commands parse their own options
         import importlib
 
-        return importlib.import_module(PROCESSES[argv[0]][0]).main(argv[1:])
+        module = PROCESSES[argv[0]][0]  # imported inside run_stoppable: a stop may come while it loads
+        return run_stoppable(lambda: importlib.import_module(module).main(argv[1:]),
+                             stopped=None if argv[0] in ("gcs", "bench") else 0)  # fmt: skip
     parser = build_parser()
-    args = parser.parse_args(
-        attach_negative_values(list(sys.argv[1:] if argv is None else argv), ("--gains", "--poles"))
-    )
+    args = parser.parse_args(attach_negative_values(argv, ("--gains", "--poles")))
     try:
         return args.func(args)
     except UsageError as exc:

@@ -41,7 +41,7 @@ import zenoh
 from groundstation.recording import DEFAULT_PERIOD, Recording, ReplayError, load
 from quadsitl import telemetry
 from quadsitl.cli_util import UsageError, check_range
-from quadsitl.process_util import start_process, stop_status
+from quadsitl.process_util import run_stoppable, start_process, stop_status
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # where `quadsitl up` has the autopilot listen; subscribers connect
 BATCH_WALL = 0.001  # [s] wall: at most one sample per stream this often (as the autopilot)...
@@ -279,4 +279,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_stoppable(main))

@@ -218,6 +218,18 @@ def stop_status(exc: BaseException) -> int:
     return 128 + signal.SIGINT
 
 
+def run_stoppable(main: Callable[[], int], stopped: int | None = 0) -> int:
+    """Run a process's ``main()`` and return its exit status. A stop request that ``main`` did not handle
+    itself, because it came during start-up (arguments, presets, sockets, compiling), before ``main``'s own
+    ``try``, ends the process quietly, without a traceback: status ``stopped`` (0 for a command that runs until
+    stopped), or, when ``stopped`` is None, 128 + the signal. Every process entry point goes through this
+    (``python -m sitl``, ``-m autopilot``, ``-m groundstation``, the dashboard, replay, and ``quadsitl``)."""
+    try:
+        return main()
+    except StopRequested as exc:
+        return stop_status(exc) if stopped is None else stopped
+
+
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 FORCE_AFTER = 2.0  # [s] a second stop signal later than this after the first interrupts the clean-up too
 _stop_requested_at: float | None = None

@@ -11,6 +11,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from groundstation.launcher import free_port
+from quadsitl.process_util import StopRequested, run_stoppable
 from tests.test_fly import alive, children_of, quadsitl
 
 
@@ -95,20 +97,30 @@ def test_up_started_by_a_script_stops_on_sigint_with_its_children(tmp_path):
         kids = children_of(pid)
         watched.extend(kids)
         wait_until(lambda: all(catches(p, signal.SIGINT) for p in [pid, *kids]), 20, "SIGINT handlers")
+        out: list[str] = []
+        threading.Thread(target=lambda: out.extend(sh.stdout), daemon=True).start()
+        wait_until(lambda: any("Ctrl-C stops." in line for line in out), 60, "up's banner (it is running)")
+        assert any("dashboard:" in line for line in out)
         time.sleep(1.0)  # flying
         os.kill(pid, signal.SIGINT)
-        out, err = sh.communicate(timeout=20)
+        sh.wait(20)
+        err = sh.stderr.read()
         assert sh.returncode == 0, err  # the status of `wait $!`: up's own
-        assert "Ctrl-C stops." in out and "dashboard:" in out
         assert "quadsitl up: stopping autopilot, plant, dashboard" in err
         assert "Traceback" not in err
         time.sleep(0.2)
         assert not [p for p in [pid, *kids] if alive(p)]
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize(
+    "sig, after",
+    [(signal.SIGINT, 0.0), (signal.SIGINT, 1.0), (signal.SIGTERM, 1.0)],
+    ids=["SIGINT-in-start-up", "SIGINT-running", "SIGTERM-running"],
+)
 @pytest.mark.parametrize("command", ["plant", "autopilot", "dashboard"])
-def test_each_process_command_started_with_sigint_ignored_stops_with_status_0(command, sig):
+def test_each_process_command_started_with_sigint_ignored_stops_with_status_0(command, sig, after):
+    """As soon as its handler is in place (still starting up: a stop request before the command's own
+    handling must end it as quietly), or once it runs."""
     args = {
         "plant": ["--autopilot", f"127.0.0.1:{free_port()}", "--quiet"],  # free-wheels: no autopilot answers
         "autopilot": ["--plant-listen", f"127.0.0.1:{free_port()}", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
@@ -119,7 +131,7 @@ def test_each_process_command_started_with_sigint_ignored_stops_with_status_0(co
                             start_new_session=True)  # fmt: skip
     with killed_at_exit(proc):
         wait_until(lambda: catches(proc.pid, signal.SIGINT) or proc.poll() is not None, 20, "a SIGINT handler")
-        time.sleep(0.5)
+        time.sleep(after)
         assert proc.poll() is None, proc.stderr.read()
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=15)
@@ -151,3 +163,12 @@ def test_fly_started_with_sigint_ignored_is_interrupted_by_sigint(tmp_path):
 
 if sys.platform != "linux":  # /proc and PR_SET_PDEATHSIG
     pytestmark = pytest.mark.skip("Linux only")
+
+
+def test_a_stop_that_main_did_not_catch_ends_the_process_quietly():
+    def starting_up() -> int:
+        raise StopRequested(signal.SIGTERM)  # as the handler does, before main's own try
+
+    assert run_stoppable(starting_up) == 0  # a command that runs until stopped
+    assert run_stoppable(starting_up, stopped=None) == 143  # a job cut short: 128 + SIGTERM
+    assert run_stoppable(lambda: 7) == 7

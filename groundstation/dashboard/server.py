@@ -33,7 +33,7 @@ import zenoh
 from groundstation.dashboard.model import ROW_FIELDS, Fleet
 from quadsitl import telemetry
 from quadsitl.cli_util import UsageError, check_range
-from quadsitl.process_util import bind_tcp, start_process
+from quadsitl.process_util import bind_tcp, run_stoppable, start_process
 
 STATIC = Path(__file__).parent / "static"
 POLL = 0.02  # [s] wall between drains of the Zenoh ring channel
@@ -240,4 +240,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_stoppable(main))
