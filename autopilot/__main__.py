@@ -1,5 +1,6 @@
 import sys
 
 from autopilot.process import main
+from quadsitl.process_util import run_stoppable
 
-sys.exit(main())
+sys.exit(run_stoppable(main))

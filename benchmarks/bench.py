@@ -13,6 +13,10 @@ machines drift:
    samples per second, loss and latency at 1 kHz, and the lockstep tick rate with each, against none.
 4. real-time mode at 1 kHz: period jitter and deadline misses of the plant's loop against a bare loop
    that keeps time the same way and does nothing else.
+5. the dashboard: lockstep tick rate with its page open in headless Chromium against without
+   (``dashboard_ratio``, ``dashboard_ratio_10x``). It needs Playwright (the test extra) and Debian's Chromium;
+   without them it is skipped with one line saying what is missing, and the JSON has no dashboard figures
+   and says why under ``skipped`` (:data:`OPTIONAL`).
 """
 
 from __future__ import annotations
@@ -34,7 +38,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from benchmarks import machine, pingpong
-from quadsitl.process_util import SPIN_ENV, free_port, wait_readable
+from benchmarks.browser import missing as browser_missing
+from quadsitl.process_util import SPIN_ENV, free_port, stop_status, wait_readable
 from quadsitl.timing import percentile, period_stats
 
 
@@ -387,6 +392,20 @@ def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
 # ---- the command ----------------------------------------------------------------------------------------
 
 
+# Sections that need something a user's install may lack (``pip install -e .`` has no test extra, and
+# Chromium is a Debian package): section -> (the function that says what is missing, or None, and the JSON
+# keys it would have written). Such a section is skipped with one line saying what is missing and how to get
+# it; its figures are absent from the report (not zero), which says why under "skipped"; the rest runs.
+OPTIONAL: dict[str, tuple[Callable[[], str | None], tuple[str, ...]]] = {
+    "dashboard": (browser_missing, ("dashboard_ratio", "dashboard_ratio_10x")),
+}
+
+
+def optional_parts_missing(parts: Sequence[str]) -> dict[str, str]:
+    """{section: what it lacks and how to get it} for each of ``parts`` that cannot run on this machine."""
+    return {part: why for part in parts if part in OPTIONAL and (why := OPTIONAL[part][0]())}
+
+
 PARTS = ("coldstart", "lockstep", "costs", "fanout", "realtime", "dashboard")
 
 
@@ -414,6 +433,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"quadsitl bench: error: --realtime-seconds {args.realtime_seconds:g}: expected 1..600", file=sys.stderr)
         return 2
     parts = args.only or list(PARTS)
+    skipped = optional_parts_missing(parts)
+    for part, why in skipped.items():
+        print(f"quadsitl bench: skipping the {part} section: {why}", file=sys.stderr, flush=True)
     r = Report(quiet=False)
     host = machine.describe()
     print(f"quadsitl bench on {machine.one_line(host)}", file=sys.stderr)
@@ -436,19 +458,23 @@ def main(argv: Sequence[str] | None = None) -> int:
                 bench_fanout(r, work, args.subscriber_nice)
             if "realtime" in parts:
                 bench_realtime(r, work, args.realtime_seconds)
-            if "dashboard" in parts:
+            if "dashboard" in parts and "dashboard" not in skipped:
                 extra.update(bench_dashboard(r, work, args.rounds))
     except (subprocess.CalledProcessError, subprocess.TimeoutExpired, RuntimeError, OSError) as exc:
         print(f"quadsitl bench: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # SIGINT or SIGTERM (quadsitl.process_util.StopRequested)
         print("quadsitl bench: interrupted", file=sys.stderr)
-        return 130
+        return stop_status(exc)
     elapsed = time.monotonic() - started
     if ratio is not None:
         print(f"\nlockstep_ratio = {ratio:.3f} against the fastest ping-pong (goal >= 0.5); {elapsed:.0f} s on "
               f"{machine.one_line(host)}", file=sys.stderr)  # fmt: skip
     if args.json:
-        print(json.dumps({"lockstep_ratio": ratio, **extra, "elapsed_s": elapsed, "machine": host,
-                          "figures": [asdict(f) for f in r.figures]}, indent=2))  # fmt: skip
+        report = {"lockstep_ratio": ratio, **extra, "elapsed_s": elapsed, "machine": host,
+                  "figures": [asdict(f) for f in r.figures]}  # fmt: skip
+        if skipped:  # their figures are absent, not zero: say why
+            report["skipped"] = {part: {"reason": why, "absent": list(OPTIONAL[part][1])}
+                                 for part, why in skipped.items()}  # fmt: skip
+        print(json.dumps(report, indent=2))
     return 0

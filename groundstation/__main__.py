@@ -3,5 +3,6 @@
 import sys
 
 from groundstation.gcs import main
+from quadsitl.process_util import run_stoppable
 
-sys.exit(main())
+sys.exit(run_stoppable(main, stopped=None))  # a flight stopped before it began is not a success

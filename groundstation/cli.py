@@ -23,6 +23,7 @@ from autopilot.gains import GainError, poles_from_rates
 from groundstation.launcher import add_dashboard_arguments
 from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset
+from quadsitl.process_util import handle_stop_signals, run_stoppable, stop_status
 from sitl.cli import add_presets_arguments, run_presets
 from sitl.impair import add_impair_argument, impairment_from
 
@@ -154,7 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
   quadsitl up --dashboard                                    # PX4 SITL's ports, live dashboard in the browser
   quadsitl replay runs/fly/telemetry.csv                     # an old run back onto Zenoh
 
-Run 'quadsitl COMMAND --help' for the options and examples of each command.""",
+Run 'quadsitl COMMAND --help' for the options and examples of each command. The reference (commands,
+the MAVLink interface, the Zenoh schema, failure behaviour, performance) is in the documentation: docs/ in
+the source, or 'mkdocs serve' there.""",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -211,7 +214,8 @@ Run 'quadsitl COMMAND --help' for the options and examples of each command.""",
         help="plant and autopilot on PX4 SITL's MAVLink ports, for QGroundControl, MAVProxy, MAVSDK",
         epilog=EXAMPLES_UP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Start the plant and the autopilot and keep them running until Ctrl-C. Like PX4 SITL, the "
+        description="Start the plant and the autopilot and keep them running until Ctrl-C or SIGTERM (exit 0; "
+        "also from a script that starts it in the background). Like PX4 SITL, the "
         "autopilot streams MAVLink to 127.0.0.1:14550 (ground stations) and 127.0.0.1:14540 (offboard APIs) "
         "and answers whoever talks to it; telemetry also goes to Zenoh.",
     )
@@ -280,23 +284,26 @@ Run 'quadsitl COMMAND --help' for the options and examples of each command.""",
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The ``quadsitl`` command: every command stops cleanly on SIGINT and SIGTERM, also when started with SIGINT
+    ignored (a script's background job); the process commands install the same handlers themselves."""
+    handle_stop_signals()
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in PROCESSES:  # the process commands parse their own options
         import importlib
 
-        return importlib.import_module(PROCESSES[argv[0]][0]).main(argv[1:])
+        module = PROCESSES[argv[0]][0]  # imported inside run_stoppable: a stop may come while it loads
+        return run_stoppable(lambda: importlib.import_module(module).main(argv[1:]),
+                             stopped=None if argv[0] in ("gcs", "bench") else 0)  # fmt: skip
     parser = build_parser()
-    args = parser.parse_args(
-        attach_negative_values(list(sys.argv[1:] if argv is None else argv), ("--gains", "--poles"))
-    )
+    args = parser.parse_args(attach_negative_values(argv, ("--gains", "--poles")))
     try:
         return args.func(args)
     except UsageError as exc:
         print(f"quadsitl {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # SIGINT or SIGTERM (StopRequested), when a command did not handle it
         print(f"quadsitl {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return stop_status(exc)
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, check_range
 from quadsitl.config import ConfigError, load_preset
 from quadsitl.frames import euler_to_quaternion
-from quadsitl.process_util import parse_address, start_process
+from quadsitl.process_util import parse_address, start_process, stop_status
 from quadsitl.state import Reference
 
 mavlink = wire.mavlink
@@ -320,8 +320,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         gcs.stop_progress()
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 1
-    except (KeyboardInterrupt, SystemExit) as exc:  # SIGINT, or SIGTERM (exit_on_signals)
+    except KeyboardInterrupt as exc:  # SIGINT or SIGTERM (StopRequested): an unfinished flight, logs saved
         gcs.save_partial()
-        return exc.code if isinstance(exc, SystemExit) and isinstance(exc.code, int) else 130
+        return stop_status(exc)
     finally:
         gcs.close()

@@ -5,9 +5,12 @@ the flight, then writes metrics.json and the figures from the Zenoh-logged telem
 ``quadsitl sim`` does. ``up`` starts plant and autopilot only, on PX4 SITL's MAVLink ports, and runs
 until stopped, for QGroundControl, MAVProxy, MAVSDK or a script to fly.
 
-If any child fails, both exit non-zero naming the process. Every child is torn down on exit, Ctrl-C
+If any child fails, both exit non-zero naming the process. Every child is torn down on exit, SIGINT (Ctrl-C)
 and SIGTERM (SIGTERM, then SIGKILL after 3 s for a child that hangs), and each child asks the kernel to
-end it if the launcher itself dies.
+end it if the launcher itself dies. Both signals are handled also when the launcher was started with SIGINT
+ignored, as a script's background job is (``quadsitl.process_util.handle_stop_signals``, installed by
+``groundstation.cli.main``). A stop ends ``up``, and ``fly`` once its flight is done, with status 0; a flight
+stopped before its end exits 130 (SIGINT) or 143 (SIGTERM), its logs saved up to the interruption.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from pathlib import Path
 
 from quadsitl.cli_util import UsageError
 from quadsitl.config import Preset
-from quadsitl.process_util import bind_tcp, bind_udp, free_port
+from quadsitl.process_util import bind_tcp, bind_udp, free_port, stop_status
 
 
 def signing_env(key_text: str | None) -> dict[str, str] | None:
@@ -97,10 +100,6 @@ def describe(name: str, status: int) -> str:
     return f"the {name} process exited with status {status}"
 
 
-def on_sigterm(signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def add_dashboard_arguments(p) -> None:
     """``--dashboard`` and ``--dashboard-port`` for ``fly`` and ``up``."""
     p.add_argument("--dashboard", action="store_true", help="also serve the live dashboard and print its URL")
@@ -143,7 +142,6 @@ def up(preset_name: str, preset: Preset, args) -> int:
         raise UsageError("--dashboard needs the Zenoh telemetry: drop --no-zenoh")
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
     check_ports_free(args)
-    old = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
               "--system-id", str(args.system_id)]  # fmt: skip
@@ -180,7 +178,6 @@ def up(preset_name: str, preset: Preset, args) -> int:
         return 1
     finally:
         children.stop()
-        signal.signal(signal.SIGTERM, old)
 
 
 def check_ports_free(args) -> None:
@@ -228,7 +225,6 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     children = Children(env=signing_env(args.signing_key))
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
 
-    old = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
               "--api-listen", f"127.0.0.1:{gcs_port}", "--api-remote", "none", "--gcs-listen",
@@ -269,17 +265,16 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         write_report(out, preset, args)
         if web_port is not None:
             keep_dashboard(children)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # SIGINT or SIGTERM (StopRequested)
         if "dashboard" in children.procs and children.procs["gcs"].poll() == 0:
             return 0  # Ctrl-C after the flight: that is how the dashboard is closed
         print("quadsitl fly: interrupted; stopping " + ", ".join(children.procs), file=sys.stderr)
-        return 130
+        return stop_status(exc)
     except RuntimeError as exc:
         print(f"quadsitl fly: error: {exc}; stopping the others", file=sys.stderr)
         return 1
     finally:
         children.stop()
-        signal.signal(signal.SIGTERM, old)
     return 0
 
 

@@ -62,7 +62,7 @@ def run_metrics(t: np.ndarray, y: np.ndarray, reference: np.ndarray, inputs: np.
 
 
 def format_table(metrics: dict[str, dict]) -> str:
-    """A fixed-width table of {controller: {channel: metrics}} for the terminal and the README."""
+    """A fixed-width table of {controller: {channel: metrics}} for the terminal and the docs (docs/results.md)."""
 
     def f(v: float | None, scale: float = 1.0, fmt: str = ".3f") -> str:
         return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v * scale, fmt)

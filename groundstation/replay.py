@@ -21,7 +21,8 @@ subscriber. With ``--loop``, each pass starts again at the first tick (and time)
 ``v1`` as everywhere). With no endpoint and no configuration file, the replay listens on
 ``tcp/127.0.0.1:7447``, where ``quadsitl up`` has the autopilot listen, so subscribers find it there.
 
-Exit status: 0 done, 2 bad input (one line on stderr), 130 Ctrl-C, 143 SIGTERM.
+Exit status: 0 done (with ``--loop``, which runs until stopped: stopped by SIGINT or SIGTERM), 2 bad input (one
+line on stderr); a single pass cut short by SIGINT exits 130, by SIGTERM 143.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ import zenoh
 from groundstation.recording import DEFAULT_PERIOD, Recording, ReplayError, load
 from quadsitl import telemetry
 from quadsitl.cli_util import UsageError, check_range
-from quadsitl.process_util import start_process
+from quadsitl.process_util import run_stoppable, start_process, stop_status
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # where `quadsitl up` has the autopilot listen; subscribers connect
 BATCH_WALL = 0.001  # [s] wall: at most one sample per stream this often (as the autopilot)...
@@ -270,12 +271,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not args.quiet:
             print(summary(prog, recording, args.vehicle, stats), file=sys.stderr)
         return 0
-    except (KeyboardInterrupt, SystemExit) as exc:  # Ctrl-C, or SIGTERM (start_process: SystemExit(143))
-        code = exc.code if isinstance(exc, SystemExit) and isinstance(exc.code, int) else 130
+    except KeyboardInterrupt as exc:  # SIGINT or SIGTERM (StopRequested)
+        code = 0 if args.loop else stop_status(exc)  # --loop runs until stopped; one pass was cut short
         if stats is not None and recording is not None and not args.quiet:
             print(summary(prog, recording, args.vehicle, stats, interrupted=True), file=sys.stderr)
         return code
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_stoppable(main))

@@ -1,4 +1,5 @@
-"""What every process shell needs: address parsing, clean exit on SIGTERM/SIGINT, dying with the parent."""
+"""What every process shell needs: address parsing, a clean stop on SIGINT and SIGTERM (also when started with
+SIGINT ignored), dying with the parent."""
 
 from __future__ import annotations
 
@@ -193,21 +194,75 @@ def quiet_garbage_collector() -> None:
 
 
 def start_process(quiet_gc: bool = True) -> None:
-    """What every process's main() does first: die with the parent, exit cleanly on SIGTERM and, for the
-    per-tick loops, keep the garbage collector quiet."""
+    """What every process's main() does first: die with the parent, stop cleanly on SIGINT and SIGTERM
+    (:func:`handle_stop_signals`) and, for the per-tick loops, keep the garbage collector quiet."""
     die_with_parent()
-    exit_on_signals()
+    handle_stop_signals()
     if quiet_gc:
         quiet_garbage_collector()
 
 
-def exit_on_signals() -> None:
-    """Turn SIGTERM into SystemExit so ``finally`` blocks run (sockets and Zenoh sessions close)."""
+class StopRequested(KeyboardInterrupt):
+    """Raised in the main thread by SIGINT or SIGTERM once :func:`handle_stop_signals` has run. It is a
+    KeyboardInterrupt, so every ``except KeyboardInterrupt`` (and every ``finally``) handles SIGTERM exactly as
+    Ctrl-C; ``signum`` says which signal it was."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def stop_status(exc: BaseException) -> int:
+    """The exit status of a command interrupted before it finished its job, as shells report it: 128 + the
+    signal's number (130 for SIGINT, 143 for SIGTERM). A command that runs until stopped (``up``,
+    ``dashboard``, ``plant``, ``autopilot``, ``replay --loop``) exits 0 instead: the stop was its end."""
+    if isinstance(exc, StopRequested):
+        return 128 + exc.signum
+    if isinstance(exc, SystemExit) and isinstance(exc.code, int):
+        return exc.code
+    return 128 + signal.SIGINT
+
+
+def run_stoppable(main: Callable[[], int], stopped: int | None = 0) -> int:
+    """Run a process's ``main()`` and return its exit status. A stop request that ``main`` did not handle
+    itself, because it came during start-up (arguments, presets, sockets, compiling), before ``main``'s own
+    ``try``, ends the process quietly, without a traceback: status ``stopped`` (0 for a command that runs until
+    stopped), or, when ``stopped`` is None, 128 + the signal. Every process entry point goes through this
+    (``python -m sitl``, ``-m autopilot``, ``-m groundstation``, the dashboard, replay, and ``quadsitl``)."""
+    try:
+        return main()
+    except StopRequested as exc:
+        return stop_status(exc) if stopped is None else stopped
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+FORCE_AFTER = 2.0  # [s] a second stop signal later than this after the first interrupts the clean-up too
+_stop_requested_at: float | None = None
+
+
+def handle_stop_signals() -> None:
+    """Install this process's own handlers for SIGINT and SIGTERM, whatever it inherited: both raise
+    :class:`StopRequested` in the main thread, so ``finally`` blocks run (children stopped, sockets and
+    Zenoh sessions closed, logs flushed).
+
+    Needed because a non-interactive shell (a CI script, a test harness, ``cmd &`` in a script) starts its
+    background jobs with SIGINT ignored, and Python leaves an ignored SIGINT ignored: without this, Ctrl-C
+    (or ``kill -INT``) would not stop ``quadsitl up &``. A signal that comes while a stop is already under way
+    is ignored for FORCE_AFTER seconds (a launcher's SIGTERM to its children right after the terminal's
+    SIGINT reached them all must not interrupt their clean-up); a later one interrupts the clean-up too."""
+    global _stop_requested_at
+    _stop_requested_at = None
 
     def handler(signum: int, _frame: object) -> None:
-        raise SystemExit(128 + signum)
+        global _stop_requested_at
+        now = time.monotonic()
+        if _stop_requested_at is not None and now - _stop_requested_at < FORCE_AFTER:
+            return
+        _stop_requested_at = now
+        raise StopRequested(signum)
 
-    signal.signal(signal.SIGTERM, handler)
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, handler)
 
 
 def die_with_parent() -> None:

@@ -1,5 +1,6 @@
 import sys
 
+from quadsitl.process_util import run_stoppable
 from sitl.process import main
 
-sys.exit(main())
+sys.exit(run_stoppable(main))

@@ -2,6 +2,10 @@
 figure with a name, a unit and its baseline, in the JSON that tools read."""
 
 import json
+import subprocess
+import sys
+
+import pytest
 
 
 def test_bench_costs_report_json_with_names_units_and_baselines(cli):
@@ -24,3 +28,42 @@ def test_bench_costs_report_json_with_names_units_and_baselines(cli):
 def test_bench_refuses_bad_options(cli):
     r = cli("bench", "--rounds", "0")
     assert r.returncode == 2 and "--rounds 0: expected 1..10" in r.stderr
+
+
+# Runs `quadsitl bench` with Playwright made unimportable, as on a machine where the project was installed
+# without its test extra (`pip install -e .`).
+WITHOUT_PLAYWRIGHT = """
+import sys
+sys.modules["playwright"] = None  # `import playwright...` now raises ImportError
+from groundstation.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_bench_without_playwright_skips_the_dashboard_and_still_writes_the_report():
+    r = subprocess.run([sys.executable, "-c", WITHOUT_PLAYWRIGHT, "bench", "--only", "costs", "--only", "dashboard",
+                        "--json"], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    # The dashboard's figures are absent, not zero or null, and the report says why.
+    assert "dashboard_ratio" not in report and "dashboard_ratio_10x" not in report
+    assert not [f for f in report["figures"] if "page" in f["name"] or "dashboard" in f["name"]]
+    skipped = report["skipped"]["dashboard"]
+    assert skipped["reason"].startswith("Playwright is not installed: pip install playwright")
+    assert skipped["absent"] == ["dashboard_ratio", "dashboard_ratio_10x"]
+    # One line on stderr says so; the rest of the report is there.
+    lines = [line for line in r.stderr.splitlines() if "skipping" in line]
+    assert lines == [f"quadsitl bench: skipping the dashboard section: {skipped['reason']}"]
+    assert {f["name"] for f in report["figures"]} >= {"backstepping controller step", "plant step (euler)"}
+
+
+def test_missing_names_what_the_browser_needs_and_how_to_get_it(monkeypatch):
+    from benchmarks import browser
+
+    monkeypatch.setattr(browser, "CHROMIUM", "/nonexistent/chromium")
+    assert browser.missing() == f"no Chromium at /nonexistent/chromium: {browser.INSTALL_CHROMIUM}"  # test extra
+    monkeypatch.setitem(sys.modules, "playwright", None)
+    monkeypatch.delitem(sys.modules, "playwright.sync_api", raising=False)
+    assert browser.missing() == f"Playwright is not installed: {browser.INSTALL_PLAYWRIGHT}"
+    with pytest.raises(RuntimeError, match="Playwright is not installed"), browser.chromium():
+        pass

@@ -22,7 +22,7 @@ from tests.mavclient import Client, M, quadsitl_up
 @pytest.fixture(scope="module")
 def browser():
     try:
-        with chromium() as b:  # not a skip when Chromium is missing: CI installs it (.ci/run)
+        with chromium() as b:  # not a skip when Chromium is missing: ./scripts/test installs it
             yield b
     except RuntimeError as exc:
         pytest.fail(str(exc))

@@ -343,11 +343,13 @@ def test_tlog_scanner_resynchronises_after_garbage():
 # ---- the command line -----------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_loop_until_interrupted_exits_cleanly(sim_csv, sig, code):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_loop_until_interrupted_exits_cleanly(sim_csv, sig):
     with subscriber("loop") as sub:
         proc = subprocess.Popen([*REPLAY, str(sim_csv), "--vehicle", "loop", "--zenoh-connect", sub.endpoint,
-                                 "--loop", "--speed", "5"], stderr=subprocess.PIPE, text=True)  # fmt: skip
+                                 "--loop", "--speed", "5"], stderr=subprocess.PIPE, text=True,
+                                # started as a script's background job is: SIGINT ignored
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))  # fmt: skip
         try:
             end = time.monotonic() + 15
             while time.monotonic() < end and len(sub.records("state")) < 600:  # into the second pass
@@ -360,7 +362,7 @@ def test_loop_until_interrupted_exits_cleanly(sim_csv, sig, code):
                 proc.wait()
     ticks = [s[0] for s in sub.records("state")]
     assert ticks[:500] == list(range(500)) and ticks[500:600] == list(range(100))  # each pass from tick 0
-    assert proc.returncode == code, err
+    assert proc.returncode == 0, err  # --loop runs until stopped: the stop is its normal end
     assert "Traceback" not in err
     assert "interrupted;" in err and "complete pass" in err
 

@@ -25,7 +25,7 @@ def config(src: Path, dst: Path, port: int) -> Path:
 @pytest.fixture
 def tls_autopilot(tmp_path):
     if shutil.which("openssl") is None:
-        pytest.fail("openssl is needed to make the test certificates (.ci/run installs it)")
+        pytest.fail("openssl is needed to make the test certificates (./scripts/test installs it)")
     subprocess.run(["sh", str(DOCS / "make-certs.sh"), str(tmp_path / "certs")], check=True, capture_output=True)
     port = free_port(socket.SOCK_STREAM)
     ap_conf = config(DOCS / "autopilot-tls-acl.json5", tmp_path / "autopilot.json5", port)

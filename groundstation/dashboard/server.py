@@ -33,7 +33,7 @@ import zenoh
 from groundstation.dashboard.model import ROW_FIELDS, Fleet
 from quadsitl import telemetry
 from quadsitl.cli_util import UsageError, check_range
-from quadsitl.process_util import bind_tcp, start_process
+from quadsitl.process_util import bind_tcp, run_stoppable, start_process
 
 STATIC = Path(__file__).parent / "static"
 POLL = 0.02  # [s] wall between drains of the Zenoh ring channel
@@ -235,9 +235,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, SystemExit) as exc:
-        return exc.code if isinstance(exc, SystemExit) and isinstance(exc.code, int) else 130
+    except KeyboardInterrupt:  # SIGINT or SIGTERM (StopRequested): it serves until stopped, so that is its end
+        return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_stoppable(main))
