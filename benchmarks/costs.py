@@ -11,8 +11,9 @@ import numpy as np
 
 
 def per_call(fn, number: int) -> float:
-    """The best of three timings of ``number`` calls [µs per call]."""
-    return min(timeit.repeat(fn, number=number, repeat=3)) / number * 1e6
+    """The best of five timings of ``number`` calls, after one to warm up [µs per call]."""
+    fn()
+    return min(timeit.repeat(fn, number=number, repeat=5)) / number * 1e6
 
 
 def measure(number: int) -> dict[str, float]:

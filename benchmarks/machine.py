@@ -20,20 +20,22 @@ def _cpu_model() -> str:
 
 
 def _hypervisor() -> str:
-    """The virtualisation the machine runs under ("none" on bare metal), as systemd-detect-virt tells, else
-    from the CPU's hypervisor flag and the kernel's name for it."""
+    """The virtualisation the machine runs under: the virtual machine's kind and any container inside it
+    ("none" on bare metal), as systemd-detect-virt tells, else from the CPU's hypervisor flag."""
+    found = []
     if shutil.which("systemd-detect-virt"):
-        out = subprocess.run(["systemd-detect-virt"], capture_output=True, text=True).stdout.strip()
-        if out:
-            return out
+        for flag in ("--vm", "--container"):
+            out = subprocess.run(["systemd-detect-virt", flag], capture_output=True, text=True).stdout.strip()
+            if out and out != "none":
+                found.append(out)
     try:
-        flags = Path("/proc/cpuinfo").read_text()
+        cpu_flags = Path("/proc/cpuinfo").read_text()
     except OSError:
-        return "unknown"
-    if " hypervisor" not in flags:
-        return "none"
-    kind = Path("/sys/hypervisor/type")
-    return kind.read_text().strip() if kind.exists() else "yes (unnamed)"
+        cpu_flags = ""
+    if not any(kind != "docker" and kind != "lxc" for kind in found) and " hypervisor" in cpu_flags:
+        kind = Path("/sys/hypervisor/type")
+        found.insert(0, kind.read_text().strip() if kind.exists() else "a hypervisor (CPU flag)")
+    return " + ".join(found) or "none"
 
 
 def describe() -> dict[str, object]:

@@ -8,7 +8,7 @@ later process loads it instead of compiling.
 numba checks a cached function against its own file only, not against the functions it calls (a kernel
 in one module inlines equations from others). The cache therefore lives in a folder named by a hash of
 every source file of the three packages (:func:`cache_dir`): change any equation and everything is
-compiled afresh, once.
+compiled afresh, once; folders no checkout has used for a week are removed.
 
 One source serves every runtime: the plant and autopilot processes, ``quadsitl sim`` and the batch
 engine call the same compiled functions, and ``NUMBA_DISABLE_JIT=1`` runs the very same source as
@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
@@ -39,12 +40,13 @@ DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 
 
 PACKAGES = ("quadsitl", "sitl", "autopilot")  # where compiled functions live (and what they call)
+STALE_DAYS = 7
 
 
 def cache_dir() -> Path:
     """Where numba keeps the compiled functions: ``$NUMBA_CACHE_DIR`` (default ``~/.cache/quadsitl``), in a
-    folder named by a hash of the packages' sources; folders of other sources are removed when a new one
-    is made."""
+    folder named by a hash of the packages' sources. A folder is marked each time it is used; folders of
+    other sources (other versions, other checkouts) unused for STALE_DAYS are removed."""
     root = Path(__file__).resolve().parent.parent
     digest = hashlib.sha256()
     for package in PACKAGES:
@@ -53,11 +55,12 @@ def cache_dir() -> Path:
             digest.update(path.read_bytes())
     base = Path(os.environ.get("NUMBA_CACHE_DIR") or Path.home() / ".cache" / "quadsitl") / "numba"
     folder = base / digest.hexdigest()[:16]
-    if not folder.is_dir():
-        if base.is_dir():
-            for old in base.iterdir():
-                shutil.rmtree(old, ignore_errors=True)
-        folder.mkdir(parents=True, exist_ok=True)
+    folder.mkdir(parents=True, exist_ok=True)
+    now = time.time()
+    os.utime(folder, (now, now))
+    for other in base.iterdir():
+        if other != folder and now - other.stat().st_mtime > STALE_DAYS * 86400:
+            shutil.rmtree(other, ignore_errors=True)
     return folder
 
 

@@ -15,10 +15,11 @@ when not in an offboard flight). The Zenoh encoding is ``application/octet-strea
 ``quadsitl.<stream>.v2``.
 
 A sample carries one or more records of consecutive ticks, concatenated (v2; v1 carried exactly one).
-The publisher sends what it has at most every millisecond of wall time: at 1 kHz in real time that is one
-record per sample, in a lockstep run at 10,000 ticks/s about ten. Every tick's record is published;
-batching only spares the transport a message (and a wake-up of its thread) per tick, which at that rate
-cost more than the control loop itself. Split a payload with :func:`records`.
+The autopilot sends what it has every 5 ms of wall time (or after 512 ticks): at 1 kHz in real time that
+is five records per sample, in a lockstep run at 20,000 ticks/s about a hundred. Every tick's record is
+published; batching only spares the transport a message (and a wake-up of its thread, and of every
+subscriber's) per tick, which at that rate cost more than the control loop itself. Split a payload with
+:func:`records`.
 """
 
 from __future__ import annotations
