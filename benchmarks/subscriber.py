@@ -41,11 +41,11 @@ def main(endpoint: str, vehicle: str, nice: int) -> None:
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     print("ready", flush=True)
     done.wait()
+    with lock:  # the result first: closing a Zenoh session on a loaded machine can take a while
+        print(json.dumps({"counts": counts, "latencies": latencies}), flush=True)
     for sub in subs:
         sub.undeclare()
     session.close()
-    with lock:
-        print(json.dumps({"counts": counts, "latencies": latencies}), flush=True)
 
 
 if __name__ == "__main__":
