@@ -37,7 +37,7 @@ from quadsitl.jit import jit
 from quadsitl.mixer import allocate
 from quadsitl.param_arrays import D_OVER_B
 from quadsitl.state import Inputs
-from quadsitl.wire import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actuators
+from quadsitl.wire import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actuators, tick_of
 
 _ZERO_ERRORS = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -147,7 +147,7 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
         io[NEXT_STREAM_TICK] = 0
     io[LAST_USEC] = t
     st[:] = scratch
-    tick = round(t * 1e-6 / period)  # = quadsitl.wire.tick_of
+    tick = tick_of(t, period)
     io[TICK] = tick
     control_tick(kind, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
     flags = ANSWER

@@ -24,6 +24,7 @@ from quadsitl.frames import (
     euler_to_quaternion,
     quaternion_to_euler,
 )
+from quadsitl.jit import jit
 from quadsitl.state import VehicleState, floats
 
 PLANT_SYSTEM_ID = 1
@@ -97,12 +98,15 @@ def forces_from_message(m: mavlink.MAVLink_hil_actuator_controls_message, max_th
     return (c[0] * max_thrust, c[1] * max_thrust, c[2] * max_thrust, c[3] * max_thrust)
 
 
+@jit
 def tick_of(time_usec: int, period: float) -> int:
     """The control tick a ``time_usec`` stamp belongs to."""
     return round(time_usec * 1e-6 / period)
 
 
+@jit
 def usec_of(tick: int, period: float) -> int:
+    """The ``time_usec`` stamp of a control tick (simulated time, µs)."""
     return round(tick * period * 1e6)
 
 
@@ -121,8 +125,6 @@ from typing import NamedTuple  # noqa: E402
 
 import numpy as np  # noqa: E402
 from fastcrc.crc16 import mcrf4xx  # noqa: E402
-
-from quadsitl.jit import jit  # noqa: E402
 
 MAVLINK2_STX = 0xFD
 HEADER_SIZE = 10  # stx, len, incompat, compat, seq, sysid, compid, msgid (24 bit)

@@ -248,7 +248,7 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     args = (plant.x, plant.motors, plant.out, plant.v, plant.a, period, plant.substeps, plant.method, tx, io)
     max_thrust, monotonic, receive = link.max_thrust, time.monotonic, link.receive
     while max_ticks is None or k < max_ticks:
-        want = round(k * period * 1e6)  # = wire.usec_of(k, period)
+        want = wire.usec_of(k, period)
         link.send()
         held = link.first_heard is None
         while True:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from quadsitl.jit import jit
-from quadsitl.wire import NOT_THIS_FRAME, decode_actuators, encode_state
+from quadsitl.wire import NOT_THIS_FRAME, decode_actuators, encode_state, usec_of
 from sitl.plant import step_arrays
 
 # The tick's integer bookkeeping (``io``, int64): the link's sequence number, the length of the state frame
@@ -23,7 +23,7 @@ STEPPED, FUTURE, NOTHING, ANOTHER_FRAME = 0, 1, 2, 3
 def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, tick: int, period: float) -> None:
     """The state ``x`` stamped with tick ``tick``'s simulated time, as ODOMETRY into ``tx``."""
     io[SEQ] = (io[SEQ] + 1) & 0xFF
-    io[TX_LEN] = encode_state(tx, io[SEQ], io[SYSTEM], io[COMPONENT], round(tick * period * 1e6), x)
+    io[TX_LEN] = encode_state(tx, io[SEQ], io[SYSTEM], io[COMPONENT], usec_of(tick, period), x)
 
 
 @jit

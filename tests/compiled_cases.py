@@ -114,7 +114,7 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
         m = int(io_ap[1])
         bytes_out.append(tx[:m].copy())
         rx[:m] = tx[:m]
-        tick.lockstep_tick(rx, m, round(k * preset.sim.period * 1e6), 1e4, received, commanded, x, motors, out, v, a,
+        tick.lockstep_tick(rx, m, wire.usec_of(k, preset.sim.period), 1e4, received, commanded, x, motors, out, v, a,
                            preset.sim.period, 1, 0, tx, io_pl, k)  # fmt: skip
         frames_out.append(np.concatenate([x, mem, cm.cm]))
         bytes_out.append(records.copy())
