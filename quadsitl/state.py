@@ -7,7 +7,6 @@ body rates (p, q, r) exist only on the wire and in logs (see :mod:`quadsitl.fram
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from typing import NamedTuple
 
 
@@ -61,9 +60,3 @@ class Inputs(NamedTuple):
     u2: float = 0.0
     u3: float = 0.0
     u4: float = 0.0
-
-
-def floats(values: Iterable[float]) -> tuple[float, ...]:
-    """A tuple of Python floats, the one type the compiled functions are specialised for (an int among
-    them would make numba compile another version)."""
-    return tuple(map(float, values))

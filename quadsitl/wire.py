@@ -25,7 +25,7 @@ from quadsitl.frames import (
     quaternion_to_euler,
 )
 from quadsitl.jit import jit
-from quadsitl.state import VehicleState, floats
+from quadsitl.state import VehicleState
 
 PLANT_SYSTEM_ID = 1
 PLANT_COMPONENT_ID = mavlink.MAV_COMP_ID_USER1  # the simulator, as PX4's SIH/Gazebo bridges use a separate component
@@ -76,13 +76,6 @@ def state_message(time_usec: int, s: VehicleState) -> mavlink.MAVLink_odometry_m
     )  # fmt: skip
 
 
-def state_from_message(m: mavlink.MAVLink_odometry_message) -> VehicleState:
-    """ODOMETRY → VehicleState (body rates → Euler-angle rates with the inverse of eq (1))."""
-    roll, pitch, yaw = quaternion_to_euler(*m.q)
-    rd, pd, yd = body_rates_to_euler_rates(roll, pitch, m.rollspeed, m.pitchspeed, m.yawspeed)
-    return VehicleState(m.x, m.y, m.z, m.vx, m.vy, m.vz, roll, pitch, yaw, rd, pd, yd)
-
-
 def actuator_message(
     time_usec: int, forces: tuple[float, float, float, float], max_thrust: float, armed: bool
 ) -> mavlink.MAVLink_hil_actuator_controls_message:
@@ -121,10 +114,8 @@ def usec_of(tick: int, period: float) -> int:
 # messages in one datagram, other messages) goes through pymavlink.
 
 import struct  # noqa: E402
-from typing import NamedTuple  # noqa: E402
 
 import numpy as np  # noqa: E402
-from fastcrc.crc16 import mcrf4xx  # noqa: E402
 
 MAVLINK2_STX = 0xFD
 HEADER_SIZE = 10  # stx, len, incompat, compat, seq, sysid, compid, msgid (24 bit)
@@ -292,89 +283,6 @@ def decode_actuators(buf: np.ndarray, length: int, out: np.ndarray, scale: float
 SAFETY_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 
 
-class Odometry(NamedTuple):
-    """The ODOMETRY fields the autopilot uses (names as pymavlink's message attributes)."""
-
-    time_usec: int
-    x: float
-    y: float
-    z: float
-    q: tuple[float, float, float, float]
-    vx: float
-    vy: float
-    vz: float
-    rollspeed: float
-    pitchspeed: float
-    yawspeed: float
-
-
-class ActuatorControls(NamedTuple):
-    time_usec: int
-    controls: tuple[float, ...]
-    mode: int
-
-
-class FrameError(Exception):
-    """A MAVLink 2 frame of one of the two per-tick messages whose CRC does not match."""
-
-
-class FastLink:
-    """Packs the two per-tick messages as MAVLink 2 frames (unsigned) with the compiled encoders, like
-    pymavlink's ``msg.pack(link)`` but for these two messages only, into ``self.buf``."""
-
-    def __init__(self, system: int, component: int) -> None:
-        self.system, self.component = system, component
-        self.seq = 0
-        self.buf = np.zeros(FRAME_MAX, dtype=np.uint8)
-
-    def _next_seq(self) -> int:
-        seq, self.seq = self.seq, (self.seq + 1) & 0xFF
-        return seq
-
-    def pack_state(self, time_usec: int, s: VehicleState) -> bytes:
-        """= ``state_message(time_usec, s).pack(link)``."""
-        n = encode_state(self.buf, self._next_seq(), self.system, self.component, time_usec, floats(s))
-        return self.buf[:n].tobytes()
-
-    def pack_actuators(self, time_usec: int, forces: tuple[float, ...], max_thrust: float, armed: bool) -> bytes:
-        """= ``actuator_message(time_usec, forces, max_thrust, armed).pack(link)``."""
-        n = encode_actuators(self.buf, self._next_seq(), self.system, self.component, time_usec, floats(forces),
-                             float(max_thrust), armed)  # fmt: skip
-        return self.buf[:n].tobytes()
-
-
-def _received(data: bytes) -> np.ndarray:
-    buf = np.zeros(max(len(data), FRAME_MAX), dtype=np.uint8)
-    buf[: len(data)] = np.frombuffer(data, dtype=np.uint8)
-    return buf
-
-
-def parse_state(data: bytes) -> Odometry | None:
-    """One ODOMETRY frame → :class:`Odometry` (float32 values as sent); None when ``data`` is not exactly one
-    such frame; FrameError when its CRC is wrong."""
-    out = np.zeros(DECODED_SIZE)
-    status = decode_state(_received(data), len(data), out)
-    if status == NOT_THIS_FRAME:
-        return None
-    if status == BAD_CRC:
-        raise FrameError(f"message {ODOMETRY_ID}: CRC mismatch")
-    payload = data[HEADER_SIZE : HEADER_SIZE + data[1]].ljust(ODOMETRY_SIZE, b"\0")
-    t, x, y, z, q0, q1, q2, q3, vx, vy, vz, p, q, r = struct.unpack_from("<Qfff4fffffff", payload)
-    return Odometry(t, x, y, z, (q0, q1, q2, q3), vx, vy, vz, p, q, r)
-
-
-def parse_actuators(data: bytes) -> ActuatorControls | None:
-    """One HIL_ACTUATOR_CONTROLS frame → :class:`ActuatorControls`; None when it is not exactly one;
-    FrameError when its CRC is wrong."""
-    status = decode_actuators(_received(data), len(data), np.zeros(4), 1.0)
-    if status == NOT_THIS_FRAME:
-        return None
-    if status == BAD_CRC:
-        raise FrameError(f"message {HIL_ID}: CRC mismatch")
-    fields = _HIL_STRUCT.unpack(data[HEADER_SIZE : HEADER_SIZE + data[1]].ljust(HIL_SIZE, b"\0"))
-    return ActuatorControls(fields[0], fields[2:18], fields[18])
-
-
 # ---- any other message, for the ground-station links ---------------------------------------------------
 
 _HEADER = struct.Struct("<BBBBBBBHB")  # stx, len, incompat, compat, seq, sysid, compid, msgid (24 bit)
@@ -387,7 +295,8 @@ def _payload_only(mav: object, crc_extra: int, payload: bytes, force_mavlink1: b
 def pack(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
     """= what ``mav.send(msg)`` puts on the wire (the frame, then ``mav.seq`` advances), without pymavlink's
     per-message framing machinery (≈ 10 µs a message, a third of it) on an unsigned link: pymavlink makes
-    the payload (its generated ``pack`` with the framing step replaced), and the frame is put together here.
+    the payload (its generated ``pack`` with the framing step replaced), and the frame is put together here
+    with the same compiled CRC as the per-tick frames.
     A signed link goes through pymavlink whole."""
     if mav.signing.sign_outgoing:
         frame = msg.pack(mav)
@@ -403,7 +312,8 @@ def pack(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
         msg_id = msg.get_msgId()  # not msg.id: STATUSTEXT has a field of that name
         body = _HEADER.pack(MAVLINK2_STX, n, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent, msg_id & 0xFFFF,
                             msg_id >> 16)[1:] + payload[:n]  # fmt: skip
-        frame = b"\xfd" + body + struct.pack("<H", mcrf4xx(bytes((msg.crc_extra,)), mcrf4xx(body, 0xFFFF)))
+        crc = crc16(np.frombuffer(body, dtype=np.uint8), 0, len(body), msg.crc_extra)
+        frame = b"\xfd" + body + struct.pack("<H", crc)
     mav.seq = (mav.seq + 1) & 0xFF
     return frame
 
