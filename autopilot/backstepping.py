@@ -48,7 +48,7 @@ from autopilot.control_params import (
 from autopilot.gains import stability_interval
 from autopilot.limits import clamp, tilt_factor
 from quadsitl.config import VehicleParams
-from quadsitl.frames import wrap_pi
+from quadsitl.frames import altitude, climb_rate, wrap_pi
 from quadsitl.jit import jit
 from quadsitl.mixer import inputs_to_forces, residual_rotor_speed
 from quadsitl.param_arrays import ARM, D_OVER_B, IXX, IYY, IZZ, JR, K3, K4, K5, K6, MASS, B, G, vehicle_array
@@ -71,7 +71,7 @@ def backstepping(
     max_tilt = c[MAX_TILT]
     m, ix, iy, iz, arm, jr, g = v[MASS], v[IXX], v[IYY], v[IZZ], v[ARM], v[JR], v[G]
     k3, k4, k5, k6 = v[K3], v[K4], v[K5], v[K6]
-    x1, x2 = -x[2], -x[5]  # altitude and climb rate (NED z and vz are down)
+    x1, x2 = altitude(x), climb_rate(x)
     x3, x4, x5, x6, x7, x8 = x[6], x[9], x[7], x[10], x[8], x[11]
     # Ωr from the previous command (eq (8) inverse, Ω = sign(F)·sqrt(|F|/b)).
     omega_r = residual_rotor_speed(inputs_to_forces(last, v[D_OVER_B]), v[B])

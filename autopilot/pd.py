@@ -39,7 +39,7 @@ from autopilot.control_params import (
 )
 from autopilot.limits import clamp, tilt_factor
 from quadsitl.config import VehicleParams
-from quadsitl.frames import wrap_pi
+from quadsitl.frames import altitude, climb_rate, wrap_pi
 from quadsitl.jit import jit
 from quadsitl.param_arrays import ARM, IXX, IYY, IZZ, MASS, G, vehicle_array
 from quadsitl.state import Inputs, Reference, VehicleState
@@ -54,7 +54,7 @@ def pd(x: tuple[float, ...], ref: tuple[float, float, float, float], v: np.ndarr
     pitch_ref = clamp(ref[2], -max_tilt, max_tilt)
     roll, pitch, yaw = x[6], x[7], x[8]
     cc = tilt_factor(roll, pitch, c[COS_MAX_TILT])
-    u1 = v[MASS] * (v[G] + c[KP] * (ref[0] - -x[2]) - c[KD] * -x[5]) / cc
+    u1 = v[MASS] * (v[G] + c[KP] * (ref[0] - altitude(x)) - c[KD] * climb_rate(x)) / cc
     u2 = v[IXX] / v[ARM] * (c[KP + 1] * (roll_ref - roll) - c[KD + 1] * x[9])
     u3 = v[IYY] / v[ARM] * (c[KP + 2] * (pitch_ref - pitch) - c[KD + 2] * x[10])
     u4 = v[IZZ] * (c[KP + 3] * wrap_pi(ref[3] - yaw) - c[KD + 3] * x[11])

@@ -33,6 +33,7 @@ from autopilot.commander import (
 from autopilot.control_params import MEM_ERRORS, MEM_FORCES, MEM_OMEGA_R, MEM_SIZE, MEM_U, PD
 from autopilot.pd import pd
 from quadsitl import telemetry
+from quadsitl.frames import altitude, climb_rate
 from quadsitl.jit import jit
 from quadsitl.mixer import allocate
 from quadsitl.param_arrays import D_OVER_B
@@ -81,7 +82,7 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
     """The tick once the state (``st``) is known: the commander (its event into io[EVENT]), when armed the law
     and the allocation into ``mem`` (disarmed: zero command and forces), the answer into ``tx``, and the four
     telemetry records into the batch's next row when io[CAPACITY] > 0 (``records``: :class:`Batch`)."""
-    io[EVENT] = commander.update(cm, tick, now, -st[2], -st[5], st[8])
+    io[EVENT] = commander.update(cm, tick, now, altitude(st), climb_rate(st), st[8])
     armed = cm[ARMED] != 0.0
     if armed:
         x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])

@@ -22,6 +22,18 @@ def wrap_pi(angle: float) -> float:
 
 
 @jit
+def altitude(s: tuple) -> float:
+    """Height above the ground plane [m] of a state in VehicleState order: h = −z_NED (the paper's x1)."""
+    return -s[2]
+
+
+@jit
+def climb_rate(s: tuple) -> float:
+    """Vertical speed upwards [m/s] of a state in VehicleState order: ḣ = −vz_NED (the paper's x2)."""
+    return -s[5]
+
+
+@jit
 def euler_rates_to_body_rates(
     roll: float, pitch: float, roll_dot: float, pitch_dot: float, yaw_dot: float
 ) -> tuple[float, float, float]:
