@@ -51,7 +51,7 @@ from autopilot.control_params import (
 )
 from autopilot.gains import stability_interval
 from autopilot.limits import clamp, tilt_factor
-from quadsitl.config import VehicleParams
+from quadsitl.config import PositionParams, VehicleParams
 from quadsitl.frames import altitude, climb_rate, wrap_pi
 from quadsitl.jit import jit
 from quadsitl.mixer import inputs_to_forces, residual_rotor_speed
@@ -228,13 +228,14 @@ class BacksteppingController:
         thrust_max: float = math.inf,
         kp: Sequence[float] = (0.0,) * 4,
         kd: Sequence[float] = (0.0,) * 4,
+        position: PositionParams | None = None,
     ) -> None:
         self.vehicle = vehicle
         self.period = period
         self.poles = tuple(float(p) for p in poles)
         self.epsilon_interval = stability_interval(self.poles, period)
         self.v = vehicle_array(vehicle)
-        self.c = control_array(self.poles, period, kp, kd, max_tilt, thrust_min, thrust_max)
+        self.c = control_array(self.poles, period, kp, kd, max_tilt, thrust_min, thrust_max, position)
         self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
         self.reset()
 

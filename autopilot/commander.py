@@ -507,6 +507,17 @@ class Commander:
         cm[LEG_SPEED] = self.settings.cruise if math.isnan(speed) or speed <= 0.0 else speed
         return True, ""
 
+    def position_target_here(self) -> tuple[float, float, float]:
+        """Where the vehicle can stop from its current velocity (x, y NED [m], altitude [m])."""
+        cm, a = self.cm, self.settings.acc_hor
+        return (float(cm[X] + stop_distance(cm[VX], a)), float(cm[Y] + stop_distance(cm[VY], a)),
+                float(max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)))  # fmt: skip
+
+    def change_speed(self, speed: float) -> None:
+        """MAV_CMD_DO_CHANGE_SPEED: the horizontal speed of the current and later legs [m/s]."""
+        self.settings.cruise = speed
+        self.cm[CRUISE] = self.cm[LEG_SPEED] = speed
+
     def plant_lost(self) -> None:
         """No vehicle state arrives: flying blind. Armed, switch to LAND (it resumes when states do)."""
         self.messages.append((2, "Plant link lost: no vehicle state"))
