@@ -96,13 +96,14 @@ def attitude_for(ax: float, ay: float, a_v: float, yaw: float) -> tuple[float, f
 
 
 @jit
-def horizontal(
+def horizontal_acceleration(
     s: tuple[float, ...], sp: tuple[float, float, float, float, float, float], zeta_x: float, zeta_y: float,
     a_v: float, v: np.ndarray, c: np.ndarray,
 ) -> tuple[float, float, tuple[float, float, float, float], float, float]:  # fmt: skip
-    """One step of the horizontal loop for the state ``s`` (the 12 VehicleState fields), the reference ``sp``
-    (x, y [m], vx, vy [m/s], ax, ay [m/s²], NED; NaN: not given), the integrator states and the upward
-    acceleration ``a_v`` [m/s²] of the thrust: (roll_ref, pitch_ref [rad], (e9, e10, e11, e12), ζx⁺, ζy⁺)."""
+    """The horizontal loop's output for the state ``s`` (the 12 VehicleState fields), the reference ``sp`` (x, y
+    [m], vx, vy [m/s], ax, ay [m/s²], NED; NaN: not given), the integrator states and the upward acceleration
+    ``a_v`` [m/s²] of the thrust: the thrust's horizontal acceleration (a_x, a_y) [m/s², NED] within the tilt
+    limit, (e9, e10, e11, e12), and the next integrator states ζx⁺, ζy⁺."""
     T = c[PERIOD]
     l9, l10, l11, l12 = c[POLES_XY], c[POLES_XY + 1], c[POLES_XY + 2], c[POLES_XY + 3]
     m = v[MASS]
@@ -126,5 +127,16 @@ def horizontal(
     if limited:
         zx, zy = zeta_x, zeta_y
     zx, zy = bounded_integral(zx, kappa_x, c[INT_LIM]), bounded_integral(zy, kappa_y, c[INT_LIM])
+    return ax, ay, (e9, e10, e11, e12), zx, zy
+
+
+@jit
+def horizontal(
+    s: tuple[float, ...], sp: tuple[float, float, float, float, float, float], zeta_x: float, zeta_y: float,
+    a_v: float, v: np.ndarray, c: np.ndarray,
+) -> tuple[float, float, tuple[float, float, float, float], float, float]:  # fmt: skip
+    """One step of the horizontal loop (:func:`horizontal_acceleration`), turned into attitude (55): (roll_ref,
+    pitch_ref [rad], (e9, e10, e11, e12), ζx⁺, ζy⁺)."""
+    ax, ay, errors, zx, zy = horizontal_acceleration(s, sp, zeta_x, zeta_y, a_v, v, c)
     roll, pitch = attitude_for(ax, ay, a_v, s[8])
-    return roll, pitch, (e9, e10, e11, e12), zx, zy
+    return roll, pitch, errors, zx, zy
