@@ -16,9 +16,9 @@ direction; eqs (2)–(3) inverted for the measured yaw ψ give the roll and pitc
 
     a_f = cψ·a_x + sψ·a_y,  a_r = −sψ·a_x + cψ·a_y,  θ_d = atan2(−a_f, a_v),  φ_d = atan2(a_r·cθ_d, a_v)
 
-The horizontal virtual velocity is bounded by MPC_XY_VEL_MAX (54) and the tilt of the thrust by
-MPC_TILTMAX_AIR (53); the integrator (an anti-windup one: it holds while the tilt limit acts, and
-|κ·ζ| ≤ INT_LIM) removes the offset a constant horizontal force leaves (eq (57)).
+The horizontal virtual velocity is bounded by MPC_XY_VEL_MAX and the tilt of the thrust by MPC_TILTMAX_AIR
+(54); the integrator (an anti-windup one: it holds while the tilt limit acts, and
+|κ·ζ| ≤ INT_LIM) removes the offset a constant horizontal force leaves (eqs (57)–(59)).
 
 :func:`horizontal` is compiled (:mod:`quadsitl.jit`), pure, and shared by both inner controllers.
 """
@@ -122,7 +122,7 @@ def horizontal_acceleration(
     # (52): the thrust's horizontal acceleration that makes e10⁺ = λ10·e10 and e12⁺ = λ12·e12.
     ax = (vx_next + l10 * e10 - (1.0 - T * v[K1] / m) * x10) / T
     ay = (vy_next + l12 * e12 - (1.0 - T * v[K2] / m) * x12) / T
-    # (53): the tilt of the thrust within MPC_TILTMAX_AIR; while it limits, the integrators hold (anti-windup).
+    # (54): the tilt of the thrust within MPC_TILTMAX_AIR; while it limits, the integrators hold (anti-windup).
     ax, ay, limited = scale_to(ax, ay, max(a_v, 0.0) * c[TAN_TILT_AIR])
     if limited:
         zx, zy = zeta_x, zeta_y

@@ -34,7 +34,7 @@ def _arrays(ki: float = 0.0):
 @pytest.mark.parametrize("mode", ["position", "position+velocity+acceleration", "velocity"])
 def test_horizontal_loop_designed_error_dynamics_hold_to_round_off(mode, ki):
     """On the loop's design model (the Euler point mass with drag, eq (3) with the thrust's acceleration as the
-    input) the errors follow e9⁺ = λ9·e9 − T·κ·ζ + T·e10 and e10⁺ = λ10·e10 (eqs (50), (57)), also for a moving
+    input) the errors follow e9⁺ = λ9·e9 − T·κ·ζ + T·e10 and e10⁺ = λ10·e10 (eq (57)), also for a moving
     reference; likewise for y."""
     v, c, T = _arrays(ki)
     rng = np.random.default_rng(7)
