@@ -51,6 +51,7 @@ BATCH_TICKS = 512  # and at the latest after this many ticks
 PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lost (failsafe)
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
+GCS_BUDGET = 0.001  # [s] wall: the most time one reading of the ground-station sockets may take
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
 SUPPORTED_MODES = "supported are offboard (6), takeoff (4/2), hold (4/3), RTL (4/5), land (4/6)"
 
@@ -331,7 +332,7 @@ class Autopilot:
                 wire.Mode.from_px4(m.custom_mode) if m.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else None
             )
             if mode is None:
-                self._say(mavlink.MAV_SEVERITY_WARNING, f"Mode {m.custom_mode}: {SUPPORTED_MODES}")
+                self._say_once("set_mode", f"Mode {m.custom_mode}: {SUPPORTED_MODES}")
             else:
                 _, reason = self.commander.set_mode(mode)
                 if reason:
@@ -490,8 +491,8 @@ class Autopilot:
         self._send_gcs(mavlink.MAVLink_command_ack_message(cmd, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()))
         if reply is not None:
             self._send_gcs(reply)
-        if reason:
-            self._say(mavlink.MAV_SEVERITY_WARNING, reason)
+        if reason:  # the same reason at most once a second: a flood of bad commands is not a flood of texts
+            self._say_once(reason, reason, every=1.0)
 
     @staticmethod
     def _location(m) -> tuple[float, float, float, int]:
@@ -620,9 +621,12 @@ class Autopilot:
         return mav
 
     def poll_gcs(self) -> None:
-        """Everything waiting on the ground-station sockets."""
+        """What waits on the ground-station sockets, up to GCS_BUDGET seconds of work per call: a flood of
+        datagrams (hostile or not) waits in the socket buffers, or overflows it, while the plant link is
+        serviced between polls; it never starves the control loop."""
+        deadline = time.perf_counter() + GCS_BUDGET
         for link in self.links:
-            while True:
+            while time.perf_counter() < deadline:
                 try:
                     data, sender = link.sock.recvfrom(65535)
                 except (BlockingIOError, InterruptedError):
