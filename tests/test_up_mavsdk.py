@@ -52,6 +52,7 @@ async def session(port: int) -> dict:
         home = await first(tel.subscribe_home())
         seen["home"] = (home.latitude_deg, home.longitude_deg, home.absolute_altitude_m)
 
+        await until(tel.subscribe_health(), lambda h: h.is_armable, 20)
         await action.arm()
         seen["armed"] = await until(tel.subscribe_armed(), bool, 5)
         await off.set_position_ned(PositionNedYaw(0.0, 0.0, -2.0, 0.0))  # climb to 2 m first

@@ -15,6 +15,7 @@ def client():
     with quadsitl_up() as v:
         c = Client(v.gcs_port)
         try:
+            c.wait_armable()  # the plant's first state has reached the autopilot
             yield c
         finally:
             c.close()
