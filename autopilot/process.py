@@ -263,8 +263,17 @@ class Autopilot:
             reversible=self.reversible,
             max_total_thrust=4.0 * self.f_max,
             load=self.load,
-            errors=(self.errors_comm, self.unknown, self.refused, self.errors_plant, self.not_for_us),
+            errors=self.errors,
+            has_state=not self.plant_lost,
         )
+
+    @property
+    def errors(self) -> tuple[int, int, int, int, int]:
+        return self.errors_comm, self.unknown, self.refused, self.errors_plant, self.not_for_us
+
+    def has_state(self) -> bool:
+        """A vehicle state arrives from the plant: SYS_STATUS's sensors are healthy, and arming may proceed."""
+        return self.latest() is not None and not self.plant_lost
 
     # ---- the ground-station links --------------------------------------------------------------
 
@@ -299,6 +308,8 @@ class Autopilot:
 
     def heartbeat(self) -> None:
         self._send_gcs(gcs_messages.heartbeat(self.commander))
+        if not self.has_state():  # no ticks, so no streams: SYS_STATUS says "not armable" here
+            self._send_gcs(gcs_messages.sys_status(self.load, self.errors, has_state=False))
 
     def on_gcs(self, m, link: GcsLink, sender: tuple[str, int]) -> None:
         new_peer = sender not in link.peers
@@ -435,13 +446,12 @@ class Autopilot:
         cmd = m.command
         if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             if m.param1 == 1.0:
-                ok, reason = c.arm()
+                reason = "" if c.armed else gcs_messages.arming_check(self.has_state())
+                ok, reason = (False, reason) if reason else c.arm()
                 result = accepted if ok else denied
             elif m.param1 == 0.0:
                 latest = self.latest()
-                in_air = latest is not None and gcs_messages.landed_state(c, latest[1]) == (
-                    mavlink.MAV_LANDED_STATE_IN_AIR
-                )
+                in_air = latest is not None and gcs_messages.in_air(c, latest[1])
                 if in_air and as_int(m.param2) != FORCE_DISARM:
                     result, reason = denied, f"Disarming denied: in the air (force with param2 = {FORCE_DISARM})"
                 else:
