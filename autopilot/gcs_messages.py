@@ -64,6 +64,27 @@ class Snapshot:
     # GLOBAL_POSITION_INT.relative_alt is the altitude above it.
     home: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     has_state: bool = True  # a vehicle state arrives from the plant: sensors healthy, pre-arm check passed
+    # The position reference flown (local NED x, y [m], vx, vy [m/s], altitude [m], climb rate [m/s]); NaN where
+    # not controlled (the horizontal position under attitude setpoints, the altitude under a climb rate alone).
+    target: tuple[float, float, float, float, float, float] = (math.nan,) * 4 + (0.0, math.nan)
+
+
+def position_target(s: Snapshot, ms: int) -> mavlink.MAVLink_position_target_local_ned_message:
+    """POSITION_TARGET_LOCAL_NED: the position and velocity the autopilot flies to, a field's ignore bit set where
+    it is not controlled (accelerations and yaw rate always: the yaw is the target)."""
+    x, y, vx, vy, alt, climb = s.target
+    values = (x, y, -alt, vx, vy, -climb)
+    mask = 64 | 128 | 256 | 2048
+    for bit, value in enumerate(values):
+        if not math.isfinite(value):
+            mask |= 1 << bit
+    out = [v if math.isfinite(v) else 0.0 for v in values]
+    yaw = s.reference.yaw if math.isfinite(s.reference.yaw) else 0.0
+    if not math.isfinite(s.reference.yaw):
+        mask |= 1024
+    return mavlink.MAVLink_position_target_local_ned_message(
+        ms, mavlink.MAV_FRAME_LOCAL_NED, mask, *out, 0.0, 0.0, 0.0, yaw, 0.0
+    )
 
 
 def heartbeat(c: Commander) -> mavlink.MAVLink_heartbeat_message:
@@ -169,12 +190,7 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
         # type_mask 7: the body-rate fields are not used.
         return mavlink.MAVLink_attitude_target_message(ms, 7, qd, 0.0, 0.0, 0.0, thrust)
     if msg_id == mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
-        # Only z is a target (the altitude reference); x, y, velocities, accelerations, yaw rate ignored.
-        mask = 1 | 2 | 8 | 16 | 32 | 64 | 128 | 256 | 2048  # yaw (1024) is a target too
-        return mavlink.MAVLink_position_target_local_ned_message(
-            ms, mavlink.MAV_FRAME_LOCAL_NED, mask, 0.0, 0.0, -s.reference.altitude, 0, 0, 0, 0, 0, 0,
-            s.reference.yaw, 0.0,
-        )  # fmt: skip
+        return position_target(s, ms)
     if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
         return global_position_int(origin, st, s.time_ms, home_z=s.home[2])
     if msg_id == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
@@ -248,6 +264,7 @@ CONTROL = (  # what the autopilot controls
     | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
     | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
     | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
     | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
 )
 PRESENT = SENSORS | CONTROL | mavlink.MAV_SYS_STATUS_PREARM_CHECK  # also "enabled"

@@ -265,7 +265,17 @@ class Autopilot:
             load=self.load,
             errors=self.errors,
             has_state=not self.plant_lost,
+            home=self._home(),
+            target=self.commander.target if self.commander.armed else (math.nan,) * 4 + (ref.altitude, math.nan),
         )
+
+    def _home(self) -> tuple[float, float, float, float]:
+        """Home (where the vehicle armed) in the local frame: x, y, z [m] NED and heading [rad]."""
+        x, y, alt = self.commander.home
+        return x, y, -alt, self.commander.home_yaw
+
+    def _home_position(self):
+        return gcs_messages.home_position(self.home, *self._home())
 
     @property
     def errors(self) -> tuple[int, int, int, int, int]:
@@ -483,7 +493,7 @@ class Autopilot:
         elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             reply = gcs_messages.autopilot_version(self.sysid)
         elif cmd == mavlink.MAV_CMD_GET_HOME_POSITION:
-            reply = gcs_messages.home_position(self.home)
+            reply = self._home_position()
         elif cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
             result, reason, reply = self._requested(m.param1)
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
@@ -571,7 +581,7 @@ class Autopilot:
         if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.autopilot_version(self.sysid)
         if mid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
-            return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.home_position(self.home)
+            return mavlink.MAV_RESULT_ACCEPTED, "", self._home_position()
         if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
             return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.heartbeat(self.commander)
         if self.streams.supported(mid):
