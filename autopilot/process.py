@@ -392,7 +392,7 @@ class Autopilot:
             groups = setpoints.position_target(m.coordinate_frame, m.type_mask, pos, (m.vx, m.vy, m.vz),
                                                (m.afx, m.afy, m.afz), m.yaw, m.yaw_rate, self.frame())  # fmt: skip
         except setpoints.SetpointError as exc:
-            self._refuse("position", str(exc))
+            self._refuse(f"position {exc.kind}", str(exc))
             return
         self.commander.on_position_setpoint(*groups)
 

@@ -12,10 +12,11 @@ ignores, None for a group whose fields are all ignored. Frames:
   ground, which is flat at the local origin's altitude): latitude and longitude by PX4's map projection
   from the local origin (:func:`quadsitl.frames.geodetic_to_ned`).
 
-SetpointError, with a reason that names the field, the value and what is allowed (the caller counts it and keeps
-the last valid setpoint): another frame; a field used but not finite; acceleration with FORCE_SET (512, as
-PX4); an altitude outside [0, SP_ALT_MAX]; a position farther than GF_MAX_HOR_DIST from home (when > 0); a
-horizontal speed above MPC_XY_VEL_MAX; a climb or descent rate above MPC_Z_VEL_MAX_UP/_DN.
+Refused (:class:`SetpointError`), with a reason that names the field, the value and what is allowed (the
+caller counts it and keeps the last valid setpoint): another frame; a field used but not finite; acceleration
+with FORCE_SET (512, as PX4); an altitude outside [0, SP_ALT_MAX]; a position farther than GF_MAX_HOR_DIST
+from home (when > 0); a horizontal speed above MPC_XY_VEL_MAX; a climb or descent rate above
+MPC_Z_VEL_MAX_UP/_DN.
 """
 
 from __future__ import annotations
@@ -56,7 +57,12 @@ class Frame:
 
 
 class SetpointError(ValueError):
-    """A setpoint or command we do not fly; the message says why."""
+    """A setpoint or command we do not fly; the message says why: "<what> refused: <field or check> …"."""
+
+    @property
+    def kind(self) -> str:
+        """The field or check that refused (the first word after "refused: "), to say each kind once a while."""
+        return str(self).split("refused: ", 1)[-1].split(" ", 1)[0]
 
 
 def _field(name: str, value: float, ignored: bool, bit: int) -> float:
@@ -92,7 +98,7 @@ def check_position(x: float, y: float, altitude: float, f: Frame, what: str = "P
         d = math.hypot(hx - f.home[0], hy - f.home[1])
         if d > f.max_distance:
             raise SetpointError(
-                f"{what} refused: {d:.1f} m from home; allowed: up to {f.max_distance:g} m, parameter GF_MAX_HOR_DIST"
+                f"{what} refused: distance from home {d:.1f} m; allowed: up to {f.max_distance:g} m (GF_MAX_HOR_DIST)"
             )
 
 

@@ -76,7 +76,7 @@ def test_global_frames_convert_through_the_map_projection():
         ({"pos": (1e9, 0.0, 100.0), "frame": 5}, "lat_int = 1e+09: expected a latitude in [-90, 90]"),
         (
             {"f": Frame(ORIGIN, max_distance=100.0), "pos": (100.0, 10.0, -3.0)},
-            "100.5 m from home; allowed: up to 100 m, parameter GF_MAX_HOR_DIST",
+            "distance from home 100.5 m; allowed: up to 100 m (GF_MAX_HOR_DIST)",
         ),
     ],
 )
@@ -85,6 +85,7 @@ def test_refusals_name_the_field_the_value_and_what_is_allowed(kw, message):
     with pytest.raises(SetpointError) as err:
         target(**kw)
     assert message in str(err.value)
+    assert err.value.kind == message.split(" ", 1)[0]  # each kind of refusal is said on its own
 
 
 def test_reposition_keeps_nan_coordinates_and_checks_the_location():
