@@ -116,6 +116,9 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
     _put(records, at + 8, now)
     for i in range(4):  # the reference shown: the one flown, or the one held while disarmed
         _put(records, at + 16 + 8 * i, cm[REF_ALT + i] if armed else cm[HOLD_ALT + i])
+    # x_ref, y_ref: wired to the commander's position reference by the position-control work
+    _put(records, at + 48, np.nan)
+    _put(records, at + 56, np.nan)
     at = capacity * (STATE_SIZE + SETPOINT_SIZE) + row * ACTUATORS_SIZE
     _put_int(records, at, tick)
     _put(records, at + 8, now)
