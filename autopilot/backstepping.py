@@ -34,6 +34,8 @@ import numpy as np
 from autopilot.control_params import (
     BACKSTEPPING,
     COS_MAX_TILT,
+    INT_LIM,
+    KI_ALT,
     MAX_TILT,
     MEM_ERRORS,
     MEM_OMEGA_R,
@@ -41,8 +43,10 @@ from autopilot.control_params import (
     MEM_U,
     PERIOD,
     POLES,
+    POSITION,
     THRUST_MAX,
     THRUST_MIN,
+    VELOCITY,
     control_array,
 )
 from autopilot.gains import stability_interval
@@ -58,43 +62,83 @@ Errors = tuple[float, float, float, float, float, float, float, float]
 
 
 @jit
-def backstepping(
-    x: tuple[float, ...], ref: tuple[float, float, float, float], last: tuple[float, float, float, float],
-    v: np.ndarray, c: np.ndarray,
-) -> tuple[Inputs, Errors, float]:  # fmt: skip
-    """One step of the law for the state ``x`` (the 12 VehicleState fields) and the reference (altitude,
-    roll, pitch, yaw): (u1..u4, the errors e1..e8, the Ωr assumed). ``last`` is the previous command
+def virtual_velocity(
+    e_a: float, x_b: float, v_ff: float, a_ff: float, zeta: float, kappa: float, lam: float, T: float, mode: int
+) -> tuple[float, float, float]:  # fmt: skip
+    """One channel's virtual control x_(i+1)d, its next value x_(i+1)d⁺ and the next integrator state ζ⁺, for
+    the position error ``e_a`` (18), the rate ``x_b``, feed-forward velocity ``v_ff`` and acceleration ``a_ff`` of
+    the reference, the integrator state ``zeta`` [m·s] with gain ``kappa`` [1/s²] (0: the paper's law), and the
+    channel's pole λ_i. With v_ff = a_ff = κ = 0 these are exactly the paper's (26) and (32)."""
+    if mode == POSITION:
+        zeta_next = zeta + T * e_a  # (47)
+        x_bd = v_ff + (lam - 1.0) / T * e_a - kappa * zeta  # (26), (48)
+        x_bd_next = v_ff + T * a_ff + (lam - 1.0) / T * (e_a + T * (x_b - v_ff)) - kappa * zeta_next  # (20), (32)
+    elif mode == VELOCITY:  # (49): the position is free, the rate follows the reference
+        zeta_next, x_bd, x_bd_next = zeta, v_ff, v_ff + T * a_ff
+    else:  # (50): acceleration only
+        zeta_next, x_bd, x_bd_next = zeta, x_b, x_b + T * a_ff
+    return x_bd, x_bd_next, zeta_next
+
+
+@jit
+def integral_gain(k_i: float, lam: float, T: float) -> float:
+    """κ = k_I·k [1/s²] for the integral rate k_I [1/s] of a loop whose position pole is λ = 1 − T·k (51)."""
+    return k_i * (1.0 - lam) / T
+
+
+@jit
+def bounded_integral(zeta: float, kappa: float, limit: float) -> float:
+    """ζ with |κ·ζ| ≤ ``limit`` [m/s] (anti-windup); unchanged while κ = 0."""
+    if kappa > 0.0:
+        return clamp(zeta, -limit / kappa, limit / kappa)
+    return zeta
+
+
+@jit
+def altitude_law(
+    x1: float, x2: float, h_ref: float, climb_ff: float, climb_acc: float, zeta: float, mode: int, lo: float,
+    hi: float, v: np.ndarray, c: np.ndarray,
+) -> tuple[float, float, float, float]:  # fmt: skip
+    """The altitude channel: (B, e1, e2, ζ⁺) with u1 = m/(T·cφcθ)·B (28), so B/T is the upward acceleration the
+    thrust must give [m/s²]. ``lo``, ``hi`` bound the virtual climb rate [m/s] (±inf: the paper's law)."""
+    T, l1, l2 = c[PERIOD], c[POLES], c[POLES + 1]
+    m = v[MASS]
+    e1 = x1 - h_ref if mode == POSITION else 0.0  # (18)
+    kappa = integral_gain(c[KI_ALT], l1, T)
+    x2d, x2d_next, zeta_next = virtual_velocity(e1, x2, climb_ff, climb_acc, zeta, kappa, l1, T, mode)
+    zeta_next = bounded_integral(zeta_next, kappa, c[INT_LIM])
+    e2 = x2 - clamp(x2d, lo, hi)  # (19)
+    # (28), errata 4: −(1 − T·K3/m)·x2 + T·g; the paper's −k2·e2 is +λ2·e2.
+    b = -(1.0 - T * v[K3] / m) * x2 + T * v[G] + clamp(x2d_next, lo, hi) + l2 * e2
+    return b, e1, e2, zeta_next
+
+
+@jit
+def attitude_law(
+    x: tuple[float, ...], roll_ref: float, pitch_ref: float, yaw_ref: float, yaw_rate_ff: float, yaw_mode: int,
+    last: tuple[float, float, float, float], v: np.ndarray, c: np.ndarray,
+) -> tuple[float, float, float, tuple[float, float, float, float, float, float], float]:  # fmt: skip
+    """The roll, pitch and yaw channels: (u2, u3, u4, e3..e8, the Ωr assumed). ``last`` is the previous command
     (u1..u4), whose Ωr the step assumes: the current command's is not known before it is computed."""
     T = c[PERIOD]
-    l1, l2, l3, l4 = c[POLES], c[POLES + 1], c[POLES + 2], c[POLES + 3]
-    l5, l6, l7, l8 = c[POLES + 4], c[POLES + 5], c[POLES + 6], c[POLES + 7]
+    l3, l4, l5, l6 = c[POLES + 2], c[POLES + 3], c[POLES + 4], c[POLES + 5]
+    l7, l8 = c[POLES + 6], c[POLES + 7]
     max_tilt = c[MAX_TILT]
-    m, ix, iy, iz, arm, jr, g = v[MASS], v[IXX], v[IYY], v[IZZ], v[ARM], v[JR], v[G]
-    k3, k4, k5, k6 = v[K3], v[K4], v[K5], v[K6]
-    x1, x2 = altitude(x), climb_rate(x)
+    ix, iy, iz, arm, jr = v[IXX], v[IYY], v[IZZ], v[ARM], v[JR]
+    k4, k5, k6 = v[K4], v[K5], v[K6]
     x3, x4, x5, x6, x7, x8 = x[6], x[9], x[7], x[10], x[8], x[11]
     # Ωr from the previous command (eq (8) inverse, Ω = sign(F)·sqrt(|F|/b)).
     omega_r = residual_rotor_speed(inputs_to_forces(last, v[D_OVER_B]), v[B])
 
-    # (18): position errors; the yaw error is wrapped, the roll and pitch references bounded (erratum 8).
-    e1 = x1 - ref[0]
-    e3 = x3 - clamp(ref[1], -max_tilt, max_tilt)
-    e5 = x5 - clamp(ref[2], -max_tilt, max_tilt)
-    e7 = wrap_pi(x7 - ref[3])
-    # (26) virtual controls and (19) rate errors.
-    e2 = x2 - (l1 - 1.0) / T * e1
-    e4 = x4 - (l3 - 1.0) / T * e3
-    e6 = x6 - (l5 - 1.0) / T * e5
-    e8 = x8 - (l7 - 1.0) / T * e7
-    # (20) predicted position errors and (32) next virtual controls x_(i+1)d⁺.
-    x2d_next = (l1 - 1.0) / T * (e1 + T * x2)
-    x4d_next = (l3 - 1.0) / T * (e3 + T * x4)
-    x6d_next = (l5 - 1.0) / T * (e5 + T * x6)
-    x8d_next = (l7 - 1.0) / T * (e7 + T * x8)
-
-    # (28), errata 4: −(1 − T·K3/m)·x2 + T·g; the paper's −k2·e2 is +λ2·e2.
-    cc = tilt_factor(x3, x5, c[COS_MAX_TILT])
-    u1 = m / (T * cc) * (-(1.0 - T * k3 / m) * x2 + T * g + x2d_next + l2 * e2)
+    # (18): the roll and pitch references bounded (erratum 8), the yaw error wrapped.
+    e3 = x3 - clamp(roll_ref, -max_tilt, max_tilt)
+    e5 = x5 - clamp(pitch_ref, -max_tilt, max_tilt)
+    e7 = wrap_pi(x7 - yaw_ref) if yaw_mode == POSITION else 0.0
+    # (26) virtual controls, (19) rate errors, (20) predicted errors and (32) next virtual controls.
+    x4d, x4d_next, _ = virtual_velocity(e3, x4, 0.0, 0.0, 0.0, 0.0, l3, T, POSITION)
+    x6d, x6d_next, _ = virtual_velocity(e5, x6, 0.0, 0.0, 0.0, 0.0, l5, T, POSITION)
+    x8d, x8d_next, _ = virtual_velocity(e7, x8, yaw_rate_ff, 0.0, 0.0, 0.0, l7, T, yaw_mode)
+    e4, e6, e8 = x4 - x4d, x6 - x6d, x8 - x8d
     # (29)
     u2 = (
         ix
@@ -121,9 +165,30 @@ def backstepping(
     )
     # (31), errata 3: (1 − T·K6/Iz), not (1 − T·K6/m).
     u4 = iz / T * (-(1.0 - T * k6 / iz) * x8 - T * x4 * x6 * (ix - iy) / iz + x8d_next + l8 * e8)
+    return u2, u3, u4, (e3, e4, e5, e6, e7, e8), omega_r
 
-    u = Inputs(clamp(u1, c[THRUST_MIN], c[THRUST_MAX]), u2, u3, u4)
-    return u, (e1, e2, e3, e4, e5, e6, e7, e8), omega_r
+
+@jit
+def thrust(b: float, roll: float, pitch: float, v: np.ndarray, c: np.ndarray) -> float:
+    """u1 = m/(T·cφcθ)·B (28), cφcθ bounded below (erratum 8), clamped to the thrust bounds [N]."""
+    cc = tilt_factor(roll, pitch, c[COS_MAX_TILT])
+    return clamp(v[MASS] / (c[PERIOD] * cc) * b, c[THRUST_MIN], c[THRUST_MAX])
+
+
+@jit
+def backstepping(
+    x: tuple[float, ...], ref: tuple[float, float, float, float], last: tuple[float, float, float, float],
+    v: np.ndarray, c: np.ndarray,
+) -> tuple[Inputs, Errors, float]:  # fmt: skip
+    """One step of the paper's law for the state ``x`` (the 12 VehicleState fields) and the reference (altitude,
+    roll, pitch, yaw), constant between ticks: (u1..u4, the errors e1..e8, the Ωr assumed). ``last`` is the
+    previous command (u1..u4), whose Ωr the step assumes."""
+    inf = math.inf
+    b, e1, e2, _ = altitude_law(altitude(x), climb_rate(x), ref[0], 0.0, 0.0, 0.0, POSITION, -inf, inf, v, c)
+    u1 = thrust(b, x[6], x[7], v, c)
+    u2, u3, u4, (e3, e4, e5, e6, e7, e8), omega_r = attitude_law(x, ref[1], ref[2], ref[3], 0.0, POSITION, last,
+                                                                  v, c)  # fmt: skip
+    return Inputs(u1, u2, u3, u4), (e1, e2, e3, e4, e5, e6, e7, e8), omega_r
 
 
 @jit

@@ -1,25 +1,34 @@
 """Modes, arming, setpoints and failsafes: a pure state machine, fed with events and simulated time.
 
-No I/O. The process shell calls ``arm``/``disarm``/``set_mode``/setpoint handlers when MAVLink says
-so, and ``update`` once per control tick; it gets back the reference to fly (or ``None`` when
-disarmed) and messages to announce in STATUSTEXT.
+No I/O. The process shell calls ``arm``/``disarm``/``set_mode``/``takeoff``/``reposition``/setpoint handlers
+when MAVLink says so, and ``update`` once per control tick; ``update`` leaves the reference to fly in the
+state array (a trajectory setpoint as PX4's: position, velocity and acceleration per axis, NaN where not
+controlled, or an attitude) and reports events to announce in STATUSTEXT.
 
-Rules:
-- Boot: disarmed, HOLD. Arming is allowed in HOLD and OFFBOARD; arming into OFFBOARD needs a fresh
-  setpoint stream. Switching to OFFBOARD needs a fresh setpoint stream (PX4 convention).
-- Setpoint stream: SET_ATTITUDE_TARGET and SET_POSITION_TARGET_LOCAL_NED both feed it; it is fresh
-  while the newest arrived within ``setpoint_timeout`` seconds of *simulated* time.
-- OFFBOARD: altitude reference = the last z setpoint (the altitude held on entering offboard until
-  one arrives); attitude reference = the last attitude setpoint (level, current heading until one does).
+Rules (PX4's, DESIGN.md §8–§9):
+- Boot: disarmed, HOLD. Arming is allowed in HOLD, TAKEOFF and OFFBOARD; arming into OFFBOARD needs a fresh
+  setpoint stream. Switching to OFFBOARD needs a fresh setpoint stream. Home is where the vehicle arms.
+- Setpoint stream: SET_ATTITUDE_TARGET and SET_POSITION_TARGET_* feed it; it is fresh while the newest
+  arrived within ``setpoint_timeout`` seconds of *simulated* time.
+- OFFBOARD: each axis group flies its last setpoint: horizontal (x, y: position, velocity or acceleration;
+  none given: the last attitude setpoint's roll and pitch, level before one), vertical (altitude or climb
+  rate; the altitude on entering offboard until one arrives), heading (yaw, yaw rate, or the heading on
+  entry). A setpoint that ignores every field of a group leaves that group as it was.
 - Failsafe: in OFFBOARD, a stream older than the timeout switches to LAND and says so.
-- HOLD: level attitude, heading and altitude as on entry. LAND: level, heading as on entry, altitude
-  reference descending at ``land_speed`` to below the ground; touchdown (altitude < 5 cm, |climb| <
-  0.1 m/s for ``landed_time``) disarms.
+- TAKEOFF: climb at MPC_TKO_SPEED to the takeoff altitude, then HOLD.
+- HOLD: the reference comes to a stop with bounded acceleration (MPC_ACC_HOR) and holds position, altitude
+  and heading there, in flight and on the ground; ``reposition`` (DO_REPOSITION, MAVSDK's goto) moves the
+  held point at MPC_XY_CRUISE (or the speed given).
+- RTL: climb to RTL_RETURN_ALT (when lower), fly home at MPC_XY_CRUISE, then land there.
+- LAND (and RTL's last phase): brake to a stop (velocity reference 0, as fast as the tilt limit allows), then
+  hold that point while the altitude reference descends at ``land_speed`` to below the ground; touchdown
+  (altitude < 5 cm, |climb| < 0.1 m/s for ``landed_time``) disarms.
 
 The per-tick part (:func:`update`) is compiled (:mod:`quadsitl.jit`) and works on the commander's state,
 one float64 array with a name per index, so the autopilot's whole tick runs as one compiled call
-(:mod:`autopilot.tick`). The events (arm, modes, setpoints, failsafes) are ordinary Python methods of
-:class:`Commander` on the same array, and the messages to announce are Python strings.
+(:mod:`autopilot.tick`). The events are ordinary Python methods of :class:`Commander` on the same array,
+and the messages to announce are Python strings. The auto modes' references come from
+:func:`advance_reference`: a point moving toward a target with bounded speed and acceleration.
 """
 
 from __future__ import annotations
@@ -38,29 +47,60 @@ FAILSAFE_SETPOINT_LOST = 1
 FAILSAFE_PLANT_LOST = 2
 FAILSAFE_GCS_LOST = 3
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
-HOLD, OFFBOARD, LAND = int(Mode.HOLD), int(Mode.OFFBOARD), int(Mode.LAND)
+HOLD, OFFBOARD, LAND, TAKEOFF, RTL = (int(m) for m in (Mode.HOLD, Mode.OFFBOARD, Mode.LAND, Mode.TAKEOFF, Mode.RTL))
+# The phases of RTL and of LAND.
+RTL_CLIMB, RTL_RETURN, RTL_LAND = 0, 1, 2
+LAND_BRAKING, LAND_DESCENDING = 0, 1
 
-# The commander's state array: flags and mode, the offboard setpoints (NaN: none yet), the time of the
-# newest setpoint [s], the tick the current offboard flight started (−1: none), the reference held in
-# hold and land, when the vehicle came to rest in land (NaN: it has not), the time and tick of the last
-# update, the state it saw (altitude, climb rate [m/s], yaw), the settings the tick needs, and the
-# reference to fly this tick (valid while armed).
-(ARMED, MODE, FAILSAFE, ALT_SP, ROLL_SP, PITCH_SP, YAW_SP, LAST_SP_TIME, OFFBOARD_TICK, HOLD_ALT, HOLD_ROLL,
- HOLD_PITCH, HOLD_YAW, LANDED_SINCE, NOW, TICK, ALTITUDE, CLIMB_RATE, YAW, SETPOINT_TIMEOUT, LAND_SPEED,
- LANDED_TIME, LAND_TARGET, REF_ALT, REF_ROLL, REF_PITCH, REF_YAW, SIZE) = range(28)  # fmt: skip
+# The commander's state array (positions local NED [m], altitudes up [m], velocities [m/s], angles [rad]):
+(ARMED, MODE, FAILSAFE,
+ # the offboard setpoints (NaN: not given): horizontal position, velocity, acceleration; altitude, climb rate
+ # and its rate; attitude; yaw and yaw rate; the time of the newest [s]; the tick the offboard flight started
+ SP_X, SP_Y, SP_VX, SP_VY, SP_AX, SP_AY, SP_ALT, SP_CLIMB, SP_CLIMB_ACC, ROLL_SP, PITCH_SP, YAW_SP, SP_YAW_RATE,
+ LAST_SP_TIME, OFFBOARD_TICK,
+ # the auto modes: the moving reference (position, velocity, acceleration), its target, the heading held,
+ # the speed limit of the current leg, the phase (RTL), the takeoff altitude, the descending altitude of a
+ # landing and when the vehicle came to rest (NaN: it has not)
+ GEN_X, GEN_Y, GEN_ALT, GEN_VX, GEN_VY, GEN_CLIMB, GEN_AX, GEN_AY, GEN_CLIMB_ACC, TARGET_X, TARGET_Y, TARGET_ALT,
+ HOLD_YAW, LEG_SPEED, PHASE, TAKEOFF_ALT, LAND_ALT, LANDED_SINCE,
+ # home (set on arming)
+ HOME_X, HOME_Y, HOME_ALT,
+ # the time and tick of the last update and the state it saw
+ NOW, TICK, X, Y, ALTITUDE, VX, VY, CLIMB_RATE, YAW,
+ # settings
+ SETPOINT_TIMEOUT, LAND_SPEED, LANDED_TIME, LAND_TARGET, ACC_HOR, CRUISE, TKO_SPEED, Z_VEL_UP, Z_VEL_DN,
+ RTL_ALT,
+ # the reference to fly this tick (valid while armed): x, y, vx, vy, ax, ay (NaN: the horizontal position is
+ # not controlled, and roll and pitch are flown), altitude (NaN: the climb rate alone), climb rate, its rate,
+ # roll, pitch, yaw (NaN: the yaw rate alone), yaw rate; and whether the velocity limits apply
+ REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
+ REF_YAW_RATE, REF_LIMITED,
+ SIZE) = range(73)  # fmt: skip
 # What update() reports for the shell to announce.
-EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED = 0, 1, 2
+EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
+TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.05, 0.1  # [m], [m/s]: resting on the ground
+TAKEOFF_TOLERANCE = 0.1  # [m]: takeoff is done when the vehicle is this close to the takeoff altitude
+LAND_BRAKED = 0.5  # [m/s]: a landing descends once the vehicle moves slower than this horizontally
 
 
 @dataclass
 class CommanderSettings:
     setpoint_timeout: float = 1.0  # [s] simulated, like PX4's COM_OF_LOSS_T
-    land_speed: float = 1.0  # [m/s]
+    land_speed: float = 1.0  # [m/s] MPC_LAND_SPEED
     landed_time: float = 0.5  # [s]
     land_target: float = -0.5  # [m] the landing reference goes this far below the ground
-    altitude_max: float = 1000.0  # [m] altitude setpoints above this (or below 0) are refused
+    altitude_max: float = 1000.0  # [m] altitude setpoints above this (or below 0) are refused (SP_ALT_MAX)
     datalink_timeout: float = 10.0  # [s] wall, like PX4's COM_DL_LOSS_T: ground-station heartbeat loss
     datalink_action: int = 0  # index in DATALINK_ACTIONS, like PX4's NAV_DLL_ACT (0: do nothing)
+    acc_hor: float = 3.0  # [m/s²] MPC_ACC_HOR: acceleration of the auto modes' references
+    cruise: float = 5.0  # [m/s] MPC_XY_CRUISE
+    takeoff_speed: float = 1.5  # [m/s] MPC_TKO_SPEED
+    z_vel_up: float = 3.0  # [m/s] MPC_Z_VEL_MAX_UP
+    z_vel_dn: float = 1.5  # [m/s] MPC_Z_VEL_MAX_DN
+    xy_vel_max: float = 12.0  # [m/s] MPC_XY_VEL_MAX: faster velocity setpoints are refused
+    takeoff_alt: float = 2.5  # [m] MIS_TAKEOFF_ALT: above the ground where takeoff starts
+    rtl_alt: float = 60.0  # [m] RTL_RETURN_ALT: above home
+    max_distance: float = 0.0  # [m] GF_MAX_HOR_DIST: setpoints farther from home are refused (0: no limit)
 
 
 @jit
@@ -69,25 +109,170 @@ def stream_fresh(cm: np.ndarray) -> bool:
 
 
 @jit
+def stop_distance(v: float, a: float) -> float:
+    """Signed distance [m] to stop from speed ``v`` at deceleration ``a``."""
+    return v * abs(v) / (2.0 * a)
+
+
+@jit
 def enter(cm: np.ndarray, mode: int) -> None:
-    """Switch to ``mode``; hold and land keep the altitude (not below the ground) and heading of now, level."""
+    """Switch to ``mode``. Auto modes start their reference at the vehicle (position and velocity), aimed at
+    where it can stop (not below the ground), heading as now."""
     cm[MODE] = mode
     cm[LANDED_SINCE] = math.nan
     cm[OFFBOARD_TICK] = -1.0  # an offboard flight starts at the next tick (set in update)
     if mode == OFFBOARD:
-        if math.isnan(cm[ALT_SP]):
-            cm[ALT_SP] = cm[ALTITUDE]
-    else:
-        cm[HOLD_ALT], cm[HOLD_ROLL], cm[HOLD_PITCH], cm[HOLD_YAW] = max(cm[ALTITUDE], 0.0), 0.0, 0.0, cm[YAW]
+        if math.isnan(cm[SP_ALT]) and math.isnan(cm[SP_CLIMB]) and math.isnan(cm[SP_CLIMB_ACC]):
+            cm[SP_ALT] = cm[ALTITUDE]
+        cm[HOLD_YAW] = cm[YAW]
+        return
+    a = cm[ACC_HOR]
+    cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0)
+    cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], cm[CLIMB_RATE]
+    cm[GEN_AX], cm[GEN_AY], cm[GEN_CLIMB_ACC] = 0.0, 0.0, 0.0
+    cm[TARGET_X] = cm[X] + stop_distance(cm[VX], a)
+    cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], a)
+    cm[TARGET_ALT] = max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)
+    cm[HOLD_YAW] = cm[YAW]
+    cm[LEG_SPEED] = cm[CRUISE]
+    cm[PHASE] = 0.0
+    cm[LAND_ALT] = cm[TARGET_ALT]
+    if mode == TAKEOFF:
+        cm[TARGET_ALT] = cm[TAKEOFF_ALT]
+    elif mode == RTL:
+        cm[TARGET_ALT] = max(cm[TARGET_ALT], cm[HOME_ALT] + cm[RTL_ALT])
 
 
 @jit
-def update(cm: np.ndarray, tick: int, now: float, altitude: float, climb_rate: float, yaw: float) -> int:
-    """Advance to tick ``tick`` at simulated time ``now`` [s] with the measured altitude [m], climb rate
-    [m/s] and yaw [rad]. While armed afterwards, cm[REF_ALT:REF_YAW + 1] is the reference to fly. Returns an
-    EVENT_* for the shell to announce."""
+def advance_reference(cm: np.ndarray, dt: float, speed: float, up: float, down: float) -> bool:
+    """Move the auto modes' reference toward its target over ``dt`` [s]: horizontally along the straight line at
+    up to ``speed``, vertically at up to ``up``/``down`` [m/s], each with acceleration up to ACC_HOR, slowing
+    so as to stop on the target (speed ≤ √(2·a·distance)). Returns True once the reference rests on the target."""
+    a = cm[ACC_HOR]
+    dv_max = a * dt
+    # horizontal
+    dx, dy = cm[TARGET_X] - cm[GEN_X], cm[TARGET_Y] - cm[GEN_Y]
+    d = math.sqrt(dx * dx + dy * dy)
+    want_x = want_y = 0.0
+    if d > 0.0:
+        s = min(speed, math.sqrt(2.0 * a * d)) / d
+        want_x, want_y = dx * s, dy * s
+    ddx, ddy = want_x - cm[GEN_VX], want_y - cm[GEN_VY]
+    n = math.sqrt(ddx * ddx + ddy * ddy)
+    if n > dv_max:
+        ddx, ddy = ddx * dv_max / n, ddy * dv_max / n
+    vx, vy = cm[GEN_VX] + ddx, cm[GEN_VY] + ddy
+    h_done = False
+    if d <= math.sqrt(vx * vx + vy * vy) * dt + 1e-9 and abs(want_x) + abs(want_y) <= 2.0 * dv_max:
+        cm[GEN_X], cm[GEN_Y], vx, vy, ddx, ddy = cm[TARGET_X], cm[TARGET_Y], 0.0, 0.0, 0.0, 0.0
+        h_done = True
+    else:
+        cm[GEN_X] += vx * dt
+        cm[GEN_Y] += vy * dt
+    cm[GEN_VX], cm[GEN_VY] = vx, vy
+    cm[GEN_AX], cm[GEN_AY] = (ddx / dt, ddy / dt) if dt > 0.0 else (0.0, 0.0)
+    # vertical
+    dz = cm[TARGET_ALT] - cm[GEN_ALT]
+    want = 0.0
+    if dz > 0.0:
+        want = min(up, math.sqrt(2.0 * a * dz))
+    elif dz < 0.0:
+        want = -min(down, math.sqrt(-2.0 * a * dz))
+    dc = min(max(want - cm[GEN_CLIMB], -dv_max), dv_max)
+    climb = cm[GEN_CLIMB] + dc
+    v_done = False
+    if abs(dz) <= abs(climb) * dt + 1e-9 and abs(want) <= 2.0 * dv_max:
+        cm[GEN_ALT], climb, dc = cm[TARGET_ALT], 0.0, 0.0
+        v_done = True
+    else:
+        cm[GEN_ALT] += climb * dt
+    cm[GEN_CLIMB] = climb
+    cm[GEN_CLIMB_ACC] = dc / dt if dt > 0.0 else 0.0
+    return h_done and v_done
+
+
+@jit
+def _fly_generated(cm: np.ndarray) -> None:
+    """The auto modes' reference: position with velocity and acceleration feed-forward, the heading held."""
+    cm[REF_X], cm[REF_Y], cm[REF_VX], cm[REF_VY] = cm[GEN_X], cm[GEN_Y], cm[GEN_VX], cm[GEN_VY]
+    cm[REF_AX], cm[REF_AY] = cm[GEN_AX], cm[GEN_AY]
+    cm[REF_ALT], cm[REF_CLIMB], cm[REF_CLIMB_ACC] = cm[GEN_ALT], cm[GEN_CLIMB], cm[GEN_CLIMB_ACC]
+    cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW], cm[REF_YAW_RATE] = 0.0, 0.0, cm[HOLD_YAW], 0.0
+    cm[REF_LIMITED] = 1.0
+
+
+@jit
+def _land(cm: np.ndarray, dt: float, now: float) -> int:
+    """A landing's tick: brake to a stop (the velocity reference 0, the altitude held), then hold that point while
+    the altitude reference descends at LAND_SPEED; disarm after resting on the ground."""
+    if cm[MODE] == LAND and cm[PHASE] == LAND_BRAKING:
+        if math.sqrt(cm[VX] ** 2 + cm[VY] ** 2) >= LAND_BRAKED:
+            advance_reference(cm, dt, 0.0, cm[Z_VEL_UP], cm[Z_VEL_DN])  # only the altitude moves
+            _fly_generated(cm)
+            cm[REF_X], cm[REF_Y], cm[REF_VX], cm[REF_VY], cm[REF_AX], cm[REF_AY] = (
+                math.nan,
+                math.nan,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            )
+            return EVENT_NONE
+        cm[PHASE] = LAND_DESCENDING  # stopped (nearly): hold here, descend
+        cm[GEN_X], cm[GEN_Y], cm[GEN_VX], cm[GEN_VY] = cm[X], cm[Y], cm[VX], cm[VY]
+        cm[TARGET_X] = cm[X] + stop_distance(cm[VX], cm[ACC_HOR])
+        cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], cm[ACC_HOR])
+    advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
+    # The altitude reference descends at land_speed, from where it was, to below the ground.
+    cm[LAND_ALT] = max(cm[LAND_TARGET], min(cm[LAND_ALT], cm[GEN_ALT]) - cm[LAND_SPEED] * dt)
+    cm[GEN_ALT] = cm[TARGET_ALT] = cm[LAND_ALT]
+    cm[GEN_CLIMB] = -cm[LAND_SPEED] if cm[LAND_ALT] > cm[LAND_TARGET] else 0.0
+    cm[GEN_CLIMB_ACC] = 0.0
+    _fly_generated(cm)
+    if cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB:
+        if math.isnan(cm[LANDED_SINCE]):
+            cm[LANDED_SINCE] = now
+        elif now - cm[LANDED_SINCE] >= cm[LANDED_TIME]:
+            cm[ARMED] = 0.0
+            cm[OFFBOARD_TICK] = -1.0
+            return EVENT_LANDED
+    else:
+        cm[LANDED_SINCE] = math.nan
+    return EVENT_NONE
+
+
+@jit
+def _fly_offboard(cm: np.ndarray) -> None:
+    """The offboard setpoints as this tick's reference (module docstring)."""
+    horizontal = not (
+        math.isnan(cm[SP_X]) and math.isnan(cm[SP_VX]) and math.isnan(cm[SP_AX])
+        and math.isnan(cm[SP_Y]) and math.isnan(cm[SP_VY]) and math.isnan(cm[SP_AY])
+    )  # fmt: skip
+    for i in range(6):
+        cm[REF_X + i] = cm[SP_X + i]
+    cm[REF_ALT], cm[REF_CLIMB], cm[REF_CLIMB_ACC] = cm[SP_ALT], cm[SP_CLIMB], cm[SP_CLIMB_ACC]
+    if math.isnan(cm[ROLL_SP]) or horizontal:
+        cm[REF_ROLL], cm[REF_PITCH] = 0.0, 0.0
+    else:
+        cm[REF_ROLL], cm[REF_PITCH] = cm[ROLL_SP], cm[PITCH_SP]
+    if math.isnan(cm[YAW_SP]) and math.isnan(cm[SP_YAW_RATE]):
+        cm[REF_YAW], cm[REF_YAW_RATE] = cm[HOLD_YAW], math.nan
+    else:
+        cm[REF_YAW], cm[REF_YAW_RATE] = cm[YAW_SP], cm[SP_YAW_RATE]
+    cm[REF_LIMITED] = 1.0 if horizontal else 0.0
+
+
+@jit
+def update(
+    cm: np.ndarray, tick: int, now: float, x: float, y: float, altitude: float, vx: float, vy: float,
+    climb_rate: float, yaw: float,
+) -> int:  # fmt: skip
+    """Advance to tick ``tick`` at simulated time ``now`` [s] with the measured position (x, y NED, altitude
+    up) [m], velocity (vx, vy NED, climb rate up) [m/s] and yaw [rad]. While armed afterwards, cm[REF_X:SIZE]
+    is the reference to fly. Returns an EVENT_* for the shell to announce."""
     dt = max(now - cm[NOW], 0.0)
-    cm[TICK], cm[NOW], cm[ALTITUDE], cm[CLIMB_RATE], cm[YAW] = tick, now, altitude, climb_rate, yaw
+    cm[TICK], cm[NOW], cm[X], cm[Y], cm[ALTITUDE] = tick, now, x, y, altitude
+    cm[VX], cm[VY], cm[CLIMB_RATE], cm[YAW] = vx, vy, climb_rate, yaw
     if cm[ARMED] == 0.0:
         return EVENT_NONE
     event = EVENT_NONE
@@ -100,23 +285,34 @@ def update(cm: np.ndarray, tick: int, now: float, altitude: float, climb_rate: f
         enter(cm, LAND)
         mode = LAND
     if mode == OFFBOARD:
-        roll, pitch = (0.0, 0.0) if math.isnan(cm[ROLL_SP]) else (cm[ROLL_SP], cm[PITCH_SP])
-        cm[REF_ALT], cm[REF_ROLL], cm[REF_PITCH] = cm[ALT_SP], roll, pitch
-        cm[REF_YAW] = cm[HOLD_YAW] if math.isnan(cm[YAW_SP]) else cm[YAW_SP]
+        _fly_offboard(cm)
         return event
     if mode == LAND:
-        # The descending reference: from the altitude on entry, at land_speed, down to land_target.
-        cm[HOLD_ALT] = max(cm[LAND_TARGET], cm[HOLD_ALT] - cm[LAND_SPEED] * dt)
-        if altitude < 0.05 and abs(climb_rate) < 0.1:
-            if math.isnan(cm[LANDED_SINCE]):
-                cm[LANDED_SINCE] = now
-            elif now - cm[LANDED_SINCE] >= cm[LANDED_TIME]:
-                cm[ARMED] = 0.0
-                cm[OFFBOARD_TICK] = -1.0
-                return EVENT_LANDED
-        else:
-            cm[LANDED_SINCE] = math.nan
-    cm[REF_ALT], cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW] = cm[HOLD_ALT], cm[HOLD_ROLL], cm[HOLD_PITCH], cm[HOLD_YAW]
+        landed = _land(cm, dt, now)
+        return landed if landed != EVENT_NONE else event
+    if mode == RTL:
+        if cm[PHASE] == RTL_LAND:
+            return _land(cm, dt, now)
+        done = advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
+        if done and cm[PHASE] == RTL_CLIMB:
+            cm[PHASE] = RTL_RETURN
+            cm[TARGET_X], cm[TARGET_Y] = cm[HOME_X], cm[HOME_Y]
+        elif done and cm[PHASE] == RTL_RETURN:
+            cm[PHASE] = RTL_LAND
+            cm[LAND_ALT] = cm[GEN_ALT]
+            event = EVENT_HOME_REACHED
+        _fly_generated(cm)
+        return event
+    if mode == TAKEOFF:
+        done = advance_reference(cm, dt, cm[LEG_SPEED], cm[TKO_SPEED], cm[Z_VEL_DN])
+        _fly_generated(cm)
+        if done and abs(altitude - cm[TARGET_ALT]) < TAKEOFF_TOLERANCE:
+            cm[MODE] = HOLD  # the reference rests on the target: hold it
+            return EVENT_TAKEOFF_DONE
+        return event
+    # HOLD
+    advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
+    _fly_generated(cm)
     return event
 
 
@@ -126,7 +322,9 @@ class Commander:
 
     def __init__(self, settings: CommanderSettings | None = None) -> None:
         self.cm = np.zeros(SIZE)
-        self.cm[[ALT_SP, ROLL_SP, PITCH_SP, YAW_SP, LANDED_SINCE]] = math.nan
+        self.cm[SP_X : SP_YAW_RATE + 1] = math.nan
+        self.cm[[LANDED_SINCE, TAKEOFF_ALT]] = math.nan
+        self.cm[REF_X:SIZE] = math.nan
         self.cm[LAST_SP_TIME] = -1e9
         self.cm[OFFBOARD_TICK] = -1.0
         self.settings = settings or CommanderSettings()
@@ -141,9 +339,12 @@ class Commander:
     @settings.setter
     def settings(self, settings: CommanderSettings) -> None:
         self._settings = settings
-        cm = self.cm
-        cm[SETPOINT_TIMEOUT], cm[LAND_SPEED] = settings.setpoint_timeout, settings.land_speed
-        cm[LANDED_TIME], cm[LAND_TARGET] = settings.landed_time, settings.land_target
+        cm, s = self.cm, settings
+        cm[SETPOINT_TIMEOUT], cm[LAND_SPEED], cm[LANDED_TIME], cm[LAND_TARGET] = (
+            s.setpoint_timeout, s.land_speed, s.landed_time, s.land_target,
+        )  # fmt: skip
+        cm[ACC_HOR], cm[CRUISE], cm[TKO_SPEED] = s.acc_hor, s.cruise, s.takeoff_speed
+        cm[Z_VEL_UP], cm[Z_VEL_DN], cm[RTL_ALT] = s.z_vel_up, s.z_vel_dn, s.rtl_alt
 
     @property
     def armed(self) -> bool:
@@ -175,7 +376,7 @@ class Commander:
 
     @property
     def altitude_setpoint(self) -> float | None:
-        return None if math.isnan(self.cm[ALT_SP]) else float(self.cm[ALT_SP])
+        return None if math.isnan(self.cm[SP_ALT]) else float(self.cm[SP_ALT])
 
     @property
     def attitude_setpoint(self) -> tuple[float, float, float] | None:
@@ -183,14 +384,32 @@ class Commander:
         return None if math.isnan(self.cm[ROLL_SP]) else tuple(self.cm[ROLL_SP : YAW_SP + 1].tolist())
 
     @property
+    def home(self) -> tuple[float, float, float]:
+        """Home: where the vehicle last armed (x, y NED [m], altitude [m]); the origin before it has."""
+        return float(self.cm[HOME_X]), float(self.cm[HOME_Y]), float(self.cm[HOME_ALT])
+
+    @property
+    def position_target(self) -> tuple[float, float, float]:
+        """The position the auto modes are heading for: (x, y NED [m], altitude [m])."""
+        return float(self.cm[TARGET_X]), float(self.cm[TARGET_Y]), float(self.cm[TARGET_ALT])
+
+    @property
     def hold(self) -> Reference:
-        """The reference held in hold and land."""
-        return Reference._make(self.cm[HOLD_ALT : HOLD_YAW + 1].tolist())
+        """The reference shown while disarmed: the altitude and heading the auto modes hold, level."""
+        return Reference(float(self.cm[TARGET_ALT]), 0.0, 0.0, float(self.cm[HOLD_YAW]))
 
     @property
     def reference(self) -> Reference:
-        """The reference of the last tick (valid while armed)."""
-        return Reference._make(self.cm[REF_ALT : REF_YAW + 1].tolist())
+        """The altitude and attitude reference of the last tick (valid while armed): roll and pitch are the
+        attitude setpoint's (0 where the position loop makes them); the altitude is NaN while a climb rate
+        alone is flown, the yaw NaN while a yaw rate alone is."""
+        cm = self.cm
+        return Reference(float(cm[REF_ALT]), float(cm[REF_ROLL]), float(cm[REF_PITCH]), float(cm[REF_YAW]))
+
+    @property
+    def landing(self) -> bool:
+        """Descending to land (LAND, or RTL's last phase)."""
+        return self.mode == Mode.LAND or (self.mode == Mode.RTL and self.cm[PHASE] == RTL_LAND)
 
     # ---- events --------------------------------------------------------------------------------
 
@@ -198,29 +417,55 @@ class Commander:
         return bool(stream_fresh(self.cm))
 
     def on_attitude_setpoint(self, roll: float | None, pitch: float | None, yaw: float | None) -> None:
-        """A SET_ATTITUDE_TARGET (None for an axis the type_mask ignores)."""
+        """A SET_ATTITUDE_TARGET (None for an axis the type_mask ignores): roll and pitch take over the
+        horizontal axes from any position, velocity or acceleration setpoint."""
         old = self.attitude_setpoint or (0.0, 0.0, float(self.cm[YAW]))
-        self.cm[ROLL_SP] = old[0] if roll is None else roll
-        self.cm[PITCH_SP] = old[1] if pitch is None else pitch
-        self.cm[YAW_SP] = old[2] if yaw is None else yaw
-        self.cm[LAST_SP_TIME] = self.cm[NOW]
+        cm = self.cm
+        cm[ROLL_SP] = old[0] if roll is None else roll
+        cm[PITCH_SP] = old[1] if pitch is None else pitch
+        cm[YAW_SP] = old[2] if yaw is None else yaw
+        cm[SP_YAW_RATE] = math.nan
+        cm[SP_X : SP_AY + 1] = math.nan
+        cm[LAST_SP_TIME] = cm[NOW]
 
     def on_altitude_setpoint(self, altitude: float | None) -> None:
-        """A SET_POSITION_TARGET_LOCAL_NED (None when z is ignored: still counts for the stream)."""
-        if altitude is not None:
-            self.cm[ALT_SP] = altitude
-        self.cm[LAST_SP_TIME] = self.cm[NOW]
+        """An altitude alone (None: nothing but a sign of life for the stream)."""
+        nan = math.nan
+        self.on_position_setpoint(vertical=None if altitude is None else (altitude, nan, nan))
+
+    def on_position_setpoint(
+        self,
+        horizontal: tuple[float, float, float, float, float, float] | None = None,
+        vertical: tuple[float, float, float] | None = None,
+        heading: tuple[float, float] | None = None,
+    ) -> None:
+        """A SET_POSITION_TARGET_*, already validated and in local NED: ``horizontal`` (x, y, vx, vy, ax, ay),
+        ``vertical`` (altitude, climb rate, its rate), ``heading`` (yaw, yaw rate), NaN for a field the
+        type_mask ignores; None for a group whose fields are all ignored (it stays as it was). Any setpoint
+        counts for the stream."""
+        cm = self.cm
+        if horizontal is not None:
+            cm[SP_X : SP_AY + 1] = horizontal
+        if vertical is not None:
+            cm[SP_ALT], cm[SP_CLIMB], cm[SP_CLIMB_ACC] = vertical
+        if heading is not None:
+            cm[YAW_SP], cm[SP_YAW_RATE] = heading
+        elif horizontal is not None and not math.isnan(cm[SP_YAW_RATE]):
+            cm[YAW_SP], cm[SP_YAW_RATE] = cm[YAW], math.nan  # a new setpoint without a yaw rate stops turning
+        cm[LAST_SP_TIME] = cm[NOW]
 
     def arm(self) -> tuple[bool, str]:
         if self.armed:
             return True, ""
         if self.mode == Mode.OFFBOARD and not self.stream_fresh():
             return False, "Arming denied: no offboard setpoint stream"
-        if self.mode == Mode.LAND:
-            return False, "Arming denied: landing"
-        self.cm[ARMED] = 1.0
-        self.cm[FAILSAFE] = FAILSAFE_NONE
-        enter(self.cm, int(self.cm[MODE]))
+        if self.mode in (Mode.LAND, Mode.RTL):
+            return False, f"Arming denied: mode {self.mode.name.lower()}; switch to hold, takeoff or offboard"
+        cm = self.cm
+        cm[ARMED] = 1.0
+        cm[FAILSAFE] = FAILSAFE_NONE
+        cm[HOME_X], cm[HOME_Y], cm[HOME_ALT] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0)
+        enter(cm, int(cm[MODE]))
         self.messages.append((6, "Armed"))
         return True, ""
 
@@ -229,6 +474,38 @@ class Commander:
             self.cm[ARMED] = 0.0
             self.cm[OFFBOARD_TICK] = -1.0
             self.messages.append((6, reason))
+
+    def takeoff(self, altitude: float | None = None) -> tuple[bool, str]:
+        """MAV_CMD_NAV_TAKEOFF: climb to ``altitude`` [m above the local ground] (None: the current altitude
+        plus MIS_TAKEOFF_ALT) and hold there. Accepted while disarmed (the takeoff starts on arming)."""
+        cm = self.cm
+        if self.armed and cm[ALTITUDE] > TOUCHDOWN_ALT + 0.1 and self.mode != Mode.TAKEOFF:
+            return False, "Takeoff denied: already flying"
+        target = max(cm[ALTITUDE], 0.0) + self.settings.takeoff_alt if altitude is None else altitude
+        if not 0.0 < target <= self.settings.altitude_max:
+            return False, f"Takeoff denied: altitude {target:g} m; allowed: (0, {self.settings.altitude_max:g}] m"
+        cm[TAKEOFF_ALT] = target
+        enter(cm, TAKEOFF)
+        self.messages.append((6, f"Taking off to {target:.1f} m"))
+        return True, ""
+
+    def reposition(self, x: float, y: float, altitude: float, yaw: float, speed: float, hold: bool) -> tuple[bool, str]:
+        """MAV_CMD_DO_REPOSITION (MAVSDK's goto): fly to (x, y NED [m], altitude [m]) at ``speed`` [m/s] (NaN:
+        MPC_XY_CRUISE), heading ``yaw`` [rad]; NaN keeps the current target's value. ``hold``: switch to hold
+        first (param2 bit 0); without it the vehicle must be in hold already."""
+        cm = self.cm
+        if not self.armed or cm[ALTITUDE] < TOUCHDOWN_ALT + 0.1:
+            return False, "Reposition denied: not flying (take off first)"
+        if self.mode != Mode.HOLD:
+            if not hold:
+                return False, f"Reposition denied: mode {self.mode.name.lower()} (set param2 bit 0 to switch to hold)"
+            enter(cm, HOLD)
+            self.messages.append((6, "Mode hold"))
+        for index, value in ((TARGET_X, x), (TARGET_Y, y), (TARGET_ALT, altitude), (HOLD_YAW, yaw)):
+            if not math.isnan(value):
+                cm[index] = value
+        cm[LEG_SPEED] = self.settings.cruise if math.isnan(speed) or speed <= 0.0 else speed
+        return True, ""
 
     def plant_lost(self) -> None:
         """No vehicle state arrives: flying blind. Armed, switch to LAND (it resumes when states do)."""
@@ -260,6 +537,10 @@ class Commander:
             return True, ""
         if mode == Mode.OFFBOARD and not self.stream_fresh():
             return False, "Offboard denied: no setpoint stream"
+        if mode == Mode.TAKEOFF:
+            return self.takeoff()
+        if mode == Mode.RTL and not self.armed:
+            return False, "Return denied: not armed"
         enter(self.cm, int(mode))
         self.messages.append((6, f"Mode {mode.name.lower()}"))
         return True, ""
@@ -274,10 +555,16 @@ class Commander:
             )
         elif event == EVENT_LANDED:
             self.messages.append((6, "Landed, disarmed"))
+        elif event == EVENT_TAKEOFF_DONE:
+            self.messages.append((6, "Takeoff complete, holding"))
+        elif event == EVENT_HOME_REACHED:
+            self.messages.append((6, "Home reached, landing"))
 
     def update(self, tick: int, now: float, state: VehicleState) -> Reference | None:
         """Advance to tick ``tick`` at simulated time ``now`` [s] with the measured state. Returns the
-        reference to fly, or None when disarmed."""
-        self.announce(update(self.cm, tick, float(now), float(state.altitude), float(state.climb_rate),
-                             float(state.yaw)))  # fmt: skip
+        altitude and attitude reference (:attr:`reference`), or None when disarmed."""
+        s = state
+        event = update(self.cm, tick, float(now), float(s.x), float(s.y), float(s.altitude), float(s.vx),
+                       float(s.vy), float(s.climb_rate), float(s.yaw))  # fmt: skip
+        self.announce(event)
         return self.reference if self.armed else None

@@ -9,14 +9,28 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from quadsitl.config import PositionParams
+
 # λ1..λ8 (backstepping poles), PD kp and kd per channel (altitude, roll, pitch, yaw), the control period
 # T [s], the tilt bound [rad] and its cosine, and the bounds on u1 [N].
 POLES, KP, KD, PERIOD, MAX_TILT, COS_MAX_TILT, THRUST_MIN, THRUST_MAX = 0, 8, 12, 16, 17, 18, 19, 20
-SIZE = 21
+# The flight controller around them (docs/position.md): λ9..λ12 of the horizontal loop (x, vx, y, vy), the
+# integral rates k_I [1/s] of the altitude and horizontal loops (0: off; the gain is κ = k_I·k of the loop's
+# position rate) and the bound on κ·ζ [m/s],
+# the velocity limits [m/s] (horizontal norm, up, down) and tan of the thrust vector's tilt limit.
+POLES_XY, KI_ALT, KI_XY, INT_LIM, XY_VEL_MAX, Z_VEL_UP, Z_VEL_DN, TAN_TILT_AIR = 21, 25, 26, 27, 28, 29, 30, 31
+SIZE = 32
 
 # A controller's memory and outputs (``mem``): the command u1..u4 (the previous one on entry: its Ωr is the one
-# the backstepping assumes), the motor forces [N], the errors e1..e8 and the Ωr of the last step.
-MEM_U, MEM_FORCES, MEM_ERRORS, MEM_OMEGA_R, MEM_SIZE = 0, 4, 8, 16, 17
+# the backstepping assumes), the motor forces [N], the errors e1..e8 and the Ωr of the last step; then the
+# integrator states ζ (altitude, x, y) [m·s], the horizontal errors e9..e12, and the roll and pitch references
+# the position loop made (NaN when the horizontal position is not controlled).
+MEM_U, MEM_FORCES, MEM_ERRORS, MEM_OMEGA_R, MEM_ZETA, MEM_ERRORS_XY, MEM_ATTITUDE_REF = 0, 4, 8, 16, 17, 20, 24
+MEM_SIZE = 26
+
+# What a channel's reference controls (docs/position.md): its position (with optional velocity and acceleration
+# feed-forward), its velocity only (the position is free), or its acceleration only.
+POSITION, VELOCITY, ACCELERATION = 0, 1, 2
 
 BACKSTEPPING, PD = 0, 1
 KINDS = {"backstepping": BACKSTEPPING, "pd": PD}
@@ -31,12 +45,18 @@ def control_array(
     max_tilt: float = math.radians(80.0),
     thrust_min: float = -math.inf,
     thrust_max: float = math.inf,
+    position: PositionParams | None = None,
 ) -> np.ndarray:
-    """The array the compiled controllers read."""
+    """The array the compiled controllers read (``position``: the defaults when None)."""
+    p = position or PositionParams()
     c = np.zeros(SIZE)
     c[POLES : POLES + 8] = poles
     c[KP : KP + 4] = kp
     c[KD : KD + 4] = kd
     c[PERIOD], c[MAX_TILT], c[COS_MAX_TILT] = period, max_tilt, math.cos(max_tilt)
     c[THRUST_MIN], c[THRUST_MAX] = thrust_min, thrust_max
+    c[POLES_XY : POLES_XY + 4] = [1.0 - period * k for k in p.gains]
+    c[KI_ALT], c[KI_XY] = p.integral
+    c[INT_LIM], c[XY_VEL_MAX], c[Z_VEL_UP], c[Z_VEL_DN] = p.integral_limit, p.xy_vel_max, p.z_vel_max_up, p.z_vel_max_dn
+    c[TAN_TILT_AIR] = math.tan(p.tilt_max_air)
     return c

@@ -33,6 +33,7 @@ from autopilot.control_params import (
     MEM_SIZE,
     MEM_U,
     PD,
+    POSITION,
     THRUST_MAX,
     THRUST_MIN,
     control_array,
@@ -46,19 +47,47 @@ from quadsitl.state import Inputs, Reference, VehicleState
 
 
 @jit
+def pd_vertical(
+    h: float, climb: float, h_ref: float, climb_ff: float, climb_acc: float, mode: int, v: np.ndarray, c: np.ndarray
+) -> float:  # fmt: skip
+    """The altitude channel: the upward acceleration the thrust must give [m/s²], u1 = m·a/(cφcθ). ``mode`` as
+    the backstepping's (POSITION: the altitude error acts; VELOCITY: only the climb-rate error)."""
+    e = h_ref - h if mode == POSITION else 0.0
+    return v[G] + climb_acc + c[KP] * e + c[KD] * (climb_ff - climb)
+
+
+@jit
+def pd_attitude(
+    x: tuple[float, ...], roll_ref: float, pitch_ref: float, yaw_ref: float, yaw_rate_ff: float, yaw_mode: int,
+    v: np.ndarray, c: np.ndarray,
+) -> tuple[float, float, float]:  # fmt: skip
+    """u2, u3 [N] and u4 [N·m] for the attitude reference (the yaw rate ``yaw_rate_ff`` alone when ``yaw_mode``
+    is VELOCITY)."""
+    max_tilt = c[MAX_TILT]
+    roll_ref = clamp(roll_ref, -max_tilt, max_tilt)
+    pitch_ref = clamp(pitch_ref, -max_tilt, max_tilt)
+    roll, pitch, yaw = x[6], x[7], x[8]
+    e_yaw = wrap_pi(yaw_ref - yaw) if yaw_mode == POSITION else 0.0
+    u2 = v[IXX] / v[ARM] * (c[KP + 1] * (roll_ref - roll) - c[KD + 1] * x[9])
+    u3 = v[IYY] / v[ARM] * (c[KP + 2] * (pitch_ref - pitch) - c[KD + 2] * x[10])
+    u4 = v[IZZ] * (c[KP + 3] * e_yaw + c[KD + 3] * (yaw_rate_ff - x[11]))
+    return u2, u3, u4
+
+
+@jit
+def pd_thrust(a: float, roll: float, pitch: float, v: np.ndarray, c: np.ndarray) -> float:
+    """u1 = m·a/(cφcθ), cφcθ bounded below (erratum 8), clamped to the thrust bounds [N]."""
+    cc = tilt_factor(roll, pitch, c[COS_MAX_TILT])
+    return clamp(v[MASS] * a / cc, c[THRUST_MIN], c[THRUST_MAX])
+
+
+@jit
 def pd(x: tuple[float, ...], ref: tuple[float, float, float, float], v: np.ndarray, c: np.ndarray) -> Inputs:
     """One step of the PD law for the state ``x`` (the 12 VehicleState fields) and the reference (altitude,
     roll, pitch, yaw)."""
-    max_tilt = c[MAX_TILT]
-    roll_ref = clamp(ref[1], -max_tilt, max_tilt)
-    pitch_ref = clamp(ref[2], -max_tilt, max_tilt)
-    roll, pitch, yaw = x[6], x[7], x[8]
-    cc = tilt_factor(roll, pitch, c[COS_MAX_TILT])
-    u1 = v[MASS] * (v[G] + c[KP] * (ref[0] - altitude(x)) - c[KD] * climb_rate(x)) / cc
-    u2 = v[IXX] / v[ARM] * (c[KP + 1] * (roll_ref - roll) - c[KD + 1] * x[9])
-    u3 = v[IYY] / v[ARM] * (c[KP + 2] * (pitch_ref - pitch) - c[KD + 2] * x[10])
-    u4 = v[IZZ] * (c[KP + 3] * wrap_pi(ref[3] - yaw) - c[KD + 3] * x[11])
-    return Inputs(clamp(u1, c[THRUST_MIN], c[THRUST_MAX]), u2, u3, u4)
+    a = pd_vertical(altitude(x), climb_rate(x), ref[0], 0.0, 0.0, POSITION, v, c)
+    u2, u3, u4 = pd_attitude(x, ref[1], ref[2], ref[3], 0.0, POSITION, v, c)
+    return Inputs(pd_thrust(a, x[6], x[7], v, c), u2, u3, u4)
 
 
 @jit

@@ -14,24 +14,50 @@ few comparisons. The arrays it passes:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from autopilot import commander
-from autopilot.backstepping import Errors, backstepping
+from autopilot.backstepping import Errors, altitude_law, attitude_law, thrust
 from autopilot.commander import (
     ARMED,
     EVENT_NONE,
     FAILSAFE,
-    HOLD_ALT,
     MODE,
     OFFBOARD_TICK,
     REF_ALT,
+    REF_AY,
+    REF_CLIMB,
+    REF_CLIMB_ACC,
+    REF_LIMITED,
     REF_PITCH,
     REF_ROLL,
+    REF_X,
     REF_YAW,
+    REF_YAW_RATE,
+    TARGET_ALT,
 )
-from autopilot.control_params import MEM_ERRORS, MEM_FORCES, MEM_OMEGA_R, MEM_SIZE, MEM_U, PD
-from autopilot.pd import pd
+from autopilot.control_params import (
+    MEM_ATTITUDE_REF,
+    MEM_ERRORS,
+    MEM_ERRORS_XY,
+    MEM_FORCES,
+    MEM_OMEGA_R,
+    MEM_SIZE,
+    MEM_U,
+    MEM_ZETA,
+    PD,
+    PERIOD,
+    POSITION,
+    THRUST_MAX,
+    THRUST_MIN,
+    VELOCITY,
+    Z_VEL_DN,
+    Z_VEL_UP,
+)
+from autopilot.pd import pd_attitude, pd_thrust, pd_vertical
+from autopilot.position import channel_mode, controls_horizontal, horizontal, or_zero
 from quadsitl import telemetry
 from quadsitl.frames import altitude, climb_rate
 from quadsitl.jit import jit
@@ -48,11 +74,52 @@ assert tuple(telemetry.STREAMS) == ("state", "setpoint", "actuators", "status")
 
 
 @jit
-def control(kind: int, x: tuple, ref: tuple, last: tuple, v: np.ndarray, c: np.ndarray) -> tuple[Inputs, Errors, float]:
-    """The law ``kind`` (BACKSTEPPING or PD): (u1..u4, e1..e8, Ωr); the PD has neither errors nor Ωr."""
+def fly(
+    kind: int, x: tuple, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray
+) -> tuple[Inputs, Errors, float]:
+    """The flight controller's law for the commander's reference (cm[REF_*]): the altitude channel (position or
+    climb rate), the horizontal loop (:mod:`autopilot.position`) when the reference controls x or y (else the
+    attitude reference), then roll, pitch and yaw; ``kind`` picks the backstepping or the PD for the altitude
+    and attitude channels. Returns (u1..u4, e1..e8, Ωr) and keeps the integrators, e9..e12 and the roll and
+    pitch references flown in ``mem``.  With an altitude and attitude reference, the
+    backstepping's output is :func:`autopilot.backstepping.backstepping`'s to the bit."""
+    inf = math.inf
+    limited = cm[REF_LIMITED] != 0.0
+    lo, hi = (-c[Z_VEL_DN], c[Z_VEL_UP]) if limited else (-inf, inf)
+    h, climb = altitude(x), climb_rate(x)
+    h_ref, climb_ff, climb_acc = cm[REF_ALT], or_zero(cm[REF_CLIMB]), or_zero(cm[REF_CLIMB_ACC])
+    alt_mode = channel_mode(h_ref, cm[REF_CLIMB])
+    yaw_mode = VELOCITY if math.isnan(cm[REF_YAW]) else POSITION
+    yaw_ref, yaw_rate = cm[REF_YAW], or_zero(cm[REF_YAW_RATE])
+    zeta_h = mem[MEM_ZETA]
     if kind == PD:
-        return pd(x, ref, v, c), _ZERO_ERRORS, 0.0
-    return backstepping(x, ref, last, v, c)
+        a_v = pd_vertical(h, climb, h_ref, climb_ff, climb_acc, alt_mode, v, c)
+        b, e1, e2 = 0.0, 0.0, 0.0
+    else:
+        b, e1, e2, zeta_h = altitude_law(h, climb, h_ref, climb_ff, climb_acc, zeta_h, alt_mode, lo, hi, v, c)
+        a_v = b / c[PERIOD]
+    sp = (cm[REF_X], cm[REF_X + 1], cm[REF_X + 2], cm[REF_X + 3], cm[REF_X + 4], cm[REF_AY])
+    if not controls_horizontal(sp):
+        roll_ref, pitch_ref = cm[REF_ROLL], cm[REF_PITCH]
+        exy = (0.0, 0.0, 0.0, 0.0)
+        mem[MEM_ATTITUDE_REF], mem[MEM_ATTITUDE_REF + 1] = math.nan, math.nan
+    else:
+        roll_ref, pitch_ref, exy, zx, zy = horizontal(x, sp, mem[MEM_ZETA + 1], mem[MEM_ZETA + 2], a_v, v, c)
+        mem[MEM_ZETA + 1], mem[MEM_ZETA + 2] = zx, zy
+        mem[MEM_ATTITUDE_REF], mem[MEM_ATTITUDE_REF + 1] = roll_ref, pitch_ref
+    for i in range(4):
+        mem[MEM_ERRORS_XY + i] = exy[i]
+    last = (mem[MEM_U], mem[MEM_U + 1], mem[MEM_U + 2], mem[MEM_U + 3])
+    if kind == PD:
+        u1 = pd_thrust(a_v, x[6], x[7], v, c)
+        u2, u3, u4 = pd_attitude(x, roll_ref, pitch_ref, yaw_ref, yaw_rate, yaw_mode, v, c)
+        return Inputs(u1, u2, u3, u4), _ZERO_ERRORS, 0.0
+    u1 = thrust(b, x[6], x[7], v, c)
+    if c[THRUST_MIN] < u1 < c[THRUST_MAX]:  # the altitude integrator holds while the thrust saturates
+        mem[MEM_ZETA] = zeta_h
+    u2, u3, u4, (e3, e4, e5, e6, e7, e8), omega_r = attitude_law(x, roll_ref, pitch_ref, yaw_ref, yaw_rate,
+                                                                  yaw_mode, last, v, c)  # fmt: skip
+    return Inputs(u1, u2, u3, u4), (e1, e2, e3, e4, e5, e6, e7, e8), omega_r
 
 
 @jit
@@ -82,13 +149,11 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
     """The tick once the state (``st``) is known: the commander (its event into io[EVENT]), when armed the law
     and the allocation into ``mem`` (disarmed: zero command and forces), the answer into ``tx``, and the four
     telemetry records into the batch's next row when io[CAPACITY] > 0 (``records``: :class:`Batch`)."""
-    io[EVENT] = commander.update(cm, tick, now, altitude(st), climb_rate(st), st[8])
+    io[EVENT] = commander.update(cm, tick, now, st[0], st[1], altitude(st), st[3], st[4], climb_rate(st), st[8])
     armed = cm[ARMED] != 0.0
     if armed:
         x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])
-        last = (mem[MEM_U], mem[MEM_U + 1], mem[MEM_U + 2], mem[MEM_U + 3])
-        ref = (cm[REF_ALT], cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW])
-        u, errors, omega_r = control(kind, x, ref, last, v, c)
+        u, errors, omega_r = fly(kind, x, cm, mem, v, c)
         forces = allocate(u, v[D_OVER_B], f_min, f_max)
         for i in range(4):
             mem[MEM_U + i] = u[i]
@@ -98,6 +163,7 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
         mem[MEM_OMEGA_R] = omega_r
     else:
         mem[MEM_U : MEM_FORCES + 4] = 0.0
+        mem[MEM_ZETA : MEM_ZETA + 3] = 0.0  # the integrators start afresh at each arming
         forces = (0.0, 0.0, 0.0, 0.0)
     io[SEQ] = (io[SEQ] + 1) & 0xFF
     io[TX_LEN] = encode_actuators(tx, io[SEQ], io[SYSTEM], io[COMPONENT], time_usec, forces, f_max, armed)
@@ -114,8 +180,19 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
     at = capacity * STATE_SIZE + row * SETPOINT_SIZE
     _put_int(records, at, tick)
     _put(records, at + 8, now)
-    for i in range(4):  # the reference shown: the one flown, or the one held while disarmed
-        _put(records, at + 16 + 8 * i, cm[REF_ALT + i] if armed else cm[HOLD_ALT + i])
+    # The reference shown: the one flown (roll and pitch: the position loop's when it flies), or, disarmed, the
+    # altitude and heading held, level.
+    if armed:
+        flown = not math.isnan(mem[MEM_ATTITUDE_REF])
+        _put(records, at + 16, cm[REF_ALT])
+        _put(records, at + 24, mem[MEM_ATTITUDE_REF] if flown else cm[REF_ROLL])
+        _put(records, at + 32, mem[MEM_ATTITUDE_REF + 1] if flown else cm[REF_PITCH])
+        _put(records, at + 40, cm[REF_YAW])
+    else:
+        _put(records, at + 16, cm[TARGET_ALT])
+        _put(records, at + 24, 0.0)
+        _put(records, at + 32, 0.0)
+        _put(records, at + 40, cm[commander.HOLD_YAW])
     # x_ref, y_ref: wired to the commander's position reference by the position-control work
     _put(records, at + 48, np.nan)
     _put(records, at + 56, np.nan)

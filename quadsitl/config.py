@@ -99,6 +99,25 @@ class ControllerParams:
 
 
 @dataclass(frozen=True)
+class PositionParams:
+    """The flight controller around the paper's loops (docs/position.md): the horizontal backstepping loop's
+    rates k9..k12 [1/s] (x position, x velocity, y position, y velocity: pole λ = 1 − T·k), the integral
+    rates [1/s] of the altitude and horizontal loops (0: off, as the paper's law), the bound on the integral's
+    share of a virtual velocity [m/s], and PX4's limits (names in brackets)."""
+
+    gains: tuple[float, float, float, float] = (1.0, 2.0, 1.0, 2.0)
+    integral: tuple[float, float] = (0.0, 0.0)  # altitude, horizontal [1/s]
+    integral_limit: float = 1.0  # [m/s]
+    xy_vel_max: float = 12.0  # [m/s] MPC_XY_VEL_MAX
+    z_vel_max_up: float = 3.0  # [m/s] MPC_Z_VEL_MAX_UP
+    z_vel_max_dn: float = 1.5  # [m/s] MPC_Z_VEL_MAX_DN
+    tilt_max_air: float = math.radians(45.0)  # [rad] MPC_TILTMAX_AIR (a MAVLink parameter in degrees, as PX4's)
+    acc_hor: float = 3.0  # [m/s²] MPC_ACC_HOR: acceleration of the auto modes' references
+    xy_cruise: float = 5.0  # [m/s] MPC_XY_CRUISE: speed of goto and return
+    takeoff_speed: float = 1.5  # [m/s] MPC_TKO_SPEED
+
+
+@dataclass(frozen=True)
 class InitialState:
     altitude: float = 0.0
     roll: float = 0.0
@@ -116,6 +135,7 @@ class Preset:
     controller: ControllerParams
     reference: Reference
     initial: InitialState = field(default_factory=InitialState)
+    position: PositionParams = field(default_factory=PositionParams)
 
     def poles(self) -> tuple[float, ...]:
         """The eight discrete poles λ_1..λ_8 (from rates k when given as rates: λ = 1 − T·k)."""
@@ -201,6 +221,37 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "pitch": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2),
         "yaw": _num("a number in [−π, π] rad", lambda v: abs(v) <= math.pi),
     },
+    "position": {
+        "gains": Spec(
+            "numbers",
+            "4 finite numbers > 0 (k9..k12: x, vx, y, vy rates, 1/s)",
+            lambda v: 0 < v < math.inf,
+            4,
+            required=False,
+            default=PositionParams.gains,
+        ),
+        "integral": Spec(
+            "numbers",
+            "2 finite numbers >= 0 (altitude, horizontal integral rates, 1/s; 0 = off)",
+            lambda v: 0 <= v < math.inf,
+            2,
+            required=False,
+            default=PositionParams.integral,
+        ),
+        "integral_limit": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=1.0),
+        "xy_vel_max": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=12.0),
+        "z_vel_max_up": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=3.0),
+        "z_vel_max_dn": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=1.5),
+        "tilt_max_air": _num(
+            "a number in (0, 1.5533] rad (< 89°)",
+            lambda v: 0 < v <= 1.5533,
+            required=False,
+            default=PositionParams.tilt_max_air,
+        ),
+        "acc_hor": _num("a number in (0, 100] m/s²", lambda v: 0 < v <= 100, required=False, default=3.0),
+        "xy_cruise": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=5.0),
+        "takeoff_speed": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=1.5),
+    },
     "initial": {
         "altitude": _num("a number in [0, 10000] m", lambda v: 0 <= v <= 10000, required=False, default=0.0),
         "roll": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
@@ -209,7 +260,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
 }
 TOP_LEVEL_KEYS = {"description"}
-OPTIONAL_SECTIONS = {"initial"}
+OPTIONAL_SECTIONS = {"initial", "position"}
 
 
 def _is_number(v: Any) -> bool:
@@ -310,6 +361,7 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
         controller=controller,
         reference=ref,
         initial=InitialState(**v["initial"]),
+        position=PositionParams(**v["position"]),
     )
 
 

@@ -37,26 +37,32 @@ _NAN21 = [math.nan] + [0.0] * 20
 
 
 class Mode(IntEnum):
-    """The autopilot's flight modes and their PX4 custom-mode encoding (main << 16 | sub << 24)."""
+    """The autopilot's flight modes (the numbers in telemetry's status) and their PX4 custom-mode encoding
+    (main << 16 | sub << 24, DESIGN.md §9)."""
 
-    HOLD = 0  # PX4 auto/loiter: level attitude, hold altitude
-    OFFBOARD = 1  # PX4 offboard: external attitude and altitude setpoints
-    LAND = 2  # PX4 auto/land: level, descend, disarm on touchdown
+    HOLD = 0  # PX4 AUTO.LOITER (4/3): hold position, altitude and heading
+    OFFBOARD = 1  # PX4 OFFBOARD (6): external position, velocity, acceleration or attitude setpoints
+    LAND = 2  # PX4 AUTO.LAND (4/6): stop, descend where the vehicle is, disarm on touchdown
+    TAKEOFF = 3  # PX4 AUTO.TAKEOFF (4/2): climb to the takeoff altitude, then hold
+    RTL = 4  # PX4 AUTO.RTL (4/5): climb to RTL_RETURN_ALT, fly home, land, disarm
 
     @property
     def px4_custom_mode(self) -> int:
-        return {Mode.HOLD: (4 << 16) | (3 << 24), Mode.OFFBOARD: 6 << 16, Mode.LAND: (4 << 16) | (6 << 24)}[self]
+        main, sub = _PX4_MODES[self]
+        return (main << 16) | (sub << 24)
 
     @classmethod
     def from_px4(cls, custom_mode: int) -> Mode | None:
         main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
         if main == 6:
             return cls.OFFBOARD
-        if main == 4 and sub == 3:
-            return cls.HOLD
-        if main == 4 and sub == 6:
-            return cls.LAND
+        for mode, (m, s) in _PX4_MODES.items():
+            if main == m == 4 and sub == s:
+                return mode
         return None
+
+
+_PX4_MODES = {Mode.HOLD: (4, 3), Mode.OFFBOARD: (6, 0), Mode.LAND: (4, 6), Mode.TAKEOFF: (4, 2), Mode.RTL: (4, 5)}
 
 
 def link(system: int, component: int) -> mavlink.MAVLink:
