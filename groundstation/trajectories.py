@@ -72,38 +72,69 @@ def sine(ref: Reference, period: float = 2.0, fraction: float = 0.2) -> Trajecto
 
 
 def from_csv(path: Path) -> Trajectory:
-    """Load a CSV trajectory; refuses a missing column, a non-number, or non-increasing times."""
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        missing = [c for c in COLUMNS if c not in header]
-        if missing:
-            raise UsageError(
-                f"trajectory {path}: missing column(s) {', '.join(missing)}; expected {', '.join(COLUMNS)}"
-            )
-        rows = []
-        for n, row in enumerate(reader, start=2):
-            row = {k.strip(): v for k, v in row.items() if k}
-            try:
-                values = [float(row[c]) for c in COLUMNS]
-            except (TypeError, ValueError):
-                raise UsageError(f"trajectory {path}, line {n}: expected numbers in {', '.join(COLUMNS)}") from None
-            if not all(math.isfinite(v) for v in values):
-                raise UsageError(f"trajectory {path}, line {n}: values must be finite")
-            if abs(values[2]) >= math.pi / 2 or abs(values[3]) >= math.pi / 2 or values[1] < 0:
-                raise UsageError(f"trajectory {path}, line {n}: altitude must be >= 0 and |roll|, |pitch| < π/2")
-            rows.append(values)
-    if not rows:
-        raise UsageError(f"trajectory {path}: no rows")
-    data = np.array(rows)
-    if np.any(np.diff(data[:, 0]) <= 0):
-        raise UsageError(f"trajectory {path}: t must increase from row to row")
+    """An attitude CSV (header ``t, altitude, roll, pitch, yaw``: t [s] increasing, altitude [m] ≥ 0, angles
+    [rad], |roll|, |pitch| < π/2) → its trajectory, linearly interpolated and held after its last row. Refused,
+    with the file, line and column named: a missing column or value, a non-number, a value not finite or out
+    of range, t not increasing."""
+    half_pi = math.pi / 2
+    data, _lines = _read_table(path, COLUMNS, {
+        "altitude": (lambda v: v >= 0, "a number ≥ 0 [m]"),
+        "roll": (lambda v: abs(v) < half_pi, "|roll| < π/2 [rad]"),
+        "pitch": (lambda v: abs(v) < half_pi, "|pitch| < π/2 [rad]"),
+    })  # fmt: skip
     t = data[:, 0]
 
     def f(time: float) -> Reference:
         return Reference(*(float(np.interp(time, t, data[:, i])) for i in range(1, 5)))
 
     return f
+
+
+Bounds = dict[str, tuple[Callable[[float], bool], str]]  # column → (value allowed?, what is allowed)
+
+
+def _read_table(path: Path, columns: tuple[str, ...], bounds: Bounds) -> tuple[np.ndarray, list[int]]:
+    """A trajectory CSV's rows (values in ``columns`` order; other columns ignored, blank lines skipped) and
+    their line numbers. Every value must be a finite number within ``bounds``, and t must increase; else a
+    UsageError naming the file, the line and the column."""
+    rows, lines = [], []
+    with open(path, newline="", encoding="utf-8") as fh:
+        reader = csv.reader(fh)
+        header = [h.strip() for h in next(reader, [])]
+        missing = [c for c in columns if c not in header]
+        if missing:
+            raise UsageError(
+                f"trajectory {path}: missing column(s) {', '.join(missing)}; expected {', '.join(columns)}"
+            )
+        index = [header.index(c) for c in columns]
+        for row in reader:
+            if not any(cell.strip() for cell in row):
+                continue
+            n = reader.line_num
+            values = []
+            for c, i in zip(columns, index):
+                text = row[i].strip() if i < len(row) else ""
+                where = f"trajectory {path}, line {n}, column {c}"
+                if not text:
+                    raise UsageError(f"{where}: no value; expected a number")
+                try:
+                    v = float(text)
+                except ValueError:
+                    raise UsageError(f"{where}: {text!r} is not a number") from None
+                if not math.isfinite(v):
+                    raise UsageError(f"{where}: {text!r}; expected a finite number")
+                allowed, what = bounds.get(c, (None, ""))
+                if allowed is not None and not allowed(v):
+                    raise UsageError(f"{where}: {text}; expected {what}")
+                if c == "t" and rows and v <= rows[-1][0]:
+                    raise UsageError(f"{where}: {text} is not after the previous row's {rows[-1][0]:g}; t must "
+                                     "increase from row to row")  # fmt: skip
+                values.append(v)
+            rows.append(values)
+            lines.append(n)
+    if not rows:
+        raise UsageError(f"trajectory {path}: no rows after the header {', '.join(columns)}")
+    return np.array(rows), lines
 
 
 # ---- position trajectories ------------------------------------------------------------------------------
@@ -262,14 +293,13 @@ def position_from_csv(path: Path) -> PositionTrajectory:
     each segment's slope (0 while held). Refused, with the file, line and column named: a missing column or
     value, a non-number, a value not finite, a negative altitude or t, t not increasing, or a segment
     faster than MAX_HORIZONTAL_SPEED, MAX_CLIMB or MAX_DESCENT."""
-    rows, lines = _read_position_csv(path)
-    data = np.array(rows)
+    data, lines = _read_table(path, POSITION_COLUMNS, {
+        "t": (lambda v: v >= 0, "a number ≥ 0 [s]"),
+        "altitude": (lambda v: v >= 0, "a number ≥ 0 [m]"),
+    })  # fmt: skip
     t = data[:, 0]
-    for i in range(1, len(rows)):
+    for i in range(1, len(t)):
         dt = t[i] - t[i - 1]
-        if dt <= 0:
-            raise UsageError(f"trajectory {path}, line {lines[i]}, column t: {t[i]:g} is not after the previous "
-                             f"row's {t[i - 1]:g}; t must increase from row to row")  # fmt: skip
         horizontal = math.hypot(data[i, 1] - data[i - 1, 1], data[i, 2] - data[i - 1, 2]) / dt
         climb = (data[i, 3] - data[i - 1, 3]) / dt
         if horizontal > MAX_HORIZONTAL_SPEED:
@@ -289,40 +319,6 @@ def position_from_csv(path: Path) -> PositionTrajectory:
         return PositionSetpoint(x, y, alt, _wrap(yaw), float(vx), float(vy), float(climb))
 
     return PositionTrajectory(setpoint, float(t[-1]), str(path))
-
-
-def _read_position_csv(path: Path) -> tuple[list[list[float]], list[int]]:
-    """The rows of a position CSV (values in POSITION_COLUMNS order) and their line numbers."""
-    rows, lines = [], []
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.reader(fh)
-        header = [h.strip() for h in next(reader, [])]
-        index = {c: header.index(c) for c in POSITION_COLUMNS if c in header}
-        for row in reader:
-            if not any(cell.strip() for cell in row):
-                continue
-            n = reader.line_num
-            values = []
-            for c in POSITION_COLUMNS:
-                i = index[c]
-                text = row[i].strip() if i < len(row) else ""
-                if not text:
-                    raise UsageError(f"trajectory {path}, line {n}, column {c}: no value; expected a number")
-                try:
-                    v = float(text)
-                except ValueError:
-                    raise UsageError(f"trajectory {path}, line {n}, column {c}: {text!r} is not a number") from None
-                if not math.isfinite(v):
-                    raise UsageError(f"trajectory {path}, line {n}, column {c}: {text!r}; expected a finite number")
-                if c in ("t", "altitude") and v < 0:
-                    unit = "s" if c == "t" else "m"
-                    raise UsageError(f"trajectory {path}, line {n}, column {c}: {text}; expected a number ≥ 0 [{unit}]")
-                values.append(v)
-            rows.append(values)
-            lines.append(n)
-    if not rows:
-        raise UsageError(f"trajectory {path}: no rows after the header {', '.join(POSITION_COLUMNS)}")
-    return rows, lines
 
 
 def csv_kind(path: Path) -> str:

@@ -173,6 +173,10 @@ def test_an_attitude_csv_is_still_an_attitude_trajectory(tmp_path):
         ("t,x,y,yaw\n0,0,0,0\n", "path.csv: missing column(s) altitude; a position trajectory has the columns t, x,"),
         ("t,x,y,altitude,roll,pitch,yaw\n0,0,0,1,0,0,0\n", "path.csv: its header has both an attitude trajectory's"),
         ("t,altitude,roll\n0,1,0\n", "path.csv: missing column(s) pitch, yaw; expected t, altitude, roll, pitch, yaw"),
+        ("t,altitude,roll,pitch,yaw\n0,1,0,0,0\n1,1,1.6,0,0\n", "line 3, column roll: 1.6; expected |roll| < π/2"),
+        ("t,altitude,roll,pitch,yaw\n0,-1,0,0,0\n", "path.csv, line 2, column altitude: -1; expected a number ≥ 0 [m]"),
+        ("t,altitude,roll,pitch,yaw\n0,1,0,0,0\n1,1,0,x,0\n", "path.csv, line 3, column pitch: 'x' is not a number"),
+        ("t,altitude,roll,pitch,yaw\n1,1,0,0,0\n0.5,1,0,0,0\n", "line 3, column t: 0.5 is not after the previous"),
     ],
 )  # fmt: skip
 def test_bad_csvs_are_refused_naming_the_file_line_and_column(tmp_path, text, message):
