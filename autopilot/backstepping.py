@@ -51,7 +51,7 @@ from autopilot.control_params import (
 )
 from autopilot.gains import stability_interval
 from autopilot.limits import clamp, tilt_factor
-from quadsitl.config import VehicleParams
+from quadsitl.config import PositionParams, VehicleParams
 from quadsitl.frames import altitude, climb_rate, wrap_pi
 from quadsitl.jit import jit
 from quadsitl.mixer import inputs_to_forces, residual_rotor_speed
@@ -70,10 +70,10 @@ def virtual_velocity(
     the reference, the integrator state ``zeta`` [m·s] with gain ``kappa`` [1/s²] (0: the paper's law), and the
     channel's pole λ_i. With v_ff = a_ff = κ = 0 these are exactly the paper's (26) and (32)."""
     if mode == POSITION:
-        zeta_next = zeta + T * e_a  # (47)
-        x_bd = v_ff + (lam - 1.0) / T * e_a - kappa * zeta  # (26), (48)
-        x_bd_next = v_ff + T * a_ff + (lam - 1.0) / T * (e_a + T * (x_b - v_ff)) - kappa * zeta_next  # (20), (32)
-    elif mode == VELOCITY:  # (49): the position is free, the rate follows the reference
+        zeta_next = zeta + T * e_a  # (48)
+        x_bd = v_ff + (lam - 1.0) / T * e_a - kappa * zeta  # (26), (47)
+        x_bd_next = v_ff + T * a_ff + (lam - 1.0) / T * (e_a + T * (x_b - v_ff)) - kappa * zeta_next  # (20), (32), (49)
+    elif mode == VELOCITY:  # (50): the position is free, the rate follows the reference
         zeta_next, x_bd, x_bd_next = zeta, v_ff, v_ff + T * a_ff
     else:  # (50): acceleration only
         zeta_next, x_bd, x_bd_next = zeta, x_b, x_b + T * a_ff
@@ -228,13 +228,14 @@ class BacksteppingController:
         thrust_max: float = math.inf,
         kp: Sequence[float] = (0.0,) * 4,
         kd: Sequence[float] = (0.0,) * 4,
+        position: PositionParams | None = None,
     ) -> None:
         self.vehicle = vehicle
         self.period = period
         self.poles = tuple(float(p) for p in poles)
         self.epsilon_interval = stability_interval(self.poles, period)
         self.v = vehicle_array(vehicle)
-        self.c = control_array(self.poles, period, kp, kd, max_tilt, thrust_min, thrust_max)
+        self.c = control_array(self.poles, period, kp, kd, max_tilt, thrust_min, thrust_max, position)
         self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
         self.reset()
 

@@ -21,7 +21,8 @@ Rules (PX4's, DESIGN.md §8–§9):
   held point at MPC_XY_CRUISE (or the speed given).
 - RTL: climb to RTL_RETURN_ALT (when lower), fly home at MPC_XY_CRUISE, then land there.
 - LAND (and RTL's last phase): brake to a stop (velocity reference 0, as fast as the tilt limit allows), then
-  hold that point while the altitude reference descends at ``land_speed`` to below the ground; touchdown
+  hold that point while the altitude reference descends (at MPC_Z_VEL_MAX_DN above 10 m, at ``land_speed``
+  below 5 m) to below the ground; touchdown
   (altitude < 5 cm, |climb| < 0.1 m/s for ``landed_time``) disarms.
 
 The per-tick part (:func:`update`) is compiled (:mod:`quadsitl.jit`) and works on the commander's state,
@@ -80,6 +81,7 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.05, 0.1  # [m], [m/s]: resting on the ground
 TAKEOFF_TOLERANCE = 0.1  # [m]: takeoff is done when the vehicle is this close to the takeoff altitude
+LAND_ALT1, LAND_ALT2 = 10.0, 5.0  # [m] a landing slows from MPC_Z_VEL_MAX_DN above ALT1 to land_speed below ALT2
 LAND_BRAKED = 0.5  # [m/s]: a landing descends once the vehicle moves slower than this horizontally
 
 
@@ -223,10 +225,14 @@ def _land(cm: np.ndarray, dt: float, now: float) -> int:
         cm[TARGET_X] = cm[X] + stop_distance(cm[VX], cm[ACC_HOR])
         cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], cm[ACC_HOR])
     advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
-    # The altitude reference descends at land_speed, from where it was, to below the ground.
-    cm[LAND_ALT] = max(cm[LAND_TARGET], min(cm[LAND_ALT], cm[GEN_ALT]) - cm[LAND_SPEED] * dt)
+    # The altitude reference descends, from where it was, to below the ground: at land_speed below LAND_ALT2, at
+    # MPC_Z_VEL_MAX_DN above LAND_ALT1, in between linearly (PX4's MPC_LAND_ALT1/2).
+    alt = min(cm[LAND_ALT], cm[GEN_ALT])
+    share = min(max((alt - LAND_ALT2) / (LAND_ALT1 - LAND_ALT2), 0.0), 1.0)
+    speed = cm[LAND_SPEED] + share * max(cm[Z_VEL_DN] - cm[LAND_SPEED], 0.0)
+    cm[LAND_ALT] = max(cm[LAND_TARGET], alt - speed * dt)
     cm[GEN_ALT] = cm[TARGET_ALT] = cm[LAND_ALT]
-    cm[GEN_CLIMB] = -cm[LAND_SPEED] if cm[LAND_ALT] > cm[LAND_TARGET] else 0.0
+    cm[GEN_CLIMB] = -speed if cm[LAND_ALT] > cm[LAND_TARGET] else 0.0
     cm[GEN_CLIMB_ACC] = 0.0
     _fly_generated(cm)
     if cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB:
@@ -506,6 +512,17 @@ class Commander:
                 cm[index] = value
         cm[LEG_SPEED] = self.settings.cruise if math.isnan(speed) or speed <= 0.0 else speed
         return True, ""
+
+    def position_target_here(self) -> tuple[float, float, float]:
+        """Where the vehicle can stop from its current velocity (x, y NED [m], altitude [m])."""
+        cm, a = self.cm, self.settings.acc_hor
+        return (float(cm[X] + stop_distance(cm[VX], a)), float(cm[Y] + stop_distance(cm[VY], a)),
+                float(max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)))  # fmt: skip
+
+    def change_speed(self, speed: float) -> None:
+        """MAV_CMD_DO_CHANGE_SPEED: the horizontal speed of the current and later legs [m/s]."""
+        self.settings.cruise = speed
+        self.cm[CRUISE] = self.cm[LEG_SPEED] = speed
 
     def plant_lost(self) -> None:
         """No vehicle state arrives: flying blind. Armed, switch to LAND (it resumes when states do)."""

@@ -58,5 +58,5 @@ def control_array(
     c[POLES_XY : POLES_XY + 4] = [1.0 - period * k for k in p.gains]
     c[KI_ALT], c[KI_XY] = p.integral
     c[INT_LIM], c[XY_VEL_MAX], c[Z_VEL_UP], c[Z_VEL_DN] = p.integral_limit, p.xy_vel_max, p.z_vel_max_up, p.z_vel_max_dn
-    c[TAN_TILT_AIR] = math.tan(p.tilt_max_air)
+    c[TAN_TILT_AIR] = math.tan(min(p.tilt_max_air, max_tilt))  # the attitude references' bound binds too
     return c

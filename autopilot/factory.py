@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 from autopilot.backstepping import BacksteppingController
 from autopilot.control_params import KINDS
-from autopilot.gains import poles_from_rates
+from autopilot.gains import check_position_gains, poles_from_rates, rates_from_poles
 from autopilot.pd import PDController
 from quadsitl.config import Preset
 
@@ -18,9 +18,11 @@ def make_controller(
     kind: str | None = None,
     rates: Sequence[float] | None = None,
     poles: Sequence[float] | None = None,
+    position_loop: bool = True,
 ) -> BacksteppingController | PDController:
     """The preset's controller (or ``kind``). ``rates`` (k_i, 1/s) or ``poles`` (λ_i) override the
-    preset's backstepping gains. Raises :class:`autopilot.gains.GainError` for inadmissible gains."""
+    preset's backstepping gains. Raises :class:`autopilot.gains.GainError` for inadmissible gains (the paper's
+    (41)–(44), and with ``position_loop`` the position loop's (53), (56) and (58))."""
     kind = kind or preset.controller.type
     c = preset.controller
     if kind not in CONTROLLERS:
@@ -34,6 +36,11 @@ def make_controller(
     else:
         lam = preset.poles()
     T = preset.sim.period
+    p = preset.position
+    if position_loop:  # the flight controller flies the horizontal loop; `sim`'s attitude experiments do not
+        check_position_gains(p.gains, p.integral, rates_from_poles(lam[2:6], T), T)
     if kind == "pd":  # the backstepping's poles ride along: the autopilot switches controllers (CTL_TYPE)
-        return PDController(preset.vehicle, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min, c.thrust_max, T, lam)
-    return BacksteppingController(preset.vehicle, T, lam, c.max_tilt, c.thrust_min, c.thrust_max, c.pd_kp, c.pd_kd)
+        return PDController(preset.vehicle, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min, c.thrust_max, T, lam, p)
+    return BacksteppingController(
+        preset.vehicle, T, lam, c.max_tilt, c.thrust_min, c.thrust_max, c.pd_kp, c.pd_kd, position=p
+    )

@@ -77,3 +77,46 @@ def stability_interval(poles: Sequence[float], period: float) -> tuple[float, fl
             f"{_describe(i_hi, poles[i_hi - 1], period)}; move λ{i_lo} towards 0 or λ{i_hi} towards 0"
         )
     return eps_lo, eps_hi
+
+
+TIME_SCALE = 3.0  # the horizontal loop's rates stay this many times below the attitude loop's slowest (56)
+XY_NAMES = ("k9 (x position)", "k10 (x velocity)", "k11 (y position)", "k12 (y velocity)")
+
+
+def check_position_gains(
+    rates: Sequence[float], integral: Sequence[float], attitude_rates: Sequence[float], period: float
+) -> tuple[float, float]:
+    """Check the flight controller's gains (docs/position.md): the horizontal loop's rates k9..k12 [1/s] against
+    conditions (41)–(44) read for the channel pairs (k9, k10) and (k11, k12) (eq (53)) and against the
+    time-scale bound k ≤ min(k3..k6)/3 (56); the integral rates k_I [1/s] (altitude, horizontal) against
+    0 ≤ T·k_I < 1 (58). Returns the ε interval of (53). Raises :class:`GainError` naming the gain and the bound."""
+    if len(rates) != 4:
+        raise GainError(f"expected 4 horizontal gains (k9..k12), got {len(rates)}")
+    inner = min(attitude_rates)
+    bound = inner / TIME_SCALE
+    for name, k in zip(XY_NAMES, rates):
+        if not 0.0 < k <= bound:
+            raise GainError(
+                f"condition (56) k ≤ min(k3..k6)/{TIME_SCALE:g}: {name} = {k:.6g} 1/s is too fast for the attitude "
+                f"loop (its slowest rate is {inner:.6g} 1/s); allowed: 0 < {name.split()[0]} ≤ {bound:.6g} 1/s"
+            )
+    poles = [1.0 - period * k for k in rates]
+    T2 = period * period
+    lower, upper = [], []
+    for i, lam_i, lam_n in ((9, poles[0], poles[1]), (11, poles[2], poles[3])):
+        if not abs(lam_i) < 1.0:
+            raise GainError(f"condition (53) {_describe(i, lam_i, period)}: |λ{i}| ≥ 1")
+        lower.append(4.0 * T2 * lam_i * lam_i / (1.0 - lam_i * lam_i))
+        hi = 1.0 - T2 - lam_n * lam_n
+        if not hi > 0.0:
+            raise GainError(f"condition (53) {_describe(i + 1, lam_n, period)}: λ{i + 1}² ≥ 1 − T²")
+        upper.append(hi)
+    eps_lo, eps_hi = max(lower), min(upper)
+    if not eps_lo < eps_hi:
+        raise GainError(f"condition (53): no ε > {eps_lo:.6g} below {eps_hi:.6g}; move k9..k12 towards each other")
+    for name, k in zip(("integral rate k_I (altitude)", "integral rate k_I (horizontal)"), integral):
+        if not 0.0 <= period * k < 1.0:
+            raise GainError(
+                f"condition (58) 0 ≤ T·k_I < 1: {name} = {k:.6g} 1/s; allowed: 0 ≤ k_I < {1.0 / period:.6g} 1/s"
+            )
+    return eps_lo, eps_hi

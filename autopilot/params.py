@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 from autopilot.commander import CommanderSettings
 from autopilot.factory import make_controller
 from autopilot.gains import GainError, rates_from_poles
-from quadsitl.config import Preset
+from quadsitl.config import PositionParams, Preset
 
 MAX_NAME = 16  # MAVLink param_id length
 CONTROLLER_TYPES = ("backstepping", "pd")
@@ -87,6 +87,23 @@ def _specs() -> tuple[ParamSpec, ...]:
         ParamSpec("COM_DL_LOSS_T", 0, 3600, "s", "ground-station heartbeat loss timeout (wall time)", lo_open=True),
         ParamSpec("NAV_DLL_ACT", 0, 2, "", "on ground-station loss: 0 = nothing, 1 = hold, 2 = land", integer=True),
     ]
+    for i, what in zip(range(9, 13), ("x position", "x velocity", "y position", "y velocity")):
+        s.append(ParamSpec(f"BS_K{i}", 0, 1e6, "1/s", f"horizontal backstepping rate k{i}, {what}", lo_open=True))
+    s += [
+        ParamSpec("BS_KI_ALT", 0, 1e6, "1/s", "altitude integral rate k_I (0 = off, the paper's law)"),
+        ParamSpec("BS_KI_XY", 0, 1e6, "1/s", "horizontal integral rate k_I (0 = off)"),
+        ParamSpec("BS_I_LIM", 0, 100, "m/s", "bound on an integrator's share of a virtual velocity", lo_open=True),
+        ParamSpec("MPC_XY_VEL_MAX", 0, 100, "m/s", "horizontal speed limit", lo_open=True),
+        ParamSpec("MPC_Z_VEL_MAX_UP", 0, 100, "m/s", "climb rate limit", lo_open=True),
+        ParamSpec("MPC_Z_VEL_MAX_DN", 0, 100, "m/s", "descent rate limit", lo_open=True),
+        ParamSpec("MPC_TILTMAX_AIR", 0, 89, "deg", "tilt limit of the position loop's thrust", lo_open=True),
+        ParamSpec("MPC_ACC_HOR", 0, 100, "m/s²", "acceleration of the auto modes' references", lo_open=True),
+        ParamSpec("MPC_XY_CRUISE", 0, 100, "m/s", "speed of goto and return", lo_open=True),
+        ParamSpec("MPC_TKO_SPEED", 0, 100, "m/s", "takeoff climb rate", lo_open=True),
+        ParamSpec("MIS_TAKEOFF_ALT", 0, 10000, "m", "takeoff altitude above the ground", lo_open=True),
+        ParamSpec("RTL_RETURN_ALT", 0, 10000, "m", "return altitude above home"),
+        ParamSpec("GF_MAX_HOR_DIST", 0, 1e7, "m", "setpoints farther from home are refused (0 = no limit)"),
+    ]
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
     return tuple(s)
@@ -112,6 +129,13 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(MPC_LAND_SPEED=settings.land_speed, COM_DISARM_LAND=settings.landed_time)
     out.update(SP_ALT_MAX=settings.altitude_max, COM_DL_LOSS_T=settings.datalink_timeout)
     out.update(NAV_DLL_ACT=float(settings.datalink_action))
+    p = preset.position
+    out.update({f"BS_K{i + 9}": k for i, k in enumerate(p.gains)})
+    out.update(BS_KI_ALT=p.integral[0], BS_KI_XY=p.integral[1], BS_I_LIM=p.integral_limit)
+    out.update(MPC_XY_VEL_MAX=p.xy_vel_max, MPC_Z_VEL_MAX_UP=p.z_vel_max_up, MPC_Z_VEL_MAX_DN=p.z_vel_max_dn)
+    out.update(MPC_TILTMAX_AIR=math.degrees(p.tilt_max_air), MPC_ACC_HOR=p.acc_hor, MPC_XY_CRUISE=p.xy_cruise)
+    out.update(MPC_TKO_SPEED=p.takeoff_speed, MIS_TAKEOFF_ALT=settings.takeoff_alt, RTL_RETURN_ALT=settings.rtl_alt)
+    out.update(GF_MAX_HOR_DIST=settings.max_distance)
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 
@@ -152,23 +176,48 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
         pd_kp=tuple(values[f"PD_{ch}_P"] for ch in CHANNELS),
         pd_kd=tuple(values[f"PD_{ch}_D"] for ch in CHANNELS),
     )
+    position = PositionParams(
+        gains=tuple(values[f"BS_K{i}"] for i in range(9, 13)),
+        integral=(values["BS_KI_ALT"], values["BS_KI_XY"]),
+        integral_limit=values["BS_I_LIM"],
+        xy_vel_max=values["MPC_XY_VEL_MAX"],
+        z_vel_max_up=values["MPC_Z_VEL_MAX_UP"],
+        z_vel_max_dn=values["MPC_Z_VEL_MAX_DN"],
+        tilt_max_air=math.radians(values["MPC_TILTMAX_AIR"]),
+        acc_hor=values["MPC_ACC_HOR"],
+        xy_cruise=values["MPC_XY_CRUISE"],
+        takeoff_speed=values["MPC_TKO_SPEED"],
+    )
     settings = replace(
-        base_settings,
+        commander_settings(position, base_settings),
         setpoint_timeout=values["COM_OF_LOSS_T"],
         land_speed=values["MPC_LAND_SPEED"],
         landed_time=values["COM_DISARM_LAND"],
         altitude_max=values["SP_ALT_MAX"],
         datalink_timeout=values["COM_DL_LOSS_T"],
         datalink_action=int(values["NAV_DLL_ACT"]),
+        takeoff_alt=values["MIS_TAKEOFF_ALT"],
+        rtl_alt=values["RTL_RETURN_ALT"],
+        max_distance=values["GF_MAX_HOR_DIST"],
     )
     kind = CONTROLLER_TYPES[int(values["CTL_TYPE"])]
-    return Applied(replace(base, vehicle=vehicle, controller=controller), kind, settings)
+    return Applied(replace(base, vehicle=vehicle, controller=controller, position=position), kind, settings)
+
+
+def commander_settings(position: PositionParams, settings: CommanderSettings) -> CommanderSettings:
+    """``settings`` with the limits the auto modes' references share with the position loop (``position``)."""
+    p = position
+    return replace(
+        settings, acc_hor=p.acc_hor, cruise=p.xy_cruise, takeoff_speed=p.takeoff_speed, z_vel_up=p.z_vel_max_up,
+        z_vel_dn=p.z_vel_max_dn, xy_vel_max=p.xy_vel_max,
+    )  # fmt: skip
 
 
 class ParamStore:
     """The parameter values of one autopilot, changed only through :meth:`set`."""
 
     def __init__(self, preset: Preset, controller: str, settings: CommanderSettings) -> None:
+        settings = commander_settings(preset.position, settings)
         self.base, self.base_settings = preset, settings
         self.values = values_from(preset, controller, settings)
 

@@ -39,7 +39,7 @@ from autopilot.control_params import (
     control_array,
 )
 from autopilot.limits import clamp, tilt_factor
-from quadsitl.config import VehicleParams
+from quadsitl.config import PositionParams, VehicleParams
 from quadsitl.frames import altitude, climb_rate, wrap_pi
 from quadsitl.jit import jit
 from quadsitl.param_arrays import ARM, IXX, IYY, IZZ, MASS, G, vehicle_array
@@ -115,12 +115,13 @@ class PDController:
         thrust_max: float = math.inf,
         period: float = 0.0,
         poles: Sequence[float] = (0.0,) * 8,
+        position: PositionParams | None = None,
     ) -> None:
         self.vehicle = vehicle
         self.kp = tuple(kp)
         self.kd = tuple(kd)
         self.v = vehicle_array(vehicle)
-        self.c = control_array(poles, period, kp, kd, max_tilt, thrust_min, thrust_max)
+        self.c = control_array(poles, period, kp, kd, max_tilt, thrust_min, thrust_max, position)
         self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
         self.last = Inputs()
 

@@ -16,9 +16,9 @@ direction; eqs (2)–(3) inverted for the measured yaw ψ give the roll and pitc
 
     a_f = cψ·a_x + sψ·a_y,  a_r = −sψ·a_x + cψ·a_y,  θ_d = atan2(−a_f, a_v),  φ_d = atan2(a_r·cθ_d, a_v)
 
-The horizontal virtual velocity is bounded by MPC_XY_VEL_MAX (54) and the tilt of the thrust by
-MPC_TILTMAX_AIR (53); the integrator (an anti-windup one: it holds while the tilt limit acts, and
-|κ·ζ| ≤ INT_LIM) removes the offset a constant horizontal force leaves (eq (57)).
+The horizontal virtual velocity is bounded by MPC_XY_VEL_MAX and the tilt of the thrust by MPC_TILTMAX_AIR
+(54); the integrator (an anti-windup one: it holds while the tilt limit acts, and
+|κ·ζ| ≤ INT_LIM) removes the offset a constant horizontal force leaves (eqs (57)–(59)).
 
 :func:`horizontal` is compiled (:mod:`quadsitl.jit`), pure, and shared by both inner controllers.
 """
@@ -96,13 +96,14 @@ def attitude_for(ax: float, ay: float, a_v: float, yaw: float) -> tuple[float, f
 
 
 @jit
-def horizontal(
+def horizontal_acceleration(
     s: tuple[float, ...], sp: tuple[float, float, float, float, float, float], zeta_x: float, zeta_y: float,
     a_v: float, v: np.ndarray, c: np.ndarray,
 ) -> tuple[float, float, tuple[float, float, float, float], float, float]:  # fmt: skip
-    """One step of the horizontal loop for the state ``s`` (the 12 VehicleState fields), the reference ``sp``
-    (x, y [m], vx, vy [m/s], ax, ay [m/s²], NED; NaN: not given), the integrator states and the upward
-    acceleration ``a_v`` [m/s²] of the thrust: (roll_ref, pitch_ref [rad], (e9, e10, e11, e12), ζx⁺, ζy⁺)."""
+    """The horizontal loop's output for the state ``s`` (the 12 VehicleState fields), the reference ``sp`` (x, y
+    [m], vx, vy [m/s], ax, ay [m/s²], NED; NaN: not given), the integrator states and the upward acceleration
+    ``a_v`` [m/s²] of the thrust: the thrust's horizontal acceleration (a_x, a_y) [m/s², NED] within the tilt
+    limit, (e9, e10, e11, e12), and the next integrator states ζx⁺, ζy⁺."""
     T = c[PERIOD]
     l9, l10, l11, l12 = c[POLES_XY], c[POLES_XY + 1], c[POLES_XY + 2], c[POLES_XY + 3]
     m = v[MASS]
@@ -121,10 +122,21 @@ def horizontal(
     # (52): the thrust's horizontal acceleration that makes e10⁺ = λ10·e10 and e12⁺ = λ12·e12.
     ax = (vx_next + l10 * e10 - (1.0 - T * v[K1] / m) * x10) / T
     ay = (vy_next + l12 * e12 - (1.0 - T * v[K2] / m) * x12) / T
-    # (53): the tilt of the thrust within MPC_TILTMAX_AIR; while it limits, the integrators hold (anti-windup).
+    # (54): the tilt of the thrust within MPC_TILTMAX_AIR; while it limits, the integrators hold (anti-windup).
     ax, ay, limited = scale_to(ax, ay, max(a_v, 0.0) * c[TAN_TILT_AIR])
     if limited:
         zx, zy = zeta_x, zeta_y
     zx, zy = bounded_integral(zx, kappa_x, c[INT_LIM]), bounded_integral(zy, kappa_y, c[INT_LIM])
+    return ax, ay, (e9, e10, e11, e12), zx, zy
+
+
+@jit
+def horizontal(
+    s: tuple[float, ...], sp: tuple[float, float, float, float, float, float], zeta_x: float, zeta_y: float,
+    a_v: float, v: np.ndarray, c: np.ndarray,
+) -> tuple[float, float, tuple[float, float, float, float], float, float]:  # fmt: skip
+    """One step of the horizontal loop (:func:`horizontal_acceleration`), turned into attitude (55): (roll_ref,
+    pitch_ref [rad], (e9, e10, e11, e12), ζx⁺, ζy⁺)."""
+    ax, ay, errors, zx, zy = horizontal_acceleration(s, sp, zeta_x, zeta_y, a_v, v, c)
     roll, pitch = attitude_for(ax, ay, a_v, s[8])
-    return roll, pitch, (e9, e10, e11, e12), zx, zy
+    return roll, pitch, errors, zx, zy

@@ -26,7 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 import zenoh
 
-from autopilot import gcs_messages
+from autopilot import gcs_messages, setpoints
 from autopilot import tick as kernel
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
@@ -52,6 +52,7 @@ PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lo
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
+SUPPORTED_MODES = "supported are offboard (6), takeoff (4/2), hold (4/3), RTL (4/5), land (4/6)"
 
 
 def as_int(value: float) -> int:
@@ -93,7 +94,7 @@ class Autopilot:
         settings = CommanderSettings(setpoint_timeout=args.setpoint_timeout)
         self.params = ParamStore(preset, kind, settings)
         self.controller = make_controller(preset, kind)
-        self.commander = Commander(settings)
+        self.commander = Commander(self.params.base_settings)
         self.home = Home(*args.home) if args.home else Home()
         self.sysid = args.system_id
         self.compid = wire.AUTOPILOT_COMPONENT_ID
@@ -322,20 +323,19 @@ class Autopilot:
         elif mid == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
             self._attitude_target(m)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
-            if m.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
-                self._say_once(
-                    "frame", f"Position setpoint ignored: frame {m.coordinate_frame}; use MAV_FRAME_LOCAL_NED (1)"
-                )
-                return
-            z_ignored = bool(m.type_mask & 4)  # z is down: altitude = −z
-            if z_ignored:
-                self.commander.on_altitude_setpoint(None)
-            elif math.isfinite(m.z) and 0.0 <= -m.z <= self.commander.settings.altitude_max:
-                self.commander.on_altitude_setpoint(-m.z)
+            self._position_target(m, (m.x, m.y, m.z))
+        elif mid == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT:
+            self._position_target(m, (float(m.lat_int), float(m.lon_int), m.alt))
+        elif mid == mavlink.MAVLINK_MSG_ID_SET_MODE:  # QGroundControl's way to PX4 modes (no acknowledgement)
+            mode = (
+                wire.Mode.from_px4(m.custom_mode) if m.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else None
+            )
+            if mode is None:
+                self._say(mavlink.MAV_SEVERITY_WARNING, f"Mode {m.custom_mode}: {SUPPORTED_MODES}")
             else:
-                top = self.commander.settings.altitude_max
-                self._refuse("alt", f"Altitude setpoint refused: z = {m.z:g} m; allowed: altitude 0..{top:g} m "
-                             "(z = -altitude, NED), parameter SP_ALT_MAX")  # fmt: skip
+                _, reason = self.commander.set_mode(mode)
+                if reason:
+                    self._say(mavlink.MAV_SEVERITY_WARNING, reason)
         elif mid == mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST:
             for index, name, value in self.params:
                 self._send_param(index, name, value)
@@ -355,6 +355,24 @@ class Autopilot:
 
     def _for_me(self, system: int, component: int) -> bool:
         return system in (0, self.sysid) and component in (0, self.compid)
+
+    def frame(self) -> setpoints.Frame:
+        """Where setpoints are measured from, and the limits they must keep (autopilot.setpoints)."""
+        c, st = self.commander, self.commander.settings
+        return setpoints.Frame(
+            (self.home.lat, self.home.lon, self.home.alt), c.home, float(self.st[8]), st.altitude_max,
+            st.max_distance, st.xy_vel_max, st.z_vel_up, st.z_vel_dn,
+        )  # fmt: skip
+
+    def _position_target(self, m, pos: tuple[float, float, float]) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED or _GLOBAL_INT: refused with a reason, or handed to the commander."""
+        try:
+            groups = setpoints.position_target(m.coordinate_frame, m.type_mask, pos, (m.vx, m.vy, m.vz),
+                                               (m.afx, m.afy, m.afz), m.yaw, m.yaw_rate, self.frame())  # fmt: skip
+        except setpoints.SetpointError as exc:
+            self._refuse("position", str(exc))
+            return
+        self.commander.on_position_setpoint(*groups)
 
     def _attitude_target(self, m) -> None:
         """SET_ATTITUDE_TARGET: the attitude reference. type_mask 128 (attitude ignored) carries no
@@ -435,13 +453,22 @@ class Autopilot:
                 mode = wire.Mode.from_px4(((as_int(m.param2) & 0xFF) << 16) | ((as_int(m.param3) & 0xFF) << 24))
             if mode is None:
                 result = mavlink.MAV_RESULT_UNSUPPORTED
-                reason = f"Mode main {m.param2:g} sub {m.param3:g}: supported are offboard (6), hold (4/3), land (4/6)"
+                reason = f"Mode main {m.param2:g} sub {m.param3:g}: {SUPPORTED_MODES}"
             else:
                 ok, reason = c.set_mode(mode)
                 result = accepted if ok else denied
         elif cmd == mavlink.MAV_CMD_NAV_LAND:
             ok, reason = c.set_mode(wire.Mode.LAND)
             result = accepted if ok else denied
+        elif cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            ok, reason = c.set_mode(wire.Mode.RTL)
+            result = accepted if ok else denied
+        elif cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
+            result, reason = self._takeoff(m)
+        elif cmd == mavlink.MAV_CMD_DO_REPOSITION:
+            result, reason = self._reposition(m)
+        elif cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            result, reason = self._change_speed(m)
         elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             reply = gcs_messages.autopilot_version(self.sysid)
         elif cmd == mavlink.MAV_CMD_GET_HOME_POSITION:
@@ -465,6 +492,67 @@ class Autopilot:
             self._send_gcs(reply)
         if reason:
             self._say(mavlink.MAV_SEVERITY_WARNING, reason)
+
+    @staticmethod
+    def _location(m) -> tuple[float, float, float, int]:
+        """A command's (latitude, longitude [deg], altitude [m], frame): COMMAND_INT's x, y (1e7 deg; INT32_MAX:
+        none) and z, or COMMAND_LONG's params 5–7 (a global frame, AMSL). NaN where not given."""
+        if m.get_msgId() == mavlink.MAVLINK_MSG_ID_COMMAND_INT:
+            lat = math.nan if m.x == setpoints.INT32_MAX else m.x * 1e-7
+            lon = math.nan if m.y == setpoints.INT32_MAX else m.y * 1e-7
+            return lat, lon, m.z, m.frame
+        return m.param5, m.param6, m.param7, setpoints.GLOBAL
+
+    def _takeoff(self, m) -> tuple[int, str]:
+        """MAV_CMD_NAV_TAKEOFF: param7 (COMMAND_INT: z) the altitude AMSL, NaN: MIS_TAKEOFF_ALT above here."""
+        _, _, alt, frame = self._location(m)
+        altitude = None
+        if math.isfinite(alt):
+            altitude = setpoints.altitude_of(frame, alt, self.frame())
+        elif not math.isnan(alt):
+            return mavlink.MAV_RESULT_DENIED, f"Takeoff: altitude {alt:g}; expected a finite number or NaN"
+        ok, reason = self.commander.takeoff(altitude)
+        return (mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_DENIED), reason
+
+    def _reposition(self, m) -> tuple[int, str]:
+        """MAV_CMD_DO_REPOSITION (MAVSDK's goto_location): p1 speed [m/s] (≤ 0 or NaN: MPC_XY_CRUISE), p2 bit 0
+        switch to hold, p4 yaw [rad], then the location; NaN keeps a value, all NaN stops here."""
+        lat, lon, alt, frame = self._location(m)
+        try:
+            x, y, altitude = setpoints.reposition(lat, lon, alt, frame, self.frame())
+        except setpoints.SetpointError as exc:
+            self.refused += 1
+            return mavlink.MAV_RESULT_DENIED, str(exc)
+        yaw = m.param4
+        if math.isinf(yaw):
+            return mavlink.MAV_RESULT_DENIED, f"Reposition: yaw {yaw:g}; expected radians or NaN (keep)"
+        speed, top = m.param1, self.commander.settings.xy_vel_max
+        if math.isfinite(speed) and speed > top:
+            return (
+                mavlink.MAV_RESULT_DENIED,
+                f"Reposition: speed {speed:g} m/s; allowed: up to {top:g} m/s (MPC_XY_VEL_MAX)",
+            )
+        hold = as_int(m.param2) > 0 and as_int(m.param2) & 1
+        if all(math.isnan(v) for v in (lat, lon, alt, yaw)):  # stop here
+            x, y, altitude = self.commander.position_target_here()
+        ok, reason = self.commander.reposition(x, y, altitude, yaw, speed, bool(hold))
+        return (mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_DENIED), reason
+
+    def _change_speed(self, m) -> tuple[int, str]:
+        """MAV_CMD_DO_CHANGE_SPEED: p1 speed type (0 air, 1 ground: the horizontal speed), p2 speed [m/s] (−1 or
+        −2: no change / default)."""
+        kind, speed = as_int(m.param1), m.param2
+        if kind not in (0, 1):
+            return mavlink.MAV_RESULT_UNSUPPORTED, f"Change speed: speed type {m.param1:g}; supported: 0, 1"
+        if speed in (-1.0, -2.0):
+            speed = self.params.values["MPC_XY_CRUISE"] if speed == -2.0 else math.nan
+        if math.isnan(speed):
+            return mavlink.MAV_RESULT_ACCEPTED, ""
+        top = self.commander.settings.xy_vel_max
+        if not (math.isfinite(speed) and 0.0 < speed <= top):
+            return mavlink.MAV_RESULT_DENIED, f"Change speed: {speed:g} m/s; allowed: (0, {top:g}] m/s"
+        self.commander.change_speed(speed)
+        return mavlink.MAV_RESULT_ACCEPTED, ""
 
     def _requested(self, msg_id: float) -> tuple[int, str, object]:
         """MAV_CMD_REQUEST_MESSAGE: (result, reason, the message to send)."""

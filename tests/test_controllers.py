@@ -205,8 +205,10 @@ def test_realistic_preset_flies_within_motor_limits():
 
 
 def test_factory_applies_overrides():
-    c = make_controller(PAPER, rates=[5.0] * 8)
+    c = make_controller(PAPER, rates=[5.0] * 8, position_loop=False)  # `sim`: the paper's experiment alone
     assert c.poles == pytest.approx((0.995,) * 8)
+    with pytest.raises(GainError, match=r"condition \(56\).*k10 \(x velocity\) = 2 1/s.*0 < k10 ≤ 1.66667 1/s"):
+        make_controller(PAPER, rates=[5.0] * 8)  # the flight controller's horizontal loop would outrun the attitude
     c = make_controller(PAPER, poles=[0.9] * 8)
     assert c.poles == (0.9,) * 8
     assert isinstance(make_controller(PAPER, "pd"), PDController)

@@ -80,7 +80,7 @@ def test_parameters_list_read_set_and_refuse(client):
 def test_commands_versions_and_message_intervals(client):
     c = client
     c.heartbeat()
-    assert c.command(M.MAV_CMD_NAV_TAKEOFF).result == M.MAV_RESULT_UNSUPPORTED
+    assert c.command(M.MAV_CMD_DO_SET_SERVO, 1, 1500).result == M.MAV_RESULT_UNSUPPORTED
     ack = c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
     assert ack.result == M.MAV_RESULT_ACCEPTED
     ver = c.wait("AUTOPILOT_VERSION")
@@ -206,7 +206,7 @@ def test_setpoint_validation_normalises_near_unit_quaternions_and_refuses_the_re
     stream(list(euler_to_quaternion(1.45, 0.0, 0.0)), 1.0)  # 83° > ATT_TILT_MAX (80°)
     c.text_containing("beyond ATT_TILT_MAX")
     stream(q, 1.0, z=-5000.0)  # above SP_ALT_MAX
-    c.text_containing("Altitude setpoint refused")
+    c.text_containing("Position setpoint refused: altitude 5000 m")
     assert c.latest["ATTITUDE"].roll == pytest.approx(0.1, abs=2e-3)
     assert c.latest["LOCAL_POSITION_NED"].z == pytest.approx(-1.0, abs=5e-3)
     assert c.latest["SYS_STATUS"].errors_count2 > 10
