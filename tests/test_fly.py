@@ -112,8 +112,9 @@ def test_fly_sends_a_position_trajectory_as_offboard_position_setpoints(circle_f
 
 
 def test_fly_circle_tracks_the_position_reference(circle_flight):
-    """The autopilot's side (needs its position control): x_ref, y_ref are the circle, and the vehicle flies
-    it. Thresholds: PX4-like position control at 1.57 m/s on a 4 m circle."""
+    """The autopilot's side (needs its position control, and x_ref, y_ref in the setpoint record): x_ref, y_ref
+    are the circle, and the vehicle flies it. Thresholds: PX4-like position control at 1.57 m/s on a 4 m
+    circle, without an acceleration feed-forward (it runs a little outside the circle)."""
     out, r = circle_flight
     assert r.returncode == 0, r.stderr
     data = read_csv(out / "telemetry.csv")
@@ -133,7 +134,7 @@ def test_fly_circle_tracks_the_position_reference(circle_flight):
     assert math.hypot(data["x"][-1], data["y"][-1]) < 0.5
     m = json.loads((out / "metrics.json").read_text())["position"]["backstepping"]
     assert m["samples"] == int(finite.sum())
-    assert m["horizontal_rms"] < 0.3 and m["horizontal_max"] < 1.0, m
+    assert m["horizontal_rms"] < 0.4 and m["horizontal_max"] < 1.0, m  # 0.23 and 0.46 m when written
     assert abs(data["altitude"][-1] - 2.0) < 0.1
 
 
