@@ -184,7 +184,7 @@ function append(rows, reset) {
 }
 
 function redraw() {
-  if (!state.dirty) return;
+  if (!state.dirty || !state.data.t) return; // nothing new, or no stream yet (a resize before the hello)
   state.dirty = false;
   const d = state.data;
   for (const p of Object.values(state.plots)) {
