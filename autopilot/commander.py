@@ -64,8 +64,8 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
  # landing and when the vehicle came to rest (NaN: it has not)
  GEN_X, GEN_Y, GEN_ALT, GEN_VX, GEN_VY, GEN_CLIMB, GEN_AX, GEN_AY, GEN_CLIMB_ACC, TARGET_X, TARGET_Y, TARGET_ALT,
  HOLD_YAW, LEG_SPEED, PHASE, TAKEOFF_ALT, LAND_ALT, LANDED_SINCE,
- # home (set on arming)
- HOME_X, HOME_Y, HOME_ALT,
+ # home (set on arming): position and heading
+ HOME_X, HOME_Y, HOME_ALT, HOME_YAW,
  # the time and tick of the last update and the state it saw
  NOW, TICK, X, Y, ALTITUDE, VX, VY, CLIMB_RATE, YAW,
  # settings
@@ -76,7 +76,7 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
  # roll, pitch, yaw (NaN: the yaw rate alone), yaw rate; and whether the velocity limits apply
  REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
  REF_YAW_RATE, REF_LIMITED,
- SIZE) = range(73)  # fmt: skip
+ SIZE) = range(74)  # fmt: skip
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.05, 0.1  # [m], [m/s]: resting on the ground
@@ -395,6 +395,18 @@ class Commander:
         return float(self.cm[HOME_X]), float(self.cm[HOME_Y]), float(self.cm[HOME_ALT])
 
     @property
+    def home_yaw(self) -> float:
+        """The heading at arming [rad]."""
+        return float(self.cm[HOME_YAW])
+
+    @property
+    def target(self) -> tuple[float, float, float, float, float, float]:
+        """The position reference of the last tick: x, y [m], vx, vy [m/s] (local NED), altitude [m], climb rate
+        [m/s]; NaN where not controlled."""
+        cm = self.cm
+        return tuple(float(cm[i]) for i in (REF_X, REF_Y, REF_VX, REF_VY, REF_ALT, REF_CLIMB))  # type: ignore[return-value]
+
+    @property
     def position_target(self) -> tuple[float, float, float]:
         """The position the auto modes are heading for: (x, y NED [m], altitude [m])."""
         return float(self.cm[TARGET_X]), float(self.cm[TARGET_Y]), float(self.cm[TARGET_ALT])
@@ -470,7 +482,7 @@ class Commander:
         cm = self.cm
         cm[ARMED] = 1.0
         cm[FAILSAFE] = FAILSAFE_NONE
-        cm[HOME_X], cm[HOME_Y], cm[HOME_ALT] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0)
+        cm[HOME_X], cm[HOME_Y], cm[HOME_ALT], cm[HOME_YAW] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0), cm[YAW]
         enter(cm, int(cm[MODE]))
         self.messages.append((6, "Armed"))
         return True, ""

@@ -2,8 +2,17 @@
 
 Conventions are PX4's (DESIGN.md §8), so QGroundControl, MAVProxy and MAVSDK read them as they read
 PX4: local NED position and velocity, FRD body rates, quaternions [w, x, y, z] FRD → NED,
-``GLOBAL_POSITION_INT`` from a home position by PX4's map projection (:mod:`quadsitl.frames`), motor
-outputs as PWM 1000–2000 µs.
+``GLOBAL_POSITION_INT`` and ``GPS_RAW_INT`` from the geodetic origin of the local frame by PX4's map
+projection (:mod:`quadsitl.frames`), motor outputs as PWM 1000–2000 µs.
+
+Two positions matter, as in PX4: the **origin** (:class:`Origin`, ``--home``), where the local NED frame's
+(0, 0, 0) is on the globe; and **home**, a point of that local frame (PX4: where the vehicle armed), which
+``HOME_POSITION`` reports both ways (local x, y, z and latitude, longitude, altitude) and
+``GLOBAL_POSITION_INT.relative_alt`` is measured from.
+
+``SYS_STATUS`` says which sensors exist and are healthy the way MAVSDK's ``telemetry.health()`` reads it
+(:func:`sys_status`): with a vehicle state from the plant, everything a PX4 vehicle needs to fly is healthy
+and the pre-arm check passes; without one, the sensors and the pre-arm check are unhealthy.
 """
 
 from __future__ import annotations
@@ -22,13 +31,17 @@ STATUSTEXT_LEN = 50
 
 
 @dataclass(frozen=True)
-class Home:
-    """The home position: WGS84 latitude and longitude [deg], altitude AMSL [m]. The local NED
-    origin is here. Default: PX4 SITL's default home (Zürich)."""
+class Origin:
+    """The geodetic origin of the local NED frame (where local x = y = z = 0 is): WGS84 latitude and
+    longitude [deg], altitude AMSL [m]. ``--home`` sets it; the default is PX4 SITL's default home
+    (Zürich), where PX4 SITL's vehicle starts."""
 
     lat: float = 47.397742
     lon: float = 8.545594
     alt: float = 488.0
+
+
+Home = Origin  # the former name, which autopilot.process still imports
 
 
 @dataclass(frozen=True)
@@ -47,6 +60,31 @@ class Snapshot:
     # SYS_STATUS errors_comm, errors_count1..4: bad ground-link frames, unknown messages, refused inputs,
     # plant-link errors, messages for another system/component
     errors: tuple[int, int, int, int, int] = (0, 0, 0, 0, 0)
+    # Home in the local frame: x, y, z [m] NED from the origin, and heading [rad]. HOME_POSITION reports it,
+    # GLOBAL_POSITION_INT.relative_alt is the altitude above it.
+    home: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    has_state: bool = True  # a vehicle state arrives from the plant: sensors healthy, pre-arm check passed
+    # The position reference flown (local NED x, y [m], vx, vy [m/s], altitude [m], climb rate [m/s]); NaN where
+    # not controlled (the horizontal position under attitude setpoints, the altitude under a climb rate alone).
+    target: tuple[float, float, float, float, float, float] = (math.nan,) * 4 + (0.0, math.nan)
+
+
+def position_target(s: Snapshot, ms: int) -> mavlink.MAVLink_position_target_local_ned_message:
+    """POSITION_TARGET_LOCAL_NED: the position and velocity the autopilot flies to, a field's ignore bit set where
+    it is not controlled (accelerations and yaw rate always: the yaw is the target)."""
+    x, y, vx, vy, alt, climb = s.target
+    values = (x, y, -alt, vx, vy, -climb)
+    mask = 64 | 128 | 256 | 2048
+    for bit, value in enumerate(values):
+        if not math.isfinite(value):
+            mask |= 1 << bit
+    out = [v if math.isfinite(v) else 0.0 for v in values]
+    yaw = s.reference.yaw if math.isfinite(s.reference.yaw) else 0.0
+    if not math.isfinite(s.reference.yaw):
+        mask |= 1024
+    return mavlink.MAVLink_position_target_local_ned_message(
+        ms, mavlink.MAV_FRAME_LOCAL_NED, mask, *out, 0.0, 0.0, 0.0, yaw, 0.0
+    )
 
 
 def heartbeat(c: Commander) -> mavlink.MAVLink_heartbeat_message:
@@ -68,15 +106,35 @@ def heartbeat(c: Commander) -> mavlink.MAVLink_heartbeat_message:
     )
 
 
+GROUND_ALTITUDE = 0.05  # [m] below this altitude (above the ground plane, h = −z) ...
+GROUND_CLIMB_RATE = 0.1  # [m/s] ... and this vertical speed, an armed vehicle rests on the ground
+
+
 def landed_state(c: Commander, state: VehicleState) -> int:
-    """MAV_LANDED_STATE: on the ground when disarmed or resting below 5 cm, landing in LAND."""
+    """MAV_LANDED_STATE, as ``EXTENDED_SYS_STATE`` and MAVSDK's ``landed_state``/``in_air`` read it:
+
+    - ON_GROUND (1): disarmed, or armed and at rest on the ground (altitude below ``GROUND_ALTITUDE``,
+      vertical speed below ``GROUND_CLIMB_RATE``), also in LAND once it has touched down;
+    - TAKEOFF (3): armed in TAKEOFF (from arming, even before the wheels leave the ground);
+    - LANDING (4): armed in LAND, until touchdown;
+    - IN_AIR (2): armed otherwise, including RTL (its final descent is not told apart here).
+
+    Modes are matched by name, so TAKEOFF (PX4 auto/takeoff) counts wherever :class:`Mode` has it."""
     if not c.armed:
         return mavlink.MAV_LANDED_STATE_ON_GROUND
-    if c.mode == Mode.LAND:
-        return mavlink.MAV_LANDED_STATE_LANDING
-    if state.altitude < 0.05 and abs(state.climb_rate) < 0.1:
+    mode = c.mode.name
+    if mode == "TAKEOFF":
+        return mavlink.MAV_LANDED_STATE_TAKEOFF
+    if state.altitude < GROUND_ALTITUDE and abs(state.climb_rate) < GROUND_CLIMB_RATE:
         return mavlink.MAV_LANDED_STATE_ON_GROUND
+    if mode == "LAND":
+        return mavlink.MAV_LANDED_STATE_LANDING
     return mavlink.MAV_LANDED_STATE_IN_AIR
+
+
+def in_air(c: Commander, state: VehicleState) -> bool:
+    """Anything but on the ground (taking off, flying, landing): a disarm now needs force."""
+    return landed_state(c, state) != mavlink.MAV_LANDED_STATE_ON_GROUND
 
 
 def pwm(control: float, reversible: bool) -> int:
@@ -86,11 +144,35 @@ def pwm(control: float, reversible: bool) -> int:
     return round(1000.0 + 1000.0 * min(max(c, 0.0), 1.0))
 
 
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+UINT16_UNKNOWN = 65535  # MAVLink's "unknown" for uint16 fields (GPS_RAW_INT eph, epv, vel, cog)
+
+
 def _clamp_int(value: float, lo: int, hi: int) -> int:
+    """``value`` rounded into [lo, hi]; 0 when it is not finite (never raises)."""
     return int(min(max(round(value), lo), hi)) if math.isfinite(value) else 0
 
 
-def build(msg_id: int, s: Snapshot, c: Commander, home: Home):
+def _lat_lon_e7(origin: Origin, north: float, east: float) -> tuple[int, int]:
+    """Local north/east [m] from ``origin`` → (lat, lon) [1e-7 deg], PX4's projection; (0, 0) for a
+    non-finite position (never raises)."""
+    if not (math.isfinite(north) and math.isfinite(east)):
+        return 0, 0
+    lat, lon = ned_to_geodetic(north, east, origin.lat, origin.lon)
+    return _clamp_int(lat * 1e7, -900_000_000, 900_000_000), _clamp_int(lon * 1e7, -1_800_000_000, 1_800_000_000)
+
+
+def _amsl_mm(origin: Origin, z: float) -> int:
+    """Local z [m, down] → altitude AMSL [mm]."""
+    return _clamp_int((origin.alt - z) * 1000, INT32_MIN, INT32_MAX)
+
+
+def _cdeg(angle: float) -> int:
+    """An angle [rad] → centidegrees in [0, 36000)."""
+    return round(math.degrees(angle) % 360.0 * 100) % 36000 if math.isfinite(angle) else 0
+
+
+def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
     """The telemetry message ``msg_id`` for this tick (one of :mod:`autopilot.streams`' ids)."""
     st, ms, (p, q, r) = s.state, s.time_ms & 0xFFFFFFFF, s.body_rates
     if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE:
@@ -108,30 +190,15 @@ def build(msg_id: int, s: Snapshot, c: Commander, home: Home):
         # type_mask 7: the body-rate fields are not used.
         return mavlink.MAVLink_attitude_target_message(ms, 7, qd, 0.0, 0.0, 0.0, thrust)
     if msg_id == mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
-        # Only z is a target (the altitude reference); x, y, velocities, accelerations, yaw rate ignored.
-        mask = 1 | 2 | 8 | 16 | 32 | 64 | 128 | 256 | 2048  # yaw (1024) is a target too
-        return mavlink.MAVLink_position_target_local_ned_message(
-            ms, mavlink.MAV_FRAME_LOCAL_NED, mask, 0.0, 0.0, -s.reference.altitude, 0, 0, 0, 0, 0, 0,
-            s.reference.yaw, 0.0,
-        )  # fmt: skip
+        return position_target(s, ms)
     if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-        lat, lon = ned_to_geodetic(st.x, st.y, home.lat, home.lon)
-        hdg = round(math.degrees(st.yaw) % 360.0 * 100) % 36000
-        return mavlink.MAVLink_global_position_int_message(
-            ms,
-            _clamp_int(lat * 1e7, -900_000_000, 900_000_000),
-            _clamp_int(lon * 1e7, -1_800_000_000, 1_800_000_000),
-            _clamp_int((home.alt - st.z) * 1000, -(2**31), 2**31 - 1),
-            _clamp_int(-st.z * 1000, -(2**31), 2**31 - 1),
-            _clamp_int(st.vx * 100, -32768, 32767),
-            _clamp_int(st.vy * 100, -32768, 32767),
-            _clamp_int(st.vz * 100, -32768, 32767),
-            hdg,
-        )
+        return global_position_int(origin, st, s.time_ms, home_z=s.home[2])
+    if msg_id == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
+        return gps_raw_int(origin, st, s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
-        return home_position(home, s.time_ms * 1000)
+        return home_position(origin, *s.home, time_usec=s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
-        return sys_status(s.load, s.errors)
+        return sys_status(s.load, s.errors, s.has_state)
     if msg_id == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
         return mavlink.MAVLink_extended_sys_state_message(mavlink.MAV_VTOL_STATE_UNDEFINED, landed_state(c, st))
     if msg_id == mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
@@ -142,39 +209,111 @@ def build(msg_id: int, s: Snapshot, c: Commander, home: Home):
     raise ValueError(f"message id {msg_id} is not a telemetry stream")
 
 
-SENSORS = (
+def global_position_int(
+    origin: Origin, state: VehicleState, time_ms: int, home_z: float = 0.0
+) -> mavlink.MAVLink_global_position_int_message:
+    """``GLOBAL_POSITION_INT``: the position of ``state`` (local NED [m] from ``origin``) as latitude and
+    longitude [1e-7 deg] and altitude AMSL [mm]; ``relative_alt`` [mm] is the altitude above home, whose
+    local z [m, down] is ``home_z`` (PX4: above the arming position); NED velocity [cm/s]; heading [cdeg]
+    from yaw. ``time_ms``: simulated time since start [ms]."""
+    lat, lon = _lat_lon_e7(origin, state.x, state.y)
+    return mavlink.MAVLink_global_position_int_message(
+        time_ms & 0xFFFFFFFF, lat, lon, _amsl_mm(origin, state.z),
+        _clamp_int((home_z - state.z) * 1000, INT32_MIN, INT32_MAX),
+        _clamp_int(state.vx * 100, -32768, 32767), _clamp_int(state.vy * 100, -32768, 32767),
+        _clamp_int(state.vz * 100, -32768, 32767), _cdeg(state.yaw),
+    )  # fmt: skip
+
+
+# What GPS_RAW_INT claims about the simulated receiver. Its fix is the true state, so its uncertainties are
+# those of the encoding: 1e-7 deg of latitude ≈ 1.1 cm, 1 mm of altitude, 1 cm/s of speed.
+GPS_SATELLITES = 10
+GPS_DOP = 1.0  # HDOP and VDOP (an ideal geometry)
+GPS_H_ACC = 11  # [mm]
+GPS_V_ACC = 1  # [mm]
+GPS_VEL_ACC = 10  # [mm/s]
+
+
+def gps_raw_int(origin: Origin, state: VehicleState, time_usec: int) -> mavlink.MAVLink_gps_raw_int_message:
+    """``GPS_RAW_INT`` of a perfect receiver at ``state`` (local NED [m] and m/s from ``origin``): a 3D fix
+    with ``GPS_SATELLITES`` satellites; latitude and longitude [1e-7 deg] by PX4's projection; altitude
+    AMSL [mm] (also as ``alt_ellipsoid``: no geoid is modelled); eph/epv = DOP·100; ground speed ``vel``
+    [cm/s]; course over ground ``cog`` [cdeg, 0 = north, clockwise], UINT16_MAX (unknown) while the ground
+    speed rounds to 0 cm/s; accuracies ``h_acc``, ``v_acc`` [mm] and ``vel_acc`` [mm/s]; yaw 0 (the
+    receiver has no heading). ``time_usec``: simulated time since start [µs]."""
+    lat, lon = _lat_lon_e7(origin, state.x, state.y)
+    alt = _amsl_mm(origin, state.z)
+    vel = _clamp_int(math.hypot(state.vx, state.vy) * 100, 0, UINT16_UNKNOWN - 1)
+    cog = _cdeg(math.atan2(state.vy, state.vx)) if vel > 0 else UINT16_UNKNOWN
+    dop = round(GPS_DOP * 100)
+    return mavlink.MAVLink_gps_raw_int_message(
+        max(int(time_usec), 0), mavlink.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, dop, dop, vel, cog, GPS_SATELLITES,
+        alt, GPS_H_ACC, GPS_V_ACC, GPS_VEL_ACC, 0, 0,
+    )  # fmt: skip
+
+
+SENSORS = (  # the simulated vehicle's sensors: the plant's state stands for all of them
     mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
     | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-    | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+)
+CONTROL = (  # what the autopilot controls
+    mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
     | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
     | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
     | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
     | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
 )
-
-
+PRESENT = SENSORS | CONTROL | mavlink.MAV_SYS_STATUS_PREARM_CHECK  # also "enabled"
 # Health bits say 1 = healthy; a geofence we do not have is not in breach (MAVProxy says "fence breach" otherwise).
-HEALTH = SENSORS | mavlink.MAV_SYS_STATUS_GEOFENCE
+HEALTH_ALWAYS = CONTROL | mavlink.MAV_SYS_STATUS_GEOFENCE
+HEALTH_WITH_STATE = SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK
 
 
-def sys_status(load: float = 0.0, errors: tuple[int, ...] = (0, 0, 0, 0, 0)) -> mavlink.MAVLink_sys_status_message:
-    """``load`` is the fraction of the control period the tick used; no battery is simulated. ``errors``:
+def sys_status(
+    load: float = 0.0, errors: tuple[int, ...] = (0, 0, 0, 0, 0), has_state: bool = True
+) -> mavlink.MAVLink_sys_status_message:
+    """``SYS_STATUS``. Sensors gyro, accel, mag, absolute pressure and GPS, the control bits and the pre-arm
+    check (MAV_SYS_STATUS_PREARM_CHECK) are present and enabled; the sensors and the pre-arm check are
+    healthy only when ``has_state`` (a vehicle state arrives from the plant), the control bits always.
+    MAVSDK's health reads these bits: gyro/accel/mag calibration ok, global and local position ok (GPS),
+    armable (pre-arm).
+
+    ``load`` is the fraction of the control period the tick used; no battery is simulated. ``errors``:
     errors_comm (bad frames on the ground link), errors_count1 (unknown messages), errors_count2 (refused
     setpoints and parameter values), errors_count3 (plant-link errors), errors_count4 (messages for
     another system or component); each saturates at 65535."""
-    comm, c1, c2, c3, c4 = (min(e, 65535) for e in errors)
+    comm, c1, c2, c3, c4 = (min(max(int(e), 0), 65535) for e in (*errors, 0, 0, 0, 0, 0)[:5])
+    health = HEALTH_ALWAYS | (HEALTH_WITH_STATE if has_state else 0)
     return mavlink.MAVLink_sys_status_message(
-        SENSORS, SENSORS, HEALTH, _clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1, c2, c3, c4, 0, 0, 0,
+        PRESENT, PRESENT, health, _clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1, c2, c3, c4, 0, 0, 0,
     )  # fmt: skip
 
 
-def home_position(home: Home, time_usec: int = 0) -> mavlink.MAVLink_home_position_message:
+ARMING_NO_STATE = "Arming denied: no vehicle state (plant link down)"
+
+
+def arming_check(has_state: bool) -> str:
+    """The pre-arm check behind SYS_STATUS's MAV_SYS_STATUS_PREARM_CHECK: "" when arming may proceed,
+    else why not (for COMMAND_ACK DENIED and its STATUSTEXT)."""
+    return "" if has_state else ARMING_NO_STATE
+
+
+def home_position(
+    origin: Origin, x: float = 0.0, y: float = 0.0, z: float = 0.0, yaw: float = 0.0, time_usec: int = 0
+) -> mavlink.MAVLink_home_position_message:
+    """``HOME_POSITION`` of a home at local x, y, z [m, NED from ``origin``] with heading ``yaw`` [rad]:
+    latitude and longitude [1e-7 deg] by PX4's projection, altitude AMSL [mm] = origin altitude − z, the
+    local x, y, z as given, q = the heading as a quaternion [w, x, y, z] (PX4's), approach vector 0.
+    The defaults put home at the origin. ``time_usec``: simulated time since start [µs]."""
+    lat, lon = _lat_lon_e7(origin, x, y)
+    q = [float(v) for v in euler_to_quaternion(0.0, 0.0, float(yaw))] if math.isfinite(yaw) else [1.0, 0, 0, 0]
     return mavlink.MAVLink_home_position_message(
-        _clamp_int(home.lat * 1e7, -900_000_000, 900_000_000),
-        _clamp_int(home.lon * 1e7, -1_800_000_000, 1_800_000_000),
-        _clamp_int(home.alt * 1000, -(2**31), 2**31 - 1),
-        0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, time_usec,
-    )  # fmt: skip
+        lat, lon, _amsl_mm(origin, z), x, y, z, q, 0.0, 0.0, 0.0, max(int(time_usec), 0)
+    )
 
 
 CAPABILITIES = (
@@ -182,6 +321,10 @@ CAPABILITIES = (
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
     | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    # MAVSDK refuses a mission upload without MISSION_INT; it uses it for nothing else (no download on
+    # connecting), so advertising it before the mission protocol exists is harmless.
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT  # every command is taken as COMMAND_INT as well
 )
 
 

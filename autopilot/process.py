@@ -51,6 +51,7 @@ BATCH_TICKS = 512  # and at the latest after this many ticks
 PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lost (failsafe)
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
+GCS_BUDGET = 0.001  # [s] wall: the most time one reading of the ground-station sockets may take
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
 SUPPORTED_MODES = "supported are offboard (6), takeoff (4/2), hold (4/3), RTL (4/5), land (4/6)"
 
@@ -262,8 +263,27 @@ class Autopilot:
             reversible=self.reversible,
             max_total_thrust=4.0 * self.f_max,
             load=self.load,
-            errors=(self.errors_comm, self.unknown, self.refused, self.errors_plant, self.not_for_us),
+            errors=self.errors,
+            has_state=not self.plant_lost,
+            home=self._home(),
+            target=self.commander.target if self.commander.armed else (math.nan,) * 4 + (ref.altitude, math.nan),
         )
+
+    def _home(self) -> tuple[float, float, float, float]:
+        """Home (where the vehicle armed) in the local frame: x, y, z [m] NED and heading [rad]."""
+        x, y, alt = self.commander.home
+        return x, y, -alt, self.commander.home_yaw
+
+    def _home_position(self):
+        return gcs_messages.home_position(self.home, *self._home())
+
+    @property
+    def errors(self) -> tuple[int, int, int, int, int]:
+        return self.errors_comm, self.unknown, self.refused, self.errors_plant, self.not_for_us
+
+    def has_state(self) -> bool:
+        """A vehicle state arrives from the plant: SYS_STATUS's sensors are healthy, and arming may proceed."""
+        return self.latest() is not None and not self.plant_lost
 
     # ---- the ground-station links --------------------------------------------------------------
 
@@ -298,6 +318,8 @@ class Autopilot:
 
     def heartbeat(self) -> None:
         self._send_gcs(gcs_messages.heartbeat(self.commander))
+        if not self.has_state():  # no ticks, so no streams: SYS_STATUS says "not armable" here
+            self._send_gcs(gcs_messages.sys_status(self.load, self.errors, has_state=False))
 
     def on_gcs(self, m, link: GcsLink, sender: tuple[str, int]) -> None:
         new_peer = sender not in link.peers
@@ -331,7 +353,7 @@ class Autopilot:
                 wire.Mode.from_px4(m.custom_mode) if m.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else None
             )
             if mode is None:
-                self._say(mavlink.MAV_SEVERITY_WARNING, f"Mode {m.custom_mode}: {SUPPORTED_MODES}")
+                self._say_once("set_mode", f"Mode {m.custom_mode}: {SUPPORTED_MODES}")
             else:
                 _, reason = self.commander.set_mode(mode)
                 if reason:
@@ -434,13 +456,12 @@ class Autopilot:
         cmd = m.command
         if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             if m.param1 == 1.0:
-                ok, reason = c.arm()
+                reason = "" if c.armed else gcs_messages.arming_check(self.has_state())
+                ok, reason = (False, reason) if reason else c.arm()
                 result = accepted if ok else denied
             elif m.param1 == 0.0:
                 latest = self.latest()
-                in_air = latest is not None and gcs_messages.landed_state(c, latest[1]) == (
-                    mavlink.MAV_LANDED_STATE_IN_AIR
-                )
+                in_air = latest is not None and gcs_messages.in_air(c, latest[1])
                 if in_air and as_int(m.param2) != FORCE_DISARM:
                     result, reason = denied, f"Disarming denied: in the air (force with param2 = {FORCE_DISARM})"
                 else:
@@ -472,7 +493,7 @@ class Autopilot:
         elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             reply = gcs_messages.autopilot_version(self.sysid)
         elif cmd == mavlink.MAV_CMD_GET_HOME_POSITION:
-            reply = gcs_messages.home_position(self.home)
+            reply = self._home_position()
         elif cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
             result, reason, reply = self._requested(m.param1)
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
@@ -490,8 +511,8 @@ class Autopilot:
         self._send_gcs(mavlink.MAVLink_command_ack_message(cmd, result, 0, 0, m.get_srcSystem(), m.get_srcComponent()))
         if reply is not None:
             self._send_gcs(reply)
-        if reason:
-            self._say(mavlink.MAV_SEVERITY_WARNING, reason)
+        if reason:  # the same reason at most once a second: a flood of bad commands is not a flood of texts
+            self._say_once(reason, reason, every=1.0)
 
     @staticmethod
     def _location(m) -> tuple[float, float, float, int]:
@@ -560,7 +581,7 @@ class Autopilot:
         if mid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.autopilot_version(self.sysid)
         if mid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
-            return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.home_position(self.home)
+            return mavlink.MAV_RESULT_ACCEPTED, "", self._home_position()
         if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
             return mavlink.MAV_RESULT_ACCEPTED, "", gcs_messages.heartbeat(self.commander)
         if self.streams.supported(mid):
@@ -620,9 +641,12 @@ class Autopilot:
         return mav
 
     def poll_gcs(self) -> None:
-        """Everything waiting on the ground-station sockets."""
+        """What waits on the ground-station sockets, up to GCS_BUDGET seconds of work per call: a flood of
+        datagrams (hostile or not) waits in the socket buffers, or overflows it, while the plant link is
+        serviced between polls; it never starves the control loop."""
+        deadline = time.perf_counter() + GCS_BUDGET
         for link in self.links:
-            while True:
+            while time.perf_counter() < deadline:
                 try:
                     data, sender = link.sock.recvfrom(65535)
                 except (BlockingIOError, InterruptedError):

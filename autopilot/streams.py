@@ -20,6 +20,10 @@ FAST = (
 
 SLOW_RATES: dict[int, float] = {  # [Hz]
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    # 5 Hz: a GPS receiver's rate (PX4's simulated GPS in Gazebo runs at 5 Hz, DESIGN.md §9); faster would
+    # only repeat at more cost what GLOBAL_POSITION_INT says. Every 5 Hz tick is a 10 Hz tick too, so each
+    # GPS_RAW_INT leaves in the datagram of a GLOBAL_POSITION_INT built from the same state.
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 5.0,
     mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
     mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
     mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS: 10.0,

@@ -45,7 +45,7 @@ def run_offline(
 
     ``progress``, when given, is called now and then with the simulated seconds done so far over all
     the runs: it reaches ``len(controllers) × duration`` at the end."""
-    built = {kind: make_controller(preset, kind, rates=rates, poles=poles) for kind in controllers}
+    built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=False) for kind in controllers}
     duration = duration or preset.sim.duration
     act = preset.actuators
     d_over_b = preset.vehicle.d_over_b

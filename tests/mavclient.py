@@ -16,6 +16,8 @@ from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink consta
 
 from groundstation.launcher import free_port
 
+PREARM_CHECK = M.MAV_SYS_STATUS_PREARM_CHECK  # SYS_STATUS: healthy = armable
+
 
 @dataclass
 class Vehicle:
@@ -73,13 +75,21 @@ class Client:
         c.latest, c.texts, c._chunks, c.acks = {}, [], {}, []
         return c
 
-    def connect(self, timeout: float = 20.0) -> None:
-        """Heartbeat as a ground station until the vehicle's heartbeat arrives."""
+    def connect(self, timeout: float = 20.0, armable: bool = True) -> None:
+        """Heartbeat as a ground station until the vehicle's heartbeat arrives, then (``armable``) until
+        its pre-arm check passes, as a ground station waits before arming."""
         end = time.monotonic() + timeout
         while time.monotonic() < end and "HEARTBEAT" not in self.latest:
             self.conn.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
             self.pump(0.3)
         assert "HEARTBEAT" in self.latest, "no heartbeat from the vehicle"
+        if armable:
+            self.wait_armable(max(end - time.monotonic(), 1.0))
+
+    def wait_armable(self, timeout: float = 20.0):
+        """The first SYS_STATUS whose pre-arm check is healthy (the autopilot has a vehicle state from the
+        plant), as a ground station waits before arming; it streams at 2 Hz."""
+        return self.wait("SYS_STATUS", lambda m: m.onboard_control_sensors_health & PREARM_CHECK, timeout)
 
     def close(self) -> None:
         self.conn.close()

@@ -95,6 +95,30 @@ def test_plant_killed_autopilot_fails_safe_and_takes_a_new_plant(system):
     c.wait("ATTITUDE", lambda m: m.time_boot_ms < 400, timeout=10)  # the new plant's clock, from 0
 
 
+def test_armable_only_while_a_plant_sends_vehicle_states(system):
+    # SYS_STATUS's pre-arm check (what MAVSDK's health.is_armable reads) and the sensors pass only while the
+    # autopilot gets vehicle states; without, arming is refused and says why.
+    autopilot, plant, c = system
+    autopilot()
+    c.connect(armable=False)
+    sensors = M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_GPS | M.MAV_SYS_STATUS_PREARM_CHECK
+    status = c.wait("SYS_STATUS", timeout=3)  # sent with the heartbeat while no state streams the telemetry
+    assert status.onboard_control_sensors_present & sensors == sensors
+    assert not status.onboard_control_sensors_health & sensors
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_DENIED
+    c.text_containing("Arming denied: no vehicle state (plant link down)")
+    assert "ATTITUDE" not in c.latest  # nothing else streams without a state
+
+    pl = plant("--speed", "1")
+    status = c.wait_armable(timeout=20)
+    assert status.onboard_control_sensors_health & sensors == sensors
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    pl.send_signal(signal.SIGKILL)
+    pl.wait()
+    c.text_containing("Plant link lost", timeout=5)
+    c.wait("SYS_STATUS", lambda m: not m.onboard_control_sensors_health & sensors, timeout=3)
+
+
 def test_autopilot_killed_plant_holds_and_a_restarted_autopilot_carries_on(system):
     autopilot, plant, c = system
     ap = autopilot()

@@ -1,7 +1,8 @@
-"""Hostile input while the vehicle flies: 100,000 random and mutated datagrams at every UDP port of the
-autopilot and the plant, and garbage over TCP at the autopilot's Zenoh listener. Nothing crashes, no
-exception escapes a loop, the state stays finite, the vehicle keeps tracking its reference, and the
-refusals are counted in SYS_STATUS."""
+"""Hostile input while the vehicle holds its position: 100,000 random and mutated datagrams at every UDP port of
+the autopilot and the plant (among them position targets in every frame, takeoff, reposition, speed and mode
+commands), and garbage over TCP at the autopilot's Zenoh listener. Nothing crashes, no exception escapes a
+loop, the state stays finite, the vehicle holds its position within 0.1 m, and the refusals are counted in
+SYS_STATUS."""
 
 import contextlib
 import math
@@ -10,7 +11,6 @@ import random
 import socket
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -23,13 +23,16 @@ from tests.mavclient import Client
 HOSTILE_FLOATS = (math.nan, math.inf, -math.inf, 1e30, -1e30, 3.4e38, -3.4e38, 123456.75, -98765.5)
 # Commands that are valid whatever their parameters carry authority, not hostile values (signing is the
 # defence against strangers who send them): a fuzzer that sends NAV_LAND lands the vehicle, as it should.
-AUTHORITY = {M.MAV_CMD_NAV_LAND}
+# DO_REPOSITION stays in: its random locations lie beyond the geofence the test sets (GF_MAX_HOR_DIST).
+AUTHORITY = {M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_RETURN_TO_LAUNCH}
 TARGETED = [
     M.MAVLink_command_long_message, M.MAVLink_command_int_message, M.MAVLink_set_attitude_target_message,
-    M.MAVLink_set_position_target_local_ned_message, M.MAVLink_param_set_message, M.MAVLink_param_request_read_message,
+    M.MAVLink_set_position_target_local_ned_message, M.MAVLink_set_position_target_global_int_message,
+    M.MAVLink_set_mode_message, M.MAVLink_param_set_message, M.MAVLink_param_request_read_message,
     M.MAVLink_param_request_list_message, M.MAVLink_file_transfer_protocol_message, M.MAVLink_heartbeat_message,
     M.MAVLink_odometry_message, M.MAVLink_hil_actuator_controls_message, M.MAVLink_statustext_message,
 ]  # fmt: skip
+HOLD = (4 << 16) | (3 << 24)  # PX4's AUTO.LOITER
 ALL = [c for c in vars(M).values() if isinstance(c, type) and issubclass(c, M.MAVLink_message) and hasattr(c, "id")]
 
 
@@ -43,9 +46,17 @@ def hostile_message(rng: random.Random):
             value = rng.choice([1, 1, 1, 0, 7])
         elif name in ("target_component",):
             value = rng.choice([1, 1, 0, 190])
+        elif name == "coordinate_frame":
+            value = rng.choice([1, 8, 5, 6, 11, rng.randrange(256)])
+        elif name == "type_mask":
+            value = rng.choice([2552, 2503, 2496, 2048, 3135, 1479, 512 | 2048, rng.randrange(65536)])
         elif name == "command":
             value = rng.choice(
-                [c for c in (400, 176, 512, 511, 510, 520, 410, rng.randrange(65536)) if c not in AUTHORITY]
+                [
+                    c
+                    for c in (400, 176, 512, 511, 510, 520, 410, 22, 192, 178, rng.randrange(65536))
+                    if c not in AUTHORITY
+                ]
             )
         elif name == "param_id":
             value = rng.choice(
@@ -123,22 +134,17 @@ def flying_vehicle():
 def test_100k_hostile_datagrams_while_flying(flying_vehicle):
     ap, plant, ports = flying_vehicle
     c = Client.to(ports["api"])
-    ref = dict(altitude=2.0, roll=0.1, pitch=-0.05, yaw=0.3)
-    stop = threading.Event()
-
-    def stream() -> None:
-        while not stop.is_set():
-            c.setpoint(**ref)
-            time.sleep(0.05)
-
-    streamer = threading.Thread(target=stream, daemon=True)
     try:
         c.connect()
-        streamer.start()
-        time.sleep(0.3)
-        assert c.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_ACCEPTED
+        c.param_set("GF_MAX_HOR_DIST", 50.0)  # a geofence: random goto locations are refused, not flown
+        c.param_set("MIS_TAKEOFF_ALT", 2.0)
         assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
-        c.pump(3.0)
+        nan = math.nan
+        assert c.command(M.MAV_CMD_NAV_TAKEOFF, nan, nan, nan, nan, nan, nan, nan).result == M.MAV_RESULT_ACCEPTED
+        c.wait("HEARTBEAT", lambda m: m.custom_mode == HOLD, timeout=15)  # takeoff done: holding
+        c.pump(2.0)
+        held = c.latest["LOCAL_POSITION_NED"]
+        assert (held.x, held.y, held.z) == pytest.approx((0.0, 0.0, -2.0), abs=0.02)
 
         rng = random.Random(int(os.environ.get("QUADSITL_FUZZ_SEED", "20261123")))
         pool = datagrams(rng, 5000)
@@ -166,15 +172,13 @@ def test_100k_hostile_datagrams_while_flying(flying_vehicle):
         att, pos, hb = c.latest["ATTITUDE"], c.latest["LOCAL_POSITION_NED"], c.latest["HEARTBEAT"]
         status = c.latest["SYS_STATUS"]
     finally:
-        stop.set()
         c.conn.close()
 
     assert ap.poll() is None and plant.poll() is None
     values = (att.roll, att.pitch, att.yaw, att.rollspeed, pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz)
     assert all(map(math.isfinite, values))
-    assert hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and hb.custom_mode == 6 << 16  # still flying offboard
-    assert (att.roll, att.pitch, att.yaw) == pytest.approx((0.1, -0.05, 0.3), abs=5e-3)
-    assert pos.z == pytest.approx(-2.0, abs=5e-3)
+    assert hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and hb.custom_mode == HOLD  # still holding
+    assert math.hypot(pos.x - held.x, pos.y - held.y, pos.z - held.z) < 0.1
     # counted, not silent: bad frames, unknown messages, refused inputs, plant-link strangers, other targets
     assert status.errors_comm > 100 and status.errors_count1 > 100 and status.errors_count2 > 100
     assert status.errors_count3 > 100 and status.errors_count4 > 100

@@ -2,6 +2,7 @@
 the home projection."""
 
 import math
+from types import SimpleNamespace
 
 import pytest
 
@@ -251,5 +252,151 @@ def test_autopilot_version_says_what_we_support():
     v = roundtrip(gcs_messages.autopilot_version(1))
     assert v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     assert v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-    assert not v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    # MAVSDK refuses a mission upload without MISSION_INT; commands are taken as COMMAND_INT too
+    assert v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    assert v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    assert not v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT  # never implemented
+    assert not v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_FTP  # FTP requests get a NAK
     assert gcs_messages.version_number("1.2.3") >> 8 == 0x010203
+
+
+# ---- health, GPS, home ---------------------------------------------------------------------------
+
+
+def mavsdk_health(m) -> dict[str, bool]:
+    """What MAVSDK's telemetry.health() makes of a SYS_STATUS (MAVSDK telemetry_impl.cpp,
+    process_sys_status; home comes from HOME_POSITION, not from here)."""
+    present, health = m.onboard_control_sensors_present, m.onboard_control_sensors_health
+    gps = bool(present & health & mavlink.MAV_SYS_STATUS_SENSOR_GPS)
+    return {
+        "gyro": bool(
+            present & mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO and health & mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+        ),
+        "accel": bool(health & mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL),  # PX4: MAVSDK reads health only
+        "mag": bool(present & mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG and health & mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG),
+        "global": gps,
+        "local": gps,
+        "armable": bool(health & mavlink.MAV_SYS_STATUS_PREARM_CHECK),
+    }
+
+
+def test_sys_status_with_a_vehicle_state_is_healthy_and_armable_as_mavsdk_reads_it():
+    m = roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS, snapshot(load=0.25), Commander(),
+                                     gcs_messages.Origin()))  # fmt: skip
+    assert mavsdk_health(m) == dict.fromkeys(("gyro", "accel", "mag", "global", "local", "armable"), True)
+    bits = (1, 2, 4, 8, 32, 1 << 28)  # gyro, accel, mag, absolute pressure, GPS, pre-arm check
+    for bit in bits:
+        assert m.onboard_control_sensors_present & bit and m.onboard_control_sensors_enabled & bit
+        assert m.onboard_control_sensors_health & bit, bit
+    control = (mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+               | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS)  # fmt: skip
+    assert m.onboard_control_sensors_present & control == control
+    assert m.onboard_control_sensors_health & control == control
+    assert not m.onboard_control_sensors_present & mavlink.MAV_SYS_STATUS_SENSOR_RC_RECEIVER  # no RC here
+    assert m.load == 250 and m.battery_remaining == -1
+
+
+def test_sys_status_without_a_vehicle_state_is_not_armable_and_arming_says_why():
+    for m in (roundtrip(gcs_messages.sys_status(0.0, (1, 2, 3, 4, 5), has_state=False)),
+              roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS, snapshot(has_state=False), Commander(),
+                                           gcs_messages.Origin()))):  # fmt: skip
+        assert mavsdk_health(m) == dict.fromkeys(("gyro", "accel", "mag", "global", "local", "armable"), False)
+        assert m.onboard_control_sensors_present & (1 << 28)  # the check exists, and fails
+        assert m.onboard_control_sensors_health & mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    assert (m.errors_comm, m.errors_count1, m.errors_count4) == (0, 0, 0)
+    m = roundtrip(gcs_messages.sys_status(0.0, (1, 2, 3, 4, 70000), has_state=False))
+    assert (m.errors_comm, m.errors_count1, m.errors_count2, m.errors_count3, m.errors_count4) == (1, 2, 3, 4, 65535)
+    assert gcs_messages.arming_check(True) == ""
+    assert gcs_messages.arming_check(False) == "Arming denied: no vehicle state (plant link down)"
+
+
+def test_gps_raw_int_is_a_3d_fix_at_the_true_position_and_velocity():
+    origin = gcs_messages.Origin(47.397742, 8.545594, 488.0)
+    s = snapshot()  # x 3, y −4, z −10 m; vx 1, vy 2 m/s
+    gps = roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, s, Commander(), origin))
+    gpi = roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, s, Commander(), origin))
+    assert gps.fix_type == mavlink.GPS_FIX_TYPE_3D_FIX and gps.satellites_visible == 10
+    assert (gps.lat, gps.lon, gps.alt) == (gpi.lat, gpi.lon, gpi.alt) and gps.alt == 498_000
+    north, east = geodetic_to_ned(gps.lat * 1e-7, gps.lon * 1e-7, origin.lat, origin.lon)
+    assert north == pytest.approx(3.0, abs=0.02) and east == pytest.approx(-4.0, abs=0.02)
+    assert gps.vel == round(math.hypot(1.0, 2.0) * 100) == 224
+    assert gps.cog == round(math.degrees(math.atan2(2.0, 1.0)) * 100)  # 63.43°: north-east-ish, clockwise
+    assert (gps.eph, gps.epv, gps.alt_ellipsoid) == (100, 100, 498_000)
+    assert gps.h_acc > 0 and gps.v_acc > 0 and gps.vel_acc > 0
+    assert gps.time_usec == 1_234_000
+
+    def fix(**kw):
+        return roundtrip(gcs_messages.gps_raw_int(origin, VehicleState(**kw), 0))
+
+    assert fix(vy=-1.0).cog == 27000 and fix(vx=-1.0).cog == 18000 and fix(vx=1.0, vz=5.0).cog == 0
+    at_rest = fix(vz=-3.0)  # climbing straight up: no ground speed, no course
+    assert at_rest.vel == 0 and at_rest.cog == 65535
+    assert fix(vx=1e6).vel == 65534  # saturates below UINT16_MAX, which means "unknown"
+    assert (fix().lat, fix().lon, fix().alt) == (473977420, 85455940, 488_000)
+
+
+def test_home_position_from_local_coordinates_and_the_origin():
+    origin = gcs_messages.Origin(47.397742, 8.545594, 488.0)
+    m = roundtrip(gcs_messages.home_position(origin))
+    assert (m.latitude, m.longitude, m.altitude) == (473977420, 85455940, 488_000)
+    assert (m.x, m.y, m.z) == (0.0, 0.0, 0.0) and list(m.q) == [1.0, 0.0, 0.0, 0.0]
+    m = roundtrip(gcs_messages.home_position(origin, 30.0, -40.0, -2.5, math.pi / 2, time_usec=5_000_000))
+    assert (m.x, m.y, m.z) == (30.0, -40.0, -2.5) and m.altitude == 490_500 and m.time_usec == 5_000_000
+    assert geodetic_to_ned(m.latitude * 1e-7, m.longitude * 1e-7, origin.lat, origin.lon) == pytest.approx(
+        (30.0, -40.0), abs=0.02
+    )
+    assert list(m.q) == pytest.approx([math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])  # heading east
+    assert (m.approach_x, m.approach_y, m.approach_z) == (0.0, 0.0, 0.0)
+
+
+def test_streamed_home_and_relative_altitude_follow_the_home_in_the_snapshot():
+    origin, c = gcs_messages.Origin(), Commander()
+    s = snapshot(home=(3.0, -4.0, -2.0, 0.0))  # home 2 m above the origin; the vehicle at 10 m
+    home = roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_HOME_POSITION, s, c, origin))
+    assert (home.x, home.y, home.z) == (3.0, -4.0, -2.0) and home.altitude == 490_000
+    gpi = roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, s, c, origin))
+    assert (home.latitude, home.longitude) == (gpi.lat, gpi.lon)  # the vehicle is above home
+    assert gpi.relative_alt == 8_000 and gpi.alt == 498_000  # above home, and above mean sea level
+
+
+def test_landed_states_of_takeoff_land_and_rtl():
+    # Modes by name, so TAKEOFF and RTL count whether or not wire.Mode has them yet.
+    def vehicle(mode: str, armed: bool = True):
+        return SimpleNamespace(armed=armed, mode=SimpleNamespace(name=mode))
+
+    ground, flying = VehicleState(), VehicleState(z=-2.0, vz=-0.5)
+    states = {
+        (mode, armed, where): gcs_messages.landed_state(vehicle(mode, armed), st)
+        for mode in ("HOLD", "OFFBOARD", "TAKEOFF", "LAND", "RTL")
+        for armed in (False, True)
+        for where, st in (("ground", ground), ("air", flying))
+    }
+    on_ground, in_air = mavlink.MAV_LANDED_STATE_ON_GROUND, mavlink.MAV_LANDED_STATE_IN_AIR
+    assert all(v == on_ground for (_, armed, _), v in states.items() if not armed)
+    assert states["TAKEOFF", True, "ground"] == states["TAKEOFF", True, "air"] == mavlink.MAV_LANDED_STATE_TAKEOFF
+    assert states["LAND", True, "air"] == mavlink.MAV_LANDED_STATE_LANDING
+    assert states["LAND", True, "ground"] == on_ground  # touched down, about to disarm
+    for mode in ("HOLD", "OFFBOARD", "RTL"):
+        assert (states[mode, True, "ground"], states[mode, True, "air"]) == (on_ground, in_air)
+    assert gcs_messages.in_air(vehicle("TAKEOFF"), ground) and gcs_messages.in_air(vehicle("LAND"), flying)
+    assert not gcs_messages.in_air(vehicle("LAND"), ground) and not gcs_messages.in_air(vehicle("HOLD", False), flying)
+    assert gcs_messages.landed_state(vehicle("HOLD"), VehicleState(vz=0.5)) == in_air  # sinking below the ground
+
+
+def test_telemetry_never_raises_on_a_non_finite_or_huge_state():
+    # The tick refuses non-finite states, but a builder must not raise on one either; the state arrives as
+    # float32, so 3e38 is as large as it gets.
+    c, origin = Commander(), gcs_messages.Origin()
+    for bad in (math.nan, math.inf, -math.inf, 3e38, -3e38):
+        st = VehicleState(*[bad] * 12)
+        s = snapshot(state=st, body_rates=(bad,) * 3, u1=bad, home=(bad,) * 4, load=bad)
+        for mid in MessageStreams(0.001, 50.0).defaults:
+            assert roundtrip(gcs_messages.build(mid, s, c, origin)).get_msgId() == mid
+
+
+def test_gps_streams_at_5_hz_alongside_global_position():
+    s = MessageStreams(0.001, 50.0)
+    gps, gpi = mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+    assert s.interval_us(gps) == 200_000
+    ticks = [t for t in range(2000) if gps in s.due(t)]
+    assert len(ticks) == 10 and all(gpi in s.due(t) for t in ticks)

@@ -83,17 +83,18 @@ def test_signed_commands_work_and_strangers_are_refused_and_counted(signed_autop
     wrong.conn.mav.command_long_send(1, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0)
     assert wrong.ack(M.MAV_CMD_REQUEST_MESSAGE) is None
 
-    # A replay: the signed arm command, sent again byte for byte, is refused (its timestamp is not newer).
-    good.conn.mav.command_long_send(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-    assert good.ack(M.MAV_CMD_COMPONENT_ARM_DISARM).result == M.MAV_RESULT_ACCEPTED
-    arm_frame = good.sent[-1]
-    good.conn.mav.command_long_send(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 0, 0, 0, 0, 0, 0)  # disarm
-    assert good.ack(M.MAV_CMD_COMPONENT_ARM_DISARM).result == M.MAV_RESULT_ACCEPTED
-    good.conn.port.sendto(arm_frame, ("127.0.0.1", port))  # the replay
-    assert good.ack(M.MAV_CMD_COMPONENT_ARM_DISARM) is None
+    # A replay: the signed command to land, sent again byte for byte, is refused (its timestamp is not newer).
+    # (A mode change, not arming: without a plant there is no vehicle state, and arming is refused anyway.)
+    good.conn.mav.command_long_send(1, 1, M.MAV_CMD_DO_SET_MODE, 0, 1, 4, 6, 0, 0, 0, 0)  # PX4 auto/land
+    assert good.ack(M.MAV_CMD_DO_SET_MODE).result == M.MAV_RESULT_ACCEPTED
+    land_frame = good.sent[-1]
+    good.conn.mav.command_long_send(1, 1, M.MAV_CMD_DO_SET_MODE, 0, 1, 4, 3, 0, 0, 0, 0)  # back to hold
+    assert good.ack(M.MAV_CMD_DO_SET_MODE).result == M.MAV_RESULT_ACCEPTED
+    good.conn.port.sendto(land_frame, ("127.0.0.1", port))  # the replay
+    assert good.ack(M.MAV_CMD_DO_SET_MODE) is None
     good.conn.mav.command_long_send(1, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, M.MAVLINK_MSG_ID_HEARTBEAT, 0, 0, 0, 0, 0, 0)
     hb = good.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=3)
-    assert not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, "the replayed arm command armed the vehicle"
+    assert hb.custom_mode == (4 << 16) | (3 << 24), "the replayed command switched to land"
 
     # counted, and said: the first refusal is announced with the running count
     assert any("Unsigned or badly signed message refused" in t for t in good.seen_texts), good.seen_texts

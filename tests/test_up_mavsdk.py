@@ -1,6 +1,6 @@
 """MAVSDK-Python (from PyPI, as its users install it) against ``quadsitl up`` on the offboard-API link:
 connect, see a PX4 vehicle, read and set parameters, arm, fly offboard attitude (and altitude) setpoints,
-hold, land."""
+hold, land; and see it healthy and armable, with a GPS fix and a home, before takeoff."""
 
 import asyncio
 
@@ -9,7 +9,7 @@ from mavsdk.asyncio import Autopilot, ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import Attitude, OffboardAsync, PositionNedYaw
 from mavsdk.asyncio.plugins.param import ParamAsync, ParamError
-from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
+from mavsdk.asyncio.plugins.telemetry import FixType, FlightMode, LandedState, TelemetryAsync
 
 from tests.mavclient import quadsitl_up
 
@@ -52,6 +52,7 @@ async def session(port: int) -> dict:
         home = await first(tel.subscribe_home())
         seen["home"] = (home.latitude_deg, home.longitude_deg, home.absolute_altitude_m)
 
+        await until(tel.subscribe_health(), lambda h: h.is_armable, 20)
         await action.arm()
         seen["armed"] = await until(tel.subscribe_armed(), bool, 5)
         await off.set_position_ned(PositionNedYaw(0.0, 0.0, -2.0, 0.0))  # climb to 2 m first
@@ -86,3 +87,53 @@ def test_mavsdk_connects_sets_parameters_arms_flies_offboard_attitude_and_lands(
     assert seen["armed"] and seen["mode"] == FlightMode.OFFBOARD and seen["in_air"] == LandedState.IN_AIR
     assert seen["down"] == pytest.approx(-2.0, abs=0.01) and seen["relative_alt"] == pytest.approx(2.0, abs=0.01)
     assert seen["hold"] == FlightMode.HOLD and seen["disarmed"] is False and seen["landed"] == LandedState.ON_GROUND
+
+
+async def health_session(port: int) -> dict:
+    seen: dict = {}
+    config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+    async with Mavsdk(config) as m:
+        await m.add_any_connection(f"udpin://127.0.0.1:{port}")
+        system = await m.first_autopilot(timeout_s=20.0)
+        assert system is not None, "MAVSDK saw no autopilot"
+        tel, action = TelemetryAsync(system), ActionAsync(system)
+
+        async def ready():  # as MAVSDK's examples wait before they arm
+            async for health in tel.subscribe_health():
+                if health.is_global_position_ok and health.is_home_position_ok:
+                    return health
+
+        seen["health"] = await asyncio.wait_for(ready(), 30)
+        seen["all_ok"] = await first(tel.subscribe_health_all_ok())
+        seen["gps"] = await first(tel.subscribe_gps_info())
+        seen["raw_gps"] = await first(tel.subscribe_raw_gps())
+        seen["home"] = await first(tel.subscribe_home())
+        seen["position"] = await first(tel.subscribe_position())
+        seen["landed"] = await first(tel.subscribe_landed_state())
+        await action.arm()  # armable means armable
+        seen["armed"] = await until(tel.subscribe_armed(), bool, 5)
+        await action.disarm()  # on the ground: no force needed
+        seen["disarmed"] = await until(tel.subscribe_armed(), lambda a: not a, 5)
+    return seen
+
+
+def test_mavsdk_health_gps_and_home_before_takeoff():
+    with quadsitl_up() as v:
+        seen = asyncio.run(asyncio.wait_for(health_session(v.api_port), 90))
+        assert v.proc.poll() is None
+    h = seen["health"]
+    assert h.is_gyrometer_calibration_ok and h.is_accelerometer_calibration_ok and h.is_magnetometer_calibration_ok
+    assert h.is_local_position_ok and h.is_global_position_ok and h.is_home_position_ok and h.is_armable
+    assert seen["all_ok"] is True
+    assert seen["gps"].fix_type == FixType.FIX_3D and seen["gps"].num_satellites == 10
+    home, pos, raw = seen["home"], seen["position"], seen["raw_gps"]
+    assert (home.latitude_deg, home.longitude_deg, home.absolute_altitude_m) == pytest.approx(
+        (47.397742, 8.545594, 488.0)
+    )
+    assert (home.local_north_m, home.local_east_m, home.local_down_m) == (0.0, 0.0, 0.0)
+    # before takeoff the vehicle is at home: the same 1e-7 degrees
+    assert (pos.latitude_deg, pos.longitude_deg) == (home.latitude_deg, home.longitude_deg)
+    assert pos.absolute_altitude_m == pytest.approx(488.0) and pos.relative_altitude_m == pytest.approx(0.0)
+    assert (raw.latitude_deg, raw.longitude_deg) == (home.latitude_deg, home.longitude_deg)
+    assert raw.hdop == pytest.approx(1.0) and raw.velocity_m_s == 0.0
+    assert seen["landed"] == LandedState.ON_GROUND and seen["armed"] and seen["disarmed"] is False

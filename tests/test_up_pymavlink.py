@@ -15,6 +15,7 @@ def client():
     with quadsitl_up() as v:
         c = Client(v.gcs_port)
         try:
+            c.wait_armable()  # the plant's first state has reached the autopilot
             yield c
         finally:
             c.close()
@@ -163,6 +164,69 @@ def test_offboard_flight_with_telemetry_mass_mismatch_and_landing(client):
     c.wait("EXTENDED_SYS_STATE", lambda m: m.landed_state == M.MAV_LANDED_STATE_ON_GROUND)
     assert c.latest["LOCAL_POSITION_NED"].z > -0.05
     c.text_containing("Landed, disarmed")
+
+
+def test_health_gps_home_and_capabilities(client):
+    """What MAVSDK and QGroundControl read before they fly: SYS_STATUS's sensor and pre-arm bits, the GPS, home
+    (via REQUEST_MESSAGE, also as COMMAND_INT), AUTOPILOT_VERSION's capabilities; then GPS_RAW_INT in flight
+    against LOCAL_POSITION_NED and GLOBAL_POSITION_INT of the same tick."""
+    from quadsitl.frames import geodetic_to_ned
+
+    c = client
+    c.heartbeat()
+    status = c.wait_armable()
+    bits = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | M.MAV_SYS_STATUS_SENSOR_3D_MAG
+            | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | M.MAV_SYS_STATUS_SENSOR_GPS | M.MAV_SYS_STATUS_PREARM_CHECK
+            | M.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | M.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL)  # fmt: skip
+    for field in ("present", "enabled", "health"):
+        assert getattr(status, f"onboard_control_sensors_{field}") & bits == bits, field
+
+    assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION).result == M.MAV_RESULT_ACCEPTED
+    caps = c.wait("AUTOPILOT_VERSION").capabilities
+    assert caps & M.MAV_PROTOCOL_CAPABILITY_MISSION_INT and caps & M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_HOME_POSITION).result == M.MAV_RESULT_ACCEPTED
+    home = c.wait("HOME_POSITION")
+    assert (home.latitude, home.longitude, home.altitude) == (473977420, 85455940, 488000)
+    assert (home.x, home.y, home.z) == (0.0, 0.0, 0.0)
+    # the same request as COMMAND_INT (advertised): MAVSDK sends some commands that way
+    c.conn.mav.command_int_send(1, 1, 0, M.MAV_CMD_REQUEST_MESSAGE, 0, 0, M.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0,
+                                0, 0, 0)  # fmt: skip
+    assert c.wait("COMMAND_ACK", lambda m: m.command == M.MAV_CMD_REQUEST_MESSAGE).result == M.MAV_RESULT_ACCEPTED
+    c.wait("HOME_POSITION")
+    gps = c.wait("GPS_RAW_INT")
+    assert (gps.fix_type, gps.satellites_visible) == (M.GPS_FIX_TYPE_3D_FIX, 10)
+    assert (gps.lat, gps.lon, gps.alt) == (home.latitude, home.longitude, home.altitude)  # at rest, at home
+
+    # Fly offboard, pitched 0.1 rad down: the vehicle climbs to 2 m and accelerates north (no position loop).
+    ref = dict(altitude=2.0, pitch=-0.1, yaw=0.3)
+    fly_setpoints(c, 0.3, **ref)
+    assert c.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    fly_setpoints(c, 2.0, **ref)
+    seen: dict[str, dict[int, object]] = {"GPS_RAW_INT": {}, "GLOBAL_POSITION_INT": {}, "LOCAL_POSITION_NED": {}}
+    end = time.monotonic() + 10
+    while time.monotonic() < end:
+        c.setpoint(**ref)
+        m = c.conn.recv_match(blocking=True, timeout=0.05)
+        if m is None or m.get_type() not in seen:
+            continue
+        ms = m.time_usec // 1000 if m.get_type() == "GPS_RAW_INT" else m.time_boot_ms
+        seen[m.get_type()][ms] = m
+        common = set(seen["GPS_RAW_INT"]) & set(seen["GLOBAL_POSITION_INT"]) & set(seen["LOCAL_POSITION_NED"])
+        if len(common) >= 3:
+            break
+    assert len(common) >= 3, {k: sorted(v)[-5:] for k, v in seen.items()}  # GPS ticks are also 10 and 50 Hz ticks
+    for ms in common:
+        gps, gpi, pos = (seen[k][ms] for k in ("GPS_RAW_INT", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"))
+        assert (gps.lat, gps.lon, gps.alt) == (gpi.lat, gpi.lon, gpi.alt)
+        north, east = geodetic_to_ned(gps.lat * 1e-7, gps.lon * 1e-7, 47.397742, 8.545594)
+        assert (north, east) == pytest.approx((pos.x, pos.y), abs=0.02) and pos.x > 0.5  # 1e-7 deg ≈ 1.1 cm
+        assert gps.alt == pytest.approx(488_000 - 1000 * pos.z, abs=1) and gpi.relative_alt == pytest.approx(
+            2000, abs=20
+        )
+        assert gps.vel == pytest.approx(100 * math.hypot(pos.vx, pos.vy), abs=1) and gps.vel > 50
+        assert gps.cog == pytest.approx(math.degrees(math.atan2(pos.vy, pos.vx)) % 360 * 100, abs=2)
+    c.wait("EXTENDED_SYS_STATE", lambda m: m.landed_state == M.MAV_LANDED_STATE_IN_AIR)
 
 
 def test_a_busy_port_names_the_port_and_the_option(cli):
