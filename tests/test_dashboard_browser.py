@@ -212,7 +212,8 @@ def map_state(page) -> dict:
         let measured = 0;
         const near = (i, v) => Math.abs(all[i] - v) < 20;
         for (let i = 0; i < all.length; i += 4) if (near(i, 31) && near(i + 1, 119) && near(i + 2, 180)) measured++;
-        return {points: Number(box.dataset.points), setpoint: box.dataset.setpoint, home: at(box.dataset.homePx),
+        return {points: Number(box.dataset.points), t: Number(box.dataset.tLast), setpoint: box.dataset.setpoint,
+                home: at(box.dataset.homePx),
                 setpointColour: at(box.dataset.setpointPx), measured, scale: Number(box.dataset.scale),
                 mode: document.querySelector('#status [data-field=mode]').textContent};
     }""")
@@ -241,10 +242,12 @@ def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
             pub.put(range(first, first + 200), circle_point)
             time.sleep(0.01)
         # 400 rows at 50 per simulated second; an update carries at most 250 (thinned when more are new)
-        page.wait_for_function("() => Number(document.getElementById('plot-map').dataset.points) >= 100 "
-                               "&& quadsitl.lastT >= 7.9", timeout=10000)  # fmt: skip
+        # (the map shows the rows of its last redraw: wait until that one has the newest row)
+        page.wait_for_function("() => { const m = document.getElementById('plot-map').dataset; "
+                               "return Number(m.points) >= 100 && Number(m.tLast) >= 7.9 "
+                               "&& Number(m.tLast) === quadsitl.lastT; }", timeout=10000)  # fmt: skip
         m = map_state(page)
-        x_ref, y_ref = circle_point(page.evaluate("() => quadsitl.lastT"))[2:]
+        x_ref, y_ref = circle_point(m["t"])[2:]
         assert m["setpoint"] == f"{x_ref:.3f},{y_ref:.3f}"  # the newest row's reference
         assert m["home"][:3] == [44, 160, 44]  # the green square at the origin
         assert m["setpointColour"][:3] == [214, 39, 40]  # the red cross at the setpoint

@@ -117,7 +117,7 @@ def test_trajectories(tmp_path):
     with pytest.raises(UsageError, match="missing column"):
         trajectories.make(str(f), ref)
     f.write_text("t,altitude,roll,pitch,yaw\n0,0,2.0,0,0\n")
-    with pytest.raises(UsageError, match=r"line 2: .*π/2"):
+    with pytest.raises(UsageError, match=r"line 2, column roll: .*π/2"):
         trajectories.make(str(f), ref)
     with pytest.raises(UsageError, match="expected step, ramp, sine"):
         trajectories.make("zigzag", ref)

@@ -163,6 +163,7 @@ function drawMap() {
   }
   // For scripts and tests: what the map shows, and where.
   box.dataset.points = n;
+  box.dataset.tLast = n ? d.t[n - 1] : "";
   box.dataset.setpoint = setpoint ? setpoint.map(v => v.toFixed(3)).join(",") : "";
   box.dataset.setpointPx = setpoint ? [px(setpoint[1]), py(setpoint[0])].map(v => v.toFixed(1)).join(",") : "";
   box.dataset.homePx = home.map(v => v.toFixed(1)).join(",");
