@@ -89,6 +89,9 @@ EXAMPLES_FLY = """examples:
   quadsitl fly --preset paper --out runs/fly
   quadsitl fly --preset paper --speed 1 --duration 10 --out runs/realtime-pace
   quadsitl fly --preset x500 --trajectory sine --duration 10 --out runs/x500-sine
+  quadsitl fly --preset x500 --trajectory circle --out runs/circle          # offboard position setpoints
+  quadsitl fly --preset x500 --trajectory figure8:size=4,period=25,yaw=0 --out runs/figure8
+  quadsitl fly --preset x500 --trajectory path.csv   # a CSV with the header t,x,y,altitude,yaw
   quadsitl fly --dashboard --speed 1 --trajectory sine --duration 30   # watch it at http://127.0.0.1:8050
 """
 
@@ -109,8 +112,9 @@ def cmd_fly(args: argparse.Namespace) -> int:
     check_range("--duration", args.duration, 0.0, 3600.0)
     if args.speed < 0 or args.speed > 1000:
         raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
-    if args.trajectory not in ("step", "ramp", "sine") and not Path(args.trajectory).is_file():
-        raise UsageError(f"--trajectory {args.trajectory!r}: expected step, ramp, sine or an existing CSV file")
+    from groundstation.trajectories import make
+
+    make(args.trajectory, preset.reference)  # refuse a bad trajectory (one line) before anything starts
     return fly(args.preset, preset, args)
 
 
@@ -192,7 +196,12 @@ the source, or 'mkdocs serve' there.""",
         "lockstep, and write telemetry.csv (from Zenoh), flight.tlog, metrics.json and figures.",
     )
     add_preset_arguments(fl)
-    fl.add_argument("--duration", type=float, metavar="S", help="simulated seconds of flight (default: the preset's)")
+    fl.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="simulated seconds of flight (default: a position trajectory's own length, else the preset's)",
+    )
     fl.add_argument(
         "--speed",
         type=float,
@@ -201,7 +210,14 @@ the source, or 'mkdocs serve' there.""",
         help="cap the lockstep pace at F × real time (default 0: as fast as possible)",
     )
     fl.add_argument("--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)")
-    fl.add_argument("--trajectory", default="step", help="step (default), ramp, sine or a CSV file")
+    fl.add_argument(
+        "--trajectory",
+        default="step",
+        metavar="NAME|FILE",
+        help="attitude setpoints: step (default), ramp, sine, or a CSV file t,altitude,roll,pitch,yaw; offboard "
+        "position setpoints: circle[:radius=M,period=S,altitude=M,hold=S,yaw=RAD|travel], "
+        "figure8[:size=M,period=S,...], or a CSV file t,x,y,altitude,yaw (see docs/commands.md)",
+    )
     fl.add_argument("--out", default="runs/fly", metavar="DIR", help="output folder (default: runs/fly)")
     fl.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     fl.add_argument("--quiet", "-q", action="store_true", help="print only errors")

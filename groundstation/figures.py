@@ -1,4 +1,5 @@
-"""Figures that reproduce the paper's Figures 2–4: outputs against references, errors, inputs."""
+"""Figures that reproduce the paper's Figures 2–4: outputs against references, errors, inputs; and, for a
+position trajectory, the x–y path against its reference (:func:`write_path_figure`)."""
 
 from __future__ import annotations
 
@@ -49,3 +50,40 @@ def write_figures(runs: dict[str, dict[str, np.ndarray]], out: Path, title: str)
         plt.close(fig)
         paths.append(path)
     return paths
+
+
+def write_path_figure(
+    out: Path,
+    x: np.ndarray,
+    y: np.ndarray,
+    x_ref: np.ndarray,
+    y_ref: np.ndarray,
+    title: str,
+    planned: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Path:
+    """``fig_xy_path.png`` in ``out``: the measured path (x north up, y east right [m], local NED, seen from
+    above) against the autopilot's reference x_ref, y_ref (where finite), home at the origin marked. When
+    the telemetry has no finite reference, ``planned`` (the ground station's commanded x, y) is drawn in its
+    place, labelled as such."""
+    fig, ax = plt.subplots(figsize=(7, 6.5))
+    finite = np.isfinite(x_ref) & np.isfinite(y_ref)
+    if finite.any():
+        ref_x, ref_y = np.where(finite, x_ref, np.nan), np.where(finite, y_ref, np.nan)
+        ax.plot(ref_y, ref_x, color="k", lw=1.0, ls="--", label="reference (x_ref, y_ref)")
+    elif planned is not None:
+        ax.plot(planned[1], planned[0], color="C1", lw=1.2, ls=":", label="commanded (no x_ref in the telemetry)")
+    ax.plot(y, x, color="C0", lw=1.6, label="measured", zorder=3)
+    if len(x):
+        ax.plot(y[-1], x[-1], marker="o", color="C0", ms=6, ls="none", label="end")
+    ax.plot(0.0, 0.0, marker="*", color="C3", ms=14, ls="none", label="home")
+    ax.set_xlabel("y (east) [m]")
+    ax.set_ylabel("x (north) [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"x–y path, seen from above — {title}")
+    fig.tight_layout()
+    path = out / "fig_xy_path.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

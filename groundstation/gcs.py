@@ -6,9 +6,13 @@ simulated seconds, then lands and waits for the disarm. Its Zenoh subscriber log
 ``telemetry.csv``; its MAVLink link, both directions, goes to ``flight.tlog`` (each packet preceded by
 an 8-byte big-endian microsecond timestamp, as MAVProxy and QGroundControl write it).
 
-Setpoints are paced in simulated time: one pair (SET_ATTITUDE_TARGET + SET_POSITION_TARGET_LOCAL_NED)
-per 20 ms of simulated time seen in the autopilot's ATTITUDE stream, and at least every 100 ms of wall
-time, so a sped-up lockstep run never starves the stream.
+Setpoints are paced in simulated time: one per 20 ms of simulated time seen in the autopilot's ATTITUDE
+stream, and at least every 100 ms of wall time, so a sped-up lockstep run never starves the stream. An
+attitude trajectory (:mod:`groundstation.trajectories`) sends a pair, SET_ATTITUDE_TARGET and a z-only
+SET_POSITION_TARGET_LOCAL_NED; a position trajectory one SET_POSITION_TARGET_LOCAL_NED in
+MAV_FRAME_LOCAL_NED with type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to
+offboard both send the trajectory's start (t = 0), so a position trajectory climbs and settles at its start
+point first.
 """
 
 from __future__ import annotations
@@ -41,6 +45,9 @@ from quadsitl.state import Reference
 mavlink = wire.mavlink
 MASK_IGNORE_RATES = 1 | 2 | 4  # SET_ATTITUDE_TARGET: attitude and thrust fields used
 MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
+# SET_POSITION_TARGET_LOCAL_NED: x, y, z, vx, vy, vz and yaw used; acceleration (64, 128, 256) and yaw rate
+# (2048) ignored: MAVSDK's position + velocity mask.
+MASK_POSITION_VELOCITY_YAW = 2496
 LOOP = 0.002  # [s] wall: how often the ground station reads its socket and Zenoh channels, and may send
 
 
@@ -65,7 +72,9 @@ class GroundStation:
         self.preset = load_preset(args.preset)
         self.period = self.preset.sim.period
         self.trajectory = trajectories.make(args.trajectory, self.preset.reference)
-        self.duration = args.duration or self.preset.sim.duration
+        self.position = isinstance(self.trajectory, trajectories.PositionTrajectory)
+        natural = self.trajectory.duration if isinstance(self.trajectory, trajectories.PositionTrajectory) else None
+        self.duration = args.duration or natural or self.preset.sim.duration
         self.out = Path(args.out)
         self.out.mkdir(parents=True, exist_ok=True)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -127,7 +136,11 @@ class GroundStation:
             elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT and not self.args.quiet:
                 print(f"gcs: vehicle says: {m.text}", file=sys.stderr)
 
-    def send_setpoint(self, ref: Reference) -> None:
+    def send_setpoint(self, ref: Reference | trajectories.PositionSetpoint) -> None:
+        """One setpoint of the trajectory: a position setpoint, or an attitude + altitude pair."""
+        if isinstance(ref, trajectories.PositionSetpoint):
+            self.send_position_setpoint(ref)
+            return
         ts, tc = self.target
         q = euler_to_quaternion(ref.roll, ref.pitch, ref.yaw)
         ms, frame = self.sim_ms, mavlink.MAV_FRAME_LOCAL_NED
@@ -135,6 +148,15 @@ class GroundStation:
         z = -ref.altitude  # NED: z down
         self.send(mavlink.MAVLink_set_position_target_local_ned_message(
             ms, ts, tc, frame, MASK_Z_ONLY, 0, 0, z, 0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
+
+    def send_position_setpoint(self, sp: trajectories.PositionSetpoint) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED, frame LOCAL_NED: x, y [m] and z = −altitude, the velocity
+        feed-forward vx, vy and vz = −climb [m/s], yaw [rad]."""
+        ts, tc = self.target
+        frame = mavlink.MAV_FRAME_LOCAL_NED
+        self.send(mavlink.MAVLink_set_position_target_local_ned_message(
+            self.sim_ms, ts, tc, frame, MASK_POSITION_VELOCITY_YAW, sp.x, sp.y, -sp.altitude, sp.vx, sp.vy, -sp.climb,
+            0, 0, 0, sp.yaw, 0))  # fmt: skip
 
     def command(self, command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))
@@ -292,9 +314,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--trajectory",
         default="step",
-        help="step (default), ramp, sine or a CSV file t,altitude,roll,pitch,yaw",
+        help="attitude: step (default), ramp, sine or a CSV file t,altitude,roll,pitch,yaw; position (offboard "
+        "position setpoints): circle[:radius=M,period=S,altitude=M,hold=S,yaw=RAD|travel], figure8[:size=M,...] "
+        "or a CSV file t,x,y,altitude,yaw",
     )
-    p.add_argument("--duration", type=float, metavar="S", help="simulated seconds of flight (default: the preset's)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="simulated seconds of flight (default: a position trajectory's own length, else the preset's)",
+    )
     p.add_argument("--out", default="runs/gcs", metavar="DIR", help="where telemetry.csv and flight.tlog go")
     p.add_argument("--timeout", type=float, default=600.0, metavar="S", help="give up after S wall seconds")
     p.add_argument("--quiet", "-q", action="store_true")

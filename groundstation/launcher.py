@@ -287,11 +287,20 @@ def keep_dashboard(children: Children) -> None:
 
 
 def write_report(out: Path, preset: Preset, args) -> None:
-    """metrics.json and the figures from telemetry.csv."""
+    """metrics.json and the figures from telemetry.csv. A position trajectory adds the position tracking
+    metrics (printed instead of the step-response table, which its computed attitude references make
+    meaningless) and the x–y path figure."""
     import numpy as np  # here, not at the top: `quadsitl --help` should not wait for matplotlib
 
-    from groundstation.figures import write_figures
-    from groundstation.metrics import outputs_from_columns, run_metrics
+    from groundstation import trajectories
+    from groundstation.figures import write_figures, write_path_figure
+    from groundstation.metrics import (
+        format_position_table,
+        format_table,
+        outputs_from_columns,
+        position_metrics,
+        run_metrics,
+    )
     from groundstation.telemetry_csv import read_csv
 
     data = read_csv(out / "telemetry.csv")
@@ -303,11 +312,21 @@ def write_report(out: Path, preset: Preset, args) -> None:
     metrics = {kind: run_metrics(t, y, ref, u)}
     settings = {"mode": "lockstep", "speed": args.speed, "duration": float(len(t) * preset.sim.period),
                 "period": preset.sim.period, "trajectory": args.trajectory}  # fmt: skip
-    (out / "metrics.json").write_text(json.dumps({"preset": preset.name, **settings, "runs": metrics}, indent=2) + "\n")
+    report = {"preset": preset.name, **settings, "runs": metrics}
+    trajectory = trajectories.make(args.trajectory, preset.reference)
+    position = None
+    if isinstance(trajectory, trajectories.PositionTrajectory):
+        columns = ("x", "y", "x_ref", "y_ref", "altitude", "altitude_ref")
+        position = {kind: position_metrics(*(data[c] for c in columns))}
+        report["position"] = position
+    (out / "metrics.json").write_text(json.dumps(report, indent=2) + "\n")
     if not args.no_figures:
-        write_figures({kind: {"t": t, "outputs": y, "reference": ref, "inputs": u}}, out, f"preset {preset.name}, fly")
+        title = f"preset {preset.name}, fly"
+        write_figures({kind: {"t": t, "outputs": y, "reference": ref, "inputs": u}}, out, title)
+        if position is not None:
+            planned = np.array([trajectory(float(tk))[:2] for tk in t]).reshape(-1, 2).T
+            write_path_figure(out, data["x"], data["y"], data["x_ref"], data["y_ref"],
+                              f"{title}, {args.trajectory}", planned=(planned[0], planned[1]))  # fmt: skip
     if not args.quiet:
-        from groundstation.metrics import format_table
-
-        print(format_table(metrics))
+        print(format_table(metrics) if position is None else format_position_table(position))
         print(f"wrote {out}/telemetry.csv, flight.tlog, metrics.json and figures")

@@ -106,7 +106,8 @@ class TelemetryLogger:
         k = flown.astype(np.int64) - self.flight_start_tick
         columns = [k * self.period, s["x"], s["y"], s["z"], -s["z"], s["vx"], s["vy"], s["vz"], s["roll"],
                    s["pitch"], s["yaw"], s["p"], s["q"], s["r"], r["altitude_ref"], r["roll_ref"], r["pitch_ref"],
-                   r["yaw_ref"], a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"], a["f4"]]  # fmt: skip
+                   r["yaw_ref"], r["x_ref"], r["y_ref"], a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"],
+                   a["f4"]]  # fmt: skip
         table = np.column_stack(columns) if len(k) else np.zeros((0, len(columns)))
         return dict(zip(k.tolist(), table.tolist()))
 

@@ -1,5 +1,6 @@
 """Step-response metrics per channel: rise time (10–90 %), 2 % settling time, overshoot, steady-state
-error, peak |u| and RMS tracking error."""
+error, peak |u| and RMS tracking error; for position trajectories, horizontal and altitude tracking errors
+(:func:`position_metrics`)."""
 
 from __future__ import annotations
 
@@ -79,4 +80,43 @@ def format_table(metrics: dict[str, dict]) -> str:
                 f"{f(m['overshoot_pct'], fmt='.2f') + ' %':>11}{f(m['steady_state_error'], fmt='.2e'):>12}"
                 f"{f(m['peak_abs_u'], fmt='.1f'):>11}"
             )
+    return "\n".join(lines)
+
+
+def position_metrics(
+    x: np.ndarray, y: np.ndarray, x_ref: np.ndarray, y_ref: np.ndarray, altitude: np.ndarray, altitude_ref: np.ndarray
+) -> dict[str, float | int | None]:
+    """Position tracking over the samples where the horizontal position is controlled (x_ref and y_ref
+    finite): ``horizontal_rms`` and ``horizontal_max`` of |(x, y) − (x_ref, y_ref)| [m] (NED, horizontal
+    distance), ``altitude_rms`` of altitude_ref − altitude [m] over the same samples, and their number,
+    ``samples``. The errors are ``None`` when there are no such samples."""
+    controlled = np.isfinite(x_ref) & np.isfinite(y_ref)
+    n = int(np.count_nonzero(controlled))
+    if not n:
+        return {"samples": 0, "horizontal_rms": None, "horizontal_max": None, "altitude_rms": None}
+    e = np.hypot(x[controlled] - x_ref[controlled], y[controlled] - y_ref[controlled])
+    ea = altitude_ref[controlled] - altitude[controlled]
+    return {
+        "samples": n,
+        "horizontal_rms": float(np.sqrt(np.mean(e**2))),
+        "horizontal_max": float(np.max(e)),
+        "altitude_rms": float(np.sqrt(np.mean(ea**2))),
+    }
+
+
+def format_position_table(metrics: dict[str, dict]) -> str:
+    """A fixed-width table of {controller: :func:`position_metrics`} for the terminal."""
+
+    def f(v: float | None) -> str:
+        return "—" if v is None else f"{v:.3f}"
+
+    header = (
+        f"{'controller':<13}{'samples':>9}{'horizontal RMS [m]':>20}{'horizontal max [m]':>20}{'altitude RMS [m]':>18}"
+    )
+    lines = [header, "-" * len(header)]
+    for ctrl, m in metrics.items():
+        lines.append(
+            f"{ctrl:<13}{m['samples']:>9}{f(m['horizontal_rms']):>20}{f(m['horizontal_max']):>20}"
+            f"{f(m['altitude_rms']):>18}"
+        )
     return "\n".join(lines)

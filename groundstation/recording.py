@@ -1,7 +1,7 @@
 """A recorded flight as records, file → :class:`Recording`: pure, no I/O but reading the file (:func:`load`).
 
 A :class:`Recording` holds one record per stream and tick, packed in the schema of :mod:`quadsitl.telemetry`
-(v2) for ``quadsitl/<vehicle>/{state,setpoint,actuators,status}``; :mod:`groundstation.replay` (``quadsitl
+(v3) for ``quadsitl/<vehicle>/{state,setpoint,actuators,status}``; :mod:`groundstation.replay` (``quadsitl
 replay``) paces and publishes it. The file is a ``telemetry.csv`` (from ``quadsitl sim`` or ``quadsitl
 fly``; :func:`records_from_csv`) or a ``.tlog`` (MAVLink telemetry log: an 8-byte big-endian µs timestamp
 before each raw MAVLink 1/2 frame, as ``quadsitl gcs``, MAVProxy and QGroundControl write it;
@@ -9,9 +9,10 @@ before each raw MAVLink 1/2 frame, as ``quadsitl gcs``, MAVProxy and QGroundCont
 
 **From a telemetry.csv.** T is the median step of the ``t`` column [s] (``--period`` when there is one
 row); tick = round(t/T). state ← x, y, z, vx, vy, vz [m, m/s, NED], roll, pitch, yaw [rad], p, q, r
-[rad/s, FRD]; setpoint ← altitude_ref [m], roll_ref, pitch_ref, yaw_ref [rad]; actuators ← u1..u4, f1..f4;
-status ← armed 1, mode 1 (offboard), failsafe 0, offboard_tick 0: the CSV holds the offboard flight,
-with t = 0 at its first tick. Values go out exactly as written in the CSV.
+[rad/s, FRD]; setpoint ← altitude_ref [m], roll_ref, pitch_ref, yaw_ref [rad], x_ref, y_ref [m, NED];
+actuators ← u1..u4, f1..f4; status ← armed 1, mode 1 (offboard), failsafe 0, offboard_tick 0: the CSV holds
+the offboard flight, with t = 0 at its first tick. Values go out exactly as written in the CSV. A CSV
+written before schema v3 has no x_ref, y_ref columns: they go out as NaN (not controlled), with a note.
 
 **From a .tlog.** The vehicle is the system whose component 1 (the autopilot) sends the first ATTITUDE;
 other systems' telemetry is ignored. Each ATTITUDE with a new tick (tick = round(time_boot_ms·10⁻³/T),
@@ -25,8 +26,11 @@ frame are skipped (the scanner resynchronises) and counted:
   turn LOCAL_POSITION_NED off on their link (``gcs.UNNEEDED_STREAMS``), so x..vz are NaN in their logs.
 - setpoint: the vehicle's own targets while they are fresh (within 1 s of vehicle time): ATTITUDE_TARGET's
   quaternion → roll/pitch/yaw_ref (:func:`quadsitl.frames.quaternion_to_euler`), POSITION_TARGET_LOCAL_NED
-  z → altitude_ref = −z. Otherwise the ground station's own commands to the vehicle, SET_ATTITUDE_TARGET
-  and SET_POSITION_TARGET_LOCAL_NED: what was *commanded*, which the vehicle flies only in offboard.
+  (frame LOCAL_NED) z → altitude_ref = −z, and x, y → x_ref, y_ref when its type_mask makes the position a
+  target (bits 1 and 2, "ignore x/y", clear), else NaN (the horizontal position is not controlled).
+  Otherwise the ground station's own commands to the vehicle, SET_ATTITUDE_TARGET and
+  SET_POSITION_TARGET_LOCAL_NED, read the same way: what was *commanded*, which the vehicle flies only in
+  offboard.
 - actuators: u1..u4 are not in any MAVLink message (ATTITUDE_TARGET's thrust is u1 clamped to [0, 1] of
   the total, the torques are nowhere; the motor forces are u after saturation, so u cannot be inverted
   from them): NaN. f1..f4 invert :mod:`autopilot.gcs_messages`: ACTUATOR_OUTPUT_STATUS actuator[j] =
@@ -37,9 +41,10 @@ frame are skipped (the scanner resynchronises) and counted:
   :meth:`quadsitl.wire.Mode.from_px4` on ``custom_mode``), updated between heartbeats (they come at
   1 Hz of *wall* time, a few per lockstep flight) by the vehicle's accepted COMMAND_ACK to a logged
   COMMAND_LONG/INT: ARM_DISARM, DO_SET_MODE, NAV_LAND. Mode 255 when not known (no heartbeat yet, or a
-  PX4 mode other than hold/offboard/land); armed 0 until known. failsafe 1 while the heartbeat says
-  CRITICAL or EMERGENCY. offboard_tick: the first tick of the current armed offboard stretch, −1 outside
-  one; as exact as the mode changes are placed, i.e. to within an ATTITUDE interval.
+  PX4 mode that :meth:`~quadsitl.wire.Mode.from_px4` does not map to one of this autopilot's modes); armed 0
+  until known. failsafe 1 while the heartbeat says CRITICAL or EMERGENCY. offboard_tick: the first tick of
+  the current armed offboard stretch, −1 outside one; as exact as the mode changes are placed, i.e. to
+  within an ATTITUDE interval.
 """
 
 from __future__ import annotations
@@ -66,8 +71,10 @@ MODE_UNKNOWN = 255
 TARGET_STALE = 1.0  # [s] of vehicle time: an older ATTITUDE_TARGET / POSITION_TARGET_LOCAL_NED is not used
 STATE, SETPOINT = telemetry.FIELDS["state"][2:], telemetry.FIELDS["setpoint"][2:]  # the CSV columns they take
 # The CSV columns read, by name, in record order: t, then each stream's fields (altitude = −z is redundant).
-CSV_REQUIRED = ("t", *STATE, *SETPOINT, *telemetry.FIELDS["actuators"][2:])
-assert set(CSV_REQUIRED) == set(COLUMNS) - {"altitude"}, "telemetry CSV columns and Zenoh fields diverged"
+CSV_FIELDS = ("t", *STATE, *SETPOINT, *telemetry.FIELDS["actuators"][2:])
+assert set(CSV_FIELDS) == set(COLUMNS) - {"altitude"}, "telemetry CSV columns and Zenoh fields diverged"
+CSV_OPTIONAL = ("x_ref", "y_ref")  # new in schema v3: an older telemetry.csv replays them as NaN
+POSITION_IGNORED = 1 | 2  # SET_/POSITION_TARGET_LOCAL_NED type_mask bits: ignore x, ignore y
 
 
 class ReplayError(Exception):
@@ -98,7 +105,7 @@ class Recording:
         actuators: Sequence[float],
         status: tuple[int, int, int, int],
     ) -> None:
-        """Add one tick: state = x..r (12 values), setpoint = altitude_ref..yaw_ref (4), actuators =
+        """Add one tick: state = x..r (12 values), setpoint = altitude_ref..y_ref (6), actuators =
         u1..u4, f1..f4 (8), status = (armed, mode, failsafe, offboard_tick)."""
         s, p = telemetry.STREAMS, self.payload
         p["state"] += s["state"].pack(tick, t, *state)
@@ -160,13 +167,13 @@ def records_from_csv(path: Path, period: float = DEFAULT_PERIOD) -> Recording:
         if header is None:
             raise ReplayError(f"{path}: empty file; expected a header line with the columns {', '.join(COLUMNS)}")
         names = [h.strip() for h in header]
-        missing = [c for c in CSV_REQUIRED if c not in names]
+        missing = [c for c in CSV_FIELDS if c not in names and c not in CSV_OPTIONAL]
         if missing:
             raise ReplayError(
                 f"{path}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; a telemetry CSV "
                 f"has the columns {', '.join(COLUMNS)}"
             )
-        index = [names.index(c) for c in CSV_REQUIRED]
+        index = [names.index(c) if c in names else None for c in CSV_FIELDS]
         rows: list[tuple[int, list[float]]] = []
         for row in reader:
             if not any(cell.strip() for cell in row):
@@ -175,7 +182,10 @@ def records_from_csv(path: Path, period: float = DEFAULT_PERIOD) -> Recording:
             if len(row) != len(names):
                 raise ReplayError(f"{path}: line {line} has {len(row)} fields, the header {len(names)}")
             values = []
-            for column, i in zip(CSV_REQUIRED, index):
+            for column, i in zip(CSV_FIELDS, index):
+                if i is None:  # an optional column the file does not have
+                    values.append(NAN)
+                    continue
                 try:
                     values.append(float(row[i]))
                 except ValueError:
@@ -194,6 +204,10 @@ def records_from_csv(path: Path, period: float = DEFAULT_PERIOD) -> Recording:
     if not T > 0.0:
         raise ReplayError(f"{path}: column t does not increase (median step {T!r} s); expected one row per tick")
     rec = Recording(str(path), T)
+    absent = [c for c in CSV_OPTIONAL if c not in names]
+    if absent:
+        rec.notes.append(f"no {', '.join(absent)} column{'s' if len(absent) > 1 else ''} (a telemetry.csv from "
+                         "before schema v3): NaN, the horizontal position not controlled")  # fmt: skip
     status = (1, 1, 0, 0)  # armed, offboard, no failsafe, the flight started at tick 0 (t = 0)
     ns, nsp = len(STATE), len(SETPOINT)
     for line, values in rows:
@@ -279,13 +293,15 @@ class _TlogState:
         self.position = [NAN] * 6  # x, y, z, vx, vy, vz
         self.vehicle_attitude: tuple[float, float, float, float] | None = None  # roll, pitch, yaw refs, t
         self.vehicle_altitude: tuple[float, float] | None = None  # altitude_ref, t
+        self.vehicle_xy: tuple[float, float, float] | None = None  # x_ref, y_ref (NaN: not a target), t
         self.gcs_attitude: tuple[float, float, float] | None = None
         self.gcs_altitude: float | None = None
+        self.gcs_xy: tuple[float, float] | None = None
         self.forces = [NAN] * 4
         self.status = _Status()
         self.commands: dict[int, tuple[float, float, float]] = {}  # command → params 1..3 last sent
         self.heard: set[str] = set()  # message types from the vehicle
-        self.target_sources: dict[str, set[str]] = {"attitude": set(), "altitude": set()}
+        self.target_sources: dict[str, set[str]] = {"attitude": set(), "altitude": set(), "position": set()}
 
     def from_vehicle(self, m) -> bool:
         return m.get_srcSystem() == self.system and m.get_srcComponent() == wire.AUTOPILOT_COMPONENT_ID
@@ -311,8 +327,12 @@ class _TlogState:
             self.vehicle_attitude = (*quaternion_to_euler(*q), m.time_boot_ms / 1000.0)
 
     def _vehicle_position_target_local_ned(self, m) -> None:
-        if m.coordinate_frame == mavlink.MAV_FRAME_LOCAL_NED and not m.type_mask & 4:  # bit 2: z ignored
-            self.vehicle_altitude = (-m.z, m.time_boot_ms / 1000.0)
+        if m.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
+            return
+        t = m.time_boot_ms / 1000.0
+        if not m.type_mask & 4:  # bit 2: z ignored
+            self.vehicle_altitude = (-m.z, t)
+        self.vehicle_xy = (*_horizontal_target(m), t)
 
     def _vehicle_actuator_output_status(self, m) -> None:
         if self.max_thrust is not None:
@@ -362,13 +382,16 @@ class _TlogState:
             self.gcs_attitude = quaternion_to_euler(*q)
 
     def _gcs_set_position_target_local_ned(self, m) -> None:
-        if m.coordinate_frame == mavlink.MAV_FRAME_LOCAL_NED and not m.type_mask & 4:
+        if m.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
+            return
+        if not m.type_mask & 4:
             self.gcs_altitude = -m.z
+        self.gcs_xy = _horizontal_target(m)
 
     # -- one tick's record
-    def setpoint(self, t: float) -> tuple[float, float, float, float]:
-        """altitude_ref, roll_ref, pitch_ref, yaw_ref at vehicle time t [s]: the vehicle's fresh targets,
-        else the ground station's commands, else the vehicle's stale ones, else NaN."""
+    def setpoint(self, t: float) -> tuple[float, float, float, float, float, float]:
+        """altitude_ref, roll_ref, pitch_ref, yaw_ref, x_ref, y_ref at vehicle time t [s]: the vehicle's
+        fresh targets, else the ground station's commands, else the vehicle's stale ones, else NaN."""
         va, vz = self.vehicle_attitude, self.vehicle_altitude
         if va is not None and t - va[3] <= TARGET_STALE:
             attitude, a_src = va[:3], "ATTITUDE_TARGET"
@@ -386,9 +409,19 @@ class _TlogState:
             altitude, z_src = vz[0], "POSITION_TARGET_LOCAL_NED"
         else:
             altitude, z_src = NAN, ""
+        vxy = self.vehicle_xy
+        if vxy is not None and t - vxy[2] <= TARGET_STALE:
+            xy, xy_src = vxy[:2], "POSITION_TARGET_LOCAL_NED"
+        elif self.gcs_xy is not None:
+            xy, xy_src = self.gcs_xy, "SET_POSITION_TARGET_LOCAL_NED"
+        elif vxy is not None:
+            xy, xy_src = vxy[:2], "POSITION_TARGET_LOCAL_NED"
+        else:
+            xy, xy_src = (NAN, NAN), ""
         self.target_sources["attitude"].add(a_src)
         self.target_sources["altitude"].add(z_src)
-        return (altitude, *attitude)  # type: ignore[return-value]
+        self.target_sources["position"].add(xy_src if math.isfinite(xy[0]) else "")
+        return (altitude, *attitude, *xy)  # type: ignore[return-value]
 
     def status_record(self, tick: int) -> tuple[int, int, int, int]:
         st = self.status
@@ -399,6 +432,14 @@ class _TlogState:
             st.offboard_tick = tick
         mode = MODE_UNKNOWN if st.mode is None else int(st.mode)
         return int(bool(st.armed)), mode, int(st.failsafe), st.offboard_tick
+
+
+def _horizontal_target(m) -> tuple[float, float]:
+    """x_ref, y_ref [m, NED] of a (SET_)POSITION_TARGET_LOCAL_NED: its x, y when the type_mask makes the
+    position a target, else NaN, NaN (the horizontal position is not controlled)."""
+    if m.type_mask & POSITION_IGNORED:
+        return NAN, NAN
+    return float(m.x), float(m.y)
 
 
 def _unit(q: Sequence[float]) -> tuple[float, float, float, float] | None:
@@ -485,7 +526,8 @@ def _tlog_notes(
                      "(a vehicle restart or an out-of-order log)")  # fmt: skip
     if "LOCAL_POSITION_NED" not in heard:
         notes.append("no LOCAL_POSITION_NED from the vehicle: x, y, z, vx, vy, vz are NaN")
-    for what, fields in (("attitude", "roll_ref, pitch_ref, yaw_ref"), ("altitude", "altitude_ref")):
+    for what, fields in (("attitude", "roll_ref, pitch_ref, yaw_ref"), ("altitude", "altitude_ref"),
+                         ("position", "x_ref, y_ref")):  # fmt: skip
         sources = state.target_sources[what]
         known = sorted(s for s in sources if s)
         named = " and ".join(known) or "nothing: NaN"

@@ -1,8 +1,10 @@
 """The telemetry CSV: one row per control tick, the same columns for ``sim`` and ``fly``.
 
 Columns: t [s]; x, y, z [m, NED]; altitude [m] (= −z); vx, vy, vz [m/s, NED]; roll, pitch, yaw [rad];
-p, q, r [rad/s, body FRD]; altitude_ref [m]; roll_ref, pitch_ref, yaw_ref [rad]; u1 [N], u2, u3 [N],
-u4 [N·m]; f1..f4 commanded motor forces [N].
+p, q, r [rad/s, body FRD]; altitude_ref [m]; roll_ref, pitch_ref, yaw_ref [rad]; x_ref, y_ref [m, NED]
+(the horizontal position reference, NaN — written ``nan`` — while the horizontal position is not
+controlled: attitude setpoints, ``quadsitl sim``); u1 [N], u2, u3 [N], u4 [N·m]; f1..f4 commanded motor
+forces [N].
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ import numpy as np
 
 COLUMNS = (
     "t", "x", "y", "z", "altitude", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r",
-    "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4",
+    "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "x_ref", "y_ref", "u1", "u2", "u3", "u4",
+    "f1", "f2", "f3", "f4",
 )  # fmt: skip
 
 
@@ -24,10 +27,13 @@ def rows_from_arrays(
     reference: np.ndarray,
     inputs: np.ndarray,
     forces: np.ndarray,
+    position_reference: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(N, len(COLUMNS)) array in column order."""
+    """(N, len(COLUMNS)) array in column order. ``reference``: (N, 4) altitude, roll, pitch, yaw references;
+    ``position_reference``: (N, 2) x_ref, y_ref [m, NED], or None: not controlled (NaN)."""
+    xy_ref = np.full((len(t), 2), np.nan) if position_reference is None else position_reference
     return np.column_stack(
-        [t, state[:, 0:3], -state[:, 2], state[:, 3:6], state[:, 6:9], body_rates, reference, inputs, forces]
+        [t, state[:, 0:3], -state[:, 2], state[:, 3:6], state[:, 6:9], body_rates, reference, xy_ref, inputs, forces]
     )
 
 

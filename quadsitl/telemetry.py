@@ -3,18 +3,24 @@
 Keys (``<vehicle>`` defaults to ``v1``), one record per control tick on each:
 
     quadsitl/<vehicle>/state      tick, t, x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r
-    quadsitl/<vehicle>/setpoint   tick, t, altitude_ref, roll_ref, pitch_ref, yaw_ref
+    quadsitl/<vehicle>/setpoint   tick, t, altitude_ref, roll_ref, pitch_ref, yaw_ref, x_ref, y_ref
     quadsitl/<vehicle>/actuators  tick, t, u1, u2, u3, u4, f1, f2, f3, f4
     quadsitl/<vehicle>/status     tick, t, armed, mode, failsafe, offboard_tick
 
 Encoding: little-endian C structs (``struct`` formats below): ``tick`` uint64 (control ticks since the
 plant started), ``t`` float64 simulated time [s], then float64 fields in SI units, radians, NED/FRD;
-status: ``armed`` uint8 (0/1), ``mode`` uint8 (0 hold, 1 offboard, 2 land), ``failsafe`` uint8 (0 none,
-1 setpoint stream lost), ``offboard_tick`` int64 (tick at which the current offboard flight started, −1
-when not in an offboard flight). The Zenoh encoding is ``application/octet-stream`` with schema
-``quadsitl.<stream>.v2``.
+setpoint: ``x_ref``, ``y_ref`` the horizontal position reference in local NED [m] (x north, y east), NaN
+while the horizontal position is not controlled (attitude setpoints, the paper's experiment);
+status: ``armed`` uint8 (0/1), ``mode`` uint8 (:data:`MODES`: 0 hold, 1 offboard, 2 land, 3 takeoff,
+4 rtl; 5 is reserved for mission), ``failsafe`` uint8 (0 none, 1 setpoint stream lost), ``offboard_tick``
+int64 (tick at which the current offboard flight started, −1 when not in an offboard flight). The Zenoh
+encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v3`` (:data:`SCHEMA_VERSION`).
 
-A sample carries one or more records of consecutive ticks, concatenated (v2; v1 carried exactly one).
+Versions: v3 added x_ref and y_ref to the setpoint record (v2's was ``<Qd4d``); the other streams' records
+are as in v2, and carry v3 too, so that one version names the whole set. v2 batched records; v1 carried
+exactly one per sample.
+
+A sample carries one or more records of consecutive ticks, concatenated (since v2).
 The autopilot sends what it has every 5 ms of wall time (or after 512 ticks): at 1 kHz in real time that
 is five records per sample, in a lockstep run at 20,000 ticks/s about a hundred. Every tick's record is
 published; batching only spares the transport a message (and a wake-up of its thread, and of every
@@ -34,18 +40,21 @@ if TYPE_CHECKING:  # the schema needs no Zenoh: pure modules (dashboard model, r
     import zenoh
 
 PREFIX = "quadsitl"
+SCHEMA_VERSION = 3  # of every stream's record layout; in the Zenoh encoding's schema, quadsitl.<stream>.v3
 STREAMS: dict[str, struct.Struct] = {
     "state": struct.Struct("<Qd12d"),
-    "setpoint": struct.Struct("<Qd4d"),
+    "setpoint": struct.Struct("<Qd6d"),
     "actuators": struct.Struct("<Qd8d"),
     "status": struct.Struct("<QdBBBq"),
 }
 FIELDS: dict[str, tuple[str, ...]] = {
     "state": ("tick", "t", "x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"),
-    "setpoint": ("tick", "t", "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref"),
+    "setpoint": ("tick", "t", "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "x_ref", "y_ref"),
     "actuators": ("tick", "t", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4"),
     "status": ("tick", "t", "armed", "mode", "failsafe", "offboard_tick"),
 }
+# The status record's ``mode``: the autopilot's flight modes (PX4's, DESIGN.md §8); 5 is reserved for mission.
+MODES: dict[int, str] = {0: "hold", 1: "offboard", 2: "land", 3: "takeoff", 4: "rtl", 5: "mission"}
 
 
 def key(vehicle: str, stream: str) -> str:
@@ -55,7 +64,7 @@ def key(vehicle: str, stream: str) -> str:
 def encoding(stream: str) -> zenoh.Encoding:
     import zenoh
 
-    return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(f"quadsitl.{stream}.v2")
+    return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(f"quadsitl.{stream}.v{SCHEMA_VERSION}")
 
 
 def records(stream: str, payload: bytes) -> list[tuple]:

@@ -61,6 +61,27 @@ def test_unknown_preset_names_the_available_ones(command, tmp_path):
     assert r.stdout == ""
 
 
+@pytest.mark.parametrize("command", ["fly", "gcs"])
+@pytest.mark.parametrize(
+    ("trajectory", "message"),
+    [
+        ("circle:radius=-2", "--trajectory 'circle:radius=-2': radius = -2: expected a number in (0, 1000] m"),
+        ("figure8:period=x", "--trajectory 'figure8:period=x': period='x' is not a number; expected figure8[:size=M]"),
+        ("helix", "--trajectory 'helix': expected step, ramp, sine, circle[:...], figure8[:...] or an existing CSV"),
+        ("BAD_CSV", "bad.csv, line 3, column altitude: 'high' is not a number"),
+    ],
+)  # fmt: skip
+def test_a_bad_trajectory_is_one_line_naming_the_option_or_the_file(command, trajectory, message, tmp_path):
+    if trajectory == "BAD_CSV":
+        trajectory = str(tmp_path / "bad.csv")
+        (tmp_path / "bad.csv").write_text("t,x,y,altitude,yaw\n0,0,0,2,0\n5,1,1,high,0\n")
+    r = quadsitl(command, "--trajectory", trajectory, "--out", str(tmp_path / "out"), timeout=30)
+    assert r.returncode == 2
+    line = assert_one_line_error(r)
+    assert line.startswith(f"quadsitl {command}: error: ") and message in line, line
+    assert r.stdout == ""
+
+
 @pytest.fixture
 def busy_port():
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

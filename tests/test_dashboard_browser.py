@@ -6,6 +6,7 @@ Screenshots go to ``$QUADSITL_ARTIFACTS`` (default: the test's temporary folder)
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import time
@@ -147,10 +148,129 @@ def test_api_vehicles_and_any_number_of_tabs(browser):
             assert veh["period"] == pytest.approx(0.001)
             assert 0.5 < veh["real_time_factor"] < 2.0
             assert set(veh["state"]) >= {"t", "x", "y", "z", "roll", "pitch", "yaw", "p", "q", "r"}
-            assert set(veh["setpoint"]) == {"t", "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref"}
+            assert set(veh["setpoint"]) == {"t", "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "x_ref", "y_ref"}
+            assert veh["setpoint"]["x_ref"] is None  # NaN: in hold, nothing controls x and y yet
             # every tab follows the same vehicle independently
             last = [p.evaluate("() => quadsitl.lastT") for p in pages]
             assert max(last) - min(last) < 1.0
         finally:
             for p in pages:
                 p.close()
+
+
+class Publisher:
+    """A Zenoh session that publishes made-up telemetry of one vehicle, as the autopilot does (schema v3)."""
+
+    def __init__(self, endpoint: str, vehicle: str = "map") -> None:
+        import zenoh
+
+        from quadsitl import telemetry
+
+        self.session = zenoh.open(telemetry.zenoh_config(connect=[endpoint]))
+        self.pubs = {s: self.session.declare_publisher(telemetry.key(vehicle, s)) for s in telemetry.STREAMS}
+        end = time.monotonic() + 10  # peers connect directly: wait until the dashboard's session is found
+        while not all(p.matching_status.matching for p in self.pubs.values()):
+            assert time.monotonic() < end, "the dashboard's Zenoh session was not found"
+            time.sleep(0.02)
+
+    def put(self, ticks: range, point, mode: int = 1) -> None:
+        """One sample per stream of ``ticks`` (T = 1 ms); ``point(t)`` → (x, y, x_ref, y_ref) [m, NED]."""
+        from quadsitl import telemetry
+
+        out: dict[str, bytes] = {s: b"" for s in telemetry.STREAMS}
+        for k in ticks:
+            t = k * 0.001
+            x, y, x_ref, y_ref = point(t)
+            st = telemetry.STREAMS
+            out["state"] += st["state"].pack(k, t, x, y, -2.0, *[0.0] * 9)
+            out["setpoint"] += st["setpoint"].pack(k, t, 2.0, 0.0, 0.0, 0.0, x_ref, y_ref)
+            out["actuators"] += st["actuators"].pack(k, t, *[0.0] * 8)
+            out["status"] += st["status"].pack(k, t, 1, mode, 0, 0)
+        for s, pub in self.pubs.items():
+            pub.put(out[s])
+
+    def close(self) -> None:
+        for p in self.pubs.values():
+            p.undeclare()
+        self.session.close()
+
+
+def circle_point(t: float) -> tuple[float, float, float, float]:
+    """A 4 m circle through home (centre 4 m east), 0.3 rad a second; measured 0.1 rad behind its reference."""
+    th, lag = 0.3 * t, 0.3 * t - 0.1
+    return 4 * math.sin(lag), 4 * (1 - math.cos(lag)), 4 * math.sin(th), 4 * (1 - math.cos(th))
+
+
+def map_state(page) -> dict:
+    """What the map shows (its data attributes) and the colours of its canvas at home, at the setpoint and in all."""
+    return page.evaluate("""() => {
+        const box = document.getElementById('plot-map'), c = box.querySelector('canvas');
+        const r = window.devicePixelRatio || 1, ctx = c.getContext('2d');
+        const at = s => { if (!s) return null; const [x, y] = s.split(',').map(Number);
+                          return Array.from(ctx.getImageData(Math.round(x * r), Math.round(y * r), 1, 1).data); };
+        const all = ctx.getImageData(0, 0, c.width, c.height).data;
+        let measured = 0;
+        const near = (i, v) => Math.abs(all[i] - v) < 20;
+        for (let i = 0; i < all.length; i += 4) if (near(i, 31) && near(i + 1, 119) && near(i + 2, 180)) measured++;
+        return {points: Number(box.dataset.points), t: Number(box.dataset.tLast), setpoint: box.dataset.setpoint,
+                home: at(box.dataset.homePx),
+                setpointColour: at(box.dataset.setpointPx), measured, scale: Number(box.dataset.scale),
+                mode: document.querySelector('#status [data-field=mode]').textContent};
+    }""")
+
+
+@pytest.mark.timeout(90)
+def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
+    """The x–y map, against made-up telemetry of a circle: the path of the window drawn, home marked at the
+    origin, the setpoint where x_ref, y_ref say, and no setpoint once they are NaN; the new mode names."""
+    import subprocess
+    import sys
+
+    zenoh_port, port = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    endpoint, url = f"tcp/127.0.0.1:{zenoh_port}", f"http://127.0.0.1:{port}/"
+    server = subprocess.Popen([sys.executable, "-m", "groundstation.dashboard.server", "--port", str(port),
+                               "--zenoh-listen", endpoint, "--quiet"])  # fmt: skip
+    pub = page = None
+    try:
+        wait_http(url)
+        pub = Publisher(endpoint)
+        page = browser.new_page(viewport={"width": 1400, "height": 1100})
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(url)
+        for first in range(1, 8001, 200):  # 8 s of flight, 200 ticks a sample
+            pub.put(range(first, first + 200), circle_point)
+            time.sleep(0.01)
+        # 400 rows at 50 per simulated second; an update carries at most 250 (thinned when more are new)
+        # (the map shows the rows of its last redraw: wait until that one has the newest row)
+        page.wait_for_function("() => { const m = document.getElementById('plot-map').dataset; "
+                               "return Number(m.points) >= 100 && Number(m.tLast) >= 7.9 "
+                               "&& Number(m.tLast) === quadsitl.lastT; }", timeout=10000)  # fmt: skip
+        m = map_state(page)
+        x_ref, y_ref = circle_point(m["t"])[2:]
+        assert m["setpoint"] == f"{x_ref:.3f},{y_ref:.3f}"  # the newest row's reference
+        assert m["home"][:3] == [44, 160, 44]  # the green square at the origin
+        assert m["setpointColour"][:3] == [214, 39, 40]  # the red cross at the setpoint
+        assert m["measured"] > 300  # the blue path
+        # 8 s at 0.3 rad/s: 2.4 rad of a 4 m circle, plus home: the map spans about 7 m, at equal scales
+        assert 20 < m["scale"] < 100
+        assert m["mode"] == "offboard"
+        page.screenshot(path=str(artifacts / "dashboard-map.png"), full_page=True)
+
+        # x_ref, y_ref NaN (attitude setpoints now): no setpoint; return to launch shows its name.
+        nan = math.nan
+        for first in range(8001, 9001, 200):
+            pub.put(range(first, first + 200), lambda t: (*circle_point(t)[:2], nan, nan), mode=4)
+            time.sleep(0.01)
+        no_setpoint = "document.getElementById('plot-map').dataset.setpoint === ''"
+        page.wait_for_function(f"() => quadsitl.lastT >= 8.9 && {no_setpoint}", timeout=10000)
+        m = map_state(page)
+        assert m["setpointColour"] is None and m["home"][:3] == [44, 160, 44] and m["mode"] == "rtl"
+        assert not errors, errors
+    finally:
+        if page is not None:
+            page.close()
+        if pub is not None:
+            pub.close()
+        server.terminate()
+        server.wait(10)

@@ -12,7 +12,7 @@ T = 0.001
 
 
 def records(stream: str, ticks, **values) -> bytes:
-    """A schema-v2 sample of consecutive ticks; fields not given are tick-dependent so they can be checked."""
+    """A schema-v3 sample of consecutive ticks; fields not given are tick-dependent so they can be checked."""
     fmt, fields = telemetry.STREAMS[stream], telemetry.FIELDS[stream]
     out = []
     for k in ticks:
@@ -45,6 +45,8 @@ def test_rows_are_every_nth_tick_joined_across_streams_in_display_units():
     assert r["roll"] == pytest.approx(math.degrees(k * 1e-3))
     assert r["e_altitude"] == pytest.approx(r["altitude_ref"] - r["altitude"])
     assert r["u1"] == pytest.approx(k * 1e-3) and r["f4"] == pytest.approx(k * 1e-3)
+    # the x–y map's columns: metres in local NED, not converted
+    assert (r["x"], r["y"], r["x_ref"], r["y_ref"]) == pytest.approx((k * 1e-3,) * 4)
     # a page that saw up to row 40 gets only the newer ones
     seq_40 = v.rows[39][0]
     assert [round(x[0] / T) for x in v.rows_since(seq_40)] == list(range(820, 1001, 20))
@@ -91,6 +93,26 @@ def test_status_names_mode_and_failsafe():
                   "failsafe": "plant link lost", "offboard_tick": -1}  # fmt: skip
 
 
+@pytest.mark.parametrize(("number", "name"), [(0, "hold"), (1, "offboard"), (2, "land"), (3, "takeoff"), (4, "rtl"),
+                                              (5, "mission"), (9, "unknown (9)")])  # fmt: skip
+def test_every_mode_number_of_the_status_stream_has_its_name(number, name):
+    fleet = Fleet()
+    feed(fleet, range(1, 3), wall=0.0, mode=number)
+    assert fleet.summaries(0.0)[0]["status"]["mode"] == name
+
+
+def test_an_uncontrolled_horizontal_position_reaches_the_page_as_nan():
+    """x_ref, y_ref NaN (attitude setpoints): rows carry NaN (null in JSON, no setpoint on the map)."""
+    fleet = Fleet(plot_rate=50.0)
+    for stream in ("state", "actuators"):
+        fleet.ingest(f"quadsitl/v1/{stream}", records(stream, range(1, 41)), 0.0)
+    fleet.ingest("quadsitl/v1/setpoint", records("setpoint", range(1, 41), x_ref=math.nan, y_ref=math.nan), 0.0)
+    fleet.ingest("quadsitl/v1/status", records("status", range(1, 41), armed=1, mode=1), 0.0)
+    (row,) = fleet.vehicles["v1"].rows_since(0)[-1:]
+    r = dict(zip(ROW_FIELDS, row))
+    assert math.isnan(r["x_ref"]) and math.isnan(r["y_ref"]) and r["x"] == pytest.approx(0.040)
+
+
 def test_bad_input_is_counted_and_ignored():
     fleet = Fleet()
     feed(fleet, range(1, 101), wall=0.0)
@@ -123,6 +145,6 @@ def test_a_stream_that_never_completes_a_tick_does_not_grow_memory():
 
 def test_yaw_error_wraps_across_pi():
     state = (1, T, 0, 0, 0, 0, 0, 0, 0, 0, math.radians(179), 0, 0, 0)
-    setpoint = (1, T, 0, 0, 0, math.radians(-179))
+    setpoint = (1, T, 0, 0, 0, math.radians(-179), math.nan, math.nan)
     row = dict(zip(ROW_FIELDS, plot_row(state, setpoint, (1, T, 0, 0, 0, 0, 0, 0, 0, 0))))
     assert row["e_yaw"] == pytest.approx(2.0)

@@ -1,5 +1,7 @@
 """End to end: the real processes on free loopback ports, always cleaned up."""
 
+import json
+import math
 import os
 import signal
 import subprocess
@@ -11,8 +13,10 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from groundstation import trajectories
 from groundstation.launcher import free_port
 from groundstation.telemetry_csv import read_csv
+from quadsitl.state import Reference
 
 BIN = Path(sys.executable).parent
 
@@ -56,6 +60,84 @@ def procs():
             p.wait()
 
 
+CIRCLE = "circle:radius=4,period=16,hold=4"  # x500: at 2 m, 1.57 m/s, after 4 s at home
+
+
+@pytest.fixture(scope="module")
+def circle_flight(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """One `quadsitl fly --trajectory circle...` on the realistic preset, shared by the tests that read it."""
+    out = tmp_path_factory.mktemp("circle")
+    r = subprocess.run(quadsitl("fly", "--preset", "x500", "--trajectory", CIRCLE, "--out", str(out)),
+                       capture_output=True, text=True, timeout=240)  # fmt: skip
+    return out, r
+
+
+def test_fly_sends_a_position_trajectory_as_offboard_position_setpoints(circle_flight):
+    """The ground station's side of a position trajectory: only SET_POSITION_TARGET_LOCAL_NED, frame LOCAL_NED,
+    type_mask 2496, every one a point of the circle with its velocity feed-forward and yaw along the path;
+    the position table, metrics.json and the x–y figure."""
+    out, r = circle_flight
+    assert r.returncode == 0, r.stderr
+    R, P, altitude = 4.0, 16.0, 2.0  # the x500 preset's reference altitude
+    sent, attitude_targets = [], 0
+    log = mavutil.mavlink_connection(str(out / "flight.tlog"))
+    while (m := log.recv_match()) is not None:
+        if m.get_srcSystem() != 255:  # the ground station's messages only
+            continue
+        if m.get_type() == "SET_ATTITUDE_TARGET":
+            attitude_targets += 1
+        elif m.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
+            sent.append(m)
+    assert attitude_targets == 0 and len(sent) > 500  # 50 Hz of simulated time over 22 s
+    moving = 0
+    for m in sent:
+        assert (m.coordinate_frame, m.type_mask) == (mavutil.mavlink.MAV_FRAME_LOCAL_NED, 2496)
+        assert math.hypot(m.x, m.y - R) == pytest.approx(R, abs=1e-5)  # on the circle (float32)
+        assert m.z == pytest.approx(-altitude) and m.vz == 0.0
+        speed = math.hypot(m.vx, m.vy)
+        assert speed <= 2 * math.pi * R / P + 1e-5
+        if speed > 0.1:  # tangent to the circle, the nose along it
+            moving += 1
+            assert m.vx * m.x + m.vy * (m.y - R) == pytest.approx(0.0, abs=1e-4)
+            assert math.remainder(m.yaw - math.atan2(m.vy, m.vx), 2 * math.pi) == pytest.approx(0.0, abs=1e-5)
+    assert moving > 400
+    # The first setpoints, before offboard: the start point, at rest.
+    assert (sent[0].x, sent[0].y, sent[0].vx, sent[0].vy) == (0.0, 0.0, 0.0, 0.0)
+    lines = r.stdout.splitlines()
+    assert "horizontal RMS [m]" in lines[0] and lines[2].split()[0] == "backstepping"
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["trajectory"] == CIRCLE and metrics["duration"] == pytest.approx(4 + 16 + 2)
+    assert set(metrics["position"]["backstepping"]) == {"samples", "horizontal_rms", "horizontal_max", "altitude_rms"}
+    assert (out / "fig_xy_path.png").stat().st_size > 10_000
+
+
+def test_fly_circle_tracks_the_position_reference(circle_flight):
+    """The autopilot's side (needs its position control, and x_ref, y_ref in the setpoint record): x_ref, y_ref
+    are the circle, and the vehicle flies it. Thresholds: PX4-like position control at 1.57 m/s on a 4 m
+    circle, without an acceleration feed-forward (it runs a little outside the circle)."""
+    out, r = circle_flight
+    assert r.returncode == 0, r.stderr
+    data = read_csv(out / "telemetry.csv")
+    t = data["t"]
+    plan = trajectories.make(CIRCLE, Reference(2.0))
+    want = np.array([plan(tk)[:2] for tk in t])
+    # The reference the autopilot reports is the one sent: on the circle, behind the plan by no more than the
+    # ground station's lag (it follows the flight time from the telemetry it receives: tens of ms in lockstep).
+    finite = np.isfinite(data["x_ref"]) & np.isfinite(data["y_ref"])
+    assert finite.mean() > 0.95, f"x_ref finite in {finite.mean():.1%} of the ticks"
+    x_ref, y_ref = data["x_ref"][finite], data["y_ref"][finite]
+    assert np.abs(np.hypot(x_ref, y_ref - 4.0) - 4.0).max() < 1e-4
+    lag = np.hypot(x_ref - want[finite, 0], y_ref - want[finite, 1])
+    assert np.percentile(lag, 95) < 0.5, np.percentile(lag, 95)
+    # The vehicle goes round: as far as the circle's far side (2R east), and back home.
+    assert data["y"].max() > 2 * 4.0 - 0.5 and data["x"].max() > 4.0 - 0.5 and data["x"].min() < -4.0 + 0.5
+    assert math.hypot(data["x"][-1], data["y"][-1]) < 0.5
+    m = json.loads((out / "metrics.json").read_text())["position"]["backstepping"]
+    assert m["samples"] == int(finite.sum())
+    assert m["horizontal_rms"] < 0.4 and m["horizontal_max"] < 1.0, m  # 0.23 and 0.46 m when written
+    assert abs(data["altitude"][-1] - 2.0) < 0.1
+
+
 def test_fly_equals_sim_and_loses_nothing(tmp_path):
     out = tmp_path / "fly"
     r = subprocess.run(quadsitl("fly", "--preset", "paper", "--duration", "2", "--out", str(out)),
@@ -71,6 +153,9 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     for column in ("altitude", "roll", "pitch", "yaw"):
         assert np.abs(fly[column] - sim[column]).max() < 1e-3, column
     assert fly["altitude"][0] == pytest.approx(0.0, abs=1e-9) and fly["altitude"][-1] == pytest.approx(5.0, abs=1e-3)
+    # Attitude setpoints, the paper's experiment: nothing controls x and y, and the telemetry says so.
+    for data in (fly, sim):
+        assert np.isnan(data["x_ref"]).all() and np.isnan(data["y_ref"]).all()
     # The .tlog is standard: pymavlink reads it, both directions are in it.
     tlog = mavutil.mavlink_connection(str(out / "flight.tlog"))
     seen = set()

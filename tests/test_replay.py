@@ -258,7 +258,8 @@ def test_tlog_values_arrive_decoded(tmp_path):
         for f in ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"):
             assert rec[f] == f32(v[f]), f  # exactly what the MAVLink float32 fields carried
         assert sp[2] == -f32(v["z_ref"])  # altitude_ref = −z
-        assert sp[3:] == pytest.approx((v["roll_ref"], v["pitch_ref"], v["yaw_ref"]), abs=1e-6)
+        assert sp[3:6] == pytest.approx((v["roll_ref"], v["pitch_ref"], v["yaw_ref"]), abs=1e-6)
+        assert math.isnan(sp[6]) and math.isnan(sp[7])  # the type_mask ignores x and y: not controlled
         assert all(math.isnan(u) for u in a[2:6])  # u1..u4 are not in MAVLink
         assert a[6:] == tuple(f32(c) * F_MAX for c in v["controls"])  # F_j = actuator[j]·F_max
         i = (v["tick"] - 1000) // 10
@@ -288,11 +289,65 @@ def test_tlog_falls_back_on_the_ground_stations_setpoints_and_servo_outputs(tmp_
     assert [s[0] for s in state] == [20 * i for i in range(10)]
     assert all(math.isnan(x) for s in state for x in s[2:8])  # no LOCAL_POSITION_NED: x..vz NaN
     for sp in setpoint:
-        assert sp[2] == 3.0 and sp[3:] == pytest.approx((0.4, -0.3, 1.0), abs=1e-6)
+        assert sp[2] == 3.0 and sp[3:6] == pytest.approx((0.4, -0.3, 1.0), abs=1e-6)
+        assert math.isnan(sp[6]) and math.isnan(sp[7])  # z only: the horizontal position is not controlled
     # SERVO_OUTPUT_RAW, reversible motors (paper preset): 1000..2000 µs = −F_max..F_max; 0 µs = off
     assert actuators[-1][6:] == (0.5 * F_MAX, 0.0, -F_MAX, 0.0)
     assert sub.records("status")[0][2:] == (0, recording.MODE_UNKNOWN, 0, -1)  # nothing known yet
     assert "no LOCAL_POSITION_NED" in r.stderr and "from SET_ATTITUDE_TARGET" in r.stderr
+    assert "x_ref, y_ref from nothing: NaN" in r.stderr
+
+
+POSITION_VELOCITY_YAW = 2496  # MAVSDK's position + velocity mask: x, y, z, vx, vy, vz and yaw are targets
+
+
+def test_tlog_position_targets_become_x_ref_y_ref_when_the_type_mask_says_so(tmp_path):
+    """POSITION_TARGET_LOCAL_NED's x, y are the reference while its type_mask makes them a target (2496, 2552);
+    a z-only or velocity mask (3576 − x, y ignored), or another frame, leaves x_ref, y_ref NaN. Before the
+    vehicle says anything, the ground station's SET_POSITION_TARGET_LOCAL_NED counts, read the same way."""
+    w = TlogWriter()
+    z_only = 0b110111111011
+    velocity = 1 | 2 | 4 | 64 | 128 | 256 | 1024 | 2048
+    for i in range(12):
+        ms = 20 * i
+        w.add(w.vehicle, M.MAVLink_attitude_message(ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        if i < 3:  # the ground station's command only
+            frame, mask = M.MAV_FRAME_LOCAL_NED, POSITION_VELOCITY_YAW
+            w.add(w.gcs, M.MAVLink_set_position_target_local_ned_message(
+                ms, 1, 1, frame, mask, 4.0, -1.5, -2.0, 1, 0, 0, 0, 0, 0, 0.3, 0))  # fmt: skip
+        elif i < 9:  # the vehicle's own target: position (2496 or 2552), then z only, then velocity
+            pv = POSITION_VELOCITY_YAW
+            mask = (pv, 2552, pv, z_only, velocity, pv)[i - 3]
+            frame = M.MAV_FRAME_BODY_NED if i == 8 else M.MAV_FRAME_LOCAL_NED
+            w.add(w.vehicle, M.MAVLink_position_target_local_ned_message(
+                ms, frame, mask, 10.0 + i, -i, -5.0, 0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
+    rec = recording.records_from_tlog(w.save(tmp_path / "position.tlog"), 0.001)
+    got = [(sp[0], sp[6], sp[7]) for sp in rec.records("setpoint")]
+    want_x = [4.0, 4.0, 4.0, 13.0, 14.0, 15.0, None, None, None, None, None, None]
+    want_y = [-1.5, -1.5, -1.5, -3.0, -4.0, -5.0]
+    for i, (tick, x_ref, y_ref) in enumerate(got):
+        assert tick == 20 * i
+        if want_x[i] is None:  # z only, velocity; a BODY_NED target is not read, the last one stays (NaN)
+            assert math.isnan(x_ref) and math.isnan(y_ref), i
+        else:
+            assert (x_ref, y_ref) == (want_x[i], want_y[i]), i
+    notes = " / ".join(rec.notes)
+    assert "x_ref, y_ref from POSITION_TARGET_LOCAL_NED and SET_POSITION_TARGET_LOCAL_NED" in notes
+
+
+def test_a_telemetry_csv_from_before_schema_v3_replays_with_nan_position_references(tmp_path, sim_csv):
+    """A telemetry.csv without x_ref, y_ref (written before the columns existed) still replays, with NaN."""
+    lines = sim_csv.read_text().splitlines()
+    header = lines[0].split(",")
+    keep = [i for i, h in enumerate(header) if h not in ("x_ref", "y_ref")]
+    assert len(keep) == len(header) - 2
+    old = tmp_path / "old.csv"
+    old.write_text("\n".join(",".join(line.split(",")[i] for i in keep) for line in lines[:50]) + "\n")
+    rec = recording.records_from_csv(old)
+    setpoints = rec.records("setpoint")
+    assert len(setpoints) == 49 and all(math.isnan(sp[6]) and math.isnan(sp[7]) for sp in setpoints)
+    assert setpoints[0][2] == read_csv(sim_csv)["altitude_ref"][0]
+    assert any("no x_ref, y_ref columns" in note for note in rec.notes)
 
 
 @pytest.mark.timeout(120)

@@ -117,7 +117,7 @@ def test_trajectories(tmp_path):
     with pytest.raises(UsageError, match="missing column"):
         trajectories.make(str(f), ref)
     f.write_text("t,altitude,roll,pitch,yaw\n0,0,2.0,0,0\n")
-    with pytest.raises(UsageError, match=r"line 2: .*π/2"):
+    with pytest.raises(UsageError, match=r"line 2, column roll: .*π/2"):
         trajectories.make(str(f), ref)
     with pytest.raises(UsageError, match="expected step, ramp, sine"):
         trajectories.make("zigzag", ref)
@@ -197,12 +197,13 @@ def test_fast_parser_refuses_corrupt_frames_and_leaves_other_messages_to_pymavli
 
 
 def test_telemetry_samples_carry_one_or_more_records():
-    one = telemetry.STREAMS["setpoint"].pack(5, 0.005, 1.0, 0.1, 0.2, 0.3)
-    two = one + telemetry.STREAMS["setpoint"].pack(6, 0.006, 1.5, 0.1, 0.2, 0.3)
-    assert telemetry.records("setpoint", one) == [(5, 0.005, 1.0, 0.1, 0.2, 0.3)]
+    one = telemetry.STREAMS["setpoint"].pack(5, 0.005, 1.0, 0.1, 0.2, 0.3, 4.0, -2.0)
+    two = one + telemetry.STREAMS["setpoint"].pack(6, 0.006, 1.5, 0.1, 0.2, 0.3, math.nan, math.nan)
+    assert telemetry.records("setpoint", one) == [(5, 0.005, 1.0, 0.1, 0.2, 0.3, 4.0, -2.0)]
     assert [r[0] for r in telemetry.records("setpoint", two)] == [5, 6]
+    assert telemetry.FIELDS["setpoint"][-2:] == ("x_ref", "y_ref") and telemetry.SCHEMA_VERSION == 3
     for bad in (b"", two[:-1]):
-        with pytest.raises(ValueError, match="multiple of 48"):
+        with pytest.raises(ValueError, match="multiple of 64"):
             telemetry.records("setpoint", bad)
 
 

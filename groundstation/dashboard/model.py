@@ -1,6 +1,6 @@
 """What the dashboard knows about each vehicle: pure, no I/O (the server feeds it Zenoh samples).
 
-For each vehicle seen on ``quadsitl/<vehicle>/<stream>`` (:mod:`quadsitl.telemetry`, schema v2) it keeps
+For each vehicle seen on ``quadsitl/<vehicle>/<stream>`` (:mod:`quadsitl.telemetry`, schema v3) it keeps
 
 * the latest record of every stream (for ``/api/vehicles`` and the status panel), decoding only the last
   record of each sample;
@@ -11,7 +11,9 @@ For each vehicle seen on ``quadsitl/<vehicle>/<stream>`` (:mod:`quadsitl.telemet
 * the tick rate and real-time factor, from the status records' ticks and simulated times against the wall
   clock over the last ``RATE_WINDOW`` seconds.
 
-Rows carry display units: metres, degrees (angles and their errors), newtons and newton-metres.
+Rows carry display units: metres, degrees (angles and their errors), newtons and newton-metres; x, y and
+x_ref, y_ref stay in local NED metres (x north, y east) for the page's x–y map, x_ref and y_ref NaN (null in
+JSON) while the horizontal position is not controlled.
 A vehicle whose ticks jump back (a new run, a replay that loops) starts a new ``generation``: its series
 is cleared so that the page never draws two runs as one line.
 """
@@ -30,13 +32,14 @@ RATE_WINDOW = 2.0  # [s] wall: tick rate and real-time factor are averaged over 
 STALE_AFTER = 1.0  # [s] wall without telemetry: the link shows as stale
 MAX_VEHICLES = 64  # more names than this are ignored (and counted): a stranger must not exhaust memory
 MAX_PENDING = 4096  # decimated ticks waiting for their other streams (a sample of 64 ticks holds a few)
-MODES = {0: "hold", 1: "offboard", 2: "land"}
+MODES = telemetry.MODES  # 0 hold, 1 offboard, 2 land, 3 takeoff, 4 rtl (5 reserved: mission)
 FAILSAFES = {0: "none", 1: "setpoint stream lost", 2: "plant link lost", 3: "ground station lost"}
 
 # A row of the plot series, in this order (the page receives columns by these names).
 ROW_FIELDS = (
     "t", "altitude", "altitude_ref", "roll", "roll_ref", "pitch", "pitch_ref", "yaw", "yaw_ref",
     "e_altitude", "e_roll", "e_pitch", "e_yaw", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4", "x", "y",
+    "x_ref", "y_ref",
 )  # fmt: skip
 _TICK = struct.Struct("<Q")
 
@@ -45,12 +48,12 @@ def plot_row(state: tuple, setpoint: tuple, actuators: tuple) -> tuple[float, ..
     """One tick's records (in telemetry.FIELDS order) → a row in ROW_FIELDS order, display units.
     Errors are reference − measured; the yaw error is wrapped to (−180°, 180°]."""
     _tick, t, x, y, z, _vx, _vy, _vz, roll, pitch, yaw = state[:11]
-    _, _, alt_ref, roll_ref, pitch_ref, yaw_ref = setpoint
+    _, _, alt_ref, roll_ref, pitch_ref, yaw_ref, x_ref, y_ref = setpoint
     altitude, deg = -z, math.degrees  # NED: z down
     return (
         t, altitude, alt_ref, deg(roll), deg(roll_ref), deg(pitch), deg(pitch_ref), deg(yaw), deg(yaw_ref),
         alt_ref - altitude, deg(roll_ref - roll), deg(pitch_ref - pitch), deg(wrap_pi(yaw_ref - yaw)),
-        *actuators[2:10], x, y,
+        *actuators[2:10], x, y, x_ref, y_ref,
     )  # fmt: skip
 
 

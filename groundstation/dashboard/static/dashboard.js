@@ -2,6 +2,9 @@
 // The server sends decimated rows (display units: m, degrees, N, N·m); this page only keeps the last
 // `window` simulated seconds of the selected vehicle and redraws at most every REDRAW_MS, when new rows
 // came (the server sends them four times a second, once a second while a run goes faster than 2× real time).
+// The x–y map is a plain canvas, seen from above (north up, east right, equal scales): the measured path of
+// the window, the reference path, the current setpoint when the horizontal position is controlled (x_ref
+// not null) and home at the origin; redrawn with the plots, from the same rows.
 "use strict";
 
 const REDRAW_MS = 250;
@@ -22,9 +25,11 @@ const PLOTS = [
   { id: "position", title: "position x, y [m] (NED)", series: [["x", "x (north)", "#1f77b4"], ["y", "y (east)", "#ff7f0e"]] },
 ];
 
+const MAP = { height: 320, setpoint: "#d62728", home: "#2ca02c", grid: "#eee", text: "#777" };
+
 const state = {
   window: 20, fields: [], selected: "", vehicles: {}, data: {}, dirty: false,
-  plots: {}, updates: 0, redraws: 0, lastT: null,
+  plots: {}, map: null, updates: 0, redraws: 0, lastT: null,
 };
 window.quadsitl = state; // for scripts and tests: what the page holds and how often it redrew
 
@@ -63,9 +68,106 @@ function makePlots() {
     };
     state.plots[spec.id] = { spec, u: new uPlot(opts, [[], ...spec.series.map(() => [])], box), box };
   });
+  state.map = makeMap(root);
   new ResizeObserver(() => {
     for (const p of Object.values(state.plots)) p.u.setSize({ width: p.box.clientWidth - 8, height: 220 });
+    state.dirty = true; // the map's canvas follows its box at the next redraw
   }).observe(root);
+}
+
+function makeMap(root) {
+  const box = document.createElement("div");
+  box.className = "plot map";
+  box.id = "plot-map";
+  const title = document.createElement("div");
+  title.className = "map-title";
+  title.innerHTML = "x–y map [m] from above: x north ↑, y east → " +
+    `<span style="color:${MEASURED}">━ path</span><span style="color:${REFERENCE}">┅ reference</span>` +
+    `<span style="color:${MAP.setpoint}">⊕ setpoint</span><span style="color:${MAP.home}">■ home</span>`;
+  const canvas = document.createElement("canvas");
+  box.append(title, canvas);
+  root.appendChild(box);
+  return { box, canvas };
+}
+
+// A "nice" grid step (1, 2 or 5 × 10^k) for a span [m] shown over about `lines` grid lines.
+function gridStep(span, lines) {
+  const raw = span / lines, k = Math.pow(10, Math.floor(Math.log10(raw)));
+  return [1, 2, 5, 10].map(m => m * k).find(s => s >= raw);
+}
+
+function drawMap() {
+  const { box, canvas } = state.map;
+  const d = state.data, n = d.t ? d.t.length : 0;
+  const ratio = window.devicePixelRatio || 1;
+  const W = Math.max(box.clientWidth - 8, 100), H = MAP.height;
+  if (canvas.width !== Math.round(W * ratio) || canvas.height !== Math.round(H * ratio)) {
+    canvas.width = Math.round(W * ratio); canvas.height = Math.round(H * ratio);
+    canvas.style.width = W + "px"; canvas.style.height = H + "px";
+  }
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+  ctx.clearRect(0, 0, W, H);
+  // Bounds over everything drawn (home included), equal scales, at least ±1 m, 10 % margin.
+  let minN = 0, maxN = 0, minE = 0, maxE = 0;
+  const grow = (north, east) => {
+    if (north === null || east === null || north === undefined || east === undefined) return;
+    minN = Math.min(minN, north); maxN = Math.max(maxN, north);
+    minE = Math.min(minE, east); maxE = Math.max(maxE, east);
+  };
+  for (let i = 0; i < n; i++) { grow(d.x[i], d.y[i]); grow(d.x_ref[i], d.y_ref[i]); }
+  const cN = (minN + maxN) / 2, cE = (minE + maxE) / 2;
+  const span = Math.max(maxN - minN, maxE - minE, 2) * 1.1;
+  const scale = Math.min(W, H) / span; // px per metre
+  const px = east => W / 2 + (east - cE) * scale, py = north => H / 2 - (north - cN) * scale;
+  // Grid and its spacing.
+  const step = gridStep(span, 5);
+  ctx.strokeStyle = MAP.grid; ctx.lineWidth = 1; ctx.beginPath();
+  for (let e = Math.ceil((cE - W / 2 / scale) / step) * step; e <= cE + W / 2 / scale; e += step) {
+    ctx.moveTo(px(e), 0); ctx.lineTo(px(e), H);
+  }
+  for (let v = Math.ceil((cN - H / 2 / scale) / step) * step; v <= cN + H / 2 / scale; v += step) {
+    ctx.moveTo(0, py(v)); ctx.lineTo(W, py(v));
+  }
+  ctx.stroke();
+  ctx.fillStyle = MAP.text; ctx.font = "11px system-ui, sans-serif";
+  ctx.fillText(`grid ${step} m`, 6, H - 6);
+  // The measured path, then the reference dashed over it (where they coincide, both show): null breaks a line.
+  const trail = (xs, ys, color, dash, width) => {
+    ctx.strokeStyle = color; ctx.lineWidth = width; ctx.setLineDash(dash); ctx.beginPath();
+    let pen = false;
+    for (let i = 0; i < n; i++) {
+      if (xs[i] === null || ys[i] === null) { pen = false; continue; }
+      if (pen) ctx.lineTo(px(ys[i]), py(xs[i])); else ctx.moveTo(px(ys[i]), py(xs[i]));
+      pen = true;
+    }
+    ctx.stroke(); ctx.setLineDash([]);
+  };
+  if (n) { trail(d.x, d.y, MEASURED, [], 1.8); trail(d.x_ref, d.y_ref, REFERENCE, [6, 4], 1.2); }
+  // Home: a square at the origin.
+  const home = [px(0), py(0)];
+  ctx.fillStyle = MAP.home; ctx.fillRect(home[0] - 5, home[1] - 5, 10, 10);
+  // The vehicle now, and its setpoint when the horizontal position is controlled.
+  let setpoint = null;
+  if (n && d.x[n - 1] !== null && d.y[n - 1] !== null) {
+    ctx.fillStyle = MEASURED; ctx.beginPath();
+    ctx.arc(px(d.y[n - 1]), py(d.x[n - 1]), 4, 0, 2 * Math.PI); ctx.fill();
+  }
+  if (n && d.x_ref[n - 1] !== null && d.y_ref[n - 1] !== null) {
+    setpoint = [d.x_ref[n - 1], d.y_ref[n - 1]];
+    const [sx, sy] = [px(setpoint[1]), py(setpoint[0])];
+    ctx.strokeStyle = MAP.setpoint; ctx.lineWidth = 2; ctx.beginPath();
+    ctx.arc(sx, sy, 7, 0, 2 * Math.PI);
+    ctx.moveTo(sx - 10, sy); ctx.lineTo(sx + 10, sy); ctx.moveTo(sx, sy - 10); ctx.lineTo(sx, sy + 10);
+    ctx.stroke();
+  }
+  // For scripts and tests: what the map shows, and where.
+  box.dataset.points = n;
+  box.dataset.tLast = n ? d.t[n - 1] : "";
+  box.dataset.setpoint = setpoint ? setpoint.map(v => v.toFixed(3)).join(",") : "";
+  box.dataset.setpointPx = setpoint ? [px(setpoint[1]), py(setpoint[0])].map(v => v.toFixed(1)).join(",") : "";
+  box.dataset.homePx = home.map(v => v.toFixed(1)).join(",");
+  box.dataset.scale = scale.toFixed(4);
 }
 
 function append(rows, reset) {
@@ -83,7 +185,7 @@ function append(rows, reset) {
 }
 
 function redraw() {
-  if (!state.dirty) return;
+  if (!state.dirty || !state.data.t) return; // nothing new, or no stream yet (a resize before the hello)
   state.dirty = false;
   const d = state.data;
   for (const p of Object.values(state.plots)) {
@@ -91,6 +193,7 @@ function redraw() {
     p.box.dataset.points = d.t.length;
     p.box.dataset.tLast = state.lastT;
   }
+  drawMap();
   state.redraws++;
 }
 
