@@ -193,9 +193,9 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
         _put(records, at + 24, 0.0)
         _put(records, at + 32, 0.0)
         _put(records, at + 40, cm[commander.HOLD_YAW])
-    # x_ref, y_ref: wired to the commander's position reference by the position-control work
-    _put(records, at + 48, np.nan)
-    _put(records, at + 56, np.nan)
+    # x_ref, y_ref: the horizontal position reference flown (NaN: not controlled, or disarmed)
+    _put(records, at + 48, cm[REF_X] if armed else np.nan)
+    _put(records, at + 56, cm[REF_X + 1] if armed else np.nan)
     at = capacity * (STATE_SIZE + SETPOINT_SIZE) + row * ACTUATORS_SIZE
     _put_int(records, at, tick)
     _put(records, at + 8, now)

@@ -137,9 +137,10 @@ def bench_contention(r: Report, workdir: Path) -> None:
     try:
         rates = {}
         for name, env in (("polling", None), ("blocking", BLOCKING)):
-            with autopilot_process(workdir, env) as (plant_port, _api, _ep):
-                run_plant(plant_port, workdir, 2000, env=env)  # warm-up
-                rates[name] = max(run_plant(plant_port, workdir, 10000, env=env)["ticks_per_s"] for _ in range(2))
+            with autopilot_process(workdir, env) as (plant_port, api, _ep):
+                run_plant(plant_port, workdir, 2000, env=env, arm=api)  # warm-up
+                rates[name] = max(run_plant(plant_port, workdir, 10000, env=env, arm=api)["ticks_per_s"]
+                                  for _ in range(2))  # fmt: skip
     finally:
         hog.kill()
         hog.wait()
@@ -211,37 +212,58 @@ def bench_costs(r: Report, ping: float) -> None:
 
 @contextlib.contextmanager
 def autopilot_process(workdir: Path, env: dict[str, str] | None = None) -> Iterator[tuple[int, int, str]]:
-    """An armed autopilot (hold mode: the controller runs every tick) on free ports: (plant port, api
-    port, Zenoh endpoint)."""
-    from pymavlink import mavutil
-
+    """An autopilot on free ports: (plant port, api port, Zenoh endpoint). :func:`run_plant` with the api port
+    arms it in hold at the start of each run, so the controller runs every tick."""
     plant_port, api_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
                  f"127.0.0.1:{api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
                  "none", "--zenoh-listen", endpoint, env=env)  # fmt: skip
     try:
-        os.environ.setdefault("MAVLINK20", "1")
-        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{api_port}", source_system=255, dialect="common")
-        end = time.monotonic() + 20
-        while time.monotonic() < end:  # arm in hold: the controller then runs every tick
-            gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)
-            ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.5)
-            if ack is not None and ack.command == 400 and ack.result == 0:
-                break
-        else:
-            raise RuntimeError("the autopilot did not arm")
-        gcs.close()
         yield plant_port, api_port, endpoint
     finally:
         _stop(ap)
 
 
-def run_plant(plant_port: int, workdir: Path, ticks: int, *extra: str, env: dict[str, str] | None = None) -> dict:
+def _arm_in_hold(api_port: int, plant: subprocess.Popen) -> None:
+    """Arm the autopilot in hold while ``plant`` runs (arming needs a vehicle state; a run that ended left the
+    plant-link failsafe in land, so hold first). Each run starts disarmed-then-armed within its first ms."""
+    from pymavlink import mavutil
+
+    os.environ.setdefault("MAVLINK20", "1")
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{api_port}", source_system=255, dialect="common")
+    try:
+        end = time.monotonic() + 30
+        while time.monotonic() < end and plant.poll() is None:
+            gcs.mav.command_long_send(1, 1, 176, 0, 1, 4, 3, 0, 0, 0, 0)  # DO_SET_MODE auto/loiter
+            gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)
+            deadline = time.monotonic() + 0.2
+            while time.monotonic() < deadline:
+                ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.05)
+                if ack is not None and ack.command == 400 and ack.result == 0:
+                    return
+        raise RuntimeError("the autopilot did not arm")
+    finally:
+        gcs.close()
+
+
+def run_plant(plant_port: int, workdir: Path, ticks: int, *extra: str, env: dict[str, str] | None = None,
+              arm: int | None = None) -> dict:  # fmt: skip
+    """A plant run of ``ticks`` against the autopilot at ``plant_port``; with ``arm`` (its api port), armed in hold
+    as the run starts. Returns the plant's statistics."""
     stats = workdir / f"plant-{time.monotonic_ns()}.json"
-    subprocess.run([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot", f"127.0.0.1:{plant_port}",
-                    "--ticks", str(ticks), "--stats", str(stats), *extra], check=True, timeout=120,
-                   stderr=subprocess.DEVNULL, env=env)  # fmt: skip
+    plant = subprocess.Popen([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot",
+                              f"127.0.0.1:{plant_port}", "--ticks", str(ticks), "--stats", str(stats), *extra],
+                             stderr=subprocess.DEVNULL, env=env)  # fmt: skip
+    try:
+        if arm is not None:
+            _arm_in_hold(arm, plant)
+        if plant.wait(120) != 0:
+            raise RuntimeError(f"the plant exited with status {plant.returncode}")
+    finally:
+        if plant.poll() is None:
+            plant.kill()
+            plant.wait()
     return json.loads(stats.read_text())
 
 
@@ -276,16 +298,16 @@ def subscribers(endpoint: str, count: int, nice: int) -> Iterator[list[dict]]:
 def bench_fanout(r: Report, workdir: Path, nice: int) -> None:
     r.section(f"3. telemetry fan-out: subscriber processes (nice {nice}) on the autopilot's Zenoh session")
     ticks_fast, ticks_paced = 10000, 3000
-    with autopilot_process(workdir) as (plant_port, _api, endpoint):
-        run_plant(plant_port, workdir, 2000)  # warm-up
-        alone = run_plant(plant_port, workdir, ticks_fast)["ticks_per_s"]
+    with autopilot_process(workdir) as (plant_port, api, endpoint):
+        run_plant(plant_port, workdir, 2000, arm=api)  # warm-up
+        alone = run_plant(plant_port, workdir, ticks_fast, arm=api)["ticks_per_s"]
         r.add("lockstep ticks, no subscriber", alone, "1/s")
         for n in (1, 3, 10):
             with subscribers(endpoint, n, nice) as _res:
-                rate = run_plant(plant_port, workdir, ticks_fast)["ticks_per_s"]
+                rate = run_plant(plant_port, workdir, ticks_fast, arm=api)["ticks_per_s"]
             r.add(f"lockstep ticks, {n} subscriber(s)", rate, "1/s", alone, "no subscriber")
             with subscribers(endpoint, n, nice) as res:
-                paced = run_plant(plant_port, workdir, ticks_paced, "--speed", "1")
+                paced = run_plant(plant_port, workdir, ticks_paced, "--speed", "1", arm=api)
                 time.sleep(0.5)
             expected = 4 * ticks_paced
             got = [sum(x["counts"].values()) for x in res]
@@ -335,8 +357,8 @@ def bench_dashboard(r: Report, workdir: Path, rounds: int) -> dict:
 
     r.section("5. dashboard: lockstep ticks with the page open in headless Chromium, against without")
     out = {}
-    with autopilot_process(workdir) as (plant_port, _api, endpoint), chromium() as browser:
-        run_plant(plant_port, workdir, 2000)  # warm-up
+    with autopilot_process(workdir) as (plant_port, api, endpoint), chromium() as browser:
+        run_plant(plant_port, workdir, 2000, arm=api)  # warm-up
         for label, key, pairs, ticks, extra in (
             # Runs of a few seconds: a page updates once a second while a run goes faster than 2x real time
             ("as fast as possible", "dashboard_ratio", 2 * rounds + 1, 60000, ()),
@@ -344,9 +366,9 @@ def bench_dashboard(r: Report, workdir: Path, rounds: int) -> dict:
         ):
             alone, watched, redraws = [], [], 0
             for _ in range(pairs):
-                alone.append(run_plant(plant_port, workdir, ticks, *extra)["ticks_per_s"])
+                alone.append(run_plant(plant_port, workdir, ticks, *extra, arm=api)["ticks_per_s"])
                 with dashboard_page(browser, endpoint) as page:
-                    watched.append(run_plant(plant_port, workdir, ticks, *extra)["ticks_per_s"])
+                    watched.append(run_plant(plant_port, workdir, ticks, *extra, arm=api)["ticks_per_s"])
                     seen = page.evaluate("() => ({redraws: quadsitl.redraws, lastT: quadsitl.lastT})")
                 # A paced page that saw nothing would measure nothing. As fast as possible, the lockstep pair
                 # polls on both cores and the dashboard (SCHED_IDLE by design) may draw only once it is over.
@@ -384,8 +406,8 @@ def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
     r.section(f"4. real-time mode at 1 kHz over {seconds:g} s: the plant's loop against a bare loop")
     ticks = round(seconds * 1000)
     bare = bare_loop(ticks, 0.001)
-    with autopilot_process(workdir) as (plant_port, _api, _ep):
-        real = run_plant(plant_port, workdir, ticks, "--mode", "realtime")
+    with autopilot_process(workdir) as (plant_port, api, _ep):
+        real = run_plant(plant_port, workdir, ticks, "--mode", "realtime", arm=api)
     for key, unit in (("jitter_p50_us", "us"), ("jitter_p99_us", "us"), ("jitter_max_us", "us"),
                       ("deadline_miss_ratio", "ratio"), ("mean_period_us", "us")):  # fmt: skip
         ratio = real[key] / bare[key] if bare[key] else None
