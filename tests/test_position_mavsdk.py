@@ -14,19 +14,15 @@ from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryA
 
 from quadsitl.frames import ned_to_geodetic
 from tests.mavclient import quadsitl_up
-from tests.test_up_mavsdk import first, until
+from tests.mavsdk_client import autopilot, first, healthy, until
 
 SPEED = "4"  # lockstep at 4× real time: MAVSDK's 20 Hz setpoints still arrive many times per simulated second
 
 
 async def connect(m: Mavsdk, port: int):
-    await m.add_any_connection(f"udpin://127.0.0.1:{port}")
-    system = await m.first_autopilot(timeout_s=20.0)
-    assert system is not None, "MAVSDK saw no autopilot"
+    system = await autopilot(m, port)
     tel = TelemetryAsync(system)
-    async for health in tel.subscribe_health():  # as MAVSDK's examples wait before arming
-        if health.is_global_position_ok and health.is_home_position_ok:
-            break
+    await healthy(tel)
     return system, tel
 
 

@@ -12,29 +12,14 @@ from mavsdk.asyncio.plugins.param import ParamAsync, ParamError
 from mavsdk.asyncio.plugins.telemetry import FixType, FlightMode, LandedState, TelemetryAsync
 
 from tests.mavclient import quadsitl_up
-
-
-async def first(stream):
-    async for item in stream:
-        return item
-
-
-async def until(stream, cond, timeout: float):
-    async def scan():
-        async for item in stream:
-            if cond(item):
-                return item
-
-    return await asyncio.wait_for(scan(), timeout)
+from tests.mavsdk_client import autopilot, first, healthy, until
 
 
 async def session(port: int) -> dict:
     seen: dict = {}
     config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
     async with Mavsdk(config) as m:
-        await m.add_any_connection(f"udpin://127.0.0.1:{port}")
-        system = await m.first_autopilot(timeout_s=20.0)
-        assert system is not None, "MAVSDK saw no autopilot"
+        system = await autopilot(m, port)
         seen["autopilot"] = await system.autopilot_type()
         param, tel = ParamAsync(system), TelemetryAsync(system)
         action, off = ActionAsync(system), OffboardAsync(system)
@@ -93,17 +78,9 @@ async def health_session(port: int) -> dict:
     seen: dict = {}
     config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
     async with Mavsdk(config) as m:
-        await m.add_any_connection(f"udpin://127.0.0.1:{port}")
-        system = await m.first_autopilot(timeout_s=20.0)
-        assert system is not None, "MAVSDK saw no autopilot"
+        system = await autopilot(m, port)
         tel, action = TelemetryAsync(system), ActionAsync(system)
-
-        async def ready():  # as MAVSDK's examples wait before they arm
-            async for health in tel.subscribe_health():
-                if health.is_global_position_ok and health.is_home_position_ok:
-                    return health
-
-        seen["health"] = await asyncio.wait_for(ready(), 30)
+        seen["health"] = await healthy(tel)  # as MAVSDK's examples wait before they arm
         seen["all_ok"] = await first(tel.subscribe_health_all_ok())
         seen["gps"] = await first(tel.subscribe_gps_info())
         seen["raw_gps"] = await first(tel.subscribe_raw_gps())
