@@ -116,18 +116,15 @@ def landed_state(c: Commander, state: VehicleState) -> int:
     - ON_GROUND (1): disarmed, or armed and at rest on the ground (altitude below ``GROUND_ALTITUDE``,
       vertical speed below ``GROUND_CLIMB_RATE``), also in LAND once it has touched down;
     - TAKEOFF (3): armed in TAKEOFF (from arming, even before the wheels leave the ground);
-    - LANDING (4): armed in LAND, until touchdown;
-    - IN_AIR (2): armed otherwise, including RTL (its final descent is not told apart here).
-
-    Modes are matched by name, so TAKEOFF (PX4 auto/takeoff) counts wherever :class:`Mode` has it."""
+    - LANDING (4): armed in LAND or in RTL's final descent, until touchdown;
+    - IN_AIR (2): armed otherwise."""
     if not c.armed:
         return mavlink.MAV_LANDED_STATE_ON_GROUND
-    mode = c.mode.name
-    if mode == "TAKEOFF":
+    if c.mode == Mode.TAKEOFF:
         return mavlink.MAV_LANDED_STATE_TAKEOFF
     if state.altitude < GROUND_ALTITUDE and abs(state.climb_rate) < GROUND_CLIMB_RATE:
         return mavlink.MAV_LANDED_STATE_ON_GROUND
-    if mode == "LAND":
+    if c.landing:
         return mavlink.MAV_LANDED_STATE_LANDING
     return mavlink.MAV_LANDED_STATE_IN_AIR
 

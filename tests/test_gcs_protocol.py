@@ -360,9 +360,9 @@ def test_streamed_home_and_relative_altitude_follow_the_home_in_the_snapshot():
 
 
 def test_landed_states_of_takeoff_land_and_rtl():
-    # Modes by name, so TAKEOFF and RTL count whether or not wire.Mode has them yet.
-    def vehicle(mode: str, armed: bool = True):
-        return SimpleNamespace(armed=armed, mode=SimpleNamespace(name=mode))
+    def vehicle(mode: str, armed: bool = True, final_descent: bool = False):
+        """The commander's side landed_state reads (``landing``: LAND, or RTL's final descent)."""
+        return SimpleNamespace(armed=armed, mode=Mode[mode], landing=mode == "LAND" or final_descent)
 
     ground, flying = VehicleState(), VehicleState(z=-2.0, vz=-0.5)
     states = {
@@ -381,6 +381,7 @@ def test_landed_states_of_takeoff_land_and_rtl():
     assert gcs_messages.in_air(vehicle("TAKEOFF"), ground) and gcs_messages.in_air(vehicle("LAND"), flying)
     assert not gcs_messages.in_air(vehicle("LAND"), ground) and not gcs_messages.in_air(vehicle("HOLD", False), flying)
     assert gcs_messages.landed_state(vehicle("HOLD"), VehicleState(vz=0.5)) == in_air  # sinking below the ground
+    assert gcs_messages.landed_state(vehicle("RTL", final_descent=True), flying) == mavlink.MAV_LANDED_STATE_LANDING
 
 
 def test_telemetry_never_raises_on_a_non_finite_or_huge_state():

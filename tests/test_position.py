@@ -147,12 +147,15 @@ def test_takeoff_goto_and_return_to_launch_in_a_closed_loop():
     f.run(5.0)
     assert f.horizontal_error(20.0, 0.0) < 0.01 and f.state.altitude == pytest.approx(5.0, abs=0.01)
     assert c.set_mode(Mode.RTL)[0]
-    peak = 0.0
+    peak, landing_from = 0.0, None
     while c.armed:
         f.step(100)
         peak = max(peak, f.state.altitude)
+        if c.landing and landing_from is None:  # RTL's final descent (EXTENDED_SYS_STATE: landing)
+            landing_from = (f.horizontal_error(0.0, 0.0), f.state.altitude)
         assert f.time < 200
     assert peak == pytest.approx(60.0, abs=0.5)  # RTL_RETURN_ALT
+    assert landing_from[0] < 0.1 and landing_from[1] == pytest.approx(60.0, abs=0.5)  # above home, then down
     assert f.horizontal_error(0.0, 0.0) < 0.05 and f.state.altitude < 0.05
     assert [t for _, t in c.messages[-2:]] == ["Home reached, landing", "Landed, disarmed"]
 
