@@ -270,8 +270,8 @@ def parse_item(fields: Mapping[str, Any], *, legacy: bool = False) -> MissionIte
 
     if command == NAV_WAYPOINT:
         # NaN hold or radius: the default (no hold, NAV_ACC_RAD), as the MAVLink spec's NaN convention says
-        need(math.isnan(p[0]) or p[0] >= 0.0, INVALID_PARAM1, "hold time must be >= 0 s")
-        need(math.isnan(p[1]) or p[1] >= 0.0, INVALID_PARAM2, "acceptance radius must be >= 0 m")
+        need(math.isnan(p[0]) or (_finite(p[0]) and p[0] >= 0.0), INVALID_PARAM1, "hold time must be >= 0 s")
+        need(math.isnan(p[1]) or (_finite(p[1]) and p[1] >= 0.0), INVALID_PARAM2, "acceptance radius must be >= 0 m")
         need(math.isnan(p[3]) or _finite(p[3]), INVALID_PARAM4, "yaw must be finite or NaN")
     elif command == NAV_LOITER_TIME:
         need(_finite(p[0]) and p[0] >= 0.0, INVALID_PARAM1, "loiter time must be a number >= 0 s")
