@@ -96,8 +96,9 @@ def test_lost_requests_are_re_sent_every_250_ms_and_the_upload_completes():
 def test_a_repeated_count_before_any_item_re_requests_item_0():
     p = MissionProtocol()
     p.on_count(GCS, 2, 0, 0.0)
-    assert p.on_count(GCS, 2, 0, 0.5)[0].fields["seq"] == 0
-    assert ack_type(p.on_item(GCS, item_fields(1), 0.6) or [Out("MISSION_ACK", GCS, {"type": -1})]) == -1
+    assert p.on_count(GCS, 2, 0, 0.5) == [Out("MISSION_REQUEST_INT", GCS, {"seq": 0, "mission_type": 0})]
+    assert p.on_item(GCS, item_fields(1), 0.6) == []  # still waiting for item 0
+    assert p.on_item(GCS, item_fields(0), 0.7)[0].fields["seq"] == 1
 
 
 def test_duplicate_and_out_of_order_items_are_ignored_and_the_wanted_one_re_requested():
