@@ -26,7 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 import zenoh
 
-from autopilot import gcs_messages, setpoints
+from autopilot import gcs_messages, mission_protocol, setpoints
 from autopilot import tick as kernel
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
@@ -53,6 +53,20 @@ PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, anoth
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
 GCS_BUDGET = 0.001  # [s] wall: the most time one reading of the ground-station sockets may take
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
+MISSION_MESSAGES = frozenset(
+    getattr(mavlink, f"MAVLINK_MSG_ID_MISSION_{name}")
+    for name in (
+        "COUNT",
+        "ITEM",
+        "ITEM_INT",
+        "REQUEST_LIST",
+        "REQUEST",
+        "REQUEST_INT",
+        "ACK",
+        "CLEAR_ALL",
+        "SET_CURRENT",
+    )
+)
 SUPPORTED_MODES = "supported are offboard (6), takeoff (4/2), hold (4/3), RTL (4/5), land (4/6)"
 
 
@@ -96,6 +110,7 @@ class Autopilot:
         self.params = ParamStore(preset, kind, settings)
         self.controller = make_controller(preset, kind)
         self.commander = Commander(self.params.base_settings)
+        self.missions = mission_protocol.MissionProtocol()  # the stored mission and its transfers
         self.home = Home(*args.home) if args.home else Home()
         self.sysid = args.system_id
         self.compid = wire.AUTOPILOT_COMPONENT_ID
@@ -318,6 +333,7 @@ class Autopilot:
 
     def heartbeat(self) -> None:
         self._send_gcs(gcs_messages.heartbeat(self.commander))
+        self._send_mission(self.missions.mission_current())  # MISSION_CURRENT at 1 Hz, as PX4
         if not self.has_state():  # no ticks, so no streams: SYS_STATUS says "not armable" here
             self._send_gcs(gcs_messages.sys_status(self.load, self.errors, has_state=False))
 
@@ -336,6 +352,12 @@ class Autopilot:
                     self.gcs_lost = False
                     self.commander.datalink_restored()
                     self._announce_commander()
+            return
+        if mid in MISSION_MESSAGES:
+            if mission_protocol.addressed_to(m.target_system, m.target_component, self.sysid, self.compid):
+                self._mission(m, mid)
+            else:
+                self.not_for_us += 1
             return
         if not self._for_me(m.target_system, getattr(m, "target_component", 0)):  # SET_MODE has no component
             self.not_for_us += 1
@@ -374,6 +396,34 @@ class Autopilot:
         else:
             self.unknown += 1
         self._announce_commander()
+
+    def _mission(self, m, mid: int) -> None:
+        """A mission-protocol message, to the pure state machine (autopilot.mission_protocol); its answers out."""
+        p, sender, now = self.missions, (m.get_srcSystem(), m.get_srcComponent()), time.monotonic()
+        if mid == mavlink.MAVLINK_MSG_ID_MISSION_COUNT:
+            outs = p.on_count(sender, m.count, m.mission_type, now)
+        elif mid in (mavlink.MAVLINK_MSG_ID_MISSION_ITEM_INT, mavlink.MAVLINK_MSG_ID_MISSION_ITEM):
+            outs = p.on_item(sender, m.to_dict(), now, legacy=mid == mavlink.MAVLINK_MSG_ID_MISSION_ITEM)
+        elif mid == mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_LIST:
+            outs = p.on_request_list(sender, m.mission_type, now)
+        elif mid in (mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mavlink.MAVLINK_MSG_ID_MISSION_REQUEST):
+            outs = p.on_request(
+                sender, m.seq, m.mission_type, now, legacy=mid == mavlink.MAVLINK_MSG_ID_MISSION_REQUEST
+            )
+        elif mid == mavlink.MAVLINK_MSG_ID_MISSION_ACK:
+            outs = p.on_ack(sender, m.type, m.mission_type, now)
+        elif mid == mavlink.MAVLINK_MSG_ID_MISSION_CLEAR_ALL:
+            outs = p.on_clear_all(sender, m.mission_type, now)
+        else:  # MISSION_SET_CURRENT
+            outs = p.on_set_current(sender, m.seq, now)
+        for out in outs:
+            self._send_mission(out)
+
+    def _send_mission(self, out: mission_protocol.Out) -> None:
+        if out.kind == "STATUSTEXT":
+            self._say(out.fields["severity"], out.fields["text"])
+        else:
+            self._send_gcs(getattr(mavlink, f"MAVLink_{out.kind.lower()}_message")(**out.kwargs()))
 
     def _for_me(self, system: int, component: int) -> bool:
         return system in (0, self.sysid) and component in (0, self.compid)
@@ -490,6 +540,10 @@ class Autopilot:
             result, reason = self._reposition(m)
         elif cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
             result, reason = self._change_speed(m)
+        elif cmd == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
+            result, outs = self.missions.do_set_mission_current(as_int(m.param1), as_int(m.param2) == 1)
+            for out in outs:
+                self._send_mission(out)
         elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             reply = gcs_messages.autopilot_version(self.sysid)
         elif cmd == mavlink.MAV_CMD_GET_HOME_POSITION:
@@ -619,6 +673,8 @@ class Autopilot:
             if wall >= next_poll:
                 next_poll = wall + GCS_POLL
                 self.poll_gcs()
+                for out in self.missions.tick(wall):  # re-requests and timeouts of mission transfers
+                    self._send_mission(out)
                 timeout = self.commander.settings.datalink_timeout
                 if self.gcs_heard is not None and not self.gcs_lost and wall - self.gcs_heard > timeout:
                     self.gcs_lost = True
