@@ -1,8 +1,8 @@
 """Hostile input while the vehicle holds its position: 100,000 random and mutated datagrams at every UDP port of
 the autopilot and the plant (among them position targets in every frame, takeoff, reposition, speed and mode
-commands), and garbage over TCP at the autopilot's Zenoh listener. Nothing crashes, no exception escapes a
-loop, the state stays finite, the vehicle holds its position within 0.1 m, and the refusals are counted in
-SYS_STATUS."""
+commands, and the mission protocol's messages), and garbage over TCP at the autopilot's Zenoh listener.
+Nothing crashes, no exception escapes a loop, the state stays finite, the vehicle holds its position within
+0.1 m, and the refusals are counted in SYS_STATUS."""
 
 import contextlib
 import math
@@ -29,6 +29,9 @@ TARGETED = [
     M.MAVLink_command_long_message, M.MAVLink_command_int_message, M.MAVLink_set_attitude_target_message,
     M.MAVLink_set_position_target_local_ned_message, M.MAVLink_set_position_target_global_int_message,
     M.MAVLink_set_mode_message, M.MAVLink_param_set_message, M.MAVLink_param_request_read_message,
+    M.MAVLink_mission_count_message, M.MAVLink_mission_item_int_message, M.MAVLink_mission_item_message,
+    M.MAVLink_mission_request_list_message, M.MAVLink_mission_request_int_message, M.MAVLink_mission_ack_message,
+    M.MAVLink_mission_clear_all_message, M.MAVLink_mission_set_current_message,
     M.MAVLink_param_request_list_message, M.MAVLink_file_transfer_protocol_message, M.MAVLink_heartbeat_message,
     M.MAVLink_odometry_message, M.MAVLink_hil_actuator_controls_message, M.MAVLink_statustext_message,
 ]  # fmt: skip
