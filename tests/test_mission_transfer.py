@@ -90,3 +90,37 @@ def test_refused_items_and_other_mission_types_are_answered(tmp_path):
             assert (cur.total, cur.mission_state) == (65535, 1)
         finally:
             c.close()
+
+
+WAYPOINTS = """QGC WPL 110
+0\t1\t3\t16\t0\t1\t0\t0\t47.397832\t8.545594\t5\t1
+1\t0\t3\t16\t2\t1\t0\t0\t47.397832\t8.545727\t6\t1
+2\t0\t3\t16\t0\t1\t0\t0\t47.397742\t8.545727\t5\t1
+3\t0\t3\t20\t0\t0\t0\t0\t0\t0\t0\t1
+"""
+
+
+def test_mavproxy_wp_load_uploads_a_waypoint_file_and_wp_list_downloads_the_same_items(tmp_path):
+    from tests.test_up_mavproxy import MAVProxy
+
+    (tmp_path / "way.txt").write_text(WAYPOINTS)
+    with quadsitl_up() as v:
+        mp = MAVProxy(v.gcs_port, tmp_path)
+        try:
+            mp.expect(r"online system 1", 30)
+            mp.send(f"wp load {tmp_path / 'way.txt'}")
+            mp.expect(r"Sent all 4 waypoints")
+            mp.expect(r"Got MISSION_ACK: TYPE_MISSION: ACCEPTED")
+            mp.send("wp list")
+            mp.expect(r"Requesting 4 waypoints")
+            listed = [
+                mp.expect(r"^(\d+) (\d+) ([-\d.]+) ([-\d.]+) ([-\d.]+) p1=([-\d.]+) p2=([-\d.]+)") for _ in range(4)
+            ]
+        finally:
+            mp.close()
+    sent = [line.split("\t") for line in WAYPOINTS.splitlines()[1:]]
+    for row, got in zip(sent, listed):
+        command, frame, lat, lon, alt, p1, p2 = (float(g) for g in got.groups())
+        assert (command, frame) == (float(row[3]), float(row[2]))
+        assert (lat, lon, alt) == pytest.approx((float(row[8]), float(row[9]), float(row[10])), abs=1e-7)
+        assert (p1, p2) == (float(row[4]), float(row[5]))
