@@ -401,3 +401,51 @@ def test_step_returns_the_same_action_object_while_nothing_changes():
     ex.start(0.0, v)
     a = ex.step(0.1, v)
     assert a is ex.step(0.2, v) is ex.step(0.3, VehicleNow(1.0, 0.0, 10.0))
+
+
+def test_closed_loop_a_mission_flown_by_the_compiled_tick_and_the_plant():
+    """The executor's actions handed to the real commander (as the process will), the x500 flying: take off
+    first, two waypoints, return and land."""
+    from autopilot.commander import CommanderSettings
+    from quadsitl.config import load_preset
+    from quadsitl.wire import Mode
+    from tests.flight_loop import Flight
+
+    f = Flight(load_preset("x500"), settings=CommanderSettings())
+    cmd = f.commander
+    items = [item(0, north=15.0, z=5.0), item(1, north=15.0, east=15.0, z=5.0, p1=2.0),
+             item(2, mp.NAV_RETURN_TO_LAUNCH, frame=mp.FRAME_MISSION)]  # fmt: skip
+    ex = MissionExecutor(items, ORIGIN, cmd.home)
+
+    def now() -> VehicleNow:
+        s = f.state
+        landed = s.altitude < 0.05 and abs(s.climb_rate) < 0.1
+        return VehicleNow(s.x, s.y, s.altitude, s.vx, s.vy, s.climb_rate, s.yaw, landed, cmd.armed)
+
+    def hand(a: object) -> None:
+        if isinstance(a, Goto):
+            assert cmd.reposition(a.x, a.y, a.altitude, a.yaw, a.speed, True)[0]
+        elif isinstance(a, Takeoff):
+            assert cmd.takeoff(a.altitude)[0]
+        else:
+            mode = {Hold: Mode.HOLD, Land: Mode.LAND, ReturnToLaunch: Mode.RTL}[type(a)]
+            assert cmd.set_mode(mode)[0]
+
+    assert cmd.arm()[0]
+    assert ex.start(f.time, now())
+    hand(ex.action)
+    last, reached = ex.action, []
+    while ex.mission_state != mp.STATE_COMPLETE or cmd.armed:
+        assert f.time < 120.0, (f.state, cmd.mode, ex.current)
+        f.step(10)  # the executor at 1/10 of the control rate
+        a = ex.step(f.time, now())
+        new = [e.seq for e in ex.events if isinstance(e, Reached)]
+        ex.events.clear()
+        if 0 in new:  # reached inside the 2 m radius (checked every 10 ticks: a few cm more)
+            assert f.horizontal_error(15.0, 0.0) < 2.0 + 0.1
+        reached += new
+        if a is not last:
+            hand(a)
+            last = a
+    assert reached == [0, 1, 2]
+    assert f.horizontal_error(0.0, 0.0) < 0.5 and f.state.altitude < 0.1 and not cmd.armed
