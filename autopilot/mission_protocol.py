@@ -49,7 +49,8 @@ differs from it (docs/missions.md says the same for users):
   as the MAVLink spec says, ``MISSION_CURRENT`` whether or not it changed.
 
 ``MISSION_CURRENT`` at 1 Hz is the shell's job: :meth:`MissionProtocol.mission_current_fields` builds its
-fields. ``mission_state`` and ``current`` are the executor's to update later.
+fields. ``mission_state`` and ``current`` are the executor's (:mod:`autopilot.mission_executor`): the shell
+copies them here with :meth:`MissionProtocol.set_progress`.
 """
 
 from __future__ import annotations
@@ -556,6 +557,19 @@ class MissionProtocol:
         if reset and self.mission_state == STATE_COMPLETE:
             self.mission_state = STATE_PAUSED
         return RESULT_ACCEPTED, [self.mission_current()]
+
+    def set_progress(self, current: int, mission_state: int) -> list[Out]:
+        """The executor's ``current`` and ``mission_state`` (:mod:`autopilot.mission_executor`), copied here by
+        the shell: a ``MISSION_CURRENT`` if either changed (PX4 sends it on change), else nothing."""
+        if (current, mission_state) == (self.current, self.mission_state):
+            return []
+        self.current, self.mission_state = current, mission_state
+        return [self.mission_current()]
+
+    @staticmethod
+    def item_reached(seq: int) -> Out:
+        """A ``MISSION_ITEM_REACHED`` for item ``seq`` (no target)."""
+        return Out("MISSION_ITEM_REACHED", None, {"seq": seq})
 
     # ---- time ----------------------------------------------------------------------------------------
 
