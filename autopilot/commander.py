@@ -20,6 +20,8 @@ Rules (PX4's, DESIGN.md §8–§9):
   and heading there, in flight and on the ground; ``reposition`` (DO_REPOSITION, MAVSDK's goto) moves the
   held point at MPC_XY_CRUISE (or the speed given).
 - RTL: climb to RTL_RETURN_ALT (when lower), fly home at MPC_XY_CRUISE, then land there.
+- MISSION: flies as HOLD does, toward the targets the mission executor gives (:meth:`Commander.goto`,
+  autopilot.missions).
 - LAND (and RTL's last phase): brake to a stop (velocity reference 0, as fast as the tilt limit allows), then
   hold that point while the altitude reference descends (at MPC_Z_VEL_MAX_DN above 10 m, at ``land_speed``
   below 5 m) to below the ground; touchdown
@@ -48,7 +50,7 @@ FAILSAFE_SETPOINT_LOST = 1
 FAILSAFE_PLANT_LOST = 2
 FAILSAFE_GCS_LOST = 3
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
-HOLD, OFFBOARD, LAND, TAKEOFF, RTL = (int(m) for m in (Mode.HOLD, Mode.OFFBOARD, Mode.LAND, Mode.TAKEOFF, Mode.RTL))
+HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION = (int(m) for m in Mode)
 # The phases of RTL and of LAND.
 RTL_CLIMB, RTL_RETURN, RTL_LAND = 0, 1, 2
 LAND_BRAKING, LAND_DESCENDING = 0, 1
@@ -316,7 +318,7 @@ def update(
             cm[MODE] = HOLD  # the reference rests on the target: hold it
             return EVENT_TAKEOFF_DONE
         return event
-    # HOLD
+    # HOLD and MISSION
     advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
     _fly_generated(cm)
     return event
@@ -519,11 +521,18 @@ class Commander:
                 return False, f"Reposition denied: mode {self.mode.name.lower()} (set param2 bit 0 to switch to hold)"
             enter(cm, HOLD)
             self.messages.append((6, "Mode hold"))
+        self.goto(x, y, altitude, yaw, speed)
+        return True, ""
+
+    def goto(self, x: float, y: float, altitude: float, yaw: float, speed: float) -> None:
+        """Aim the auto modes' reference at (x, y NED [m], altitude [m]), heading ``yaw`` [rad], at ``speed``
+        [m/s] (NaN or ≤ 0: MPC_XY_CRUISE); NaN keeps a value. No checks: :meth:`reposition` and the mission
+        executor check first."""
+        cm = self.cm
         for index, value in ((TARGET_X, x), (TARGET_Y, y), (TARGET_ALT, altitude), (HOLD_YAW, yaw)):
             if not math.isnan(value):
                 cm[index] = value
         cm[LEG_SPEED] = self.settings.cruise if math.isnan(speed) or speed <= 0.0 else speed
-        return True, ""
 
     def position_target_here(self) -> tuple[float, float, float]:
         """Where the vehicle can stop from its current velocity (x, y NED [m], altitude [m])."""

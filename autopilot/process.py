@@ -33,6 +33,7 @@ from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
 from autopilot.factory import make_controller
 from autopilot.gains import GainError
 from autopilot.gcs_messages import Home, Snapshot
+from autopilot.missions import Missions
 from autopilot.params import ParamStore
 from autopilot.streams import MessageStreams
 from autopilot.tick import Batch, autopilot_tick, warm_up
@@ -67,7 +68,7 @@ MISSION_MESSAGES = frozenset(
         "SET_CURRENT",
     )
 )
-SUPPORTED_MODES = "supported are offboard (6), takeoff (4/2), hold (4/3), RTL (4/5), land (4/6)"
+SUPPORTED_MODES = "supported are offboard (6), takeoff (4/2), hold (4/3), mission (4/4), RTL (4/5), land (4/6)"
 
 
 def as_int(value: float) -> int:
@@ -110,8 +111,8 @@ class Autopilot:
         self.params = ParamStore(preset, kind, settings)
         self.controller = make_controller(preset, kind)
         self.commander = Commander(self.params.base_settings)
-        self.missions = mission_protocol.MissionProtocol()  # the stored mission and its transfers
         self.home = Home(*args.home) if args.home else Home()
+        self.missions = Missions((self.home.lat, self.home.lon, self.home.alt))  # stored, transferred and flown
         self.sysid = args.system_id
         self.compid = wire.AUTOPILOT_COMPONENT_ID
         self.mav = wire.link(self.sysid, self.compid)  # the plant link's fallback parser
@@ -197,6 +198,9 @@ class Autopilot:
                                self.batch.records)  # fmt: skip
         if flags & kernel.ANSWER:
             self.plant_sock.sendto(self.tx_view[: self.io[kernel.TX_LEN]], sender)
+        if self.missions.flying:  # the mission executor, on simulated time, after the answer went out
+            for out in self.missions.step(self.commander, self.commander.now):
+                self._send_mission(out)
         if flags > kernel.ANSWER:
             self._after_tick(flags, nbytes, sender)
         self.load = (time.perf_counter() - started) / self.period
@@ -333,7 +337,7 @@ class Autopilot:
 
     def heartbeat(self) -> None:
         self._send_gcs(gcs_messages.heartbeat(self.commander))
-        self._send_mission(self.missions.mission_current())  # MISSION_CURRENT at 1 Hz, as PX4
+        self._send_mission(self.missions.protocol.mission_current())  # MISSION_CURRENT at 1 Hz, as PX4
         if not self.has_state():  # no ticks, so no streams: SYS_STATUS says "not armable" here
             self._send_gcs(gcs_messages.sys_status(self.load, self.errors, has_state=False))
 
@@ -377,7 +381,7 @@ class Autopilot:
             if mode is None:
                 self._say_once("set_mode", f"Mode {m.custom_mode}: {SUPPORTED_MODES}")
             else:
-                _, reason = self.commander.set_mode(mode)
+                _, reason = self._set_mode(mode)
                 if reason:
                     self._say(mavlink.MAV_SEVERITY_WARNING, reason)
         elif mid == mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST:
@@ -397,9 +401,19 @@ class Autopilot:
             self.unknown += 1
         self._announce_commander()
 
+    def _set_mode(self, mode: wire.Mode) -> tuple[bool, str]:
+        """A mode change from a ground station: AUTO.MISSION starts (or resumes) the mission; the rest are the
+        commander's."""
+        if mode != wire.Mode.MISSION:
+            return self.commander.set_mode(mode)
+        ok, reason, outs = self.missions.start(self.commander, self.commander.now)
+        for out in outs:
+            self._send_mission(out)
+        return ok, reason
+
     def _mission(self, m, mid: int) -> None:
         """A mission-protocol message, to the pure state machine (autopilot.mission_protocol); its answers out."""
-        p, sender, now = self.missions, (m.get_srcSystem(), m.get_srcComponent()), time.monotonic()
+        p, sender, now = self.missions.protocol, (m.get_srcSystem(), m.get_srcComponent()), time.monotonic()
         if mid == mavlink.MAVLINK_MSG_ID_MISSION_COUNT:
             outs = p.on_count(sender, m.count, m.mission_type, now)
         elif mid in (mavlink.MAVLINK_MSG_ID_MISSION_ITEM_INT, mavlink.MAVLINK_MSG_ID_MISSION_ITEM):
@@ -526,8 +540,14 @@ class Autopilot:
                 result = mavlink.MAV_RESULT_UNSUPPORTED
                 reason = f"Mode main {m.param2:g} sub {m.param3:g}: {SUPPORTED_MODES}"
             else:
-                ok, reason = c.set_mode(mode)
+                ok, reason = self._set_mode(mode)
                 result = accepted if ok else denied
+        elif cmd == mavlink.MAV_CMD_MISSION_START:
+            first = as_int(m.param1)
+            if 0 < first < len(self.missions.protocol.items) and self.missions.executor is not None:
+                self.missions.executor.set_current(first)
+            ok, reason = self._set_mode(wire.Mode.MISSION)
+            result = accepted if ok else denied
         elif cmd == mavlink.MAV_CMD_NAV_LAND:
             ok, reason = c.set_mode(wire.Mode.LAND)
             result = accepted if ok else denied
@@ -541,7 +561,9 @@ class Autopilot:
         elif cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
             result, reason = self._change_speed(m)
         elif cmd == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
-            result, outs = self.missions.do_set_mission_current(as_int(m.param1), as_int(m.param2) == 1)
+            result, outs = self.missions.protocol.do_set_mission_current(as_int(m.param1), as_int(m.param2) == 1)
+            if result == mavlink.MAV_RESULT_ACCEPTED and self.missions.executor is not None:
+                self.missions.executor.set_current(self.missions.protocol.current)
             for out in outs:
                 self._send_mission(out)
         elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
@@ -673,7 +695,7 @@ class Autopilot:
             if wall >= next_poll:
                 next_poll = wall + GCS_POLL
                 self.poll_gcs()
-                for out in self.missions.tick(wall):  # re-requests and timeouts of mission transfers
+                for out in self.missions.protocol.tick(wall):  # re-requests and timeouts of mission transfers
                     self._send_mission(out)
                 timeout = self.commander.settings.datalink_timeout
                 if self.gcs_heard is not None and not self.gcs_lost and wall - self.gcs_heard > timeout:

@@ -45,6 +45,7 @@ class Mode(IntEnum):
     LAND = 2  # PX4 AUTO.LAND (4/6): stop, descend where the vehicle is, disarm on touchdown
     TAKEOFF = 3  # PX4 AUTO.TAKEOFF (4/2): climb to the takeoff altitude, then hold
     RTL = 4  # PX4 AUTO.RTL (4/5): climb to RTL_RETURN_ALT, fly home, land, disarm
+    MISSION = 5  # PX4 AUTO.MISSION (4/4): fly the uploaded mission (autopilot.missions)
 
     @property
     def px4_custom_mode(self) -> int:
@@ -62,7 +63,10 @@ class Mode(IntEnum):
         return None
 
 
-_PX4_MODES = {Mode.HOLD: (4, 3), Mode.OFFBOARD: (6, 0), Mode.LAND: (4, 6), Mode.TAKEOFF: (4, 2), Mode.RTL: (4, 5)}
+_PX4_MODES = {
+    Mode.HOLD: (4, 3), Mode.OFFBOARD: (6, 0), Mode.LAND: (4, 6), Mode.TAKEOFF: (4, 2), Mode.RTL: (4, 5),
+    Mode.MISSION: (4, 4),
+}  # fmt: skip
 
 
 def link(system: int, component: int) -> mavlink.MAVLink:

@@ -1,0 +1,136 @@
+"""Missions in the autopilot: the stored mission and its transfers (:mod:`autopilot.mission_protocol`), the executor
+that flies it (:mod:`autopilot.mission_executor`) and the commander, joined. No sockets: the process hands it
+what arrives and the vehicle's state, and sends the messages it returns (:class:`mission_protocol.Out`).
+
+- AUTO.MISSION (``DO_SET_MODE`` 4/4, ``MAV_CMD_MISSION_START``): the commander's mode MISSION flies toward
+  the targets the executor gives (:meth:`Commander.goto`); the mission's LAND and RTL items switch the
+  commander to LAND and RTL, and the executor follows them until the vehicle is down.
+- Leaving AUTO.MISSION for another mode (hold: MAVSDK's ``pause_mission``) pauses the mission at its current
+  item; AUTO.MISSION again resumes it there. A completed mission starts over.
+- A new upload (a new :attr:`MissionProtocol.version`) replaces the executor; uploads are refused while a
+  mission flies (the protocol's ``busy_flying``), accepted while paused.
+- ``MISSION_CURRENT`` on every change and ``MISSION_ITEM_REACHED`` when an item is reached.
+"""
+
+from __future__ import annotations
+
+import math
+
+from autopilot import mission_protocol as mp
+from autopilot.commander import ALTITUDE, CLIMB_RATE, VX, VY, YAW, Commander, X, Y
+from autopilot.mission_executor import (
+    Current,
+    Goto,
+    Hold,
+    Land,
+    MissionExecutor,
+    Reached,
+    ReturnToLaunch,
+    Takeoff,
+    VehicleNow,
+)
+from quadsitl.wire import Mode
+
+LANDED_ALT, LANDED_CLIMB = 0.05, 0.1  # [m], [m/s]: resting on the ground
+
+
+class Missions:
+    """One vehicle's missions: see the module's docstring. ``origin``: (latitude, longitude [deg], altitude AMSL
+    [m]) of the local frame."""
+
+    def __init__(self, origin: tuple[float, float, float], acceptance_radius: float = 2.0) -> None:
+        self.protocol = mp.MissionProtocol()
+        self.origin = origin
+        self.acceptance_radius = acceptance_radius
+        self.executor: MissionExecutor | None = None
+        self._version = -1
+        self._flying = False  # the executor is in charge (in MISSION, or in its own LAND/RTL)
+
+    @property
+    def flying(self) -> bool:
+        """The executor is in charge: :meth:`step` it every control tick."""
+        return self._flying
+
+    @staticmethod
+    def vehicle(c: Commander) -> VehicleNow:
+        """What the executor needs of the vehicle, from the commander's last tick."""
+        cm = c.cm
+        landed = cm[ALTITUDE] < LANDED_ALT and abs(cm[CLIMB_RATE]) < LANDED_CLIMB
+        return VehicleNow(float(cm[X]), float(cm[Y]), float(cm[ALTITUDE]), float(cm[VX]), float(cm[VY]),
+                          float(cm[CLIMB_RATE]), float(cm[YAW]), landed, c.armed)  # fmt: skip
+
+    def _executor(self, c: Commander) -> MissionExecutor | None:
+        if self.executor is None or self._version != self.protocol.version:
+            self._version = self.protocol.version
+            self.executor = None
+            if self.protocol.items:
+                self.executor = MissionExecutor(self.protocol.items, self.origin, c.home,
+                                                acceptance_radius=self.acceptance_radius,
+                                                takeoff_alt=c.settings.takeoff_alt,
+                                                current=self.protocol.current)  # fmt: skip
+        return self.executor
+
+    def start(self, c: Commander, now: float) -> tuple[bool, str, list[mp.Out]]:
+        """AUTO.MISSION: (accepted, why not, messages). Needs a mission; flies it from its current item."""
+        ex = self._executor(c)
+        if ex is None:
+            return False, "Mission denied: no mission uploaded", []
+        ex.home = c.home
+        if c.mode != Mode.MISSION:
+            ok, reason = c.set_mode(Mode.MISSION)
+            if not ok:
+                return False, reason, []
+        ex.start(now, self.vehicle(c))
+        self._flying = True
+        self._apply(c, ex.action)
+        return True, "", self._events(ex)
+
+    def step(self, c: Commander, now: float) -> list[mp.Out]:
+        """Once per control tick (cheap when nothing changes): the executor's next action to the commander, its
+        events out; pauses the mission when another mode took over."""
+        ex = self.executor
+        if ex is None or not self._flying:
+            return []
+        ending = isinstance(ex.action, (Land, ReturnToLaunch))  # the mission's own land or return
+        own = c.mode == Mode.MISSION or (c.mode in (Mode.LAND, Mode.RTL) and ending)
+        if not own:  # the pilot took over (hold: pause_mission; or anything else): pause here
+            self._flying = False
+            ex.pause()
+        elif not c.armed and not isinstance(ex.action, (Land, ReturnToLaunch)):
+            self._flying = False  # disarmed in flight (forced): the mission stops where it is
+            ex.pause()
+        else:
+            before = ex.action
+            action = ex.step(now, self.vehicle(c))
+            if action is not before:
+                self._apply(c, action)
+            if ex.mission_state == mp.STATE_COMPLETE and not isinstance(action, (Land, ReturnToLaunch)):
+                self._flying = False
+            if ex.mission_state == mp.STATE_COMPLETE and not c.armed:
+                self._flying = False
+        self.protocol.busy_flying = self._flying and ex.mission_state == mp.STATE_ACTIVE
+        self.protocol.mission_mode = 1 if c.mode == Mode.MISSION else 2 if self._flying else 0
+        return self._events(ex)
+
+    def _apply(self, c: Commander, a: object) -> None:
+        if isinstance(a, Goto):
+            c.goto(a.x, a.y, a.altitude, a.yaw, a.speed)
+        elif isinstance(a, Takeoff):
+            x, y, _ = c.position_target_here()
+            c.goto(x, y, a.altitude, math.nan, math.nan)
+        elif isinstance(a, Hold):
+            c.goto(*c.position_target_here(), math.nan, math.nan)
+        elif isinstance(a, Land):
+            c.set_mode(Mode.LAND)
+        elif isinstance(a, ReturnToLaunch):
+            c.set_mode(Mode.RTL)
+
+    def _events(self, ex: MissionExecutor) -> list[mp.Out]:
+        out: list[mp.Out] = []
+        for e in ex.events:
+            if isinstance(e, Reached):
+                out.append(self.protocol.item_reached(e.seq))
+            elif isinstance(e, Current):
+                out += self.protocol.set_progress(e.seq, e.mission_state)
+        ex.events.clear()
+        return out
