@@ -12,7 +12,7 @@ plant started), ``t`` float64 simulated time [s], then float64 fields in SI unit
 setpoint: ``x_ref``, ``y_ref`` the horizontal position reference in local NED [m] (x north, y east), NaN
 while the horizontal position is not controlled (attitude setpoints, the paper's experiment);
 status: ``armed`` uint8 (0/1), ``mode`` uint8 (:data:`MODES`: 0 hold, 1 offboard, 2 land, 3 takeoff,
-4 rtl; 5 is reserved for mission), ``failsafe`` uint8 (0 none, 1 setpoint stream lost), ``offboard_tick``
+4 rtl, 5 mission), ``failsafe`` uint8 (0 none, 1 setpoint stream lost), ``offboard_tick``
 int64 (tick at which the current offboard flight started, −1 when not in an offboard flight). The Zenoh
 encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v3`` (:data:`SCHEMA_VERSION`).
 
@@ -53,7 +53,7 @@ FIELDS: dict[str, tuple[str, ...]] = {
     "actuators": ("tick", "t", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4"),
     "status": ("tick", "t", "armed", "mode", "failsafe", "offboard_tick"),
 }
-# The status record's ``mode``: the autopilot's flight modes (PX4's, DESIGN.md §8); 5 is reserved for mission.
+# The status record's ``mode``: the autopilot's flight modes (PX4's, DESIGN.md §8), as quadsitl.wire.Mode numbers them.
 MODES: dict[int, str] = {0: "hold", 1: "offboard", 2: "land", 3: "takeoff", 4: "rtl", 5: "mission"}
 
 

@@ -43,6 +43,8 @@ def test_px4_custom_modes():
     for mode in wire.Mode:
         assert wire.Mode.from_px4(mode.px4_custom_mode) is mode
     assert wire.Mode.from_px4(7 << 16) is None  # stabilized: not ours
+    assert {int(m): m.name.lower() for m in wire.Mode} == telemetry.MODES  # telemetry's names are the modes'
+    assert wire.Mode.MISSION.px4_custom_mode == 67371008 and wire.Mode.TAKEOFF.px4_custom_mode == 33816576
     assert wire.tick_of(wire.usec_of(12345, 0.001), 0.001) == 12345
 
 
