@@ -21,7 +21,7 @@ import math
 import struct
 from dataclasses import dataclass
 
-from autopilot.commander import Commander
+from autopilot.commander import TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, Commander
 from quadsitl import __version__
 from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.state import Reference, VehicleState
@@ -106,8 +106,10 @@ def heartbeat(c: Commander) -> mavlink.MAVLink_heartbeat_message:
     )
 
 
-GROUND_ALTITUDE = 0.05  # [m] below this altitude (above the ground plane, h = −z) ...
-GROUND_CLIMB_RATE = 0.1  # [m/s] ... and this vertical speed, an armed vehicle rests on the ground
+GROUND_ALTITUDE, GROUND_CLIMB_RATE = (
+    TOUCHDOWN_ALT,
+    TOUCHDOWN_CLIMB,
+)  # [m], [m/s]: an armed vehicle resting on the ground
 
 
 def landed_state(c: Commander, state: VehicleState) -> int:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 
 from autopilot import mission_protocol as mp
-from autopilot.commander import ALTITUDE, CLIMB_RATE, VX, VY, YAW, Commander, X, Y
+from autopilot.commander import ALTITUDE, CLIMB_RATE, TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, VX, VY, YAW, Commander, X, Y
 from autopilot.mission_executor import (
     Current,
     Goto,
@@ -30,8 +30,6 @@ from autopilot.mission_executor import (
     VehicleNow,
 )
 from quadsitl.wire import Mode
-
-LANDED_ALT, LANDED_CLIMB = 0.05, 0.1  # [m], [m/s]: resting on the ground
 
 
 class Missions:
@@ -55,7 +53,7 @@ class Missions:
     def vehicle(c: Commander) -> VehicleNow:
         """What the executor needs of the vehicle, from the commander's last tick."""
         cm = c.cm
-        landed = cm[ALTITUDE] < LANDED_ALT and abs(cm[CLIMB_RATE]) < LANDED_CLIMB
+        landed = cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB
         return VehicleNow(float(cm[X]), float(cm[Y]), float(cm[ALTITUDE]), float(cm[VX]), float(cm[VY]),
                           float(cm[CLIMB_RATE]), float(cm[YAW]), landed, c.armed)  # fmt: skip
 
