@@ -56,6 +56,7 @@ _FIELD = {
     mp.INVALID_PARAM6_Y: ("longitude (param6)", 5, None),
     mp.INVALID_PARAM7: ("altitude (param7)", 6, None),
 }
+POSITION_COMMANDS = mp.POSITION_COMMANDS
 FINISHING_COMMANDS = frozenset({mp.NAV_RETURN_TO_LAUNCH, mp.NAV_LAND})
 
 
