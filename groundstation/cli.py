@@ -92,6 +92,7 @@ EXAMPLES_FLY = """examples:
   quadsitl fly --preset x500 --trajectory circle --out runs/circle          # offboard position setpoints
   quadsitl fly --preset x500 --trajectory figure8:size=4,period=25,yaw=0 --out runs/figure8
   quadsitl fly --preset x500 --trajectory path.csv   # a CSV with the header t,x,y,altitude,yaw
+  quadsitl fly --preset x500 --mission tests/data/square.plan --out runs/square   # a QGroundControl plan
   quadsitl fly --dashboard --speed 1 --trajectory sine --duration 30   # watch it at http://127.0.0.1:8050
 """
 
@@ -114,7 +115,18 @@ def cmd_fly(args: argparse.Namespace) -> int:
         raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
     from groundstation.trajectories import make
 
-    make(args.trajectory, preset.reference)  # refuse a bad trajectory (one line) before anything starts
+    if args.mission:
+        from autopilot.process import parse_home
+        from groundstation.mission_files import load
+
+        if args.trajectory != "step":
+            raise UsageError(f"--trajectory {args.trajectory!r} with --mission: a flight flies one or the other")
+        parse_home(args.home)
+        load(args.mission)  # refuse what the vehicle would refuse (one line) before anything starts
+    else:
+        if args.home:
+            raise UsageError(f"--home {args.home!r}: only with --mission (it places the mission's waypoints)")
+        make(args.trajectory, preset.reference)  # refuse a bad trajectory (one line) before anything starts
     return fly(args.preset, preset, args)
 
 
@@ -217,6 +229,16 @@ the source, or 'mkdocs serve' there.""",
         help="attitude setpoints: step (default), ramp, sine, or a CSV file t,altitude,roll,pitch,yaw; offboard "
         "position setpoints: circle[:radius=M,period=S,altitude=M,hold=S,yaw=RAD|travel], "
         "figure8[:size=M,period=S,...], or a CSV file t,x,y,altitude,yaw (see docs/commands.md)",
+    )
+    fl.add_argument(
+        "--mission",
+        metavar="FILE",
+        help="fly a mission, uploaded through the MAVLink mission protocol: a QGroundControl .plan, a waypoint CSV "
+        "lat,lon,altitude[,hold,radius,yaw] or a QGC WPL 110 file (see docs/missions.md); --duration then bounds "
+        "it in simulated seconds (default 900)",
+    )
+    fl.add_argument(
+        "--home", metavar="LAT,LON,ALT", help="with --mission: the vehicle's home (default: PX4 SITL's, in Zürich)"
     )
     fl.add_argument("--out", default="runs/fly", metavar="DIR", help="output folder (default: runs/fly)")
     fl.add_argument("--no-figures", action="store_true", help="skip the PNG figures")

@@ -1,5 +1,6 @@
-"""Figures that reproduce the paper's Figures 2–4: outputs against references, errors, inputs; and, for a
-position trajectory, the x–y path against its reference (:func:`write_path_figure`)."""
+"""Figures that reproduce the paper's Figures 2–4: outputs against references, errors, inputs; for a
+position trajectory, the x–y path against its reference (:func:`write_path_figure`); for a mission, the x–y
+path over the plan's waypoints (:func:`write_mission_figure`)."""
 
 from __future__ import annotations
 
@@ -84,6 +85,37 @@ def write_path_figure(
     ax.set_title(f"x–y path, seen from above — {title}")
     fig.tight_layout()
     path = out / "fig_xy_path.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_mission_figure(out: Path, data: dict[str, np.ndarray], mission: dict, title: str) -> Path:
+    """``fig_mission_path.png`` in ``out``: the measured x–y path (north up, east right [m], local NED from the
+    origin, seen from above) over the plan: its items with a position (``mission.json``'s north, east), numbered
+    by seq and joined in order from home, home marked."""
+    fig, ax = plt.subplots(figsize=(7, 6.5))
+    placed = [it for it in mission["items"] if "north" in it]
+    if placed:
+        north = [0.0] + [it["north"] for it in placed]
+        east = [0.0] + [it["east"] for it in placed]
+        ax.plot(east, north, color="k", lw=1.0, ls="--", label="plan", zorder=2)
+        ax.plot(east[1:], north[1:], marker="s", color="C1", ms=7, ls="none", label="plan items", zorder=4)
+        for it in placed:
+            ax.annotate(str(it["seq"]), (it["east"], it["north"]), textcoords="offset points", xytext=(6, 6))
+    x, y = data["x"], data["y"]
+    ax.plot(y, x, color="C0", lw=1.6, label="measured", zorder=3)
+    if len(x):
+        ax.plot(y[-1], x[-1], marker="o", color="C0", ms=6, ls="none", label="end")
+    ax.plot(0.0, 0.0, marker="*", color="C3", ms=14, ls="none", label="home")
+    ax.set_xlabel("y (east) [m]")
+    ax.set_ylabel("x (north) [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"mission path, seen from above — {title}", fontsize=10)
+    fig.tight_layout()
+    path = out / "fig_mission_path.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

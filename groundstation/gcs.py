@@ -13,6 +13,16 @@ SET_POSITION_TARGET_LOCAL_NED; a position trajectory one SET_POSITION_TARGET_LOC
 MAV_FRAME_LOCAL_NED with type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to
 offboard both send the trajectory's start (t = 0), so a position trajectory climbs and settles at its start
 point first.
+
+With ``--mission FILE`` (:mod:`groundstation.mission_files`) it flies a mission instead, through the mission
+protocol: ``MISSION_COUNT``, each ``MISSION_REQUEST_INT`` (or legacy ``MISSION_REQUEST``, re-requests too)
+answered with its ``MISSION_ITEM_INT``, until ``MISSION_ACK`` ACCEPTED (any other ``MISSION_ACK`` fails the
+flight, naming the result); then arm, AUTO.MISSION (``DO_SET_MODE`` 4/4), and watch ``MISSION_ITEM_REACHED``
+and ``MISSION_CURRENT``. A mission that ends with ``NAV_RETURN_TO_LAUNCH`` or ``NAV_LAND`` is over when the
+vehicle has landed and disarmed; any other is landed where it ends (``MAV_CMD_NAV_LAND``) once
+``MISSION_CURRENT`` says complete (mission_state 5). ``--duration`` bounds the mission in simulated seconds.
+``mission.json`` gets the items and the simulated time (t of telemetry.csv, 0 at arming) at which each
+``MISSION_ITEM_REACHED`` arrived.
 """
 
 from __future__ import annotations
@@ -31,14 +41,14 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from groundstation import trajectories
+from groundstation import mission_files, trajectories
 from groundstation.logger import TelemetryLogger
 from groundstation.progress import FlightProgress
 from groundstation.telemetry_csv import write_csv
 from quadsitl import telemetry, wire
-from quadsitl.cli_util import UsageError, check_range
+from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.frames import euler_to_quaternion
+from quadsitl.frames import euler_to_quaternion, geodetic_to_ned
 from quadsitl.process_util import parse_address, start_process, stop_status
 from quadsitl.state import Reference
 
@@ -48,6 +58,11 @@ MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (an
 # SET_POSITION_TARGET_LOCAL_NED: x, y, z, vx, vy, vz and yaw used; acceleration (64, 128, 256) and yaw rate
 # (2048) ignored: MAVSDK's position + velocity mask.
 MASK_POSITION_VELOCITY_YAW = 2496
+MISSION_DURATION = 900.0  # [s] simulated: the default bound on a mission's flight (--duration changes it)
+PX4_HOME = (47.397742, 8.545594, 488.0)  # PX4 SITL's default home, the autopilot's default origin
+MISSION_STATE_COMPLETE = 5
+UPLOAD_RETRY = 1.0  # [s] wall: MISSION_COUNT again when the vehicle has not asked for an item
+UPLOAD_TIMEOUT = 10.0  # [s] wall: give the upload up
 LOOP = 0.002  # [s] wall: how often the ground station reads its socket and Zenoh channels, and may send
 
 
@@ -66,15 +81,32 @@ class GcsError(Exception):
     pass
 
 
+def ack_name(result: int) -> str:
+    """A MAV_MISSION_RESULT as its name and number (``MAV_MISSION_UNSUPPORTED (3)``)."""
+    entry = mavlink.enums["MAV_MISSION_RESULT"].get(result)
+    return f"{entry.name if entry else 'unknown'} ({result})"
+
+
+def nan_none(v: float) -> float | None:
+    """JSON has no NaN: None (null) for it, as QGroundControl writes it."""
+    return None if v != v else v
+
+
 class GroundStation:
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
         self.preset = load_preset(args.preset)
         self.period = self.preset.sim.period
-        self.trajectory = trajectories.make(args.trajectory, self.preset.reference)
-        self.position = isinstance(self.trajectory, trajectories.PositionTrajectory)
-        natural = self.trajectory.duration if isinstance(self.trajectory, trajectories.PositionTrajectory) else None
-        self.duration = args.duration or natural or self.preset.sim.duration
+        self.mission = mission_files.load(args.mission) if args.mission else None
+        if self.mission is not None:
+            self.trajectory = None
+            self.position = True
+            self.duration = args.duration or MISSION_DURATION
+        else:
+            self.trajectory = trajectories.make(args.trajectory, self.preset.reference)
+            self.position = isinstance(self.trajectory, trajectories.PositionTrajectory)
+            natural = self.trajectory.duration if self.position else None
+            self.duration = args.duration or natural or self.preset.sim.duration
         self.out = Path(args.out)
         self.out.mkdir(parents=True, exist_ok=True)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -86,7 +118,8 @@ class GroundStation:
         self.tlog = open(self.out / "flight.tlog", "wb")  # noqa: SIM115 - closed in close()
         conf = telemetry.config_from_args(args)
         self.session = zenoh.open(conf)
-        self.logger = TelemetryLogger(self.session, args.vehicle, self.period)
+        start = "armed" if self.mission is not None else "offboard"
+        self.logger = TelemetryLogger(self.session, args.vehicle, self.period, start)
         self.target = (args.target_system, wire.AUTOPILOT_COMPONENT_ID)
         self.armed = False
         self.mode: wire.Mode | None = None
@@ -96,6 +129,11 @@ class GroundStation:
         self.flight_rate: tuple[float, float] | None = None
         self.progress: FlightProgress | None = None  # from the switch to offboard until landing
         self.next_poll = 0.0  # monotonic time of the next socket read (poll)
+        # the mission: items requested (seq, legacy), the upload's MISSION_ACK, MISSION_CURRENT, reached items
+        self.requested: list[int] = []
+        self.mission_ack: int | None = None
+        self.mission_state: tuple[int, int] | None = None  # (seq, mission_state) of the last MISSION_CURRENT
+        self.reached: list[dict] = []  # {"seq", "t"}: t stamped from the telemetry once it is drained
 
     # ---- MAVLink ---------------------------------------------------------------------------------
 
@@ -133,6 +171,17 @@ class GroundStation:
                 self.sim_ms = m.time_boot_ms
             elif mid == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
                 self.acks[m.command] = m.result
+            elif mid in (mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mavlink.MAVLINK_MSG_ID_MISSION_REQUEST):
+                if getattr(m, "mission_type", 0) == 0 and m.target_system == wire.GCS_SYSTEM_ID:
+                    self.requested.append(m.seq)
+            elif mid == mavlink.MAVLINK_MSG_ID_MISSION_ACK:
+                if getattr(m, "mission_type", 0) == 0 and m.target_system == wire.GCS_SYSTEM_ID:
+                    self.mission_ack = m.type
+            elif mid == mavlink.MAVLINK_MSG_ID_MISSION_CURRENT:
+                self.mission_state = (m.seq, getattr(m, "mission_state", 0))
+            elif mid == mavlink.MAVLINK_MSG_ID_MISSION_ITEM_REACHED:
+                if not any(r["seq"] == m.seq and r["t"] is None for r in self.reached):
+                    self.reached.append({"seq": m.seq, "t": None})
             elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT and not self.args.quiet:
                 print(f"gcs: vehicle says: {m.text}", file=sys.stderr)
 
@@ -166,6 +215,8 @@ class GroundStation:
     # ---- the flight ------------------------------------------------------------------------------
 
     def fly(self) -> int:
+        if self.mission is not None:
+            return self.fly_mission()
         args = self.args
         phase = "connect"
         deadline = time.monotonic() + args.timeout
@@ -235,6 +286,137 @@ class GroundStation:
             if phase == "flying":
                 self.progress.update(flight_t)
         return self.finish(time.monotonic() - wall_start)
+
+    # ---- a mission -------------------------------------------------------------------------------
+
+    def send_mission_item(self, seq: int) -> None:
+        fields = self.mission.items[seq].message_fields()
+        self.send(mavlink.MAVLink_mission_item_int_message(*self.target, **fields))
+
+    def fly_mission(self) -> int:
+        """Upload the mission through the protocol, arm, start it (AUTO.MISSION), fly it to its end and land."""
+        args, mission = self.args, self.mission
+        n_items = len(mission.items)
+        phase = "connect"
+        deadline = time.monotonic() + args.timeout
+        last_hb, last_cmd, upload_start = 0.0, 0.0, 0.0
+        wall_start, flight_wall_start = time.monotonic(), None
+        while phase != "done":
+            now = time.monotonic()
+            if now > deadline:
+                raise GcsError(f"timed out after {args.timeout:g} s (wall) in phase '{phase}'")
+            self.poll()
+            self.logger.drain()
+            flight_t = self.logger.flight_time()
+            for r in self.reached:
+                if r["t"] is None:
+                    r["t"] = round(max(flight_t, 0.0), 6)
+            if now - last_hb >= 1.0:
+                last_hb = now
+                hb = mavlink.MAVLink_heartbeat_message
+                self.send(hb(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
+            if phase == "connect" and self.heard:
+                for msg_id in UNNEEDED_STREAMS:
+                    self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
+                phase, upload_start, last_cmd = "upload", now, 0.0
+            elif phase == "upload":
+                for seq in self.requested:
+                    if 0 <= seq < n_items:
+                        self.send_mission_item(seq)
+                if self.requested:
+                    last_cmd = now  # the vehicle is asking: the transfer is under way
+                self.requested.clear()
+                if self.mission_ack is not None:
+                    if self.mission_ack != mavlink.MAV_MISSION_ACCEPTED:
+                        raise GcsError(f"the vehicle refused the mission: MISSION_ACK {ack_name(self.mission_ack)}")
+                    if not args.quiet:
+                        print(f"gcs: uploaded {n_items} mission items from {mission.path}", file=sys.stderr)
+                    phase = "prearm"
+                elif now - upload_start > UPLOAD_TIMEOUT:
+                    raise GcsError(f"the mission upload did not complete within {UPLOAD_TIMEOUT:g} s")
+                elif now - last_cmd > UPLOAD_RETRY:
+                    self.send(mavlink.MAVLink_mission_count_message(*self.target, n_items, 0))
+                    last_cmd = now
+            elif phase == "prearm" and self.logger.last_status is not None:
+                phase, last_cmd = "arming", 0.0  # never fly what cannot be recorded
+            elif phase == "arming":
+                result = self.acks.get(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+                if result == mavlink.MAV_RESULT_ACCEPTED:
+                    phase, last_cmd = "starting", 0.0
+                elif result is not None:
+                    raise GcsError(f"arming refused (MAV_RESULT {result})")
+                elif now - last_cmd > 0.5:
+                    self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+                    last_cmd = now
+            elif phase == "starting":
+                result = self.acks.get(mavlink.MAV_CMD_DO_SET_MODE)
+                if result == mavlink.MAV_RESULT_ACCEPTED:
+                    phase, flight_wall_start = "flying", now
+                    self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: mission")
+                elif result is not None:
+                    raise GcsError(f"mission mode refused (MAV_RESULT {result})")
+                elif now - last_cmd > 0.5:
+                    self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 4)
+                    last_cmd = now
+            elif phase in ("flying", "landing"):
+                status = self.logger.last_status
+                if status is not None and not status["armed"] and self.logger.last_armed_tick >= 0:
+                    self.flight_rate = (flight_t, now - flight_wall_start)
+                    self.progress.update(flight_t)
+                    self.progress.close()
+                    phase = "done"
+                elif flight_t > self.duration:
+                    raise GcsError(self._unfinished(flight_t))
+                elif phase == "flying":
+                    self.progress.update(flight_t)
+                    complete = self.mission_state is not None and self.mission_state[1] == MISSION_STATE_COMPLETE
+                    if complete and not mission.lands:
+                        phase, last_cmd = "landing", 0.0
+                elif now - last_cmd > 0.5 and self.acks.get(mavlink.MAV_CMD_NAV_LAND) != mavlink.MAV_RESULT_ACCEPTED:
+                    if self.acks.get(mavlink.MAV_CMD_NAV_LAND) not in (None, mavlink.MAV_RESULT_ACCEPTED):
+                        raise GcsError(f"landing refused (MAV_RESULT {self.acks[mavlink.MAV_CMD_NAV_LAND]})")
+                    self.command(mavlink.MAV_CMD_NAV_LAND)
+                    last_cmd = now
+        # the flight: every armed tick, up to the disarm
+        self.duration = (self.logger.last_armed_tick - self.logger.flight_start_tick + 1) * self.period
+        self.write_mission_json()
+        return self.finish(time.monotonic() - wall_start)
+
+    def _unfinished(self, flight_t: float) -> str:
+        where = "no MISSION_CURRENT yet"
+        if self.mission_state is not None:
+            seq, state = self.mission_state
+            where = f"current item {seq} of {len(self.mission.items)}, mission_state {state}"
+        return (f"the mission did not end within --duration {self.duration:g} simulated s ({where}, "
+                f"{len({r['seq'] for r in self.reached})} items reached, after {flight_t:.1f} s)")  # fmt: skip
+
+    def write_mission_json(self) -> None:
+        """mission.json: the items (with north, east [m] from the origin for those with a position) and the
+        simulated time t (telemetry.csv's, 0 at arming) at which each MISSION_ITEM_REACHED arrived."""
+        origin = self.args.home or PX4_HOME
+        reached = {}
+        for r in self.reached:
+            reached.setdefault(r["seq"], r["t"])
+        items = []
+        for it in self.mission.items:
+            d = {"seq": it.seq, "command": it.command, "name": mission_files.COMMAND_NAMES.get(it.command),
+                 "frame": it.frame, "params": [nan_none(v) for v in (it.p1, it.p2, it.p3, it.p4)]}  # fmt: skip
+            if it.command in mission_files.POSITION_COMMANDS and (it.x or it.y or it.command != 21):
+                north, east = geodetic_to_ned(it.lat, it.lon, origin[0], origin[1])
+                d.update(lat=it.lat, lon=it.lon, altitude=it.z, north=round(north, 3), east=round(east, 3))
+            d["reached_t"] = reached.get(it.seq)
+            items.append(d)
+        doc = {
+            "file": str(self.mission.path),
+            "format": self.mission.kind,
+            "origin": list(origin),
+            "ends": "mission lands" if self.mission.lands else "landed where it ended (MAV_CMD_NAV_LAND)",
+            "items": items,
+            "reached": [r for r in self.reached],
+            "all_reached_in_order": [r["seq"] for r in self.reached] == list(range(len(self.mission.items))),
+            "disarmed_t": round(self.duration, 6),
+        }
+        (self.out / "mission.json").write_text(json.dumps(doc, indent=2) + "\n")
 
     def finish(self, wall: float) -> int:
         n = round(self.duration / self.period)
@@ -324,6 +506,17 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="simulated seconds of flight (default: a position trajectory's own length, else the preset's)",
     )
+    p.add_argument(
+        "--mission",
+        metavar="FILE",
+        help="fly a mission instead: a QGroundControl .plan, a waypoint CSV lat,lon,altitude[,hold,radius,yaw] or a "
+        "QGC WPL 110 file, uploaded through the mission protocol (--duration then bounds it: default 900 s)",
+    )
+    p.add_argument(
+        "--home",
+        metavar="LAT,LON,ALT",
+        help="the autopilot's origin, for mission.json's north/east (default: PX4 SITL's, 47.397742,8.545594,488)",
+    )
     p.add_argument("--out", default="runs/gcs", metavar="DIR", help="where telemetry.csv and flight.tlog go")
     p.add_argument("--timeout", type=float, default=600.0, metavar="S", help="give up after S wall seconds")
     p.add_argument("--quiet", "-q", action="store_true")
@@ -339,6 +532,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         check_range("--duration", args.duration, 0.0, 3600.0)
         args.signing_key = wire.resolve_signing_key(args.signing_key)
+        args.home = parse_floats("--home", args.home, 3) if args.home else None
         gcs = GroundStation(args)
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

@@ -231,6 +231,9 @@ def fly(preset_name: str, preset: Preset, args) -> int:
               f"127.0.0.1:{free_port()}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep]  # fmt: skip
         if args.controller:
             ap += ["--controller", args.controller]
+        mission = getattr(args, "mission", None)
+        if mission and args.home:
+            ap += ["--home", args.home]
         children.start("autopilot", ap)
         if web_port is not None:
             url = start_dashboard(children, web_port, zenoh_ep)
@@ -251,6 +254,8 @@ def fly(preset_name: str, preset: Preset, args) -> int:
                "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out), *quiet]  # fmt: skip
         if args.duration:
             gcs += ["--duration", str(args.duration)]
+        if mission:
+            gcs += ["--mission", str(mission)] + (["--home", args.home] if args.home else [])
         children.start("gcs", gcs)
         while True:
             failure = children.first_failure(done="gcs", prog="quadsitl fly")
@@ -293,7 +298,7 @@ def write_report(out: Path, preset: Preset, args) -> None:
     import numpy as np  # here, not at the top: `quadsitl --help` should not wait for matplotlib
 
     from groundstation import trajectories
-    from groundstation.figures import write_figures, write_path_figure
+    from groundstation.figures import write_figures, write_mission_figure, write_path_figure
     from groundstation.metrics import (
         format_position_table,
         format_table,
@@ -313,9 +318,12 @@ def write_report(out: Path, preset: Preset, args) -> None:
     settings = {"mode": "lockstep", "speed": args.speed, "duration": float(len(t) * preset.sim.period),
                 "period": preset.sim.period, "trajectory": args.trajectory}  # fmt: skip
     report = {"preset": preset.name, **settings, "runs": metrics}
-    trajectory = trajectories.make(args.trajectory, preset.reference)
+    mission = getattr(args, "mission", None)
+    trajectory = None if mission else trajectories.make(args.trajectory, preset.reference)
     position = None
-    if isinstance(trajectory, trajectories.PositionTrajectory):
+    if mission:
+        report.update(trajectory=None, mission=str(mission))
+    if mission or isinstance(trajectory, trajectories.PositionTrajectory):
         columns = ("x", "y", "x_ref", "y_ref", "altitude", "altitude_ref")
         position = {kind: position_metrics(*(data[c] for c in columns))}
         report["position"] = position
@@ -323,10 +331,24 @@ def write_report(out: Path, preset: Preset, args) -> None:
     if not args.no_figures:
         title = f"preset {preset.name}, fly"
         write_figures({kind: {"t": t, "outputs": y, "reference": ref, "inputs": u}}, out, title)
-        if position is not None:
+        if mission:
+            write_mission_figure(out, data, json.loads((out / "mission.json").read_text()), f"{title}, {mission}")
+        elif position is not None:
             planned = np.array([trajectory(float(tk))[:2] for tk in t]).reshape(-1, 2).T
             write_path_figure(out, data["x"], data["y"], data["x_ref"], data["y_ref"],
                               f"{title}, {args.trajectory}", planned=(planned[0], planned[1]))  # fmt: skip
     if not args.quiet:
         print(format_table(metrics) if position is None else format_position_table(position))
-        print(f"wrote {out}/telemetry.csv, flight.tlog, metrics.json and figures")
+        if mission:
+            print(mission_summary(json.loads((out / "mission.json").read_text())))
+        extra = "mission.json, " if mission else ""
+        print(f"wrote {out}/telemetry.csv, flight.tlog, metrics.json, {extra}and figures")
+
+
+def mission_summary(doc: dict) -> str:
+    """One line per item: its command and the simulated time it was reached."""
+    lines = ["item  command                reached at t [s]"]
+    for it in doc["items"]:
+        t = it["reached_t"]
+        lines.append(f"{it['seq']:>4}  {it['name'] or it['command']!s:<22} {'-' if t is None else f'{t:.2f}':>16}")
+    return "\n".join(lines)

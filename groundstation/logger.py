@@ -1,7 +1,8 @@
 """A Zenoh subscriber that logs a vehicle's telemetry into telemetry.csv rows.
 
 It joins the four streams by tick and keeps the ticks flown in offboard (``offboard_tick`` ≥ 0), with
-t = (tick − offboard_tick)·T so that t = 0 is the first tick flown under the reference trajectory. Samples
+t = (tick − offboard_tick)·T so that t = 0 is the first tick flown under the reference trajectory; or, for a
+mission (``start="armed"``), the ticks flown armed from the first armed tick on, t = 0 at arming. Samples
 wait in Zenoh's FIFO channels until ``drain`` files them (numpy views of the samples: no Python per record); joining and
 decoding happen in ``rows``.
 """
@@ -37,8 +38,12 @@ class TelemetryLogger:
     and joined by tick when :meth:`rows` is asked for: at tens of thousands of ticks per second the logger
     must not compete with the vehicle for the machine's two cores."""
 
-    def __init__(self, session: zenoh.Session, vehicle: str, period: float) -> None:
+    def __init__(self, session: zenoh.Session, vehicle: str, period: float, start: str = "offboard") -> None:
+        if start not in ("offboard", "armed"):
+            raise ValueError(f"start {start!r}: expected 'offboard' or 'armed'")
         self.period = period
+        self.start = start
+        self.last_armed_tick = -1
         self._raw: dict[str, list[np.ndarray]] = {s: [] for s in telemetry.STREAMS if s != "status"}
         self._flown: list[np.ndarray] = []  # ticks whose status says: armed, in this offboard flight
         self.last_tick = -1
@@ -74,12 +79,25 @@ class TelemetryLogger:
             self.last_status = {name: int(recs[-1][name]) for name in STATUS_FIELDS}
             self.last_tick = max(self.last_tick, int(recs["tick"].max()))
             start, armed = recs["offboard_tick"], recs["armed"] != 0
+            if self.start == "armed":
+                self._follow_armed(recs["tick"], armed)
+                continue
             if self.flight_start_tick < 0:
                 flying = np.flatnonzero((start >= 0) & armed)
                 if flying.size:
                     self.flight_start_tick = int(start[flying[0]])
             if self.flight_start_tick >= 0:  # a later offboard segment is not part of this flight
                 self._flown.append(recs["tick"][(start == self.flight_start_tick) & armed])
+
+    def _follow_armed(self, ticks: np.ndarray, armed: np.ndarray) -> None:
+        """A mission's flight: every armed tick from the first one on."""
+        if self.flight_start_tick < 0 and armed.any():
+            self.flight_start_tick = int(ticks[np.flatnonzero(armed)[0]])
+        if self.flight_start_tick >= 0:
+            kept = ticks[armed & (ticks >= self.flight_start_tick)]
+            self._flown.append(kept)
+            if kept.size:
+                self.last_armed_tick = max(self.last_armed_tick, int(kept.max()))
 
     def _joined(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The flight's ticks for which all four streams arrived, sorted, and each stream's records for them

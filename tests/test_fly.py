@@ -283,3 +283,42 @@ def test_setpoint_loss_failsafe_with_a_raw_pymavlink_client(procs):
         assert "Landed, disarmed" in texts and disarmed
     finally:
         gcs.close()
+
+
+def test_fly_mission_flies_a_qgroundcontrol_plan(tmp_path):
+    """`quadsitl fly --mission` with the hand-written QGroundControl plan: takeoff, a 10 m square at 5 m, return.
+    Every item is reached in order, the vehicle lands at home, and the mission figure is written."""
+    plan = Path(__file__).parent / "data" / "square.plan"
+    r = subprocess.run(quadsitl("fly", "--preset", "x500", "--mission", str(plan), "--out", str(tmp_path)),
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "mission.json").read_text())
+    assert [x["seq"] for x in doc["reached"]] == [0, 1, 2, 3, 4] and doc["all_reached_in_order"]
+    times = [x["t"] for x in doc["reached"]]
+    assert times == sorted(times) and times[0] > 0
+    corners = [(x["north"], x["east"]) for x in doc["items"][1:4]]
+    assert np.allclose(corners, [(10, 0), (10, 10), (0, 10)], atol=0.05)
+    data = read_csv(tmp_path / "telemetry.csv")
+    assert data["altitude"].max() > 4.5  # it flew
+    assert abs(data["altitude"][-1]) < 0.1 and math.hypot(data["x"][-1], data["y"][-1]) < 0.5  # landed at home
+    assert data["t"][-1] >= times[-1]
+    assert (tmp_path / "fig_mission_path.png").stat().st_size > 10_000
+    assert json.loads((tmp_path / "metrics.json").read_text())["mission"] == str(plan)
+
+
+def test_fly_mission_refuses_a_bad_file_before_anything_starts(tmp_path):
+    bad = tmp_path / "bad.plan"
+    bad.write_text(json.dumps({"fileType": "Plan", "mission": {"items": [
+        {"type": "SimpleItem", "command": 16, "frame": 3, "params": [0, 0, 0, None, 47.4, 8.5, 5]},
+        {"type": "ComplexItem", "complexItemType": "survey"}]}}))  # fmt: skip
+    r = subprocess.run(quadsitl("fly", "--mission", str(bad), "--out", str(tmp_path)), capture_output=True, text=True,
+                       timeout=60)  # fmt: skip
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [
+        f"quadsitl fly: error: mission {bad}, item 1, type: ComplexItem (survey) is not supported; allowed: "
+        "SimpleItem (expand the pattern into waypoints first)"
+    ]
+    assert not (tmp_path / "telemetry.csv").exists()
+    r = subprocess.run(quadsitl("fly", "--mission", str(bad), "--trajectory", "sine"), capture_output=True, text=True,
+                       timeout=60)  # fmt: skip
+    assert r.returncode == 2 and "--trajectory 'sine' with --mission" in r.stderr

@@ -1,0 +1,261 @@
+"""Mission files for ``quadsitl fly --mission``: read and check them before anything starts (pure, no sockets).
+
+Three formats, told apart by their content:
+
+- **QGroundControl ``.plan``** (JSON; QGroundControl's documented plan file format): ``"fileType": "Plan"``,
+  its ``"mission"`` object's ``"items"``. Each ``SimpleItem`` has ``command``, ``frame``, ``params`` (seven
+  numbers or null, QGroundControl's NaN: params 5–7 are latitude, longitude, altitude) and ``autoContinue``.
+  A ``ComplexItem`` (survey, corridor scan, structure scan) is refused: it is a QGroundControl-side pattern
+  that QGroundControl itself expands into simple items before it uploads. ``plannedHomePosition`` is
+  informational (the vehicle's home is its own). Geofence and rally points are ignored if empty, refused if not
+  (the vehicle has no fence or rally types yet).
+- **Waypoint CSV** with the header ``lat, lon, altitude`` (any order, plus optional ``hold`` [s],
+  ``radius`` [m], ``yaw`` [deg]): one ``NAV_WAYPOINT`` per row at ``altitude`` above home (frame 6); an empty
+  optional cell is the default (hold 0, the vehicle's acceptance radius, yaw toward the waypoint).
+- **QGC WPL 110** (the plain-text format MAVProxy and QGroundControl write): ``QGC WPL 110`` then one
+  tab-separated line per item ``index current frame command p1 p2 p3 p4 lat lon alt autocontinue``. Every line
+  is an item (as MAVProxy's ``wp load`` uploads them to PX4); the indices must count 0, 1, 2, ...
+
+Every item is checked by the vehicle's own check (:func:`autopilot.mission_protocol.parse_item`), so that a
+file is refused here, with its file, item (or line), field and value, exactly when the vehicle would refuse
+the upload.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from autopilot import mission_protocol as mp
+from quadsitl.cli_util import UsageError
+
+COMMAND_NAMES = {
+    mp.NAV_WAYPOINT: "NAV_WAYPOINT",
+    mp.NAV_LOITER_TIME: "NAV_LOITER_TIME",
+    mp.NAV_RETURN_TO_LAUNCH: "NAV_RETURN_TO_LAUNCH",
+    mp.NAV_LAND: "NAV_LAND",
+    mp.NAV_TAKEOFF: "NAV_TAKEOFF",
+    mp.NAV_DELAY: "NAV_DELAY",
+    mp.DO_CHANGE_SPEED: "DO_CHANGE_SPEED",
+}
+ALLOWED_COMMANDS = ", ".join(f"{c} ({n})" for c, n in sorted(COMMAND_NAMES.items()))
+ALLOWED_FRAMES = "0, 3, 5, 6 (global; 2 for commands without a position)"
+# The field a refused item's MISSION_ACK code points at: (its name, its index in params or None, what the
+# vehicle allows there; None: the vehicle's reason says it).
+_FIELD = {
+    mp.UNSUPPORTED: ("command", None, f"one of {ALLOWED_COMMANDS}"),
+    mp.UNSUPPORTED_FRAME: ("frame", None, ALLOWED_FRAMES),
+    mp.INVALID_PARAM1: ("param1", 0, None),
+    mp.INVALID_PARAM2: ("param2", 1, None),
+    mp.INVALID_PARAM3: ("param3", 2, None),
+    mp.INVALID_PARAM4: ("param4", 3, None),
+    mp.INVALID_PARAM5_X: ("latitude (param5)", 4, None),
+    mp.INVALID_PARAM6_Y: ("longitude (param6)", 5, None),
+    mp.INVALID_PARAM7: ("altitude (param7)", 6, None),
+}
+POSITION_COMMANDS = mp.POSITION_COMMANDS
+FINISHING_COMMANDS = frozenset({mp.NAV_RETURN_TO_LAUNCH, mp.NAV_LAND})
+
+
+class MissionFileError(UsageError):
+    """A mission file that cannot be flown: one line naming the file, the item or line, the field and value."""
+
+
+@dataclass(frozen=True)
+class Mission:
+    """A checked mission: ``items`` as the vehicle stores them (seq 0..n-1), ready for ``MISSION_ITEM_INT``."""
+
+    path: Path
+    kind: str  # "plan", "csv" or "wpl"
+    items: tuple[mp.MissionItem, ...]
+    planned_home: tuple[float, float, float] | None = None  # a .plan's plannedHomePosition, informational
+
+    @property
+    def lands(self) -> bool:
+        """True if the mission ends by landing (its last item is NAV_LAND or NAV_RETURN_TO_LAUNCH)."""
+        return bool(self.items) and self.items[-1].command in FINISHING_COMMANDS
+
+
+def _num(v: object) -> float:
+    """A JSON/CSV value as a float: null and an empty cell are NaN."""
+    if v is None or (isinstance(v, str) and not v.strip()):
+        return math.nan
+    if isinstance(v, bool):
+        raise ValueError
+    return float(v)
+
+
+def _fmt(v: float) -> str:
+    return "NaN" if isinstance(v, float) and math.isnan(v) else f"{v:g}"
+
+
+def check_item(where: str, seq: int, command: int, frame: int, params: list[float], autocontinue: bool = True):
+    """The vehicle's check of one item; ``where`` names it ("mission F, item 3") in the error."""
+    fields = {"seq": seq, "frame": frame, "command": command, "current": 0, "autocontinue": int(autocontinue)}
+    fields.update({f"param{i + 1}": params[i] for i in range(4)})
+    fields.update(x=params[4], y=params[5], z=params[6])
+    try:
+        return mp.parse_item(fields, legacy=True)
+    except mp.ItemRefusedError as exc:
+        field, index, allowed = _FIELD.get(exc.code, ("item", None, None))
+        value = {"command": str(command), "frame": str(frame)}.get(field) if index is None else _fmt(params[index])
+        name = COMMAND_NAMES.get(command, f"command {command}")
+        reason = allowed or str(exc)
+        raise MissionFileError(
+            f"{where} ({name}), {field}: {value} is refused by the vehicle; allowed: {reason}"
+        ) from None
+
+
+def load(path: str | Path) -> Mission:
+    """Read and check a mission file (``.plan``, waypoint CSV or QGC WPL 110); :class:`MissionFileError` if
+    it cannot be flown."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise MissionFileError(f"--mission {str(path)!r}: cannot read it ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise MissionFileError(f"--mission {str(path)!r}: not a text file; expected a QGroundControl .plan "
+                               "(JSON), a waypoint CSV (lat,lon,altitude) or a QGC WPL 110 file") from None  # fmt: skip
+    head = text.lstrip()
+    if head.startswith("{"):
+        mission = _plan(path, text)
+    elif head.startswith("QGC WPL"):
+        mission = _wpl(path, text)
+    else:
+        mission = _csv(path, text)
+    if not mission.items:
+        raise MissionFileError(f"mission {path}: no mission items; a mission needs at least one")
+    if len(mission.items) > mp.MAX_ITEMS:
+        raise MissionFileError(f"mission {path}: {len(mission.items)} items; the vehicle takes at most {mp.MAX_ITEMS}")
+    return mission
+
+
+def _plan(path: Path, text: str) -> Mission:
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise MissionFileError(f"mission {path}, line {exc.lineno}: not valid JSON ({exc.msg})") from None
+    if not isinstance(doc, dict) or doc.get("fileType") != "Plan":
+        got = doc.get("fileType") if isinstance(doc, dict) else type(doc).__name__
+        raise MissionFileError(f"mission {path}, fileType: {got!r}; expected 'Plan' (a QGroundControl .plan file)")
+    mission = doc.get("mission")
+    if not isinstance(mission, dict) or not isinstance(mission.get("items"), list):
+        raise MissionFileError(f"mission {path}, mission.items: missing; expected a list of mission items")
+    for key, parts in (("geoFence", ("polygons", "circles", "polygon")), ("rallyPoints", ("points",))):
+        section = doc.get(key) or {}
+        if isinstance(section, dict) and any(section.get(p) for p in parts):
+            raise MissionFileError(f"mission {path}, {key}: not empty; allowed: none (the vehicle has no geofence "
+                                   "or rally points yet)")  # fmt: skip
+    home = mission.get("plannedHomePosition")
+    planned_home = None
+    if isinstance(home, list) and len(home) == 3:
+        try:
+            planned_home = tuple(_num(v) for v in home)
+        except (TypeError, ValueError):
+            planned_home = None
+    items = []
+    for i, it in enumerate(mission["items"]):
+        where = f"mission {path}, item {i}"
+        if not isinstance(it, dict):
+            raise MissionFileError(f"{where}: {it!r} is not an object; expected a SimpleItem")
+        kind = it.get("type")
+        if kind == "ComplexItem":
+            name = it.get("complexItemType", "complex item")
+            raise MissionFileError(f"{where}, type: ComplexItem ({name}) is not supported; allowed: SimpleItem "
+                                   "(expand the pattern into waypoints first)")  # fmt: skip
+        if kind != "SimpleItem":
+            raise MissionFileError(f"{where}, type: {kind!r}; allowed: 'SimpleItem'")
+        command, frame = it.get("command"), it.get("frame")
+        for field, v in (("command", command), ("frame", frame)):
+            if not isinstance(v, int) or isinstance(v, bool):
+                raise MissionFileError(f"{where}, {field}: {v!r} is not an integer")
+        params = it.get("params")
+        if not isinstance(params, list) or len(params) != 7:
+            raise MissionFileError(f"{where}, params: {params!r}; expected a list of 7 numbers (or null)")
+        try:
+            values = [_num(v) for v in params]
+        except (TypeError, ValueError):
+            bad = next(v for v in params if not _is_number(v))
+            raise MissionFileError(f"{where}, params: {bad!r} is not a number (or null)") from None
+        auto = it.get("autoContinue", True)
+        if not isinstance(auto, bool):
+            raise MissionFileError(f"{where}, autoContinue: {auto!r}; expected true or false")
+        items.append(check_item(where, len(items), command, frame, values, auto))
+    return Mission(path, "plan", tuple(items), planned_home)
+
+
+def _is_number(v: object) -> bool:
+    try:
+        _num(v)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+CSV_REQUIRED = ("lat", "lon", "altitude")
+CSV_OPTIONAL = ("hold", "radius", "yaw")
+
+
+def _csv(path: Path, text: str) -> Mission:
+    rows = list(csv.reader(text.splitlines()))
+    header = [h.strip().lower() for h in rows[0]] if rows else []
+    missing = [c for c in CSV_REQUIRED if c not in header]
+    if missing:
+        raise MissionFileError(
+            f"mission {path}, line 1: header {','.join(header) or '(empty)'!r} lacks {', '.join(missing)}; expected "
+            "a QGroundControl .plan (JSON), a QGC WPL 110 file, or a CSV with the header lat,lon,altitude "
+            "(optional: hold,radius,yaw)"
+        )
+    col = {name: header.index(name) for name in CSV_REQUIRED + CSV_OPTIONAL if name in header}
+    items = []
+    for line, row in enumerate(rows[1:], start=2):
+        if not any(cell.strip() for cell in row):
+            continue
+        where = f"mission {path}, line {line}"
+        v = {}
+        for name, j in col.items():
+            cell = row[j].strip() if j < len(row) else ""
+            if name in CSV_REQUIRED and not cell:
+                raise MissionFileError(f"{where}, column {name}: missing; expected a number")
+            try:
+                v[name] = _num(cell)
+            except ValueError:
+                raise MissionFileError(f"{where}, column {name}: {cell!r} is not a number") from None
+            if not (math.isfinite(v[name]) or (math.isnan(v[name]) and name in CSV_OPTIONAL)):
+                raise MissionFileError(f"{where}, column {name}: {cell!r} is not a finite number")
+        if v["altitude"] < 0:
+            raise MissionFileError(f"{where}, column altitude: {v['altitude']:g}; allowed: >= 0 m above home")
+        hold = v.get("hold", math.nan)
+        params = [0.0 if math.isnan(hold) else hold, v.get("radius", math.nan), 0.0, v.get("yaw", math.nan),
+                  v["lat"], v["lon"], v["altitude"]]  # fmt: skip
+        items.append(check_item(where, len(items), mp.NAV_WAYPOINT, mp.FRAME_GLOBAL_RELATIVE_ALT_INT, params))
+    return Mission(path, "csv", tuple(items))
+
+
+def _wpl(path: Path, text: str) -> Mission:
+    lines = text.splitlines()
+    if lines[0].split() != ["QGC", "WPL", "110"]:
+        raise MissionFileError(f"mission {path}, line 1: {lines[0].strip()!r}; allowed: 'QGC WPL 110'")
+    items = []
+    for line, raw in enumerate(lines[1:], start=2):
+        if not raw.strip():
+            continue
+        where = f"mission {path}, line {line}"
+        fields = raw.split()
+        if len(fields) != 12:
+            raise MissionFileError(f"{where}: {len(fields)} fields; expected 12 (index current frame command "
+                                   "p1 p2 p3 p4 lat lon alt autocontinue)")  # fmt: skip
+        try:
+            index, _current, frame, command = (int(float(f)) for f in fields[:4])
+            params = [float(f) for f in fields[4:11]]
+            auto = int(float(fields[11]))
+        except ValueError:
+            raise MissionFileError(f"{where}: {raw.strip()!r} has a field that is not a number") from None
+        if index != len(items):
+            raise MissionFileError(f"{where}, index: {index}; expected {len(items)} (the items in order from 0)")
+        items.append(check_item(f"{where} (item {index})", index, command, frame, params, bool(auto)))
+    return Mission(path, "wpl", tuple(items))
