@@ -190,3 +190,68 @@ def test_100k_hostile_datagrams_while_flying(flying_vehicle):
         p.terminate()
         _, err = p.communicate(timeout=10)
         assert "Traceback" not in err and "error: handling" not in err, err[-2000:]
+
+
+def upload(c: Client, points: list[tuple[float, float, float]], rtl: bool = True) -> None:
+    """A mission of waypoints (north, east [m], altitude above home [m]) through the protocol, as a ground
+    station uploads it, ending with a return to launch."""
+    from quadsitl.frames import ned_to_geodetic
+
+    items = []
+    for north, east, alt in points:
+        lat, lon = ned_to_geodetic(north, east, 47.397742, 8.545594)
+        items.append(
+            (M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_NAV_WAYPOINT, round(lat * 1e7), round(lon * 1e7), alt)
+        )
+    if rtl:
+        items.append((M.MAV_FRAME_MISSION, M.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0.0))
+    c.conn.mav.mission_count_send(1, 1, len(items), 0)
+    while True:
+        m = c.wait("MISSION_REQUEST_INT", timeout=5) if "MISSION_ACK" not in c.latest else None
+        if m is None:
+            break
+        frame, cmd, x, y, z = items[m.seq]
+        c.conn.mav.mission_item_int_send(1, 1, m.seq, frame, cmd, int(m.seq == 0), 1, 0, 1.0, 0, math.nan, x, y, z, 0)
+        if m.seq == len(items) - 1:
+            assert c.wait("MISSION_ACK").type == M.MAV_MISSION_ACCEPTED
+            break
+
+
+def test_50k_hostile_datagrams_while_a_mission_flies(flying_vehicle):
+    """The mission flies on and completes, landing at home, while hostile datagrams (mission messages among
+    them: uploads are refused while it flies) hit every port."""
+    ap, plant, ports = flying_vehicle
+    c = Client.to(ports["api"])
+    try:
+        c.connect()
+        upload(c, [(15.0, 0.0, 4.0), (15.0, 15.0, 4.0), (0.0, 15.0, 4.0), (0.0, 0.0, 4.0)])
+        c.param_set("RTL_RETURN_ALT", 5.0)
+        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+        assert c.command(M.MAV_CMD_MISSION_START, 0, 0).result == M.MAV_RESULT_ACCEPTED
+        c.wait("MISSION_CURRENT", lambda m: m.mission_state == 3, timeout=5)  # active
+        rng = random.Random(int(os.environ.get("QUADSITL_FUZZ_SEED", "20261123")) + 1)
+        pool = datagrams(rng, 5000)
+        targets = [("127.0.0.1", ports[k]) for k in ("api", "gcs", "plant_listen", "plant_bind")]
+        fuzz = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sent = 0
+        while sent < 50_000:
+            for _ in range(200):
+                fuzz.sendto(pool[rng.randrange(len(pool))], targets[sent % len(targets)])
+                sent += 1
+            c.pump(0.005)
+            assert ap.poll() is None and plant.poll() is None
+        fuzz.close()
+        try:
+            reached = c.wait("MISSION_CURRENT", lambda m: m.mission_state == 5, timeout=90)  # complete
+            c.wait("HEARTBEAT", lambda m: not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, timeout=90)  # landed
+        except AssertionError as exc:  # say where the vehicle was and what it said
+            p, hb = c.latest.get("LOCAL_POSITION_NED"), c.latest.get("HEARTBEAT")
+            texts = [t for t in c.texts if "efused" not in t][-15:]
+            pos_now = None if p is None else (p.x, p.y, p.z, p.vx, p.vy, p.vz)
+            mode = None if hb is None else (hb.custom_mode, hb.base_mode)
+            raise AssertionError(f"{exc}\nposition {pos_now}, mode {mode}, {c.latest.get('MISSION_CURRENT')}, "
+                                 f"said {texts}") from None  # fmt: skip
+        pos = c.wait("LOCAL_POSITION_NED")
+    finally:
+        c.conn.close()
+    assert reached.total == 5 and math.hypot(pos.x, pos.y) < 0.5 and pos.z > -0.1
