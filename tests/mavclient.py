@@ -126,6 +126,18 @@ class Client:
                 return m
         raise AssertionError(f"no {msg_type} matching the condition within {timeout} s; latest: {self.latest}")
 
+    def wait_any(self, cond, timeout: float = 10.0):
+        """The first message of any type for which ``cond(message)`` holds (it sees every message on the way)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self.conn.recv_match(blocking=True, timeout=0.1)
+            if m is None:
+                continue
+            self._note(m)
+            if cond(m):
+                return m
+        raise AssertionError(f"no message matching the condition within {timeout} s; latest: {self.latest}")
+
     def heartbeat(self, timeout: float = 15.0):
         return self.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1, timeout)
 

@@ -83,8 +83,16 @@ def test_commands_long_and_int_with_nan_parameters_and_refusals(client):
     c.param_set("RTL_RETURN_ALT", 8.0)
     c.conn.mav.set_mode_send(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, RTL)
     c.wait("HEARTBEAT", lambda m: m.custom_mode == RTL, 5)
-    settle(c, (x, y, 8.0), 0.2)  # climbs first (then goes home at once)
-    c.wait("HEARTBEAT", lambda m: not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, 60)
+    peak = 0.0  # it climbs to RTL_RETURN_ALT first, then flies home and lands
+
+    def landed(m) -> bool:
+        nonlocal peak
+        if m.get_type() == "LOCAL_POSITION_NED":
+            peak = max(peak, -m.z)
+        return m.get_type() == "HEARTBEAT" and not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+
+    c.wait_any(landed, 60)
+    assert peak == pytest.approx(8.0, abs=0.3)
     assert position(c) == pytest.approx((0.0, 0.0, 0.0), abs=0.1)  # landed at home
     assert c.latest["SYS_STATUS"].errors_count2 >= 1  # the geofence refusal is counted with the other refusals
 
