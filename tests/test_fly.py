@@ -152,7 +152,8 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     assert np.allclose(fly["t"], np.arange(2000) * 0.001)
     for column in ("altitude", "roll", "pitch", "yaw"):
         assert np.abs(fly[column] - sim[column]).max() < 1e-3, column
-    assert fly["altitude"][0] == pytest.approx(0.0, abs=1e-9) and fly["altitude"][-1] == pytest.approx(5.0, abs=1e-3)
+    # on the ground at t = 0 (armed in hold on the ground before, the vehicle may sit a few nm up: 1e-9 in one CI run)
+    assert fly["altitude"][0] == pytest.approx(0.0, abs=1e-6) and fly["altitude"][-1] == pytest.approx(5.0, abs=1e-3)
     # Attitude setpoints, the paper's experiment: nothing controls x and y, and the telemetry says so.
     for data in (fly, sim):
         assert np.isnan(data["x_ref"]).all() and np.isnan(data["y_ref"]).all()
