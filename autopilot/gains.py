@@ -40,6 +40,26 @@ def _describe(i: int, lam: float, period: float) -> str:
     return f"λ{i} = {lam:.6g} (k{i} = {(1.0 - lam) / period:.6g} 1/s)"
 
 
+def epsilon_bounds(i: int, lam_i: float, lam_n: float, period: float, eq: str, channel: str) -> tuple[float, float]:
+    """One channel pair's bounds on ε from the paper's conditions, k replaced by λ (module docstring):
+    ε > 4T²λ_i²/(1 − λ_i²) and ε < 1 − T² − λ_(i+1)². Raises :class:`GainError` naming condition ``eq``
+    when either cannot hold for any ε > 0."""
+    T2 = period * period
+    if not abs(lam_i) < 1.0:
+        raise GainError(
+            f"condition {eq} λ{i}² − 1 + 4T²λ{i}²/ε < 0 ({channel}) cannot hold for any ε > 0: "
+            f"{_describe(i, lam_i, period)} has |λ{i}| ≥ 1; allowed: |λ{i}| < 1, "
+            f"i.e. 0 < k{i} < {2.0 / period:.6g} 1/s"
+        )
+    hi = 1.0 - T2 - lam_n * lam_n
+    if not hi > 0.0:
+        raise GainError(
+            f"condition {eq} T² + λ{i + 1}² − 1 + ε < 0 ({channel}) cannot hold for any ε > 0: "
+            f"{_describe(i + 1, lam_n, period)}; allowed: λ{i + 1}² < 1 − T² = {1.0 - T2:.9g}"
+        )
+    return 4.0 * T2 * lam_i * lam_i / (1.0 - lam_i * lam_i), hi
+
+
 def stability_interval(poles: Sequence[float], period: float) -> tuple[float, float]:
     """The open interval (ε_min, ε_max) of ε for which conditions (41)–(44) all hold.
 
@@ -47,25 +67,12 @@ def stability_interval(poles: Sequence[float], period: float) -> tuple[float, fl
     """
     if len(poles) != 8:
         raise GainError(f"expected 8 gains (k1..k8 or λ1..λ8), got {len(poles)}")
-    T2 = period * period
     lower: list[tuple[float, int]] = []
     upper: list[tuple[float, int]] = []
     for j in range(4):
-        eq = 41 + j
-        i, lam_i, lam_n = 2 * j + 1, poles[2 * j], poles[2 * j + 1]
-        if not abs(lam_i) < 1.0:
-            raise GainError(
-                f"condition ({eq}) λ{i}² − 1 + 4T²λ{i}²/ε < 0 ({CHANNELS[j]}) cannot hold for any ε > 0: "
-                f"{_describe(i, lam_i, period)} has |λ{i}| ≥ 1; allowed: |λ{i}| < 1, "
-                f"i.e. 0 < k{i} < {2.0 / period:.6g} 1/s"
-            )
-        lower.append((4.0 * T2 * lam_i * lam_i / (1.0 - lam_i * lam_i), i))
-        hi = 1.0 - T2 - lam_n * lam_n
-        if not hi > 0.0:
-            raise GainError(
-                f"condition ({eq}) T² + λ{i + 1}² − 1 + ε < 0 ({CHANNELS[j]}) cannot hold for any ε > 0: "
-                f"{_describe(i + 1, lam_n, period)}; allowed: λ{i + 1}² < 1 − T² = {1.0 - T2:.9g}"
-            )
+        i = 2 * j + 1
+        lo, hi = epsilon_bounds(i, poles[2 * j], poles[2 * j + 1], period, f"({41 + j})", CHANNELS[j])
+        lower.append((lo, i))
         upper.append((hi, i + 1))
     eps_lo, i_lo = max(lower)
     eps_hi, i_hi = min(upper)
@@ -101,17 +108,9 @@ def check_position_gains(
                 f"loop (its slowest rate is {inner:.6g} 1/s); allowed: 0 < {name.split()[0]} ≤ {bound:.6g} 1/s"
             )
     poles = [1.0 - period * k for k in rates]
-    T2 = period * period
-    lower, upper = [], []
-    for i, lam_i, lam_n in ((9, poles[0], poles[1]), (11, poles[2], poles[3])):
-        if not abs(lam_i) < 1.0:
-            raise GainError(f"condition (53) {_describe(i, lam_i, period)}: |λ{i}| ≥ 1")
-        lower.append(4.0 * T2 * lam_i * lam_i / (1.0 - lam_i * lam_i))
-        hi = 1.0 - T2 - lam_n * lam_n
-        if not hi > 0.0:
-            raise GainError(f"condition (53) {_describe(i + 1, lam_n, period)}: λ{i + 1}² ≥ 1 − T²")
-        upper.append(hi)
-    eps_lo, eps_hi = max(lower), min(upper)
+    x = epsilon_bounds(9, poles[0], poles[1], period, "(53)", "x")
+    y = epsilon_bounds(11, poles[2], poles[3], period, "(53)", "y")
+    eps_lo, eps_hi = max(x[0], y[0]), min(x[1], y[1])
     if not eps_lo < eps_hi:
         raise GainError(f"condition (53): no ε > {eps_lo:.6g} below {eps_hi:.6g}; move k9..k12 towards each other")
     for name, k in zip(("integral rate k_I (altitude)", "integral rate k_I (horizontal)"), integral):

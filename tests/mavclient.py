@@ -116,15 +116,12 @@ class Client:
                 self._note(m)
 
     def wait(self, msg_type: str, cond=lambda m: True, timeout: float = 10.0):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            m = self.conn.recv_match(blocking=True, timeout=0.1)
-            if m is None:
-                continue
-            self._note(m)
-            if m.get_type() == msg_type and cond(m):
-                return m
-        raise AssertionError(f"no {msg_type} matching the condition within {timeout} s; latest: {self.latest}")
+        try:
+            return self.wait_any(lambda m: m.get_type() == msg_type and cond(m), timeout)
+        except AssertionError:
+            raise AssertionError(
+                f"no {msg_type} matching the condition within {timeout} s; latest: {self.latest}"
+            ) from None
 
     def wait_any(self, cond, timeout: float = 10.0):
         """The first message of any type for which ``cond(message)`` holds (it sees every message on the way)."""
