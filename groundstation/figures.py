@@ -53,6 +53,25 @@ def write_figures(runs: dict[str, dict[str, np.ndarray]], out: Path, title: str)
     return paths
 
 
+def _finish_map(fig, ax, x: np.ndarray, y: np.ndarray, title: str, path: Path, fontsize: float | None = None) -> Path:
+    """The part of a map seen from above (x north up, y east right [m]) every map has: the measured path, its end,
+    home at the origin, equal scales; saved to ``path``."""
+    ax.plot(y, x, color="C0", lw=1.6, label="measured", zorder=3)
+    if len(x):
+        ax.plot(y[-1], x[-1], marker="o", color="C0", ms=6, ls="none", label="end")
+    ax.plot(0.0, 0.0, marker="*", color="C3", ms=14, ls="none", label="home")
+    ax.set_xlabel("y (east) [m]")
+    ax.set_ylabel("x (north) [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(title, fontsize=fontsize)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def write_path_figure(
     out: Path,
     x: np.ndarray,
@@ -73,21 +92,7 @@ def write_path_figure(
         ax.plot(ref_y, ref_x, color="k", lw=1.0, ls="--", label="reference (x_ref, y_ref)")
     elif planned is not None:
         ax.plot(planned[1], planned[0], color="C1", lw=1.2, ls=":", label="commanded (no x_ref in the telemetry)")
-    ax.plot(y, x, color="C0", lw=1.6, label="measured", zorder=3)
-    if len(x):
-        ax.plot(y[-1], x[-1], marker="o", color="C0", ms=6, ls="none", label="end")
-    ax.plot(0.0, 0.0, marker="*", color="C3", ms=14, ls="none", label="home")
-    ax.set_xlabel("y (east) [m]")
-    ax.set_ylabel("x (north) [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title(f"x–y path, seen from above — {title}")
-    fig.tight_layout()
-    path = out / "fig_xy_path.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish_map(fig, ax, x, y, f"x–y path, seen from above — {title}", out / "fig_xy_path.png")
 
 
 def write_mission_figure(out: Path, data: dict[str, np.ndarray], mission: dict, title: str) -> Path:
@@ -103,19 +108,5 @@ def write_mission_figure(out: Path, data: dict[str, np.ndarray], mission: dict, 
         ax.plot(east[1:], north[1:], marker="s", color="C1", ms=7, ls="none", label="plan items", zorder=4)
         for it in placed:
             ax.annotate(str(it["seq"]), (it["east"], it["north"]), textcoords="offset points", xytext=(6, 6))
-    x, y = data["x"], data["y"]
-    ax.plot(y, x, color="C0", lw=1.6, label="measured", zorder=3)
-    if len(x):
-        ax.plot(y[-1], x[-1], marker="o", color="C0", ms=6, ls="none", label="end")
-    ax.plot(0.0, 0.0, marker="*", color="C3", ms=14, ls="none", label="home")
-    ax.set_xlabel("y (east) [m]")
-    ax.set_ylabel("x (north) [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title(f"mission path, seen from above — {title}", fontsize=10)
-    fig.tight_layout()
-    path = out / "fig_mission_path.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish_map(fig, ax, data["x"], data["y"], f"mission path, seen from above — {title}",
+                       out / "fig_mission_path.png", fontsize=10)  # fmt: skip

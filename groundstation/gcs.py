@@ -63,6 +63,7 @@ PX4_HOME = (47.397742, 8.545594, 488.0)  # PX4 SITL's default home, the autopilo
 MISSION_STATE_COMPLETE = 5
 UPLOAD_RETRY = 1.0  # [s] wall: MISSION_COUNT again when the vehicle has not asked for an item
 UPLOAD_TIMEOUT = 10.0  # [s] wall: give the upload up
+COMMAND_RETRY = 0.5  # [s] wall: a command is sent again until acknowledged (MAVSDK waits 0.5 s too)
 LOOP = 0.002  # [s] wall: how often the ground station reads its socket and Zenoh channels, and may send
 
 
@@ -214,6 +215,21 @@ class GroundStation:
 
     # ---- the flight ------------------------------------------------------------------------------
 
+    def until_accepted(
+        self, command: int, what: str, now: float, last_sent: float, *params: float
+    ) -> tuple[bool, float]:
+        """Send ``command`` every COMMAND_RETRY seconds of wall time until its COMMAND_ACK: (accepted, when it was
+        last sent). A refusal raises :class:`GcsError` naming ``what``."""
+        result = self.acks.get(command)
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            return True, last_sent
+        if result is not None:
+            raise GcsError(f"{what} refused (MAV_RESULT {result})")
+        if now - last_sent > COMMAND_RETRY:
+            self.command(command, *params)
+            last_sent = now
+        return False, last_sent
+
     def fly(self) -> int:
         if self.mission is not None:
             return self.fly_mission()
@@ -250,24 +266,15 @@ class GroundStation:
                 # Arm only once the Zenoh telemetry reaches the logger: never fly what cannot be recorded.
                 phase, last_cmd = "arming", 0.0
             elif phase == "arming":
-                result = self.acks.get(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
-                if result == mavlink.MAV_RESULT_ACCEPTED:
+                done, last_cmd = self.until_accepted(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "arming", now, last_cmd, 1.0)
+                if done:
                     phase, last_cmd = "offboard", 0.0
-                elif result is not None and result != mavlink.MAV_RESULT_ACCEPTED:
-                    raise GcsError(f"arming refused (MAV_RESULT {result})")
-                elif now - last_cmd > 0.5:
-                    self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
-                    last_cmd = now
             elif phase == "offboard":
-                result = self.acks.get(mavlink.MAV_CMD_DO_SET_MODE)
-                if result == mavlink.MAV_RESULT_ACCEPTED:
+                done, last_cmd = self.until_accepted(mavlink.MAV_CMD_DO_SET_MODE, "offboard mode", now, last_cmd,
+                                                     mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0)  # fmt: skip
+                if done:
                     phase, flight_wall_start = "flying", now
                     self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: flight")
-                elif result is not None:
-                    raise GcsError(f"offboard mode refused (MAV_RESULT {result})")
-                elif now - last_cmd > 0.5:
-                    self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0)
-                    last_cmd = now
             elif phase == "flying" and flight_t >= self.duration:
                 phase, last_cmd = "landing", 0.0
                 self.flight_rate = (flight_t, now - flight_wall_start)  # simulated s flown, wall s
@@ -280,7 +287,7 @@ class GroundStation:
                 landed = status is not None and status["mode"] == wire.Mode.LAND and not status["armed"]
                 if landed and self.acks.get(mavlink.MAV_CMD_NAV_LAND) == mavlink.MAV_RESULT_ACCEPTED:
                     phase = "done"
-                elif now - last_cmd > 0.5 and self.acks.get(mavlink.MAV_CMD_NAV_LAND) is None:
+                elif now - last_cmd > COMMAND_RETRY and self.acks.get(mavlink.MAV_CMD_NAV_LAND) is None:
                     self.command(mavlink.MAV_CMD_NAV_LAND)
                     last_cmd = now
             if phase == "flying":
@@ -340,24 +347,15 @@ class GroundStation:
             elif phase == "prearm" and self.logger.last_status is not None:
                 phase, last_cmd = "arming", 0.0  # never fly what cannot be recorded
             elif phase == "arming":
-                result = self.acks.get(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
-                if result == mavlink.MAV_RESULT_ACCEPTED:
+                done, last_cmd = self.until_accepted(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "arming", now, last_cmd, 1.0)
+                if done:
                     phase, last_cmd = "starting", 0.0
-                elif result is not None:
-                    raise GcsError(f"arming refused (MAV_RESULT {result})")
-                elif now - last_cmd > 0.5:
-                    self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
-                    last_cmd = now
             elif phase == "starting":
-                result = self.acks.get(mavlink.MAV_CMD_DO_SET_MODE)
-                if result == mavlink.MAV_RESULT_ACCEPTED:
+                done, last_cmd = self.until_accepted(mavlink.MAV_CMD_DO_SET_MODE, "mission mode", now, last_cmd,
+                                                     mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 4)  # fmt: skip
+                if done:
                     phase, flight_wall_start = "flying", now
                     self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: mission")
-                elif result is not None:
-                    raise GcsError(f"mission mode refused (MAV_RESULT {result})")
-                elif now - last_cmd > 0.5:
-                    self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 4)
-                    last_cmd = now
             elif phase in ("flying", "landing"):
                 status = self.logger.last_status
                 if status is not None and not status["armed"] and self.logger.last_armed_tick >= 0:
@@ -372,7 +370,10 @@ class GroundStation:
                     complete = self.mission_state is not None and self.mission_state[1] == MISSION_STATE_COMPLETE
                     if complete and not mission.lands:
                         phase, last_cmd = "landing", 0.0
-                elif now - last_cmd > 0.5 and self.acks.get(mavlink.MAV_CMD_NAV_LAND) != mavlink.MAV_RESULT_ACCEPTED:
+                elif (
+                    now - last_cmd > COMMAND_RETRY
+                    and self.acks.get(mavlink.MAV_CMD_NAV_LAND) != mavlink.MAV_RESULT_ACCEPTED
+                ):
                     if self.acks.get(mavlink.MAV_CMD_NAV_LAND) not in (None, mavlink.MAV_RESULT_ACCEPTED):
                         raise GcsError(f"landing refused (MAV_RESULT {self.acks[mavlink.MAV_CMD_NAV_LAND]})")
                     self.command(mavlink.MAV_CMD_NAV_LAND)
