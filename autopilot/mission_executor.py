@@ -66,6 +66,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from autopilot import mission_protocol as mp
+from autopilot.setpoints import local_altitude
 from quadsitl.frames import geodetic_to_ned
 
 NAN = math.nan
@@ -216,9 +217,7 @@ class MissionExecutor:
 
     def altitude_of(self, item: mp.MissionItem) -> float:
         """An item's altitude in the local frame [m]: AMSL frames minus the origin's, relative ones plus home's."""
-        if item.frame in (mp.FRAME_GLOBAL, mp.FRAME_GLOBAL_INT):
-            return item.z - self.origin[2]
-        return item.z + self.home[2]
+        return local_altitude(item.frame, item.z, self.origin[2], self.home[2])
 
     def start(self, now: float, vehicle: VehicleNow) -> bool:
         """AUTO.MISSION / MAV_CMD_MISSION_START: fly (or resume) the mission from the current item; a complete

@@ -42,12 +42,9 @@ class Missions:
         self.acceptance_radius = acceptance_radius
         self.executor: MissionExecutor | None = None
         self._version = -1
-        self._flying = False  # the executor is in charge (in MISSION, or in its own LAND/RTL)
-
-    @property
-    def flying(self) -> bool:
-        """The executor is in charge: :meth:`step` it every control tick."""
-        return self._flying
+        self.flying = False
+        """The executor is in charge (in MISSION, or in its own LAND/RTL): :meth:`step` it every control tick. A
+        plain attribute: the process reads it after every tick."""
 
     @staticmethod
     def vehicle(c: Commander) -> VehicleNow:
@@ -79,7 +76,7 @@ class Missions:
             if not ok:
                 return False, reason, []
         ex.start(now, self.vehicle(c))
-        self._flying = True
+        self.flying = True
         self._apply(c, ex.action)
         return True, "", self._events(ex)
 
@@ -87,15 +84,15 @@ class Missions:
         """Once per control tick (cheap when nothing changes): the executor's next action to the commander, its
         events out; pauses the mission when another mode took over."""
         ex = self.executor
-        if ex is None or not self._flying:
+        if ex is None or not self.flying:
             return []
         ending = isinstance(ex.action, (Land, ReturnToLaunch))  # the mission's own land or return
         own = c.mode == Mode.MISSION or (c.mode in (Mode.LAND, Mode.RTL) and ending)
         if not own:  # the pilot took over (hold: pause_mission; or anything else): pause here
-            self._flying = False
+            self.flying = False
             ex.pause()
         elif not c.armed and not isinstance(ex.action, (Land, ReturnToLaunch)):
-            self._flying = False  # disarmed in flight (forced): the mission stops where it is
+            self.flying = False  # disarmed in flight (forced): the mission stops where it is
             ex.pause()
         else:
             before = ex.action
@@ -103,11 +100,11 @@ class Missions:
             if action is not before:
                 self._apply(c, action)
             if ex.mission_state == mp.STATE_COMPLETE and not isinstance(action, (Land, ReturnToLaunch)):
-                self._flying = False
+                self.flying = False
             if ex.mission_state == mp.STATE_COMPLETE and not c.armed:
-                self._flying = False
-        self.protocol.busy_flying = self._flying and ex.mission_state == mp.STATE_ACTIVE
-        self.protocol.mission_mode = 1 if c.mode == Mode.MISSION else 2 if self._flying else 0
+                self.flying = False
+        self.protocol.busy_flying = self.flying and ex.mission_state == mp.STATE_ACTIVE
+        self.protocol.mission_mode = 1 if c.mode == Mode.MISSION else 2 if self.flying else 0
         return self._events(ex)
 
     def _apply(self, c: Commander, a: object) -> None:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from quadsitl.frames import geodetic_to_ned
 
 LOCAL_NED, GLOBAL, GLOBAL_INT, GLOBAL_RELATIVE_ALT_INT, BODY_NED, GLOBAL_TERRAIN_ALT_INT = 1, 0, 5, 6, 8, 11
-GLOBAL_RELATIVE_ALT = 3
+GLOBAL_RELATIVE_ALT, MISSION = 3, 2
 LOCAL_FRAMES = (LOCAL_NED, BODY_NED)
 GLOBAL_FRAMES = (GLOBAL_INT, GLOBAL_RELATIVE_ALT_INT, GLOBAL_TERRAIN_ALT_INT)
 # type_mask bits (POSITION_TARGET_TYPEMASK)
@@ -76,13 +76,20 @@ def _field(name: str, value: float, ignored: bool, bit: int) -> float:
     return float(value)
 
 
-def altitude_of(frame: int, alt: float, f: Frame) -> float:
-    """A global frame's altitude [m] → altitude above the local ground (the origin's altitude)."""
+def local_altitude(frame: int, alt: float, origin_alt: float, home_alt: float) -> float:
+    """An altitude [m] in MAVLink ``frame`` → altitude above the local ground (the origin's altitude): AMSL
+    frames minus the origin's altitude, relative ones (and a mission item's frame 2) plus home's, terrain
+    frames as they are (the ground is flat)."""
     if frame in (GLOBAL, GLOBAL_INT):
-        return alt - f.origin[2]
-    if frame in (GLOBAL_RELATIVE_ALT, GLOBAL_RELATIVE_ALT_INT):
-        return alt + f.home[2]
-    return alt  # terrain: above the (flat) ground
+        return alt - origin_alt
+    if frame in (GLOBAL_RELATIVE_ALT, GLOBAL_RELATIVE_ALT_INT, MISSION):
+        return alt + home_alt
+    return alt
+
+
+def altitude_of(frame: int, alt: float, f: Frame) -> float:
+    """A global frame's altitude [m] → altitude above the local ground (:func:`local_altitude`)."""
+    return local_altitude(frame, alt, f.origin[2], f.home[2])
 
 
 def check_position(x: float, y: float, altitude: float, f: Frame, what: str = "Position setpoint") -> None:
