@@ -351,7 +351,7 @@ class MissionExecutor:
                 self.action = Hold()
             return
         if not flying:
-            if cmd == mp.NAV_RETURN_TO_LAUNCH or (cmd == mp.NAV_LAND and self._land_here(item)):
+            if cmd == mp.NAV_RETURN_TO_LAUNCH or (cmd == mp.NAV_LAND and self.land_here(item)):
                 self._phase = _DESCENDING  # already on the ground: completes at once
                 return
             alt = self._first_position_altitude()
@@ -364,7 +364,7 @@ class MissionExecutor:
             self.action = ReturnToLaunch()
             return
         if cmd == mp.NAV_LAND:
-            if self._land_here(item):
+            if self.land_here(item):
                 self._target = Goto(v.x, v.y, v.altitude)
                 self._phase = _DESCENDING
                 self.action = Land()
@@ -380,7 +380,8 @@ class MissionExecutor:
         self.action = g
 
     @staticmethod
-    def _land_here(item: mp.MissionItem) -> bool:
+    def land_here(item: mp.MissionItem) -> bool:
+        """A NAV_LAND item lands where the vehicle is (frame MISSION, or latitude and longitude both 0)."""
         return item.frame == mp.FRAME_MISSION or (item.x == 0 and item.y == 0)
 
     @staticmethod

@@ -107,6 +107,25 @@ class Missions:
         self.protocol.mission_mode = 1 if c.mode == Mode.MISSION else 2 if self.flying else 0
         return self._events(ex)
 
+    def plan(self, c: Commander) -> list[dict]:
+        """Where each stored item flies, for maps (the ``quadsitl/<vehicle>/mission`` document of
+        :mod:`quadsitl.telemetry`): seq, command, and local x, y NED [m] and altitude [m] as the executor reads
+        them, NaN where the item has no place of its own (a takeoff or landing where the vehicle is, a delay, a
+        speed change); a return to launch is home's x, y."""
+        home = c.home
+        ex = MissionExecutor(self.protocol.items, self.origin, home)  # only to read positions: no state changes
+        nan, out = math.nan, []
+        for item in ex.items:
+            x = y = alt = nan
+            if item.command == mp.NAV_RETURN_TO_LAUNCH:
+                x, y = home[0], home[1]
+            elif item.command in mp.POSITION_COMMANDS:
+                alt = ex.local(item)[2] if item.command != mp.NAV_LAND else nan
+                if not (item.command == mp.NAV_TAKEOFF or (item.command == mp.NAV_LAND and ex.land_here(item))):
+                    x, y = ex.local(item)[:2]
+            out.append({"seq": item.seq, "command": item.command, "x": x, "y": y, "altitude": alt})
+        return out
+
     def _apply(self, c: Commander, a: object) -> None:
         if isinstance(a, Goto):
             c.goto(a.x, a.y, a.altitude, a.yaw, a.speed)

@@ -152,6 +152,8 @@ class Autopilot:
         self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom_into, self.rx)  # polls while the plant answers fast
         self.session = None
         self.pubs: dict[str, zenoh.Publisher] = {}
+        self.plan_pub: zenoh.Publisher | None = None  # quadsitl/<vehicle>/mission: the plan, for maps
+        self.plan_published: tuple = ()  # what the last mission document said (version, current, state, home)
         self.batch = Batch(BATCH_TICKS)
         self.io = np.zeros(kernel.IO_SIZE, dtype=np.int64)  # the tick's bookkeeping (autopilot.tick)
         self.io[kernel.LAST_USEC] = -1
@@ -172,6 +174,9 @@ class Autopilot:
                     congestion_control=zenoh.CongestionControl.DROP,
                 )
             self.io[kernel.CAPACITY] = BATCH_TICKS  # records are batched only while there is a session
+            self.plan_pub = self.session.declare_publisher(
+                telemetry.key(args.vehicle, telemetry.MISSION), encoding=telemetry.mission_encoding()
+            )
 
     # ---- the control tick ----------------------------------------------------------------------
 
@@ -338,6 +343,7 @@ class Autopilot:
     def heartbeat(self) -> None:
         self._send_gcs(gcs_messages.heartbeat(self.commander))
         self._send_mission(self.missions.protocol.mission_current())  # MISSION_CURRENT at 1 Hz, as PX4
+        self.publish_plan(again=True)
         if not self.has_state():  # no ticks, so no streams: SYS_STATUS says "not armable" here
             self._send_gcs(gcs_messages.sys_status(self.load, self.errors, has_state=False))
 
@@ -438,6 +444,21 @@ class Autopilot:
             self._say(out.fields["severity"], out.fields["text"])
         else:
             self._send_gcs(getattr(mavlink, f"MAVLink_{out.kind.lower()}_message")(**out.kwargs()))
+            if out.kind in ("MISSION_ACK", "MISSION_CURRENT"):  # an upload or clear ended; progress
+                self.publish_plan()
+
+    def publish_plan(self, again: bool = False) -> None:
+        """The mission document on Zenoh (quadsitl.telemetry): when the plan, its current item, its state or
+        home changed, or ``again`` (once a second, for subscribers that join late)."""
+        if self.plan_pub is None:
+            return
+        p = self.missions.protocol
+        now = (p.version, p.current, p.mission_state, self.commander.home)
+        if now == self.plan_published and not again:
+            return
+        self.plan_published = now
+        self.plan_pub.put(telemetry.encode_mission(p.version, p.current, p.mission_state,
+                                                   self.missions.plan(self.commander)))  # fmt: skip
 
     def _for_me(self, system: int, component: int) -> bool:
         return system in (0, self.sysid) and component in (0, self.compid)
@@ -753,7 +774,7 @@ class Autopilot:
     def close(self) -> None:
         if self.pubs:
             self.flush_telemetry()
-        for pub in self.pubs.values():
+        for pub in (*self.pubs.values(), *([self.plan_pub] if self.plan_pub else [])):
             pub.undeclare()
         if self.session is not None:
             self.session.close()

@@ -363,8 +363,11 @@ class GroundStation:
                     self.progress.update(flight_t)
                     self.progress.close()
                     phase = "done"
-                elif flight_t > self.duration:
-                    raise GcsError(self._unfinished(flight_t))
+                elif flight_t > self.duration:  # keep what was flown: the telemetry and the items reached
+                    message = self._unfinished(flight_t)
+                    self.save_partial("the mission overran --duration")
+                    self.write_mission_json(disarmed=False)
+                    raise GcsError(message)
                 elif phase == "flying":
                     self.progress.update(flight_t)
                     complete = self.mission_state is not None and self.mission_state[1] == MISSION_STATE_COMPLETE
@@ -391,9 +394,10 @@ class GroundStation:
         return (f"the mission did not end within --duration {self.duration:g} simulated s ({where}, "
                 f"{len({r['seq'] for r in self.reached})} items reached, after {flight_t:.1f} s)")  # fmt: skip
 
-    def write_mission_json(self) -> None:
+    def write_mission_json(self, disarmed: bool = True) -> None:
         """mission.json: the items (with north, east [m] from the origin for those with a position) and the
-        simulated time t (telemetry.csv's, 0 at arming) at which each MISSION_ITEM_REACHED arrived."""
+        simulated time t (telemetry.csv's, 0 at arming) at which each MISSION_ITEM_REACHED arrived; ``disarmed``
+        False for a flight cut short (``disarmed_t`` null)."""
         origin = self.args.home or PX4_HOME
         reached = {}
         for r in self.reached:
@@ -415,7 +419,7 @@ class GroundStation:
             "items": items,
             "reached": [r for r in self.reached],
             "all_reached_in_order": [r["seq"] for r in self.reached] == list(range(len(self.mission.items))),
-            "disarmed_t": round(self.duration, 6),
+            "disarmed_t": round(self.duration, 6) if disarmed else None,
         }
         (self.out / "mission.json").write_text(json.dumps(doc, indent=2) + "\n")
 
@@ -445,9 +449,10 @@ class GroundStation:
             return 1
         return 0
 
-    def save_partial(self) -> int:
-        """On SIGINT/SIGTERM: the flight so far, flushed. telemetry.csv gets every tick flown up to the
-        last one whose four streams all arrived (a gap-free prefix); the .tlog is flushed to disk."""
+    def save_partial(self, reason: str = "interrupted") -> int:
+        """On SIGINT/SIGTERM (or a flight cut short, ``reason``): the flight so far, flushed. telemetry.csv gets
+        every tick flown up to the last one whose four streams all arrived (a gap-free prefix); the .tlog is
+        flushed to disk."""
         self.stop_progress()
         deadline = time.monotonic() + 0.3  # what is already on its way
         while time.monotonic() < deadline:
@@ -460,7 +465,7 @@ class GroundStation:
         write_csv(self.out / "telemetry.csv", np.array([logged[k] for k in range(n)]))
         self.tlog.flush()
         os.fsync(self.tlog.fileno())
-        print(f"gcs: interrupted; telemetry.csv has the {n} ticks flown so far, flight.tlog is flushed",
+        print(f"gcs: {reason}; telemetry.csv has the {n} ticks flown so far, flight.tlog is flushed",
               file=sys.stderr)  # fmt: skip
         return n
 

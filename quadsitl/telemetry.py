@@ -16,6 +16,19 @@ status: ``armed`` uint8 (0/1), ``mode`` uint8 (:data:`MODES`: 0 hold, 1 offboard
 int64 (tick at which the current offboard flight started, −1 when not in an offboard flight). The Zenoh
 encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v3`` (:data:`SCHEMA_VERSION`).
 
+One more key is not per tick: ``quadsitl/<vehicle>/mission`` carries the stored mission as the dashboard draws
+it, JSON (``application/json`` with schema ``quadsitl.mission.v1``), published when the plan, its current
+item or its state changes and once a second (so a subscriber that joins late has it within a second)::
+
+    {"version": 3, "current": 1, "state": 3, "total": 4,
+     "items": [{"seq": 0, "command": 22, "x": null, "y": null, "altitude": 5.0}, ...]}
+
+``version`` counts replacements of the stored mission; ``state`` is MAVLink's MISSION_STATE (1 none, 2 not
+started, 3 active, 4 paused, 5 complete); each item's ``x``, ``y`` (local NED [m], x north, y east of the
+origin) and ``altitude`` [m] are where the item flies, null where it has no place of its own (a takeoff or
+landing where the vehicle is, a delay, a speed change; a return to launch has home's x, y).
+:func:`encode_mission` and :func:`decode_mission` write and check it.
+
 Versions: v3 added x_ref and y_ref to the setpoint record (v2's was ``<Qd4d``); the other streams' records
 are as in v2, and carry v3 too, so that one version names the whole set. v2 batched records; v1 carried
 exactly one per sample.
@@ -31,6 +44,8 @@ subscriber's) per tick, which at that rate cost more than the control loop itsel
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import struct
 from collections.abc import Sequence
 from pathlib import Path
@@ -57,6 +72,12 @@ FIELDS: dict[str, tuple[str, ...]] = {
 MODES: dict[int, str] = {0: "hold", 1: "offboard", 2: "land", 3: "takeoff", 4: "rtl", 5: "mission"}
 
 
+MISSION = "mission"  # the key quadsitl/<vehicle>/mission: the stored mission, JSON (not a per-tick stream)
+MISSION_SCHEMA = 1
+MAX_MISSION_BYTES = 256 * 1024  # a mission document longer than this is refused (500 items take about 40 KB)
+MISSION_STATES: dict[int, str] = {0: "unknown", 1: "none", 2: "not started", 3: "active", 4: "paused", 5: "complete"}
+
+
 def key(vehicle: str, stream: str) -> str:
     return f"{PREFIX}/{vehicle}/{stream}"
 
@@ -65,6 +86,78 @@ def encoding(stream: str) -> zenoh.Encoding:
     import zenoh
 
     return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(f"quadsitl.{stream}.v{SCHEMA_VERSION}")
+
+
+def mission_encoding() -> zenoh.Encoding:
+    import zenoh
+
+    return zenoh.Encoding.APPLICATION_JSON.with_schema(f"quadsitl.{MISSION}.v{MISSION_SCHEMA}")
+
+
+def encode_mission(version: int, current: int, state: int, items: Sequence[dict]) -> bytes:
+    """The mission document (see the module's docstring): ``items`` are dicts of seq, command, x, y, altitude
+    (NaN or None where unknown; NaN goes out as null)."""
+
+    def num(v: float | None) -> float | None:
+        return None if v is None or not math.isfinite(v) else round(float(v), 3)
+
+    doc = {
+        "version": int(version),
+        "current": int(current),
+        "state": int(state),
+        "total": len(items),
+        "items": [
+            {"seq": int(i["seq"]), "command": int(i["command"]), "x": num(i["x"]), "y": num(i["y"]),
+             "altitude": num(i["altitude"])}
+            for i in items
+        ],
+    }  # fmt: skip
+    return json.dumps(doc, separators=(",", ":"), allow_nan=False).encode()
+
+
+def decode_mission(payload: bytes) -> dict:
+    """A mission document → the dict :func:`encode_mission` wrote, checked field by field. Raises ValueError
+    naming what is wrong (too long, not JSON, a missing or mistyped field, a value out of range)."""
+    if len(payload) > MAX_MISSION_BYTES:
+        raise ValueError(f"mission: {len(payload)} bytes, at most {MAX_MISSION_BYTES}")
+    try:
+        doc = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"mission: not JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"mission: expected an object, got {type(doc).__name__}")
+
+    def integer(obj: dict, name: str, lo: int, hi: int) -> int:
+        v = obj.get(name)
+        if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+            raise ValueError(f"mission: {name} = {v!r}, expected an integer in {lo}..{hi}")
+        return v
+
+    def number(obj: dict, name: str) -> float | None:
+        v = obj.get(name)
+        if v is None:
+            return None
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or abs(v) > 1e7:
+            raise ValueError(f"mission: item {name} = {v!r}, expected a number of metres within ±1e7, or null")
+        return float(v)
+
+    items = doc.get("items")
+    if not isinstance(items, list):
+        raise ValueError(f"mission: items = {items!r:.40}, expected a list")
+    out = {
+        "version": integer(doc, "version", 0, 2**53),
+        "state": integer(doc, "state", 0, max(MISSION_STATES)),
+        "total": integer(doc, "total", len(items), len(items)),
+        "items": [],
+    }
+    out["current"] = integer(doc, "current", 0, max(len(items) - 1, 0))
+    for item in items:
+        if not isinstance(item, dict):
+            raise ValueError(f"mission: an item is {type(item).__name__}, expected an object")
+        out["items"].append({"seq": integer(item, "seq", 0, 65535), "command": integer(item, "command", 0, 65535),
+                             "x": number(item, "x"), "y": number(item, "y"),
+                             "altitude": number(item, "altitude")})  # fmt: skip
+    return out
 
 
 def records(stream: str, payload: bytes) -> list[tuple]:

@@ -164,3 +164,19 @@ class Client:
         mask = 0b110111111011  # z only
         self.conn.mav.set_position_target_local_ned_send(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask, 0, 0, -altitude,
                                                         0, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip
+
+    def upload_mission(self, items: list[tuple[int, float, float, float]], timeout: float = 10.0):
+        """Upload a mission by the protocol, as a ground station does: MISSION_COUNT, then each
+        MISSION_ITEM_INT the vehicle requests; returns the MISSION_ACK. ``items``: (command, latitude,
+        longitude [deg], altitude above home [m]) each."""
+        self.conn.mav.mission_count_send(1, 1, len(items), M.MAV_MISSION_TYPE_MISSION)
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self.wait_any(lambda m: m.get_type() in ("MISSION_REQUEST_INT", "MISSION_ACK"), end - time.monotonic())
+            if m.get_type() == "MISSION_ACK":
+                return m
+            command, lat, lon, alt = items[m.seq]
+            self.conn.mav.mission_item_int_send(1, 1, m.seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command, 0, 1,
+                                                0, 0, 0, float("nan"), round(lat * 1e7), round(lon * 1e7), alt,
+                                                M.MAV_MISSION_TYPE_MISSION)  # fmt: skip
+        raise AssertionError(f"the upload of {len(items)} items did not end within {timeout} s")

@@ -275,3 +275,50 @@ def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
             pub.close()
         server.terminate()
         server.wait(10)
+
+
+@pytest.mark.timeout(120)
+def test_the_map_shows_the_mission_and_its_current_item_as_it_flies(browser, artifacts):
+    """``quadsitl up --dashboard``; a raw pymavlink ground station uploads three waypoints by the mission protocol
+    and starts the mission: the page's map shows the plan where the items are, rings the current item, and
+    follows it to the next one when the first is reached; the status panel says which item of how many."""
+    from groundstation.gcs import PX4_HOME
+    from quadsitl.frames import ned_to_geodetic
+
+    port = free_port(socket.SOCK_STREAM)
+    url = f"http://127.0.0.1:{port}/"
+    points = ((6.0, 0.0), (6.0, 6.0), (0.0, 6.0))  # north, east [m]: short legs, so the test is short
+    with quadsitl_up("--dashboard", "--dashboard-port", str(port)) as v:
+        c = Client(v.gcs_port)
+        page = None
+        try:
+            c.connect()
+            items = [(M.MAV_CMD_NAV_WAYPOINT, *ned_to_geodetic(n, e, *PX4_HOME[:2]), 4.0) for n, e in points]
+            assert c.upload_mission(items).type == M.MAV_MISSION_ACCEPTED
+            wait_http(url)
+            page = browser.new_page(viewport={"width": 1400, "height": 1100})
+            page.goto(url)
+            plan = "document.getElementById('plot-map').dataset"
+            page.wait_for_function(f"() => Number({plan}.planItems) === 3 && {plan}.current === '0'", timeout=15000)
+            mission = page.evaluate("() => quadsitl.mission")
+            assert [(i["x"], i["y"]) for i in mission["items"]] == [pytest.approx(p, abs=0.02) for p in points]
+            assert [i["altitude"] for i in mission["items"]] == [pytest.approx(4.0)] * 3
+            text = "document.querySelector('#status [data-field=mission]').textContent"
+            assert page.evaluate(f"() => {text}") == "item 0 of 3, not started"
+
+            assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+            assert c.command(M.MAV_CMD_MISSION_START, 0, 0).result == M.MAV_RESULT_ACCEPTED
+            page.wait_for_function(f"() => {text}.endsWith('active')", timeout=10000)
+            # the first waypoint reached (takeoff to 4 m, then 6 m north): the ring moves on to item 1
+            page.wait_for_function(f"() => {plan}.current === '1' && {text} === 'item 1 of 3, active'", timeout=40000)
+            ring = page.evaluate("""() => {
+                const box = document.getElementById('plot-map'), c = box.querySelector('canvas');
+                const r = window.devicePixelRatio || 1, [x, y] = box.dataset.currentPx.split(',').map(Number);
+                const px = c.getContext('2d').getImageData(Math.round(x * r), Math.round(y * r), 1, 1);
+                return Array.from(px.data); }""")
+            assert ring[:3] == pytest.approx([255, 127, 14], abs=40)  # the orange ring's top, over the item
+            page.screenshot(path=str(artifacts / "dashboard-mission.png"), full_page=True)
+        finally:
+            if page is not None:
+                page.close()
+            c.close()

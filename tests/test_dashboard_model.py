@@ -148,3 +148,28 @@ def test_yaw_error_wraps_across_pi():
     setpoint = (1, T, 0, 0, 0, math.radians(-179), math.nan, math.nan)
     row = dict(zip(ROW_FIELDS, plot_row(state, setpoint, (1, T, 0, 0, 0, 0, 0, 0, 0, 0))))
     assert row["e_yaw"] == pytest.approx(2.0)
+
+
+def test_the_mission_document_is_kept_for_the_map_and_a_bad_one_is_counted_and_ignored():
+    fleet = Fleet()
+    items = [{"seq": 0, "command": 22, "x": None, "y": None, "altitude": 5.0},
+             {"seq": 1, "command": 16, "x": 12.0, "y": -4.0, "altitude": 5.0}]  # fmt: skip
+    fleet.ingest("quadsitl/v1/mission", telemetry.encode_mission(2, 1, 3, items), 0.0)  # before any telemetry
+    feed(fleet, range(1, 41), wall=0.0)
+    (s,) = fleet.summaries(0.0)
+    assert s["mission"]["current"] == 1 and s["mission"]["state_name"] == "active" and s["mission"]["total"] == 2
+    assert s["mission"]["items"][1] == {"seq": 1, "command": 16, "x": 12.0, "y": -4.0, "altitude": 5.0}
+    assert len(fleet.vehicles["v1"].rows) == 2  # the plan is not a plot row
+    good = fleet.vehicles["v1"].mission
+    bad = [b"{", b"[]", b'{"version": 1}', telemetry.encode_mission(2, 5, 3, items),  # current beyond the plan
+           telemetry.encode_mission(2, 1, 9, items),  # no such MISSION_STATE
+           telemetry.encode_mission(2, 1, 3, items).replace(b"12.0", b"1e99"),
+           telemetry.encode_mission(2, 1, 3, items).replace(b'"total":2', b'"total":3'),
+           b" " * (telemetry.MAX_MISSION_BYTES + 1), b"\xff\xfe"]  # fmt: skip
+    for payload in bad:
+        fleet.ingest("quadsitl/v1/mission", payload, 0.1)
+    v = fleet.vehicles["v1"]
+    assert v.malformed == len(bad) and v.mission == good
+    fleet.ingest("quadsitl/v1/mission", telemetry.encode_mission(3, 0, 1, []), 0.2)  # cleared
+    cleared = fleet.summaries(0.2)[0]["mission"]
+    assert cleared["items"] == [] and cleared["state_name"] == "none"

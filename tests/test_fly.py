@@ -323,3 +323,21 @@ def test_fly_mission_refuses_a_bad_file_before_anything_starts(tmp_path):
     r = subprocess.run(quadsitl("fly", "--mission", str(bad), "--trajectory", "sine"), capture_output=True, text=True,
                        timeout=60)  # fmt: skip
     assert r.returncode == 2 and "--trajectory 'sine' with --mission" in r.stderr
+
+
+def test_fly_mission_that_overruns_duration_fails_and_keeps_what_was_flown(tmp_path):
+    """A mission longer than --duration: exit 1 with a line that says where the mission was, and the flight so
+    far kept (telemetry.csv, flight.tlog, mission.json with the items reached and no disarm time)."""
+    plan = Path(__file__).parent / "data" / "square.plan"
+    r = subprocess.run(quadsitl("fly", "--preset", "x500", "--mission", str(plan), "--duration", "6", "-q",
+                                "--out", str(tmp_path)), capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 1
+    line = next(x for x in r.stderr.splitlines() if "did not end within --duration 6 simulated s" in x)
+    doc = json.loads((tmp_path / "mission.json").read_text())
+    reached = [x["seq"] for x in doc["reached"]]
+    assert 1 <= len(reached) < len(doc["items"]) and reached == list(range(len(reached)))
+    assert f"{len(reached)} items reached" in line and f"current item {reached[-1] + 1} of 5" in line
+    assert doc["disarmed_t"] is None and not doc["all_reached_in_order"]
+    data = read_csv(tmp_path / "telemetry.csv")
+    assert data["altitude"].max() > 4.0 and data["t"][-1] >= 6.0  # it flew, and the csv holds the flight
+    assert (tmp_path / "flight.tlog").stat().st_size > 10_000

@@ -4,6 +4,7 @@ Enough to test the sequencing, acceptance radii, holds, events, yaw, speeds, tak
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -449,3 +450,39 @@ def test_closed_loop_a_mission_flown_by_the_compiled_tick_and_the_plant():
             last = a
     assert reached == [0, 1, 2]
     assert f.horizontal_error(0.0, 0.0) < 0.5 and f.state.altitude < 0.1 and not cmd.armed
+
+
+def test_the_plan_for_maps_places_each_item_as_it_is_flown_and_says_nothing_it_cannot_know():
+    """Missions.plan (the ``quadsitl/<vehicle>/mission`` document): local x, y and altitude of each item as the
+    executor reads them, home's x, y for a return, nothing for items without a place of their own."""
+    from types import SimpleNamespace
+
+    from autopilot.missions import Missions
+    from quadsitl import telemetry
+
+    home = (5.0, -3.0, 3.0)
+    items = [item(0, mp.NAV_TAKEOFF, z=8.0, here=True), *square(z=10.0)[:2], item(3, mp.DO_CHANGE_SPEED),
+             item(4, mp.NAV_LAND, north=20.0, east=-10.0), item(5, mp.NAV_LAND, here=True),
+             item(6, mp.NAV_RETURN_TO_LAUNCH, here=True)]  # fmt: skip
+    items = [MissionItem(k, *dataclasses.astuple(i)[1:]) for k, i in enumerate(items)]
+    m = Missions(ORIGIN)
+    m.protocol.items = tuple(items)
+    vehicle = SimpleNamespace(home=home)
+    plan = m.plan(vehicle)
+    assert [p["seq"] for p in plan] == list(range(7)) and [p["command"] for p in plan] == [i.command for i in items]
+    ex = MissionExecutor(items, ORIGIN, home)
+    for p, i in zip(plan[1:3], items[1:3]):
+        assert (p["x"], p["y"], p["altitude"]) == pytest.approx(ex.local(i))
+    assert plan[1]["x"] == pytest.approx(40.0, abs=0.02) and plan[2]["y"] == pytest.approx(40.0, abs=0.02)
+    assert plan[1]["altitude"] == pytest.approx(13.0)  # relative to home's 3 m
+    assert math.isnan(plan[0]["x"]) and plan[0]["altitude"] == pytest.approx(11.0)  # takes off where it is
+    assert all(math.isnan(plan[3][k]) for k in ("x", "y", "altitude"))  # a speed change has no place
+    assert (plan[4]["x"], plan[4]["y"]) == pytest.approx((20.0, -10.0), abs=0.02) and math.isnan(plan[4]["altitude"])
+    assert math.isnan(plan[5]["x"])  # lands where it is
+    assert (plan[6]["x"], plan[6]["y"]) == (5.0, -3.0)  # returns home
+    assert m.executor is None  # reading the plan changes nothing
+
+    doc = telemetry.decode_mission(telemetry.encode_mission(7, 2, mp.STATE_ACTIVE, plan))
+    assert (doc["version"], doc["current"], doc["state"], doc["total"]) == (7, 2, 3, 7)
+    assert doc["items"][1]["x"] == pytest.approx(plan[1]["x"], abs=1e-3) and doc["items"][0]["x"] is None
+    assert m.plan(SimpleNamespace(home=home)) == plan and Missions(ORIGIN).plan(vehicle) == []

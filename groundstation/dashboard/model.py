@@ -8,6 +8,8 @@ For each vehicle seen on ``quadsitl/<vehicle>/<stream>`` (:mod:`quadsitl.telemet
   ``1/plot_rate`` simulated seconds), picked out of each sample by offset without decoding the rest, and
   joined across the four streams by tick. The full-rate stream stays on Zenoh; the page gets at most
   ``plot_rate`` rows per simulated second whatever the run's speed;
+* the stored mission (``quadsitl/<vehicle>/mission``, JSON): where each item flies and which is current,
+  for the map; a malformed document is counted and the last good one kept;
 * the tick rate and real-time factor, from the status records' ticks and simulated times against the wall
   clock over the last ``RATE_WINDOW`` seconds.
 
@@ -74,6 +76,7 @@ class Vehicle:
     _pending: dict[int, dict[str, tuple]] = field(default_factory=dict)
     _rate: deque = field(default_factory=deque)  # (wall, tick, t) of status records
     _stream_tick: dict[str, int] = field(default_factory=dict)  # the newest tick of each stream
+    mission: dict | None = None  # the last mission document (quadsitl.telemetry.decode_mission), None before one
 
     # ---- ingest ---------------------------------------------------------------------------------------
 
@@ -109,6 +112,16 @@ class Vehicle:
             rec = fmt.unpack_from(payload, (k - first_tick) * fmt.size)
             self._join(k, stream, rec)
             k += d
+
+    def ingest_mission(self, payload: bytes, wall: float) -> None:
+        """A mission document: kept when it is well formed (counted as malformed and ignored otherwise)."""
+        try:
+            self.mission = telemetry.decode_mission(payload)
+        except ValueError:
+            self.malformed += 1
+            return
+        self.samples += 1
+        self.last_wall = max(self.last_wall, wall)
 
     def _learn_period(self, rec: tuple) -> None:
         tick, t = rec[0], rec[1]
@@ -177,6 +190,8 @@ class Vehicle:
             "samples": self.samples,
             "malformed": self.malformed,
         }
+        m = self.mission
+        out["mission"] = None if m is None else {**m, "state_name": telemetry.MISSION_STATES[m["state"]]}
         out["tick_rate"] = rate
         out["real_time_factor"] = rtf
         out["period"] = self.period or None
@@ -205,7 +220,8 @@ class Fleet:
     def ingest(self, key: str, payload: bytes, wall: float) -> None:
         """A Zenoh sample on ``key`` (``quadsitl/<vehicle>/<stream>``) received at ``wall`` [s]."""
         parts = key.split("/")
-        if len(parts) != 3 or parts[0] != telemetry.PREFIX or parts[2] not in telemetry.STREAMS:
+        mission = len(parts) == 3 and parts[2] == telemetry.MISSION
+        if len(parts) != 3 or parts[0] != telemetry.PREFIX or (parts[2] not in telemetry.STREAMS and not mission):
             self.ignored += 1
             return
         v = self.vehicles.get(parts[1])
@@ -214,7 +230,10 @@ class Fleet:
                 self.ignored += 1
                 return
             v = self.vehicles[parts[1]] = Vehicle(parts[1], self.plot_rate, self.window)
-        v.ingest(parts[2], payload, wall)
+        if mission:
+            v.ingest_mission(payload, wall)
+        else:
+            v.ingest(parts[2], payload, wall)
 
     def summaries(self, wall: float) -> list[dict]:
         return [v.summary(wall) for _, v in sorted(self.vehicles.items())]

@@ -4,7 +4,8 @@
 // came (the server sends them four times a second, once a second while a run goes faster than 2× real time).
 // The x–y map is a plain canvas, seen from above (north up, east right, equal scales): the measured path of
 // the window, the reference path, the current setpoint when the horizontal position is controlled (x_ref
-// not null) and home at the origin; redrawn with the plots, from the same rows.
+// not null) and home at the origin; redrawn with the plots, from the same rows. The stored mission, when
+// there is one: its items numbered by seq and joined in order (dotted), the current item ringed.
 "use strict";
 
 const REDRAW_MS = 250;
@@ -25,11 +26,12 @@ const PLOTS = [
   { id: "position", title: "position x, y [m] (NED)", series: [["x", "x (north)", "#1f77b4"], ["y", "y (east)", "#ff7f0e"]] },
 ];
 
-const MAP = { height: 320, setpoint: "#d62728", home: "#2ca02c", grid: "#eee", text: "#777" };
+const MAP = { height: 320, setpoint: "#d62728", home: "#2ca02c", grid: "#eee", text: "#777",
+              plan: "#9467bd", current: "#ff7f0e" };
 
 const state = {
   window: 20, fields: [], selected: "", vehicles: {}, data: {}, dirty: false,
-  plots: {}, map: null, updates: 0, redraws: 0, lastT: null,
+  plots: {}, map: null, updates: 0, redraws: 0, lastT: null, mission: null,
 };
 window.quadsitl = state; // for scripts and tests: what the page holds and how often it redrew
 
@@ -83,7 +85,8 @@ function makeMap(root) {
   title.className = "map-title";
   title.innerHTML = "x–y map [m] from above: x north ↑, y east → " +
     `<span style="color:${MEASURED}">━ path</span><span style="color:${REFERENCE}">┅ reference</span>` +
-    `<span style="color:${MAP.setpoint}">⊕ setpoint</span><span style="color:${MAP.home}">■ home</span>`;
+    `<span style="color:${MAP.setpoint}">⊕ setpoint</span><span style="color:${MAP.home}">■ home</span>` +
+    `<span style="color:${MAP.plan}">● mission</span><span style="color:${MAP.current}">◯ current item</span>`;
   const canvas = document.createElement("canvas");
   box.append(title, canvas);
   root.appendChild(box);
@@ -116,6 +119,9 @@ function drawMap() {
     minE = Math.min(minE, east); maxE = Math.max(maxE, east);
   };
   for (let i = 0; i < n; i++) { grow(d.x[i], d.y[i]); grow(d.x_ref[i], d.y_ref[i]); }
+  const mission = state.mission;
+  const placed = mission ? mission.items.filter(it => it.x !== null && it.y !== null) : [];
+  for (const it of placed) grow(it.x, it.y);
   const cN = (minN + maxN) / 2, cE = (minE + maxE) / 2;
   const span = Math.max(maxN - minN, maxE - minE, 2) * 1.1;
   const scale = Math.min(W, H) / span; // px per metre
@@ -143,6 +149,23 @@ function drawMap() {
     }
     ctx.stroke(); ctx.setLineDash([]);
   };
+  // The mission under the flight: its legs dotted, its items numbered by seq, the current one ringed.
+  let current = null;
+  if (placed.length) {
+    ctx.strokeStyle = MAP.plan; ctx.lineWidth = 1.2; ctx.setLineDash([2, 4]); ctx.beginPath();
+    placed.forEach((it, k) => k ? ctx.lineTo(px(it.y), py(it.x)) : ctx.moveTo(px(it.y), py(it.x)));
+    ctx.stroke(); ctx.setLineDash([]);
+    ctx.font = "11px system-ui, sans-serif";
+    for (const it of placed) {
+      ctx.fillStyle = MAP.plan; ctx.beginPath(); ctx.arc(px(it.y), py(it.x), 4, 0, 2 * Math.PI); ctx.fill();
+      ctx.fillText(String(it.seq), px(it.y) + 6, py(it.x) - 6);
+      if (it.seq === mission.current && mission.state !== 1) current = it;
+    }
+    if (current) {
+      ctx.strokeStyle = MAP.current; ctx.lineWidth = 2.5; ctx.beginPath();
+      ctx.arc(px(current.y), py(current.x), 10, 0, 2 * Math.PI); ctx.stroke();
+    }
+  }
   if (n) { trail(d.x, d.y, MEASURED, [], 1.8); trail(d.x_ref, d.y_ref, REFERENCE, [6, 4], 1.2); }
   // Home: a square at the origin.
   const home = [px(0), py(0)];
@@ -168,6 +191,9 @@ function drawMap() {
   box.dataset.setpointPx = setpoint ? [px(setpoint[1]), py(setpoint[0])].map(v => v.toFixed(1)).join(",") : "";
   box.dataset.homePx = home.map(v => v.toFixed(1)).join(",");
   box.dataset.scale = scale.toFixed(4);
+  box.dataset.planItems = placed.length;
+  box.dataset.current = current ? current.seq : "";
+  box.dataset.currentPx = current ? [px(current.y), py(current.x) - 10].map(v => v.toFixed(1)).join(",") : "";
 }
 
 function append(rows, reset) {
@@ -210,6 +236,9 @@ function showStatus(v) {
   const s = v.status || {};
   set("armed", s.armed === undefined ? "–" : s.armed ? "armed" : "disarmed", s.armed ? "warn" : "");
   set("mode", s.mode || "–");
+  const m = v.mission;
+  set("mission", !m || !m.total ? "none" : `item ${m.current} of ${m.total}, ${m.state_name}`,
+      m && m.state === 3 ? "ok" : "");
   set("failsafe", s.failsafe || "–", s.failsafe && s.failsafe !== "none" ? "bad" : "ok");
   set("link", `${v.link.telemetry} (${fmt(v.link.age_s * 1000, 0, " ms")} ago)`, v.link.telemetry === "live" ? "ok" : "bad");
   set("tick_rate", fmt(v.tick_rate, 0, " /s"));
@@ -231,6 +260,7 @@ function onUpdate(msg) {
     state.vehicles[v.name] = v;
     if (!state.selected) { state.selected = v.name; select.value = v.name; }
     if (v.name === state.selected) {
+      if (JSON.stringify(v.mission) !== JSON.stringify(state.mission)) { state.mission = v.mission; state.dirty = true; }
       append(v.rows, v.reset);
       showStatus(v);
     }
@@ -257,6 +287,7 @@ function connect() {
 document.getElementById("vehicle").addEventListener("change", e => {
   state.selected = e.target.value;
   state.data = emptyData(); // the next update for it carries its whole window: ask for it afresh
+  state.mission = null;
   stream.close();
   stream = connect();
 });
