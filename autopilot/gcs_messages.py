@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from autopilot.commander import TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, Commander
 from quadsitl import __version__
-from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
+from quadsitl.frames import PX4_HOME, euler_to_quaternion, ned_to_geodetic
 from quadsitl.state import Reference, VehicleState
 from quadsitl.wire import Mode, mavlink
 
@@ -36,9 +36,9 @@ class Origin:
     longitude [deg], altitude AMSL [m]. ``--home`` sets it; the default is PX4 SITL's default home
     (Zürich), where PX4 SITL's vehicle starts."""
 
-    lat: float = 47.397742
-    lon: float = 8.545594
-    alt: float = 488.0
+    lat: float = PX4_HOME[0]
+    lon: float = PX4_HOME[1]
+    alt: float = PX4_HOME[2]
 
 
 Home = Origin  # the former name, which autopilot.process still imports

@@ -142,7 +142,9 @@ EXAMPLES_UP = """examples:
 
 def cmd_up(args: argparse.Namespace) -> int:
     from autopilot.process import parse_home
+    from groundstation.fleet import MAX_VEHICLES, parse_vehicle_presets, plan_fleet
     from groundstation.launcher import up
+    from quadsitl.frames import PX4_HOME
     from quadsitl.process_util import parse_address, parse_remote
 
     preset = _load(args.preset)
@@ -156,9 +158,20 @@ def cmd_up(args: argparse.Namespace) -> int:
     for option in ("gcs_remote", "api_remote"):
         if getattr(args, option) is not None:
             parse_remote("--" + option.replace("_", "-"), getattr(args, option))
-    parse_home(args.home)
+    home = parse_home(args.home) or PX4_HOME
     impairment_from(args.impair, args.mode)  # refuse a bad --impair here, before starting anything
-    return up(args.preset, preset, args)
+    if not 1 <= args.vehicles <= MAX_VEHICLES:
+        raise UsageError(f"--vehicles {args.vehicles}: expected an integer in 1..{MAX_VEHICLES}")
+    presets = parse_vehicle_presets(args.vehicle_preset, args.vehicles)
+    for number, name in presets.items():
+        try:
+            load_preset(name)
+        except ConfigError as exc:
+            raise UsageError(f"--vehicle-preset {number}={name}: {exc}") from None
+    fleet = plan_fleet(args.vehicles, preset=args.preset, first_system_id=args.system_id, home=home,
+                       spacing=args.spacing, gcs_listen=args.gcs_listen, gcs_remote=args.gcs_remote,
+                       api_listen=args.api_listen, api_remote=args.api_remote, vehicle_presets=presets)  # fmt: skip
+    return up(preset, args, fleet)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -279,7 +292,31 @@ the source, or 'mkdocs serve' there.""",
             help=f"where the {name} link streams (default: 127.0.0.1:{remote})",
         )
     add_impair_argument(upp)
-    upp.add_argument("--system-id", type=int, default=1, help="MAVLink system id (default: 1)")
+    upp.add_argument(
+        "--system-id",
+        type=int,
+        default=1,
+        help="MAVLink system id (default: 1; with --vehicles, the first vehicle's, the others count up from it)",
+    )
+    upp.add_argument(
+        "--vehicles",
+        type=int,
+        default=1,
+        metavar="N",
+        help="how many vehicles, each its own plant and autopilot on PX4's multi-vehicle ports (vehicle "
+        "i = 1..N: system id i, Zenoh name vi, gcs link 18570+i-1 → 14550, api link 14580+i-1 → "
+        "14540+i-1; default 1)",
+    )
+    upp.add_argument(
+        "--spacing",
+        type=float,
+        default=3.0,
+        metavar="M",
+        help="with --vehicles: metres between vehicles on the starting grid (default 3)",
+    )
+    upp.add_argument("--vehicle-preset", action="append", default=[], metavar="K=PRESET",
+                     help="with --vehicles: vehicle K flies PRESET (a name or a TOML file) instead of --preset "
+                     "(repeatable)")  # fmt: skip
     upp.add_argument("--home", metavar="LAT,LON,ALT", help="home position (default: PX4 SITL's, in Zürich)")
     upp.add_argument(
         "--zenoh-listen",

@@ -48,7 +48,7 @@ from groundstation.telemetry_csv import write_csv
 from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.frames import euler_to_quaternion, geodetic_to_ned
+from quadsitl.frames import PX4_HOME, euler_to_quaternion, geodetic_to_ned
 from quadsitl.process_util import parse_address, start_process, stop_status
 from quadsitl.state import Reference
 
@@ -59,7 +59,6 @@ MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (an
 # (2048) ignored: MAVSDK's position + velocity mask.
 MASK_POSITION_VELOCITY_YAW = 2496
 MISSION_DURATION = 900.0  # [s] simulated: the default bound on a mission's flight (--duration changes it)
-PX4_HOME = (47.397742, 8.545594, 488.0)  # PX4 SITL's default home, the autopilot's default origin
 MISSION_STATE_COMPLETE = 5
 UPLOAD_RETRY = 1.0  # [s] wall: MISSION_COUNT again when the vehicle has not asked for an item
 UPLOAD_TIMEOUT = 10.0  # [s] wall: give the upload up

@@ -25,6 +25,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from groundstation.fleet import VehiclePlan
 from quadsitl.cli_util import UsageError
 from quadsitl.config import Preset
 from quadsitl.process_util import bind_tcp, bind_udp, free_port, stop_status
@@ -134,35 +135,41 @@ def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout:
     raise RuntimeError("the dashboard did not start")
 
 
-def up(preset_name: str, preset: Preset, args) -> int:
-    """Plant and autopilot until Ctrl-C or SIGTERM (exit 0), or until one of them fails (exit 1)."""
-    plant_port = free_port()
+def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
+    """Plant and autopilot of each vehicle of ``fleet`` (:func:`groundstation.fleet.plan_fleet`) until Ctrl-C or
+    SIGTERM (exit 0), or until one of them fails (exit 1)."""
     children = Children(env=signing_env(args.signing_key))
     if args.dashboard and args.no_zenoh:
         raise UsageError("--dashboard needs the Zenoh telemetry: drop --no-zenoh")
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
-    check_ports_free(args)
+    check_ports_free(args, fleet)
     try:
-        ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
-              "--system-id", str(args.system_id)]  # fmt: skip
-        for option in ("gcs_listen", "gcs_remote", "api_listen", "api_remote", "controller", "home"):
-            value = getattr(args, option)
-            if value is not None:
-                ap += ["--" + option.replace("_", "-"), str(value)]
-        if args.no_zenoh:
-            ap.append("--no-zenoh")
-        else:
-            ap += ["--zenoh-listen", args.zenoh_listen]
-        children.start("autopilot", ap)
-        plant = ["sitl", "--preset", preset_name, "--autopilot", f"127.0.0.1:{plant_port}", "--mode", args.mode]
-        if args.mode == "lockstep":
-            plant += ["--speed", str(args.speed)]
-        if args.impair:
-            plant += ["--impair", args.impair]
-        children.start("plant", plant + (["--quiet"] if args.quiet else []))
+        if len(fleet) > 1:
+            compile_once(children.env)
+        for v in fleet:
+            plant_port = free_port()
+            named = "" if len(fleet) == 1 else f" {v.name}"
+            ap = ["autopilot", "--preset", v.preset, "--plant-listen", f"127.0.0.1:{plant_port}",
+                  "--system-id", str(v.system_id), "--gcs-listen", v.gcs_listen, "--gcs-remote", v.gcs_remote,
+                  "--api-listen", v.api_listen, "--api-remote", v.api_remote]  # fmt: skip
+            if args.controller is not None:
+                ap += ["--controller", args.controller]
+            if args.home is not None or len(fleet) > 1:
+                ap += ["--home", ",".join(repr(x) for x in v.home)]
+            if args.no_zenoh:
+                ap.append("--no-zenoh")
+            else:  # the first vehicle's session listens, the others connect to it (and find each other)
+                ap += ["--vehicle", v.name, "--zenoh-listen" if v.index == 0 else "--zenoh-connect", args.zenoh_listen]
+            children.start("autopilot" + named, ap)
+            plant = ["sitl", "--preset", v.preset, "--autopilot", f"127.0.0.1:{plant_port}", "--mode", args.mode]
+            if args.mode == "lockstep":
+                plant += ["--speed", str(args.speed)]
+            if args.impair:
+                plant += ["--impair", args.impair]
+            children.start("plant" + named, plant + (["--quiet"] if args.quiet else []))
         url = start_dashboard(children, web_port, args.zenoh_listen) if web_port is not None else None
         if not args.quiet:
-            print(banner(preset, args, url), flush=True)
+            print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
         while True:
             failure = children.first_failure(done="", prog="quadsitl up")
             if failure:
@@ -180,15 +187,57 @@ def up(preset_name: str, preset: Preset, args) -> int:
         children.stop()
 
 
-def check_ports_free(args) -> None:
-    """Refuse, before starting anything, the ports ``up`` would find busy: each named with its option."""
-    for option, default in (("gcs_listen", "127.0.0.1:18570"), ("api_listen", "127.0.0.1:14580")):
-        bind_udp("--" + option.replace("_", "-"), getattr(args, option) or default).close()
+def compile_once(env: dict[str, str] | None) -> None:
+    """Before a fleet starts: compile the equations once, into numba's cache, in a process of its own, so that
+    the fleet's 2N processes load them instead of each compiling the same code at once (a cold start)."""
+    code = (
+        "from autopilot.tick import warm_up; warm_up(); from quadsitl.config import load_preset; "
+        "from sitl.plant import Plant; from sitl.process import warm_up; warm_up(Plant(load_preset('paper')))"
+    )
+    if subprocess.run([sys.executable, "-c", code], env=env).returncode != 0:
+        raise RuntimeError("compiling the equations failed (above)")
+
+
+def check_ports_free(args, fleet: list[VehiclePlan]) -> None:
+    """Refuse, before starting anything, the ports ``up`` would find busy: each named with its option (and the
+    vehicle, in a fleet)."""
+    for v in fleet:
+        for option, address in (("--gcs-listen", v.gcs_listen), ("--api-listen", v.api_listen)):
+            try:
+                bind_udp(option, address).close()
+            except UsageError as exc:
+                raise UsageError(f"{exc} (vehicle {v.number})" if len(fleet) > 1 else str(exc)) from None
     if not args.no_zenoh and args.zenoh_listen.startswith("tcp/"):
         host, _, port = args.zenoh_listen[4:].rpartition(":")
         if not port.isdigit():
             raise UsageError(f"--zenoh-listen {args.zenoh_listen}: expected tcp/HOST:PORT")
         bind_tcp("--zenoh-listen", args.zenoh_listen, host, int(port), "tcp/HOST:PORT, or --no-zenoh").close()
+
+
+def fleet_banner(fleet: list[VehiclePlan], args, dashboard_url: str | None = None) -> str:
+    """What ``up --vehicles N`` prints: every vehicle's ids, ports and the one-line client connection for each."""
+    pace = f"lockstep at {args.speed:g}× real time" if args.mode == "lockstep" else "real time (free-running plant)"
+    if args.mode == "lockstep" and args.speed == 0:
+        pace = "lockstep, as fast as possible"
+    gcs = fleet[0].gcs_remote
+    lines = [
+        f"quadsitl up: {len(fleet)} vehicles, {args.controller or 'each preset'}'s controller, {pace}",
+        f"  ground stations: every vehicle streams MAVLink to udp {gcs}"
+        + (f"    mavproxy.py --master=udpin:{gcs}" if gcs != "none" else ""),
+        "  vehicle  sysid  preset      north,east [m]  gcs link        api link → offboard API (MAVSDK)",
+    ]
+    for v in fleet:
+        api = "none" if v.api_remote == "none" else f"udpin://0.0.0.0:{v.api_remote.rpartition(':')[2]}"
+        where = f"{v.offset[0]:6.1f},{v.offset[1]:<7.1f}"
+        lines.append(f"  {v.name:7}  {v.system_id:5}  {Path(v.preset).stem[:10]:10}  {where}  {v.gcs_listen:15} "
+                     f"{v.api_listen} → {api}")  # fmt: skip
+    if not args.no_zenoh:
+        lines.append(f"  telemetry:       Zenoh {args.zenoh_listen}, keys quadsitl/<vehicle>/{{state,setpoint,"
+                     "actuators,status,mission}")  # fmt: skip
+    if dashboard_url:
+        lines.append(f"  dashboard:       {dashboard_url}")
+    lines.append("  Ctrl-C stops.")
+    return "\n".join(lines)
 
 
 def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:

@@ -54,6 +54,43 @@ def quadsitl_up(*extra: str):
         v.stop()
 
 
+def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> int:
+    """The first of ``n`` consecutive ports that are free on 127.0.0.1 now (for a fleet's PORT + i plan)."""
+    for _ in range(200):
+        base = free_port(kind)
+        socks = []
+        try:
+            for i in range(n):
+                s = socket.socket(socket.AF_INET, kind)
+                socks.append(s)
+                s.bind(("127.0.0.1", base + i))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise AssertionError(f"no {n} consecutive free ports")
+
+
+@contextlib.contextmanager
+def fleet_up(n: int, *extra: str):
+    """``quadsitl up --vehicles n`` on free loopback ports: every vehicle's ground-station link streams to
+    ``gcs_port``; vehicle i's offboard-API link to ``api_port`` + i (as PX4's 14540 + i)."""
+    gcs, api = free_port(), free_ports(n)
+    zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    argv = [sys.executable, "-m", "groundstation.cli", "up", "--quiet", "--vehicles", str(n),
+            "--gcs-listen", f"127.0.0.1:{free_ports(n)}", "--gcs-remote", f"127.0.0.1:{gcs}",
+            "--api-listen", f"127.0.0.1:{free_ports(n)}", "--api-remote", f"127.0.0.1:{api}",
+            "--zenoh-listen", zenoh, *extra]  # fmt: skip
+    proc = subprocess.Popen(argv, start_new_session=True)
+    v = Vehicle(proc, gcs, api, zenoh)
+    try:
+        yield v
+    finally:
+        v.stop()
+
+
 class Client:
     """A raw pymavlink ground station listening where the vehicle streams (like QGroundControl on 14550)."""
 
