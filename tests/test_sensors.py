@@ -287,3 +287,33 @@ def test_inconsistent_sensor_values_are_refused():
     assert parse_preset(slow + "\n[sensors]\nmag_rate_hz = 50\n", "x").sensors.mag_rate_hz == 50.0
     with pytest.raises(ConfigError, match=r"sensors\.gps_delay_s = 0\.9: with sensors\.gps_rate_hz = 50\.0"):
         parse_preset(X500 + "\n[sensors]\ngps_rate_hz = 50\ngps_delay_s = 0.9\n", "x")
+
+
+_SAMPLES = """
+import sys
+import numpy as np
+from quadsitl.config import SensorParams
+from sitl.sensors import Sensors
+s = Sensors(SensorParams(seed=5, gyro_turn_on_bias_rad_s=0.01, accel_random_walk_m_s3_sqrt_hz=0.01), 0.001, 9.80665)
+out = []
+for k in range(1500):
+    s.tick(k * 1000, (1.0, 2.0, -3.0, 0.5, -0.5, 0.1, 0.2, -0.1, 1.0, 0.3, 0.2, 0.1), (0.1, 0.2, 0.3))
+    out.append(s.out.copy())
+sys.stdout.write(np.array(out).tobytes().hex())
+"""
+
+
+@pytest.mark.timeout(60)
+def test_compiled_and_plain_python_give_the_same_samples_bit_for_bit():
+    """The same source under NUMBA_DISABLE_JIT=1: the same random streams, the same samples, to the bit."""
+    import os
+    import subprocess
+    import sys
+
+    runs = []
+    for disabled in ("0", "1"):
+        env = {**os.environ, "NUMBA_DISABLE_JIT": disabled}
+        done = subprocess.run([sys.executable, "-c", _SAMPLES], capture_output=True, text=True, env=env, timeout=50)
+        assert done.returncode == 0, done.stderr
+        runs.append(done.stdout)
+    assert len(runs[0]) == 1500 * 20 * 16 and runs[0] == runs[1]
