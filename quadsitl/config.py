@@ -117,6 +117,70 @@ class PositionParams:
     takeoff_speed: float = 1.5  # [m/s] MPC_TKO_SPEED
 
 
+# The IMU figures of the two profiles (PX4's Gazebo IMU plugin, PX4-SITL_gazebo-classic
+# include/gazebo_imu_plugin.h): "px4", its defaults since 2025 (an IIM42653: no random walk, no turn-on bias),
+# and "adis16448", its former defaults (an ADIS16448: densities doubled by the plugin's authors).
+IMU_PROFILES: dict[str, dict[str, float]] = {
+    "px4": {
+        "gyro_noise_density_rad_s_sqrt_hz": 8.7266e-4,
+        "gyro_random_walk_rad_s2_sqrt_hz": 0.0,
+        "gyro_bias_correlation_time_s": 1000.0,
+        "gyro_turn_on_bias_rad_s": 0.0,
+        "accel_noise_density_m_s2_sqrt_hz": 6.37e-3,
+        "accel_random_walk_m_s3_sqrt_hz": 0.0,
+        "accel_bias_correlation_time_s": 300.0,
+        "accel_turn_on_bias_m_s2": 0.0,
+    },
+    "adis16448": {
+        "gyro_noise_density_rad_s_sqrt_hz": 3.394e-4,
+        "gyro_random_walk_rad_s2_sqrt_hz": 3.8785e-5,
+        "gyro_bias_correlation_time_s": 1000.0,
+        "gyro_turn_on_bias_rad_s": 0.0087,
+        "accel_noise_density_m_s2_sqrt_hz": 4e-3,
+        "accel_random_walk_m_s3_sqrt_hz": 6e-3,
+        "accel_bias_correlation_time_s": 300.0,
+        "accel_turn_on_bias_m_s2": 0.196,
+    },
+}
+GPS_QUEUE = 32  # GPS samples in flight at most (gps_delay_s · gps_rate_hz < GPS_QUEUE)
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """The simulated sensors (docs/sensors.md): noise figures, rates, the Earth's field, the seed. Units are in
+    the names. IMU noise as PX4's Gazebo IMU plugin models it (white noise by density, σ = density/√dt, and a
+    Gauss–Markov bias driven by the random walk, starting at a random turn-on bias); defaults: the ``px4``
+    profile (:data:`IMU_PROFILES`)."""
+
+    profile: str = "px4"
+    seed: int = 0
+    gyro_noise_density_rad_s_sqrt_hz: float = 8.7266e-4
+    gyro_random_walk_rad_s2_sqrt_hz: float = 0.0
+    gyro_bias_correlation_time_s: float = 1000.0
+    gyro_turn_on_bias_rad_s: float = 0.0
+    accel_noise_density_m_s2_sqrt_hz: float = 6.37e-3
+    accel_random_walk_m_s3_sqrt_hz: float = 0.0
+    accel_bias_correlation_time_s: float = 300.0
+    accel_turn_on_bias_m_s2: float = 0.0
+    mag_rate_hz: float = 100.0  # PX4 Gazebo magnetometer plugin
+    mag_noise_density_gauss_sqrt_hz: float = 4e-4
+    mag_random_walk_gauss_s_sqrt_hz: float = 6.4e-6
+    mag_bias_correlation_time_s: float = 600.0
+    mag_strength_gauss: float = 0.4807  # jMAVSim's Zürich field (quadsitl.earth)
+    mag_declination_deg: float = 2.75
+    mag_inclination_deg: float = 63.39
+    baro_rate_hz: float = 50.0  # PX4 Gazebo barometer plugin
+    baro_noise_pa: float = 1.0
+    gps_rate_hz: float = 10.0
+    gps_delay_s: float = 0.12  # PX4 Gazebo GPS plugin
+    gps_xy_error_m: float = 1.0  # the slowly wandering position error (σ), see docs/sensors.md
+    gps_z_error_m: float = 2.0
+    gps_error_correlation_time_s: float = 60.0
+    gps_xy_velocity_noise_m_s: float = 0.05
+    gps_z_velocity_noise_m_s: float = 0.1
+    gps_satellites: int = 10
+
+
 @dataclass(frozen=True)
 class InitialState:
     altitude: float = 0.0
@@ -136,6 +200,7 @@ class Preset:
     reference: Reference
     initial: InitialState = field(default_factory=InitialState)
     position: PositionParams = field(default_factory=PositionParams)
+    sensors: SensorParams | None = None  # None: no [sensors] section, the autopilot gets the true state
 
     def poles(self) -> tuple[float, ...]:
         """The eight discrete poles λ_1..λ_8 (from rates k when given as rates: λ = 1 − T·k)."""
@@ -169,6 +234,12 @@ def _num(allowed: str, ok: Callable[[float], bool], **kw: Any) -> Spec:
 POSITIVE = _num("a finite number > 0", lambda v: 0 < v < math.inf)
 NONNEG = _num("a finite number >= 0", lambda v: 0 <= v < math.inf)
 FINITE = _num("a finite number", math.isfinite)
+
+
+def _sensor(key: str, allowed: str, ok: Callable[[float], bool]) -> Spec:
+    """An optional key of [sensors], defaulting to :class:`SensorParams`' value."""
+    return _num(allowed, ok, required=False, default=getattr(SensorParams, key))
+
 
 SCHEMA: dict[str, dict[str, Spec]] = {
     "vehicle": {
@@ -252,6 +323,56 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "xy_cruise": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=5.0),
         "takeoff_speed": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=1.5),
     },
+    "sensors": {
+        "profile": Spec("string", "one of: px4, adis16448", lambda v: v in IMU_PROFILES, required=False, default="px4"),
+        "seed": Spec("int", "an integer in [0, 2**63 - 1]", lambda v: 0 <= v < 2**63, required=False, default=0),
+        # the IMU's defaults come from the profile
+        "gyro_noise_density_rad_s_sqrt_hz": _num(
+            "a number in [0, 0.1] rad/s/√Hz", lambda v: 0 <= v <= 0.1, required=False
+        ),
+        "gyro_random_walk_rad_s2_sqrt_hz": _num(
+            "a number in [0, 0.01] rad/s²/√Hz", lambda v: 0 <= v <= 0.01, required=False
+        ),
+        "gyro_bias_correlation_time_s": _num("a number in (0, 1e6] s", lambda v: 0 < v <= 1e6, required=False),
+        "gyro_turn_on_bias_rad_s": _num("a number in [0, 0.5] rad/s", lambda v: 0 <= v <= 0.5, required=False),
+        "accel_noise_density_m_s2_sqrt_hz": _num("a number in [0, 1] m/s²/√Hz", lambda v: 0 <= v <= 1, required=False),
+        "accel_random_walk_m_s3_sqrt_hz": _num(
+            "a number in [0, 0.1] m/s³/√Hz", lambda v: 0 <= v <= 0.1, required=False
+        ),
+        "accel_bias_correlation_time_s": _num("a number in (0, 1e6] s", lambda v: 0 < v <= 1e6, required=False),
+        "accel_turn_on_bias_m_s2": _num("a number in [0, 2] m/s²", lambda v: 0 <= v <= 2, required=False),
+        "mag_rate_hz": _sensor("mag_rate_hz", "a number in [1, 1000] Hz", lambda v: 1 <= v <= 1000),
+        "mag_noise_density_gauss_sqrt_hz": _sensor(
+            "mag_noise_density_gauss_sqrt_hz", "a number in [0, 0.01] gauss/√Hz", lambda v: 0 <= v <= 0.01
+        ),
+        "mag_random_walk_gauss_s_sqrt_hz": _sensor(
+            "mag_random_walk_gauss_s_sqrt_hz", "a number in [0, 0.001] gauss/s/√Hz", lambda v: 0 <= v <= 0.001
+        ),
+        "mag_bias_correlation_time_s": _sensor(
+            "mag_bias_correlation_time_s", "a number in (0, 1e6] s", lambda v: 0 < v <= 1e6
+        ),
+        "mag_strength_gauss": _sensor(
+            "mag_strength_gauss", "a number in [0.2, 0.7] gauss (the Earth's field)", lambda v: 0.2 <= v <= 0.7
+        ),
+        "mag_declination_deg": _sensor("mag_declination_deg", "a number in [-180, 180] deg", lambda v: abs(v) <= 180),
+        "mag_inclination_deg": _sensor("mag_inclination_deg", "a number in [-90, 90] deg", lambda v: abs(v) <= 90),
+        "baro_rate_hz": _sensor("baro_rate_hz", "a number in [1, 1000] Hz", lambda v: 1 <= v <= 1000),
+        "baro_noise_pa": _sensor("baro_noise_pa", "a number in [0, 100] Pa", lambda v: 0 <= v <= 100),
+        "gps_rate_hz": _sensor("gps_rate_hz", "a number in [1, 100] Hz", lambda v: 1 <= v <= 100),
+        "gps_delay_s": _sensor("gps_delay_s", "a number in [0, 1] s", lambda v: 0 <= v <= 1),
+        "gps_xy_error_m": _sensor("gps_xy_error_m", "a number in [0, 100] m", lambda v: 0 <= v <= 100),
+        "gps_z_error_m": _sensor("gps_z_error_m", "a number in [0, 100] m", lambda v: 0 <= v <= 100),
+        "gps_error_correlation_time_s": _sensor(
+            "gps_error_correlation_time_s", "a number in (0, 1e5] s", lambda v: 0 < v <= 1e5
+        ),
+        "gps_xy_velocity_noise_m_s": _sensor(
+            "gps_xy_velocity_noise_m_s", "a number in [0, 10] m/s", lambda v: 0 <= v <= 10
+        ),
+        "gps_z_velocity_noise_m_s": _sensor(
+            "gps_z_velocity_noise_m_s", "a number in [0, 10] m/s", lambda v: 0 <= v <= 10
+        ),
+        "gps_satellites": Spec("int", "an integer in [4, 64]", lambda v: 4 <= v <= 64, required=False, default=10),
+    },
     "initial": {
         "altitude": _num("a number in [0, 10000] m", lambda v: 0 <= v <= 10000, required=False, default=0.0),
         "roll": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
@@ -260,7 +381,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
 }
 TOP_LEVEL_KEYS = {"description"}
-OPTIONAL_SECTIONS = {"initial", "position"}
+OPTIONAL_SECTIONS = {"initial", "position", "sensors"}
 
 
 def _is_number(v: Any) -> bool:
@@ -352,17 +473,40 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
                 f"{where}: reference.{axis} = {getattr(ref, axis)!r}: exceeds controller.max_tilt = "
                 f"{controller.max_tilt!r} rad"
             )
+    sim = SimParams(**v["sim"])
+    sensors = _sensors(v["sensors"], sim, where) if "sensors" in raw else None
     return Preset(
         name=name,
         description=desc,
         vehicle=vehicle,
         actuators=ActuatorParams(**v["actuators"]),
-        sim=SimParams(**v["sim"]),
+        sim=sim,
         controller=controller,
         reference=ref,
         initial=InitialState(**v["initial"]),
         position=PositionParams(**v["position"]),
+        sensors=sensors,
     )
+
+
+def _sensors(values: dict[str, Any], sim: SimParams, where: str) -> SensorParams:
+    """The [sensors] section: the profile's IMU figures where no key gives them, and the checks across keys (no
+    sensor faster than the control tick, the GPS samples in flight within the queue)."""
+    values = {key: IMU_PROFILES[values["profile"]][key] if value is None else value for key, value in values.items()}
+    tick_rate = 1.0 / sim.period
+    for key in ("mag_rate_hz", "baro_rate_hz", "gps_rate_hz"):
+        if values[key] > tick_rate * (1 + 1e-9):
+            raise ConfigError(
+                f"{where}: sensors.{key} = {values[key]!r}: must not exceed the control rate 1/sim.period = "
+                f"{tick_rate:g} Hz"
+            )
+    if values["gps_delay_s"] * values["gps_rate_hz"] >= GPS_QUEUE - 1:
+        raise ConfigError(
+            f"{where}: sensors.gps_delay_s = {values['gps_delay_s']!r}: with sensors.gps_rate_hz = "
+            f"{values['gps_rate_hz']!r}, gps_delay_s · gps_rate_hz must be below {GPS_QUEUE - 1} "
+            "(the GPS samples in flight)"
+        )
+    return SensorParams(**values)
 
 
 def available_presets() -> list[str]:

@@ -122,3 +122,58 @@ def geodetic_to_ned(lat: float, lon: float, lat0: float, lon0: float) -> tuple[f
     north = k * (math.cos(lat0_r) * math.sin(lat_r) - math.sin(lat0_r) * math.cos(lat_r) * math.cos(dlon))
     east = k * math.cos(lat_r) * math.sin(dlon)
     return north * EARTH_RADIUS, east * EARTH_RADIUS
+
+
+# ---- rotating vectors and composing rotations (the sensors and the estimator) ---------------------------
+
+
+@jit
+def body_to_ned(q: tuple, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """A vector in FRD body axes → NED, by the unit quaternion q = [w, x, y, z] (FRD → NED): v_n = R(q)·v_b."""
+    w, a, b, c = q[0], q[1], q[2], q[3]
+    return (
+        (1.0 - 2.0 * (b * b + c * c)) * x + 2.0 * (a * b - w * c) * y + 2.0 * (a * c + w * b) * z,
+        2.0 * (a * b + w * c) * x + (1.0 - 2.0 * (a * a + c * c)) * y + 2.0 * (b * c - w * a) * z,
+        2.0 * (a * c - w * b) * x + 2.0 * (b * c + w * a) * y + (1.0 - 2.0 * (a * a + b * b)) * z,
+    )
+
+
+@jit
+def ned_to_body(q: tuple, n: float, e: float, d: float) -> tuple[float, float, float]:
+    """A vector in NED → FRD body axes, by the unit quaternion q (FRD → NED): v_b = R(q)ᵀ·v_n."""
+    w, a, b, c = q[0], q[1], q[2], q[3]
+    return (
+        (1.0 - 2.0 * (b * b + c * c)) * n + 2.0 * (a * b + w * c) * e + 2.0 * (a * c - w * b) * d,
+        2.0 * (a * b - w * c) * n + (1.0 - 2.0 * (a * a + c * c)) * e + 2.0 * (b * c + w * a) * d,
+        2.0 * (a * c + w * b) * n + 2.0 * (b * c - w * a) * e + (1.0 - 2.0 * (a * a + b * b)) * d,
+    )
+
+
+@jit
+def quaternion_multiply(p: tuple, q: tuple) -> tuple[float, float, float, float]:
+    """The Hamilton product p ⊗ q of quaternions [w, x, y, z] (rotate by q, then by p)."""
+    return (
+        p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3],
+        p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2],
+        p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1],
+        p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0],
+    )
+
+
+@jit
+def rotation_vector_to_quaternion(x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """The unit quaternion of a rotation by the angle |θ| [rad] about θ/|θ| (θ = (x, y, z)): Exp(θ)."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:
+        return (1.0, 0.5 * x, 0.5 * y, 0.5 * z)
+    s = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), s * x, s * y, s * z)
+
+
+@jit
+def normalize_quaternion(q: tuple) -> tuple[float, float, float, float]:
+    """q / |q|, with the sign of w made non-negative (the same rotation)."""
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[0] < 0.0:
+        n = -n
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)

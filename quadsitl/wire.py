@@ -22,6 +22,8 @@ from quadsitl.frames import (
     body_rates_to_euler_rates,
     euler_rates_to_body_rates,
     euler_to_quaternion,
+    geodetic_to_ned,
+    ned_to_geodetic,
     quaternion_to_euler,
 )
 from quadsitl.jit import jit
@@ -99,6 +101,43 @@ def forces_from_message(m: mavlink.MAVLink_hil_actuator_controls_message, max_th
     """HIL_ACTUATOR_CONTROLS → commanded motor forces [N]."""
     c = m.controls
     return (c[0] * max_thrust, c[1] * max_thrust, c[2] * max_thrust, c[3] * max_thrust)
+
+
+UINT16_UNKNOWN = 65535
+
+
+def hil_gps_message(
+    time_usec: int,
+    position: tuple[float, float, float],
+    velocity: tuple[float, float, float],
+    home: tuple[float, float, float],
+    eph: float,
+    epv: float,
+    satellites: int,
+) -> mavlink.MAVLink_hil_gps_message:
+    """A GPS fix as PX4's simulators send it (``HIL_GPS``): ``position`` [m, NED from the local origin ``home`` =
+    (lat [deg], lon [deg], alt [m AMSL])] as latitude and longitude [1e-7 deg] (PX4's projection,
+    :func:`quadsitl.frames.ned_to_geodetic`) and altitude AMSL [mm]; ``velocity`` [m/s, NED] as vn, ve, vd and
+    ground speed [cm/s], course over ground [cdeg, 0 = north; unknown below 1 cm/s]; fix type 3 (3D);
+    ``eph``/``epv`` [m] in cm, as PX4's simulator bridge reads them."""
+    lat, lon = ned_to_geodetic(position[0], position[1], home[0], home[1])
+    vn, ve, vd = (max(-32768, min(32767, round(v * 100))) for v in velocity)
+    speed = min(round(math.hypot(velocity[0], velocity[1]) * 100), UINT16_UNKNOWN - 1)
+    cog = round(math.degrees(math.atan2(velocity[1], velocity[0])) % 360.0 * 100) % 36000 if speed else UINT16_UNKNOWN
+    eph_cm, epv_cm = (min(round(e * 100), UINT16_UNKNOWN - 1) for e in (eph, epv))
+    alt_mm = round((home[2] - position[2]) * 1000)
+    return mavlink.MAVLink_hil_gps_message(
+        time_usec, mavlink.GPS_FIX_TYPE_3D_FIX, round(lat * 1e7), round(lon * 1e7), alt_mm, eph_cm, epv_cm, speed,
+        vn, ve, vd, cog, satellites,
+    )  # fmt: skip
+
+
+def gps_from_message(
+    m: mavlink.MAVLink_hil_gps_message, home: tuple[float, float, float]
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The inverse of :func:`hil_gps_message`: (position [m, NED from ``home``], velocity [m/s, NED])."""
+    north, east = geodetic_to_ned(m.lat * 1e-7, m.lon * 1e-7, home[0], home[1])
+    return (north, east, home[2] - m.alt * 1e-3), (m.vn * 0.01, m.ve * 0.01, m.vd * 0.01)
 
 
 @jit

@@ -23,7 +23,7 @@ from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
 from quadsitl.param_arrays import D_OVER_B, B, actuator_array, vehicle_array
 from quadsitl.state import Inputs, VehicleState
 from sitl.actuators import advance
-from sitl.dynamics import State
+from sitl.dynamics import State, derivatives
 from sitl.integrators import INTEGRATORS, integrate
 
 # The outputs of a step besides the state, in Plant.out: mean motor forces (4), inputs u1..u4 (4), Ωr, on ground.
@@ -42,6 +42,18 @@ def ground(s: State) -> tuple[State, bool]:
     if s[2] >= 0.0 and s[5] >= 0.0:  # at/below ground and not climbing (NED: z, vz down)
         return (s[0], s[1], 0.0, 0.0, 0.0, 0.0, s[6], s[7], s[8], s[9], s[10], s[11]), True
     return s, False
+
+
+@jit
+def acceleration(s: State, motors: Forces, v: np.ndarray, on_ground: bool) -> tuple[float, float, float]:
+    """The true acceleration [m/s², NED] at state ``s`` under the motor forces acting now [N] (eqs (2)–(4) with
+    the inputs of eq (8)): what the accelerometer measures, with gravity. Resting on the ground plane and not
+    lifting off, the ground holds the vehicle: zero."""
+    u = forces_to_inputs(motors, v[D_OVER_B])
+    d = derivatives(s, u, residual_rotor_speed(motors, v[B]), v)
+    if on_ground and d[5] >= 0.0:
+        return 0.0, 0.0, 0.0
+    return d[3], d[4], d[5]
 
 
 @jit

@@ -1,0 +1,422 @@
+"""The autopilot's state estimator: the vehicle's state from its sensors, pure and compiled (docs/sensors.md).
+
+An error-state extended Kalman filter (Solà, "Quaternion kinematics for the error-state Kalman filter",
+arXiv:1711.02508, 2017, §5–§7; the same structure as PX4's EKF2, reduced to 15 error states):
+
+- nominal state: position p and velocity v (NED), attitude quaternion q (FRD → NED), gyro bias b_g, accelerometer
+  bias b_a; error state δx = (δθ, δv, δp, δb_g, δb_a), δθ a rotation vector in body axes (q_true = q ⊗ Exp(δθ));
+- prediction by the IMU every tick (strapdown mechanisation): ω = ω_m − b_g, f = f_m − b_a, a = R(q)·f + g·e_down,
+  p⁺ = p + v·dt + a·dt²/2, v⁺ = v + a·dt, q⁺ = q ⊗ Exp(ω·dt); covariance P⁺ = F·P·Fᵀ + Q·dt with F = I + A·dt,
+  A[δθ,δθ] = −[ω]×, A[δθ,δb_g] = −I, A[δv,δθ] = −R·[f]×, A[δv,δb_a] = −R, A[δp,δv] = I;
+- updates, one scalar at a time (K = P·hᵀ/(h·P·hᵀ + r)): GPS velocity (N, E, D) and horizontal position, the
+  barometer's altitude (relative to its reading at alignment) and the magnetometer's three axes against the
+  known Earth field (h(x) = R(q)ᵀ·B, Jacobian [R(q)ᵀ·B]× on δθ);
+- the GPS delay: every tick's estimated position and velocity are kept for ``HISTORY`` ticks; a fix that arrives
+  ``gps_delay`` seconds after it was measured is compared with the estimate of *that* time, and the correction
+  is applied now and to the kept history (so the next fix, measured before this one was applied, does not count
+  it twice). PX4's EKF2 instead runs the whole filter on a delayed time horizon and predicts forward to now;
+  the innovation here is the same, the covariance used is the current one (an approximation, good while the
+  delay is short against the filter's time constants);
+- innovation gates: a measurement whose normalised innovation y²/S exceeds ``gate``² is not fused; when one
+  sensor's measurements have all been refused for ``divergence_time`` seconds (or the state is not finite),
+  the filter reports itself diverged (:data:`DIVERGED`), for the autopilot's STATUSTEXT and failsafe.
+
+The filter aligns first: for ``align_time`` seconds at rest it averages the accelerometer (roll and pitch), the
+magnetometer (yaw, with the known declination) and the barometer (the altitude reference), then starts at the
+given position. Its output is the :class:`quadsitl.state.VehicleState` the controllers take (Euler-angle rates
+from the bias-corrected gyro, by the inverse of eq (1)).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quadsitl.earth import magnetic_field_ned
+from quadsitl.frames import (
+    body_rates_to_euler_rates,
+    body_to_ned,
+    euler_to_quaternion,
+    ned_to_body,
+    normalize_quaternion,
+    quaternion_multiply,
+    quaternion_to_euler,
+    rotation_vector_to_quaternion,
+)
+from quadsitl.jit import jit
+from quadsitl.state import VehicleState
+
+# ---- the nominal state (x) and the error state (rows and columns of P) ---------------------------------------
+X_P, X_V, X_Q, X_BG, X_BA, X_SIZE = 0, 3, 6, 10, 13, 16
+DTH, DV, DP, DBG, DBA, N = 0, 3, 6, 9, 12, 15
+HISTORY = 1024  # ticks of estimated position and velocity kept for delayed fixes
+
+# ---- the parameters (e) -----------------------------------------------------------------------------------
+(GYRO_NOISE, ACC_NOISE, GYRO_BIAS_NOISE, ACC_BIAS_NOISE, GPS_POS_NOISE, GPS_VEL_NOISE, GPS_VZ_NOISE, BARO_NOISE,
+ MAG_NOISE, FIELD_N, FIELD_E, FIELD_D, GRAVITY, GATE, INIT_TILT, INIT_YAW, INIT_VEL, INIT_POS, INIT_ALT,
+ INIT_GYRO_BIAS, INIT_ACC_BIAS, PARAM_SIZE) = range(22)  # fmt: skip
+
+# ---- the integer bookkeeping (io) ---------------------------------------------------------------------------
+# ticks seen, alignment ticks, GPS delay [ticks], divergence limits [ticks], and per measurement group the ticks
+# since one was last fused and whether any arrived since; the flags.
+(TICK, ALIGN_TICKS, DELAY_TICKS, DIVERGE_TICKS, ALIGNED, DIVERGED, SINCE_GPS_POS, SINCE_GPS_VEL, SINCE_BARO,
+ SINCE_MAG, REFUSED, IO_SIZE) = range(12)  # fmt: skip
+GROUPS = 4  # GPS position, GPS velocity, baro, mag: io[SINCE_GPS_POS + g]
+
+# ---- the accumulators of the alignment (acc) and the innovation test ratios (ratio) -------------------------
+A_ACCEL, A_MAG, A_BARO, A_N_IMU, A_N_MAG, A_N_BARO, A_BARO_REF, ACC_SIZE = 0, 3, 6, 7, 8, 9, 10, 11
+
+# ---- the measurements of a tick (z) and which are new (flags) ----------------------------------------------
+Z_GYRO, Z_ACCEL, Z_MAG, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_SIZE = 0, 3, 6, 9, 10, 13, 16
+MAG_NEW, BARO_NEW, GPS_NEW = 1, 2, 4
+
+
+@dataclass(frozen=True)
+class EstimatorParams:
+    """What the filter assumes of the sensors (its own figures, as PX4's EKF2_* parameters: larger than the
+    simulated sensors' own, to cover what the model leaves out) and its settings. Units in the names."""
+
+    gyro_noise_rad_s_sqrt_hz: float = 1.5e-3  # process noise: gyro white noise density
+    accel_noise_m_s2_sqrt_hz: float = 1.5e-2
+    gyro_bias_noise_rad_s2_sqrt_hz: float = 1e-5  # bias random walks
+    accel_bias_noise_m_s3_sqrt_hz: float = 1e-4
+    gps_pos_noise_m: float = 0.5  # EKF2_GPS_P_NOISE
+    gps_vel_noise_m_s: float = 0.1
+    gps_vz_noise_m_s: float = 0.2
+    baro_noise_m: float = 0.1
+    mag_noise_gauss: float = 5e-3
+    gps_delay_s: float = 0.12  # EKF2_GPS_DELAY (PX4: 110 ms); 0 ignores the delay
+    gate_sigma: float = 5.0  # innovation gate
+    divergence_time_s: float = 1.0
+    align_time_s: float = 1.0
+    init_tilt_rad: float = 0.01  # initial standard deviations (tilt: beyond the accelerometer bias's share)
+    init_yaw_rad: float = 0.1
+    init_vel_m_s: float = 0.3
+    init_pos_m: float = 2.0
+    init_alt_m: float = 0.2
+    init_gyro_bias_rad_s: float = 0.01
+    init_accel_bias_m_s2: float = 0.05  # PX4's EKF2_ABIAS_INIT is 0.2; see docs/sensors.md
+
+
+def parameter_array(e: EstimatorParams, field_ned: tuple[float, float, float], gravity: float) -> np.ndarray:
+    """The figures the compiled filter reads: ``field_ned`` the Earth's field at home [gauss, NED], ``gravity``."""
+    return np.array(
+        [e.gyro_noise_rad_s_sqrt_hz, e.accel_noise_m_s2_sqrt_hz, e.gyro_bias_noise_rad_s2_sqrt_hz,
+         e.accel_bias_noise_m_s3_sqrt_hz, e.gps_pos_noise_m, e.gps_vel_noise_m_s, e.gps_vz_noise_m_s, e.baro_noise_m,
+         e.mag_noise_gauss, *field_ned, gravity, e.gate_sigma, e.init_tilt_rad, e.init_yaw_rad, e.init_vel_m_s,
+         e.init_pos_m, e.init_alt_m, e.init_gyro_bias_rad_s, e.init_accel_bias_m_s2],
+        dtype=np.float64,
+    )  # fmt: skip
+
+
+@jit
+def _quaternion(x: np.ndarray) -> tuple[float, float, float, float]:
+    return (x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+
+
+@jit
+def align(x: np.ndarray, P: np.ndarray, acc: np.ndarray, e: np.ndarray, p0: tuple) -> None:
+    """Start the filter from the alignment's averages: roll and pitch from the mean specific force, yaw from the
+    mean magnetic field (tilt-compensated, with the field's declination), the barometer's reference altitude,
+    position ``p0`` [m, NED], at rest, biases zero; P diagonal from the initial standard deviations."""
+    fx, fy, fz = acc[A_ACCEL] / acc[A_N_IMU], acc[A_ACCEL + 1] / acc[A_N_IMU], acc[A_ACCEL + 2] / acc[A_N_IMU]
+    roll = math.atan2(-fy, -fz)
+    pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
+    yaw = 0.0
+    if acc[A_N_MAG] > 0:
+        m = body_to_ned(euler_to_quaternion(roll, pitch, 0.0), acc[A_MAG] / acc[A_N_MAG],
+                        acc[A_MAG + 1] / acc[A_N_MAG], acc[A_MAG + 2] / acc[A_N_MAG])  # fmt: skip
+        yaw = math.atan2(e[FIELD_E], e[FIELD_N]) - math.atan2(m[1], m[0])
+    q = euler_to_quaternion(roll, pitch, yaw)
+    x[:] = 0.0
+    for i in range(3):
+        x[X_P + i] = p0[i]
+    for i in range(4):
+        x[X_Q + i] = q[i]
+    acc[A_BARO_REF] = (acc[A_BARO] / acc[A_N_BARO] + p0[2]) if acc[A_N_BARO] > 0 else math.nan  # baro alt at z = 0
+    P[:, :] = 0.0
+    sd = (e[INIT_TILT], e[INIT_TILT], e[INIT_YAW], e[INIT_VEL], e[INIT_VEL], e[INIT_VEL], e[INIT_POS], e[INIT_POS],
+          e[INIT_ALT], e[INIT_GYRO_BIAS], e[INIT_GYRO_BIAS], e[INIT_GYRO_BIAS], e[INIT_ACC_BIAS], e[INIT_ACC_BIAS],
+          e[INIT_ACC_BIAS])  # fmt: skip
+    for i in range(N):
+        P[i, i] = sd[i] * sd[i]
+    # The tilt came from the accelerometer, so it carries the accelerometer's bias: level, an unknown bias δb
+    # tilts the estimate by δθ_x = δb_y/g (roll), δθ_y = −δb_x/g (pitch). Said so in P, the velocity fixes
+    # correct tilt and bias together instead of trading one for the other.
+    var_b, g = e[INIT_ACC_BIAS] ** 2, e[GRAVITY]
+    P[DTH, DTH] += var_b / (g * g)
+    P[DTH + 1, DTH + 1] += var_b / (g * g)
+    P[DTH, DBA + 1] = P[DBA + 1, DTH] = var_b / g
+    P[DTH + 1, DBA] = P[DBA, DTH + 1] = -var_b / g
+
+
+@jit
+def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, FP: np.ndarray, gyro: tuple, accel: tuple, dt: float,
+            e: np.ndarray) -> None:  # fmt: skip
+    """The strapdown prediction over ``dt`` [s] by the IMU sample (``gyro`` [rad/s], ``accel`` [m/s²], FRD), and the
+    covariance's (``F``, ``FP``: N×N scratch)."""
+    q = _quaternion(x)
+    w = (gyro[0] - x[X_BG], gyro[1] - x[X_BG + 1], gyro[2] - x[X_BG + 2])
+    f = (accel[0] - x[X_BA], accel[1] - x[X_BA + 1], accel[2] - x[X_BA + 2])
+    a = body_to_ned(q, f[0], f[1], f[2])
+    a = (a[0], a[1], a[2] + e[GRAVITY])
+    for i in range(3):
+        x[X_P + i] += x[X_V + i] * dt + 0.5 * a[i] * dt * dt
+        x[X_V + i] += a[i] * dt
+    q = normalize_quaternion(quaternion_multiply(q, rotation_vector_to_quaternion(w[0] * dt, w[1] * dt, w[2] * dt)))
+    for i in range(4):
+        x[X_Q + i] = q[i]
+    # F = I + A·dt (the rotation R is the one before the step: first order)
+    F[:, :] = 0.0
+    for i in range(N):
+        F[i, i] = 1.0
+    F[DTH, DTH + 1], F[DTH, DTH + 2] = w[2] * dt, -w[1] * dt  # −[ω]×·dt
+    F[DTH + 1, DTH], F[DTH + 1, DTH + 2] = -w[2] * dt, w[0] * dt
+    F[DTH + 2, DTH], F[DTH + 2, DTH + 1] = w[1] * dt, -w[0] * dt
+    for i in range(3):
+        F[DTH + i, DBG + i] = -dt
+        F[DP + i, DV + i] = dt
+    # −R·[f]×: column j of [f]× is f × e_j
+    fx = ((0.0, f[2], -f[1]), (-f[2], 0.0, f[0]), (f[1], -f[0], 0.0))  # columns of [f]×
+    for j in range(3):
+        c = body_to_ned(q, fx[j][0], fx[j][1], fx[j][2])
+        for i in range(3):
+            F[DV + i, DTH + j] = -c[i] * dt
+    for j in range(3):
+        c = body_to_ned(q, 1.0 if j == 0 else 0.0, 1.0 if j == 1 else 0.0, 1.0 if j == 2 else 0.0)
+        for i in range(3):
+            F[DV + i, DBA + j] = -c[i] * dt
+    # P = F·P·Fᵀ + Q
+    for i in range(N):
+        for j in range(N):
+            s = 0.0
+            for k in range(N):
+                s += F[i, k] * P[k, j]
+            FP[i, j] = s
+    for i in range(N):
+        for j in range(i, N):
+            s = 0.0
+            for k in range(N):
+                s += FP[i, k] * F[j, k]
+            P[i, j] = s
+            P[j, i] = s
+    for i in range(3):
+        P[DTH + i, DTH + i] += e[GYRO_NOISE] * e[GYRO_NOISE] * dt
+        P[DV + i, DV + i] += e[ACC_NOISE] * e[ACC_NOISE] * dt
+        P[DBG + i, DBG + i] += e[GYRO_BIAS_NOISE] * e[GYRO_BIAS_NOISE] * dt
+        P[DBA + i, DBA + i] += e[ACC_BIAS_NOISE] * e[ACC_BIAS_NOISE] * dt
+
+
+@jit
+def inject(x: np.ndarray, dx: np.ndarray) -> None:
+    """Fold the estimated error ``dx`` into the nominal state (q ⊗ Exp(δθ)); the error is then zero again."""
+    q = quaternion_multiply(_quaternion(x), rotation_vector_to_quaternion(dx[DTH], dx[DTH + 1], dx[DTH + 2]))
+    q = normalize_quaternion(q)
+    for i in range(4):
+        x[X_Q + i] = q[i]
+    for i in range(3):
+        x[X_V + i] += dx[DV + i]
+        x[X_P + i] += dx[DP + i]
+        x[X_BG + i] += dx[DBG + i]
+        x[X_BA + i] += dx[DBA + i]
+
+
+@jit
+def fuse(x: np.ndarray, P: np.ndarray, h: np.ndarray, y: float, r: float, gate: float, pht: np.ndarray,
+         dx: np.ndarray) -> float:  # fmt: skip
+    """One scalar measurement: innovation ``y``, Jacobian row ``h`` (N), noise variance ``r``. Fused unless its
+    normalised innovation y²/S exceeds gate²; returns that test ratio y²/(S·gate²) (fused when ≤ 1). ``dx``
+    holds the correction applied (zero when refused)."""
+    s = r
+    for i in range(N):
+        acc = 0.0
+        for j in range(N):
+            acc += P[i, j] * h[j]
+        pht[i] = acc
+        s += h[i] * acc
+    ratio = y * y / (s * gate * gate)
+    dx[:] = 0.0
+    if not ratio <= 1.0:  # also refuses a NaN
+        return ratio
+    for i in range(N):
+        dx[i] = pht[i] / s * y
+    for i in range(N):
+        for j in range(i, N):
+            v = P[i, j] - pht[i] * pht[j] / s
+            P[i, j] = v
+            P[j, i] = v
+    inject(x, dx)
+    return ratio
+
+
+@jit
+def _fused(io: np.ndarray, group: int, ratio: float) -> None:
+    """Bookkeeping of a measurement of ``group``: fused (all its components: the clock since the last fusion
+    restarts) or refused (the largest test ratio ``ratio`` above 1)."""
+    if ratio <= 1.0:
+        io[SINCE_GPS_POS + group] = 0
+    else:
+        io[REFUSED] += 1
+
+
+@jit
+def estimator_tick(flags: int, z: np.ndarray, dt: float, p0: tuple, x: np.ndarray, P: np.ndarray, hist: np.ndarray,
+                   io: np.ndarray, acc: np.ndarray, e: np.ndarray, ratio: np.ndarray, scratch: np.ndarray,
+                   out: np.ndarray) -> None:  # fmt: skip
+    """One control tick: the IMU sample z[Z_GYRO], z[Z_ACCEL] (always), and the magnetometer, barometer altitude
+    [m AMSL] and GPS fix (position [m, NED], velocity [m/s, NED], measured ``io[DELAY_TICKS]`` ticks ago) when
+    ``flags`` says they are new. ``out`` gets the state in VehicleState order (12; zeros while aligning);
+    ``ratio`` the last test ratio of each group (GPS pos N/E, GPS vel N/E/D, baro, mag x/y/z)."""
+    tick = io[TICK]
+    io[TICK] = tick + 1
+    gyro = (z[Z_GYRO], z[Z_GYRO + 1], z[Z_GYRO + 2])
+    if io[ALIGNED] == 0:  # average the sensors at rest, then start
+        for i in range(3):
+            acc[A_ACCEL + i] += z[Z_ACCEL + i]
+        acc[A_N_IMU] += 1
+        if flags & MAG_NEW:
+            for i in range(3):
+                acc[A_MAG + i] += z[Z_MAG + i]
+            acc[A_N_MAG] += 1
+        if flags & BARO_NEW:
+            acc[A_BARO] += z[Z_BARO]
+            acc[A_N_BARO] += 1
+        out[:] = 0.0
+        if tick + 1 >= io[ALIGN_TICKS]:
+            align(x, P, acc, e, p0)
+            io[ALIGNED] = 1
+            for k in range(HISTORY):
+                for i in range(3):
+                    hist[k, i] = x[X_P + i]
+                    hist[k, 3 + i] = 0.0
+        return
+    F, FP = scratch[:N, :], scratch[N : 2 * N, :]
+    h, pht, dx = scratch[2 * N, :], scratch[2 * N + 1, :], scratch[2 * N + 2, :]
+    predict(x, P, F, FP, gyro, (z[Z_ACCEL], z[Z_ACCEL + 1], z[Z_ACCEL + 2]), dt, e)
+    now = tick % HISTORY  # this tick's estimate joins the history now: the updates below shift it with the rest
+    for i in range(3):
+        hist[now, i] = x[X_P + i]
+        hist[now, 3 + i] = x[X_V + i]
+    gate = e[GATE]
+    for g in range(GROUPS):
+        io[SINCE_GPS_POS + g] += 1
+    if flags & BARO_NEW:  # altitude above the origin: −p_D
+        h[:] = 0.0
+        h[DP + 2] = -1.0
+        ratio[5] = fuse(x, P, h, (z[Z_BARO] - acc[A_BARO_REF]) + x[X_P + 2], e[BARO_NOISE] ** 2, gate, pht, dx)
+        _fused(io, 2, ratio[5])
+    if flags & MAG_NEW:  # the body-frame field Rᵀ·B, Jacobian [Rᵀ·B]× on δθ
+        for i in range(3):
+            m = ned_to_body(_quaternion(x), e[FIELD_N], e[FIELD_E], e[FIELD_D])
+            h[:] = 0.0
+            if i == 0:
+                h[DTH + 1], h[DTH + 2] = -m[2], m[1]
+            elif i == 1:
+                h[DTH], h[DTH + 2] = m[2], -m[0]
+            else:
+                h[DTH], h[DTH + 1] = -m[1], m[0]
+            ratio[6 + i] = fuse(x, P, h, z[Z_MAG + i] - m[i], e[MAG_NOISE] ** 2, gate, pht, dx)
+        _fused(io, 3, max(ratio[6], ratio[7], ratio[8]))
+    if flags & GPS_NEW:  # against the estimate of the fix's time, kept in hist; corrections shift the history too
+        then = (tick - io[DELAY_TICKS]) % HISTORY
+        for i in range(5):
+            h[:] = 0.0
+            if i < 2:
+                h[DP + i] = 1.0
+                y = z[Z_GPS_POS + i] - hist[then, i]
+                r = e[GPS_POS_NOISE] ** 2
+            else:
+                h[DV + i - 2] = 1.0
+                y = z[Z_GPS_VEL + i - 2] - hist[then, 3 + i - 2]
+                r = (e[GPS_VZ_NOISE] if i == 4 else e[GPS_VEL_NOISE]) ** 2
+            ratio[i] = fuse(x, P, h, y, r, gate, pht, dx)
+            if ratio[i] <= 1.0:
+                for k in range(HISTORY):
+                    for j in range(3):
+                        hist[k, j] += dx[DP + j]
+                        hist[k, 3 + j] += dx[DV + j]
+        _fused(io, 0, max(ratio[0], ratio[1]))
+        _fused(io, 1, max(ratio[2], ratio[3], ratio[4]))
+    diverged = False
+    for g in range(GROUPS):
+        if io[SINCE_GPS_POS + g] > io[DIVERGE_TICKS]:
+            diverged = True
+    for i in range(X_SIZE):
+        if not math.isfinite(x[i]):
+            diverged = True
+    io[DIVERGED] = 1 if diverged else 0
+    roll, pitch, yaw = quaternion_to_euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    rates = body_rates_to_euler_rates(roll, pitch, gyro[0] - x[X_BG], gyro[1] - x[X_BG + 1], gyro[2] - x[X_BG + 2])
+    for i in range(6):
+        out[i] = x[i]
+    out[6], out[7], out[8] = roll, pitch, yaw
+    out[9], out[10], out[11] = rates
+
+
+class Estimator:
+    """The filter of one vehicle (its arrays), for the autopilot process and the tests.
+
+    ``period`` [s]: the control period (one IMU sample a tick); ``field_ned``: the Earth's field at home [gauss,
+    NED], as the sensors' preset section gives it; ``start``: the position [m, NED] at alignment (the vehicle
+    starts at rest there)."""
+
+    def __init__(
+        self,
+        period: float,
+        gravity: float,
+        field_ned: tuple[float, float, float],
+        params: EstimatorParams | None = None,
+        start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        p = params or EstimatorParams()
+        delay = round(p.gps_delay_s / period)
+        if not 0 <= delay < HISTORY:
+            raise ValueError(f"gps_delay_s = {p.gps_delay_s!r}: expected at most {(HISTORY - 1) * period:g} s")
+        self.params, self.period, self.start = p, period, tuple(float(v) for v in start)
+        self.e = parameter_array(p, field_ned, gravity)
+        self.x = np.zeros(X_SIZE)
+        self.P = np.zeros((N, N))
+        self.hist = np.zeros((HISTORY, 6))
+        self.io = np.zeros(IO_SIZE, dtype=np.int64)
+        self.io[ALIGN_TICKS] = max(1, round(p.align_time_s / period))
+        self.io[DELAY_TICKS] = delay
+        self.io[DIVERGE_TICKS] = round(p.divergence_time_s / period)
+        self.acc = np.zeros(ACC_SIZE)
+        self.ratio = np.zeros(9)
+        self.scratch = np.zeros((2 * N + 3, N))
+        self.z = np.zeros(Z_SIZE)
+        self.out = np.zeros(12)
+
+    @classmethod
+    def for_field(cls, period: float, gravity: float, strength: float, declination_deg: float,
+                  inclination_deg: float, **kw) -> Estimator:  # fmt: skip
+        """An estimator for the Earth field given as the sensors' preset keys give it (gauss, degrees)."""
+        field = magnetic_field_ned(strength, math.radians(declination_deg), math.radians(inclination_deg))
+        return cls(period, gravity, field, **kw)
+
+    def tick(self, flags: int | None = None) -> None:
+        """One tick on the measurements in ``self.z`` (flags: MAG_NEW | BARO_NEW | GPS_NEW); the state goes to
+        ``self.out``."""
+        estimator_tick(flags or 0, self.z, self.period, self.start, self.x, self.P, self.hist, self.io, self.acc,
+                       self.e, self.ratio, self.scratch, self.out)  # fmt: skip
+
+    @property
+    def state(self) -> VehicleState:
+        return VehicleState._make(self.out.tolist())
+
+    @property
+    def aligned(self) -> bool:
+        return bool(self.io[ALIGNED])
+
+    @property
+    def diverged(self) -> bool:
+        """An innovation-bound failure: one sensor's measurements refused for ``divergence_time_s``, or a
+        non-finite state."""
+        return bool(self.io[DIVERGED])
+
+    @property
+    def gyro_bias(self) -> np.ndarray:
+        """The estimated gyro bias [rad/s, FRD]."""
+        return self.x[X_BG : X_BG + 3].copy()

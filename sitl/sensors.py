@@ -1,0 +1,220 @@
+"""The plant's sensors: what a PX4 flight controller's IMU, magnetometer, barometer and GPS would measure of
+the true state, with the noise PX4's simulators give them (docs/sensors.md). Pure and compiled
+(:mod:`quadsitl.jit`): the plant will call :func:`sensors_tick` once per control tick.
+
+- **Accelerometer** [m/s², FRD]: the specific force f = Rᵀ·(a − g), a the true acceleration (NED), g = (0, 0, g);
+  at rest and level it reads (0, 0, −g). **Gyroscope** [rad/s, FRD]: the body rates (p, q, r), eq (1). Both
+  every tick, as PX4's Gazebo IMU plugin (``gazebo_imu_plugin.cpp``): white noise of standard deviation
+  σ = density/√dt plus a bias, a first-order Gauss–Markov process driven by the random walk (exact
+  discretisation, Maybeck eq. 4-114) that starts at a random turn-on bias (σ given).
+- **Magnetometer** [gauss, FRD]: Rᵀ·B, B the constant Earth field at home (:mod:`quadsitl.earth`), with white
+  noise by density and a Gauss–Markov bias (``gazebo_magnetometer_plugin.cpp``), at ``mag_rate_hz``.
+- **Barometer**: static pressure of the ISA at the home altitude + h, plus white noise [Pa] (as
+  ``gazebo_barometer_plugin.cpp``), reported as ``abs_pressure`` [hPa], the pressure altitude of that noisy
+  pressure [m AMSL] and the ISA temperature [°C], at ``baro_rate_hz``.
+- **GPS**: position (NED, from the local origin = home) with an error that wanders slowly (a first-order
+  Gauss–Markov process per axis, σ and correlation time given), velocity (NED) with white noise; measured at
+  ``gps_rate_hz`` and delivered ``gps_delay_s`` later (PX4's Gazebo GPS plugin delays by 120 ms).
+
+Every random number comes from :mod:`sitl.noise`'s seeded streams (one each for the IMU, the magnetometer,
+the barometer and the GPS, so changing one sensor's rate leaves the others' samples alone): the same seed
+gives the same samples, bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from quadsitl.config import GPS_QUEUE, SensorParams
+from quadsitl.earth import HOME_ALT, ZERO_CELSIUS, isa_altitude, isa_pressure, isa_temperature, magnetic_field_ned
+from quadsitl.frames import euler_rates_to_body_rates, euler_to_quaternion, ned_to_body
+from quadsitl.jit import jit
+from sitl.noise import gauss_markov, normal, seed_streams
+
+# ---- the parameter array (sensor_array) -----------------------------------------------------------------
+(GYRO_ND, GYRO_RW, GYRO_TAU, GYRO_BIAS0, ACC_ND, ACC_RW, ACC_TAU, ACC_BIAS0, MAG_ND, MAG_RW, MAG_TAU, MAG_N, MAG_E,
+ MAG_D, BARO_NOISE, HOME_ALT_M, GPS_XY, GPS_Z, GPS_TAU, GPS_VXY, GPS_VZ, GRAVITY, PARAM_SIZE) = range(23)  # fmt: skip
+# ---- the integer schedule (``clock``, int64, µs) --------------------------------------------------------
+(MAG_INTERVAL, BARO_INTERVAL, GPS_INTERVAL, GPS_DELAY, NEXT_MAG, NEXT_BARO, NEXT_GPS, QUEUE_HEAD, QUEUE_COUNT,
+ CLOCK_SIZE) = range(10)  # fmt: skip
+# ---- the noise processes' state (``bias``): gyro, accel, mag biases, GPS position error ---------------------
+B_GYRO, B_ACC, B_MAG, E_GPS, BIAS_SIZE = 0, 3, 6, 9, 12
+# ---- the random streams -----------------------------------------------------------------------------
+IMU, MAG, BARO, GPS, STREAMS = range(5)
+# ---- the GPS queue's rows: release time [µs], measurement time [µs], position NED [m], velocity NED [m/s] --
+Q_RELEASE, Q_TIME, Q_POS, Q_VEL, Q_SIZE = 0, 1, 2, 5, 8
+# ---- the output (``out``): a HIL_SENSOR's fields, then the GPS sample released this tick, if any ----------
+(OUT_ACCEL, OUT_GYRO, OUT_MAG, OUT_PRESSURE, OUT_PRESSURE_ALT, OUT_TEMPERATURE, OUT_GPS_NEW, OUT_GPS_TIME,
+ OUT_GPS_POS, OUT_GPS_VEL, OUT_SIZE) = 0, 3, 6, 9, 10, 11, 12, 13, 14, 17, 20  # fmt: skip
+
+# HIL_SENSOR.fields_updated, as PX4 reads them: accel, gyro, mag, baro (abs pressure, pressure alt, temperature)
+ACCEL_UPDATED, GYRO_UPDATED, MAG_UPDATED, BARO_UPDATED = 0b111, 0b111000, 0b111000000, 0b1101000000000
+
+
+def sensor_array(s: SensorParams, gravity: float, home_alt: float = HOME_ALT) -> np.ndarray:
+    """The sensors' figures as the compiled functions read them (SI units, gauss; the field in NED).
+    ``gravity`` [m/s²] is the plant's g (the accelerometer measures a − g); ``home_alt`` [m AMSL] is the
+    local origin's altitude (the barometer's)."""
+    field = magnetic_field_ned(
+        s.mag_strength_gauss, math.radians(s.mag_declination_deg), math.radians(s.mag_inclination_deg)
+    )
+    return np.array(
+        [s.gyro_noise_density_rad_s_sqrt_hz, s.gyro_random_walk_rad_s2_sqrt_hz, s.gyro_bias_correlation_time_s,
+         s.gyro_turn_on_bias_rad_s, s.accel_noise_density_m_s2_sqrt_hz, s.accel_random_walk_m_s3_sqrt_hz,
+         s.accel_bias_correlation_time_s, s.accel_turn_on_bias_m_s2, s.mag_noise_density_gauss_sqrt_hz,
+         s.mag_random_walk_gauss_s_sqrt_hz, s.mag_bias_correlation_time_s, *field, s.baro_noise_pa, home_alt,
+         s.gps_xy_error_m, s.gps_z_error_m, s.gps_error_correlation_time_s, s.gps_xy_velocity_noise_m_s,
+         s.gps_z_velocity_noise_m_s, gravity],
+        dtype=np.float64,
+    )  # fmt: skip
+
+
+def clock_array(s: SensorParams) -> np.ndarray:
+    """The schedule: the intervals [µs] of the magnetometer, barometer and GPS, the GPS delay [µs]; the next
+    sample of each is due at t = 0."""
+    c = np.zeros(CLOCK_SIZE, dtype=np.int64)
+    c[MAG_INTERVAL], c[BARO_INTERVAL] = round(1e6 / s.mag_rate_hz), round(1e6 / s.baro_rate_hz)
+    c[GPS_INTERVAL], c[GPS_DELAY] = round(1e6 / s.gps_rate_hz), round(s.gps_delay_s * 1e6)
+    return c
+
+
+@jit
+def bias_process(b: float, dt: float, tau: float, random_walk: float, w: float) -> float:
+    """A sensor bias after ``dt`` [s]: the Gauss–Markov process of PX4's Gazebo IMU plugin, dḃ = −b/τ·dt + σ_b·dW
+    with σ_b the random walk (units of the bias per √s), whose stationary deviation is σ_b·√(τ/2)."""
+    return gauss_markov(b, dt, tau, random_walk * math.sqrt(0.5 * tau), w)
+
+
+@jit
+def sensors_reset(p: np.ndarray, rng: np.ndarray, bias: np.ndarray) -> None:
+    """Power-on: the IMU's turn-on biases (σ given) and the GPS error drawn from its stationary distribution;
+    the magnetometer's bias starts at zero (as the Gazebo plugin's)."""
+    for i in range(3):
+        bias[B_GYRO + i] = p[GYRO_BIAS0] * normal(rng, IMU)
+    for i in range(3):
+        bias[B_ACC + i] = p[ACC_BIAS0] * normal(rng, IMU)
+    for i in range(3):
+        bias[B_MAG + i] = 0.0
+    bias[E_GPS] = p[GPS_XY] * normal(rng, GPS)
+    bias[E_GPS + 1] = p[GPS_XY] * normal(rng, GPS)
+    bias[E_GPS + 2] = p[GPS_Z] * normal(rng, GPS)
+
+
+@jit
+def specific_force(q: tuple, accel: tuple, gravity: float) -> tuple[float, float, float]:
+    """What an ideal accelerometer reads [m/s², FRD]: Rᵀ·(a − g·e_down), a the acceleration [m/s², NED]."""
+    return ned_to_body(q, accel[0], accel[1], accel[2] - gravity)
+
+
+@jit
+def imu(s: tuple, accel: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, dt: float, out: np.ndarray) -> None:
+    """The accelerometer and gyroscope of state ``s`` (VehicleState order) accelerating at ``accel`` [m/s², NED],
+    one sample after ``dt`` [s], into ``out``."""
+    q = euler_to_quaternion(s[6], s[7], s[8])
+    f = specific_force(q, accel, p[GRAVITY])
+    w = euler_rates_to_body_rates(s[6], s[7], s[9], s[10], s[11])  # eq (1)
+    root = 1.0 / math.sqrt(dt)
+    for i in range(3):
+        bias[B_GYRO + i] = bias_process(bias[B_GYRO + i], dt, p[GYRO_TAU], p[GYRO_RW], normal(rng, IMU))
+        out[OUT_GYRO + i] = w[i] + bias[B_GYRO + i] + p[GYRO_ND] * root * normal(rng, IMU)
+    for i in range(3):
+        bias[B_ACC + i] = bias_process(bias[B_ACC + i], dt, p[ACC_TAU], p[ACC_RW], normal(rng, IMU))
+        out[OUT_ACCEL + i] = f[i] + bias[B_ACC + i] + p[ACC_ND] * root * normal(rng, IMU)
+
+
+@jit
+def magnetometer(s: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, dt: float, out: np.ndarray) -> None:
+    """The magnetometer [gauss, FRD] of state ``s``, ``dt`` [s] after its last sample, into ``out``."""
+    m = ned_to_body(euler_to_quaternion(s[6], s[7], s[8]), p[MAG_N], p[MAG_E], p[MAG_D])
+    root = 1.0 / math.sqrt(dt)
+    for i in range(3):
+        bias[B_MAG + i] = bias_process(bias[B_MAG + i], dt, p[MAG_TAU], p[MAG_RW], normal(rng, MAG))
+        out[OUT_MAG + i] = m[i] + bias[B_MAG + i] + p[MAG_ND] * root * normal(rng, MAG)
+
+
+@jit
+def barometer(s: tuple, p: np.ndarray, rng: np.ndarray, out: np.ndarray) -> None:
+    """The barometer of state ``s`` into ``out``: absolute pressure [hPa], its pressure altitude [m AMSL],
+    temperature [°C] (ISA at the true altitude)."""
+    h = p[HOME_ALT_M] - s[2]
+    pressure = isa_pressure(h) + p[BARO_NOISE] * normal(rng, BARO)
+    out[OUT_PRESSURE] = 0.01 * pressure
+    out[OUT_PRESSURE_ALT] = isa_altitude(pressure)
+    out[OUT_TEMPERATURE] = isa_temperature(h) - ZERO_CELSIUS
+
+
+@jit
+def gps_measure(s: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, dt: float, row: np.ndarray) -> None:
+    """A GPS fix of state ``s`` into a queue row: the position error advanced by ``dt`` [s] (Gauss–Markov), the
+    velocity with white noise."""
+    bias[E_GPS] = gauss_markov(bias[E_GPS], dt, p[GPS_TAU], p[GPS_XY], normal(rng, GPS))
+    bias[E_GPS + 1] = gauss_markov(bias[E_GPS + 1], dt, p[GPS_TAU], p[GPS_XY], normal(rng, GPS))
+    bias[E_GPS + 2] = gauss_markov(bias[E_GPS + 2], dt, p[GPS_TAU], p[GPS_Z], normal(rng, GPS))
+    for i in range(3):
+        row[Q_POS + i] = s[i] + bias[E_GPS + i]
+    row[Q_VEL] = s[3] + p[GPS_VXY] * normal(rng, GPS)
+    row[Q_VEL + 1] = s[4] + p[GPS_VXY] * normal(rng, GPS)
+    row[Q_VEL + 2] = s[5] + p[GPS_VZ] * normal(rng, GPS)
+
+
+@jit
+def sensors_tick(t_us: int, s: tuple, accel: tuple, dt: float, p: np.ndarray, rng: np.ndarray, bias: np.ndarray,
+                 clock: np.ndarray, queue: np.ndarray, out: np.ndarray) -> int:  # fmt: skip
+    """Every sensor due at time ``t_us`` [µs] for state ``s`` (VehicleState order) with true acceleration
+    ``accel`` [m/s², NED]; ``dt`` [s] is the control period (the IMU's sample interval). Writes ``out`` and
+    returns HIL_SENSOR's ``fields_updated`` for this tick; out[OUT_GPS_NEW] = 1 when a GPS fix (measured at
+    out[OUT_GPS_TIME] µs) is delivered this tick."""
+    imu(s, accel, p, rng, bias, dt, out)
+    fields = ACCEL_UPDATED | GYRO_UPDATED
+    if t_us >= clock[NEXT_MAG]:
+        magnetometer(s, p, rng, bias, clock[MAG_INTERVAL] * 1e-6, out)
+        clock[NEXT_MAG] += clock[MAG_INTERVAL]
+        fields |= MAG_UPDATED
+    if t_us >= clock[NEXT_BARO]:
+        barometer(s, p, rng, out)
+        clock[NEXT_BARO] += clock[BARO_INTERVAL]
+        fields |= BARO_UPDATED
+    if t_us >= clock[NEXT_GPS]:  # a fix is taken now and joins the queue
+        row = queue[(clock[QUEUE_HEAD] + clock[QUEUE_COUNT]) % GPS_QUEUE]
+        gps_measure(s, p, rng, bias, clock[GPS_INTERVAL] * 1e-6, row)
+        row[Q_TIME] = t_us
+        row[Q_RELEASE] = t_us + clock[GPS_DELAY]
+        clock[QUEUE_COUNT] += 1
+        clock[NEXT_GPS] += clock[GPS_INTERVAL]
+    out[OUT_GPS_NEW] = 0.0
+    if clock[QUEUE_COUNT] > 0 and queue[clock[QUEUE_HEAD], Q_RELEASE] <= t_us:  # the oldest fix is due
+        row = queue[clock[QUEUE_HEAD]]
+        out[OUT_GPS_NEW], out[OUT_GPS_TIME] = 1.0, row[Q_TIME]
+        for i in range(6):
+            out[OUT_GPS_POS + i] = row[Q_POS + i]
+        clock[QUEUE_HEAD] = (clock[QUEUE_HEAD] + 1) % GPS_QUEUE
+        clock[QUEUE_COUNT] -= 1
+    return fields
+
+
+class Sensors:
+    """The sensors of one vehicle, with their noise processes and schedule (the arrays the compiled tick works
+    on). ``gravity`` [m/s²]: the plant's; ``home_alt`` [m AMSL]: the local origin's altitude."""
+
+    def __init__(self, params: SensorParams, period: float, gravity: float, home_alt: float = HOME_ALT) -> None:
+        self.params = params
+        self.period = period
+        self.p = sensor_array(params, gravity, home_alt)
+        self.rng = seed_streams(params.seed, STREAMS)
+        self.bias = np.zeros(BIAS_SIZE)
+        self.clock = clock_array(params)
+        self.queue = np.zeros((GPS_QUEUE, Q_SIZE))
+        self.out = np.zeros(OUT_SIZE)
+        sensors_reset(self.p, self.rng, self.bias)
+
+    def tick(self, t_us: int, state: tuple, accel: tuple) -> int:
+        """The samples of time ``t_us`` [µs] into ``self.out``; returns ``fields_updated`` (see
+        :func:`sensors_tick`)."""
+        return sensors_tick(t_us, tuple(state), tuple(accel), self.period, self.p, self.rng, self.bias, self.clock,
+                            self.queue, self.out)  # fmt: skip
+
+    @property
+    def gps_new(self) -> bool:
+        return self.out[OUT_GPS_NEW] != 0.0
