@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 from autopilot.commander import TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, Commander
 from quadsitl import __version__
-from quadsitl.frames import PX4_HOME, euler_to_quaternion, ned_to_geodetic
+from quadsitl.earth import PX4_HOME
+from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.state import Reference, VehicleState
 from quadsitl.wire import Mode, mavlink
 

@@ -144,7 +144,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     from autopilot.process import parse_home
     from groundstation.fleet import MAX_VEHICLES, parse_vehicle_presets, plan_fleet
     from groundstation.launcher import up
-    from quadsitl.frames import PX4_HOME
+    from quadsitl.earth import PX4_HOME
     from quadsitl.process_util import parse_address, parse_remote
 
     preset = _load(args.preset)

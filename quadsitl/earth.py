@@ -27,6 +27,9 @@ from quadsitl.jit import jit
 HOME_LAT = 47.397742  # [deg]
 HOME_LON = 8.545594  # [deg]
 HOME_ALT = 488.0  # [m] AMSL
+PX4_HOME = (HOME_LAT, HOME_LON, HOME_ALT)
+"""PX4 SITL's default home (Zürich): latitude, longitude [deg], altitude AMSL [m]. The autopilot's default origin
+(``--home``) and a fleet's first vehicle's home."""
 
 # ISA troposphere
 T0 = 288.15  # [K] sea-level temperature

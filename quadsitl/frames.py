@@ -90,11 +90,6 @@ def quaternion_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, 
 EARTH_RADIUS = 6371000.0  # [m], PX4's CONSTANTS_RADIUS_OF_EARTH
 
 
-PX4_HOME = (47.397742, 8.545594, 488.0)
-"""PX4 SITL's default home (Zürich): latitude, longitude [deg], altitude AMSL [m]. The autopilot's default origin
-(``--home``) and a fleet's first vehicle's home."""
-
-
 def ned_to_geodetic(north: float, east: float, lat0: float, lon0: float) -> tuple[float, float]:
     """Local north/east offsets [m] from a home at (lat0, lon0) [deg] → (lat, lon) [deg].
 
