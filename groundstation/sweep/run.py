@@ -173,15 +173,17 @@ def _num(x: float) -> float | None:
 
 def _badness(table: dict[str, np.ndarray], i: int) -> tuple:
     """Sort key, worst first: diverged (earliest first), then the longest settling time over the channels with a
-    step (one that never settled counts as infinite)."""
+    step (one that never settled counts as infinite), then the largest overshoot (settling times are whole ticks:
+    many trials share one)."""
     if table["diverged"][i]:
-        return (0, table["diverged_at"][i])
-    worst = -math.inf
+        return (0, table["diverged_at"][i], 0.0)
+    worst, overshoot = -math.inf, 0.0
     for ch in engine.CHANNELS:
         if math.isfinite(table[f"{ch}_overshoot_pct"][i]):  # the channel had a step
             settle = table[f"{ch}_settling_time"][i]
             worst = max(worst, settle if math.isfinite(settle) else math.inf)
-    return (1, -worst)
+            overshoot = max(overshoot, table[f"{ch}_overshoot_pct"][i])
+    return (1, -worst, -overshoot)
 
 
 def summarize(result: SweepResult) -> dict:
