@@ -61,7 +61,7 @@ from quadsitl.state import Inputs, Reference, VehicleState
 Errors = tuple[float, float, float, float, float, float, float, float]
 
 
-@jit
+@jit(inline=True)
 def virtual_velocity(
     e_a: float, x_b: float, v_ff: float, a_ff: float, zeta: float, kappa: float, lam: float, T: float, mode: int
 ) -> tuple[float, float, float]:  # fmt: skip
@@ -80,13 +80,13 @@ def virtual_velocity(
     return x_bd, x_bd_next, zeta_next
 
 
-@jit
+@jit(inline=True)
 def integral_gain(k_i: float, lam: float, T: float) -> float:
     """κ = k_I·k [1/s²] for the integral rate k_I [1/s] of a loop whose position pole is λ = 1 − T·k (51)."""
     return k_i * (1.0 - lam) / T
 
 
-@jit
+@jit(inline=True)
 def bounded_integral(zeta: float, kappa: float, limit: float) -> float:
     """ζ with |κ·ζ| ≤ ``limit`` [m/s] (anti-windup); unchanged while κ = 0."""
     if kappa > 0.0:
@@ -94,7 +94,7 @@ def bounded_integral(zeta: float, kappa: float, limit: float) -> float:
     return zeta
 
 
-@jit
+@jit(inline=True)
 def altitude_law(
     x1: float, x2: float, h_ref: float, climb_ff: float, climb_acc: float, zeta: float, mode: int, lo: float,
     hi: float, v: np.ndarray, c: np.ndarray,
@@ -113,7 +113,7 @@ def altitude_law(
     return b, e1, e2, zeta_next
 
 
-@jit
+@jit(inline=True)
 def attitude_law(
     x: tuple[float, ...], roll_ref: float, pitch_ref: float, yaw_ref: float, yaw_rate_ff: float, yaw_mode: int,
     last: tuple[float, float, float, float], v: np.ndarray, c: np.ndarray,
@@ -168,14 +168,14 @@ def attitude_law(
     return u2, u3, u4, (e3, e4, e5, e6, e7, e8), omega_r
 
 
-@jit
+@jit(inline=True)
 def thrust(b: float, roll: float, pitch: float, v: np.ndarray, c: np.ndarray) -> float:
     """u1 = m/(T·cφcθ)·B (28), cφcθ bounded below (erratum 8), clamped to the thrust bounds [N]."""
     cc = tilt_factor(roll, pitch, c[COS_MAX_TILT])
     return clamp(v[MASS] / (c[PERIOD] * cc) * b, c[THRUST_MIN], c[THRUST_MAX])
 
 
-@jit
+@jit(inline=True)
 def backstepping(
     x: tuple[float, ...], ref: tuple[float, float, float, float], last: tuple[float, float, float, float],
     v: np.ndarray, c: np.ndarray,

@@ -46,7 +46,7 @@ from quadsitl.param_arrays import ARM, IXX, IYY, IZZ, MASS, G, vehicle_array
 from quadsitl.state import Inputs, Reference, VehicleState
 
 
-@jit
+@jit(inline=True)
 def pd_vertical(
     h: float, climb: float, h_ref: float, climb_ff: float, climb_acc: float, mode: int, v: np.ndarray, c: np.ndarray
 ) -> float:  # fmt: skip
@@ -56,7 +56,7 @@ def pd_vertical(
     return v[G] + climb_acc + c[KP] * e + c[KD] * (climb_ff - climb)
 
 
-@jit
+@jit(inline=True)
 def pd_attitude(
     x: tuple[float, ...], roll_ref: float, pitch_ref: float, yaw_ref: float, yaw_rate_ff: float, yaw_mode: int,
     v: np.ndarray, c: np.ndarray,
@@ -74,14 +74,14 @@ def pd_attitude(
     return u2, u3, u4
 
 
-@jit
+@jit(inline=True)
 def pd_thrust(a: float, roll: float, pitch: float, v: np.ndarray, c: np.ndarray) -> float:
     """u1 = m·a/(cφcθ), cφcθ bounded below (erratum 8), clamped to the thrust bounds [N]."""
     cc = tilt_factor(roll, pitch, c[COS_MAX_TILT])
     return clamp(v[MASS] * a / cc, c[THRUST_MIN], c[THRUST_MAX])
 
 
-@jit
+@jit(inline=True)
 def pd(x: tuple[float, ...], ref: tuple[float, float, float, float], v: np.ndarray, c: np.ndarray) -> Inputs:
     """One step of the PD law for the state ``x`` (the 12 VehicleState fields) and the reference (altitude,
     roll, pitch, yaw)."""

@@ -17,6 +17,9 @@ machines drift:
    (``dashboard_ratio``, ``dashboard_ratio_10x``). It needs Playwright (the test extra) and Debian's Chromium;
    without them it is skipped with one line saying what is missing, and the JSON has no dashboard figures
    and says why under ``skipped`` (:data:`OPTIONAL`).
+6. the sweeps' batch engine: vehicle-steps per second of ``quadsitl sweep``'s engine (the paper's controller and
+   plant, 5 s trials), in one process and over one worker process per core, against ``quadsitl sim``'s scalar
+   loop (the same compiled equations, called from Python once per tick).
 """
 
 from __future__ import annotations
@@ -414,6 +417,46 @@ def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
         r.add(f"real time: {key}", real[key], unit, bare[key], "bare loop", ratio=ratio)
 
 
+# ---- 6. the sweeps' batch engine ------------------------------------------------------------------------
+
+
+def bench_batch(r: Report, trials: int) -> dict:
+    """Vehicle-steps per second of the sweeps' batch engine on the paper's controller and plant (the
+    paper-mass-mismatch spec: the paper's step, ±20 % mass and inertia mismatch, 5 s per trial), in this process
+    and over one worker process per core, against the scalar loop of ``quadsitl sim`` (the same compiled
+    equations, called from Python once per tick) measured in the same run."""
+    from groundstation.offline import run_offline
+    from groundstation.sweep.run import fly, run_sweep, warm_up
+    from groundstation.sweep.spec import load_spec
+
+    r.section("6. sweeps: the batch engine (paper's controller and plant) against quadsitl sim's scalar loop")
+    spec = load_spec("paper-mass-mismatch")
+    warm_up()
+    run_offline(spec.preset, ["backstepping"], 0.01)  # compiled, or loaded from the cache, before timing
+    scalar = []
+    for _ in range(3):
+        start = time.perf_counter()
+        run_offline(spec.preset, ["backstepping"], 2.0)
+        scalar.append(2000 / (time.perf_counter() - start))
+    one = []
+    n = max(trials // 8, 50)
+    for _ in range(3):
+        start = time.perf_counter()
+        fly(spec, range(n))
+        one.append(n * spec.ticks / (time.perf_counter() - start))
+    workers = os.cpu_count() or 1
+    big = spec.with_trials(trials)
+    start = time.perf_counter()
+    result = run_sweep(big, workers=workers)
+    wall = time.perf_counter() - start
+    many = result.ticks_flown / wall
+    r.add("scalar loop (quadsitl sim), paper step", max(scalar), "steps/s")
+    r.add("batch engine, this process", max(one), "steps/s", max(scalar), "scalar loop")
+    r.add(f"batch engine, {workers} worker processes ({trials} trials)", many, "steps/s", max(one), "one process")
+    r.add(f"  {trials} trials of 5 s, wall time with the workers' start", wall, "s")
+    return {"batch_steps_per_s": many, "batch_steps_per_s_one_process": max(one), "scalar_steps_per_s": max(scalar)}
+
+
 # ---- the command ----------------------------------------------------------------------------------------
 
 
@@ -431,7 +474,7 @@ def optional_parts_missing(parts: Sequence[str]) -> dict[str, str]:
     return {part: why for part in parts if part in OPTIONAL and (why := OPTIONAL[part][0]())}
 
 
-PARTS = ("coldstart", "lockstep", "costs", "fanout", "realtime", "dashboard")
+PARTS = ("coldstart", "lockstep", "costs", "fanout", "realtime", "dashboard", "batch")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -446,6 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rounds", type=int, default=2, help="interleaved ping-pong/fly rounds, best of (default 2)")
     p.add_argument("--realtime-seconds", type=float, default=10.0, help="real-time run length (default 10)")
     p.add_argument("--subscriber-nice", type=int, default=10, help="niceness of fan-out subscribers (default 10)")
+    p.add_argument("--batch-trials", type=int, default=8000, help="trials of the batch section's sweep (default 8000)")
     return p
 
 
@@ -453,6 +497,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not 1 <= args.rounds <= 10:
         print(f"quadsitl bench: error: --rounds {args.rounds}: expected 1..10", file=sys.stderr)
+        return 2
+    if not 16 <= args.batch_trials <= 10_000_000:
+        print(f"quadsitl bench: error: --batch-trials {args.batch_trials}: expected 16..10000000", file=sys.stderr)
         return 2
     if not 1.0 <= args.realtime_seconds <= 600.0:
         print(f"quadsitl bench: error: --realtime-seconds {args.realtime_seconds:g}: expected 1..600", file=sys.stderr)
@@ -485,6 +532,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 bench_realtime(r, work, args.realtime_seconds)
             if "dashboard" in parts and "dashboard" not in skipped:
                 extra.update(bench_dashboard(r, work, args.rounds))
+            if "batch" in parts:
+                extra.update(bench_batch(r, args.batch_trials))
     except (subprocess.CalledProcessError, subprocess.TimeoutExpired, RuntimeError, OSError) as exc:
         print(f"quadsitl bench: error: {exc}", file=sys.stderr)
         return 1

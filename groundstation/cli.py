@@ -7,6 +7,7 @@
     quadsitl replay   play a recorded telemetry.csv or .tlog back onto Zenoh
     quadsitl presets  list the shipped presets, or show one
     quadsitl gains    check backstepping gains against the paper's conditions (41)–(44)
+    quadsitl sweep    Monte-Carlo sweeps: many trials batched on the compiled equations, a table and its summary
 
 Errors are one line on stderr and a non-zero exit (2 for bad input), never a traceback.
 """
@@ -14,6 +15,9 @@ Errors are one line on stderr and a non-zero exit (2 for bad input), never a tra
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -83,6 +87,78 @@ def cmd_sim(args: argparse.Namespace) -> int:
         print(format_table(metrics))
         print("wrote " + ", ".join(str(f) for f in files))
     return 0
+
+
+EXAMPLES_SWEEP = """examples:
+  quadsitl sweep paper-mass-mismatch --out runs/mass          # a shipped spec, by name
+  quadsitl sweep paper-mass-mismatch --trials 100000 --workers 2 --out runs/mass-100k
+  quadsitl sweep my-sweep.toml --keep 5 --json --out runs/mine  # trajectories of trials 0..4; summary on stdout
+"""
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from groundstation.progress import FlightProgress
+    from groundstation.sweep.run import run_sweep, summarize, write_outputs
+    from groundstation.sweep.spec import load_spec
+
+    try:
+        spec = load_spec(args.spec)
+        if args.trials is not None:
+            spec = spec.with_trials(args.trials)
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from None
+    if not 1 <= args.workers <= 256:
+        raise UsageError(f"--workers {args.workers}: expected an integer in [1, 256]")
+    if args.chunk is not None and not 1 <= args.chunk <= 1_000_000:
+        raise UsageError(f"--chunk {args.chunk}: expected an integer in [1, 1000000]")
+    keep = set(spec.keep) | set(args.keep_trial or ())
+    if args.keep is not None:
+        if not 0 <= args.keep <= 1000:
+            raise UsageError(f"--keep {args.keep}: expected an integer in [0, 1000] (the first N trials)")
+        keep |= set(range(min(args.keep, spec.trials)))
+    bad = [k for k in keep if not 0 <= k < spec.trials]
+    if bad:
+        raise UsageError(f"--keep-trial {bad[0]}: expected a trial number in [0, {spec.trials - 1}]")
+    spec = dataclasses.replace(spec, keep=tuple(sorted(keep)))
+    quiet = args.quiet or args.json
+    with FlightProgress(spec.trials * spec.duration, enabled=not args.quiet, label="sweep (vehicle-seconds):") as bar:
+        result = run_sweep(spec, args.workers, args.chunk, progress=bar.update)
+    summary = summarize(result)
+    files = write_outputs(Path(args.out), result, summary)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    if not quiet:
+        print(format_summary(summary))
+        print(
+            f"wrote {args.out}/trials.csv, trials.parquet, summary.json"
+            + (f" and {len(files) - 3} trajector{'y' if len(files) == 4 else 'ies'}" if len(files) > 3 else "")
+        )
+    return 0
+
+
+def format_summary(s: dict) -> str:
+    """A few lines for the terminal: the sweep, its speed, settling times and overshoot per channel, the worst."""
+    lines = [
+        f"sweep {s['spec']}: {s['trials']} trials of {s['duration']:g} s ({s['controller']}, preset {s['preset']}, "
+        f"task {s['task']}) in {s['wall_s']:.1f} s, {s['vehicle_steps_per_s'] or 0:.3g} vehicle-steps/s",
+        f"diverged {s['diverged']} of {s['flown']} flown (failure rate {s['failure_rate'] or 0:.3g}); "
+        f"inadmissible {s['inadmissible']}",
+        f"{'channel':<10}{'settling p50':>14}{'p95':>10}{'max':>10}{'overshoot p95':>16}{'not settled':>13}",
+    ]
+
+    def f(m: dict, key: str, fmt: str = ".3f") -> str:
+        return "—" if m.get(key) is None else format(m[key], fmt)
+
+    for ch in ("altitude", "roll", "pitch", "yaw"):
+        st, ov = s["metrics"][f"{ch}_settling_time"], s["metrics"][f"{ch}_overshoot_pct"]
+        lines.append(f"{ch:<10}{f(st, 'p50'):>14}{f(st, 'p95'):>10}{f(st, 'max'):>10}"
+                     f"{f(ov, 'p95', '.2f') + ' %':>16}{st['undefined']:>13}")  # fmt: skip
+    if s["worst"]:
+        w = s["worst"][0]
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in w["parameters"].items())
+        what = f"diverged at {w['diverged_at']:.3f} s" if w["diverged"] else "longest settling"
+        lines.append(f"worst: trial {w['trial']} ({what}): {params}")
+    return "\n".join(lines)
 
 
 EXAMPLES_FLY = """examples:
@@ -334,6 +410,30 @@ the source, or 'mkdocs serve' there.""",
         "$QUADSITL_SIGNING_KEY); unsigned, wrongly signed and replayed messages are refused",
     )
     upp.set_defaults(func=cmd_up)
+
+    sw = sub.add_parser(
+        "sweep",
+        help="Monte-Carlo sweep: many trials of the closed loop, batched on the compiled equations",
+        epilog=EXAMPLES_SWEEP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Fly every trial of a sweep spec (what varies: plant, model mismatch, gains, initial state, "
+        "references) on the batch engine and write trials.csv, trials.parquet and summary.json (see "
+        "docs/sweeps.md).",
+    )
+    sw.add_argument("spec", metavar="SPEC", help="a shipped spec's name (paper-mass-mismatch, ...) or a TOML file")
+    sw.add_argument("--out", default="runs/sweep", metavar="DIR", help="output folder (default: runs/sweep)")
+    sw.add_argument("--trials", type=int, metavar="N", help="number of trials (default: the spec's)")
+    sw.add_argument(
+        "--workers", type=int, default=os.cpu_count() or 1, metavar="W",
+        help="worker processes (default: one per core; 1: in this process)",
+    )  # fmt: skip
+    sw.add_argument("--chunk", type=int, metavar="N", help="trials per chunk (default: about four chunks per worker)")
+    sw.add_argument("--keep", type=int, metavar="N", help="write the trajectories of the first N trials")
+    sw.add_argument("--keep-trial", type=int, action="append", metavar="K", help="write trial K's trajectory "
+                    "(repeatable)")  # fmt: skip
+    sw.add_argument("--json", action="store_true", help="print summary.json on stdout (and nothing else)")
+    sw.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+    sw.set_defaults(func=cmd_sweep)
 
     for name, (_module, help_text) in PROCESSES.items():
         sub.add_parser(name, help=help_text, add_help=False)

@@ -15,19 +15,19 @@ from quadsitl.jit import jit
 TWO_PI = 2.0 * math.pi
 
 
-@jit
+@jit(inline=True)
 def wrap_pi(angle: float) -> float:
     """Wrap an angle [rad] into [−π, π)."""
     return (angle + math.pi) % TWO_PI - math.pi
 
 
-@jit
+@jit(inline=True)
 def altitude(s: tuple) -> float:
     """Height above the ground plane [m] of a state in VehicleState order: h = −z_NED (the paper's x1)."""
     return -s[2]
 
 
-@jit
+@jit(inline=True)
 def climb_rate(s: tuple) -> float:
     """Vertical speed upwards [m/s] of a state in VehicleState order: ḣ = −vz_NED (the paper's x2)."""
     return -s[5]

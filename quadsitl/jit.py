@@ -67,6 +67,13 @@ def cache_dir() -> Path:
 numba.config.CACHE_DIR = str(cache_dir())
 
 
-def jit(fn: F) -> F:
-    """Compile ``fn`` in nopython mode, cached on disk (see the module's docstring)."""
-    return numba.njit(cache=True, error_model="numpy")(fn)  # type: ignore[return-value]
+def jit(fn: F | None = None, *, inline: bool = False) -> F | Callable[[F], F]:
+    """Compile ``fn`` in nopython mode, cached on disk (see the module's docstring). ``@jit(inline=True)``: the
+    function's body is also inlined into every compiled caller (numba's ``inline="always"``), for the equations
+    of one control tick, which the per-tick kernels and the sweeps' batch engine call millions of times; the
+    results are the same to the bit, and only callers' compile times grow."""
+
+    def compile_(f: F) -> F:
+        return numba.njit(cache=True, error_model="numpy", inline="always" if inline else "never")(f)  # type: ignore[return-value]
+
+    return compile_ if fn is None else compile_(fn)

@@ -24,14 +24,14 @@ from quadsitl.state import Inputs
 Forces = tuple[float, float, float, float]
 
 
-@jit
+@jit(inline=True)
 def forces_to_inputs(forces: Forces, d_over_b: float) -> Inputs:
     """Paper eq (8): motor forces (F1..F4) [N] → inputs (u1..u4)."""
     f1, f2, f3, f4 = forces
     return Inputs(f1 + f2 + f3 + f4, f4 - f2, f3 - f1, d_over_b * (-f1 + f2 - f3 + f4))
 
 
-@jit
+@jit(inline=True)
 def inputs_to_forces(u: tuple[float, float, float, float], d_over_b: float) -> Forces:
     """Inverse of eq (8): inputs (u1..u4) → motor forces (F1..F4) [N]."""
     u1, u2, u3, u4 = u
@@ -41,27 +41,27 @@ def inputs_to_forces(u: tuple[float, float, float, float], d_over_b: float) -> F
     return 0.5 * (s13 - u3), 0.5 * (s24 - u2), 0.5 * (s13 + u3), 0.5 * (s24 + u2)
 
 
-@jit
+@jit(inline=True)
 def rotor_speed(force: float, b: float) -> float:
     """Signed rotor speed Ω = sign(F)·sqrt(|F|/b) [rad/s] (reversible rotors keep the sign)."""
     return math.copysign(math.sqrt(abs(force) / b), force)
 
 
-@jit
+@jit(inline=True)
 def rotor_speeds(forces: Forces, b: float) -> Forces:
     """Ω_j of each motor [rad/s]."""
     f1, f2, f3, f4 = forces
     return rotor_speed(f1, b), rotor_speed(f2, b), rotor_speed(f3, b), rotor_speed(f4, b)
 
 
-@jit
+@jit(inline=True)
 def residual_rotor_speed(forces: Forces, b: float) -> float:
     """Ωr = Ω1 − Ω2 + Ω3 − Ω4 [rad/s] (erratum 5: the paper prints + Ω4)."""
     w1, w2, w3, w4 = rotor_speeds(forces, b)
     return w1 - w2 + w3 - w4
 
 
-@jit
+@jit(inline=True)
 def allocate(u: tuple[float, float, float, float], d_over_b: float, f_min: float, f_max: float) -> Forces:
     """Control allocation with saturation: inputs → motor forces within [f_min, f_max].
 
@@ -87,7 +87,7 @@ def allocate(u: tuple[float, float, float, float], d_over_b: float, f_min: float
     return clamp4((mean + d1, mean + d2, mean + d3, mean + d4), f_min, f_max)
 
 
-@jit
+@jit(inline=True)
 def clamp4(forces: Forces, lo: float, hi: float) -> Forces:
     """Each of four values clamped to [lo, hi]."""
     f1, f2, f3, f4 = forces

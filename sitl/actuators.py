@@ -18,7 +18,7 @@ from quadsitl.mixer import Forces, clamp4
 from quadsitl.param_arrays import F_MAX, F_MIN, TAU_DOWN, TAU_UP
 
 
-@jit
+@jit(inline=True)
 def motor_lag(f0: float, target: float, h: float, tau_up: float, tau_down: float) -> tuple[float, float]:
     """One motor over h seconds towards ``target``: (force at the end, mean force over the interval).
 
@@ -32,7 +32,7 @@ def motor_lag(f0: float, target: float, h: float, tau_up: float, tau_down: float
     return target + (f0 - target) * decay, target + (f0 - target) * (tau / h) * (1.0 - decay)
 
 
-@jit
+@jit(inline=True)
 def advance(motors: Forces, commanded: Forces, h: float, a: np.ndarray) -> tuple[Forces, Forces]:
     """Advance the four motors by h seconds under ``commanded`` (clamped to the motors' range): (the motor
     forces at the end, their means over the interval, which act on the airframe)."""

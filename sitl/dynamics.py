@@ -28,7 +28,7 @@ from quadsitl.param_arrays import ARM, IXX, IYY, IZZ, JR, K1, K2, K3, K4, K5, K6
 State = tuple[float, ...]  # the 12 fields of VehicleState, as a plain tuple for the integrators
 
 
-@jit
+@jit(inline=True)
 def derivatives(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray) -> State:
     """Time derivative of the state for inputs u = (u1..u4) and residual rotor speed Ωr [rad/s]."""
     vx, vy, vz = s[3], s[4], s[5]

@@ -14,7 +14,7 @@ INTEGRATORS = {"euler": EULER, "rk4": RK4}
 """Integrator names (presets, ``--integrator``) → the code :func:`integrate` takes."""
 
 
-@jit
+@jit(inline=True)
 def add_scaled(s: State, h: float, d: State) -> State:
     """s + h·d, element by element."""
     return (s[0] + h * d[0], s[1] + h * d[1], s[2] + h * d[2], s[3] + h * d[3], s[4] + h * d[4], s[5] + h * d[5],
@@ -22,13 +22,13 @@ def add_scaled(s: State, h: float, d: State) -> State:
             s[11] + h * d[11])  # fmt: skip
 
 
-@jit
+@jit(inline=True)
 def euler(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray, h: float) -> State:
     """Forward Euler, paper eq (9): s⁺ = s + h·f(s)."""
     return add_scaled(s, h, derivatives(s, u, omega_r, v))
 
 
-@jit
+@jit(inline=True)
 def rk4(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray, h: float) -> State:
     """Classic fourth-order Runge–Kutta."""
     k1 = derivatives(s, u, omega_r, v)
@@ -50,7 +50,7 @@ def rk4(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.nd
             s[11] + h6 * (k1[11] + 2.0 * k2[11] + 2.0 * k3[11] + k4[11]))  # fmt: skip
 
 
-@jit
+@jit(inline=True)
 def integrate(method: int, s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray,
               h: float) -> State:  # fmt: skip
     """One step of ``method`` (EULER or RK4)."""

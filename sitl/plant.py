@@ -36,7 +36,7 @@ def initial_state(preset: Preset) -> VehicleState:
     return VehicleState(z=-i.altitude, roll=i.roll, pitch=i.pitch, yaw=i.yaw)
 
 
-@jit
+@jit(inline=True)
 def ground(s: State) -> tuple[State, bool]:
     """The ground plane: (the state, whether the vehicle rests on the ground)."""
     if s[2] >= 0.0 and s[5] >= 0.0:  # at/below ground and not climbing (NED: z, vz down)
@@ -56,7 +56,7 @@ def acceleration(s: State, motors: Forces, v: np.ndarray, on_ground: bool) -> tu
     return d[3], d[4], d[5]
 
 
-@jit
+@jit(inline=True)
 def step(s: State, motors: Forces, commanded: Forces, v: np.ndarray, a: np.ndarray, period: float, substeps: int,
          method: int, omega_r: float) -> tuple[State, Forces, Forces, Inputs, float, bool]:  # fmt: skip
     """One control period under the commanded motor forces [N]: (state, motor forces at the end, mean

@@ -1,0 +1,308 @@
+"""Running a sweep: its trials in chunks, in this process or in worker processes, then the table
+(``trials.csv``, ``trials.parquet``), ``summary.json`` and the trajectories of the trials kept.
+
+A chunk is a list of trial numbers. The worker that gets it draws their parameters
+(:func:`groundstation.sweep.spec.draw`: each trial from its own seed), builds the engine's arrays and flies them
+all in one compiled call (:func:`groundstation.sweep.engine.run_chunk`). A trial's row depends on the spec and
+its number only, so the table is the same however the trials are split into chunks and over workers.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from groundstation.sweep import engine
+from groundstation.sweep.spec import SweepSpec, draw, trial_arrays
+from sitl.integrators import INTEGRATORS
+
+FLOWN_METRICS = engine.METRICS[: engine.M_TICKS + 1]
+"""The metrics columns of the table (:data:`groundstation.sweep.engine.METRICS` less the engine's bookkeeping)."""
+PERCENTILES = (5, 25, 50, 75, 95)
+WORST = 10  # trials listed in summary.json's "worst"
+MAX_CHUNK = 2000  # trials per chunk at most: a progress update every second or so per worker
+
+
+@dataclass
+class ChunkResult:
+    """What one chunk gives back: its trial numbers, their drawn parameters, metrics (engine.METRICS columns,
+    NaN for trials not flown), admissibility and why not, and the kept trajectories {trial: (ticks, KEEP_SIZE)}."""
+
+    trials: np.ndarray
+    params: dict[str, np.ndarray]
+    metrics: np.ndarray
+    admissible: np.ndarray
+    reason: list[str]
+    kept: dict[int, np.ndarray] = field(default_factory=dict)
+
+
+def _method(spec: SweepSpec) -> int:
+    return INTEGRATORS[spec.preset.sim.integrator]
+
+
+def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
+    """Draw, build and fly the given trials in one call of the batch engine (also what a worker runs)."""
+    trials = np.asarray(trials, dtype=np.int64)
+    params = draw(spec, trials)
+    arrays = trial_arrays(spec, params, len(trials))
+    n = len(trials)
+    metrics = np.full((n, engine.METRICS_SIZE), math.nan)
+    go = np.flatnonzero(arrays.admissible)
+    keep_rows = [i for i in go.tolist() if int(trials[i]) in spec.keep]
+    slots = np.full(len(go), -1, dtype=np.int64)
+    for slot, row in enumerate(keep_rows):
+        slots[np.searchsorted(go, row)] = slot
+    keep = np.zeros((max(len(keep_rows), 1), spec.ticks if keep_rows else 1, engine.KEEP_SIZE))
+    limits = np.array([spec.limits[k] for k in ("position", "speed", "tilt", "rate")], dtype=np.float64)
+    sub = [np.ascontiguousarray(x[go]) for x in (arrays.x0, arrays.v, arrays.a, arrays.vm, arrays.c, arrays.r)]
+    turns = np.zeros(len(go))
+    out = np.empty((len(go), engine.METRICS_SIZE))
+    kind = 0 if spec.controller == "backstepping" else 1
+    ticks, T, substeps = spec.ticks, spec.period, spec.preset.sim.substeps
+    engine.run_chunk(*sub, kind, ticks, T, substeps, _method(spec), turns, limits, out, slots, keep)
+    # The rare trial that ended with its yaw on another branch than it flew on: again, on its own (module doc).
+    again = np.flatnonzero(out[:, engine.M_YAW_TURNS] != turns)
+    if again.size:
+        turns2 = out[again, engine.M_YAW_TURNS].copy()
+        out2 = np.empty((again.size, engine.METRICS_SIZE))
+        engine.run_chunk(*(np.ascontiguousarray(x[again]) for x in sub), kind, ticks, T, substeps, _method(spec),
+                         turns2, limits, out2, np.ascontiguousarray(slots[again]), keep)  # fmt: skip
+        out[again] = out2
+    metrics[go] = out
+    kept = {int(trials[row]): keep[slot].copy() for slot, row in enumerate(keep_rows)}
+    return ChunkResult(trials, params, metrics, arrays.admissible, arrays.reason, kept)
+
+
+def warm_up() -> None:
+    """Compile the batch engine (or load it from numba's cache) on made-up data, before workers start: they then
+    load it instead of compiling it each."""
+    from autopilot.control_params import SIZE
+    from quadsitl.param_arrays import ACTUATOR_SIZE, VEHICLE_SIZE
+
+    one = np.ones((1, 12))
+    engine.run_chunk(one, np.ones((1, VEHICLE_SIZE)), np.ones((1, ACTUATOR_SIZE)), np.ones((1, VEHICLE_SIZE)),
+                     np.full((1, SIZE), 0.5), np.zeros((1, 4)), 0, 1, 0.001, 1, 0, np.zeros(1),
+                     np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
+                     np.zeros((1, 1, engine.KEEP_SIZE)))  # fmt: skip
+
+
+def chunks(trials: int, workers: int, chunk: int | None = None) -> list[np.ndarray]:
+    """Trial numbers 0..trials−1 in consecutive chunks: ``chunk`` each, or by default about four per worker (at
+    most MAX_CHUNK)."""
+    size = chunk or max(1, min(MAX_CHUNK, math.ceil(trials / (4 * workers))))
+    return [np.arange(start, min(start + size, trials)) for start in range(0, trials, size)]
+
+
+@dataclass
+class SweepResult:
+    """The table (one row per trial, in trial order: {column: values}), the kept trajectories, and how long the
+    flights took (wall time [s], from the first chunk's start: the engine already compiled) and how many ticks."""
+
+    spec: SweepSpec
+    table: dict[str, np.ndarray]
+    reasons: list[str]
+    kept: dict[int, np.ndarray]
+    wall_s: float
+    ticks_flown: int
+
+
+def run_sweep(
+    spec: SweepSpec,
+    workers: int = 1,
+    chunk: int | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> SweepResult:
+    """Fly every trial of ``spec``: in this process (``workers`` = 1) or in ``workers`` processes, by chunks.
+    ``progress``, when given, is called with the simulated vehicle-seconds done after each chunk."""
+    parts = chunks(spec.trials, workers, chunk)
+    warm_up()
+    start = time.monotonic()  # the flights only: not the first compilation
+    results: list[ChunkResult] = []
+    done = 0.0
+    if workers <= 1 or len(parts) == 1:
+        for part in parts:
+            results.append(fly(spec, part))
+            done += len(part) * spec.duration
+            if progress is not None:
+                progress(done)
+    else:
+        with ProcessPoolExecutor(max_workers=min(workers, len(parts)), mp_context=get_context("spawn")) as pool:
+            futures = [pool.submit(fly, spec, part) for part in parts]
+            for fut, part in zip(futures, parts):
+                results.append(fut.result())
+                done += len(part) * spec.duration
+                if progress is not None:
+                    progress(done)
+    return _assemble(spec, results, time.monotonic() - start)
+
+
+def _assemble(spec: SweepSpec, results: list[ChunkResult], wall: float) -> SweepResult:
+    trials = np.concatenate([r.trials for r in results])
+    order = np.argsort(trials, kind="stable")
+    metrics = np.concatenate([r.metrics for r in results])[order]
+    admissible = np.concatenate([r.admissible for r in results])[order]
+    reasons = [x for r in results for x in r.reason]
+    reasons = [reasons[i] for i in order]
+    table: dict[str, np.ndarray] = {"trial": trials[order]}
+    for name in spec.vary:
+        table[name] = np.concatenate([r.params[name] for r in results])[order]
+    table["admissible"] = admissible
+    for j, name in enumerate(FLOWN_METRICS):
+        table[name] = metrics[:, j]
+    table["diverged"] = metrics[:, engine.M_DIVERGED] == 1.0
+    kept = {k: v for r in results for k, v in r.kept.items()}
+    ticks = int(np.nansum(metrics[:, engine.M_TICKS]))
+    return SweepResult(spec, table, reasons, kept, wall, ticks)
+
+
+# ---- the summary ------------------------------------------------------------------------------------------
+
+
+def _num(x: float) -> float | None:
+    return None if not math.isfinite(x) else float(x)
+
+
+def _badness(table: dict[str, np.ndarray], i: int) -> tuple:
+    """Sort key, worst first: diverged (earliest first), then the longest settling time over the channels with a
+    step (one that never settled counts as infinite), then the largest overshoot (settling times are whole ticks:
+    many trials share one)."""
+    if table["diverged"][i]:
+        return (0, table["diverged_at"][i], 0.0)
+    worst, overshoot = -math.inf, 0.0
+    for ch in engine.CHANNELS:
+        if math.isfinite(table[f"{ch}_overshoot_pct"][i]):  # the channel had a step
+            settle = table[f"{ch}_settling_time"][i]
+            worst = max(worst, settle if math.isfinite(settle) else math.inf)
+            overshoot = max(overshoot, table[f"{ch}_overshoot_pct"][i])
+    return (1, -worst, -overshoot)
+
+
+def summarize(result: SweepResult) -> dict:
+    """summary.json: the sweep's settings, counts, percentiles of every metric over the trials flown that did
+    not diverge, and the worst trials with their parameters."""
+    spec, table = result.spec, result.table
+    n = len(table["trial"])
+    flown = table["admissible"]
+    diverged = table["diverged"] & flown
+    ok = flown & ~diverged
+    metrics = {}
+    for name in (*FLOWN_METRICS[: 4 * engine.PER_CHANNEL], "saturation_time"):
+        col = table[name][ok]
+        finite = col[np.isfinite(col)]
+        entry: dict[str, float | int | None] = {"undefined": int(col.size - finite.size)}
+        if finite.size:
+            entry.update({f"p{p}": float(v) for p, v in zip(PERCENTILES, np.percentile(finite, PERCENTILES))})
+            entry.update(min=float(finite.min()), max=float(finite.max()), mean=float(finite.mean()))
+        metrics[name] = entry
+    rows = sorted(np.flatnonzero(flown).tolist(), key=lambda i: _badness(table, i))[:WORST]
+    params = list(spec.vary)
+    worst = []
+    for i in rows:
+        worst.append({
+            "trial": int(table["trial"][i]),
+            "parameters": {k: float(table[k][i]) for k in params},
+            "diverged": bool(table["diverged"][i]),
+            "diverged_at": _num(table["diverged_at"][i]),
+            "settling_time": {ch: _num(table[f"{ch}_settling_time"][i]) for ch in engine.CHANNELS},
+            "overshoot_pct": {ch: _num(table[f"{ch}_overshoot_pct"][i]) for ch in engine.CHANNELS},
+            "steady_state_error": {ch: _num(table[f"{ch}_steady_state_error"][i]) for ch in engine.CHANNELS},
+        })  # fmt: skip
+    n_flown = int(flown.sum())
+    return {
+        "spec": spec.name,
+        "description": spec.description,
+        "preset": spec.preset.name,
+        "controller": spec.controller,
+        "task": spec.task,
+        "duration": spec.duration,
+        "period": spec.period,
+        "seed": spec.seed,
+        "trials": n,
+        "varied": {k: d.describe() for k, d in spec.vary.items()},
+        "flown": n_flown,
+        "inadmissible": n - n_flown,
+        "diverged": int(diverged.sum()),
+        "failure_rate": float(diverged.sum() / n_flown) if n_flown else None,
+        "wall_s": result.wall_s,
+        "vehicle_steps": result.ticks_flown,
+        "vehicle_steps_per_s": result.ticks_flown / result.wall_s if result.wall_s > 0 else None,
+        "percentiles": list(PERCENTILES),
+        "metrics": metrics,
+        "worst": worst,
+    }
+
+
+# ---- the files --------------------------------------------------------------------------------------------
+
+
+def write_table(out: Path, result: SweepResult) -> list[Path]:
+    """trials.csv and trials.parquet: one row per trial, its parameters and metrics (NaN: not defined, or not
+    flown); with ``inadmissible = "record"`` also the violated condition."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = dict(result.table)
+    if result.spec.inadmissible == "record":
+        table["inadmissible_reason"] = np.array(result.reasons, dtype=object)
+    csv_path, parquet_path = out / "trials.csv", out / "trials.parquet"
+    columns = list(table)
+    with open(csv_path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(columns)
+        cells = [_csv_cells(table[c]) for c in columns]
+        w.writerows(zip(*cells))
+    pq.write_table(pa.table({c: pa.array(table[c].tolist() if table[c].dtype == object else table[c])
+                             for c in columns}), parquet_path)  # fmt: skip
+    return [csv_path, parquet_path]
+
+
+def _csv_cells(col: np.ndarray) -> list[str]:
+    if col.dtype == bool:
+        return ["1" if v else "0" for v in col.tolist()]
+    if col.dtype.kind in "iu":
+        return [str(v) for v in col.tolist()]
+    if col.dtype == object:
+        return [str(v) for v in col.tolist()]
+    return [repr(v) if math.isfinite(v) else "nan" for v in col.tolist()]
+
+
+def write_kept(out: Path, result: SweepResult) -> list[Path]:
+    """Each kept trial's trajectory as ``trajectories/trial_<k>.csv``, the telemetry CSV of ``quadsitl sim``."""
+    from groundstation.telemetry_csv import rows_from_arrays, write_csv
+    from quadsitl.frames import euler_rates_to_body_rates
+
+    files = []
+    if result.kept:
+        (out / "trajectories").mkdir(parents=True, exist_ok=True)
+    T = result.spec.period
+    for trial, k in sorted(result.kept.items()):
+        i = np.flatnonzero(result.table["trial"] == trial)[0]
+        n = int(result.table["ticks"][i]) if math.isfinite(result.table["ticks"][i]) else k.shape[0]
+        k = k[:n]
+        s = k[:, engine.K_STATE : engine.K_STATE + 12]
+        rates = np.array([euler_rates_to_body_rates(r[6], r[7], r[9], r[10], r[11]) for r in s]).reshape(-1, 3)
+        path = out / "trajectories" / f"trial_{trial}.csv"
+        write_csv(path, rows_from_arrays(np.arange(n) * T, s, rates, k[:, engine.K_REF : engine.K_REF + 4],
+                                         k[:, engine.K_INPUTS : engine.K_INPUTS + 4],
+                                         k[:, engine.K_FORCES : engine.K_FORCES + 4]))  # fmt: skip
+        files.append(path)
+    return files
+
+
+def write_outputs(out: Path, result: SweepResult, summary: dict) -> list[Path]:
+    """The table, summary.json and the kept trajectories into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    files = write_table(out, result)
+    path = out / "summary.json"
+    path.write_text(json.dumps(summary, indent=2) + "\n")
+    files.append(path)
+    return files + write_kept(out, result)

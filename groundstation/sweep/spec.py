@@ -1,0 +1,621 @@
+"""A sweep's spec: what is flown and what varies, from TOML, validated before anything runs. Pure: no I/O
+besides reading the file, nothing compiled.
+
+    description = "±20 % mass and inertia mismatch on the paper's experiment"
+    preset = "paper"              # a shipped preset's name or a preset TOML's path
+    controller = "backstepping"   # or "pd" (default: the preset's)
+    task = "step"                 # the preset's reference from its initial state (the paper's experiment), or
+                                  # "hover": hold the reference altitude, level, from there
+    duration = 5.0                # [s] simulated per trial (default: the preset's)
+    seed = 2020                   # the sweep's seed (default 0)
+    trials = 1000                 # (default: the grid's size, else 1)
+    keep = [0, 1]                 # trials whose whole trajectory is written (default: none)
+    inadmissible = "refuse"       # gains that can break (41)–(44): "refuse" the spec, or "record" such trials
+
+    [limits]                      # a trial whose state leaves these ends there, diverged (defaults shown)
+    position = 1e5                # |x|, |y|, |z| [m]
+    speed = 1e4                   # |vx|, |vy|, |vz| [m/s]
+    tilt = 1.5707963267948966     # |roll|, |pitch| [rad], below
+    rate = 1e3                    # |Euler-angle rates| [rad/s]
+
+    [vary]
+    mismatch.mass = { dist = "uniform", low = 0.8, high = 1.2 }
+    gains.k1 = { dist = "grid", values = [5.0, 10.0, 20.0] }
+    initial.roll = { dist = "normal", mean = 0.0, std = 0.1, low = -0.5, high = 0.5 }
+
+What can vary (:data:`PARAMETERS`): ``plant.*`` the plant's vehicle (mass, ixx, iyy, izz, k1..k6, arm_length,
+rotor_inertia, thrust_factor, drag_factor; SI units as in the presets), ``model.*`` the autopilot's model of it
+(default: the plant's), ``mismatch.*`` the model as a factor of the plant's value (``mismatch.inertia`` scales
+ixx, iyy and izz by one draw), ``gains.*`` the backstepping's rates k1..k8 [1/s] (pole λ = 1 − T·k) and the PD's
+kp1..kp4 [1/s²], kd1..kd4 [1/s] (altitude, roll, pitch, yaw), ``initial.*`` the initial state (altitude [m],
+roll, pitch, yaw [rad], climb_rate [m/s], roll_rate, pitch_rate, yaw_rate [rad/s]: Euler-angle rates) and
+``reference.*`` (altitude [m], roll, pitch, yaw [rad]).
+
+Distributions: a number (fixed), ``fixed`` (value), ``uniform`` (low < high), ``normal`` (mean, std > 0, and
+optional low < high: redrawn until inside), ``grid`` (values, or low, high and num ≥ 2 evenly spaced) and
+``choice`` (values, optional weights). Grids make a product, the names in sorted order, the first varying
+slowest; trial i flies grid point i mod G, and the number of trials must be a multiple of G. Every other draw
+comes from trial i's own generator, ``numpy.random.SeedSequence(seed, spawn_key=(i,))``, the names in sorted
+order, one value each: a trial's parameters depend on the seed and its number only, never on how the trials
+are split into chunks or workers.
+
+Refused with one line naming the key, the value and what is allowed (:class:`quadsitl.config.ConfigError`):
+unknown keys, wrong types, bad bounds, a distribution that can reach a non-physical value (a normal mass
+without a positive lower bound), ``model.X`` with ``mismatch.X``, a gain the controller does not have, and,
+with ``inadmissible = "refuse"``, gains that can break the paper's conditions (41)–(44) for some trial: the
+conditions only get harder as |λ| grows, so the spec is checked at the largest |λ| each gain can take.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from autopilot.control_params import KD, KP, POLES, control_array
+from autopilot.gains import GainError, stability_interval
+from quadsitl.config import ConfigError, Preset, Spec, check_value, load_preset
+from quadsitl.param_arrays import (
+    ARM,
+    D_OVER_B,
+    IXX,
+    IYY,
+    IZZ,
+    JR,
+    K1,
+    MASS,
+    B,
+    D,
+    actuator_array,
+    vehicle_array,
+)
+from sitl.plant import initial_state
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+# ---- what can vary ----------------------------------------------------------------------------------------
+
+POSITIVE, NONNEG, FINITE = "> 0", ">= 0", "finite"
+VEHICLE = {"mass": (MASS, POSITIVE), "ixx": (IXX, POSITIVE), "iyy": (IYY, POSITIVE), "izz": (IZZ, POSITIVE),
+           **{f"k{i + 1}": (K1 + i, NONNEG) for i in range(6)}, "arm_length": (ARM, POSITIVE),
+           "rotor_inertia": (JR, NONNEG), "thrust_factor": (B, POSITIVE), "drag_factor": (D, POSITIVE)}  # fmt: skip
+"""A vehicle parameter's name → (its index in :func:`quadsitl.param_arrays.vehicle_array`, what it must be)."""
+HALF_PI = math.pi / 2
+# initial.* and reference.*: (index, what is allowed as a test, as words)
+INITIAL = {
+    "altitude": (2, lambda v: v >= 0.0, "a number >= 0 [m]"),
+    "roll": (6, lambda v: abs(v) < HALF_PI, "a number in (−π/2, π/2) [rad]"),
+    "pitch": (7, lambda v: abs(v) < HALF_PI, "a number in (−π/2, π/2) [rad]"),
+    "yaw": (8, lambda v: abs(v) <= math.pi, "a number in [−π, π] [rad]"),
+    "climb_rate": (5, math.isfinite, "a finite number [m/s]"),
+    "roll_rate": (9, math.isfinite, "a finite number [rad/s]"),
+    "pitch_rate": (10, math.isfinite, "a finite number [rad/s]"),
+    "yaw_rate": (11, math.isfinite, "a finite number [rad/s]"),
+}
+REFERENCE = {
+    "altitude": (0, lambda v: v >= 0.0, "a number >= 0 [m]"),
+    "roll": (1, lambda v: abs(v) < HALF_PI, "a number in (−π/2, π/2) [rad]"),
+    "pitch": (2, lambda v: abs(v) < HALF_PI, "a number in (−π/2, π/2) [rad]"),
+    "yaw": (3, lambda v: abs(v) <= math.pi, "a number in [−π, π] [rad]"),
+}
+RATES = tuple(f"k{i + 1}" for i in range(8))
+PD_GAINS = tuple(f"kp{i + 1}" for i in range(4)) + tuple(f"kd{i + 1}" for i in range(4))
+
+
+def _allowed(name: str) -> tuple[Any, str] | None:
+    """(a test of one value, what is allowed in words) for a parameter's full name, or None: not a parameter."""
+    group, _, key = name.partition(".")
+    if group in ("plant", "model", "mismatch") and key in VEHICLE:
+        kind = VEHICLE[key][1]
+        unit = "a factor" if group == "mismatch" else "a number"
+        if kind == POSITIVE:
+            return (lambda v: v > 0.0), f"{unit} > 0"
+        return (lambda v: v >= 0.0), f"{unit} >= 0"
+    if name == "mismatch.inertia":
+        return (lambda v: v > 0.0), "a factor > 0 (scales ixx, iyy, izz)"
+    if group == "gains" and key in RATES:
+        return math.isfinite, "a finite rate k [1/s] (pole λ = 1 − T·k)"
+    if group == "gains" and key in PD_GAINS:
+        return (lambda v: v >= 0.0), "a number >= 0"
+    if group == "initial" and key in INITIAL:
+        return INITIAL[key][1], INITIAL[key][2]
+    if group == "reference" and key in REFERENCE:
+        return REFERENCE[key][1], REFERENCE[key][2]
+    return None
+
+
+PARAMETERS = (
+    *(f"{g}.{k}" for g in ("plant", "model", "mismatch") for k in VEHICLE),
+    "mismatch.inertia",
+    *(f"gains.{k}" for k in RATES + PD_GAINS),
+    *(f"initial.{k}" for k in INITIAL),
+    *(f"reference.{k}" for k in REFERENCE),
+)
+"""Every name a spec may vary."""
+
+# ---- distributions ----------------------------------------------------------------------------------------
+
+DISTRIBUTIONS = {
+    "fixed": ("value",),
+    "uniform": ("low", "high"),
+    "normal": ("mean", "std", "low", "high"),
+    "grid": ("values", "low", "high", "num"),
+    "choice": ("values", "weights"),
+}
+MIN_NORMAL_MASS = 0.01  # a bounded normal must keep at least this probability inside its bounds (redraws)
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """One parameter's distribution. ``values``: the grid's or the choice's values (a fixed value: one)."""
+
+    kind: str
+    low: float = -math.inf
+    high: float = math.inf
+    mean: float = 0.0
+    std: float = 0.0
+    values: tuple[float, ...] = ()
+    weights: tuple[float, ...] = ()
+
+    def support(self) -> tuple[float, ...]:
+        """The values it can take at the ends of its range (all of them for a finite set)."""
+        if self.kind in ("fixed", "grid", "choice"):
+            return self.values if self.kind != "choice" else tuple(v for v, w in zip(self.values, self.weights) if w)
+        return (self.low, self.high)
+
+    def draw(self, rng: np.random.Generator) -> float:
+        """One value from ``rng`` (not for grids, which are not drawn)."""
+        if self.kind == "fixed":
+            return self.values[0]
+        if self.kind == "uniform":
+            return float(rng.uniform(self.low, self.high))
+        if self.kind == "choice":
+            return self.values[int(rng.choice(len(self.values), p=np.asarray(self.weights) / sum(self.weights)))]
+        while True:  # normal, redrawn until inside its bounds (validated to hold enough probability)
+            v = float(rng.normal(self.mean, self.std))
+            if self.low <= v <= self.high:
+                return v
+
+    def describe(self) -> dict[str, Any]:
+        """For summary.json."""
+        out: dict[str, Any] = {"dist": self.kind}
+        if self.kind in ("uniform", "normal"):
+            if self.kind == "normal":
+                out.update(mean=self.mean, std=self.std)
+            if math.isfinite(self.low):
+                out["low"] = self.low
+            if math.isfinite(self.high):
+                out["high"] = self.high
+        else:
+            out["values"] = list(self.values)
+            if self.kind == "choice":
+                out["weights"] = list(self.weights)
+        return out
+
+
+def _normal_mass(mean: float, std: float, low: float, high: float) -> float:
+    """P(low ≤ X ≤ high) for X ~ N(mean, std²)."""
+
+    def cdf(x: float) -> float:
+        return 0.5 * (1.0 + math.erf((x - mean) / (std * math.sqrt(2.0)))) if math.isfinite(x) else float(x > 0)
+
+    return cdf(high) - cdf(low)
+
+
+def parse_distribution(key: str, raw: Any, where: str) -> Distribution:
+    """A [vary] value (a number, or a table with ``dist``) → its Distribution, its own bounds checked."""
+
+    def fail(what: str, value: Any = raw) -> ConfigError:
+        return ConfigError(f"{where}: vary.{key} = {value!r}: expected {what}")
+
+    def number(k: str, v: Any, ok: Any = math.isfinite, allowed: str = "a finite number") -> float:
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not ok(float(v)):
+            raise ConfigError(f"{where}: vary.{key}.{k} = {v!r}: expected {allowed}")
+        return float(v)
+
+    def numbers(k: str, v: Any) -> tuple[float, ...]:
+        if not isinstance(v, list) or not v:
+            raise ConfigError(f"{where}: vary.{key}.{k} = {v!r}: expected a non-empty list of finite numbers")
+        return tuple(number(f"{k}[{i}]", x) for i, x in enumerate(v))
+
+    if isinstance(raw, (int, float)) and not isinstance(raw, bool):
+        return Distribution("fixed", values=(number("value", raw),))
+    if not isinstance(raw, dict) or "dist" not in raw:
+        raise fail(f"a number or a table with dist = one of {', '.join(DISTRIBUTIONS)}")
+    kind = raw["dist"]
+    if kind not in DISTRIBUTIONS:
+        raise ConfigError(f"{where}: vary.{key}.dist = {kind!r}: expected one of {', '.join(DISTRIBUTIONS)}")
+    for k in raw:
+        if k != "dist" and k not in DISTRIBUTIONS[kind]:
+            raise ConfigError(f"{where}: vary.{key}.{k}: unknown key for dist = {kind!r}; allowed: "
+                              f"{', '.join(DISTRIBUTIONS[kind])}")  # fmt: skip
+    need = {"fixed": ("value",), "uniform": ("low", "high"), "normal": ("mean", "std"), "choice": ("values",)}
+    for k in need.get(kind, ()):
+        if k not in raw:
+            raise ConfigError(f"{where}: vary.{key}: dist = {kind!r} needs {' and '.join(need[kind])}")
+    if kind == "fixed":
+        return Distribution(kind, values=(number("value", raw["value"]),))
+    if kind == "uniform":
+        low, high = number("low", raw["low"]), number("high", raw["high"])
+        if not low < high:
+            raise ConfigError(f"{where}: vary.{key}.high = {raw['high']!r}: expected a number above low = {low!r}")
+        return Distribution(kind, low=low, high=high)
+    if kind == "normal":
+        mean = number("mean", raw["mean"])
+        std = number("std", raw["std"], lambda v: 0 < v < math.inf, "a finite number > 0")
+        low = number("low", raw["low"]) if "low" in raw else -math.inf
+        high = number("high", raw["high"]) if "high" in raw else math.inf
+        if not low < high:
+            raise ConfigError(f"{where}: vary.{key}.high = {raw['high']!r}: expected a number above low = {low!r}")
+        mass = _normal_mass(mean, std, low, high)
+        if mass < MIN_NORMAL_MASS:
+            raise ConfigError(f"{where}: vary.{key}: [low, high] = [{low:g}, {high:g}] holds {mass:.2g} of "
+                              f"N({mean:g}, {std:g}²); expected at least {MIN_NORMAL_MASS:g}")  # fmt: skip
+        return Distribution(kind, low=low, high=high, mean=mean, std=std)
+    if kind == "grid":
+        if "values" in raw:
+            if any(k in raw for k in ("low", "high", "num")):
+                raise ConfigError(f"{where}: vary.{key}: a grid takes values, or low, high and num, not both")
+            return Distribution(kind, values=numbers("values", raw["values"]))
+        if not all(k in raw for k in ("low", "high", "num")):
+            raise ConfigError(f"{where}: vary.{key}: dist = 'grid' needs values, or low, high and num")
+        low, high = number("low", raw["low"]), number("high", raw["high"])
+        num = raw["num"]
+        if not isinstance(num, int) or isinstance(num, bool) or not 2 <= num <= 100_000:
+            raise ConfigError(f"{where}: vary.{key}.num = {num!r}: expected an integer in [2, 100000]")
+        if not low < high:
+            raise ConfigError(f"{where}: vary.{key}.high = {raw['high']!r}: expected a number above low = {low!r}")
+        return Distribution(kind, values=tuple(float(v) for v in np.linspace(low, high, num)))
+    values = numbers("values", raw["values"])  # choice
+    if "weights" in raw:
+        weights = numbers("weights", raw["weights"])
+        if len(weights) != len(values) or min(weights) < 0 or sum(weights) <= 0:
+            raise ConfigError(f"{where}: vary.{key}.weights = {raw['weights']!r}: expected {len(values)} numbers "
+                              ">= 0, not all 0 (one per value)")  # fmt: skip
+    else:
+        weights = (1.0,) * len(values)
+    return Distribution(kind, values=values, weights=weights)
+
+
+# ---- the spec ---------------------------------------------------------------------------------------------
+
+TASKS = ("step", "hover")
+INADMISSIBLE = ("refuse", "record")
+LIMIT_NAMES = ("position", "speed", "tilt", "rate")
+DEFAULT_LIMITS = {"position": 1e5, "speed": 1e4, "tilt": HALF_PI, "rate": 1e3}
+MAX_TRIALS = 100_000_000
+
+TOP: dict[str, Spec] = {
+    "preset": Spec("string", "a shipped preset's name or a preset TOML's path"),
+    "controller": Spec("string", "one of: backstepping, pd", lambda v: v in ("backstepping", "pd"), required=False),
+    "task": Spec("string", f"one of: {', '.join(TASKS)}", lambda v: v in TASKS, required=False, default="step"),
+    "duration": Spec("number", "a number in (0, 3600] s", lambda v: 0 < v <= 3600, required=False),
+    "seed": Spec("int", "an integer >= 0", lambda v: v >= 0, required=False, default=0),
+    "trials": Spec("int", f"an integer in [1, {MAX_TRIALS}]", lambda v: 1 <= v <= MAX_TRIALS, required=False),
+    "inadmissible": Spec(
+        "string", "one of: refuse, record", INADMISSIBLE.__contains__, required=False, default="refuse"
+    ),
+    "description": Spec("string", "a string", required=False, default=""),
+}
+LIMIT_SPEC = Spec("number", "a finite number > 0", lambda v: 0 < v < math.inf)
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A validated spec. ``vary`` maps each varied name (:data:`PARAMETERS`) to its distribution; ``trials`` is
+    the number asked for (a multiple of :attr:`grid_size`)."""
+
+    name: str
+    preset: Preset
+    controller: str
+    task: str
+    duration: float
+    seed: int
+    trials: int
+    keep: tuple[int, ...]
+    inadmissible: str
+    limits: dict[str, float]
+    vary: dict[str, Distribution]
+    description: str = ""
+    where: str = field(default="", compare=False)
+
+    @property
+    def period(self) -> float:
+        return self.preset.sim.period
+
+    @property
+    def ticks(self) -> int:
+        """Control ticks per trial (``quadsitl sim``'s count: round(duration / T))."""
+        return round(self.duration / self.period)
+
+    @property
+    def grid(self) -> list[str]:
+        """The grid's names, in sorted order (the first varies slowest)."""
+        return sorted(k for k, d in self.vary.items() if d.kind == "grid")
+
+    @property
+    def grid_size(self) -> int:
+        return math.prod(len(self.vary[k].values) for k in self.grid)
+
+    @property
+    def drawn(self) -> list[str]:
+        """The names drawn from each trial's generator, in the order they are drawn."""
+        return sorted(k for k, d in self.vary.items() if d.kind != "grid")
+
+    def with_trials(self, trials: int) -> SweepSpec:
+        """The spec with another number of trials (``--trials``), checked as the spec's own."""
+        _check_trials(trials, self.grid_size, self.keep, f"{self.where}: --trials")
+        return SweepSpec(**{**self.__dict__, "trials": trials})
+
+
+def _check_trials(trials: int, grid: int, keep: tuple[int, ...], what: str) -> None:
+    if not 1 <= trials <= MAX_TRIALS:
+        raise ConfigError(f"{what} = {trials}: expected an integer in [1, {MAX_TRIALS}]")
+    if trials % grid:
+        raise ConfigError(f"{what} = {trials}: the grid has {grid} points; expected a multiple of {grid}")
+    for k in keep:
+        if k >= trials:
+            raise ConfigError(f"{what} = {trials}: keep names trial {k}; expected trials above {max(keep)}")
+
+
+def specs_folder() -> Path:
+    return Path(str(resources.files("groundstation") / "sweep" / "specs"))
+
+
+def available_specs() -> list[str]:
+    """The example specs shipped with the package, by name."""
+    return sorted(p.stem for p in specs_folder().glob("*.toml"))
+
+
+def load_spec(name_or_path: str) -> SweepSpec:
+    """A shipped spec by name (``paper-mass-mismatch``) or any TOML file by path, validated."""
+    path = Path(name_or_path)
+    if name_or_path.endswith(".toml") or "/" in name_or_path or "\\" in name_or_path:
+        if not path.is_file():
+            raise ConfigError(f"sweep spec file {name_or_path!r} does not exist")
+    else:
+        names = available_specs()
+        if name_or_path not in names:
+            raise ConfigError(f"unknown sweep spec {name_or_path!r}; shipped specs: {', '.join(names)} (or a "
+                              "path to a TOML file)")  # fmt: skip
+        path = specs_folder() / f"{name_or_path}.toml"
+    return parse_spec(path.read_text(encoding="utf-8"), path.stem, base=path.parent)
+
+
+def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """[vary]'s nested tables (TOML's dotted keys) → {"group.name": value}; a table with ``dist`` is a leaf."""
+    out: dict[str, Any] = {}
+    for k, v in table.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict) and "dist" not in v:
+            out.update(_flatten(v, name + "."))
+        else:
+            out[name] = v
+    return out
+
+
+def parse_spec(text: str, name: str = "spec", base: Path | None = None) -> SweepSpec:
+    """Parse and validate a spec from TOML text; a preset path in it is relative to ``base``."""
+    where = f"sweep spec {name!r}"
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{where}: not valid TOML: {exc}") from None
+    allowed = (*TOP, "keep", "limits", "vary")
+    for key in raw:
+        if key not in allowed:
+            raise ConfigError(f"{where}: unknown key {key!r}; allowed: {', '.join(allowed)}")
+    top: dict[str, Any] = {}
+    for key, spec in TOP.items():
+        if key in raw:
+            top[key] = check_value(key, raw[key], spec, where)
+        elif spec.required:
+            raise ConfigError(f"{where}: missing key {key} ({spec.allowed})")
+        else:
+            top[key] = spec.default
+    preset_name = top["preset"]
+    if base is not None and (preset_name.endswith(".toml") or "/" in preset_name):
+        preset_name = str((base / preset_name) if not Path(preset_name).is_absolute() else Path(preset_name))
+    try:
+        preset = load_preset(preset_name)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: preset = {top['preset']!r}: {exc}") from None
+    controller = top["controller"] or preset.controller.type
+    duration = top["duration"] or preset.sim.duration
+
+    limits = dict(DEFAULT_LIMITS)
+    table = raw.get("limits", {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: limits = {table!r}: expected a table [limits]")
+    for key, value in table.items():
+        if key not in LIMIT_NAMES:
+            raise ConfigError(f"{where}: unknown key limits.{key}; allowed in [limits]: {', '.join(LIMIT_NAMES)}")
+        limits[key] = check_value(f"limits.{key}", value, LIMIT_SPEC, where)
+
+    table = raw.get("vary", {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: vary = {table!r}: expected a table [vary]")
+    vary: dict[str, Distribution] = {}
+    for key, value in _flatten(table).items():
+        check = _allowed(key)
+        if check is None:
+            raise ConfigError(f"{where}: unknown key vary.{key}; allowed: {', '.join(PARAMETERS)}")
+        dist = parse_distribution(key, value, where)
+        ok, what = check
+        for v in dist.support():
+            if not ok(v):
+                bound = "its values include" if dist.kind in ("grid", "choice", "fixed") else "it can reach"
+                raise ConfigError(f"{where}: vary.{key} = {value!r}: {bound} {v:g}; expected {what}"
+                                  + (" (give a normal distribution bounds: low, high)"
+                                     if dist.kind == "normal" and math.isinf(v) else ""))  # fmt: skip
+        vary[key] = dist
+    for key in vary:
+        group, _, param = key.partition(".")
+        if group == "model" and (f"mismatch.{param}" in vary or (param in ("ixx", "iyy", "izz")
+                                                                    and "mismatch.inertia" in vary)):  # fmt: skip
+            raise ConfigError(f"{where}: vary.{key} with vary.mismatch.{param}: the model's value is one or the "
+                              "other (absolute, or a factor of the plant's)")  # fmt: skip
+        if key in ("mismatch.ixx", "mismatch.iyy", "mismatch.izz") and "mismatch.inertia" in vary:
+            raise ConfigError(f"{where}: vary.{key} with vary.mismatch.inertia: give one factor for all three, or "
+                              "one per axis")  # fmt: skip
+        if group == "gains" and (param in RATES) != (controller == "backstepping"):
+            has = "k1..k8" if controller == "backstepping" else "kp1..kp4, kd1..kd4"
+            raise ConfigError(f"{where}: vary.{key}: the {controller} controller has no such gain; its gains: {has}")
+
+    keep_raw = raw.get("keep", [])
+    if not isinstance(keep_raw, list) or not all(isinstance(k, int) and not isinstance(k, bool) and k >= 0
+                                                 for k in keep_raw):  # fmt: skip
+        raise ConfigError(f"{where}: keep = {keep_raw!r}: expected a list of trial numbers (integers >= 0)")
+    keep = tuple(sorted(set(keep_raw)))
+    spec = SweepSpec(name, preset, controller, top["task"], duration, top["seed"], 1, keep, top["inadmissible"],
+                     limits, vary, top["description"], where)  # fmt: skip
+    trials = top["trials"] or spec.grid_size
+    _check_trials(trials, spec.grid_size, keep, f"{where}: trials")
+    if round(duration / spec.period) < 1:
+        raise ConfigError(f"{where}: duration = {duration!r}: shorter than one control period T = {spec.period:g} s")
+    spec = SweepSpec(**{**spec.__dict__, "trials": trials})
+    if controller == "backstepping":
+        try:
+            stability_interval(worst_poles(spec), spec.period)
+        except GainError as exc:
+            if spec.inadmissible == "refuse" or not any(k.startswith("gains.") for k in vary):
+                varied = [k for k in vary if k.startswith("gains.")]
+                which = f" (at the largest |λ| of {', '.join(varied)})" if varied else ""
+                raise ConfigError(f"{where}: inadmissible gains{which}: {exc}; or set inadmissible = \"record\" "
+                                  "to fly the others and record these") from None  # fmt: skip
+    return spec
+
+
+def nominal_poles(spec: SweepSpec) -> tuple[float, ...]:
+    """The preset's poles λ1..λ8."""
+    return spec.preset.poles()
+
+
+def worst_poles(spec: SweepSpec) -> tuple[float, ...]:
+    """Each pole at the largest |λ| its gain can take: conditions (41)–(44) get only harder as any |λ| grows
+    (ε > 4T²λ_i²/(1 − λ_i²) rises with |λ_i|, ε < 1 − T² − λ_(i+1)² falls with |λ_(i+1)|), so when these
+    poles pass, every trial's do."""
+    T = spec.period
+    poles = list(nominal_poles(spec))
+    for i, k in enumerate(RATES):
+        d = spec.vary.get(f"gains.{k}")
+        if d is not None:
+            poles[i] = max((1.0 - T * v for v in d.support()), key=abs)
+    return tuple(poles)
+
+
+# ---- the trials' parameters -------------------------------------------------------------------------------
+
+
+def draw(spec: SweepSpec, trials: np.ndarray) -> dict[str, np.ndarray]:
+    """The varied parameters of the given trial numbers: {name: values}, one per trial, in the order given.
+    Grid names take trial i's grid point (i mod G); the others come from trial i's own generator,
+    SeedSequence(seed, spawn_key=(i,)), in sorted order: independent of which other trials are drawn with it."""
+    trials = np.asarray(trials, dtype=np.int64)
+    out = {k: np.empty(len(trials)) for k in spec.vary}
+    grid = spec.grid
+    sizes = [len(spec.vary[k].values) for k in grid]
+    point = trials % max(spec.grid_size, 1)
+    for k, n in zip(reversed(grid), reversed(sizes)):  # the last name varies fastest
+        out[k][:] = np.asarray(spec.vary[k].values)[point % n]
+        point = point // n
+    drawn = spec.drawn
+    if not drawn:
+        return out
+    fixed = [k for k in drawn if spec.vary[k].kind == "fixed"]
+    for k in fixed:
+        out[k][:] = spec.vary[k].values[0]
+    random = [k for k in drawn if spec.vary[k].kind != "fixed"]
+    if random:
+        dists = [spec.vary[k] for k in random]
+        columns = [out[k] for k in random]
+        for row, i in enumerate(trials.tolist()):
+            rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(spec.seed, spawn_key=(i,))))
+            for col, d in zip(columns, dists):
+                col[row] = d.draw(rng)
+    return out
+
+
+@dataclass
+class TrialArrays:
+    """The per-trial arrays the batch engine takes (:func:`groundstation.sweep.engine.run_chunk`), one row per
+    trial: the initial state ``x0`` (12), the plant's vehicle ``v`` and actuators ``a``, the autopilot's model
+    ``vm`` and control array ``c``, the reference ``r`` (4); ``admissible`` false where a trial's gains break
+    (41)–(44) (``reason`` says how), which then is not flown."""
+
+    x0: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    vm: np.ndarray
+    c: np.ndarray
+    r: np.ndarray
+    admissible: np.ndarray
+    reason: list[str]
+
+
+def nominal(spec: SweepSpec) -> tuple[np.ndarray, ...]:
+    """The unvaried trial, as ``quadsitl sim`` builds it (:func:`groundstation.offline.run_offline`): x0, v, a, vm,
+    c, r."""
+    p = spec.preset
+    c = p.controller
+    v = vehicle_array(p.vehicle)
+    ctrl = control_array(nominal_poles(spec), p.sim.period, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min,
+                         c.thrust_max, p.position)  # fmt: skip
+    x0 = np.array(initial_state(p), dtype=np.float64)
+    r = np.array(p.reference, dtype=np.float64)
+    if spec.task == "hover":  # at the reference altitude, level, at rest; asked to stay there
+        x0[:] = 0.0
+        x0[2] = -p.reference.altitude
+        r[1:] = 0.0
+    return x0, v, actuator_array(p.actuators), v.copy(), ctrl, r
+
+
+def trial_arrays(spec: SweepSpec, params: dict[str, np.ndarray], n: int) -> TrialArrays:
+    """The engine's arrays for ``n`` trials with the parameters ``params`` (from :func:`draw`)."""
+    x0n, vn, an, _vm, cn, rn = nominal(spec)
+    x0, v, a, c, r = (np.tile(arr, (n, 1)) for arr in (x0n, vn, an, cn, rn))
+    for key, values in params.items():
+        group, _, name = key.partition(".")
+        if group == "plant":
+            v[:, VEHICLE[name][0]] = values
+        elif group == "initial":
+            idx = INITIAL[name][0]
+            x0[:, idx] = -values if name in ("altitude", "climb_rate") else values  # NED: z = −h, vz = −ḣ
+        elif group == "reference":
+            r[:, REFERENCE[name][0]] = values
+    v[:, D_OVER_B] = v[:, D] / v[:, B]
+    vm = v.copy()  # the model: the plant's values, then the model's own and the mismatches
+    for key, values in params.items():
+        group, _, name = key.partition(".")
+        if group == "model":
+            vm[:, VEHICLE[name][0]] = values
+        elif group == "mismatch":
+            for idx in (IXX, IYY, IZZ) if name == "inertia" else (VEHICLE[name][0],):
+                vm[:, idx] = v[:, idx] * values
+    vm[:, D_OVER_B] = vm[:, D] / vm[:, B]
+    T = spec.period
+    for i, k in enumerate(RATES):
+        if f"gains.{k}" in params:
+            c[:, POLES + i] = 1.0 - T * params[f"gains.{k}"]
+    for j in range(4):
+        if f"gains.kp{j + 1}" in params:
+            c[:, KP + j] = params[f"gains.kp{j + 1}"]
+        if f"gains.kd{j + 1}" in params:
+            c[:, KD + j] = params[f"gains.kd{j + 1}"]
+    admissible = np.ones(n, dtype=bool)
+    reason = [""] * n
+    if spec.controller == "backstepping" and any(f"gains.{k}" in params for k in RATES):
+        for i in range(n):
+            try:
+                stability_interval(tuple(c[i, POLES : POLES + 8]), T)
+            except GainError as exc:
+                admissible[i], reason[i] = False, str(exc)
+    return TrialArrays(x0, v, a, vm, c, r, admissible, reason)
