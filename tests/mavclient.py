@@ -39,21 +39,6 @@ class Vehicle:
         return self.proc.returncode
 
 
-@contextlib.contextmanager
-def quadsitl_up(*extra: str):
-    gcs, api = free_port(), free_port()
-    zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    argv = [sys.executable, "-m", "groundstation.cli", "up", "--quiet", "--gcs-listen", f"127.0.0.1:{free_port()}",
-            "--gcs-remote", f"127.0.0.1:{gcs}", "--api-listen", f"127.0.0.1:{free_port()}",
-            "--api-remote", f"127.0.0.1:{api}", "--zenoh-listen", zenoh, *extra]  # fmt: skip
-    proc = subprocess.Popen(argv, start_new_session=True)
-    v = Vehicle(proc, gcs, api, zenoh)
-    try:
-        yield v
-    finally:
-        v.stop()
-
-
 def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> int:
     """The first of ``n`` consecutive ports that are free on 127.0.0.1 now (for a fleet's PORT + i plan)."""
     for _ in range(200):
@@ -71,6 +56,11 @@ def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> int:
             for s in socks:
                 s.close()
     raise AssertionError(f"no {n} consecutive free ports")
+
+
+def quadsitl_up(*extra: str):
+    """``quadsitl up`` (one vehicle) on free loopback ports: :func:`fleet_up` of one."""
+    return fleet_up(1, *extra)
 
 
 @contextlib.contextmanager
