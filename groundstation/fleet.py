@@ -11,7 +11,7 @@ instance i = 0 … N−1:
 - here also: Zenoh name ``v{i+1}`` (keys ``quadsitl/v{i+1}/…``), whatever the system ids.
 
 Explicit ``--gcs-listen`` / ``--api-listen`` / ``--api-remote`` HOST:PORT give the first vehicle's address;
-vehicle i uses PORT + i. ``--gcs-remote`` is shared, as PX4's 14550.
+vehicle i uses PORT + i (PORT 0, any free port, stays 0 for every vehicle). ``--gcs-remote`` is shared, as PX4's 14550.
 
 Vehicles start on a grid, ``spacing`` metres apart, rows northward and columns eastward
 (⌈√N⌉ columns), each with its own home: the base home (``--home``, PX4 SITL's by default) moved by its
@@ -63,6 +63,8 @@ def _shifted(option: str, text: str | None, default: int, i: int) -> str:
     if text.lower() == "none":
         return "none"
     host, port = parse_address(option, text)
+    if port == 0:  # any free port, for every vehicle
+        return text
     if port + i > 65535:
         raise UsageError(f"{option} {text}: vehicle {i + 1} would need port {port + i}, beyond 65535")
     return f"{host}:{port + i}"
@@ -134,6 +136,8 @@ def plan_fleet(
     for v in fleet:
         for option, address in (("--gcs-listen", v.gcs_listen), ("--api-listen", v.api_listen)):
             port = int(address.rpartition(":")[2])
+            if port == 0:
+                continue
             if port in bound:
                 raise UsageError(f"{option} {address}: vehicle {v.number} would bind port {port}, "
                                  f"which {bound[port]} already binds")  # fmt: skip

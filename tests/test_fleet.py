@@ -35,6 +35,8 @@ def test_px4_port_plan_system_ids_and_names():
     assert [v.gcs_listen for v in f] == ["0.0.0.0:20000", "0.0.0.0:20001", "0.0.0.0:20002"]
     assert [v.api_remote for v in f] == ["10.0.0.2:30000", "10.0.0.2:30001", "10.0.0.2:30002"]
     assert plan_fleet(2, preset="paper", api_remote="none")[1].api_remote == "none"
+    anywhere = plan_fleet(3, preset="paper", gcs_listen="127.0.0.1:0", api_listen="127.0.0.1:0")  # any free ports
+    assert {v.gcs_listen for v in anywhere} == {v.api_listen for v in anywhere} == {"127.0.0.1:0"}
 
 
 def test_vehicles_start_on_a_grid_each_with_its_own_home():
