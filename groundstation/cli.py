@@ -218,7 +218,7 @@ EXAMPLES_UP = """examples:
 
 def cmd_up(args: argparse.Namespace) -> int:
     from autopilot.process import parse_home
-    from groundstation.fleet import MAX_VEHICLES, parse_vehicle_presets, plan_fleet
+    from groundstation.fleet import check_vehicle_count, parse_vehicle_presets, plan_fleet
     from groundstation.launcher import up
     from quadsitl.earth import PX4_HOME
     from quadsitl.process_util import parse_address, parse_remote
@@ -236,8 +236,7 @@ def cmd_up(args: argparse.Namespace) -> int:
             parse_remote("--" + option.replace("_", "-"), getattr(args, option))
     home = parse_home(args.home) or PX4_HOME
     impairment_from(args.impair, args.mode)  # refuse a bad --impair here, before starting anything
-    if not 1 <= args.vehicles <= MAX_VEHICLES:
-        raise UsageError(f"--vehicles {args.vehicles}: expected an integer in 1..{MAX_VEHICLES}")
+    check_vehicle_count(args.vehicles)
     presets = parse_vehicle_presets(args.vehicle_preset, args.vehicles)
     for number, name in presets.items():
         try:

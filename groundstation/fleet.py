@@ -70,6 +70,12 @@ def _shifted(option: str, text: str | None, default: int, i: int) -> str:
     return f"{host}:{port + i}"
 
 
+def check_vehicle_count(n: int) -> None:
+    """``--vehicles`` in 1..MAX_VEHICLES, or a UsageError naming it (checked before the per-vehicle options)."""
+    if not 1 <= n <= MAX_VEHICLES:
+        raise UsageError(f"--vehicles {n}: expected an integer in 1..{MAX_VEHICLES}")
+
+
 def parse_vehicle_presets(values: Sequence[str], n: int) -> dict[int, str]:
     """``--vehicle-preset K=PRESET`` options → {vehicle number K (1-based): preset}; refuses an unknown vehicle,
     a repeated one and a malformed value, naming the option."""
@@ -103,8 +109,7 @@ def plan_fleet(
     """The plan of ``n`` vehicles (see the module's docstring); a UsageError naming the option for a count beyond
     the plan, a system id beyond 255, a spacing that is not a positive number of metres, or two vehicles on one
     port."""
-    if not 1 <= n <= MAX_VEHICLES:
-        raise UsageError(f"--vehicles {n}: expected an integer in 1..{MAX_VEHICLES}")
+    check_vehicle_count(n)
     if first_system_id < 1 or first_system_id + n - 1 > 255:
         raise UsageError(f"--system-id {first_system_id} with --vehicles {n}: system ids "
                          f"{first_system_id}..{first_system_id + n - 1} must lie in 1..255")  # fmt: skip
