@@ -40,7 +40,7 @@ def make_controller(
     if position_loop:  # the flight controller flies the horizontal loop; `sim`'s attitude experiments do not
         check_position_gains(p.gains, p.integral, rates_from_poles(lam[2:6], T), T)
     if kind == "pd":  # the backstepping's poles ride along: the autopilot switches controllers (CTL_TYPE)
-        return PDController(preset.vehicle, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min, c.thrust_max, T, lam, p)
+        return PDController(preset.autopilot_model, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min, c.thrust_max, T, lam, p)
     return BacksteppingController(
-        preset.vehicle, T, lam, c.max_tilt, c.thrust_min, c.thrust_max, c.pd_kp, c.pd_kd, position=p
+        preset.autopilot_model, T, lam, c.max_tilt, c.thrust_min, c.thrust_max, c.pd_kp, c.pd_kd, position=p
     )

@@ -115,7 +115,7 @@ INDEX: dict[str, int] = {spec.name: i for i, spec in enumerate(SPECS)}
 
 def values_from(preset: Preset, controller: str, settings: CommanderSettings) -> dict[str, float]:
     """The parameter values that describe ``preset`` flown with ``controller`` and ``settings``."""
-    v, c = preset.vehicle, preset.controller
+    v, c = preset.autopilot_model, preset.controller
     rates = c.gains if c.gains is not None else rates_from_poles(preset.poles(), preset.sim.period)
     out: dict[str, float] = {"CTL_TYPE": float(CONTROLLER_TYPES.index(controller))}
     out.update({f"BS_K{i + 1}": float(k) for i, k in enumerate(rates)})
@@ -154,7 +154,7 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
     """Values → the preset, controller kind and commander settings they describe. The preset's
     actuators (the wire's scale) and simulation settings are not parameters and stay ``base``'s."""
     vehicle = replace(
-        base.vehicle,
+        base.autopilot_model,
         mass=values["VM_MASS"],
         ixx=values["VM_IXX"],
         iyy=values["VM_IYY"],
@@ -201,7 +201,7 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
         max_distance=values["GF_MAX_HOR_DIST"],
     )
     kind = CONTROLLER_TYPES[int(values["CTL_TYPE"])]
-    return Applied(replace(base, vehicle=vehicle, controller=controller, position=position), kind, settings)
+    return Applied(replace(base, vehicle=vehicle, model=(), controller=controller, position=position), kind, settings)
 
 
 def commander_settings(position: PositionParams, settings: CommanderSettings) -> CommanderSettings:

@@ -26,7 +26,7 @@ from autopilot.cli import GAINS_EPILOG, add_gains_arguments, run_gains
 from autopilot.gains import GainError, poles_from_rates
 from groundstation.launcher import add_dashboard_arguments
 from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
-from quadsitl.config import ConfigError, Preset, load_preset
+from quadsitl.config import ConfigError, Preset, load_preset, preset_toml
 from quadsitl.process_util import handle_stop_signals, run_stoppable, stop_status
 from sitl.cli import add_presets_arguments, run_presets
 from sitl.impair import add_impair_argument, impairment_from
@@ -36,6 +36,7 @@ EXAMPLES_SIM = """examples:
   quadsitl sim --preset paper --integrator rk4 --duration 3 --out runs/rk4
   quadsitl sim --preset paper --gains 5,5,10,10,10,10,10,10 --out runs/slow-altitude
   quadsitl sim --preset x500 --controller pd --out runs/x500-pd
+  quadsitl sim --from-sweep runs/mass --trial 17 --out runs/mass-17   # one trial of a sweep, again
 """
 
 
@@ -46,12 +47,32 @@ def _load(name: str) -> Preset:
         raise UsageError(str(exc)) from None
 
 
+def _from_sweep(args: argparse.Namespace) -> Preset:
+    """``sim --from-sweep DIR --trial K``: trial K of the sweep in DIR as a preset (the options that would fly
+    something else are refused)."""
+    from groundstation.sweep.spec import load_sweep, trial_preset
+
+    if args.trial is None:
+        raise UsageError("--from-sweep needs --trial K (the trial's number, as in trials.csv)")
+    given = [f"--{k.replace('_', '-')}" for k in ("preset", "controller", "duration", "integrator", "substeps", "gains",
+                                                   "poles", "compare") if getattr(args, k)]  # fmt: skip
+    if given:
+        raise UsageError(f"{given[0]} does not go with --from-sweep: the trial flies as the sweep flew it (its "
+                         "preset, controller, duration, integrator and gains)")  # fmt: skip
+    try:
+        return trial_preset(load_sweep(Path(args.from_sweep)), args.trial)
+    except ConfigError as exc:
+        raise UsageError(f"--from-sweep {args.from_sweep} --trial {args.trial}: {exc}") from None
+
+
 def cmd_sim(args: argparse.Namespace) -> int:
     from groundstation.metrics import format_table
     from groundstation.offline import run_offline, write_outputs
     from groundstation.progress import FlightProgress
 
-    preset = _load(args.preset)
+    if args.trial is not None and args.from_sweep is None:
+        raise UsageError("--trial goes with --from-sweep DIR (the sweep's folder)")
+    preset = _from_sweep(args) if args.from_sweep is not None else _load(args.preset or "paper")
     check_range("--duration", args.duration, 0.0, 3600.0)
     if args.substeps is not None and not 1 <= args.substeps <= 1000:
         raise UsageError(f"--substeps {args.substeps}: expected an integer in [1, 1000]")
@@ -70,7 +91,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
                 preset, kinds, duration, integrator, args.substeps, rates=rates, poles=poles, progress=bar.update
             )
     except GainError as exc:
-        raise UsageError(f"inadmissible gains: {exc}") from None
+        what = f"trial {args.trial} was not flown by the sweep: " if args.from_sweep is not None else ""
+        raise UsageError(f"{what}inadmissible gains: {exc}") from None
     settings = {
         "integrator": integrator,
         "duration": duration,
@@ -79,6 +101,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
     }
     out = Path(args.out)
     files = write_outputs(out, preset, results, metrics, settings, figures=not args.no_figures)
+    if args.from_sweep is not None:  # the trial as a preset of its own: `quadsitl fly --preset` takes it
+        (out / "preset.toml").write_text(preset_toml(preset), encoding="utf-8")
+        files.append(out / "preset.toml")
     if not args.quiet:
         print(
             f"preset {preset.name}, integrator {integrator}, T = {preset.sim.period:g} s, "
@@ -285,7 +310,10 @@ the source, or 'mkdocs serve' there.""",
     sim.add_argument("--out", default="runs/sim", metavar="DIR", help="output folder (default: runs/sim)")
     sim.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     sim.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
-    sim.set_defaults(func=cmd_sim)
+    sim.add_argument("--from-sweep", metavar="DIR", help="fly trial --trial of the sweep written into DIR again, "
+                     "alone: the same flight to the bit (writes the trial's preset.toml too)")  # fmt: skip
+    sim.add_argument("--trial", type=int, metavar="K", help="with --from-sweep: the trial's number")
+    sim.set_defaults(func=cmd_sim, preset=None)
 
     fl = sub.add_parser(
         "fly",

@@ -48,7 +48,7 @@ def run_offline(
     built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=False) for kind in controllers}
     duration = duration or preset.sim.duration
     act = preset.actuators
-    d_over_b = preset.vehicle.d_over_b
+    d_over_b = preset.autopilot_model.d_over_b
 
     def alloc(u: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
         return allocate(u, d_over_b, act.min_thrust, act.max_thrust)

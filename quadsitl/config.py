@@ -7,10 +7,11 @@ Loading validates every key: unknown keys, wrong types and out-of-range values r
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -183,10 +184,17 @@ class SensorParams:
 
 @dataclass(frozen=True)
 class InitialState:
+    """Where the vehicle starts: altitude [m], ZYX Euler angles [rad], climb rate [m/s] (up) and Euler-angle
+    rates φ̇, θ̇, ψ̇ [rad/s] (not body rates); at the origin, otherwise at rest."""
+
     altitude: float = 0.0
     roll: float = 0.0
     pitch: float = 0.0
     yaw: float = 0.0
+    climb_rate: float = 0.0
+    roll_rate: float = 0.0
+    pitch_rate: float = 0.0
+    yaw_rate: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -201,6 +209,14 @@ class Preset:
     initial: InitialState = field(default_factory=InitialState)
     position: PositionParams = field(default_factory=PositionParams)
     sensors: SensorParams | None = None  # None: no [sensors] section, the autopilot gets the true state
+    model: tuple[tuple[str, float], ...] = ()  # the [model] section: (VehicleParams field, value), in file order
+
+    @property
+    def autopilot_model(self) -> VehicleParams:
+        """The autopilot's model of the vehicle, what its controllers and allocation are built on: the vehicle's
+        parameters with the [model] section's keys over them (none: the vehicle itself). A model unlike the
+        vehicle is a mismatch, as a sweep's ``mismatch.*`` draws make."""
+        return replace(self.vehicle, **dict(self.model)) if self.model else self.vehicle
 
     def poles(self) -> tuple[float, ...]:
         """The eight discrete poles λ_1..λ_8 (from rates k when given as rates: λ = 1 − T·k)."""
@@ -378,10 +394,16 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "roll": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
         "pitch": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
         "yaw": _num("a number in [−π, π] rad", lambda v: abs(v) <= math.pi, required=False, default=0.0),
+        "climb_rate": _num("a finite number [m/s]", math.isfinite, required=False, default=0.0),
+        "roll_rate": _num("a finite number [rad/s]", math.isfinite, required=False, default=0.0),
+        "pitch_rate": _num("a finite number [rad/s]", math.isfinite, required=False, default=0.0),
+        "yaw_rate": _num("a finite number [rad/s]", math.isfinite, required=False, default=0.0),
     },
 }
+# [model]: the autopilot's model of the vehicle, key by key over [vehicle]'s values (each key optional).
+SCHEMA["model"] = {key: replace(spec, required=False, default=None) for key, spec in SCHEMA["vehicle"].items()}
 TOP_LEVEL_KEYS = {"description"}
-OPTIONAL_SECTIONS = {"initial", "position", "sensors"}
+OPTIONAL_SECTIONS = {"initial", "position", "sensors", "model"}
 
 
 def _is_number(v: Any) -> bool:
@@ -454,6 +476,10 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
     veh = v["vehicle"]
     ix, iy, iz = veh.pop("inertia")
     vehicle = VehicleParams(ixx=ix, iyy=iy, izz=iz, **veh)
+    model: list[tuple[str, Any]] = []
+    for key, value in v["model"].items():
+        if value is not None:
+            model += zip(("ixx", "iyy", "izz"), value) if key == "inertia" else [(key, value)]
     c = v["controller"]
     if (c["gains"] is None) == (c["poles"] is None):
         raise ConfigError(
@@ -486,6 +512,7 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
         initial=InitialState(**v["initial"]),
         position=PositionParams(**v["position"]),
         sensors=sensors,
+        model=tuple(model),
     )
 
 
@@ -517,6 +544,12 @@ def available_presets() -> list[str]:
 
 def load_preset(name_or_path: str) -> Preset:
     """Load a shipped preset by name (``paper``) or any TOML file by path, validated."""
+    text, name = read_preset(name_or_path)
+    return parse_preset(text, name)
+
+
+def read_preset(name_or_path: str) -> tuple[str, str]:
+    """A shipped preset's (``paper``) or a TOML file's text, and the preset's name: (text, name)."""
     if name_or_path.endswith(".toml") or "/" in name_or_path or "\\" in name_or_path:
         path = Path(name_or_path)
         if not path.is_file():
@@ -529,7 +562,53 @@ def load_preset(name_or_path: str) -> Preset:
             raise ConfigError(f"unknown preset {name_or_path!r}; available presets: {', '.join(names)}")
         text = (resources.files("quadsitl") / "presets" / f"{name_or_path}.toml").read_text(encoding="utf-8")
         name = name_or_path
-    return parse_preset(text, name)
+    return text, name
+
+
+def _toml_value(value: Any) -> str:
+    """One value as TOML: floats by ``repr`` (which reads back to the same bits), strings JSON-quoted (a JSON
+    string is a TOML basic string), sequences as arrays."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, float):
+        return repr(value) if math.isfinite(value) else ("nan" if math.isnan(value) else repr(value))
+    return str(value)
+
+
+def preset_toml(preset: Preset) -> str:
+    """The preset as TOML text that :func:`parse_preset` reads back to a preset that flies the same, every number
+    to the bit (the one difference: a [model] that gave one inertia reads back as giving all three, at the same
+    values): how a sweep's trial becomes a preset file ``quadsitl fly`` and ``quadsitl sim`` take."""
+    v, c = preset.vehicle, preset.controller
+    vehicle = {"mass": v.mass, "inertia": (v.ixx, v.iyy, v.izz), "drag": v.drag, "arm_length": v.arm_length,
+               "rotor_inertia": v.rotor_inertia, "thrust_factor": v.thrust_factor, "drag_factor": v.drag_factor,
+               "gravity": v.gravity}  # fmt: skip
+    sections: dict[str, dict[str, Any]] = {"vehicle": vehicle}
+    if preset.model:
+        m, given = preset.autopilot_model, dict(preset.model)
+        model = {k: getattr(m, k) for k in sections["vehicle"] if k in given}
+        if {"ixx", "iyy", "izz"} & set(given):
+            model["inertia"] = (m.ixx, m.iyy, m.izz)
+        sections["model"] = model
+    sections["actuators"] = asdict(preset.actuators)
+    sections["sim"] = asdict(preset.sim)
+    controller = {"type": c.type, "max_tilt": c.max_tilt, "thrust_min": c.thrust_min, "thrust_max": c.thrust_max}
+    controller.update({"gains": c.gains} if c.gains is not None else {"poles": c.poles})
+    sections["controller"] = controller
+    sections["pd"] = {"kp": c.pd_kp, "kd": c.pd_kd}
+    sections["reference"] = preset.reference._asdict()
+    sections["initial"] = asdict(preset.initial)
+    sections["position"] = asdict(preset.position)
+    if preset.sensors is not None:
+        sections["sensors"] = asdict(preset.sensors)
+    lines = [f"description = {_toml_value(preset.description)}"]
+    for section, values in sections.items():
+        lines += ["", f"[{section}]", *(f"{k} = {_toml_value(x)}" for k, x in values.items())]
+    return "\n".join(lines) + "\n"
 
 
 def parse_preset(text: str, name: str = "preset") -> Preset:

@@ -26,6 +26,13 @@ def vehicle_array(v: VehicleParams) -> np.ndarray:
     )  # fmt: skip
 
 
+FIELD_COLUMNS: dict[str, tuple[int, ...]] = {
+    "mass": (MASS,), "ixx": (IXX,), "iyy": (IYY,), "izz": (IZZ,), "drag": (K1, K2, K3, K4, K5, K6),
+    "arm_length": (ARM,), "rotor_inertia": (JR,), "thrust_factor": (B,), "drag_factor": (D,), "gravity": (G,),
+}  # fmt: skip
+"""A :class:`quadsitl.config.VehicleParams` field → its columns in :func:`vehicle_array` (d/b is derived)."""
+
+
 # ---- the motors ----------------------------------------------------------------------------------------
 F_MIN, F_MAX, TAU_UP, TAU_DOWN = range(4)
 ACTUATOR_SIZE = 4

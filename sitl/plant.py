@@ -31,9 +31,11 @@ OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_SIZE = 0, 4, 8, 9, 10
 
 
 def initial_state(preset: Preset) -> VehicleState:
-    """The preset's initial state: at rest, at the given altitude and attitude."""
+    """The preset's initial state: at the origin, at the given altitude and attitude, climbing at its climb rate
+    and turning at its Euler-angle rates (NED: z = −altitude, vz = −climb rate)."""
     i = preset.initial
-    return VehicleState(z=-i.altitude, roll=i.roll, pitch=i.pitch, yaw=i.yaw)
+    return VehicleState(z=-i.altitude, vz=-i.climb_rate, roll=i.roll, pitch=i.pitch, yaw=i.yaw, roll_dot=i.roll_rate,
+                        pitch_dot=i.pitch_rate, yaw_dot=i.yaw_rate)  # fmt: skip
 
 
 @jit(inline=True)

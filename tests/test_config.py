@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 
 from quadsitl.config import ConfigError, available_presets, load_preset, parse_preset
@@ -95,3 +96,56 @@ def test_not_toml_and_unknown_preset(tmp_path):
     f = tmp_path / "mine.toml"
     f.write_text(_edit("mass = 2.0", "mass = 3.0"))
     assert load_preset(str(f)).vehicle.mass == 3.0
+
+
+def test_a_model_section_gives_the_autopilot_its_own_model_of_the_vehicle_key_by_key():
+    from dataclasses import replace
+
+    from autopilot.commander import CommanderSettings
+    from autopilot.factory import make_controller
+    from autopilot.params import values_from
+    from quadsitl.param_arrays import vehicle_array
+
+    p = parse_preset(_edit("[actuators]", "[model]\nmass = 2.4\ninertia = [1.0, 1.1, 2.0]\n\n[actuators]"))
+    assert p.vehicle.mass == 2.0 and p.vehicle.ixx == 1.25  # the plant's vehicle is untouched
+    model = p.autopilot_model
+    assert (model.mass, model.ixx, model.iyy, model.izz) == (2.4, 1.0, 1.1, 2.0)
+    assert model == replace(p.vehicle, mass=2.4, ixx=1.0, iyy=1.1, izz=2.0)  # the others are the vehicle's
+    assert load_preset("paper").autopilot_model == load_preset("paper").vehicle  # no [model]: the vehicle itself
+    # what the autopilot builds on: its controllers and its parameters (VM_*)
+    assert np.array_equal(make_controller(p).v, vehicle_array(model))
+    assert values_from(p, "backstepping", CommanderSettings())["VM_MASS"] == 2.4
+    with pytest.raises(ConfigError, match=r"model\.mass = -1\.0: expected a finite number > 0"):
+        parse_preset(_edit("[actuators]", "[model]\nmass = -1.0\n\n[actuators]"))
+    with pytest.raises(ConfigError, match=r"unknown key model\.mas; allowed in \[model\]: mass"):
+        parse_preset(_edit("[actuators]", "[model]\nmas = 1.0\n\n[actuators]"))
+
+
+def test_the_initial_state_takes_rates():
+    from sitl.plant import initial_state
+
+    p = parse_preset(PAPER_TEXT + "\n[initial]\naltitude = 1.0\nclimb_rate = 0.5\nroll_rate = 0.1\nyaw_rate = -0.2\n")
+    s = initial_state(p)
+    assert (s.z, s.vz, s.roll_dot, s.pitch_dot, s.yaw_dot) == (-1.0, -0.5, 0.1, 0.0, -0.2)  # NED: z, vz down
+    with pytest.raises(ConfigError, match=r"initial\.roll_rate = inf: expected a finite number \[rad/s\]"):
+        parse_preset(PAPER_TEXT + "\n[initial]\nroll_rate = inf\n")
+
+
+@pytest.mark.parametrize("name", ["paper", "x500", "edited"])
+def test_a_preset_written_as_toml_reads_back_the_same_to_the_bit(name):
+    from dataclasses import replace
+
+    from quadsitl.config import preset_toml
+
+    if name == "edited":  # every optional part: a model, poles, rates at the start, sensors, an awkward text
+        p = parse_preset(_edit("[actuators]", "[model]\nmass = 2.1\ndrag = [0.1, 0.2, 0.3, 0, 0, 0.1]\n\n[actuators]"))
+        sensors = parse_preset(PAPER_TEXT + "\n[sensors]\nseed = 7\n").sensors
+        p = replace(p, description='a "quoted" one\\ with ünïcode\nand a line', sensors=sensors,
+                    controller=replace(p.controller, gains=None, poles=tuple(1 - 0.001 * k for k in range(8))),
+                    initial=replace(p.initial, altitude=0.1 + 0.2, roll_rate=1 / 3),
+                    model=(*p.model, ("ixx", 1.0000000000000002)))  # fmt: skip
+    else:
+        p = load_preset(name)
+    q = parse_preset(preset_toml(p), p.name)
+    assert q.autopilot_model == p.autopilot_model
+    assert replace(q, model=()) == replace(p, model=())

@@ -299,10 +299,14 @@ def write_kept(out: Path, result: SweepResult) -> list[Path]:
 
 
 def write_outputs(out: Path, result: SweepResult, summary: dict) -> list[Path]:
-    """The table, summary.json and the kept trajectories into ``out``."""
+    """The table, summary.json, the spec and its preset as read (``spec.toml``, ``preset.toml``: what
+    ``quadsitl sim --from-sweep`` flies a trial again from) and the kept trajectories into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     files = write_table(out, result)
     path = out / "summary.json"
     path.write_text(json.dumps(summary, indent=2) + "\n")
     files.append(path)
+    for name, text in (("spec.toml", result.spec.text), ("preset.toml", result.spec.preset_text)):
+        (out / name).write_text(text, encoding="utf-8")
+        files.append(out / name)
     return files + write_kept(out, result)

@@ -48,9 +48,10 @@ conditions only get harder as |λ| grows, so the spec is checked at the largest 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -59,10 +60,11 @@ import numpy as np
 
 from autopilot.control_params import KD, KP, POLES, control_array
 from autopilot.gains import GainError, stability_interval
-from quadsitl.config import ConfigError, Preset, Spec, check_value, load_preset
+from quadsitl.config import ConfigError, InitialState, Preset, Spec, check_value, parse_preset, read_preset
 from quadsitl.param_arrays import (
     ARM,
     D_OVER_B,
+    FIELD_COLUMNS,
     IXX,
     IYY,
     IZZ,
@@ -326,6 +328,8 @@ class SweepSpec:
     vary: dict[str, Distribution]
     description: str = ""
     where: str = field(default="", compare=False)
+    text: str = field(default="", compare=False, repr=False)  # the spec's TOML, as read
+    preset_text: str = field(default="", compare=False, repr=False)  # its preset's TOML, as read
 
     @property
     def period(self) -> float:
@@ -402,8 +406,12 @@ def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def parse_spec(text: str, name: str = "spec", base: Path | None = None) -> SweepSpec:
-    """Parse and validate a spec from TOML text; a preset path in it is relative to ``base``."""
+def parse_spec(
+    text: str, name: str = "spec", base: Path | None = None, preset_text: str | None = None, preset_name: str = ""
+) -> SweepSpec:
+    """Parse and validate a spec from TOML text; a preset path in it is relative to ``base``. With
+    ``preset_text``, that is the preset's TOML and ``preset_name`` its name (the key ``preset`` is then not
+    read): how a sweep's folder, which keeps both texts, is read back (:func:`load_sweep`)."""
     where = f"sweep spec {name!r}"
     try:
         raw = tomllib.loads(text)
@@ -421,11 +429,13 @@ def parse_spec(text: str, name: str = "spec", base: Path | None = None) -> Sweep
             raise ConfigError(f"{where}: missing key {key} ({spec.allowed})")
         else:
             top[key] = spec.default
-    preset_name = top["preset"]
-    if base is not None and (preset_name.endswith(".toml") or "/" in preset_name):
-        preset_name = str((base / preset_name) if not Path(preset_name).is_absolute() else Path(preset_name))
     try:
-        preset = load_preset(preset_name)
+        if preset_text is None:
+            source = top["preset"]
+            if base is not None and (source.endswith(".toml") or "/" in source):
+                source = str((base / source) if not Path(source).is_absolute() else Path(source))
+            preset_text, preset_name = read_preset(source)
+        preset = parse_preset(preset_text, preset_name)
     except ConfigError as exc:
         raise ConfigError(f"{where}: preset = {top['preset']!r}: {exc}") from None
     controller = top["controller"] or preset.controller.type
@@ -476,7 +486,7 @@ def parse_spec(text: str, name: str = "spec", base: Path | None = None) -> Sweep
         raise ConfigError(f"{where}: keep = {keep_raw!r}: expected a list of trial numbers (integers >= 0)")
     keep = tuple(sorted(set(keep_raw)))
     spec = SweepSpec(name, preset, controller, top["task"], duration, top["seed"], 1, keep, top["inadmissible"],
-                     limits, vary, top["description"], where)  # fmt: skip
+                     limits, vary, top["description"], where, text, preset_text)  # fmt: skip
     trials = top["trials"] or spec.grid_size
     _check_trials(trials, spec.grid_size, keep, f"{where}: trials")
     if round(duration / spec.period) < 1:
@@ -575,12 +585,12 @@ def nominal(spec: SweepSpec) -> tuple[np.ndarray, ...]:
         x0[:] = 0.0
         x0[2] = -p.reference.altitude
         r[1:] = 0.0
-    return x0, v, actuator_array(p.actuators), v.copy(), ctrl, r
+    return x0, v, actuator_array(p.actuators), vehicle_array(p.autopilot_model), ctrl, r
 
 
 def trial_arrays(spec: SweepSpec, params: dict[str, np.ndarray], n: int) -> TrialArrays:
     """The engine's arrays for ``n`` trials with the parameters ``params`` (from :func:`draw`)."""
-    x0n, vn, an, _vm, cn, rn = nominal(spec)
+    x0n, vn, an, vmn, cn, rn = nominal(spec)
     x0, v, a, c, r = (np.tile(arr, (n, 1)) for arr in (x0n, vn, an, cn, rn))
     for key, values in params.items():
         group, _, name = key.partition(".")
@@ -592,7 +602,10 @@ def trial_arrays(spec: SweepSpec, params: dict[str, np.ndarray], n: int) -> Tria
         elif group == "reference":
             r[:, REFERENCE[name][0]] = values
     v[:, D_OVER_B] = v[:, D] / v[:, B]
-    vm = v.copy()  # the model: the plant's values, then the model's own and the mismatches
+    vm = v.copy()  # the model: the plant's values, the preset's [model] keys over them, then the spec's model.*
+    for field_name, _ in spec.preset.model:  # and mismatch.* (a factor of the plant's value)
+        cols = list(FIELD_COLUMNS[field_name])
+        vm[:, cols] = vmn[cols]
     for key, values in params.items():
         group, _, name = key.partition(".")
         if group == "model":
@@ -619,3 +632,99 @@ def trial_arrays(spec: SweepSpec, params: dict[str, np.ndarray], n: int) -> Tria
             except GainError as exc:
                 admissible[i], reason[i] = False, str(exc)
     return TrialArrays(x0, v, a, vm, c, r, admissible, reason)
+
+
+# ---- one trial as a preset ----------------------------------------------------------------------------------
+
+DRAG_FIELDS = tuple(f"k{i + 1}" for i in range(6))
+
+
+def trial_preset(spec: SweepSpec, trial: int) -> Preset:
+    """Trial ``trial`` of the sweep as a preset of its own: the plant's vehicle in [vehicle], the autopilot's
+    model in [model] (mismatches as the values they make), the gains, initial state and reference it flies, the
+    spec's controller and duration. ``quadsitl sim`` on it flies what the batch engine flew for that trial, to
+    the bit (the arrays of :func:`nominal` on it are that trial's :func:`trial_arrays` row), and ``quadsitl fly``
+    on it flies the same trial through the whole SITL."""
+    if not 0 <= trial < spec.trials:
+        raise ConfigError(f"{spec.where}: trial {trial}: the sweep has {spec.trials} trials (0..{spec.trials - 1})")
+    p = spec.preset
+    params = {k: float(v[0]) for k, v in draw(spec, np.array([trial])).items()}
+
+    def vehicle_fields(values: dict[str, float], base: Any) -> dict[str, Any]:
+        """{VehicleParams field: value} for the spec's names (k1..k6 go into the drag tuple)."""
+        out: dict[str, Any] = {}
+        drag = list(base.drag)
+        for name, value in values.items():
+            if name in DRAG_FIELDS:
+                drag[DRAG_FIELDS.index(name)] = value
+                out["drag"] = tuple(drag)
+            else:
+                out[name] = value
+        return out
+
+    group = {g: {k.partition(".")[2]: v for k, v in params.items() if k.partition(".")[0] == g}
+             for g in ("plant", "model", "mismatch", "gains", "initial", "reference")}  # fmt: skip
+    vehicle = replace(p.vehicle, **vehicle_fields(group["plant"], p.vehicle))
+    # The model: the preset's [model] keys over the plant, then the spec's model.* and mismatch.* (× the plant's).
+    model = replace(vehicle, **{k: getattr(p.autopilot_model, k) for k, _ in p.model})
+    own = dict(group["model"])
+    for name, factor in group["mismatch"].items():
+        for k in ("ixx", "iyy", "izz") if name == "inertia" else (name,):
+            plant_value = vehicle.drag[DRAG_FIELDS.index(k)] if k in DRAG_FIELDS else getattr(vehicle, k)
+            own[k] = plant_value * factor
+    model = replace(model, **vehicle_fields(own, model))
+    fields = [f.name for f in dataclasses.fields(model)]
+    overrides = tuple((k, getattr(model, k)) for k in fields if getattr(model, k) != getattr(vehicle, k))
+    overrides = tuple(dict.fromkeys((*((k, getattr(model, k)) for k, _ in p.model), *overrides)).keys())
+    # The initial state and reference (the hover task: at the reference altitude, level, at rest).
+    initial, reference = p.initial, p.reference
+    if spec.task == "hover":
+        initial = InitialState(altitude=p.reference.altitude)
+        reference = reference._replace(roll=0.0, pitch=0.0, yaw=0.0)
+    initial = replace(initial, **group["initial"])
+    reference = reference._replace(**group["reference"])
+    # The gains: rates k stay rates (λ = 1 − T·k, as the engine's arrays make them), poles stay poles.
+    c = replace(p.controller, type=spec.controller)
+    rates = {int(k[1:]) - 1: v for k, v in group["gains"].items() if k in RATES}
+    if rates and c.gains is not None:
+        c = replace(c, gains=tuple(rates.get(i, k) for i, k in enumerate(c.gains)))
+    elif rates:
+        assert c.poles is not None
+        c = replace(c, poles=tuple(1.0 - spec.period * rates[i] if i in rates else lam
+                                   for i, lam in enumerate(c.poles)))  # fmt: skip
+    kp = tuple(group["gains"].get(f"kp{j + 1}", x) for j, x in enumerate(c.pd_kp))
+    kd = tuple(group["gains"].get(f"kd{j + 1}", x) for j, x in enumerate(c.pd_kd))
+    c = replace(c, pd_kp=kp, pd_kd=kd)
+    drawn = ", ".join(f"{k} = {v!r}" for k, v in params.items())
+    return replace(
+        p,
+        name=f"{spec.name}-trial-{trial}",
+        description=f"trial {trial} of sweep {spec.name!r} (seed {spec.seed})" + (f": {drawn}" if drawn else ""),
+        vehicle=vehicle,
+        model=overrides,
+        sim=replace(p.sim, duration=spec.duration),
+        controller=c,
+        reference=reference,
+        initial=initial,
+    )
+
+
+def load_sweep(folder: Path) -> SweepSpec:
+    """The spec of the sweep written into ``folder`` (its ``spec.toml``, ``preset.toml`` and ``summary.json``'s
+    number of trials), as it was flown: its trials can be flown again alone."""
+    import json
+
+    missing = [n for n in ("spec.toml", "preset.toml", "summary.json") if not (folder / n).is_file()]
+    if missing:
+        raise ConfigError(
+            f"{folder}: not a sweep's folder (no {', '.join(missing)}; `quadsitl sweep --out` writes them)"
+        )
+    try:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+        trials, name, preset = int(summary["trials"]), str(summary["spec"]), str(summary["preset"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{folder / 'summary.json'}: not a sweep's summary ({exc})") from None
+    text = (folder / "spec.toml").read_text(encoding="utf-8")
+    preset_text = (folder / "preset.toml").read_text(encoding="utf-8")
+    spec = parse_spec(text, name, preset_text=preset_text, preset_name=preset)
+    return spec.with_trials(trials) if trials != spec.trials else spec
