@@ -37,6 +37,8 @@ from autopilot.commander import (
     REF_YAW,
     REF_YAW_RATE,
     TARGET_ALT,
+    TOUCHDOWN_ALT,
+    TOUCHDOWN_CLIMB,
 )
 from autopilot.control_params import (
     MEM_ATTITUDE_REF,
@@ -67,6 +69,7 @@ from quadsitl.state import Inputs
 from quadsitl.wire import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actuators, tick_of
 
 _ZERO_ERRORS = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+GROUND_IDLE_MARGIN = 1e-6  # [m]: a reference this little above the vehicle resting on the ground asks for no climb
 
 # Telemetry record sizes [bytes] and where each stream's records start in a Batch row (quadsitl.telemetry).
 STATE_SIZE, SETPOINT_SIZE, ACTUATORS_SIZE, STATUS_SIZE = (telemetry.STREAMS[s].size for s in telemetry.STREAMS)
@@ -147,11 +150,22 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
                  f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, time_usec: int, tick: int, now: float,
                  records: np.ndarray) -> None:  # fmt: skip
     """The tick once the state (``st``) is known: the commander (its event into io[EVENT]), when armed the law
-    and the allocation into ``mem`` (disarmed: zero command and forces), the answer into ``tx``, and the four
-    telemetry records into the batch's next row when io[CAPACITY] > 0 (``records``: :class:`Batch`)."""
-    io[EVENT] = commander.update(cm, tick, now, st[0], st[1], altitude(st), st[3], st[4], climb_rate(st), st[8])
+    and the allocation into ``mem`` (disarmed, or idle on the ground: zero command and forces), the answer into
+    ``tx``, and the four telemetry records into the batch's next row when io[CAPACITY] > 0 (``records``:
+    :class:`Batch`).
+
+    **Idle on the ground**, as PX4's multicopter keeps its thrust at idle while landed: armed, resting on the
+    ground (below TOUCHDOWN_ALT, |climb| below TOUCHDOWN_CLIMB) and with an altitude reference not above the
+    vehicle (armed in hold, or a landing touched down), the motors idle and the integrators stay at zero, until
+    a reference asks for a climb (a takeoff, an offboard setpoint). Without it, a vehicle whose autopilot
+    believes it heavier than it is (a mass mismatch) would lift off in hold; and the first tick of a flight
+    starts, as ``quadsitl sim``'s, from a previous command of zero (the backstepping's Ωr)."""
+    h, climb = altitude(st), climb_rate(st)
+    io[EVENT] = commander.update(cm, tick, now, st[0], st[1], h, st[3], st[4], climb, st[8])
     armed = cm[ARMED] != 0.0
-    if armed:
+    idle = (h < TOUCHDOWN_ALT and abs(climb) < TOUCHDOWN_CLIMB
+            and cm[REF_ALT] <= max(h, 0.0) + GROUND_IDLE_MARGIN)  # fmt: skip
+    if armed and not idle:
         x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])
         u, errors, omega_r = fly(kind, x, cm, mem, v, c)
         forces = allocate(u, v[D_OVER_B], f_min, f_max)

@@ -132,6 +132,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             spec = spec.with_trials(args.trials)
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
+    if args.engine is not None:
+        spec = dataclasses.replace(spec, engine=args.engine)
+    if args.workers is None:  # a `fly` keeps two cores busy (plant and autopilot in lockstep)
+        cores = os.cpu_count() or 1
+        args.workers = max(1, cores // 2) if spec.engine == "sitl" else cores
     if not 1 <= args.workers <= 256:
         raise UsageError(f"--workers {args.workers}: expected an integer in [1, 256]")
     if args.chunk is not None and not 1 <= args.chunk <= 1_000_000:
@@ -147,7 +152,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     spec = dataclasses.replace(spec, keep=tuple(sorted(keep)))
     quiet = args.quiet or args.json
     with FlightProgress(spec.trials * spec.duration, enabled=not args.quiet, label="sweep (vehicle-seconds):") as bar:
-        result = run_sweep(spec, args.workers, args.chunk, progress=bar.update)
+        result = run_sweep(spec, args.workers, args.chunk or (1 if spec.engine == "sitl" else None),
+                           progress=bar.update)  # fmt: skip
     summary = summarize(result)
     files = write_outputs(Path(args.out), result, summary)
     if args.json:
@@ -451,9 +457,15 @@ the source, or 'mkdocs serve' there.""",
     sw.add_argument("--out", default="runs/sweep", metavar="DIR", help="output folder (default: runs/sweep)")
     sw.add_argument("--trials", type=int, metavar="N", help="number of trials (default: the spec's)")
     sw.add_argument(
-        "--workers", type=int, default=os.cpu_count() or 1, metavar="W",
-        help="worker processes (default: one per core; 1: in this process)",
+        "--workers", type=int, metavar="W",
+        help="worker processes (default: one per core, or one per two cores with --engine sitl; 1: in this process)",
     )  # fmt: skip
+    sw.add_argument(
+        "--engine",
+        choices=("batch", "sitl"),
+        help="batch: the compiled batch engine (default: the "
+        "spec's, else batch); sitl: every trial a whole `quadsitl fly` (plant, autopilot, ground station)",
+    )
     sw.add_argument("--chunk", type=int, metavar="N", help="trials per chunk (default: about four chunks per worker)")
     sw.add_argument("--keep", type=int, metavar="N", help="write the trajectories of the first N trials")
     sw.add_argument("--keep-trial", type=int, action="append", metavar="K", help="write trial K's trajectory "

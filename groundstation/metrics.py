@@ -44,6 +44,24 @@ def step_metrics(t: np.ndarray, y: np.ndarray, ref: np.ndarray, u: np.ndarray) -
     return out
 
 
+def saturation_time(
+    inputs: np.ndarray,
+    forces: np.ndarray,
+    period: float,
+    thrust_bounds: tuple[float, float],
+    force_bounds: tuple[float, float],
+) -> float:
+    """Time [s] with the allocation saturated: T times the number of rows whose u1 [N] (``inputs[:, 0]``) is at a
+    bound of the controller's thrust (thrust_min, thrust_max) or whose commanded motor forces (``forces``, (N, 4)
+    [N]) reach a bound of the motors (F_min, F_max). The sweeps' batch engine counts the same rows on the fly."""
+    if len(inputs) == 0:
+        return 0.0
+    u1 = inputs[:, 0]
+    at_bound = (u1 <= thrust_bounds[0]) | (u1 >= thrust_bounds[1])
+    at_bound |= (forces.min(axis=1) <= force_bounds[0]) | (forces.max(axis=1) >= force_bounds[1])
+    return int(np.count_nonzero(at_bound)) * period
+
+
 def outputs_from_columns(altitude, roll, pitch, yaw) -> np.ndarray:
     """(N, 4) outputs altitude, roll, pitch, yaw (unwrapped) from columns."""
     return np.column_stack([altitude, roll, pitch, np.unwrap(yaw)])

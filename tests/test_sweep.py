@@ -8,7 +8,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from groundstation.metrics import channel_outputs, run_metrics
+from groundstation.metrics import channel_outputs, run_metrics, saturation_time
 from groundstation.offline import run_offline
 from groundstation.sweep import engine
 from groundstation.sweep.run import fly, run_sweep
@@ -95,6 +95,10 @@ def test_on_the_fly_metrics_equal_the_post_processed_ones_with_overshoot_yaw_acr
         f = k["forces"]
         saturated = np.count_nonzero((f.min(axis=1) <= 0.0) | (f.max(axis=1) >= spec.preset.actuators.max_thrust))
         assert saturated > 0 and res.metrics[i, engine.M_SATURATED] == pytest.approx(saturated * spec.period)
+        # the post-processed definition the SITL engine uses counts the same ticks
+        c, a = spec.preset.controller, spec.preset.actuators
+        bounds = ((c.thrust_min, c.thrust_max), (a.min_thrust, a.max_thrust))
+        assert saturation_time(k["inputs"], f, spec.period, *bounds) == res.metrics[i, engine.M_SATURATED]
 
 
 def test_a_mass_mismatch_without_integral_action_leaves_the_altitude_off_by_eq_59():

@@ -35,7 +35,8 @@ MAX_CHUNK = 2000  # trials per chunk at most: a progress update every second or 
 @dataclass
 class ChunkResult:
     """What one chunk gives back: its trial numbers, their drawn parameters, metrics (engine.METRICS columns,
-    NaN for trials not flown), admissibility and why not, and the kept trajectories {trial: (ticks, KEEP_SIZE)}."""
+    NaN for trials not flown), admissibility and why not, and the kept trajectories: the batch engine's
+    {trial: (ticks, KEEP_SIZE)}, or the SITL engine's telemetry rows {trial: (ticks, telemetry_csv.COLUMNS)}."""
 
     trials: np.ndarray
     params: dict[str, np.ndarray]
@@ -43,6 +44,7 @@ class ChunkResult:
     admissible: np.ndarray
     reason: list[str]
     kept: dict[int, np.ndarray] = field(default_factory=dict)
+    rows: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 def _method(spec: SweepSpec) -> int:
@@ -50,8 +52,14 @@ def _method(spec: SweepSpec) -> int:
 
 
 def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
-    """Draw, build and fly the given trials in one call of the batch engine (also what a worker runs)."""
+    """Draw, build and fly the given trials in one call of the batch engine, or one ``quadsitl fly`` after the other
+    with ``spec.engine`` "sitl" (also what a worker runs)."""
     trials = np.asarray(trials, dtype=np.int64)
+    if spec.engine == "sitl":
+        from groundstation.sweep.sitl_engine import fly_trials
+
+        params, metrics, arrays, rows = fly_trials(spec, trials)
+        return ChunkResult(trials, params, metrics, arrays.admissible, arrays.reason, rows=rows)
     params = draw(spec, trials)
     arrays = trial_arrays(spec, params, len(trials))
     n = len(trials)
@@ -82,9 +90,14 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
     return ChunkResult(trials, params, metrics, arrays.admissible, arrays.reason, kept)
 
 
-def warm_up() -> None:
+def warm_up(spec: SweepSpec | None = None) -> None:
     """Compile the batch engine (or load it from numba's cache) on made-up data, before workers start: they then
-    load it instead of compiling it each."""
+    load it instead of compiling it each; for the SITL engine, the processes' equations."""
+    if spec is not None and spec.engine == "sitl":
+        from groundstation.launcher import compile_once
+
+        compile_once(None)
+        return
     from autopilot.control_params import SIZE
     from quadsitl.param_arrays import ACTUATOR_SIZE, VEHICLE_SIZE
 
@@ -113,6 +126,7 @@ class SweepResult:
     kept: dict[int, np.ndarray]
     wall_s: float
     ticks_flown: int
+    rows: dict[int, np.ndarray] = field(default_factory=dict)  # the SITL engine's kept telemetry rows
 
 
 def run_sweep(
@@ -124,7 +138,7 @@ def run_sweep(
     """Fly every trial of ``spec``: in this process (``workers`` = 1) or in ``workers`` processes, by chunks.
     ``progress``, when given, is called with the simulated vehicle-seconds done after each chunk."""
     parts = chunks(spec.trials, workers, chunk)
-    warm_up()
+    warm_up(spec)
     start = time.monotonic()  # the flights only: not the first compilation
     results: list[ChunkResult] = []
     done = 0.0
@@ -160,8 +174,9 @@ def _assemble(spec: SweepSpec, results: list[ChunkResult], wall: float) -> Sweep
         table[name] = metrics[:, j]
     table["diverged"] = metrics[:, engine.M_DIVERGED] == 1.0
     kept = {k: v for r in results for k, v in r.kept.items()}
+    rows = {k: v for r in results for k, v in r.rows.items()}
     ticks = int(np.nansum(metrics[:, engine.M_TICKS]))
-    return SweepResult(spec, table, reasons, kept, wall, ticks)
+    return SweepResult(spec, table, reasons, kept, wall, ticks, rows)
 
 
 # ---- the summary ------------------------------------------------------------------------------------------
@@ -222,6 +237,7 @@ def summarize(result: SweepResult) -> dict:
         "description": spec.description,
         "preset": spec.preset.name,
         "controller": spec.controller,
+        "engine": spec.engine,
         "task": spec.task,
         "duration": spec.duration,
         "period": spec.period,
@@ -281,8 +297,12 @@ def write_kept(out: Path, result: SweepResult) -> list[Path]:
     from quadsitl.frames import euler_rates_to_body_rates
 
     files = []
-    if result.kept:
+    if result.kept or result.rows:
         (out / "trajectories").mkdir(parents=True, exist_ok=True)
+    for trial, rows in sorted(result.rows.items()):  # the SITL engine's: the flight's telemetry.csv as it was
+        path = out / "trajectories" / f"trial_{trial}.csv"
+        write_csv(path, rows)
+        files.append(path)
     T = result.spec.period
     for trial, k in sorted(result.kept.items()):
         i = np.flatnonzero(result.table["trial"] == trial)[0]

@@ -11,6 +11,7 @@ besides reading the file, nothing compiled.
     trials = 1000                 # (default: the grid's size, else 1)
     keep = [0, 1]                 # trials whose whole trajectory is written (default: none)
     inadmissible = "refuse"       # gains that can break (41)–(44): "refuse" the spec, or "record" such trials
+    engine = "batch"              # or "sitl": every trial a whole `quadsitl fly` (sitl_engine.py)
 
     [limits]                      # a trial whose state leaves these ends there, diverged (defaults shown)
     position = 1e5                # |x|, |y|, |z| [m]
@@ -295,6 +296,7 @@ LIMIT_NAMES = ("position", "speed", "tilt", "rate")
 DEFAULT_LIMITS = {"position": 1e5, "speed": 1e4, "tilt": HALF_PI, "rate": 1e3}
 MAX_TRIALS = 100_000_000
 
+ENGINES = ("batch", "sitl")  # the batch engine (engine.py), or every trial a whole `quadsitl fly` (sitl_engine.py)
 TOP: dict[str, Spec] = {
     "preset": Spec("string", "a shipped preset's name or a preset TOML's path"),
     "controller": Spec("string", "one of: backstepping, pd", lambda v: v in ("backstepping", "pd"), required=False),
@@ -306,6 +308,7 @@ TOP: dict[str, Spec] = {
         "string", "one of: refuse, record", INADMISSIBLE.__contains__, required=False, default="refuse"
     ),
     "description": Spec("string", "a string", required=False, default=""),
+    "engine": Spec("string", f"one of: {', '.join(ENGINES)}", lambda v: v in ENGINES, required=False, default="batch"),
 }
 LIMIT_SPEC = Spec("number", "a finite number > 0", lambda v: 0 < v < math.inf)
 
@@ -328,6 +331,7 @@ class SweepSpec:
     vary: dict[str, Distribution]
     description: str = ""
     where: str = field(default="", compare=False)
+    engine: str = "batch"  # ENGINES
     text: str = field(default="", compare=False, repr=False)  # the spec's TOML, as read
     preset_text: str = field(default="", compare=False, repr=False)  # its preset's TOML, as read
 
@@ -486,7 +490,7 @@ def parse_spec(
         raise ConfigError(f"{where}: keep = {keep_raw!r}: expected a list of trial numbers (integers >= 0)")
     keep = tuple(sorted(set(keep_raw)))
     spec = SweepSpec(name, preset, controller, top["task"], duration, top["seed"], 1, keep, top["inadmissible"],
-                     limits, vary, top["description"], where, text, preset_text)  # fmt: skip
+                     limits, vary, top["description"], where, top["engine"], text, preset_text)  # fmt: skip
     trials = top["trials"] or spec.grid_size
     _check_trials(trials, spec.grid_size, keep, f"{where}: trials")
     if round(duration / spec.period) < 1:

@@ -1,0 +1,97 @@
+"""The SITL engine of the sweeps (``quadsitl sweep --engine sitl``): every trial a whole ``quadsitl fly``.
+
+A trial is written as a preset of its own (:func:`groundstation.sweep.spec.trial_preset`: the plant's vehicle, the
+autopilot's model, the gains, initial state and reference) and flown by ``quadsitl fly`` in a process of its own:
+the plant and autopilot processes in lockstep over MAVLink/UDP, the ground station sending the reference as
+MAVLink setpoints and logging the telemetry from Zenoh. The trial's row comes from that flight's telemetry, with the
+metrics' one definition (:func:`groundstation.metrics.run_metrics`, :func:`groundstation.metrics.saturation_time`),
+so the table has the batch engine's columns and agrees with it to the wire's float32 rounding. A trial whose plant
+diverged ends as the batch engine ends it: ``diverged`` with the time of the tick whose state left the bounds.
+
+It is the multi-process SITL at scale, for the checks only the whole system can make (the wire's rounding, the
+lockstep, the autopilot's commander and allocation as flown); the batch engine is for numbers of trials.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from groundstation.metrics import outputs_from_columns, run_metrics, saturation_time
+from groundstation.sweep import engine
+from groundstation.sweep.spec import SweepSpec, draw, trial_arrays, trial_preset
+from groundstation.telemetry_csv import COLUMNS
+from quadsitl.config import preset_toml
+
+FLY_DIVERGED = 3  # `quadsitl fly`'s exit status when the plant's state left its bounds (docs/commands.md)
+COL = {name: i for i, name in enumerate(COLUMNS)}
+
+
+def fly_command(preset: Path, duration: float, out: Path) -> list[str]:
+    """The ``quadsitl fly`` a trial is: lockstep, as fast as possible, no figures, nothing printed on success."""
+    return [sys.executable, "-m", "groundstation.cli", "fly", "--preset", str(preset), "--duration", repr(duration),
+            "--out", str(out), "--no-figures", "--quiet"]  # fmt: skip
+
+
+def fly_trial(spec: SweepSpec, trial: int, folder: Path, timeout: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Fly trial ``trial`` through the whole SITL in ``folder``: (its metrics row, engine.METRICS columns; its
+    telemetry rows, telemetry_csv.COLUMNS). Raises RuntimeError, with what ``fly`` said, when the flight fails."""
+    folder.mkdir(parents=True, exist_ok=True)
+    preset = trial_preset(spec, trial)
+    path = folder / "preset.toml"
+    path.write_text(preset_toml(preset), encoding="utf-8")
+    out = folder / "flight"
+    wall = timeout if timeout is not None else 120.0 + 60.0 * spec.duration
+    r = subprocess.run(fly_command(path, spec.duration, out), capture_output=True, text=True, timeout=wall)
+    if r.returncode not in (0, FLY_DIVERGED):
+        tail = " | ".join(r.stderr.strip().splitlines()[-3:])
+        raise RuntimeError(f"trial {trial}: quadsitl fly exited with status {r.returncode}: {tail}")
+    rows = np.loadtxt(out / "telemetry.csv", delimiter=",", skiprows=1, ndmin=2)
+    m = np.full(engine.METRICS_SIZE, math.nan)
+    c, a = preset.controller, preset.actuators
+    inputs = rows[:, COL["u1"] : COL["u4"] + 1]
+    forces = rows[:, COL["f1"] : COL["f4"] + 1]
+    m[engine.M_SATURATED] = saturation_time(inputs, forces, spec.period, (c.thrust_min, c.thrust_max),
+                                            (a.min_thrust, a.max_thrust))  # fmt: skip
+    for j in range(len(engine.CHANNELS)):
+        m[engine.PER_CHANNEL * j + engine.PEAK_U] = np.max(np.abs(inputs[:, j])) if len(rows) else 0.0
+    m[engine.M_YAW_TURNS] = 0.0
+    if r.returncode == FLY_DIVERGED:
+        diverged_at = json.loads((out / "metrics.json").read_text())["diverged_at"]
+        m[engine.M_DIVERGED], m[engine.M_DIVERGED_AT] = 1.0, diverged_at
+        m[engine.M_TICKS] = round(diverged_at / spec.period)
+        return m, rows
+    m[engine.M_DIVERGED] = 0.0
+    m[engine.M_TICKS] = len(rows)
+    t = rows[:, COL["t"]]
+    y = outputs_from_columns(*(rows[:, COL[k]] for k in ("altitude", "roll", "pitch", "yaw")))
+    ref = rows[:, COL["altitude_ref"] : COL["yaw_ref"] + 1]
+    metrics = run_metrics(t, y, ref, inputs)
+    for j, ch in enumerate(engine.CHANNELS):
+        for q, name in enumerate(engine.STEP_METRICS):
+            value = metrics[ch][name]
+            m[engine.PER_CHANNEL * j + q] = math.nan if value is None else value
+    return m, rows
+
+
+def fly_trials(spec: SweepSpec, trials: np.ndarray) -> tuple[dict, np.ndarray, object, dict[int, np.ndarray]]:
+    """Trials of a chunk, one ``quadsitl fly`` after the other: (their parameters, metrics, the trial arrays (for
+    admissibility), the telemetry rows of the trials kept)."""
+    params = draw(spec, trials)
+    arrays = trial_arrays(spec, params, len(trials))
+    metrics = np.full((len(trials), engine.METRICS_SIZE), math.nan)
+    rows: dict[int, np.ndarray] = {}
+    with tempfile.TemporaryDirectory(prefix="quadsitl-sweep-") as tmp:
+        for i, k in enumerate(trials.tolist()):
+            if not arrays.admissible[i]:
+                continue
+            metrics[i], telemetry = fly_trial(spec, k, Path(tmp) / f"trial_{k}")
+            if k in spec.keep:
+                rows[k] = telemetry
+    return params, metrics, arrays, rows
