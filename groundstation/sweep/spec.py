@@ -630,12 +630,23 @@ def trial_arrays(spec: SweepSpec, params: dict[str, np.ndarray], n: int) -> Tria
     admissible = np.ones(n, dtype=bool)
     reason = [""] * n
     if spec.controller == "backstepping" and any(f"gains.{k}" in params for k in RATES):
-        for i in range(n):
-            try:
-                stability_interval(tuple(c[i, POLES : POLES + 8]), T)
-            except GainError as exc:
-                admissible[i], reason[i] = False, str(exc)
+        admissible, reason = admissibility(c[:, POLES : POLES + 8], T)
     return TrialArrays(x0, v, a, vm, c, r, admissible, reason)
+
+
+def admissibility(poles: np.ndarray, period: float) -> tuple[np.ndarray, list[str]]:
+    """Conditions (41)–(44) (:func:`autopilot.gains.stability_interval`) for each row of ``poles`` (n, 8: λ1..λ8)
+    at the period T [s]: whether they hold for some ε > 0, and when not, the violated condition ("" when they
+    hold). What :func:`trial_arrays` decides which trials fly with, and what the gain map draws."""
+    n = len(poles)
+    admissible = np.ones(n, dtype=bool)
+    reason = [""] * n
+    for i in range(n):
+        try:
+            stability_interval(tuple(poles[i]), period)
+        except GainError as exc:
+            admissible[i], reason[i] = False, str(exc)
+    return admissible, reason
 
 
 # ---- one trial as a preset ----------------------------------------------------------------------------------
