@@ -123,6 +123,7 @@ EXAMPLES_SWEEP = """examples:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from groundstation.progress import FlightProgress
+    from groundstation.sweep.figures import write_sweep_figures
     from groundstation.sweep.run import run_sweep, summarize, write_outputs
     from groundstation.sweep.spec import load_spec
 
@@ -156,14 +157,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                            progress=bar.update)  # fmt: skip
     summary = summarize(result)
     files = write_outputs(Path(args.out), result, summary)
+    figures = [] if args.no_figures else write_sweep_figures(Path(args.out), result)
     if args.json:
         print(json.dumps(summary, indent=2))
     if not quiet:
         print(format_summary(summary))
-        print(
-            f"wrote {args.out}/trials.csv, trials.parquet, summary.json"
-            + (f" and {len(files) - 3} trajector{'y' if len(files) == 4 else 'ies'}" if len(files) > 3 else "")
-        )
+        kept = len(files) - 3
+        names = ["trials.csv", "trials.parquet", "summary.json"] + [f.name for f in figures]
+        print(f"wrote {args.out}/" + ", ".join(names)
+              + (f" and {kept} trajector{'y' if kept == 1 else 'ies'}" if kept else ""))  # fmt: skip
     return 0
 
 
@@ -450,7 +452,7 @@ the source, or 'mkdocs serve' there.""",
         epilog=EXAMPLES_SWEEP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Fly every trial of a sweep spec (what varies: plant, model mismatch, gains, initial state, "
-        "references) on the batch engine and write trials.csv, trials.parquet and summary.json (see "
+        "references) on the batch engine and write trials.csv, trials.parquet, summary.json and figures (see "
         "docs/sweeps.md).",
     )
     sw.add_argument("spec", metavar="SPEC", help="a shipped spec's name (paper-mass-mismatch, ...) or a TOML file")
@@ -471,6 +473,7 @@ the source, or 'mkdocs serve' there.""",
     sw.add_argument("--keep-trial", type=int, action="append", metavar="K", help="write trial K's trajectory "
                     "(repeatable)")  # fmt: skip
     sw.add_argument("--json", action="store_true", help="print summary.json on stdout (and nothing else)")
+    sw.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     sw.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     sw.set_defaults(func=cmd_sweep)
 

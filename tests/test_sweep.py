@@ -283,7 +283,7 @@ def test_quadsitl_sweep_end_to_end(cli, tmp_path):
     """)
     )
     out = tmp_path / "out"
-    r = cli("sweep", str(spec), "--out", str(out), "--workers", "1", "--keep", "2", "--json")
+    r = cli("sweep", str(spec), "--out", str(out), "--workers", "1", "--keep", "2", "--json", "--no-figures")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert summary == json.loads((out / "summary.json").read_text())

@@ -3,6 +3,7 @@ bins, the gain map and its (41)–(44) region) checked without drawing, and ``qu
 
 import dataclasses
 import math
+import struct
 import textwrap
 
 import numpy as np
@@ -222,3 +223,42 @@ def test_eq_59s_line_is_drawn_only_where_it_holds():
     assert figs.eq59_steady_state_error(gains, np.array([1.1])) is None
     pd = spec_of('preset = "paper"\ncontroller = "pd"')
     assert figs.eq59_steady_state_error(pd, np.array([1.1])) is None
+
+
+def png_size(path) -> tuple[int, int]:
+    """(width, height) from a PNG's header, which must be a PNG's."""
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR", path
+    return struct.unpack(">II", head[16:24])
+
+
+def test_quadsitl_sweep_writes_its_figures_and_no_figures_writes_none(cli, tmp_path):
+    spec = tmp_path / "small.toml"
+    spec.write_text(
+        textwrap.dedent("""
+        preset = "paper"
+        duration = 0.8
+        trials = 24
+        seed = 1
+        inadmissible = "record"
+        [vary]
+        gains.k1 = { dist = "grid", values = [5.0, 10.0, 2100.0] }
+        gains.k2 = { dist = "grid", values = [10.0, 50.0] }
+        mismatch.mass = { dist = "uniform", low = 0.8, high = 1.2 }
+    """)
+    )
+    out = tmp_path / "out"
+    r = cli("sweep", str(spec), "--out", str(out), "--workers", "1")
+    assert r.returncode == 0, r.stderr
+    names = ["fig_sweep_envelopes.png", "fig_sweep_settling.png", "fig_sweep_parameters.png", "fig_sweep_gain_map.png"]
+    for name in names:
+        w, h = png_size(out / name)
+        assert 600 <= w <= 3000 and 400 <= h <= 3000, (name, w, h)
+        assert (out / name).stat().st_size > 20_000, name
+        assert name in r.stdout  # reported with the other files
+    assert sorted(p.name for p in out.glob("*.png")) == sorted(names)
+    bare = tmp_path / "bare"
+    r = cli("sweep", str(spec), "--out", str(bare), "--workers", "1", "--no-figures")
+    assert r.returncode == 0, r.stderr
+    assert not list(bare.glob("*.png")) and (bare / "trials.csv").exists()
+    assert "fig_" not in r.stdout
