@@ -89,6 +89,29 @@ def test_histogram_bins_hold_whole_ticks():
     assert len(one) == 2 and one[0] < 0.581 < one[1]
 
 
+def test_the_parameter_figure_draws_the_settling_times_that_exist_and_the_steady_state_errors_that_vary():
+    """Made-up table of 300 trials: altitude and roll have a step (roll never settles), pitch and yaw none; the
+    altitude's steady-state error spreads over centimetres, the others only by round-off."""
+    n = 300
+    rng = np.random.default_rng(1)
+    table = table_of(n)
+    nan = np.full(n, math.nan)
+    table.update({
+        "altitude_overshoot_pct": rng.uniform(0, 1, n), "altitude_settling_time": rng.uniform(0.5, 0.6, n),
+        "roll_overshoot_pct": rng.uniform(0, 1, n), "roll_settling_time": nan,
+        "pitch_overshoot_pct": nan, "pitch_settling_time": nan, "yaw_overshoot_pct": nan, "yaw_settling_time": nan,
+        "altitude_steady_state_error": rng.uniform(-0.02, 0.02, n), "roll_steady_state_error": rng.normal(0, 1e-12, n),
+        "pitch_steady_state_error": np.zeros(n), "yaw_steady_state_error": rng.normal(0, 1e-9, n),
+    })  # fmt: skip
+    assert figs.step_channels(table) == [0, 1]
+    assert [c for c, _label in figs.parameter_metrics(table)] == [
+        "altitude_settling_time",
+        "altitude_steady_state_error",
+    ]
+    spec = load_spec("paper-mass-mismatch")
+    assert figs.varied_parameters(spec) == ["mismatch.inertia", "mismatch.mass"]
+
+
 @pytest.fixture(scope="module")
 def gain_grid():
     """The shipped 12 × 12 grid of k1, k2 (inadmissible points recorded), flown for 0.3 s a trial."""

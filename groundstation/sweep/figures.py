@@ -316,8 +316,10 @@ def write_envelopes(out: Path, spec: SweepSpec, table: dict[str, np.ndarray], ca
         ref = s.reference[:, j]
         if np.ptp(ref) == 0:
             top.axhline(ref[0], color="k", lw=0.9, ls=":", label="reference")
-        else:
+        else:  # the reference varies: its median, said in this panel's own legend
             top.axhline(np.median(ref), color="k", lw=0.9, ls=":", label="reference (median)")
+            if col:
+                top.legend(loc="best", fontsize=8)
         top.set_ylabel(LABELS[j])
         top.set_title(CHANNELS[j], fontsize=10)
         bottom.fill_between(s.t, p5 - p50, p95 - p50, color="C0", alpha=0.3, lw=0)
@@ -377,10 +379,11 @@ def write_settling_histograms(out: Path, spec: SweepSpec, table: dict[str, np.nd
 
 def parameter_metrics(table: dict[str, np.ndarray]) -> list[tuple[str, str]]:
     """(column, label) of the metrics drawn against the parameters: each channel's settling time (channels with a
-    step), then each steady-state error whose 5–95 % spread over the trials flown to the end is above
-    :data:`SPREAD_FLOOR`."""
+    step, when some trial settled), then each steady-state error whose 5–95 % spread over the trials flown to the
+    end is above :data:`SPREAD_FLOOR`."""
     ok = flown_ok(table)
-    out = [(f"{CHANNELS[j]}_settling_time", f"{CHANNELS[j]} settling time [s]") for j in step_channels(table)]
+    settles = [j for j in step_channels(table) if np.isfinite(table[f"{CHANNELS[j]}_settling_time"][ok]).any()]
+    out = [(f"{CHANNELS[j]}_settling_time", f"{CHANNELS[j]} settling time [s]") for j in settles]
     for j, ch in enumerate(CHANNELS):
         sse = table[f"{ch}_steady_state_error"][ok]
         sse = sse[np.isfinite(sse)]
