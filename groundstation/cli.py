@@ -123,7 +123,6 @@ EXAMPLES_SWEEP = """examples:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from groundstation.progress import FlightProgress
-    from groundstation.sweep.figures import write_sweep_figures
     from groundstation.sweep.run import run_sweep, summarize, write_outputs
     from groundstation.sweep.spec import load_spec
 
@@ -157,7 +156,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                            progress=bar.update)  # fmt: skip
     summary = summarize(result)
     files = write_outputs(Path(args.out), result, summary)
-    figures = [] if args.no_figures else write_sweep_figures(Path(args.out), result)
+    figures = []
+    if not args.no_figures:
+        from groundstation.sweep.figures import write_sweep_figures  # matplotlib: only when drawing
+
+        figures = write_sweep_figures(Path(args.out), result)
     if args.json:
         print(json.dumps(summary, indent=2))
     if not quiet:

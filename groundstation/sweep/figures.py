@@ -454,8 +454,10 @@ def write_parameter_figure(
     for ax in axes.flat[len(panels) :]:
         ax.set_visible(False)
     fig.legend(handles=list(handles.values()), loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
-    shown = f"{len(rows)}" if len(rows) == len(ok_rows) else f"{len(rows)} of {len(ok_rows)} (evenly spread)"
-    fig.suptitle(f"Metrics against the varied parameters: {shown} trials flown to the end\n{_title(spec)}", fontsize=10)
+    shown = f"{len(rows):,} of the {len(ok_rows):,} trials flown to the end (evenly spread)"
+    if len(rows) == len(ok_rows):
+        shown = f"the {len(rows):,} trials flown to the end"
+    fig.suptitle(f"Metrics against the varied parameters: {shown}\n{_title(spec)}", fontsize=10)
     fig.tight_layout(rect=(0, 0.5 / (2.6 * nrows + 1.2), 1, 1))
     return _save(fig, out / "fig_sweep_parameters.png")
 
