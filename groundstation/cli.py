@@ -165,8 +165,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     if not quiet:
         print(format_summary(summary))
-        kept = len(files) - 3
-        names = ["trials.csv", "trials.parquet", "summary.json"] + [f.name for f in figures]
+        kept = sum(f.parent.name == "trajectories" for f in files)
+        names = [f.name for f in files if f.parent.name != "trajectories"] + [f.name for f in figures]
         print(f"wrote {args.out}/" + ", ".join(names)
               + (f" and {kept} trajector{'y' if kept == 1 else 'ies'}" if kept else ""))  # fmt: skip
     return 0

@@ -230,6 +230,9 @@ def test_the_sample_flown_again_is_the_sweeps_own_flights_to_the_bit():
     for k in trials.tolist():
         assert again[k].shape == kept[k].shape == (spec.ticks, engine.KEEP_SIZE)
         assert np.array_equal(again[k], kept[k]), k
+    # a sweep flown with the SITL engine has its sample flown again on the batch engine (not a `fly` a trial)
+    sitl = dict(figs.reflown(dataclasses.replace(spec, engine="sitl"), trials[:2]))
+    assert all(np.array_equal(sitl[k], kept[k]) for k in trials[:2].tolist())
     s = figs.sample_outputs(spec, trials, points=50)
     ticks = figs.decimate(spec.ticks, 50)
     assert s.outputs.shape == (5, len(ticks), 4) and np.allclose(s.t, ticks * spec.period)
@@ -280,6 +283,8 @@ def test_quadsitl_sweep_writes_its_figures_and_no_figures_writes_none(cli, tmp_p
         assert (out / name).stat().st_size > 20_000, name
         assert name in r.stdout  # reported with the other files
     assert sorted(p.name for p in out.glob("*.png")) == sorted(names)
+    wrote = r.stdout.splitlines()[-1]
+    assert "spec.toml, preset.toml" in wrote and "trajector" not in wrote  # none kept: none counted
     bare = tmp_path / "bare"
     r = cli("sweep", str(spec), "--out", str(bare), "--workers", "1", "--no-figures")
     assert r.returncode == 0, r.stderr

@@ -101,13 +101,15 @@ def reflown(spec: SweepSpec, trials: np.ndarray) -> Iterator[tuple[int, np.ndarr
     """Fly the given trials again with their trajectories and yield (trial, its kept trajectory: (ticks,
     engine.KEEP_SIZE)) in the order given. In batches (at most :data:`MAX_BATCH` trials, :data:`KEEP_BYTES` of
     trajectories), the trials' numbers as ``keep``: :func:`groundstation.sweep.run.fly` draws each trial from its
-    own number, so these are the sweep's own flights, to the bit. The trials must be admissible."""
+    own number, so these are the sweep's own flights, to the bit. Always on the batch engine: a sweep flown with
+    the SITL engine (``quadsitl fly`` a trial, seconds each) agrees with it to the wire's float32 rounding
+    (docs/sweeps.md). The trials must be admissible."""
     per_trial = spec.ticks * engine.KEEP_SIZE * 8
     batch = max(1, min(MAX_BATCH, KEEP_BYTES // per_trial))
     trials = [int(k) for k in trials]
     for start in range(0, len(trials), batch):
         part = trials[start : start + batch]
-        result = fly(dataclasses.replace(spec, keep=tuple(part)), part)
+        result = fly(dataclasses.replace(spec, keep=tuple(part), engine="batch"), part)
         for k in part:
             yield k, result.kept.pop(k)
 
@@ -333,8 +335,10 @@ def write_envelopes(out: Path, spec: SweepSpec, table: dict[str, np.ndarray], ca
             ax.grid(True, alpha=0.3)
     axes[0, 0].legend(loc="best", fontsize=8)
     spread_of = "all of them" if len(trials) == n_ok else "evenly spread over the trial numbers"
+    again = "on the batch engine (the SITL engine's flights agree with it to float32)" if spec.engine == "sitl" \
+        else "with their trajectories"  # fmt: skip
     fig.suptitle(f"Response envelopes: {len(trials)} of the {n_ok} trials flown to the end ({spread_of}), flown "
-                 f"again\n{_title(spec)}", fontsize=10)  # fmt: skip
+                 f"again {again}\n{_title(spec)}", fontsize=10)  # fmt: skip
     fig.tight_layout()
     return _save(fig, out / "fig_sweep_envelopes.png")
 
