@@ -63,7 +63,7 @@ def test_a_trial_as_a_preset_is_the_engines_trial_to_the_bit(task):
 def test_sim_from_sweep_flies_a_trial_again_to_the_byte_and_fly_takes_its_preset(cli, tmp_path):
     out = tmp_path / "sweep"
     r = cli("sweep", "paper-mass-mismatch", "--trials", "12", "--keep-trial", "9", "--workers", "1", "--out", str(out),
-            "-q")  # fmt: skip
+            "--no-figures", "-q")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert (out / "spec.toml").read_text() == (load_spec("paper-mass-mismatch").text)
     again = tmp_path / "again"
@@ -95,7 +95,7 @@ REFUSALS = [
 
 def test_from_sweep_refusals_are_one_line(cli, tmp_path):
     out = tmp_path / "sweep"
-    r = cli("sweep", "paper-mass-mismatch", "--trials", "4", "--workers", "1", "--out", str(out), "-q")
+    r = cli("sweep", "paper-mass-mismatch", "--trials", "4", "--workers", "1", "--out", str(out), "-q", "--no-figures")
     assert r.returncode == 0, r.stderr
     for args, message in REFUSALS:
         r = cli("sim", *[a.format(out=out, tmp=tmp_path) for a in args], "--out", str(tmp_path / "sim"))

@@ -35,9 +35,9 @@ def table(path):
 def test_the_sitl_engine_flies_each_trial_through_the_whole_sitl_and_agrees_with_the_batch_engine(cli, tmp_path):
     spec = tmp_path / "both.toml"
     spec.write_text(textwrap.dedent(SPEC))
-    r = cli("sweep", str(spec), "--out", str(tmp_path / "batch"), "--workers", "1", "-q")
+    r = cli("sweep", str(spec), "--out", str(tmp_path / "batch"), "--workers", "1", "-q", "--no-figures")
     assert r.returncode == 0, r.stderr
-    r = cli("sweep", str(spec), "--engine", "sitl", "--out", str(tmp_path / "sitl"), "-q")
+    r = cli("sweep", str(spec), "--engine", "sitl", "--out", str(tmp_path / "sitl"), "-q", "--no-figures")
     assert r.returncode == 0, r.stderr
     batch, sitl = table(tmp_path / "batch" / "trials.csv"), table(tmp_path / "sitl" / "trials.csv")
     assert [row["trial"] for row in sitl] == [0, 1, 2]
@@ -58,7 +58,7 @@ def test_the_sitl_engine_flies_each_trial_through_the_whole_sitl_and_agrees_with
         assert math.copysign(1, s["altitude_steady_state_error"]) == math.copysign(1, 1.0 - b["mismatch.mass"])
     # the kept trial: the flight's own telemetry, within float32 of the batch engine's trajectory
     flown = read_csv(tmp_path / "sitl" / "trajectories" / "trial_2.csv")
-    r = cli("sweep", str(spec), "--out", str(tmp_path / "kept"), "--workers", "1", "-q")
+    r = cli("sweep", str(spec), "--out", str(tmp_path / "kept"), "--workers", "1", "-q", "--no-figures")
     batch_kept = read_csv(tmp_path / "kept" / "trajectories" / "trial_2.csv")
     assert len(flown["t"]) == len(batch_kept["t"]) == 1000
     for column in ("altitude", "roll", "pitch", "yaw"):
