@@ -118,12 +118,13 @@ EXAMPLES_SWEEP = """examples:
   quadsitl sweep paper-mass-mismatch --out runs/mass          # a shipped spec, by name
   quadsitl sweep paper-mass-mismatch --trials 100000 --workers 2 --out runs/mass-100k
   quadsitl sweep my-sweep.toml --keep 5 --json --out runs/mine  # trajectories of trials 0..4; summary on stdout
+  quadsitl sweep paper-mass-mismatch --trials 100000 --cluster tcp://10.0.0.5:8786  # on a Dask scheduler's workers
 """
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from groundstation.progress import FlightProgress
-    from groundstation.sweep.run import run_sweep, summarize, write_outputs
+    from groundstation.sweep.run import SweepError, run_sweep, summarize, write_outputs
     from groundstation.sweep.spec import load_spec
 
     try:
@@ -134,11 +135,18 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     if args.engine is not None:
         spec = dataclasses.replace(spec, engine=args.engine)
-    if args.workers is None:  # a `fly` keeps two cores busy (plant and autopilot in lockstep)
-        cores = os.cpu_count() or 1
-        args.workers = max(1, cores // 2) if spec.engine == "sitl" else cores
-    if not 1 <= args.workers <= 256:
-        raise UsageError(f"--workers {args.workers}: expected an integer in [1, 256]")
+    if args.cluster is not None and args.workers is not None:
+        raise UsageError(f"--workers {args.workers} with --cluster {args.cluster}: expected one of them (--cluster: "
+                         "the cluster's workers fly the trials)")  # fmt: skip
+    if args.cluster is not None:
+        from groundstation.sweep.cluster import parse_address
+
+        address = parse_address("--cluster", args.cluster)
+    cores = os.cpu_count() or 1  # a `fly` keeps two cores busy (plant and autopilot in lockstep)
+    default_workers = max(1, cores // 2) if spec.engine == "sitl" else cores
+    workers = default_workers if args.workers is None else args.workers
+    if not 1 <= workers <= 256:
+        raise UsageError(f"--workers {workers}: expected an integer in [1, 256]")
     if args.chunk is not None and not 1 <= args.chunk <= 1_000_000:
         raise UsageError(f"--chunk {args.chunk}: expected an integer in [1, 1000000]")
     keep = set(spec.keep) | set(args.keep_trial or ())
@@ -151,9 +159,23 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError(f"--keep-trial {bad[0]}: expected a trial number in [0, {spec.trials - 1}]")
     spec = dataclasses.replace(spec, keep=tuple(sorted(keep)))
     quiet = args.quiet or args.json
-    with FlightProgress(spec.trials * spec.duration, enabled=not args.quiet, label="sweep (vehicle-seconds):") as bar:
-        result = run_sweep(spec, args.workers, args.chunk or (1 if spec.engine == "sitl" else None),
-                           progress=bar.update)  # fmt: skip
+    total_s = spec.trials * spec.duration
+    chunk = args.chunk or (1 if spec.engine == "sitl" else None)  # a SITL trial takes seconds: progress per trial
+    try:
+        with FlightProgress(total_s, enabled=not args.quiet, label="sweep (vehicle-seconds):") as bar:
+            if args.cluster is None:
+                result = run_sweep(spec, workers, chunk, progress=bar.update)
+            else:
+                from groundstation.sweep.cluster import run_on_cluster
+
+                def warn(line: str) -> None:
+                    if not args.quiet:
+                        print(f"quadsitl sweep: warning: {line}", file=sys.stderr)
+
+                result = run_on_cluster(spec, address, chunk, progress=bar.update, warn=warn)
+    except SweepError as exc:  # a trial lost or twice; with --cluster, also the cluster's failures (ClusterError)
+        print(f"quadsitl sweep: error: {exc}", file=sys.stderr)
+        return 1
     summary = summarize(result)
     files = write_outputs(Path(args.out), result, summary)
     figures = []
@@ -176,7 +198,8 @@ def format_summary(s: dict) -> str:
     """A few lines for the terminal: the sweep, its speed, settling times and overshoot per channel, the worst."""
     lines = [
         f"sweep {s['spec']}: {s['trials']} trials of {s['duration']:g} s ({s['controller']}, preset {s['preset']}, "
-        f"task {s['task']}) in {s['wall_s']:.1f} s, {s['vehicle_steps_per_s'] or 0:.3g} vehicle-steps/s",
+        f"task {s['task']}) in {s['wall_s']:.1f} s, {s['vehicle_steps_per_s'] or 0:.3g} vehicle-steps/s"
+        + (f" on {s['workers']} Dask worker{'s' * (s['workers'] != 1)} at {s['cluster']}" if s.get("cluster") else ""),
         f"diverged {s['diverged']} of {s['flown']} flown (failure rate {s['failure_rate'] or 0:.3g}); "
         f"inadmissible {s['inadmissible']}",
         f"{'channel':<10}{'settling p50':>14}{'p95':>10}{'max':>10}{'overshoot p95':>16}{'not settled':>13}",
@@ -471,6 +494,8 @@ the source, or 'mkdocs serve' there.""",
         help="batch: the compiled batch engine (default: the "
         "spec's, else batch); sitl: every trial a whole `quadsitl fly` (plant, autopilot, ground station)",
     )
+    sw.add_argument("--cluster", metavar="tcp://HOST:PORT", help="fly the chunks on the workers of a running Dask "
+                    "scheduler instead (dask scheduler, dask worker: see docs/sweeps.md)")  # fmt: skip
     sw.add_argument("--chunk", type=int, metavar="N", help="trials per chunk (default: about four chunks per worker)")
     sw.add_argument("--keep", type=int, metavar="N", help="write the trajectories of the first N trials")
     sw.add_argument("--keep-trial", type=int, action="append", metavar="K", help="write trial K's trajectory "

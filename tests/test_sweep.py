@@ -307,3 +307,28 @@ def test_quadsitl_sweep_end_to_end(cli, tmp_path):
     r = cli("sweep", "no-such-spec", "--out", str(tmp_path / "c"))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "shipped specs: paper-gain-grid, paper-mass-mismatch" \
         in r.stderr, r.stderr  # fmt: skip
+
+
+def test_the_table_is_assembled_only_from_every_trial_exactly_once():
+    """The chunks' results come back in any order (a cluster's as they complete): the table is in trial order,
+    and a chunk missing or come back twice (a lost worker's, flown again) is an error, never a table."""
+    from groundstation.sweep.run import SweepError, assemble
+
+    spec = spec_of("""
+        preset = "paper"
+        duration = 0.05
+        trials = 5
+        [vary]
+        mismatch.mass = { dist = "uniform", low = 0.9, high = 1.1 }
+    """)
+    a, b = fly(spec, [0, 1, 2]), fly(spec, [3, 4])
+    table = assemble(spec, [b, a], 1.0, {"cluster": None, "workers": 1}).table
+    assert np.array_equal(table["trial"], np.arange(5))
+    drawn = np.concatenate([a.params["mismatch.mass"], b.params["mismatch.mass"]])
+    assert np.array_equal(table["mismatch.mass"], drawn)
+    with pytest.raises(SweepError, match=r"every trial 0\.\.4 exactly once: missing: 3, 4$"):
+        assemble(spec, [a], 1.0, {})
+    with pytest.raises(SweepError, match=r"exactly once: more than once: 3, 4$"):
+        assemble(spec, [b, a, b], 1.0, {})
+    with pytest.raises(SweepError, match=r"exactly once: missing: 0, 1, 2; not in the sweep: 7$"):
+        assemble(spec, [b, fly(spec, [7])], 1.0, {})

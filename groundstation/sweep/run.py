@@ -117,8 +117,9 @@ def chunks(trials: int, workers: int, chunk: int | None = None) -> list[np.ndarr
 
 @dataclass
 class SweepResult:
-    """The table (one row per trial, in trial order: {column: values}), the kept trajectories, and how long the
-    flights took (wall time [s], from the first chunk's start: the engine already compiled) and how many ticks."""
+    """The table (one row per trial, in trial order: {column: values}), the kept trajectories, how long the
+    flights took (wall time [s], from the first chunk's start: the engine already compiled), how many ticks, and
+    where they ran (summary.json's ``cluster``: the scheduler's address or None, and ``workers``)."""
 
     spec: SweepSpec
     table: dict[str, np.ndarray]
@@ -127,6 +128,12 @@ class SweepResult:
     wall_s: float
     ticks_flown: int
     rows: dict[int, np.ndarray] = field(default_factory=dict)  # the SITL engine's kept telemetry rows
+    where: dict[str, str | int | None] = field(default_factory=dict)
+
+
+class SweepError(RuntimeError):
+    """A sweep that did not complete: the chunks did not give back every trial exactly once, or the cluster
+    failed (:class:`groundstation.sweep.cluster.ClusterError`). One line; nothing is written."""
 
 
 def run_sweep(
@@ -136,31 +143,38 @@ def run_sweep(
     progress: Callable[[float], None] | None = None,
 ) -> SweepResult:
     """Fly every trial of ``spec``: in this process (``workers`` = 1) or in ``workers`` processes, by chunks.
-    ``progress``, when given, is called with the simulated vehicle-seconds done after each chunk."""
+    ``progress``, when given, is called with the simulated vehicle-seconds done after each chunk.
+    (:func:`groundstation.sweep.cluster.run_on_cluster` flies the same chunks on a Dask cluster.)"""
     parts = chunks(spec.trials, workers, chunk)
     warm_up(spec)
     start = time.monotonic()  # the flights only: not the first compilation
     results: list[ChunkResult] = []
     done = 0.0
-    if workers <= 1 or len(parts) == 1:
+    processes = 1 if workers <= 1 or len(parts) == 1 else min(workers, len(parts))
+    if processes == 1:
         for part in parts:
             results.append(fly(spec, part))
             done += len(part) * spec.duration
             if progress is not None:
                 progress(done)
     else:
-        with ProcessPoolExecutor(max_workers=min(workers, len(parts)), mp_context=get_context("spawn")) as pool:
+        with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn")) as pool:
             futures = [pool.submit(fly, spec, part) for part in parts]
             for fut, part in zip(futures, parts):
                 results.append(fut.result())
                 done += len(part) * spec.duration
                 if progress is not None:
                     progress(done)
-    return _assemble(spec, results, time.monotonic() - start)
+    return assemble(spec, results, time.monotonic() - start, {"cluster": None, "workers": processes})
 
 
-def _assemble(spec: SweepSpec, results: list[ChunkResult], wall: float) -> SweepResult:
-    trials = np.concatenate([r.trials for r in results])
+def assemble(
+    spec: SweepSpec, results: list[ChunkResult], wall: float, where: dict[str, str | int | None]
+) -> SweepResult:
+    """The table in trial order from the chunks' results, in any order; ``wall`` [s] and ``where`` as
+    :class:`SweepResult` has them. A :class:`SweepError` unless every trial 0..N−1 came back exactly once."""
+    trials = np.concatenate([r.trials for r in results]) if results else np.zeros(0, dtype=np.int64)
+    check_every_trial_once(spec, trials)
     order = np.argsort(trials, kind="stable")
     metrics = np.concatenate([r.metrics for r in results])[order]
     admissible = np.concatenate([r.admissible for r in results])[order]
@@ -176,7 +190,24 @@ def _assemble(spec: SweepSpec, results: list[ChunkResult], wall: float) -> Sweep
     kept = {k: v for r in results for k, v in r.kept.items()}
     rows = {k: v for r in results for k, v in r.rows.items()}
     ticks = int(np.nansum(metrics[:, engine.M_TICKS]))
-    return SweepResult(spec, table, reasons, kept, wall, ticks, rows)
+    return SweepResult(spec, table, reasons, kept, wall, ticks, rows, dict(where))
+
+
+def check_every_trial_once(spec: SweepSpec, trials: np.ndarray) -> None:
+    """A :class:`SweepError` naming the first trials missing or come back more than once, unless ``trials``
+    holds every number 0..spec.trials−1 exactly once (in any order)."""
+    counts = np.bincount(trials[(trials >= 0) & (trials < spec.trials)], minlength=spec.trials)
+    stray = trials[(trials < 0) | (trials >= spec.trials)]
+    missing, twice = np.flatnonzero(counts == 0), np.flatnonzero(counts > 1)
+    if missing.size or twice.size or stray.size:
+
+        def some(xs: np.ndarray) -> str:
+            return ", ".join(str(int(x)) for x in xs[:5]) + (f" and {xs.size - 5} more" if xs.size > 5 else "")
+
+        what = [f"{what}: {some(xs)}" for what, xs in (("missing", missing), ("more than once", twice),
+                                                       ("not in the sweep", stray)) if xs.size]  # fmt: skip
+        raise SweepError(f"sweep {spec.name!r}: the chunks did not give back every trial 0..{spec.trials - 1} "
+                         f"exactly once: {'; '.join(what)}")  # fmt: skip
 
 
 # ---- the summary ------------------------------------------------------------------------------------------
@@ -248,6 +279,7 @@ def summarize(result: SweepResult) -> dict:
         "inadmissible": n - n_flown,
         "diverged": int(diverged.sum()),
         "failure_rate": float(diverged.sum() / n_flown) if n_flown else None,
+        **{k: result.where[k] for k in ("cluster", "workers") if k in result.where},
         "wall_s": result.wall_s,
         "vehicle_steps": result.ticks_flown,
         "vehicle_steps_per_s": result.ticks_flown / result.wall_s if result.wall_s > 0 else None,
