@@ -147,7 +147,7 @@ def run_sweep(
     (:func:`groundstation.sweep.cluster.run_on_cluster` flies the same chunks on a Dask cluster.)"""
     parts = chunks(spec.trials, workers, chunk)
     warm_up(spec)
-    start = time.monotonic()  # the flights only: not the first compilation
+    start = time.monotonic()  # the flights only: not the first compilation, nor the workers' start
     results: list[ChunkResult] = []
     done = 0.0
     processes = 1 if workers <= 1 or len(parts) == 1 else min(workers, len(parts))
@@ -158,7 +158,11 @@ def run_sweep(
             if progress is not None:
                 progress(done)
     else:
-        with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn")) as pool:
+        with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"), initializer=warm_up,
+                                 initargs=(None if spec.engine == "batch" else spec,)) as pool:  # fmt: skip
+            for ready in [pool.submit(time.sleep, 0.2) for _ in range(processes)]:  # one each: all started, warm
+                ready.result()
+            start = time.monotonic()
             futures = [pool.submit(fly, spec, part) for part in parts]
             for fut, part in zip(futures, parts):
                 results.append(fut.result())
