@@ -125,7 +125,7 @@ EXAMPLES_SWEEP = """examples:
 def cmd_sweep(args: argparse.Namespace) -> int:
     from groundstation.progress import FlightProgress
     from groundstation.sweep.run import SweepError, run_sweep, summarize, write_outputs
-    from groundstation.sweep.spec import load_spec
+    from groundstation.sweep.spec import check_engine, load_spec
 
     try:
         spec = load_spec(args.spec)
@@ -134,7 +134,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         raise UsageError(str(exc)) from None
     if args.engine is not None:
-        spec = dataclasses.replace(spec, engine=args.engine)
+        try:
+            spec = check_engine(dataclasses.replace(spec, engine=args.engine))
+        except ConfigError as exc:
+            raise UsageError(f"--engine {args.engine}: {exc}") from None
     if args.cluster is not None and args.workers is not None:
         raise UsageError(f"--workers {args.workers} with --cluster {args.cluster}: expected one of them (--cluster: "
                          "the cluster's workers fly the trials)")  # fmt: skip

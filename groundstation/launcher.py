@@ -28,7 +28,7 @@ from pathlib import Path
 from groundstation.fleet import VehiclePlan
 from quadsitl.cli_util import UsageError
 from quadsitl.config import Preset
-from quadsitl.process_util import bind_tcp, bind_udp, free_port, stop_status
+from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, stop_status
 
 
 def signing_env(key_text: str | None) -> dict[str, str] | None:
@@ -308,6 +308,8 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         children.start("gcs", gcs)
         while True:
             failure = children.first_failure(done="gcs", prog="quadsitl fly")
+            if failure == ("plant", PLANT_DIVERGED):  # the plant said why on stderr; keep what was flown
+                return end_diverged(children, out, preset, args)
             if failure:
                 print(f"quadsitl fly: error: {describe(*failure)}; stopping the others", file=sys.stderr)
                 return 1
@@ -332,6 +334,24 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     return 0
 
 
+FLY_DIVERGED = PLANT_DIVERGED  # `quadsitl fly`'s exit status when the plant's state diverged (docs/failures.md)
+
+
+def end_diverged(children: Children, out: Path, preset: Preset, args) -> int:
+    """The plant's state left its bounds (the plant ended with PLANT_DIVERGED): let the last telemetry batch
+    reach the ground station, stop it (it writes telemetry.csv and flight.tlog with every tick flown), stop the
+    autopilot, and write metrics.json with ``diverged`` and ``diverged_at`` [s]: the time of the first tick not
+    flown, as the sweeps' batch engine counts it."""
+    time.sleep(0.3)  # the autopilot flushes a partial telemetry batch within BATCH_WALL of its last tick
+    for name in ("gcs", "autopilot"):
+        children.stop_one(name)
+    if not (out / "telemetry.csv").is_file() or len((out / "telemetry.csv").read_text().splitlines()) < 2:
+        print("quadsitl fly: error: the plant diverged before the flight began; nothing was flown", file=sys.stderr)
+        return FLY_DIVERGED
+    write_report(out, preset, args, diverged=True)
+    return FLY_DIVERGED
+
+
 def keep_dashboard(children: Children) -> None:
     """After a flight with ``--dashboard``: keep the page up, showing the finished run, until Ctrl-C."""
     print("quadsitl fly: flight done; the dashboard keeps showing it until Ctrl-C", file=sys.stderr, flush=True)
@@ -340,7 +360,7 @@ def keep_dashboard(children: Children) -> None:
     print(f"quadsitl fly: error: {describe('dashboard', children.procs['dashboard'].returncode)}", file=sys.stderr)
 
 
-def write_report(out: Path, preset: Preset, args) -> None:
+def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> None:
     """metrics.json and the figures from telemetry.csv. A position trajectory adds the position tracking
     metrics (printed instead of the step-response table, which its computed attitude references make
     meaningless) and the x–y path figure."""
@@ -366,7 +386,9 @@ def write_report(out: Path, preset: Preset, args) -> None:
     metrics = {kind: run_metrics(t, y, ref, u)}
     settings = {"mode": "lockstep", "speed": args.speed, "duration": float(len(t) * preset.sim.period),
                 "period": preset.sim.period, "trajectory": args.trajectory}  # fmt: skip
-    report = {"preset": preset.name, **settings, "runs": metrics}
+    # diverged_at [s]: the first tick not flown (the plant's state at its start was outside the bounds).
+    report = {"preset": preset.name, **settings, "diverged": diverged,
+              "diverged_at": round(len(t) * preset.sim.period, 9) if diverged else None, "runs": metrics}  # fmt: skip
     mission = getattr(args, "mission", None)
     trajectory = None if mission else trajectories.make(args.trajectory, preset.reference)
     position = None
@@ -386,6 +408,9 @@ def write_report(out: Path, preset: Preset, args) -> None:
             planned = np.array([trajectory(float(tk))[:2] for tk in t]).reshape(-1, 2).T
             write_path_figure(out, data["x"], data["y"], data["x_ref"], data["y_ref"],
                               f"{title}, {args.trajectory}", planned=(planned[0], planned[1]))  # fmt: skip
+    if diverged:
+        print(f"quadsitl fly: the plant's state diverged at t = {report['diverged_at']:.3f} s; wrote {out}/"
+              "telemetry.csv, flight.tlog and metrics.json with what was flown", file=sys.stderr)  # fmt: skip
     if not args.quiet:
         print(format_table(metrics) if position is None else format_position_table(position))
         if mission:

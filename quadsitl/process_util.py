@@ -18,6 +18,10 @@ from collections.abc import Callable
 
 from quadsitl.cli_util import UsageError
 
+PLANT_DIVERGED = 3
+"""The plant process's exit status when its state left the bounds (:func:`sitl.plant.inside`); ``quadsitl fly``
+then ends with the same status (docs/failures.md)."""
+
 
 def parse_address(option: str, text: str) -> tuple[str, int]:
     """'HOST:PORT' → (host, port), or a UsageError naming the option."""

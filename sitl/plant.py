@@ -13,6 +13,7 @@ from the ground is not touched, so the paper's experiment is unaltered by starti
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -97,6 +98,38 @@ def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: n
         out[OUT_INPUTS + i] = u[i]
     out[OUT_OMEGA_R] = wr
     out[OUT_ON_GROUND] = 1.0 if on_ground else 0.0
+
+
+# Divergence: the bounds a state must stay within (``lim``, LIMITS_SIZE): |x|, |y|, |z| [m]; |vx|, |vy|, |vz|
+# [m/s]; |roll|, |pitch| [rad] (strictly below); |Euler-angle rates| [rad/s]; and the yaw within 1000 turns.
+L_POSITION, L_SPEED, L_TILT, L_RATE = range(4)
+LIMITS_SIZE = 4
+LIMIT_NAMES = ("position", "speed", "tilt", "rate")
+DEFAULT_LIMITS = (1e5, 1e4, math.pi / 2, 1e3)
+MAX_YAW = 1e3 * 2.0 * math.pi  # [rad]
+
+
+@jit(inline=True)
+def inside(s: State, lim: tuple | np.ndarray) -> bool:
+    """The state is finite and within the bounds ``lim`` (every comparison with NaN is false): what the sweeps'
+    batch engine and the plant process check at the start of every tick; a state outside has diverged."""
+    p, v, tilt, rate = lim[L_POSITION], lim[L_SPEED], lim[L_TILT], lim[L_RATE]
+    return (abs(s[0]) <= p and abs(s[1]) <= p and abs(s[2]) <= p and abs(s[3]) <= v and abs(s[4]) <= v
+            and abs(s[5]) <= v and abs(s[6]) < tilt and abs(s[7]) < tilt and abs(s[8]) <= MAX_YAW
+            and abs(s[9]) <= rate and abs(s[10]) <= rate and abs(s[11]) <= rate)  # fmt: skip
+
+
+def outside_what(x: Sequence[float], lim: Sequence[float] = DEFAULT_LIMITS) -> str:
+    """Which quantity of a state that is not :func:`inside` ``lim`` left its bound, in words (the first found)."""
+    names = ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "roll rate", "pitch rate", "yaw rate")
+    units = ("m",) * 3 + ("m/s",) * 3 + ("rad",) * 3 + ("rad/s",) * 3
+    bounds = (lim[L_POSITION],) * 3 + (lim[L_SPEED],) * 3 + (lim[L_TILT],) * 2 + (MAX_YAW,) + (lim[L_RATE],) * 3
+    for i, (name, unit, bound) in enumerate(zip(names, units, bounds)):
+        value = float(x[i])
+        strict = i in (6, 7)
+        if not math.isfinite(value) or (abs(value) >= bound if strict else abs(value) > bound):
+            return f"|{name}| = {abs(value):.6g} {unit} is not {'<' if strict else '≤'} {bound:.6g}"
+    return "every quantity within its bound"
 
 
 class Plant:

@@ -32,6 +32,7 @@ from quadsitl import wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, check_range
 from quadsitl.config import ConfigError, load_preset
 from quadsitl.process_util import (
+    PLANT_DIVERGED,
     SpinThenBlock,
     bind_udp,
     parse_address,
@@ -42,7 +43,7 @@ from quadsitl.process_util import (
 from quadsitl.timing import period_stats
 from sitl import tick
 from sitl.impair import Impairment, add_impair_argument, impairment_from
-from sitl.plant import Plant
+from sitl.plant import Plant, outside_what
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
@@ -236,6 +237,13 @@ def warm_up(plant: Plant) -> None:
     twin.step()
 
 
+class DivergedError(Exception):
+    """The plant's state left its bounds (:func:`sitl.plant.inside`): the run ends, that state not sent."""
+
+    def __init__(self, t: float, x: np.ndarray) -> None:
+        super().__init__(f"diverged at t = {t:.3f} s: {outside_what(x)}")
+
+
 def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | None) -> int:
     """The plant as the clock: send tick k's state, wait for the answer to it, integrate, until ``max_ticks``.
     The state frame goes out first; each answer to it is decoded, taken and integrated and the next state
@@ -263,6 +271,8 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
                 r = tick.take_and_step(link.decode(nbytes), want, commanded, received, *args, k)
             if r == tick.STEPPED:
                 break
+            if r == tick.DIVERGED:
+                raise DivergedError(plant.time + period, plant.x)
         if held:
             link.heard()
             if speed > 0:  # the pace resumes from here: no burst to catch up with time spent holding
@@ -301,6 +311,8 @@ def run_realtime(
         ):
             plant.commanded[:] = 0.0
         plant.step()
+        if not tick.state_inside(plant.x):
+            raise DivergedError(plant.time, plant.x)
         k += 1
     return k
 
@@ -374,6 +386,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             run_realtime(plant, link, args.ticks, starts if args.stats else None, args.on_autopilot_loss)
     except KeyboardInterrupt:  # SIGINT or SIGTERM (process_util.StopRequested): a requested stop; say what the run did
         pass
+    except DivergedError as exc:  # one line, always: the run ends with a status of its own
+        print(f"plant: {exc}; the run ends (exit status {PLANT_DIVERGED})", file=sys.stderr, flush=True)
+        return PLANT_DIVERGED
     finally:
         link.close()
     elapsed = time.monotonic() - start

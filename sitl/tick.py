@@ -8,7 +8,7 @@ import numpy as np
 
 from quadsitl.jit import jit
 from quadsitl.wire import NOT_THIS_FRAME, decode_actuators, encode_state, usec_of
-from sitl.plant import step_arrays
+from sitl.plant import DEFAULT_LIMITS, inside, step_arrays
 
 # The tick's integer bookkeeping (``io``, int64): the link's sequence number, the length of the state frame
 # in tx, the stamp of the newest actuator message used, and what was refused: stale or duplicate answers,
@@ -16,7 +16,8 @@ from sitl.plant import step_arrays
 SEQ, TX_LEN, LAST_USEC, DISCARDED, CORRUPT, SYSTEM, COMPONENT, IO_SIZE = range(8)
 # What lockstep_tick reports besides STEPPED: an answer from the future, or no actuator message for this
 # tick in the datagram (NOTHING; ANOTHER_FRAME: not exactly one unsigned HIL_ACTUATOR_CONTROLS, for pymavlink).
-STEPPED, FUTURE, NOTHING, ANOTHER_FRAME = 0, 1, 2, 3
+# DIVERGED: stepped, and the new state is outside sitl.plant's DEFAULT_LIMITS (or not finite): not to be sent.
+STEPPED, FUTURE, NOTHING, ANOTHER_FRAME, DIVERGED = 0, 1, 2, 3, 4
 
 
 @jit
@@ -31,7 +32,8 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
                   motors: np.ndarray, out: np.ndarray, v: np.ndarray, a: np.ndarray, period: float, substeps: int,
                   method: int, tx: np.ndarray, io: np.ndarray, tick: int) -> int:  # fmt: skip
     """An actuator message stamped ``t`` (its forces in ``received``): when it answers tick ``tick``
-    (``want``), make it the command, integrate one period and encode the state of tick + 1."""
+    (``want``), make it the command, integrate one period and encode the state of tick + 1 (DIVERGED when that
+    state is not :func:`sitl.plant.inside` the default bounds)."""
     if t < 0:
         return NOTHING
     if t <= io[LAST_USEC]:
@@ -44,7 +46,14 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
     commanded[:] = received
     step_arrays(x, motors, commanded, out, v, a, period, substeps, method, np.nan)
     encode_tick(tx, io, x, tick + 1, period)
-    return STEPPED
+    s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
+    return STEPPED if inside(s, DEFAULT_LIMITS) else DIVERGED
+
+
+@jit
+def state_inside(x: np.ndarray) -> bool:
+    """:func:`sitl.plant.inside` the default bounds, for the state array ``x`` (the real-time loop's check)."""
+    return inside((x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11]), DEFAULT_LIMITS)
 
 
 @jit
@@ -53,7 +62,7 @@ def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, rec
                   a: np.ndarray, period: float, substeps: int, method: int, tx: np.ndarray, io: np.ndarray,
                   tick: int) -> int:  # fmt: skip
     """A datagram from the autopilot (rx[:length]) during tick ``tick``: STEPPED (the next state is in tx),
-    FUTURE, NOTHING or ANOTHER_FRAME."""
+    DIVERGED (it is, but outside its bounds), FUTURE, NOTHING or ANOTHER_FRAME."""
     t = decode_actuators(rx, length, received, max_thrust)
     if t == NOT_THIS_FRAME:
         return ANOTHER_FRAME

@@ -164,6 +164,8 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
         seen.add(m.get_type())
     assert {"HEARTBEAT", "ATTITUDE", "COMMAND_ACK", "COMMAND_LONG", "SET_ATTITUDE_TARGET"} <= seen
     assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
+    report = json.loads((out / "metrics.json").read_text())
+    assert report["diverged"] is False and report["diverged_at"] is None
 
 
 @pytest.mark.parametrize("victim", ["plant", "autopilot", "gcs"])

@@ -46,7 +46,9 @@ from autopilot.pd import pd
 from quadsitl.jit import jit
 from quadsitl.mixer import allocate
 from quadsitl.param_arrays import D_OVER_B, F_MAX, F_MIN
-from sitl.plant import step
+from sitl.plant import DEFAULT_LIMITS as DEFAULT_LIMITS  # divergence bounds: the plant process's (sitl.plant.inside)
+from sitl.plant import LIMITS_SIZE as LIMITS_SIZE
+from sitl.plant import inside, step
 
 CHANNELS = ("altitude", "roll", "pitch", "yaw")
 STEP_METRICS = ("rise_time", "settling_time", "overshoot_pct", "steady_state_error", "peak_abs_u", "rms_error")
@@ -65,25 +67,11 @@ METRICS = (
 """The columns of the metrics array :func:`run_chunk` fills, one row per trial."""
 METRICS_SIZE = len(METRICS)
 
-# Divergence bounds (``limits``): |x|, |y|, |z| [m]; |vx|, |vy|, |vz| [m/s]; |roll|, |pitch| [rad]; |Euler-angle
-# rates| [rad/s].
-L_POSITION, L_SPEED, L_TILT, L_RATE = range(4)
-LIMITS_SIZE = 4
-DEFAULT_LIMITS = (1e5, 1e4, math.pi / 2, 1e3)
 
 # A kept trajectory's columns per tick: the state (12), the reference (4), u1..u4, the commanded forces (4).
 K_STATE, K_REF, K_INPUTS, K_FORCES, KEEP_SIZE = 0, 12, 16, 20, 24
 
 TWO_PI = 2.0 * math.pi
-
-
-@jit(inline=True)
-def _inside(s: tuple, lim: np.ndarray) -> bool:
-    """The state is finite and within the bounds (every comparison with NaN is false)."""
-    p, v, tilt, rate = lim[L_POSITION], lim[L_SPEED], lim[L_TILT], lim[L_RATE]
-    return (abs(s[0]) <= p and abs(s[1]) <= p and abs(s[2]) <= p and abs(s[3]) <= v and abs(s[4]) <= v
-            and abs(s[5]) <= v and abs(s[6]) < tilt and abs(s[7]) < tilt and abs(s[8]) <= 1e3 * TWO_PI
-            and abs(s[9]) <= rate and abs(s[10]) <= rate and abs(s[11]) <= rate)  # fmt: skip
 
 
 @jit(inline=True)
@@ -148,7 +136,7 @@ def run_trial(
     diverged_at = -1
     err_yaw = 0.0
     for k in range(ticks):
-        if not _inside(s, lim):
+        if not inside(s, lim):
             diverged_at = k
             break
         # ---- the controller on x(k) (the autopilot's model vm), and its allocation ----------------------

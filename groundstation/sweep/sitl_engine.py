@@ -23,13 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.launcher import FLY_DIVERGED
 from groundstation.metrics import outputs_from_columns, run_metrics, saturation_time
 from groundstation.sweep import engine
 from groundstation.sweep.spec import SweepSpec, draw, trial_arrays, trial_preset
 from groundstation.telemetry_csv import COLUMNS
 from quadsitl.config import preset_toml
 
-FLY_DIVERGED = 3  # `quadsitl fly`'s exit status when the plant's state left its bounds (docs/commands.md)
 COL = {name: i for i, name in enumerate(COLUMNS)}
 
 
@@ -52,7 +52,8 @@ def fly_trial(spec: SweepSpec, trial: int, folder: Path, timeout: float | None =
     if r.returncode not in (0, FLY_DIVERGED):
         tail = " | ".join(r.stderr.strip().splitlines()[-3:])
         raise RuntimeError(f"trial {trial}: quadsitl fly exited with status {r.returncode}: {tail}")
-    rows = np.loadtxt(out / "telemetry.csv", delimiter=",", skiprows=1, ndmin=2)
+    # The trial's ticks: a flight that diverged while landing, after them, kept its landing's rows too.
+    rows = np.loadtxt(out / "telemetry.csv", delimiter=",", skiprows=1, ndmin=2)[: spec.ticks]
     m = np.full(engine.METRICS_SIZE, math.nan)
     c, a = preset.controller, preset.actuators
     inputs = rows[:, COL["u1"] : COL["u4"] + 1]
@@ -62,10 +63,12 @@ def fly_trial(spec: SweepSpec, trial: int, folder: Path, timeout: float | None =
     for j in range(len(engine.CHANNELS)):
         m[engine.PER_CHANNEL * j + engine.PEAK_U] = np.max(np.abs(inputs[:, j])) if len(rows) else 0.0
     m[engine.M_YAW_TURNS] = 0.0
-    if r.returncode == FLY_DIVERGED:
+    # A flight that diverged before its end; one whose landing, after it, diverged was flown whole (the batch
+    # engine flies the trial's duration only).
+    if r.returncode == FLY_DIVERGED and len(rows) < spec.ticks:
         diverged_at = json.loads((out / "metrics.json").read_text())["diverged_at"]
         m[engine.M_DIVERGED], m[engine.M_DIVERGED_AT] = 1.0, diverged_at
-        m[engine.M_TICKS] = round(diverged_at / spec.period)
+        m[engine.M_TICKS] = len(rows)
         return m, rows
     m[engine.M_DIVERGED] = 0.0
     m[engine.M_TICKS] = len(rows)

@@ -77,7 +77,8 @@ from quadsitl.param_arrays import (
     actuator_array,
     vehicle_array,
 )
-from sitl.plant import initial_state
+from sitl.plant import DEFAULT_LIMITS as PLANT_LIMITS
+from sitl.plant import LIMIT_NAMES, initial_state
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -292,8 +293,7 @@ def parse_distribution(key: str, raw: Any, where: str) -> Distribution:
 
 TASKS = ("step", "hover")
 INADMISSIBLE = ("refuse", "record")
-LIMIT_NAMES = ("position", "speed", "tilt", "rate")
-DEFAULT_LIMITS = {"position": 1e5, "speed": 1e4, "tilt": HALF_PI, "rate": 1e3}
+DEFAULT_LIMITS = dict(zip(LIMIT_NAMES, PLANT_LIMITS))  # the plant process's (sitl.plant.DEFAULT_LIMITS)
 MAX_TRIALS = 100_000_000
 
 ENGINES = ("batch", "sitl")  # the batch engine (engine.py), or every trial a whole `quadsitl fly` (sitl_engine.py)
@@ -495,7 +495,7 @@ def parse_spec(
     _check_trials(trials, spec.grid_size, keep, f"{where}: trials")
     if round(duration / spec.period) < 1:
         raise ConfigError(f"{where}: duration = {duration!r}: shorter than one control period T = {spec.period:g} s")
-    spec = SweepSpec(**{**spec.__dict__, "trials": trials})
+    spec = check_engine(SweepSpec(**{**spec.__dict__, "trials": trials}))
     if controller == "backstepping":
         try:
             stability_interval(worst_poles(spec), spec.period)
@@ -505,6 +505,26 @@ def parse_spec(
                 which = f" (at the largest |λ| of {', '.join(varied)})" if varied else ""
                 raise ConfigError(f"{where}: inadmissible gains{which}: {exc}; or set inadmissible = \"record\" "
                                   "to fly the others and record these") from None  # fmt: skip
+    return spec
+
+
+def check_engine(spec: SweepSpec) -> SweepSpec:
+    """The spec, or a ConfigError when the SITL engine cannot fly it as the batch engine does: a ``quadsitl fly``
+    starts on the ground at rest (its plant runs while the autopilot arms, before the flight begins, so an initial
+    state elsewhere is not where the flight starts), and its plant checks the default bounds."""
+    if spec.engine != "sitl":
+        return spec
+    p = spec.preset
+    moving = [k for k in spec.vary if k.startswith("initial.")]
+    if moving or spec.task == "hover" or dataclasses.astuple(p.initial) != dataclasses.astuple(InitialState()):
+        what = f"vary.{moving[0]}" if moving else 'task = "hover"' if spec.task == "hover" else "its [initial]"
+        raise ConfigError(f"{spec.where}: engine sitl with {what}: a `quadsitl fly` starts on the ground at rest (its "
+                          "plant runs while the autopilot arms), so the trials' initial state cannot be flown; use the "
+                          "batch engine")  # fmt: skip
+    for key, value in spec.limits.items():
+        if value != DEFAULT_LIMITS[key]:
+            raise ConfigError(f"{spec.where}: engine sitl with limits.{key} = {value!r}: the plant process checks the "
+                              f"default bounds ({key} = {DEFAULT_LIMITS[key]!r}); use the batch engine")  # fmt: skip
     return spec
 
 
