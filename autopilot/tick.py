@@ -25,6 +25,7 @@ from autopilot.commander import (
     EVENT_NONE,
     FAILSAFE,
     MODE,
+    OFFBOARD,
     OFFBOARD_TICK,
     REF_ALT,
     REF_AY,
@@ -154,16 +155,18 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
     ``tx``, and the four telemetry records into the batch's next row when io[CAPACITY] > 0 (``records``:
     :class:`Batch`).
 
-    **Idle on the ground**, as PX4's multicopter keeps its thrust at idle while landed: armed, resting on the
-    ground (below TOUCHDOWN_ALT, |climb| below TOUCHDOWN_CLIMB) and with an altitude reference not above the
-    vehicle (armed in hold, or a landing touched down), the motors idle and the integrators stay at zero, until
-    a reference asks for a climb (a takeoff, an offboard setpoint). Without it, a vehicle whose autopilot
-    believes it heavier than it is (a mass mismatch) would lift off in hold; and the first tick of a flight
-    starts, as ``quadsitl sim``'s, from a previous command of zero (the backstepping's Ωr)."""
+    **Idle on the ground**, as PX4's multicopter keeps its thrust at idle while landed: armed in an auto mode
+    (hold, takeoff, land, return, mission), resting on the ground (below TOUCHDOWN_ALT, |climb| below
+    TOUCHDOWN_CLIMB) and with an altitude reference not above the vehicle (armed in hold, or a landing touched
+    down), the motors idle and the integrators stay at zero, until a reference asks for a climb. Offboard
+    setpoints are always flown (an attitude setpoint on the ground tilts the vehicle there, as on PX4). Without
+    the idle, a vehicle whose autopilot believes it heavier than it is (a mass mismatch) would lift off in hold;
+    with it, an offboard flight starts, as ``quadsitl sim``'s, from rest with a previous command of zero (the
+    backstepping's Ωr)."""
     h, climb = altitude(st), climb_rate(st)
     io[EVENT] = commander.update(cm, tick, now, st[0], st[1], h, st[3], st[4], climb, st[8])
     armed = cm[ARMED] != 0.0
-    idle = (h < TOUCHDOWN_ALT and abs(climb) < TOUCHDOWN_CLIMB
+    idle = (cm[MODE] != OFFBOARD and h < TOUCHDOWN_ALT and abs(climb) < TOUCHDOWN_CLIMB
             and cm[REF_ALT] <= max(h, 0.0) + GROUND_IDLE_MARGIN)  # fmt: skip
     if armed and not idle:
         x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])
