@@ -26,9 +26,9 @@ from quadsitl import __version__
 from quadsitl.earth import PX4_HOME
 from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.state import Reference, VehicleState
+from quadsitl.wire import STATUSTEXT_LEN as STATUSTEXT_LEN  # STATUSTEXT: one place for all, quadsitl.wire
 from quadsitl.wire import Mode, mavlink
-
-STATUSTEXT_LEN = 50
+from quadsitl.wire import statustext as statustext
 
 
 @dataclass(frozen=True)
@@ -353,35 +353,3 @@ def ftp_refusal(request: bytes | list[int]) -> bytes:
     seq, session, opcode, *_ = _FTP_HEADER.unpack_from(bytes(request[: _FTP_HEADER.size]))
     head = _FTP_HEADER.pack((seq + 1) & 0xFFFF, session, FTP_NAK, 1, opcode, 0, 0, 0)
     return (head + bytes([FTP_ERR_UNKNOWN_COMMAND])).ljust(251, b"\0")
-
-
-_ASCII = str.maketrans(
-    {
-        "λ": "l",
-        "ε": "eps",
-        "²": "^2",
-        "−": "-",
-        "≥": ">=",
-        "≤": "<=",
-        "·": "*",
-        "…": "...",
-        "φ": "roll",
-        "θ": "pitch",
-        "ψ": "yaw",
-        "°": " deg",
-    }
-)
-
-
-def statustext(severity: int, text: str, chunk_id: int) -> list[mavlink.MAVLink_statustext_message]:
-    """``text`` as STATUSTEXT, in ASCII (Greek letters and math signs spelt out, anything else
-    replaced by "?"): one message when it fits in 50 bytes, else MAVLink 2 chunks sharing ``chunk_id``
-    (1..65535) with ``chunk_seq`` 0, 1, …; the first chunk shorter than 50 bytes (an empty one if
-    need be) ends the text, as the MAVLink spec has it."""
-    data = text.translate(_ASCII).encode("ascii", errors="replace")
-    if len(data) <= STATUSTEXT_LEN:
-        return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
-    chunks = [data[i : i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
-    if len(chunks[-1]) == STATUSTEXT_LEN:
-        chunks.append(b"")
-    return [mavlink.MAVLink_statustext_message(severity, ch, chunk_id, i) for i, ch in enumerate(chunks)]

@@ -38,6 +38,39 @@ GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 _NAN21 = [math.nan] + [0.0] * 20
 
 
+STATUSTEXT_LEN = 50
+_ASCII = str.maketrans(
+    {
+        "λ": "l",
+        "ε": "eps",
+        "²": "^2",
+        "−": "-",
+        "≥": ">=",
+        "≤": "<=",
+        "·": "*",
+        "…": "...",
+        "φ": "roll",
+        "θ": "pitch",
+        "ψ": "yaw",
+        "°": " deg",
+    }
+)
+
+
+def statustext(severity: int, text: str, chunk_id: int) -> list[mavlink.MAVLink_statustext_message]:
+    """``text`` as STATUSTEXT, in ASCII (Greek letters and math signs spelt out, anything else
+    replaced by "?"): one message when it fits in 50 bytes, else MAVLink 2 chunks sharing ``chunk_id``
+    (1..65535) with ``chunk_seq`` 0, 1, …; the first chunk shorter than 50 bytes (an empty one if
+    need be) ends the text, as the MAVLink spec has it."""
+    data = text.translate(_ASCII).encode("ascii", errors="replace")
+    if len(data) <= STATUSTEXT_LEN:
+        return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
+    chunks = [data[i : i + STATUSTEXT_LEN] for i in range(0, len(data), STATUSTEXT_LEN)]
+    if len(chunks[-1]) == STATUSTEXT_LEN:
+        chunks.append(b"")
+    return [mavlink.MAVLink_statustext_message(severity, ch, chunk_id, i) for i, ch in enumerate(chunks)]
+
+
 class Mode(IntEnum):
     """The autopilot's flight modes (the numbers in telemetry's status) and their PX4 custom-mode encoding
     (main << 16 | sub << 24, DESIGN.md §9)."""
