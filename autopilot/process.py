@@ -227,17 +227,25 @@ class Autopilot:
             self._parse_slowly(nbytes, sender)
 
     def _parse_slowly(self, nbytes: int, sender: tuple[str, int]) -> None:
-        """A plant datagram that is not exactly one unsigned ODOMETRY frame: pymavlink's to parse."""
+        """A plant datagram that is not exactly one unsigned ODOMETRY frame: pymavlink's to parse. ODOMETRY goes
+        to the compiled path alone; the plant's STATUSTEXT (all its chunks in one datagram: the plant's state
+        diverged and the plant stopped, :mod:`sitl.process`) goes on to the ground stations as one text."""
         try:
             msgs = self.mav.parse_buffer(bytes(self.rx[:nbytes])) or []
         except mavlink.MAVError:
             self.errors_plant += 1
             return
+        said = []
         for msg in msgs:
             if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ODOMETRY:  # re-framed alone, for the compiled path
                 frame = msg.pack(wire.link(msg.get_srcSystem(), msg.get_srcComponent()))
                 self.rx[: len(frame)] = frame
                 self.on_plant_datagram(len(frame), sender)
+            elif msg.get_msgId() == mavlink.MAVLINK_MSG_ID_STATUSTEXT:
+                said.append(msg)
+        if said:  # the plant speaks (its state diverged, sitl.process): relayed to the ground stations, whole
+            text = "".join(m.text for m in sorted(said, key=lambda m: m.chunk_seq))
+            self._say(min(m.severity for m in said), text)
 
     def latest(self) -> tuple[int, VehicleState, Reference] | None:
         """The last tick flown: (tick, state, the reference flown or held); None before the first."""

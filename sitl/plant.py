@@ -102,6 +102,8 @@ def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: n
 
 # Divergence: the bounds a state must stay within (``lim``, LIMITS_SIZE): |x|, |y|, |z| [m]; |vx|, |vy|, |vz|
 # [m/s]; |roll|, |pitch| [rad] (strictly below); |Euler-angle rates| [rad/s]; and the yaw within 1000 turns.
+# One check (:func:`inside`) for every runtime: the sweeps' batch engine (with a sweep's own ``[limits]``), the
+# plant process and ``quadsitl sim`` (with DEFAULT_LIMITS), on the state x(k) at the start of tick k.
 L_POSITION, L_SPEED, L_TILT, L_RATE = range(4)
 LIMITS_SIZE = 4
 LIMIT_NAMES = ("position", "speed", "tilt", "rate")
@@ -112,23 +114,34 @@ MAX_YAW = 1e3 * 2.0 * math.pi  # [rad]
 @jit(inline=True)
 def inside(s: State, lim: tuple | np.ndarray) -> bool:
     """The state is finite and within the bounds ``lim`` (every comparison with NaN is false): what the sweeps'
-    batch engine and the plant process check at the start of every tick; a state outside has diverged."""
+    batch engine, the plant process and ``quadsitl sim`` check at the start of every tick; a state outside has
+    diverged."""
     p, v, tilt, rate = lim[L_POSITION], lim[L_SPEED], lim[L_TILT], lim[L_RATE]
     return (abs(s[0]) <= p and abs(s[1]) <= p and abs(s[2]) <= p and abs(s[3]) <= v and abs(s[4]) <= v
             and abs(s[5]) <= v and abs(s[6]) < tilt and abs(s[7]) < tilt and abs(s[8]) <= MAX_YAW
             and abs(s[9]) <= rate and abs(s[10]) <= rate and abs(s[11]) <= rate)  # fmt: skip
 
 
+@jit
+def state_inside(x: np.ndarray) -> bool:
+    """:func:`inside` the default bounds, for a state array ``x`` (12, VehicleState order): the check of the
+    plant process's real-time loop and of ``quadsitl sim``, one compiled call per tick."""
+    return inside((x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11]), DEFAULT_LIMITS)
+
+
 def outside_what(x: Sequence[float], lim: Sequence[float] = DEFAULT_LIMITS) -> str:
-    """Which quantity of a state that is not :func:`inside` ``lim`` left its bound, in words (the first found)."""
+    """Which quantity of a state that is not :func:`inside` ``lim`` left its bound, in words, ASCII (it also goes
+    out in a STATUSTEXT): the quantity, its value, the bound and which one, e.g. ``|roll| = 1.59357 rad is not <
+    1.5708 (tilt bound)``; the first found."""
     names = ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "roll rate", "pitch rate", "yaw rate")
     units = ("m",) * 3 + ("m/s",) * 3 + ("rad",) * 3 + ("rad/s",) * 3
     bounds = (lim[L_POSITION],) * 3 + (lim[L_SPEED],) * 3 + (lim[L_TILT],) * 2 + (MAX_YAW,) + (lim[L_RATE],) * 3
-    for i, (name, unit, bound) in enumerate(zip(names, units, bounds)):
+    kinds = ("position",) * 3 + ("speed",) * 3 + ("tilt",) * 2 + ("yaw: 1000 turns",) + ("rate",) * 3
+    for i, (name, unit, bound, kind) in enumerate(zip(names, units, bounds, kinds)):
         value = float(x[i])
         strict = i in (6, 7)
         if not math.isfinite(value) or (abs(value) >= bound if strict else abs(value) > bound):
-            return f"|{name}| = {abs(value):.6g} {unit} is not {'<' if strict else '≤'} {bound:.6g}"
+            return f"|{name}| = {abs(value):.6g} {unit} is not {'<' if strict else '<='} {bound:.6g} ({kind} bound)"
     return "every quantity within its bound"
 
 

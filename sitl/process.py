@@ -10,6 +10,13 @@ One MAVLink 2 UDP link to the autopilot (see :mod:`quadsitl.wire`).
 - ``realtime``: integrates on the wall clock at period T and applies the latest actuator command it has.
 
 In both, actuator messages older than the last one used (by ``time_usec``) are discarded.
+
+Divergence: the state x(k) is checked at the start of every tick k, before it goes out (the autopilot's
+controller never sees it), with the check of the sweeps' batch engine and ``quadsitl sim``
+(:func:`sitl.plant.inside`, its default bounds). A state that is not finite or out of its bounds ends the run:
+it is not sent; the plant says one line on stderr naming the quantity, its value and the bound, tells the
+autopilot in a STATUSTEXT (severity CRITICAL, which the autopilot relays to its ground stations), and exits with
+status :data:`~quadsitl.process_util.PLANT_DIVERGED` (3).
 """
 
 from __future__ import annotations
@@ -43,7 +50,7 @@ from quadsitl.process_util import (
 from quadsitl.timing import period_stats
 from sitl import tick
 from sitl.impair import Impairment, add_impair_argument, impairment_from
-from sitl.plant import Plant, outside_what
+from sitl.plant import Plant, outside_what, state_inside
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
@@ -219,6 +226,13 @@ class PlantLink:
             self.rx[: len(datagram)] = datagram
             self.apply(plant, self.decode(len(datagram)))
 
+    def announce(self, severity: int, text: str) -> None:
+        """``text`` as STATUSTEXT to the autopilot, all its chunks in one datagram, at once (no impairment: the
+        plant is about to end); nobody listening is no error."""
+        frames = b"".join(wire.pack(m, self.mav) for m in wire.statustext(severity, text, 1))
+        with contextlib.suppress(OSError):
+            self.sock.send(frames)
+
     def close(self) -> None:
         self.sock.close()
 
@@ -235,13 +249,23 @@ def warm_up(plant: Plant) -> None:
                        twin.period, twin.substeps, twin.method, link, io, 0)  # fmt: skip
     wire.decode_actuators(link, n, twin.commanded, 1.0)
     twin.step()
+    state_inside(twin.x)
 
 
 class DivergedError(Exception):
-    """The plant's state left its bounds (:func:`sitl.plant.inside`): the run ends, that state not sent."""
+    """The plant's state at the start of tick ``tick`` left its bounds (:func:`sitl.plant.inside`): the run ends,
+    that state not sent. ``t`` is the plant's simulated time then [s], since the plant started."""
 
-    def __init__(self, t: float, x: np.ndarray) -> None:
-        super().__init__(f"diverged at t = {t:.3f} s: {outside_what(x)}")
+    def __init__(self, tick: int, period: float, x: np.ndarray) -> None:
+        self.tick, self.t, self.what = tick, tick * period, outside_what(x)
+        super().__init__(f"diverged at t = {self.t:.3f} s (tick {tick} of the plant's clock): {self.what}")
+
+
+def check_state(plant: Plant, k: int) -> None:
+    """The start of tick ``k``: raise :class:`DivergedError` when the state is not :func:`sitl.plant.inside` its
+    default bounds (one compiled call; lockstep checks the states after the first in its compiled tick)."""
+    if not state_inside(plant.x):
+        raise DivergedError(k, plant.period, plant.x)
 
 
 def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | None) -> int:
@@ -255,6 +279,7 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     rx, received, commanded, io, tx = link.rx_array, link.received, plant.commanded, link.io, link.tx
     args = (plant.x, plant.motors, plant.out, plant.v, plant.a, period, plant.substeps, plant.method, tx, io)
     max_thrust, monotonic, receive = link.max_thrust, time.monotonic, link.receive
+    check_state(plant, 0)  # the initial state; the others are checked as they are made (tick.DIVERGED)
     while max_ticks is None or k < max_ticks:
         want = wire.usec_of(k, period)
         link.send()
@@ -271,8 +296,8 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
                 r = tick.take_and_step(link.decode(nbytes), want, commanded, received, *args, k)
             if r == tick.STEPPED:
                 break
-            if r == tick.DIVERGED:
-                raise DivergedError(plant.time + period, plant.x)
+            if r == tick.DIVERGED:  # x(k + 1), encoded but not sent
+                raise DivergedError(k + 1, period, plant.x)
         if held:
             link.heard()
             if speed > 0:  # the pace resumes from here: no burst to catch up with time spent holding
@@ -299,6 +324,7 @@ def run_realtime(
     while max_ticks is None or k < max_ticks:
         if starts is not None:
             starts.append(time.monotonic())
+        check_state(plant, k)
         link.send_state(k, plant)
         next_time += period
         while True:
@@ -311,8 +337,6 @@ def run_realtime(
         ):
             plant.commanded[:] = 0.0
         plant.step()
-        if not tick.state_inside(plant.x):
-            raise DivergedError(plant.time, plant.x)
         k += 1
     return k
 
@@ -388,6 +412,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     except DivergedError as exc:  # one line, always: the run ends with a status of its own
         print(f"plant: {exc}; the run ends (exit status {PLANT_DIVERGED})", file=sys.stderr, flush=True)
+        link.announce(wire.mavlink.MAV_SEVERITY_CRITICAL, f"Simulation diverged at t = {exc.t:.3f} s: {exc.what}; "
+                      "the plant stopped")  # fmt: skip
         return PLANT_DIVERGED
     finally:
         link.close()

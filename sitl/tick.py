@@ -51,12 +51,6 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
 
 
 @jit
-def state_inside(x: np.ndarray) -> bool:
-    """:func:`sitl.plant.inside` the default bounds, for the state array ``x`` (the real-time loop's check)."""
-    return inside((x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11]), DEFAULT_LIMITS)
-
-
-@jit
 def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, received: np.ndarray,
                   commanded: np.ndarray, x: np.ndarray, motors: np.ndarray, out: np.ndarray, v: np.ndarray,
                   a: np.ndarray, period: float, substeps: int, method: int, tx: np.ndarray, io: np.ndarray,
