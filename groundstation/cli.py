@@ -27,7 +27,7 @@ from autopilot.gains import GainError, poles_from_rates
 from groundstation.launcher import add_dashboard_arguments
 from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
 from quadsitl.config import ConfigError, Preset, load_preset, preset_toml
-from quadsitl.process_util import handle_stop_signals, run_stoppable, stop_status
+from quadsitl.process_util import PLANT_DIVERGED, handle_stop_signals, run_stoppable, stop_status
 from sitl.cli import add_presets_arguments, run_presets
 from sitl.impair import add_impair_argument, impairment_from
 
@@ -63,6 +63,9 @@ def _from_sweep(args: argparse.Namespace) -> Preset:
         return trial_preset(load_sweep(Path(args.from_sweep)), args.trial)
     except ConfigError as exc:
         raise UsageError(f"--from-sweep {args.from_sweep} --trial {args.trial}: {exc}") from None
+
+
+SIM_DIVERGED = PLANT_DIVERGED  # `quadsitl sim`'s exit status when a run's state diverged, as fly's (docs/failures.md)
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
@@ -109,9 +112,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
             f"preset {preset.name}, integrator {integrator}, T = {preset.sim.period:g} s, "
             f"{len(next(iter(results.values())).t)} ticks"
         )
-        print(format_table(metrics))
+        print(format_table({k: m for k, m in metrics.items() if m is not None}))
         print("wrote " + ", ".join(str(f) for f in files))
-    return 0
+    diverged = {k: r for k, r in results.items() if r.diverged_at is not None}
+    for kind, r in diverged.items():  # said even with --quiet: the run did not fly its duration
+        print(f"quadsitl sim: the state diverged at t = {r.diverged_at:.3f} s ({kind}): {r.diverged_what}; "
+              f"{len(r.t)} ticks flown before it are in the telemetry and metrics.json", file=sys.stderr)  # fmt: skip
+    return SIM_DIVERGED if diverged else 0
 
 
 EXAMPLES_SWEEP = """examples:

@@ -1,7 +1,9 @@
 """``quadsitl sim``: the paper's experiment (or any preset) in one process, no network.
 
 Builds the plant (``sitl``) and the controllers (``autopilot``) from a preset, runs the closed loop,
-and writes telemetry CSV(s), ``metrics.json`` and the figures.
+and writes telemetry CSV(s), ``metrics.json`` and the figures. A run whose state diverges
+(:func:`sitl.simulate.simulate`) ends there: its CSV and metrics hold the ticks flown before it, and
+``metrics.json`` says when (``diverged``, ``diverged_at``), as ``quadsitl fly`` does.
 """
 
 from __future__ import annotations
@@ -59,7 +61,8 @@ def run_offline(
         done = None if progress is None else (lambda s, before=i * duration: progress(before + s))
         res = simulate(plant, controller, preset.reference, duration, alloc, progress=done)
         results[kind] = res
-        metrics[kind] = run_metrics(res.t, channel_outputs(res.state), res.reference, res.inputs)
+        flown = len(res.t) > 0  # a run that diverged at its first tick flew nothing: no metrics (None)
+        metrics[kind] = run_metrics(res.t, channel_outputs(res.state), res.reference, res.inputs) if flown else None
     return results, metrics
 
 
@@ -71,7 +74,11 @@ def write_outputs(
     settings: dict,
     figures: bool = True,
 ) -> list[Path]:
-    """telemetry.csv (first controller), telemetry_<other>.csv, metrics.json and fig2–fig4 PNGs."""
+    """telemetry.csv (first controller), telemetry_<other>.csv, metrics.json and fig2–fig4 PNGs.
+
+    metrics.json's ``diverged`` and ``diverged_at`` [s] (null when it did not) are those of the run in
+    telemetry.csv, as in ``quadsitl fly``'s; with more than one controller, ``diverged_at_by_controller`` has
+    each run's."""
     out.mkdir(parents=True, exist_ok=True)
     files = []
     for i, (kind, res) in enumerate(results.items()):
@@ -79,12 +86,17 @@ def write_outputs(
         write_csv(path, rows_from_arrays(res.t, res.state, res.body_rates(), res.reference, res.inputs, res.forces))
         files.append(path)
     mpath = out / "metrics.json"
-    mpath.write_text(json.dumps({"preset": preset.name, **settings, "runs": metrics}, indent=2) + "\n")
+    first = next(iter(results.values()))
+    diverged = {"diverged": first.diverged_at is not None, "diverged_at": first.diverged_at}
+    if len(results) > 1:
+        diverged["diverged_at_by_controller"] = {k: r.diverged_at for k, r in results.items()}
+    mpath.write_text(json.dumps({"preset": preset.name, **settings, **diverged, "runs": metrics}, indent=2) + "\n")
     files.append(mpath)
-    if figures:
-        runs = {
-            k: {"t": r.t, "outputs": channel_outputs(r.state), "reference": r.reference, "inputs": r.inputs}
-            for k, r in results.items()
-        }
+    runs = {
+        k: {"t": r.t, "outputs": channel_outputs(r.state), "reference": r.reference, "inputs": r.inputs}
+        for k, r in results.items()
+        if len(r.t)
+    }
+    if figures and runs:
         files += write_figures(runs, out, f"preset {preset.name}")
     return files

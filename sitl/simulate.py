@@ -3,6 +3,10 @@
 The controller is any object with ``step(state, reference) -> Inputs`` (u1..u4); ``allocate`` turns
 inputs into commanded motor forces (the autopilot's control allocation). The result holds one row per
 control tick k: the state x(k), the reference r(k) and the command u(k) computed from them.
+
+The state x(k) is checked at the start of every tick, before the controller sees it, with the check of the
+plant process and the sweeps' batch engine (:func:`sitl.plant.inside`, its default bounds): a state that is not
+finite or out of its bounds ends the run there, diverged at t = k·T, with the rows 0..k−1 flown.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import numpy as np
 
 from quadsitl.frames import euler_rates_to_body_rates
 from quadsitl.state import Inputs, Reference, VehicleState
-from sitl.plant import Plant
+from sitl.plant import Plant, outside_what, state_inside
 
 
 class Controller(Protocol):
@@ -35,6 +39,8 @@ class SimResult:
     reference: np.ndarray  # (N, 4) altitude, roll, pitch, yaw
     inputs: np.ndarray  # (N, 4) u1..u4 commanded
     forces: np.ndarray  # (N, 4) commanded motor forces [N]
+    diverged_at: float | None = None  # [s]: the time of the tick whose state left the bounds (None: it did not)
+    diverged_what: str = ""  # what left its bound (sitl.plant.outside_what)
 
     def body_rates(self) -> np.ndarray:
         """(N, 3) body rates p, q, r [rad/s] from the Euler-angle rates, paper eq (1)."""
@@ -51,7 +57,8 @@ def simulate(
     omega_r_from: Callable[[], float] | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimResult:
-    """Run the loop for ``duration`` seconds of simulated time (round(duration / T) ticks).
+    """Run the loop for ``duration`` seconds of simulated time (round(duration / T) ticks), or until the state
+    diverges (then the result has the ticks flown before it, and ``diverged_at``).
 
     ``omega_r_from``, when given, supplies the Ωr the plant uses each tick (for example the one the
     controller assumed), instead of the one the applied motor forces make.
@@ -70,6 +77,10 @@ def simulate(
     for k in range(n):
         if progress is not None and k % PROGRESS_TICKS == 0:
             progress(k * period)
+        if not state_inside(plant.x):
+            if progress is not None:
+                progress(n * period)
+            return SimResult(t[:k], states[:k], refs[:k], inputs[:k], forces[:k], k * period, outside_what(plant.x))
         state = plant.state
         ref = ref_of(k * period)
         u = controller.step(state, ref)
