@@ -11,6 +11,10 @@ end it if the launcher itself dies. Both signals are handled also when the launc
 ignored, as a script's background job is (``quadsitl.process_util.handle_stop_signals``, installed by
 ``groundstation.cli.main``). A stop ends ``up``, and ``fly`` once its flight is done, with status 0; a flight
 stopped before its end exits 130 (SIGINT) or 143 (SIGTERM), its logs saved up to the interruption.
+
+A plant whose state diverged (it exits with ``PLANT_DIVERGED``, having said why on stderr and told the autopilot,
+which relays it to the ground stations in a STATUSTEXT) ends ``fly`` with what was flown and ``up`` at once, both
+with status 3 (:data:`FLY_DIVERGED`, :data:`UP_DIVERGED`; docs/failures.md).
 """
 
 from __future__ import annotations
@@ -137,7 +141,7 @@ def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout:
 
 def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
     """Plant and autopilot of each vehicle of ``fleet`` (:func:`groundstation.fleet.plan_fleet`) until Ctrl-C or
-    SIGTERM (exit 0), or until one of them fails (exit 1)."""
+    SIGTERM (exit 0), until a plant's state diverges (exit UP_DIVERGED), or until one of them fails (exit 1)."""
     children = Children(env=signing_env(args.signing_key))
     if args.dashboard and args.no_zenoh:
         raise UsageError("--dashboard needs the Zenoh telemetry: drop --no-zenoh")
@@ -172,6 +176,11 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
             print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
         while True:
             failure = children.first_failure(done="", prog="quadsitl up")
+            if failure and failure[0].startswith("plant") and failure[1] == PLANT_DIVERGED:
+                time.sleep(0.2)  # the autopilot relays the plant's STATUSTEXT to the ground stations as it comes
+                print(f"quadsitl up: the {failure[0]}'s state diverged (above; the ground stations were told in a "
+                      f"STATUSTEXT); stopping the others (exit status {UP_DIVERGED})", file=sys.stderr)  # fmt: skip
+                return UP_DIVERGED
             if failure:
                 print(f"quadsitl up: error: {describe(*failure)}; stopping the others", file=sys.stderr)
                 return 1
@@ -335,6 +344,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
 
 
 FLY_DIVERGED = PLANT_DIVERGED  # `quadsitl fly`'s exit status when the plant's state diverged (docs/failures.md)
+UP_DIVERGED = PLANT_DIVERGED  # `quadsitl up`'s, when a plant's did
 
 
 def end_diverged(children: Children, out: Path, preset: Preset, args) -> int:
@@ -346,7 +356,8 @@ def end_diverged(children: Children, out: Path, preset: Preset, args) -> int:
     for name in ("gcs", "autopilot"):
         children.stop_one(name)
     if not (out / "telemetry.csv").is_file() or len((out / "telemetry.csv").read_text().splitlines()) < 2:
-        print("quadsitl fly: error: the plant diverged before the flight began; nothing was flown", file=sys.stderr)
+        print("quadsitl fly: the plant's state diverged before the flight began; nothing was flown (exit status "
+              f"{FLY_DIVERGED})", file=sys.stderr)  # fmt: skip
         return FLY_DIVERGED
     write_report(out, preset, args, diverged=True)
     return FLY_DIVERGED
@@ -386,9 +397,12 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     metrics = {kind: run_metrics(t, y, ref, u)}
     settings = {"mode": "lockstep", "speed": args.speed, "duration": float(len(t) * preset.sim.period),
                 "period": preset.sim.period, "trajectory": args.trajectory}  # fmt: skip
-    # diverged_at [s]: the first tick not flown (the plant's state at its start was outside the bounds).
+    # diverged_at [s]: the first tick not flown (the plant's state at its start was outside the bounds), the one
+    # after the last flown: a tick lost on the way to the logger in between does not move it.
+    period = preset.sim.period
+    flown = round(float(t[-1]) / period) + 1 if diverged else 0
     report = {"preset": preset.name, **settings, "diverged": diverged,
-              "diverged_at": round(len(t) * preset.sim.period, 9) if diverged else None, "runs": metrics}  # fmt: skip
+              "diverged_at": round(flown * period, 9) if diverged else None, "runs": metrics}  # fmt: skip
     mission = getattr(args, "mission", None)
     trajectory = None if mission else trajectories.make(args.trajectory, preset.reference)
     position = None
@@ -408,9 +422,11 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
             planned = np.array([trajectory(float(tk))[:2] for tk in t]).reshape(-1, 2).T
             write_path_figure(out, data["x"], data["y"], data["x_ref"], data["y_ref"],
                               f"{title}, {args.trajectory}", planned=(planned[0], planned[1]))  # fmt: skip
-    if diverged:
-        print(f"quadsitl fly: the plant's state diverged at t = {report['diverged_at']:.3f} s; wrote {out}/"
-              "telemetry.csv, flight.tlog and metrics.json with what was flown", file=sys.stderr)  # fmt: skip
+    if diverged:  # said even with --quiet: the flight did not fly its duration
+        missing = f" ({flown - len(t)} of them missing from the telemetry)" if len(t) < flown else ""
+        print(f"quadsitl fly: the plant's state diverged at t = {report['diverged_at']:.3f} s of the flight "
+              f"(telemetry.csv's clock; the plant's counts from its start): {flown} ticks flown{missing}, in {out}/"
+              f"telemetry.csv, flight.tlog and metrics.json (exit status {FLY_DIVERGED})", file=sys.stderr)  # fmt: skip
     if not args.quiet:
         print(format_table(metrics) if position is None else format_position_table(position))
         if mission:
