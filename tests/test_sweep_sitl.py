@@ -2,7 +2,6 @@
 processes, MAVLink over UDP, Zenoh telemetry), the same table as the batch engine's to the wire's float32
 rounding, trial by trial."""
 
-import dataclasses
 import math
 import textwrap
 
@@ -88,34 +87,6 @@ def test_a_trial_that_diverges_ends_as_diverged_with_its_time_in_both_engines(cl
     assert [row["diverged"] for row in batch] == [row["diverged"] for row in sitl] == [0, 1]
     assert math.isnan(sitl[0]["diverged_at"]) and sitl[0]["ticks"] == 500
     assert 0.0 < batch[1]["diverged_at"] < 0.1
-    assert abs(sitl[1]["diverged_at"] - batch[1]["diverged_at"]) <= 0.002 + 1e-12  # float32 on the wire
+    assert sitl[1]["diverged_at"] == batch[1]["diverged_at"]  # the same tick (tests/test_diverge.py)
     assert sitl[1]["ticks"] == round(sitl[1]["diverged_at"] / 0.001)
     assert math.isnan(sitl[1]["roll_settling_time"])
-
-
-def test_fly_ends_promptly_when_the_plant_diverges_and_keeps_what_was_flown(tmp_path):
-    import json
-    import subprocess
-    import sys
-    import time
-
-    from quadsitl.config import load_preset, preset_toml
-
-    p = load_preset("paper")
-    pd = dataclasses.replace(p.controller, type="pd", pd_kp=(100.0, 4.5e6, 100.0, 100.0))  # roll: ω·T above 2
-    unstable = dataclasses.replace(p, controller=pd)
-    (tmp_path / "unstable.toml").write_text(preset_toml(unstable))
-    out = tmp_path / "fly"
-    started = time.monotonic()
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "fly", "--preset", str(tmp_path / "unstable.toml"),
-                        "--duration", "5", "--out", str(out), "--no-figures", "-q"], capture_output=True, text=True,
-                       timeout=120)  # fmt: skip
-    took = time.monotonic() - started
-    assert r.returncode == 3, r.stderr  # docs/failures.md
-    assert "plant: diverged at t = " in r.stderr and "|roll| = " in r.stderr and "is not < 1.5708" in r.stderr
-    metrics = json.loads((out / "metrics.json").read_text())
-    rows = read_csv(out / "telemetry.csv")
-    assert metrics["diverged"] is True and metrics["diverged_at"] == pytest.approx(len(rows["t"]) * 0.001)
-    assert 0.0 < metrics["diverged_at"] < 0.1 and f"diverged at t = {metrics['diverged_at']:.3f} s" in r.stderr
-    assert np.abs(rows["roll"]).max() < math.pi / 2 and (out / "flight.tlog").stat().st_size > 0
-    assert took < 30, took  # no stall: a diverged plant ends the run
