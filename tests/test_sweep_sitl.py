@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from groundstation.telemetry_csv import read_csv
+from tests.test_diverge import DIVERGING  # one trial stable, one whose roll PD is unstable
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -59,21 +60,12 @@ def test_the_sitl_engine_flies_each_trial_through_the_whole_sitl_and_agrees_with
     # the kept trial: the flight's own telemetry, within float32 of the batch engine's trajectory
     flown = read_csv(tmp_path / "sitl" / "trajectories" / "trial_2.csv")
     r = cli("sweep", str(spec), "--out", str(tmp_path / "kept"), "--workers", "1", "-q", "--no-figures")
+    assert r.returncode == 0, r.stderr
     batch_kept = read_csv(tmp_path / "kept" / "trajectories" / "trial_2.csv")
     assert len(flown["t"]) == len(batch_kept["t"]) == 1000
     for column in ("altitude", "roll", "pitch", "yaw"):
         assert np.abs(flown[column] - batch_kept[column]).max() < 1e-3, column
     assert flown["altitude"][0] == 0.0 and flown["u1"][0] == pytest.approx(batch_kept["u1"][0], rel=1e-6)
-
-
-DIVERGING = """
-    description = "roll's PD made unstable in one trial of two (ω·T above 2)"
-    preset = "paper"
-    controller = "pd"
-    duration = 0.5
-    [vary]
-    gains.kp2 = { dist = "grid", values = [100.0, 4.5e6] }
-"""
 
 
 def test_a_trial_that_diverges_ends_as_diverged_with_its_time_in_both_engines(cli, tmp_path):
