@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import TypeVar
 
 import numba
+import numpy as np
 
 F = TypeVar("F", bound=Callable)
 
@@ -77,3 +78,21 @@ def jit(fn: F | None = None, *, inline: bool = False) -> F | Callable[[F], F]:
         return numba.njit(cache=True, error_model="numpy", inline="always" if inline else "never")(f)  # type: ignore[return-value]
 
     return compile_ if fn is None else compile_(fn)
+
+
+if DISABLED:
+
+    def constants(values: np.ndarray, size: int) -> tuple:
+        """The first ``size`` entries of a parameter array as a tuple (see the compiled version's docstring)."""
+        return tuple(values[:size])
+
+else:
+    from numba.np.unsafe.ndarray import to_fixed_tuple
+
+    @numba.njit(inline="always")
+    def constants(values: np.ndarray, size: int) -> tuple:
+        """The first ``size`` entries (a constant) of a parameter array as a tuple, for a compiled loop that reads
+        them on every pass (the sweeps' batch engine): the equations index a tuple as they index the array, and
+        the compiler then knows no store in the loop can change them, so it computes what depends on them alone
+        (1/Ix, l/Ix, ...) once before the loop instead of on every tick. The results are the same to the bit."""
+        return to_fixed_tuple(values, size)

@@ -42,10 +42,11 @@ import numpy as np
 
 from autopilot.backstepping import backstepping
 from autopilot.control_params import BACKSTEPPING, THRUST_MAX, THRUST_MIN
+from autopilot.control_params import SIZE as CONTROL_SIZE
 from autopilot.pd import pd
-from quadsitl.jit import jit
+from quadsitl.jit import constants, jit
 from quadsitl.mixer import allocate
-from quadsitl.param_arrays import D_OVER_B, F_MAX, F_MIN
+from quadsitl.param_arrays import ACTUATOR_SIZE, D_OVER_B, F_MAX, F_MIN, VEHICLE_SIZE
 from sitl.plant import DEFAULT_LIMITS as DEFAULT_LIMITS  # divergence bounds: the plant process's (sitl.plant.inside)
 from sitl.plant import LIMITS_SIZE as LIMITS_SIZE
 from sitl.plant import inside, step
@@ -110,6 +111,10 @@ def run_trial(
     the yaw reference's branch; ``lim`` the divergence bounds. With ``kept``, tick k's row goes to keep[k]
     (KEEP_SIZE columns)."""
     s = (x0[0], x0[1], x0[2], x0[3], x0[4], x0[5], x0[6], x0[7], x0[8], x0[9], x0[10], x0[11])
+    # The trial's parameters as tuples: what depends on them alone is computed once, not on every tick.
+    v, a, vm, c = (constants(v, VEHICLE_SIZE), constants(a, ACTUATOR_SIZE), constants(vm, VEHICLE_SIZE),
+                   constants(c, CONTROL_SIZE))  # fmt: skip
+    lim = constants(lim, LIMITS_SIZE)
     ref = (r[0], r[1], r[2], r[3])
     motors = (0.0, 0.0, 0.0, 0.0)
     last = (0.0, 0.0, 0.0, 0.0)  # the previous command: the backstepping's Ωr is the one it makes
