@@ -66,6 +66,42 @@ def test_a_trial_with_nothing_varied_is_quadsitl_sims_flight(controller):
     assert res.metrics[0, engine.M_DIVERGED] == 0.0 and res.metrics[0, engine.M_TICKS] == 5000
 
 
+def test_the_paper_configurations_own_compiled_version_flies_as_the_general_one_to_the_bit(monkeypatch):
+    """run_chunk flies the backstepping with one plant step per tick on a version compiled for it (run_trial_paper);
+    the general version (run_trial, the controller and step count at run time) flies the same trials to the bit:
+    metrics and kept trajectories, with the model mismatched and a trial that diverges."""
+    spec = spec_of("""
+        preset = "paper"
+        trials = 6
+        keep = [0, 5]
+        [vary]
+        mismatch.mass = { dist = "uniform", low = 0.8, high = 1.2 }
+        mismatch.inertia = { dist = "choice", values = [0.9, 1.1, 0.02] }
+    """)
+    calls = []
+    monkeypatch.setattr(engine, "_chunk_paper", _counting(engine._chunk_paper, calls))
+    paper = fly(spec, range(6))
+    assert calls, "the paper's configuration did not run its own version"
+
+    def general_only(x0, v, a, vm, c, r, kind, ticks, period, substeps, method, *rest):
+        engine._chunk(x0, v, a, vm, c, r, kind, ticks, period, substeps, method, *rest)
+
+    monkeypatch.setattr(engine, "run_chunk", general_only)
+    general = fly(spec, range(6))
+    assert np.array_equal(paper.metrics, general.metrics, equal_nan=True)
+    assert np.nansum(paper.metrics[:, engine.M_DIVERGED]) >= 1  # a 2 % inertia model: the loop breaks
+    for trial in (0, 5):
+        assert np.array_equal(paper.kept[trial], general.kept[trial])
+
+
+def _counting(fn, calls: list):
+    def counted(*args):
+        calls.append(1)
+        return fn(*args)
+
+    return counted
+
+
 def test_on_the_fly_metrics_equal_the_post_processed_ones_with_overshoot_yaw_across_pi_and_saturation():
     """Hover at yaw −3.0 from yaw 3.0 (the short way crosses ±π: numpy.unwrap's branch, flown a second time on it),
     a slow PD (overshoot), realistic motors (saturation)."""

@@ -51,10 +51,11 @@ def parse_address(option: str, text: str) -> str:
     return f"tcp://{m.group(1)}:{int(m.group(2))}"
 
 
-def prepare() -> dict[str, str]:
-    """Run on every worker before the sweep: compile the batch engine there (or load it from numba's cache), so
-    that compiling is not counted as flying, and say which versions of what the results depend on it has."""
-    warm_up()
+def prepare(spec: SweepSpec | None = None) -> dict[str, str]:
+    """Run on every worker before the sweep: compile the batch engine there (or load it from numba's cache), the
+    version ``spec`` flies, so that compiling is not counted as flying, and say which versions of what the results
+    depend on it has."""
+    warm_up(spec)
     return versions()
 
 
@@ -104,7 +105,7 @@ def run_on_cluster(
                 f"{CONNECT_TIMEOUT:g} s); start some with `dask worker {address}`"
             ) from None
         try:
-            workers = _prepare_workers(client, address, option, warn)
+            workers = _prepare_workers(client, spec, address, option, warn)
             parts = chunks(spec.trials, max(1, sum(workers.values())), chunk)
             start = time.monotonic()  # the flights only: every worker has the engine compiled
             results = _fly_chunks(client, spec, parts, address, option, progress)
@@ -186,12 +187,12 @@ def _probe(address: str, option: str) -> None:
         )
 
 
-def _prepare_workers(client, address: str, option: str, warn: Callable[[str], None]) -> dict[str, int]:
+def _prepare_workers(client, spec: SweepSpec, address: str, option: str, warn: Callable[[str], None]) -> dict[str, int]:
     """Compile the engine on every worker (:func:`prepare`), warn in one line about versions that differ from
     this machine's and a scheduler that allows no lost worker; the workers' threads {address: nthreads}. A
     :class:`ClusterError` when a worker cannot (quadsitl not installed there, or another version)."""
     mine = versions()
-    for worker, theirs in sorted(client.run(prepare, on_error="return").items()):
+    for worker, theirs in sorted(client.run(prepare, spec, on_error="return").items()):
         if isinstance(theirs, BaseException):  # quadsitl missing there, or another version without this module
             raise ClusterError(
                 f"{option} {address}: worker {worker} could not load quadsitl's batch engine "

@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot.control_params import BACKSTEPPING, KINDS, PD
 from groundstation.sweep import engine
 from groundstation.sweep.spec import SweepSpec, draw, trial_arrays
-from sitl.integrators import INTEGRATORS
+from sitl.integrators import EULER, INTEGRATORS
 
 FLOWN_METRICS = engine.METRICS[: engine.M_TICKS + 1]
 """The metrics columns of the table (:data:`groundstation.sweep.engine.METRICS` less the engine's bookkeeping)."""
@@ -74,7 +75,7 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
     sub = [np.ascontiguousarray(x[go]) for x in (arrays.x0, arrays.v, arrays.a, arrays.vm, arrays.c, arrays.r)]
     turns = np.zeros(len(go))
     out = np.empty((len(go), engine.METRICS_SIZE))
-    kind = 0 if spec.controller == "backstepping" else 1
+    kind = KINDS[spec.controller]
     ticks, T, substeps = spec.ticks, spec.period, spec.preset.sim.substeps
     engine.run_chunk(*sub, kind, ticks, T, substeps, _method(spec), turns, limits, out, slots, keep)
     # The rare trial that ended with its yaw on another branch than it flew on: again, on its own (module doc).
@@ -92,7 +93,8 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
 
 def warm_up(spec: SweepSpec | None = None) -> None:
     """Compile the batch engine (or load it from numba's cache) on made-up data, before workers start: they then
-    load it instead of compiling it each; for the SITL engine, the processes' equations."""
+    load it instead of compiling it each; the version ``spec`` flies (:func:`groundstation.sweep.engine.run_chunk`),
+    or every version. For the SITL engine, the processes' equations."""
     if spec is not None and spec.engine == "sitl":
         from groundstation.launcher import compile_once
 
@@ -101,11 +103,14 @@ def warm_up(spec: SweepSpec | None = None) -> None:
     from autopilot.control_params import SIZE
     from quadsitl.param_arrays import ACTUATOR_SIZE, VEHICLE_SIZE
 
+    every = [(BACKSTEPPING, 1, EULER), (PD, 1, EULER)]  # the paper's version and the general one
+    versions = every if spec is None else [(KINDS[spec.controller], spec.preset.sim.substeps, _method(spec))]
     one = np.ones((1, 12))
-    engine.run_chunk(one, np.ones((1, VEHICLE_SIZE)), np.ones((1, ACTUATOR_SIZE)), np.ones((1, VEHICLE_SIZE)),
-                     np.full((1, SIZE), 0.5), np.zeros((1, 4)), 0, 1, 0.001, 1, 0, np.zeros(1),
-                     np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
-                     np.zeros((1, 1, engine.KEEP_SIZE)))  # fmt: skip
+    for kind, substeps, method in versions:
+        engine.run_chunk(one, np.ones((1, VEHICLE_SIZE)), np.ones((1, ACTUATOR_SIZE)), np.ones((1, VEHICLE_SIZE)),
+                         np.full((1, SIZE), 0.5), np.zeros((1, 4)), kind, 1, 0.001, substeps, method, np.zeros(1),
+                         np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
+                         np.zeros((1, 1, engine.KEEP_SIZE)))  # fmt: skip
 
 
 def chunks(trials: int, workers: int, chunk: int | None = None) -> list[np.ndarray]:
@@ -159,7 +164,7 @@ def run_sweep(
                 progress(done)
     else:
         with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"), initializer=warm_up,
-                                 initargs=(None if spec.engine == "batch" else spec,)) as pool:  # fmt: skip
+                                 initargs=(spec,)) as pool:  # fmt: skip
             for ready in [pool.submit(time.sleep, 0.2) for _ in range(processes)]:  # one each: all started, warm
                 ready.result()
             start = time.monotonic()
