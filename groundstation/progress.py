@@ -14,8 +14,10 @@ call from a loop running at any rate: it reads the clock and returns unless ``re
 from __future__ import annotations
 
 import sys
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import TextIO
 
 
@@ -161,3 +163,29 @@ class FlightProgress:
             left = self.eta(now)
             eta = "ETA ?" if left is None else f"ETA {format_eta(left)}"
         self._bar.update(self._task, completed=self.done_s, rtf=f"{rtf:.1f}× real time" if rtf else "", eta=eta)
+
+
+@contextmanager
+def announce_if_slow(
+    line: str, enabled: bool = True, after: float = 1.0, stream: TextIO | None = None
+) -> Iterator[None]:
+    """Print ``line`` (with " ...") on ``stream`` (stderr) if the block is still running ``after`` wall seconds on,
+    and how long it took when it ends: for a wait that is long once (compiling) and short afterwards."""
+    out = stream or sys.stderr
+    start = time.monotonic()
+    said = threading.Event()
+
+    def say() -> None:
+        said.set()
+        print(f"{line} ...", file=out, flush=True)
+
+    timer = threading.Timer(after, say)
+    timer.daemon = True
+    if enabled:
+        timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        if said.is_set():
+            print(f"{line}: done in {time.monotonic() - start:.1f} s", file=out, flush=True)

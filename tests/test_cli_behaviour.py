@@ -7,12 +7,13 @@ import re
 import socket
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 
 from groundstation.offline import run_offline
-from groundstation.progress import FlightProgress, format_eta
+from groundstation.progress import FlightProgress, announce_if_slow, format_eta
 from quadsitl.config import load_preset
 
 COMMANDS = ["sim", "fly", "up", "presets", "gains", "sweep", "plant", "autopilot", "gcs", "bench"]
@@ -201,3 +202,17 @@ def test_sim_progress_observes_without_changing_the_results():
             assert np.array_equal(getattr(with_progress[kind], name), getattr(without[kind], name)), (kind, name)
     # Cumulative over both runs: every 500 ticks (0.5 s at T = 1 ms) and at the end of each run.
     assert seen == pytest.approx([0.0, 0.5, 1.0, 1.2, 1.2, 1.7, 2.2, 2.4])
+
+
+def test_a_slow_wait_is_announced_once_with_its_time_and_a_quick_one_not_at_all():
+    buf = io.StringIO()
+    with announce_if_slow("x: compiling", after=0.05, stream=buf):
+        time.sleep(0.3)
+    lines = buf.getvalue().splitlines()
+    assert lines[0] == "x: compiling ..." and re.fullmatch(r"x: compiling: done in 0\.[3-9] s", lines[1]), lines
+    for enabled, wait in ((True, 0.0), (False, 0.3)):
+        quiet = io.StringIO()
+        with announce_if_slow("x: compiling", enabled=enabled, after=0.05, stream=quiet):
+            time.sleep(wait)
+        time.sleep(0.1)  # a timer that was not cancelled would have fired by now
+        assert quiet.getvalue() == ""
