@@ -129,9 +129,12 @@ def test_fly_circle_tracks_the_position_reference(circle_flight):
     assert np.abs(np.hypot(x_ref, y_ref - 4.0) - 4.0).max() < 1e-4
     lag = np.hypot(x_ref - want[finite, 0], y_ref - want[finite, 1])
     assert np.percentile(lag, 95) < 0.5, np.percentile(lag, 95)
-    # The vehicle goes round: as far as the circle's far side (2R east), and back home.
+    # The vehicle goes round: as far as the circle's far side (2R east), and back home. The lap ends at home at
+    # full speed: the last reference is behind home by the ground station's lag (which varies from run to run),
+    # the vehicle behind that reference by its tracking error (0.16 and 0.28 m in one run).
     assert data["y"].max() > 2 * 4.0 - 0.5 and data["x"].max() > 4.0 - 0.5 and data["x"].min() < -4.0 + 0.5
-    assert math.hypot(data["x"][-1], data["y"][-1]) < 0.5
+    assert math.hypot(x_ref[-1], y_ref[-1]) < 0.5
+    assert math.hypot(data["x"][-1] - x_ref[-1], data["y"][-1] - y_ref[-1]) < 0.5
     m = json.loads((out / "metrics.json").read_text())["position"]["backstepping"]
     assert m["samples"] == int(finite.sum())
     assert m["horizontal_rms"] < 0.4 and m["horizontal_max"] < 1.0, m  # 0.23 and 0.46 m when written
