@@ -7,7 +7,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -19,15 +18,14 @@ from tests.mavclient import Client
 
 
 class Lines:
-    """A process's stderr, read as it comes."""
+    """A process's stderr (written to a file), read as it comes."""
 
     def __init__(self, proc: subprocess.Popen) -> None:
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, args=(proc,), daemon=True).start()
+        self.path: Path = proc.stderr_path  # type: ignore[attr-defined]
 
-    def _read(self, proc: subprocess.Popen) -> None:
-        for line in proc.stderr:
-            self.lines.append(line)
+    @property
+    def lines(self) -> list[str]:
+        return self.path.read_text().splitlines()
 
     def wait_for(self, text: str, timeout: float = 10.0) -> str:
         end = time.monotonic() + timeout
@@ -40,31 +38,32 @@ class Lines:
 
 
 @pytest.fixture
-def system():
+def system(tmp_path):
     ports = {k: free_port() for k in ("plant", "api")}
     procs: list[subprocess.Popen] = []
 
-    def autopilot(*extra: str) -> subprocess.Popen:
-        zenoh = list(extra) or ["--no-zenoh"]
-        p = subprocess.Popen([sys.executable, "-m", "autopilot", "--plant-listen", f"127.0.0.1:{ports['plant']}",
-                              "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--api-listen",
-                              f"127.0.0.1:{ports['api']}", "--api-remote", "none", *zenoh],
-                             stderr=subprocess.PIPE, text=True)  # fmt: skip
+    def start(name: str, argv: list[str]) -> subprocess.Popen:
+        # stderr to a file: nothing blocks on a full pipe, and a failing test shows what each process said
+        path = tmp_path / f"{name}{len(procs)}.stderr"
+        with path.open("w") as err:
+            p = subprocess.Popen(argv, stderr=err, text=True)
+        p.stderr_path = path  # type: ignore[attr-defined]
         procs.append(p)
         return p
 
+    def autopilot(*extra: str) -> subprocess.Popen:
+        zenoh = list(extra) or ["--no-zenoh"]
+        return start("autopilot", [sys.executable, "-m", "autopilot", "--plant-listen", f"127.0.0.1:{ports['plant']}",
+                                   "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--api-listen",
+                                   f"127.0.0.1:{ports['api']}", "--api-remote", "none", *zenoh])  # fmt: skip
+
     def plant(*extra: str) -> subprocess.Popen:
-        p = subprocess.Popen([sys.executable, "-m", "sitl", "--autopilot", f"127.0.0.1:{ports['plant']}", *extra],
-                             stderr=subprocess.PIPE, text=True)  # fmt: skip
-        procs.append(p)
-        return p
+        return start("plant", [sys.executable, "-m", "sitl", "--autopilot", f"127.0.0.1:{ports['plant']}", *extra])
 
     c = Client.to(ports["api"])
 
     def gcs(*args: str) -> subprocess.Popen:
-        p = subprocess.Popen([sys.executable, "-m", "groundstation", "--connect", f"127.0.0.1:{ports['api']}", *args])
-        procs.append(p)
-        return p
+        return start("gcs", [sys.executable, "-m", "groundstation", "--connect", f"127.0.0.1:{ports['api']}", *args])
 
     autopilot.gcs = gcs  # type: ignore[attr-defined]
     try:
@@ -75,6 +74,8 @@ def system():
             if p.poll() is None:
                 p.kill()
             p.wait()
+            said = p.stderr_path.read_text()[-2000:]  # type: ignore[attr-defined]
+            print(f"--- {p.stderr_path.name} (exit {p.returncode}, ports {ports}):\n{said}")  # type: ignore[attr-defined]
 
 
 def test_plant_killed_autopilot_fails_safe_and_takes_a_new_plant(system):
