@@ -111,6 +111,9 @@ def test_fly_sends_a_position_trajectory_as_offboard_position_setpoints(circle_f
     assert (out / "fig_xy_path.png").stat().st_size > 10_000
 
 
+LAG_M = 1.0  # the ground station's lag behind the plan, bounded (see below)
+
+
 def test_fly_circle_tracks_the_position_reference(circle_flight):
     """The autopilot's side (needs its position control, and x_ref, y_ref in the setpoint record): x_ref, y_ref
     are the circle, and the vehicle flies it. Thresholds: PX4-like position control at 1.57 m/s on a 4 m
@@ -127,13 +130,17 @@ def test_fly_circle_tracks_the_position_reference(circle_flight):
     assert finite.mean() > 0.95, f"x_ref finite in {finite.mean():.1%} of the ticks"
     x_ref, y_ref = data["x_ref"][finite], data["y_ref"][finite]
     assert np.abs(np.hypot(x_ref, y_ref - 4.0) - 4.0).max() < 1e-4
+    # How far behind depends on the machine's load, not on quadsitl: lockstep runs at several times real time, so
+    # a ground station scheduled 50 ms late (wall) falls 0.3 s of flight behind (0.16-0.67 m seen on 2-core
+    # machines). The bound, 1 m (0.64 s of flight at 1.57 m/s), catches a ground station that sends a stale or
+    # wrong plan, not a busy machine.
     lag = np.hypot(x_ref - want[finite, 0], y_ref - want[finite, 1])
-    assert np.percentile(lag, 95) < 0.5, np.percentile(lag, 95)
+    assert np.percentile(lag, 95) < LAG_M, np.percentile(lag, 95)
     # The vehicle goes round: as far as the circle's far side (2R east), and back home. The lap ends at home at
     # full speed: the last reference is behind home by the ground station's lag (which varies from run to run),
     # the vehicle behind that reference by its tracking error (0.16 and 0.28 m in one run).
     assert data["y"].max() > 2 * 4.0 - 0.5 and data["x"].max() > 4.0 - 0.5 and data["x"].min() < -4.0 + 0.5
-    assert math.hypot(x_ref[-1], y_ref[-1]) < 0.5
+    assert math.hypot(x_ref[-1], y_ref[-1]) < LAG_M
     assert math.hypot(data["x"][-1] - x_ref[-1], data["y"][-1] - y_ref[-1]) < 0.5
     m = json.loads((out / "metrics.json").read_text())["position"]["backstepping"]
     assert m["samples"] == int(finite.sum())
