@@ -83,13 +83,26 @@ class GcsLink:
     def __init__(self, name: str, sock: socket.socket, remote: tuple[str, int] | None, streams: MessageStreams):
         self.name, self.sock, self.remote, self.streams = name, sock, remote, streams
         self.peers: dict[tuple[str, int], float] = {}  # address → wall time last heard
+        self.send_errors = 0  # datagrams the OS refused to send (a peer gone, a remote this socket cannot reach)
+        self._told: set[tuple[tuple[str, int], int | None]] = set()  # (destination, errno) already reported
 
     def send(self, buf: bytes) -> None:
+        """``buf`` to every destination. A send the OS refuses drops a learned peer (it is heard again if it
+        comes back) and is counted; each destination's first failure of a kind is one line on stderr, so a
+        remote this link cannot reach (a loopback-bound socket and another host's address: EINVAL) is never
+        silent, and a flight controller never stops for it."""
         for peer in self.destinations():
             try:
                 self.sock.sendto(buf, peer)
-            except OSError:
+            except OSError as exc:
                 self.peers.pop(peer, None)
+                self.send_errors += 1
+                if (peer, exc.errno) not in self._told:
+                    self._told.add((peer, exc.errno))
+                    host, port = self.sock.getsockname()[:2]
+                    why = exc.strerror or exc
+                    print(f"autopilot: {self.name} link: cannot send to {peer[0]}:{peer[1]} from {host}:{port}: {why} "
+                          "(said once for this destination and error)", file=sys.stderr)  # fmt: skip
 
     def destinations(self) -> list[tuple[str, int]]:
         out = list(self.peers)
