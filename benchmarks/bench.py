@@ -20,6 +20,10 @@ machines drift:
 6. the sweeps' batch engine: vehicle-steps per second of ``quadsitl sweep``'s engine (the paper's controller and
    plant, 5 s trials), in one process and over one worker process per core, against ``quadsitl sim``'s scalar
    loop (the same compiled equations, called from Python once per tick).
+7. fleets: N vehicles at once (N autopilot and N plant processes), growing N. In real time at 1 kHz, the worst
+   vehicle's deadline-miss ratio against one vehicle's, with CPU (% of a core) and memory per vehicle;
+   ``fleet_max_realtime`` is the largest N whose every vehicle misses under 1 % of its deadlines. In lockstep, the
+   fleet's ticks per second (all vehicles) against one vehicle's.
 """
 
 from __future__ import annotations
@@ -140,7 +144,7 @@ def bench_contention(r: Report, workdir: Path) -> None:
     try:
         rates = {}
         for name, env in (("polling", None), ("blocking", BLOCKING)):
-            with autopilot_process(workdir, env) as (plant_port, api, _ep):
+            with autopilot_process(workdir, env) as (plant_port, api, _ep, _pid):
                 run_plant(plant_port, workdir, 2000, env=env, arm=api)  # warm-up
                 rates[name] = max(run_plant(plant_port, workdir, 10000, env=env, arm=api)["ticks_per_s"]
                                   for _ in range(2))  # fmt: skip
@@ -214,16 +218,16 @@ def bench_costs(r: Report, ping: float) -> None:
 
 
 @contextlib.contextmanager
-def autopilot_process(workdir: Path, env: dict[str, str] | None = None) -> Iterator[tuple[int, int, str]]:
-    """An autopilot on free ports: (plant port, api port, Zenoh endpoint). :func:`run_plant` with the api port
-    arms it in hold at the start of each run, so the controller runs every tick."""
+def autopilot_process(workdir: Path, env: dict[str, str] | None = None) -> Iterator[tuple[int, int, str, int]]:
+    """An autopilot on free ports: (plant port, api port, Zenoh endpoint, its process id). :func:`run_plant` with
+    the api port arms it in hold at the start of each run, so the controller runs every tick."""
     plant_port, api_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
                  f"127.0.0.1:{api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
                  "none", "--zenoh-listen", endpoint, env=env)  # fmt: skip
     try:
-        yield plant_port, api_port, endpoint
+        yield plant_port, api_port, endpoint, ap.pid
     finally:
         _stop(ap)
 
@@ -301,7 +305,7 @@ def subscribers(endpoint: str, count: int, nice: int) -> Iterator[list[dict]]:
 def bench_fanout(r: Report, workdir: Path, nice: int) -> None:
     r.section(f"3. telemetry fan-out: subscriber processes (nice {nice}) on the autopilot's Zenoh session")
     ticks_fast, ticks_paced = 10000, 3000
-    with autopilot_process(workdir) as (plant_port, api, endpoint):
+    with autopilot_process(workdir) as (plant_port, api, endpoint, _pid):
         run_plant(plant_port, workdir, 2000, arm=api)  # warm-up
         alone = run_plant(plant_port, workdir, ticks_fast, arm=api)["ticks_per_s"]
         r.add("lockstep ticks, no subscriber", alone, "1/s")
@@ -360,7 +364,7 @@ def bench_dashboard(r: Report, workdir: Path, rounds: int) -> dict:
 
     r.section("5. dashboard: lockstep ticks with the page open in headless Chromium, against without")
     out = {}
-    with autopilot_process(workdir) as (plant_port, api, endpoint), chromium() as browser:
+    with autopilot_process(workdir) as (plant_port, api, endpoint, _pid), chromium() as browser:
         run_plant(plant_port, workdir, 2000, arm=api)  # warm-up
         for label, key, pairs, ticks, extra in (
             # Runs of a few seconds: a page updates once a second while a run goes faster than 2x real time
@@ -409,7 +413,7 @@ def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
     r.section(f"4. real-time mode at 1 kHz over {seconds:g} s: the plant's loop against a bare loop")
     ticks = round(seconds * 1000)
     bare = bare_loop(ticks, 0.001)
-    with autopilot_process(workdir) as (plant_port, api, _ep):
+    with autopilot_process(workdir) as (plant_port, api, _ep, _pid):
         real = run_plant(plant_port, workdir, ticks, "--mode", "realtime", arm=api)
     for key, unit in (("jitter_p50_us", "us"), ("jitter_p99_us", "us"), ("jitter_max_us", "us"),
                       ("deadline_miss_ratio", "ratio"), ("mean_period_us", "us")):  # fmt: skip
@@ -469,13 +473,116 @@ OPTIONAL: dict[str, tuple[Callable[[], str | None], tuple[str, ...]]] = {
     "dashboard": (browser_missing, ("dashboard_ratio", "dashboard_ratio_10x")),
 }
 
+# ---- 7. fleets ---------------------------------------------------------------------------------------------
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time [s] a live process has used (``/proc/PID/stat``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _rss_mb(pid: int) -> float:
+    """Resident memory [MB] of a live process (``/proc/PID/status``)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return 0.0
+
+
+def _wait_heartbeat(api_port: int, timeout: float = 60.0) -> None:
+    """Until the autopilot on ``api_port`` answers a ground station's heartbeat with its own (it is started and
+    warmed up), so that a real-time plant's ticks are not spent waiting for an autopilot still starting."""
+    from pymavlink import mavutil
+
+    os.environ.setdefault("MAVLINK20", "1")
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{api_port}", source_system=255, dialect="common")
+    try:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            gcs.mav.heartbeat_send(6, 8, 0, 0, 0)  # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID
+            if gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2) is not None:
+                return
+        raise RuntimeError(f"no heartbeat from the autopilot on port {api_port} in {timeout:g} s")
+    finally:
+        gcs.close()
+
+
+def fleet_run(n: int, workdir: Path, ticks: int, mode: str) -> dict:
+    """``n`` vehicles (an autopilot and a plant each, the paper preset) flying ``ticks`` ticks at once in ``mode``
+    (``realtime`` or ``lockstep``). The vehicles are not armed: an autopilot armed in hold on the ground idles
+    (no control law) as a disarmed one does, and the law is about 1 µs of a tick's ~100 µs, so every tick costs
+    what a flying one does, without a race to arm a short lockstep run before it ends. Returns the worst
+    deadline-miss ratio (real time), the fleet's ticks per second (all vehicles' ticks over the wall time until
+    the last plant ended), and CPU [% of a core] and memory [MB] per vehicle (autopilot + plant)."""
+    with contextlib.ExitStack() as stack:
+        aps = [stack.enter_context(autopilot_process(workdir)) for _ in range(n)]
+        ap_pids = [pid for _, _, _, pid in aps]
+        for _, api, _, _ in aps:
+            _wait_heartbeat(api)
+        stats = [workdir / f"fleet-{n}-{mode}-{i}-{time.monotonic_ns()}.json" for i in range(n)]
+        ap_cpu0 = [_cpu_seconds(pid) for pid in ap_pids]
+        started = time.monotonic()
+        plants = [subprocess.Popen([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot",
+                                    f"127.0.0.1:{plant_port}", "--ticks", str(ticks), "--stats", str(path),
+                                    "--mode", mode], stderr=subprocess.DEVNULL)
+                  for (plant_port, _, _, _), path in zip(aps, stats, strict=True)]  # fmt: skip
+        try:
+            rss = [_rss_mb(pid) for pid in ap_pids]
+            plant_cpu = 0.0
+            for plant in plants:  # reaped here, with their CPU time and peak memory
+                _, status, usage = os.wait4(plant.pid, 0)
+                plant.returncode = os.waitstatus_to_exitcode(status)
+                if plant.returncode != 0:
+                    raise RuntimeError(f"a fleet plant exited with status {plant.returncode}")
+                plant_cpu += usage.ru_utime + usage.ru_stime
+                rss.append(usage.ru_maxrss / 1024.0)
+            wall = time.monotonic() - started
+            ap_cpu = sum(_cpu_seconds(pid) - c0 for pid, c0 in zip(ap_pids, ap_cpu0, strict=True))
+        finally:
+            for plant in plants:
+                if plant.poll() is None:
+                    plant.kill()
+                    plant.wait()
+    results = [json.loads(path.read_text()) for path in stats]
+    return {
+        "worst_miss_ratio": max(res.get("deadline_miss_ratio", 0.0) for res in results),
+        # every vehicle's ticks over the longest plant's run from its autopilot's first answer (process start-up
+        # is not the loop's speed; the plants start within a fraction of a second of each other)
+        "ticks_per_s": sum(res["ticks"] for res in results) / max(res["answered_wall_s"] for res in results),
+        "cpu_per_vehicle_pct": 100.0 * (ap_cpu + plant_cpu) / wall / n,
+        "memory_per_vehicle_mb": sum(rss) / n,
+    }
+
+
+def bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float) -> dict:
+    r.section(f"7. fleets: N vehicles at once, {seconds:g} s at 1 kHz in real time, then in lockstep")
+    ticks = round(seconds * 1000)
+    one_rt = fleet_run(1, workdir, ticks, "realtime")
+    lockstep_ticks = 4 * ticks  # a few seconds at several times real time
+    one_ls = fleet_run(1, workdir, lockstep_ticks, "lockstep")
+    largest = 0
+    for n in sizes:
+        rt = one_rt if n == 1 else fleet_run(n, workdir, ticks, "realtime")
+        r.add(f"fleet of {n}, real time: worst vehicle's deadline-miss ratio", rt["worst_miss_ratio"], "ratio",
+              one_rt["worst_miss_ratio"], "one vehicle", ratio=None)  # fmt: skip
+        r.add(f"fleet of {n}, real time: CPU per vehicle", rt["cpu_per_vehicle_pct"], "% of a core")
+        r.add(f"fleet of {n}, real time: memory per vehicle", rt["memory_per_vehicle_mb"], "MB")
+        ls = one_ls if n == 1 else fleet_run(n, workdir, lockstep_ticks, "lockstep")
+        r.add(f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)",
+              ls["ticks_per_s"], "1/s", one_ls["ticks_per_s"], "one vehicle")  # fmt: skip
+        if rt["worst_miss_ratio"] >= 0.01:
+            break  # the next sizes would miss more
+        largest = n
+    return {"fleet_max_realtime": largest}
+
 
 def optional_parts_missing(parts: Sequence[str]) -> dict[str, str]:
     """{section: what it lacks and how to get it} for each of ``parts`` that cannot run on this machine."""
     return {part: why for part in parts if part in OPTIONAL and (why := OPTIONAL[part][0]())}
 
 
-PARTS = ("coldstart", "lockstep", "costs", "fanout", "realtime", "dashboard", "batch")
+PARTS = ("coldstart", "lockstep", "costs", "fanout", "realtime", "dashboard", "batch", "fleet")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -492,7 +599,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--subscriber-nice", type=int, default=10, help="niceness of fan-out subscribers (default 10)")
     p.add_argument("--batch-trials", type=int, default=20000,
                    help="trials of the batch section's sweep (default 20000: 10⁸ vehicle-steps)")  # fmt: skip
+    p.add_argument("--fleet-sizes", default="1,2,4,8,12,16", metavar="N,N,...",
+                   help="fleet sizes, ascending; the section stops after the first that misses 1 %% of its deadlines "
+                   "(default 1,2,4,8,12,16)")  # fmt: skip
+    p.add_argument("--fleet-seconds", type=float, default=5.0, help="each fleet run's length (default 5)")
     return p
+
+
+def parse_sizes(text: str) -> list[int]:
+    """``--fleet-sizes`` as ascending vehicle counts in 1..64, or a ValueError naming what is wrong."""
+    try:
+        sizes = [int(part) for part in text.split(",")]
+    except ValueError:
+        sizes = []
+    if not sizes or sizes != sorted(set(sizes)) or not all(1 <= n <= 64 for n in sizes):
+        raise ValueError(f"--fleet-sizes {text!r}: expected ascending vehicle counts in 1..64, e.g. 1,2,4,8")
+    return sizes
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -505,6 +627,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     if not 1.0 <= args.realtime_seconds <= 600.0:
         print(f"quadsitl bench: error: --realtime-seconds {args.realtime_seconds:g}: expected 1..600", file=sys.stderr)
+        return 2
+    if not 2.0 <= args.fleet_seconds <= 600.0:
+        print(f"quadsitl bench: error: --fleet-seconds {args.fleet_seconds:g}: expected 2..600", file=sys.stderr)
+        return 2
+    try:
+        sizes = parse_sizes(args.fleet_sizes)
+    except ValueError as exc:
+        print(f"quadsitl bench: error: {exc}", file=sys.stderr)
         return 2
     parts = args.only or list(PARTS)
     skipped = optional_parts_missing(parts)
@@ -536,6 +666,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 extra.update(bench_dashboard(r, work, args.rounds))
             if "batch" in parts:
                 extra.update(bench_batch(r, args.batch_trials))
+            if "fleet" in parts:
+                extra.update(bench_fleet(r, work, sizes, args.fleet_seconds))
     except (subprocess.CalledProcessError, subprocess.TimeoutExpired, RuntimeError, OSError) as exc:
         print(f"quadsitl bench: error: {exc}", file=sys.stderr)
         return 1

@@ -28,6 +28,29 @@ def test_bench_costs_report_json_with_names_units_and_baselines(cli):
 def test_bench_refuses_bad_options(cli):
     r = cli("bench", "--rounds", "0")
     assert r.returncode == 2 and "--rounds 0: expected 1..10" in r.stderr
+    for sizes in ("2,1", "0,1", "1,1", "1,x", "65"):
+        r = cli("bench", "--only", "fleet", "--fleet-sizes", sizes)
+        assert r.returncode == 2 and r.stderr.strip() == (f"quadsitl bench: error: --fleet-sizes {sizes!r}: expected "
+                                                         "ascending vehicle counts in 1..64, e.g. 1,2,4,8")  # fmt: skip
+    r = cli("bench", "--only", "fleet", "--fleet-seconds", "1")
+    assert r.returncode == 2 and "--fleet-seconds 1: expected 2..600" in r.stderr
+
+
+def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
+    r = cli("bench", "--only", "fleet", "--fleet-sizes", "1,2", "--fleet-seconds", "2", "--json", timeout=120)
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    figures = {f["name"]: f for f in report["figures"]}
+    one = figures["fleet of 1, real time: worst vehicle's deadline-miss ratio"]
+    assert 0.0 <= one["value"] <= 1.0 and one["baseline"] == one["value"] and one["baseline_name"] == "one vehicle"
+    for n in (1, 2):
+        assert 0 < figures[f"fleet of {n}, real time: CPU per vehicle"]["value"] < 200  # % of a core
+        assert 50 < figures[f"fleet of {n}, real time: memory per vehicle"]["value"] < 2000  # MB
+        lockstep = figures[f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)"]
+        assert lockstep["value"] > 1000 and lockstep["unit"] == "1/s" and lockstep["baseline_name"] == "one vehicle"
+    # the largest fleet that kept its deadlines: a size asked for, or 0 (2 vehicles on a loaded CI machine may miss)
+    assert report["fleet_max_realtime"] in (0, 1, 2)
+    assert report["fleet_max_realtime"] >= 1 or one["value"] >= 0.01
 
 
 # Runs `quadsitl bench` with Playwright made unimportable, as on a machine where the project was installed
