@@ -306,14 +306,7 @@ sys.stdout.write(np.array(out).tobytes().hex())
 @pytest.mark.timeout(60)
 def test_compiled_and_plain_python_give_the_same_samples_bit_for_bit():
     """The same source under NUMBA_DISABLE_JIT=1: the same random streams, the same samples, to the bit."""
-    import os
-    import subprocess
-    import sys
+    from tests.both_runtimes import outputs
 
-    runs = []
-    for disabled in ("0", "1"):
-        env = {**os.environ, "NUMBA_DISABLE_JIT": disabled}
-        done = subprocess.run([sys.executable, "-c", _SAMPLES], capture_output=True, text=True, env=env, timeout=50)
-        assert done.returncode == 0, done.stderr
-        runs.append(done.stdout)
-    assert len(runs[0]) == 1500 * 20 * 16 and runs[0] == runs[1]
+    compiled, plain = outputs(_SAMPLES)
+    assert len(compiled) == 1500 * 20 * 16 and compiled == plain

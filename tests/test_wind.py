@@ -2,14 +2,12 @@
 intensity, correlation and spectrum against MIL-F-8785C, seeded and the same compiled or not."""
 
 import math
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from sitl.wind import KNOT, Wind, dryden_scales, gamma_lower, gust, wind_params, wind_state, wind_step
+from tests.both_runtimes import outputs
 
 
 def fly(wind: Wind, steps: int, dt: float, altitude: float, airspeed: float) -> np.ndarray:
@@ -134,6 +132,7 @@ def test_seeds_repeat_to_the_bit_and_differ_from_each_other():
 
 WIND_SAMPLES = """
 from tests.test_wind import fly
+from tests.both_runtimes import outputs
 from sitl.wind import Wind
 w = fly(Wind(speed_m_s=3.0, from_deg=45.0, turbulence="severe", gust_m_s=2.0, gust_start_s=0.1, seed=5),
         500, 0.001, 7.0, 4.0)
@@ -143,10 +142,5 @@ print(w.tobytes().hex())
 
 @pytest.mark.timeout(60)
 def test_compiled_and_plain_python_give_the_same_wind_bit_for_bit():
-    runs = []
-    for disabled in ("0", "1"):
-        env = {**os.environ, "NUMBA_DISABLE_JIT": disabled}
-        done = subprocess.run([sys.executable, "-c", WIND_SAMPLES], capture_output=True, text=True, env=env, timeout=50)
-        assert done.returncode == 0, done.stderr
-        runs.append(done.stdout)
-    assert len(runs[0]) == 500 * 3 * 16 + 1 and runs[0] == runs[1]
+    compiled, plain = outputs(WIND_SAMPLES)
+    assert len(compiled) == 500 * 3 * 16 + 1 and compiled == plain
