@@ -220,7 +220,8 @@ def bench_costs(r: Report, ping: float) -> None:
 @contextlib.contextmanager
 def autopilot_process(workdir: Path, env: dict[str, str] | None = None) -> Iterator[tuple[int, int, str, int]]:
     """An autopilot on free ports: (plant port, api port, Zenoh endpoint, its process id). :func:`run_plant` with
-    the api port arms it in hold at the start of each run, so the controller runs every tick."""
+    the api port arms it in hold at the start of each run, as a ground station would. (On the ground an autopilot
+    armed in hold idles, as PX4's does, so the control law itself, about 1 µs of a ~100 µs tick, does not run.)"""
     plant_port, api_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
