@@ -33,7 +33,7 @@ def measure(number: int) -> dict[str, float]:
     c = control_array(preset.poles(), T, preset.controller.pd_kp, preset.controller.pd_kd)
     x = np.array([0.0, 0.0, -1.0, 0.0, 0.0, -0.2, 0.1, -0.05, 0.3, 0.2, 0.1, 0.05])
     ref, mem = np.array([5.0, 1.0, 1.0, 1.0]), np.zeros(MEM_SIZE)
-    motors, commanded, out = np.zeros(4), np.full(4, 5.0), np.zeros(OUT_SIZE)
+    motors, commanded, out, calm = np.zeros(4), np.full(4, 5.0), np.zeros(OUT_SIZE), np.zeros(6)
     figures = {
         "backstepping controller step": per_call(lambda: backstepping.step_arrays(x, ref, mem, v, c), number),
         "pd controller step": per_call(lambda: pd.step_arrays(x, ref, mem, v, c), number),
@@ -42,7 +42,7 @@ def measure(number: int) -> dict[str, float]:
         xs = x.copy()
         figures[f"plant step ({name})"] = per_call(
             lambda xs=xs, method=method, substeps=substeps: step_arrays(
-                xs, motors, commanded, out, v, a, T, substeps, method, np.nan), number)  # fmt: skip
+                xs, motors, commanded, out, v, a, T, substeps, method, np.nan, calm), number)  # fmt: skip
 
     # The processes' whole ticks, frame in to frame out (no sockets).
     state_frame, answer = np.zeros(wire.FRAME_MAX, np.uint8), np.zeros(wire.FRAME_MAX, np.uint8)

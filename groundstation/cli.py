@@ -25,7 +25,16 @@ from pathlib import Path
 from autopilot.cli import GAINS_EPILOG, add_gains_arguments, run_gains
 from autopilot.gains import GainError, poles_from_rates
 from groundstation.launcher import add_dashboard_arguments
-from quadsitl.cli_util import UsageError, add_preset_arguments, attach_negative_values, check_range, parse_floats
+from quadsitl.cli_util import (
+    UsageError,
+    add_preset_arguments,
+    add_wind_arguments,
+    attach_negative_values,
+    check_range,
+    parse_floats,
+    wind_settings,
+    with_wind,
+)
 from quadsitl.config import ConfigError, Preset, load_preset, preset_toml
 from quadsitl.process_util import PLANT_DIVERGED, handle_stop_signals, run_stoppable, stop_status
 from sitl.cli import add_presets_arguments, run_presets
@@ -55,10 +64,11 @@ def _from_sweep(args: argparse.Namespace) -> Preset:
     if args.trial is None:
         raise UsageError("--from-sweep needs --trial K (the trial's number, as in trials.csv)")
     given = [f"--{k.replace('_', '-')}" for k in ("preset", "controller", "duration", "integrator", "substeps", "gains",
-                                                   "poles", "compare") if getattr(args, k)]  # fmt: skip
+                                                   "poles", "compare", "wind", "turbulence", "gust", "wind_seed")
+             if getattr(args, k) is not None and getattr(args, k) is not False]  # fmt: skip
     if given:
         raise UsageError(f"{given[0]} does not go with --from-sweep: the trial flies as the sweep flew it (its "
-                         "preset, controller, duration, integrator and gains)")  # fmt: skip
+                         "preset, controller, duration, integrator, gains and calm air)")  # fmt: skip
     try:
         return trial_preset(load_sweep(Path(args.from_sweep)), args.trial)
     except ConfigError as exc:
@@ -75,7 +85,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     if args.trial is not None and args.from_sweep is None:
         raise UsageError("--trial goes with --from-sweep DIR (the sweep's folder)")
-    preset = _from_sweep(args) if args.from_sweep is not None else _load(args.preset or "paper")
+    preset = _from_sweep(args) if args.from_sweep is not None else with_wind(_load(args.preset or "paper"), args)
     check_range("--duration", args.duration, 0.0, 3600.0)
     if args.substeps is not None and not 1 <= args.substeps <= 1000:
         raise UsageError(f"--substeps {args.substeps}: expected an integer in [1, 1000]")
@@ -101,6 +111,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         "duration": duration,
         "period": preset.sim.period,
         "poles": list(poles_from_rates(rates, preset.sim.period) if rates else poles or preset.poles()),
+        **wind_settings(preset),
     }
     out = Path(args.out)
     files = write_outputs(out, preset, results, metrics, settings, figures=not args.no_figures)
@@ -258,7 +269,7 @@ PROCESSES = {
 def cmd_fly(args: argparse.Namespace) -> int:
     from groundstation.launcher import fly
 
-    preset = _load(args.preset)
+    preset = with_wind(_load(args.preset), args)
     check_range("--duration", args.duration, 0.0, 3600.0)
     if args.speed < 0 or args.speed > 1000:
         raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
@@ -296,7 +307,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     from quadsitl.earth import PX4_HOME
     from quadsitl.process_util import parse_address, parse_remote
 
-    preset = _load(args.preset)
+    preset = with_wind(_load(args.preset), args)
     if args.speed < 0 or args.speed > 1000:
         raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
     if not 1 <= args.system_id <= 255:
@@ -361,6 +372,7 @@ the source, or 'mkdocs serve' there.""",
     sim.add_argument("--from-sweep", metavar="DIR", help="fly trial --trial of the sweep written into DIR again, "
                      "alone: the same flight to the bit (writes the trial's preset.toml too)")  # fmt: skip
     sim.add_argument("--trial", type=int, metavar="K", help="with --from-sweep: the trial's number")
+    add_wind_arguments(sim)
     sim.set_defaults(func=cmd_sim, preset=None)
 
     fl = sub.add_parser(
@@ -409,6 +421,7 @@ the source, or 'mkdocs serve' there.""",
     fl.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     fl.add_argument("--signing-key", metavar="HEX|FILE", help="MAVLink 2 signing between ground station and autopilot")
     add_dashboard_arguments(fl)
+    add_wind_arguments(fl)
     fl.set_defaults(func=cmd_fly)
 
     upp = sub.add_parser(
@@ -443,6 +456,7 @@ the source, or 'mkdocs serve' there.""",
             help=f"where the {name} link streams (default: 127.0.0.1:{remote})",
         )
     add_impair_argument(upp)
+    add_wind_arguments(upp)
     upp.add_argument(
         "--system-id",
         type=int,

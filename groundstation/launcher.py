@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from groundstation.fleet import VehiclePlan
-from quadsitl.cli_util import UsageError
+from quadsitl.cli_util import UsageError, wind_argv, wind_settings
 from quadsitl.config import Preset
 from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, stop_status
 
@@ -170,6 +170,7 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
                 plant += ["--speed", str(args.speed)]
             if args.impair:
                 plant += ["--impair", args.impair]
+            plant += wind_argv(args)
             children.start("plant" + named, plant + (["--quiet"] if args.quiet else []))
         url = start_dashboard(children, web_port, args.zenoh_listen) if web_port is not None else None
         if not args.quiet:
@@ -307,7 +308,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         ]
         if args.integrator:
             plant += ["--integrator", args.integrator]
-        children.start("plant", plant + quiet)
+        children.start("plant", plant + wind_argv(args) + quiet)
         gcs = ["groundstation", "--preset", preset_name, "--connect", f"127.0.0.1:{gcs_port}",
                "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out), *quiet]  # fmt: skip
         if args.duration:
@@ -396,7 +397,7 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     kind = args.controller or preset.controller.type
     metrics = {kind: run_metrics(t, y, ref, u)}
     settings = {"mode": "lockstep", "speed": args.speed, "duration": float(len(t) * preset.sim.period),
-                "period": preset.sim.period, "trajectory": args.trajectory}  # fmt: skip
+                "period": preset.sim.period, "trajectory": args.trajectory, **wind_settings(preset)}  # fmt: skip
     # diverged_at [s]: the first tick not flown (the plant's state at its start was outside the bounds), the one
     # after the last flown: a tick lost on the way to the logger in between does not move it.
     period = preset.sim.period

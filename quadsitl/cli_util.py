@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import math
 import re
+from dataclasses import asdict, replace
+from typing import Any
+
+from quadsitl.config import SCHEMA, TURBULENCE_W20_KNOTS, ConfigError, Preset, WindParams, check_value
 
 
 class UsageError(Exception):
@@ -48,3 +52,63 @@ def add_preset_arguments(p: argparse.ArgumentParser, controller: bool = True) ->
     p.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
     if controller:
         p.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+
+
+WIND_OPTIONS = ("--wind", "--turbulence", "--gust", "--wind-seed")
+
+
+def add_wind_arguments(p: argparse.ArgumentParser) -> None:
+    """The wind options (``--wind``, ``--turbulence``, ``--gust``, ``--wind-seed``): the air the plant flies in,
+    over the preset's [wind] section (calm without one). :func:`with_wind` applies them."""
+    g = p.add_argument_group("wind", "the air the plant flies in, over the preset's [wind] (calm without one)")
+    g.add_argument("--wind", metavar="SPEED,FROM", help="a mean wind: its speed [m/s] and the direction it blows "
+                   "from [deg clockwise from north], e.g. 5,270: 5 m/s from the west")  # fmt: skip
+    g.add_argument("--turbulence", choices=tuple(TURBULENCE_W20_KNOTS), help="Dryden turbulence (MIL-F-8785C level)")
+    g.add_argument("--gust", metavar="SPEED,FROM[,START[,RISE]]", help="a 1 - cos gust: its speed [m/s], the "
+                   "direction it blows from [deg], when it starts [s of simulated time, default 0] and how long it "
+                   "takes to rise [s, default 1]; then it holds")  # fmt: skip
+    g.add_argument("--wind-seed", type=int, metavar="N", help="the turbulence's seed (default: the preset's, or 0)")
+
+
+def with_wind(preset: Preset, args: argparse.Namespace) -> Preset:
+    """``preset`` with the wind options given over its [wind]; each value is checked as the [wind] key it sets,
+    and refused with the option, the key, the value and what is allowed."""
+    values: dict[str, Any] = {}
+    given: dict[str, str] = {}  # key -> the option that set it, as typed
+    if args.wind is not None:
+        values["speed_m_s"], values["from_deg"] = parse_floats("--wind", args.wind, 2)
+        given.update(speed_m_s=f"--wind {args.wind}", from_deg=f"--wind {args.wind}")
+    if args.turbulence is not None:
+        values["turbulence"], given["turbulence"] = args.turbulence, f"--turbulence {args.turbulence}"
+    if args.gust is not None:
+        n = len(args.gust.split(","))
+        if not 2 <= n <= 4:
+            raise UsageError(
+                f"--gust {args.gust!r}: expected 2 to 4 comma-separated numbers: SPEED,FROM[,START[,RISE]]"
+            )
+        for key, value in zip(("gust_m_s", "gust_from_deg", "gust_start_s", "gust_rise_s"),
+                              parse_floats("--gust", args.gust, n)):  # fmt: skip
+            values[key], given[key] = value, f"--gust {args.gust}"
+    if args.wind_seed is not None:
+        values["seed"], given["seed"] = args.wind_seed, f"--wind-seed {args.wind_seed}"
+    for key, value in values.items():
+        try:
+            check_value(f"wind.{key}", value, SCHEMA["wind"][key])
+        except ConfigError as exc:
+            raise UsageError(f"{given[key]}: {exc}") from None
+    return replace(preset, wind=replace(preset.wind, **values)) if values else preset
+
+
+def wind_argv(args: argparse.Namespace) -> list[str]:
+    """The wind options given on this command line, as arguments for the plant process it starts."""
+    out: list[str] = []
+    for option in WIND_OPTIONS:
+        value = getattr(args, option[2:].replace("-", "_"), None)
+        if value is not None:
+            out += [option, str(value)]
+    return out
+
+
+def wind_settings(preset: Preset) -> dict[str, Any]:
+    """What a run's metrics.json says of its air: ``{"wind": {...}}`` with the [wind] keys, or nothing when calm."""
+    return {} if preset.wind == WindParams() else {"wind": asdict(preset.wind)}

@@ -182,6 +182,30 @@ class SensorParams:
     gps_satellites: int = 10
 
 
+# MIL-F-8785C's turbulence levels by the wind speed at 20 ft, W20 [knots] (sitl/wind.py's Dryden model)
+TURBULENCE_W20_KNOTS = {"none": 0.0, "light": 15.0, "moderate": 30.0, "severe": 45.0}
+
+
+@dataclass(frozen=True)
+class WindParams:
+    """The air the plant flies in and a disturbing force (docs/sensors.md, "Wind"): a mean wind of ``speed_m_s``
+    [m/s] blowing FROM ``from_deg`` [deg, clockwise from north, as weather reports give it: 270 = from the west];
+    Dryden turbulence at a MIL-F-8785C level; one discrete 1 − cos gust of ``gust_m_s`` [m/s] from
+    ``gust_from_deg``, rising over ``gust_rise_s`` from ``gust_start_s`` [s of simulated time] and then held; a
+    constant external force ``force_n`` [N, NED] on the vehicle (for tests: a payload, a tether). ``seed`` seeds
+    the turbulence. The default is calm: the plant flies exactly as with no [wind] section."""
+
+    speed_m_s: float = 0.0
+    from_deg: float = 0.0
+    turbulence: str = "none"
+    gust_m_s: float = 0.0
+    gust_rise_s: float = 1.0
+    gust_start_s: float = 0.0
+    gust_from_deg: float = 0.0
+    seed: int = 0
+    force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
 @dataclass(frozen=True)
 class InitialState:
     """Where the vehicle starts: altitude [m], ZYX Euler angles [rad], climb rate [m/s] (up) and Euler-angle
@@ -209,6 +233,7 @@ class Preset:
     initial: InitialState = field(default_factory=InitialState)
     position: PositionParams = field(default_factory=PositionParams)
     sensors: SensorParams | None = None  # None: no [sensors] section, the autopilot gets the true state
+    wind: WindParams = field(default_factory=WindParams)  # no [wind] section: calm
     model: tuple[tuple[str, float], ...] = ()  # the [model] section: (VehicleParams field, value), in file order
 
     @property
@@ -389,6 +414,32 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         ),
         "gps_satellites": Spec("int", "an integer in [4, 64]", lambda v: 4 <= v <= 64, required=False, default=10),
     },
+    "wind": {
+        "speed_m_s": _num("a number in [0, 50] m/s", lambda v: 0 <= v <= 50, required=False, default=0.0),
+        "from_deg": _num(
+            "a number in [0, 360] deg (clockwise from north)", lambda v: 0 <= v <= 360, required=False, default=0.0
+        ),
+        "turbulence": Spec(
+            "string",
+            f"one of: {', '.join(TURBULENCE_W20_KNOTS)}",
+            lambda v: v in TURBULENCE_W20_KNOTS,
+            required=False,
+            default="none",
+        ),
+        "gust_m_s": _num("a number in [0, 50] m/s", lambda v: 0 <= v <= 50, required=False, default=0.0),
+        "gust_rise_s": _num("a number in (0, 100] s", lambda v: 0 < v <= 100, required=False, default=1.0),
+        "gust_start_s": _num("a number in [0, 3600] s", lambda v: 0 <= v <= 3600, required=False, default=0.0),
+        "gust_from_deg": _num("a number in [0, 360] deg", lambda v: 0 <= v <= 360, required=False, default=0.0),
+        "seed": Spec("int", "an integer in [0, 2**63 - 1]", lambda v: 0 <= v < 2**63, required=False, default=0),
+        "force_n": Spec(
+            "numbers",
+            "3 numbers in [-1000, 1000] N (north, east, down)",
+            lambda v: abs(v) <= 1000,
+            3,
+            required=False,
+            default=(0.0, 0.0, 0.0),
+        ),
+    },
     "initial": {
         "altitude": _num("a number in [0, 10000] m", lambda v: 0 <= v <= 10000, required=False, default=0.0),
         "roll": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
@@ -403,7 +454,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
 # [model]: the autopilot's model of the vehicle, key by key over [vehicle]'s values (each key optional).
 SCHEMA["model"] = {key: replace(spec, required=False, default=None) for key, spec in SCHEMA["vehicle"].items()}
 TOP_LEVEL_KEYS = {"description"}
-OPTIONAL_SECTIONS = {"initial", "position", "sensors", "model"}
+OPTIONAL_SECTIONS = {"initial", "position", "sensors", "model", "wind"}
 
 
 def _is_number(v: Any) -> bool:
@@ -512,6 +563,7 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
         initial=InitialState(**v["initial"]),
         position=PositionParams(**v["position"]),
         sensors=sensors,
+        wind=WindParams(**v["wind"]),
         model=tuple(model),
     )
 
@@ -605,6 +657,8 @@ def preset_toml(preset: Preset) -> str:
     sections["position"] = asdict(preset.position)
     if preset.sensors is not None:
         sections["sensors"] = asdict(preset.sensors)
+    if preset.wind != WindParams():
+        sections["wind"] = asdict(preset.wind)
     lines = [f"description = {_toml_value(preset.description)}"]
     for section, values in sections.items():
         lines += ["", f"[{section}]", *(f"{k} = {_toml_value(x)}" for k, x in values.items())]

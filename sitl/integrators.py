@@ -1,13 +1,13 @@
-"""Fixed-step integrators of the rigid-body model (:func:`sitl.dynamics.derivatives`), inputs held over
-the step (zero-order hold): ``euler`` (the paper's forward Euler, eq (9)) and ``rk4``. Compiled
-(:mod:`quadsitl.jit`); states are 12-tuples."""
+"""Fixed-step integrators of the rigid-body model (:func:`sitl.dynamics.derivatives`), inputs, wind and
+external force held over the step (zero-order hold): ``euler`` (the paper's forward Euler, eq (9)) and ``rk4``.
+Compiled (:mod:`quadsitl.jit`); states are 12-tuples."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from quadsitl.jit import jit
-from sitl.dynamics import State, derivatives
+from sitl.dynamics import Disturbance, State, derivatives
 
 EULER, RK4 = 0, 1
 INTEGRATORS = {"euler": EULER, "rk4": RK4}
@@ -23,18 +23,20 @@ def add_scaled(s: State, h: float, d: State) -> State:
 
 
 @jit(inline=True)
-def euler(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray, h: float) -> State:
+def euler(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray, d: Disturbance,
+          h: float) -> State:  # fmt: skip
     """Forward Euler, paper eq (9): s⁺ = s + h·f(s)."""
-    return add_scaled(s, h, derivatives(s, u, omega_r, v))
+    return add_scaled(s, h, derivatives(s, u, omega_r, v, d))
 
 
 @jit(inline=True)
-def rk4(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray, h: float) -> State:
+def rk4(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray, d: Disturbance,
+        h: float) -> State:  # fmt: skip
     """Classic fourth-order Runge–Kutta."""
-    k1 = derivatives(s, u, omega_r, v)
-    k2 = derivatives(add_scaled(s, 0.5 * h, k1), u, omega_r, v)
-    k3 = derivatives(add_scaled(s, 0.5 * h, k2), u, omega_r, v)
-    k4 = derivatives(add_scaled(s, h, k3), u, omega_r, v)
+    k1 = derivatives(s, u, omega_r, v, d)
+    k2 = derivatives(add_scaled(s, 0.5 * h, k1), u, omega_r, v, d)
+    k3 = derivatives(add_scaled(s, 0.5 * h, k2), u, omega_r, v, d)
+    k4 = derivatives(add_scaled(s, h, k3), u, omega_r, v, d)
     h6 = h / 6.0
     return (s[0] + h6 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
             s[1] + h6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
@@ -52,8 +54,8 @@ def rk4(s: State, u: tuple[float, float, float, float], omega_r: float, v: np.nd
 
 @jit(inline=True)
 def integrate(method: int, s: State, u: tuple[float, float, float, float], omega_r: float, v: np.ndarray,
-              h: float) -> State:  # fmt: skip
-    """One step of ``method`` (EULER or RK4)."""
+              d: Disturbance, h: float) -> State:  # fmt: skip
+    """One step of ``method`` (EULER or RK4), the inputs, Ωr and the disturbance ``d`` held over it."""
     if method == RK4:
-        return rk4(s, u, omega_r, v, h)
-    return euler(s, u, omega_r, v, h)
+        return rk4(s, u, omega_r, v, d, h)
+    return euler(s, u, omega_r, v, d, h)

@@ -24,8 +24,9 @@ from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
 from quadsitl.param_arrays import D_OVER_B, B, actuator_array, vehicle_array
 from quadsitl.state import Inputs, VehicleState
 from sitl.actuators import advance
-from sitl.dynamics import State, derivatives
+from sitl.dynamics import Disturbance, State, derivatives
 from sitl.integrators import INTEGRATORS, integrate
+from sitl.wind import air_tick, wind_params, wind_state
 
 # The outputs of a step besides the state, in Plant.out: mean motor forces (4), inputs u1..u4 (4), Ωr, on ground.
 OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_SIZE = 0, 4, 8, 9, 10
@@ -48,22 +49,24 @@ def ground(s: State) -> tuple[State, bool]:
 
 
 @jit
-def acceleration(s: State, motors: Forces, v: np.ndarray, on_ground: bool) -> tuple[float, float, float]:
-    """The true acceleration [m/s², NED] at state ``s`` under the motor forces acting now [N] (eqs (2)–(4) with
-    the inputs of eq (8)): what the accelerometer measures, with gravity. Resting on the ground plane and not
-    lifting off, the ground holds the vehicle: zero."""
+def acceleration(s: State, motors: Forces, v: np.ndarray, on_ground: bool, d: Disturbance
+                 ) -> tuple[float, float, float]:  # fmt: skip
+    """The true acceleration [m/s², NED] at state ``s`` under the motor forces acting now [N] and the wind and
+    external force ``d`` (eqs (2)–(4) with the inputs of eq (8)): what the accelerometer measures, with gravity.
+    Resting on the ground plane and not lifting off, the ground holds the vehicle: zero."""
     u = forces_to_inputs(motors, v[D_OVER_B])
-    d = derivatives(s, u, residual_rotor_speed(motors, v[B]), v)
-    if on_ground and d[5] >= 0.0:
+    f = derivatives(s, u, residual_rotor_speed(motors, v[B]), v, d)
+    if on_ground and f[5] >= 0.0:
         return 0.0, 0.0, 0.0
-    return d[3], d[4], d[5]
+    return f[3], f[4], f[5]
 
 
 @jit(inline=True)
 def step(s: State, motors: Forces, commanded: Forces, v: np.ndarray, a: np.ndarray, period: float, substeps: int,
-         method: int, omega_r: float) -> tuple[State, Forces, Forces, Inputs, float, bool]:  # fmt: skip
-    """One control period under the commanded motor forces [N]: (state, motor forces at the end, mean
-    motor forces over the last sub-step, the inputs u1..u4 they make (eq (8)), Ωr, on ground).
+         method: int, omega_r: float, d: Disturbance) -> tuple[State, Forces, Forces, Inputs, float, bool]:  # fmt: skip
+    """One control period under the commanded motor forces [N] and the wind and external force ``d`` (held over
+    the period; :data:`sitl.dynamics.CALM` for none): (state, motor forces at the end, mean motor forces over the
+    last sub-step, the inputs u1..u4 they make (eq (8)), Ωr, on ground).
 
     ``omega_r`` overrides the residual rotor speed Ωr that eqs (5)–(6) use; NaN computes it from the
     applied forces (tests give the plant the Ωr the controller assumed)."""
@@ -76,20 +79,22 @@ def step(s: State, motors: Forces, commanded: Forces, v: np.ndarray, a: np.ndarr
         motors, forces = advance(motors, commanded, h, a)
         u = forces_to_inputs(forces, v[D_OVER_B])  # eq (8)
         wr = residual_rotor_speed(forces, v[B]) if math.isnan(omega_r) else omega_r
-        s, on_ground = ground(integrate(method, s, u, wr, v, h))
+        s, on_ground = ground(integrate(method, s, u, wr, v, d, h))
     s = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], wrap_pi(s[8]), s[9], s[10], s[11])
     return s, motors, forces, u, wr, on_ground
 
 
 @jit
 def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: np.ndarray, v: np.ndarray,
-                a: np.ndarray, period: float, substeps: int, method: int, omega_r: float) -> None:  # fmt: skip
+                a: np.ndarray, period: float, substeps: int, method: int, omega_r: float,
+                d: np.ndarray) -> None:  # fmt: skip
     """:func:`step` on arrays, in place: ``x`` (12) the state, ``motors`` (4) the motor forces [N],
-    ``out`` (OUT_SIZE) the step's other outputs."""
+    ``out`` (OUT_SIZE) the step's other outputs; ``d`` (6) the wind and external force (:func:`air_tick`)."""
     s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
     m = (motors[0], motors[1], motors[2], motors[3])
     c = (commanded[0], commanded[1], commanded[2], commanded[3])
-    s, m, forces, u, wr, on_ground = step(s, m, c, v, a, period, substeps, method, omega_r)
+    s, m, forces, u, wr, on_ground = step(s, m, c, v, a, period, substeps, method, omega_r,
+                                          (d[0], d[1], d[2], d[3], d[4], d[5]))  # fmt: skip
     for i in range(12):
         x[i] = s[i]
     for i in range(4):
@@ -150,8 +155,9 @@ class Plant:
 
     Attributes after each step: ``state`` (VehicleState), ``forces`` (the mean motor forces applied
     over the last sub-step [N]), ``inputs`` (u1..u4 they make, eq (8)), ``omega_r`` [rad/s],
-    ``on_ground`` (bool), ``time`` [s]. The arrays ``x`` (the state) and ``motors`` are what the compiled
-    step works on.
+    ``on_ground`` (bool), ``time`` [s], ``wind`` (the wind of the last step [m/s, NED]).
+    The arrays ``x`` (the state), ``motors`` and ``d`` (the wind and external force of the last step) are what
+    the compiled step works on; ``wind_p``, ``wind_x`` and ``wind_rng`` are the wind model's (:mod:`sitl.wind`).
     """
 
     def __init__(self, preset: Preset, integrator: str | None = None, substeps: int | None = None) -> None:
@@ -170,6 +176,9 @@ class Plant:
         self.out = np.zeros(OUT_SIZE)
         self.out[OUT_ON_GROUND] = self.x[2] >= 0.0
         self.time = 0.0
+        self.wind_p = wind_params(preset.wind)
+        self.wind_x, self.wind_rng = wind_state(preset.wind.seed)
+        self.d = np.zeros(6)
 
     @property
     def state(self) -> VehicleState:
@@ -195,6 +204,16 @@ class Plant:
     def on_ground(self) -> bool:
         return bool(self.out[OUT_ON_GROUND])
 
+    @property
+    def air(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The arrays of the wind and external force, in the order the compiled ticks take them: ``d``,
+        ``wind_x``, ``wind_rng``, ``wind_p``."""
+        return self.d, self.wind_x, self.wind_rng, self.wind_p
+
+    @property
+    def wind(self) -> tuple[float, float, float]:
+        return tuple(self.d[:3].tolist())  # type: ignore[return-value]
+
     def step(self, commanded: Forces | None = None, omega_r: float | None = None) -> None:
         """Advance one control period under the commanded motor forces [N] (default: ``self.commanded``).
 
@@ -203,6 +222,7 @@ class Plant:
         """
         if commanded is not None:
             self.commanded[:] = commanded
+        air_tick(self.d, self.wind_x, self.wind_rng, self.wind_p, self.period, self.x, self.out[OUT_ON_GROUND] > 0.0)
         step_arrays(self.x, self.motors, self.commanded, self.out, self.v, self.a, self.period, self.substeps,
-                    self.method, math.nan if omega_r is None else omega_r)  # fmt: skip
+                    self.method, math.nan if omega_r is None else omega_r, self.d)  # fmt: skip
         self.time += self.period

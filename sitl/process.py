@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from quadsitl import wire
-from quadsitl.cli_util import UsageError, add_preset_arguments, check_range
+from quadsitl.cli_util import UsageError, add_preset_arguments, add_wind_arguments, check_range, with_wind
 from quadsitl.config import ConfigError, load_preset
 from quadsitl.process_util import (
     PLANT_DIVERGED,
@@ -243,10 +243,9 @@ def warm_up(plant: Plant) -> None:
     link = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
     io = np.zeros(tick.IO_SIZE, dtype=np.int64)
     n = wire.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
-    tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, twin.x, twin.motors, twin.out, twin.v,
-                       twin.a, twin.period, twin.substeps, twin.method, link, io, 0)  # fmt: skip
-    tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), twin.x, twin.motors, twin.out, twin.v, twin.a,
-                       twin.period, twin.substeps, twin.method, link, io, 0)  # fmt: skip
+    args = (twin.x, twin.motors, twin.out, twin.v, twin.a, *twin.air, twin.period, twin.substeps, twin.method, link, io)
+    tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, *args, 0)
+    tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), *args, 0)
     wire.decode_actuators(link, n, twin.commanded, 1.0)
     twin.step()
     state_inside(twin.x)
@@ -277,7 +276,8 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     start = time.monotonic()
     link.encode(0, plant)
     rx, received, commanded, io, tx = link.rx_array, link.received, plant.commanded, link.io, link.tx
-    args = (plant.x, plant.motors, plant.out, plant.v, plant.a, period, plant.substeps, plant.method, tx, io)
+    args = (plant.x, plant.motors, plant.out, plant.v, plant.a, *plant.air, period, plant.substeps, plant.method, tx,
+            io)  # fmt: skip
     max_thrust, monotonic, receive = link.max_thrust, time.monotonic, link.receive
     check_state(plant, 0)  # the initial state; the others are checked as they are made (tick.DIVERGED)
     while max_ticks is None or k < max_ticks:
@@ -382,6 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--stats", metavar="FILE", help="write the run's pace (and, in realtime, its timing) as JSON")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary at the end (errors still print)")
+    add_wind_arguments(p)
     return p
 
 
@@ -390,7 +391,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        preset = load_preset(args.preset)
+        preset = with_wind(load_preset(args.preset), args)
         check_range("--speed", args.speed if args.speed != 0 else None, 0.0, 1000.0)
         autopilot = parse_address("--autopilot", args.autopilot)
         plant = Plant(preset, integrator=args.integrator, substeps=args.substeps)

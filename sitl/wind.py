@@ -2,8 +2,8 @@
 
 Everything is the wind velocity w [m/s] in the local NED frame, the velocity of the air over the ground. It is
 pure: the caller owns the filter states and the random stream (:func:`wind_state`) and calls
-:func:`wind_step` once per tick. (Acting on the vehicle, through the drag terms of eqs (2)–(4) on the
-air-relative velocity, is the next step; see docs/sensors.md.)
+:func:`wind_step` once per tick; the plant calls it through :func:`air_tick`, which also gives the external force,
+and the wind acts through the drag terms of eqs (2)–(4) on the air-relative velocity (:mod:`sitl.dynamics`).
 
 - **Mean wind**: a speed and the direction it blows FROM, as weather reports give it, in degrees clockwise
   from north: 270 is a west wind, the air moving east: w = −speed·(cos ψ, sin ψ, 0).
@@ -31,39 +31,23 @@ The filters' coefficients follow the altitude and airspeed of each step (floored
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
+from quadsitl.config import TURBULENCE_W20_KNOTS, WindParams
 from quadsitl.jit import jit
 from sitl.noise import gauss_markov, normal, seed_streams
 
 KNOT = 0.514444  # m/s
 FOOT = 0.3048  # m
-TURBULENCE_W20_KNOTS = {"none": 0.0, "light": 15.0, "moderate": 30.0, "severe": 45.0}  # MIL-F-8785C, W20
 MIN_AIRSPEED = 1.0  # m/s: the filters' V is at least this (their time constants L/V stay finite when calm)
 SQRT3 = math.sqrt(3.0)
 
-# The parameter array's layout (wind_params)
-MEAN_N, MEAN_E, W20, GUST_A, GUST_RISE, GUST_START, GUST_N, GUST_E, U_N, U_E = range(10)
-N_PARAMS = 10
-N_STATE = 5  # u; v (2 states); w (2 states)
-
-
-@dataclass(frozen=True)
-class Wind:
-    """Wind settings: speed [m/s] and FROM-direction [deg, clockwise from north] of the mean wind; the
-    turbulence level (none, light, moderate, severe); a 1 − cos gust's amplitude [m/s], rise time [s], start
-    [s of simulated time] and FROM-direction [deg]; the seed of the turbulence's random stream."""
-
-    speed_m_s: float = 0.0
-    from_deg: float = 0.0
-    turbulence: str = "none"
-    gust_m_s: float = 0.0
-    gust_rise_s: float = 1.0
-    gust_start_s: float = 0.0
-    gust_from_deg: float = 0.0
-    seed: int = 0
+# The parameter array's layout (wind_params); the external force last
+MEAN_N, MEAN_E, W20, GUST_A, GUST_RISE, GUST_START, GUST_N, GUST_E, U_N, U_E, FORCE = range(11)
+N_PARAMS = FORCE + 3
+CLOCK = 5  # the wind's clock, in the state array after the filters': ticks since lift-off, −1 before
+N_STATE = 6  # u; v (2 states); w (2 states); the clock
 
 
 def blowing(speed: float, from_deg: float) -> tuple[float, float]:
@@ -72,7 +56,7 @@ def blowing(speed: float, from_deg: float) -> tuple[float, float]:
     return -speed * math.cos(psi), -speed * math.sin(psi)
 
 
-def wind_params(wind: Wind) -> np.ndarray:
+def wind_params(wind: WindParams) -> np.ndarray:
     """The compiled step's parameters (float64, layout above) for ``wind``."""
     p = np.zeros(N_PARAMS)
     p[MEAN_N], p[MEAN_E] = blowing(wind.speed_m_s, wind.from_deg)
@@ -81,13 +65,16 @@ def wind_params(wind: Wind) -> np.ndarray:
     p[GUST_N], p[GUST_E] = blowing(1.0, wind.gust_from_deg)
     # u along the mean wind, north when calm
     p[U_N], p[U_E] = (p[MEAN_N] / wind.speed_m_s, p[MEAN_E] / wind.speed_m_s) if wind.speed_m_s > 0 else (1.0, 0.0)
+    p[FORCE : FORCE + 3] = wind.force_n
     return p
 
 
 def wind_state(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """The turbulence's filter states (zeros: it starts calm and builds up over a few L/V) and its random stream
-    for ``seed``."""
-    return np.zeros(N_STATE), seed_streams(seed, 1)
+    """The turbulence's filter states (zeros: it starts calm and builds up over a few L/V), the wind's clock (not
+    started) and its random stream for ``seed``."""
+    x = np.zeros(N_STATE)
+    x[CLOCK] = -1.0
+    return x, seed_streams(seed, 1)
 
 
 @jit
@@ -177,3 +164,27 @@ def wind_step(
     out[0] += x[0] * p[U_N] - tv * p[U_E]
     out[1] += x[0] * p[U_E] + tv * p[U_N]
     out[2] += tw
+
+
+@jit
+def air_tick(d: np.ndarray, x: np.ndarray, rng: np.ndarray, p: np.ndarray, dt: float, state: np.ndarray,
+             on_ground: bool) -> None:  # fmt: skip
+    """The plant's disturbance for a tick of ``dt`` [s] that starts in state ``state`` (12, VehicleState order),
+    resting on the ground or not, into ``d`` (6, :data:`sitl.dynamics.CALM`'s layout): the wind [m/s, NED], then
+    the external force [N, NED].
+
+    The wind's clock (``x[CLOCK]``) starts when the vehicle first leaves the ground, or at once when it starts in
+    the air: the gust's start counts from lift-off, and the turbulence's filters run from then on, at the
+    vehicle's altitude (−z, above the ground) and airspeed (against the wind of the tick before, in ``d``). So a
+    flight meets the same air however long its vehicle waited on the ground (``quadsitl fly`` arms and switches
+    modes first, ``quadsitl sim`` does not). Before that, only the mean wind blows (the ground holds the vehicle)."""
+    if x[CLOCK] < 0.0:
+        if on_ground:
+            d[0], d[1], d[2] = p[MEAN_N], p[MEAN_E], 0.0
+            d[3], d[4], d[5] = p[FORCE], p[FORCE + 1], p[FORCE + 2]
+            return
+        x[CLOCK] = 0.0
+    airspeed = math.sqrt((state[3] - d[0]) ** 2 + (state[4] - d[1]) ** 2 + (state[5] - d[2]) ** 2)
+    wind_step(d, x, rng, p, x[CLOCK] * dt, dt, -state[2], airspeed)
+    x[CLOCK] += 1.0
+    d[3], d[4], d[5] = p[FORCE], p[FORCE + 1], p[FORCE + 2]

@@ -19,10 +19,11 @@ from autopilot.pd import pd
 from autopilot.tick import autopilot_tick
 from groundstation.offline import run_offline
 from quadsitl import frames, mixer, wire
-from quadsitl.config import load_preset
+from quadsitl.config import WindParams, load_preset
 from quadsitl.param_arrays import actuator_array, vehicle_array
 from sitl import actuators, dynamics, integrators, tick
 from sitl.plant import OUT_SIZE
+from sitl.wind import wind_params, wind_state
 
 RANDOM_STATES = 200
 
@@ -62,9 +63,10 @@ def compute() -> dict[str, np.ndarray]:
         s, u, ref = tuple(states[i]), tuple(inputs[i]), tuple(refs[i])
         f = mixer.inputs_to_forces(u, v[15])
         row = {
-            "derivatives": dynamics.derivatives(s, u, inputs[i, 0] * 3.0, v),
-            "euler": integrators.euler(s, u, 1.5, v, 0.001),
-            "rk4": integrators.rk4(s, u, 1.5, v, 0.001),
+            "derivatives": dynamics.derivatives(s, u, inputs[i, 0] * 3.0, v, dynamics.CALM),
+            "derivatives in wind": dynamics.derivatives(s, u, 1.5, v, (*inputs[i, :3], *inputs[-1 - i, :3])),
+            "euler": integrators.euler(s, u, 1.5, v, dynamics.CALM, 0.001),
+            "rk4": integrators.rk4(s, u, 1.5, v, (*inputs[-1 - i, :3], 0.0, 1.0, -2.0), 0.001),
             "forces_to_inputs": mixer.forces_to_inputs(f, v[15]),
             "inputs_to_forces": f,
             "rotor_speeds": mixer.rotor_speeds(f, v[12]),
@@ -98,6 +100,9 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
     io_pl = np.zeros(tick.IO_SIZE, dtype=np.int64)
     io_pl[tick.LAST_USEC] = -1
     x, motors, out, received, commanded = states[0].copy(), np.zeros(4), np.zeros(OUT_SIZE), np.zeros(4), np.zeros(4)
+    gusty = WindParams(speed_m_s=3.0, from_deg=200.0, turbulence="severe", gust_m_s=2.0, gust_start_s=0.05, seed=4,
+                       force_n=(0.5, -0.2, 0.1))  # fmt: skip
+    air = (np.zeros(6), *wind_state(gusty.seed), wind_params(gusty))  # in a wind, with an external force
     cm = commander.Commander()
     cm.on_altitude_setpoint(float(refs[0, 0]))
     cm.on_attitude_setpoint(*map(float, refs[0, 1:]))
@@ -115,7 +120,7 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
         bytes_out.append(tx[:m].copy())
         rx[:m] = tx[:m]
         tick.lockstep_tick(rx, m, wire.usec_of(k, preset.sim.period), 1e4, received, commanded, x, motors, out, v, a,
-                           preset.sim.period, 1, 0, tx, io_pl, k)  # fmt: skip
+                           *air, preset.sim.period, 1, 0, tx, io_pl, k)  # fmt: skip
         frames_out.append(np.concatenate([x, mem, cm.cm]))
         bytes_out.append(records.copy())
     return {"ticks/values": np.array(frames_out), "ticks/answers": np.concatenate(bytes_out).astype(np.float64)}

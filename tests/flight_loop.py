@@ -3,8 +3,8 @@ plant, in one process and in lockstep, for tests of the flight controller withou
 
 It calls :func:`autopilot.tick.control_tick` (what the autopilot process calls once a state is decoded) and
 :meth:`sitl.plant.Plant.step` (what the plant process calls), so it flies the same equations as ``quadsitl up``.
-An optional constant external force [N, NED] acts on the plant (as a velocity increment each period), and the
-autopilot may be given another vehicle model than the plant's (a mismatch).
+The plant flies in the preset's [wind] (a wind, an external force), and the autopilot may be given another
+vehicle model than the plant's (a mismatch).
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ class Flight:
         preset: Preset,
         controller: str = "backstepping",
         model: Preset | None = None,
-        force: tuple[float, float, float] = (0.0, 0.0, 0.0),
         settings: CommanderSettings | None = None,
     ) -> None:
         self.preset = preset
@@ -46,7 +45,6 @@ class Flight:
         self.records = np.zeros(0, dtype=np.uint8)
         self.period = preset.sim.period
         self.f_min, self.f_max = preset.actuators.min_thrust, preset.actuators.max_thrust
-        self.push = np.array(force) / preset.vehicle.mass * self.period  # [m/s] per period
         self.tick = 0
         self.step(1)  # the commander has seen a state
 
@@ -66,7 +64,6 @@ class Flight:
                          self.io, wire.usec_of(self.tick, self.period), self.tick, t, self.records)  # fmt: skip
             self.commander.announce(int(self.io[EVENT]))
             self.plant.step(tuple(self.mem[MEM_FORCES : MEM_FORCES + 4]))
-            self.plant.x[3:6] += self.push
             self.tick += 1
 
     def run(self, seconds: float) -> None:

@@ -43,7 +43,10 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
     figures = {f["name"]: f for f in report["figures"]}
     one = figures["fleet of 1, real time: worst vehicle's deadline-miss ratio"]
     assert 0.0 <= one["value"] <= 1.0 and one["baseline"] == one["value"] and one["baseline_name"] == "one vehicle"
-    for n in (1, 2):
+    # the sizes stop at the first that misses 1 % of its deadlines (one vehicle did on a loaded 2-core CI machine)
+    measured = (1, 2) if one["value"] < 0.01 else (1,)
+    assert "fleet of 2, real time: CPU per vehicle" in figures or measured == (1,)
+    for n in measured:
         assert 0 < figures[f"fleet of {n}, real time: CPU per vehicle"]["value"] < 200  # % of a core
         assert 50 < figures[f"fleet of {n}, real time: memory per vehicle"]["value"] < 2000  # MB
         lockstep = figures[f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)"]

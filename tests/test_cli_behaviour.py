@@ -62,6 +62,31 @@ def test_unknown_preset_names_the_available_ones(command, tmp_path):
     assert r.stdout == ""
 
 
+@pytest.mark.parametrize("command", ["sim", "fly", "up", "plant"])
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (("--wind", "60,270"), "--wind 60,270: wind.speed_m_s = 60.0: expected a number in [0, 50] m/s"),
+        (("--wind", "5"), "--wind '5': expected 2 comma-separated finite numbers"),
+        (("--gust", "3,400,1"), "--gust 3,400,1: wind.gust_from_deg = 400.0: expected a number in [0, 360] deg"),
+        (("--gust", "3,90,1,0"), "--gust 3,90,1,0: wind.gust_rise_s = 0.0: expected a number in (0, 100] s"),
+        (("--gust", "3"), "--gust '3': expected 2 to 4 comma-separated numbers: SPEED,FROM[,START[,RISE]]"),
+        (("--wind-seed", "-3"), "--wind-seed -3: wind.seed = -3: expected an integer in [0, 2**63 - 1]"),
+        (("--turbulence", "gale"), "argument --turbulence: invalid choice: 'gale' (choose from 'none', 'light', "
+                                   "'moderate', 'severe')"),  # argparse's own: its usage, then this line
+    ],
+)  # fmt: skip
+def test_a_bad_wind_option_is_one_line_naming_the_option_the_key_and_what_is_allowed(command, option, message,
+                                                                                      tmp_path):  # fmt: skip
+    """Refused before any process starts (the plant: before it binds its port)."""
+    extra = {"sim": ["--out", str(tmp_path / "o")], "fly": ["--out", str(tmp_path / "o")],
+             "plant": ["--autopilot", "127.0.0.1:9"], "up": []}[command]  # fmt: skip
+    r = quadsitl(command, *option, *extra, timeout=30)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert message in (r.stderr.strip().splitlines()[-1] if "choose from" in message else assert_one_line_error(r))
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize("command", ["fly", "gcs"])
 @pytest.mark.parametrize(
     ("trajectory", "message"),

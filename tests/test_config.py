@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from quadsitl.config import ConfigError, available_presets, load_preset, parse_preset
+from quadsitl.config import ConfigError, WindParams, available_presets, load_preset, parse_preset
 
 PAPER_TEXT = (__import__("importlib").resources.files("quadsitl") / "presets" / "paper.toml").read_text()
 
@@ -121,6 +121,24 @@ def test_a_model_section_gives_the_autopilot_its_own_model_of_the_vehicle_key_by
         parse_preset(_edit("[actuators]", "[model]\nmas = 1.0\n\n[actuators]"))
 
 
+def test_a_wind_section_sets_the_wind_and_is_checked_key_by_key():
+    section = '[wind]\nspeed_m_s = 5\nfrom_deg = 270\nturbulence = "light"\nforce_n = [1, 0, 0]\n'
+    p = parse_preset(PAPER_TEXT + "\n" + section)
+    assert p.wind == WindParams(speed_m_s=5.0, from_deg=270.0, turbulence="light", force_n=(1.0, 0.0, 0.0))
+    assert load_preset("paper").wind == WindParams()  # no section: calm
+    for text, message in [
+        ("speed_m_s = 51", r"wind\.speed_m_s = 51: expected a number in \[0, 50\] m/s"),
+        ("from_deg = -10", r"wind\.from_deg = -10: expected a number in \[0, 360\] deg"),
+        ('turbulence = "gale"', r"wind\.turbulence = 'gale': expected one of: none, light, moderate, severe"),
+        ("gust_rise_s = 0", r"wind\.gust_rise_s = 0: expected a number in \(0, 100\] s"),
+        ("force_n = [1, 2]", r"wind\.force_n = \[1, 2\]: expected 3 numbers in \[-1000, 1000\] N"),
+        ("seed = -1", r"wind\.seed = -1: expected an integer"),
+        ("speed = 5", r"unknown key wind\.speed; allowed in \[wind\]: speed_m_s, from_deg"),
+    ]:
+        with pytest.raises(ConfigError, match=message):
+            parse_preset(PAPER_TEXT + f"\n[wind]\n{text}\n")
+
+
 def test_the_initial_state_takes_rates():
     from sitl.plant import initial_state
 
@@ -137,10 +155,11 @@ def test_a_preset_written_as_toml_reads_back_the_same_to_the_bit(name):
 
     from quadsitl.config import preset_toml
 
-    if name == "edited":  # every optional part: a model, poles, rates at the start, sensors, an awkward text
+    if name == "edited":  # every optional part: a model, poles, rates at the start, sensors, wind, an awkward text
         p = parse_preset(_edit("[actuators]", "[model]\nmass = 2.1\ndrag = [0.1, 0.2, 0.3, 0, 0, 0.1]\n\n[actuators]"))
         sensors = parse_preset(PAPER_TEXT + "\n[sensors]\nseed = 7\n").sensors
-        p = replace(p, description='a "quoted" one\\ with ünïcode\nand a line', sensors=sensors,
+        wind = WindParams(5.0, 1 / 3, "severe", 2.5, 0.7, 1.1, 90.0, 2**62, (0.1, -0.2, 1 / 7))
+        p = replace(p, description='a "quoted" one\\ with ünïcode\nand a line', sensors=sensors, wind=wind,
                     controller=replace(p.controller, gains=None, poles=tuple(1 - 0.001 * k for k in range(8))),
                     initial=replace(p.initial, altitude=0.1 + 0.2, roll_rate=1 / 3),
                     model=(*p.model, ("ixx", 1.0000000000000002)))  # fmt: skip

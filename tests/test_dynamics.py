@@ -1,12 +1,13 @@
 """The plant: eqs (2)–(7) against hand-derived values, errata 1, 2 and 6, integrators, actuators and
-the ground plane."""
+the ground plane, the wind and an external force."""
 
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 
-from quadsitl.config import ActuatorParams, load_preset
+from quadsitl.config import ActuatorParams, WindParams, load_preset
 from quadsitl.mixer import inputs_to_forces
 from quadsitl.param_arrays import actuator_array, vehicle_array
 from quadsitl.state import VehicleState
@@ -20,9 +21,11 @@ V = PAPER.vehicle
 T = PAPER.sim.period
 
 
-def derivatives(s, u, wr, v):
-    """The compiled eqs (2)–(7) for a VehicleState and a VehicleParams."""
-    return dynamics.derivatives(tuple(map(float, s)), tuple(map(float, u)), float(wr), vehicle_array(v))
+def derivatives(s, u, wr, v, d=dynamics.CALM):
+    """The compiled eqs (2)–(7) for a VehicleState and a VehicleParams, in calm air unless ``d`` (the wind [m/s,
+    NED] and an external force [N, NED]) says otherwise."""
+    return dynamics.derivatives(tuple(map(float, s)), tuple(map(float, u)), float(wr), vehicle_array(v),
+                                tuple(map(float, d)))  # fmt: skip
 
 
 def test_hover_is_an_equilibrium():
@@ -63,8 +66,51 @@ def test_eq5_to_eq7_hand_values():
     assert d[11] == pytest.approx(0.2 * -0.3 * (ix - iy) / iz + 3.0 / iz - k6 / iz * 0.5)
 
 
+def test_drag_acts_on_the_velocity_through_the_air_and_a_force_adds_its_acceleration():
+    # Hovering (u1 = m·g, level) and moving north at 1 m/s in a wind of (3, −2, 0.5) m/s NED with a push of
+    # (0.4, 0, −0.2) N: ẍ = −K1·(1 − 3)/m + 0.4/m, ÿ = −K2·(0 + 2)/m, z̈ = −K3·(0 − 0.5)/m − 0.2/m.
+    m, (k1, k2, k3) = V.mass, V.drag[:3]
+    d = derivatives(VehicleState(z=-3.0, vx=1.0), (m * V.gravity, 0, 0, 0), 0.0, V, (3.0, -2.0, 0.5, 0.4, 0.0, -0.2))
+    assert d[3:6] == pytest.approx((-k1 * (1.0 - 3.0) / m + 0.4 / m, -k2 * 2.0 / m, k3 * 0.5 / m - 0.2 / m), abs=1e-15)
+    # moving with the air, no drag: the hover equilibrium again
+    d = derivatives(VehicleState(z=-3.0, vx=3.0, vy=-2.0), (m * V.gravity, 0, 0, 0), 0.0, V, (3.0, -2.0, 0, 0, 0, 0))
+    assert d[3:6] == pytest.approx((0.0, 0.0, 0.0), abs=1e-15)
+
+
+def test_a_steady_wind_carries_a_hovering_vehicle_at_the_rate_of_its_drag():
+    """Level, thrust = weight, in a 4 m/s wind from the south (the air moving north): forward Euler makes
+    vx(k) = 4·(1 − (1 − T·K1/m)^k) exactly, toward the wind's speed with time constant m/K1 = 20 s."""
+    preset = dataclasses.replace(PAPER, initial=dataclasses.replace(PAPER.initial, altitude=10.0),
+                                 wind=WindParams(speed_m_s=4.0, from_deg=180.0))  # fmt: skip
+    plant = Plant(preset)
+    hover = inputs_to_forces((V.mass * V.gravity, 0, 0, 0), V.d_over_b)
+    for _ in range(5000):
+        plant.step(hover)
+    decay = (1.0 - T * V.drag[0] / V.mass) ** 5000
+    assert plant.wind == pytest.approx((4.0, 0.0, 0.0), abs=1e-12)
+    assert plant.state.vx == pytest.approx(4.0 * (1.0 - decay), rel=1e-9) and abs(plant.state.vy) < 1e-12
+
+
+def test_a_calm_wind_section_flies_as_no_section_to_the_bit_and_wind_or_turbulence_change_the_flight():
+    def fly(wind):
+        plant = Plant(dataclasses.replace(PAPER, initial=dataclasses.replace(PAPER.initial, altitude=5.0), wind=wind))
+        thrust = inputs_to_forces((V.mass * V.gravity + 0.3, 0.01, -0.02, 0.001), V.d_over_b)
+        rows = []
+        for _ in range(800):
+            plant.step(thrust)
+            rows.append(plant.x.copy())
+        return np.array(rows)
+
+    calm = fly(WindParams())
+    assert np.array_equal(calm, fly(WindParams(from_deg=90.0, gust_rise_s=3.0, seed=9)))  # calm whatever else
+    assert not np.array_equal(calm, fly(WindParams(speed_m_s=1.0)))
+    light = fly(WindParams(turbulence="light", seed=1))
+    assert not np.array_equal(calm, light) and np.array_equal(light, fly(WindParams(turbulence="light", seed=1)))
+    assert not np.array_equal(light, fly(WindParams(turbulence="light", seed=2)))
+
+
 def _euler_plant_step(s, u, wr=0.0, v=V):
-    return euler(tuple(map(float, s)), tuple(map(float, u)), wr, vehicle_array(v), T)
+    return euler(tuple(map(float, s)), tuple(map(float, u)), wr, vehicle_array(v), dynamics.CALM, T)
 
 
 def test_erratum1_pitch_integrates_pitch_rate():
@@ -95,12 +141,12 @@ def test_rk4_is_fourth_order():
     def run(n):
         s = s0
         for _ in range(n):
-            s = rk4(s, u, 0.0, v, 1.0 / n)
+            s = rk4(s, u, 0.0, v, dynamics.CALM, 1.0 / n)
         return abs(s[5] - m * g / k3 * (1.0 - math.exp(-k3 / m)))
 
     ratio = run(10) / run(20)
     assert 14 < ratio < 18
-    assert abs(euler(s0, u, 0.0, v, 0.1)[5] - 0.1 * g) < 1e-15
+    assert abs(euler(s0, u, 0.0, v, dynamics.CALM, 0.1)[5] - 0.1 * g) < 1e-15
 
 
 def test_realistic_actuators_clamp_and_lag():

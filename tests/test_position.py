@@ -13,7 +13,7 @@ from autopilot.commander import CommanderSettings
 from autopilot.control_params import KI_XY, POLES_XY, XY_VEL_MAX, control_array
 from autopilot.params import ParamStore
 from autopilot.position import attitude_for, horizontal_acceleration
-from quadsitl.config import PositionParams, load_preset
+from quadsitl.config import PositionParams, WindParams, load_preset
 from quadsitl.param_arrays import K1, K2, MASS, vehicle_array
 from quadsitl.wire import Mode
 from tests.flight_loop import Flight
@@ -113,12 +113,29 @@ def _with_integral(preset, alt: float, xy: float):
 def test_a_constant_horizontal_force_leaves_the_offset_of_the_formula_without_integral_action_and_none_with(ki):
     """2 N pushing north on the 2 kg x500 holding (0, 0, 5 m): without integral action the loop settles where
     −k9·k10·m·e9 balances it, e9 = F/(m·k9·k10) = 2/(2·1·2) = 0.5 m; with k_I = 0.25 1/s the offset goes."""
-    preset = _with_integral(X500, 0.0, ki)
-    f = _hover(preset, force=(2.0, 0.0, 0.0))
+    preset = dataclasses.replace(_with_integral(X500, 0.0, ki), wind=WindParams(force_n=(2.0, 0.0, 0.0)))
+    f = _hover(preset)
     f.run(60.0)
     expected = 0.0 if ki else 2.0 / (2.0 * 1.0 * 2.0)
     assert f.state.x == pytest.approx(expected, abs=0.005)
     assert abs(f.state.y) < 1e-3 and f.state.altitude == pytest.approx(5.0, abs=0.005)
+
+
+@pytest.mark.parametrize("ki", [0.0, 0.25])
+def test_a_steady_wind_leaves_the_offset_of_its_drag_without_integral_action_and_none_with(ki):
+    """A 5 m/s wind from the west (the air moving east) on the x500 holding (0, 0, 5 m): at rest its drag is
+    K2·w = 0.25·5 = 1.25 N east (eq (3) on the air-relative velocity), so without integral action the vehicle
+    settles e9 = 1.25/(m·k9·k10) = 1.25/(2·1·2) = 0.3125 m east, downwind, leaning into the wind; with
+    k_I = 0.25 1/s it holds its position."""
+    preset = dataclasses.replace(_with_integral(X500, 0.0, ki), wind=WindParams(speed_m_s=5.0, from_deg=270.0))
+    f = _hover(preset)
+    assert f.plant.wind == pytest.approx((0.0, 5.0, 0.0), abs=1e-12)
+    f.run(60.0)
+    expected = 0.0 if ki else 0.25 * 5.0 / (2.0 * 1.0 * 2.0)
+    assert f.state.y == pytest.approx(expected, abs=0.005)
+    assert abs(f.state.x) < 1e-3 and f.state.altitude == pytest.approx(5.0, abs=0.005)
+    # leaning west, into the wind, just so far that the thrust's westward part balances the drag
+    assert f.state.roll == pytest.approx(-math.atan(1.25 / (2.0 * 9.80665)), abs=2e-4)
 
 
 @pytest.mark.parametrize("ki", [0.0, 0.5])

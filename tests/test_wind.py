@@ -6,11 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from sitl.wind import KNOT, Wind, dryden_scales, gamma_lower, gust, wind_params, wind_state, wind_step
+from quadsitl.config import WindParams
+from sitl.wind import KNOT, dryden_scales, gamma_lower, gust, wind_params, wind_state, wind_step
 from tests.both_runtimes import outputs
 
 
-def fly(wind: Wind, steps: int, dt: float, altitude: float, airspeed: float) -> np.ndarray:
+def fly(wind: WindParams, steps: int, dt: float, altitude: float, airspeed: float) -> np.ndarray:
     """The wind [m/s, NED] at each of ``steps`` steps."""
     p = wind_params(wind)
     x, rng = wind_state(wind.seed)
@@ -28,13 +29,13 @@ def test_the_mean_wind_blows_from_where_it_is_said_to():
         (90.0, 0.0, -5.0),
         (225.0, 5 / 2**0.5, 5 / 2**0.5),
     ):
-        w = fly(Wind(speed_m_s=5.0, from_deg=from_deg), 3, 0.001, 10.0, 5.0)
+        w = fly(WindParams(speed_m_s=5.0, from_deg=from_deg), 3, 0.001, 10.0, 5.0)
         assert w[-1] == pytest.approx([north, east, 0.0], abs=1e-12), from_deg
-    assert not fly(Wind(), 100, 0.001, 10.0, 0.0).any()  # no wind, no turbulence: exactly calm
+    assert not fly(WindParams(), 100, 0.001, 10.0, 0.0).any()  # no wind, no turbulence: exactly calm
 
 
 def test_the_gust_is_one_minus_cosine_then_holds():
-    p = wind_params(Wind(gust_m_s=4.0, gust_rise_s=2.0, gust_start_s=1.0, gust_from_deg=180.0))
+    p = wind_params(WindParams(gust_m_s=4.0, gust_rise_s=2.0, gust_start_s=1.0, gust_from_deg=180.0))
     for t, want in (
         (0.0, 0.0),
         (1.0, 0.0),
@@ -62,7 +63,7 @@ def test_the_incomplete_gamma_function_by_series_and_closed_form():
 # are exact at any size: 20,000 s in 0.05 s steps is ~4,000 independent stretches of u, so a standard deviation
 # is known to ~1 % and an autocorrelation to ~0.016 (the bounds below are three times that or more).
 V, H, DT, STEPS = 50.0, 20.0, 0.05, 400_000
-MODERATE = Wind(speed_m_s=V, from_deg=270.0, turbulence="moderate", seed=3)
+MODERATE = WindParams(speed_m_s=V, from_deg=270.0, turbulence="moderate", seed=3)
 
 
 def turbulence() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -123,9 +124,9 @@ def test_dryden_vertical_spectrum_is_its_transfer_function(uvw):
 
 
 def test_seeds_repeat_to_the_bit_and_differ_from_each_other():
-    a = fly(Wind(turbulence="light", seed=7), 2000, 0.001, 5.0, 3.0)
-    b = fly(Wind(turbulence="light", seed=7), 2000, 0.001, 5.0, 3.0)
-    c = fly(Wind(turbulence="light", seed=8), 2000, 0.001, 5.0, 3.0)
+    a = fly(WindParams(turbulence="light", seed=7), 2000, 0.001, 5.0, 3.0)
+    b = fly(WindParams(turbulence="light", seed=7), 2000, 0.001, 5.0, 3.0)
+    c = fly(WindParams(turbulence="light", seed=8), 2000, 0.001, 5.0, 3.0)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
     assert np.abs(a).max() > 0.0
 
@@ -133,8 +134,8 @@ def test_seeds_repeat_to_the_bit_and_differ_from_each_other():
 WIND_SAMPLES = """
 from tests.test_wind import fly
 from tests.both_runtimes import outputs
-from sitl.wind import Wind
-w = fly(Wind(speed_m_s=3.0, from_deg=45.0, turbulence="severe", gust_m_s=2.0, gust_start_s=0.1, seed=5),
+from quadsitl.config import WindParams
+w = fly(WindParams(speed_m_s=3.0, from_deg=45.0, turbulence="severe", gust_m_s=2.0, gust_start_s=0.1, seed=5),
         500, 0.001, 7.0, 4.0)
 print(w.tobytes().hex())
 """

@@ -46,6 +46,7 @@ from autopilot.pd import pd
 from quadsitl.jit import constants, jit
 from quadsitl.mixer import allocate
 from quadsitl.param_arrays import ACTUATOR_SIZE, D_OVER_B, F_MAX, F_MIN, VEHICLE_SIZE
+from sitl.dynamics import CALM
 from sitl.plant import DEFAULT_LIMITS as DEFAULT_LIMITS  # divergence bounds: the plant process's (sitl.plant.inside)
 from sitl.plant import LIMITS_SIZE as LIMITS_SIZE
 from sitl.plant import inside, step
@@ -184,7 +185,7 @@ def _fly(
             saturated += 1
         # ---- the plant: one control period under the commanded forces ------------------------------------
         s, motors, _applied, _inputs, _wr, _ground = step(s, motors, forces, v, a, period, substeps, method,
-                                                            math.nan)  # fmt: skip
+                                                            math.nan, CALM)  # fmt: skip
     flown = ticks if diverged_at < 0 else diverged_at
     nan = math.nan
     m[M_SATURATED] = saturated * period
