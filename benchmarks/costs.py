@@ -26,6 +26,7 @@ def measure(number: int) -> dict[str, float]:
     from quadsitl.param_arrays import actuator_array, vehicle_array
     from sitl import tick
     from sitl.plant import OUT_SIZE, step_arrays
+    from sitl.wind import air_arrays
 
     preset = load_preset("paper")
     T = preset.sim.period
@@ -33,7 +34,8 @@ def measure(number: int) -> dict[str, float]:
     c = control_array(preset.poles(), T, preset.controller.pd_kp, preset.controller.pd_kd)
     x = np.array([0.0, 0.0, -1.0, 0.0, 0.0, -0.2, 0.1, -0.05, 0.3, 0.2, 0.1, 0.05])
     ref, mem = np.array([5.0, 1.0, 1.0, 1.0]), np.zeros(MEM_SIZE)
-    motors, commanded, out, calm = np.zeros(4), np.full(4, 5.0), np.zeros(OUT_SIZE), np.zeros(6)
+    motors, commanded, out = np.zeros(4), np.full(4, 5.0), np.zeros(OUT_SIZE)
+    air = air_arrays(preset.wind)  # calm: the preset's [wind]
     figures = {
         "backstepping controller step": per_call(lambda: backstepping.step_arrays(x, ref, mem, v, c), number),
         "pd controller step": per_call(lambda: pd.step_arrays(x, ref, mem, v, c), number),
@@ -42,7 +44,7 @@ def measure(number: int) -> dict[str, float]:
         xs = x.copy()
         figures[f"plant step ({name})"] = per_call(
             lambda xs=xs, method=method, substeps=substeps: step_arrays(
-                xs, motors, commanded, out, v, a, T, substeps, method, np.nan, calm), number)  # fmt: skip
+                xs, motors, commanded, out, v, a, *air, T, substeps, method, np.nan), number)  # fmt: skip
 
     # The processes' whole ticks, frame in to frame out (no sockets).
     state_frame, answer = np.zeros(wire.FRAME_MAX, np.uint8), np.zeros(wire.FRAME_MAX, np.uint8)
@@ -65,7 +67,7 @@ def measure(number: int) -> dict[str, float]:
 
     def plant_side() -> None:
         pio[tick.LAST_USEC] = -1  # every call the answer to the tick
-        tick.lockstep_tick(answer, n_answer, stamp[0], 1e4, received, commanded, xs, motors, out, v, a, T, 1, 0,
+        tick.lockstep_tick(answer, n_answer, stamp[0], 1e4, received, commanded, xs, motors, out, v, a, *air, T, 1, 0,
                            state_frame, pio, 0)  # fmt: skip
 
     stamp[0] = int(answer[10:18].view(np.uint64)[0])

@@ -26,7 +26,7 @@ from quadsitl.state import Inputs, VehicleState
 from sitl.actuators import advance
 from sitl.dynamics import Disturbance, State, derivatives
 from sitl.integrators import INTEGRATORS, integrate
-from sitl.wind import air_tick, wind_params, wind_state
+from sitl.wind import air_arrays, air_tick
 
 # The outputs of a step besides the state, in Plant.out: mean motor forces (4), inputs u1..u4 (4), Ωr, on ground.
 OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_SIZE = 0, 4, 8, 9, 10
@@ -86,10 +86,13 @@ def step(s: State, motors: Forces, commanded: Forces, v: np.ndarray, a: np.ndarr
 
 @jit
 def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: np.ndarray, v: np.ndarray,
-                a: np.ndarray, period: float, substeps: int, method: int, omega_r: float,
-                d: np.ndarray) -> None:  # fmt: skip
-    """:func:`step` on arrays, in place: ``x`` (12) the state, ``motors`` (4) the motor forces [N],
-    ``out`` (OUT_SIZE) the step's other outputs; ``d`` (6) the wind and external force (:func:`air_tick`)."""
+                a: np.ndarray, air: np.ndarray, air_rng: np.ndarray, period: float, substeps: int, method: int,
+                omega_r: float) -> None:  # fmt: skip
+    """:func:`step` on arrays, in place, in the tick's wind: ``x`` (12) the state, ``motors`` (4) the motor
+    forces [N], ``out`` (OUT_SIZE) the step's other outputs; ``air`` and ``air_rng`` the wind model's
+    (:func:`sitl.wind.air_arrays`), whose :func:`sitl.wind.air_tick` makes the tick's wind and force first."""
+    air_tick(air, air_rng, period, x, out[OUT_ON_GROUND] > 0.0)
+    d = air[:6]
     s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
     m = (motors[0], motors[1], motors[2], motors[3])
     c = (commanded[0], commanded[1], commanded[2], commanded[3])
@@ -156,8 +159,8 @@ class Plant:
     Attributes after each step: ``state`` (VehicleState), ``forces`` (the mean motor forces applied
     over the last sub-step [N]), ``inputs`` (u1..u4 they make, eq (8)), ``omega_r`` [rad/s],
     ``on_ground`` (bool), ``time`` [s], ``wind`` (the wind of the last step [m/s, NED]).
-    The arrays ``x`` (the state), ``motors`` and ``d`` (the wind and external force of the last step) are what
-    the compiled step works on; ``wind_p``, ``wind_x`` and ``wind_rng`` are the wind model's (:mod:`sitl.wind`).
+    The arrays ``x`` (the state), ``motors``, ``air`` and ``air_rng`` (the wind model's, :func:`sitl.wind.air_arrays`:
+    the wind and external force of the last step first, ``d``) are what the compiled step works on.
     """
 
     def __init__(self, preset: Preset, integrator: str | None = None, substeps: int | None = None) -> None:
@@ -176,9 +179,7 @@ class Plant:
         self.out = np.zeros(OUT_SIZE)
         self.out[OUT_ON_GROUND] = self.x[2] >= 0.0
         self.time = 0.0
-        self.wind_p = wind_params(preset.wind)
-        self.wind_x, self.wind_rng = wind_state(preset.wind.seed)
-        self.d = np.zeros(6)
+        self.air, self.air_rng = air_arrays(preset.wind)
 
     @property
     def state(self) -> VehicleState:
@@ -205,14 +206,13 @@ class Plant:
         return bool(self.out[OUT_ON_GROUND])
 
     @property
-    def air(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The arrays of the wind and external force, in the order the compiled ticks take them: ``d``,
-        ``wind_x``, ``wind_rng``, ``wind_p``."""
-        return self.d, self.wind_x, self.wind_rng, self.wind_p
+    def d(self) -> np.ndarray:
+        """The wind [m/s, NED] and the external force [N, NED] of the last step (a view)."""
+        return self.air[:6]
 
     @property
     def wind(self) -> tuple[float, float, float]:
-        return tuple(self.d[:3].tolist())  # type: ignore[return-value]
+        return tuple(self.air[:3].tolist())  # type: ignore[return-value]
 
     def step(self, commanded: Forces | None = None, omega_r: float | None = None) -> None:
         """Advance one control period under the commanded motor forces [N] (default: ``self.commanded``).
@@ -222,7 +222,6 @@ class Plant:
         """
         if commanded is not None:
             self.commanded[:] = commanded
-        air_tick(self.d, self.wind_x, self.wind_rng, self.wind_p, self.period, self.x, self.out[OUT_ON_GROUND] > 0.0)
-        step_arrays(self.x, self.motors, self.commanded, self.out, self.v, self.a, self.period, self.substeps,
-                    self.method, math.nan if omega_r is None else omega_r, self.d)  # fmt: skip
+        step_arrays(self.x, self.motors, self.commanded, self.out, self.v, self.a, self.air, self.air_rng, self.period,
+                    self.substeps, self.method, math.nan if omega_r is None else omega_r)  # fmt: skip
         self.time += self.period

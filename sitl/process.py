@@ -243,7 +243,8 @@ def warm_up(plant: Plant) -> None:
     link = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
     io = np.zeros(tick.IO_SIZE, dtype=np.int64)
     n = wire.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
-    args = (twin.x, twin.motors, twin.out, twin.v, twin.a, *twin.air, twin.period, twin.substeps, twin.method, link, io)
+    args = (twin.x, twin.motors, twin.out, twin.v, twin.a, twin.air, twin.air_rng, twin.period, twin.substeps,
+            twin.method, link, io)  # fmt: skip
     tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, *args, 0)
     tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), *args, 0)
     wire.decode_actuators(link, n, twin.commanded, 1.0)
@@ -276,8 +277,8 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     start = time.monotonic()
     link.encode(0, plant)
     rx, received, commanded, io, tx = link.rx_array, link.received, plant.commanded, link.io, link.tx
-    args = (plant.x, plant.motors, plant.out, plant.v, plant.a, *plant.air, period, plant.substeps, plant.method, tx,
-            io)  # fmt: skip
+    args = (plant.x, plant.motors, plant.out, plant.v, plant.a, plant.air, plant.air_rng, period, plant.substeps,
+            plant.method, tx, io)  # fmt: skip
     max_thrust, monotonic, receive = link.max_thrust, time.monotonic, link.receive
     check_state(plant, 0)  # the initial state; the others are checked as they are made (tick.DIVERGED)
     while max_ticks is None or k < max_ticks:

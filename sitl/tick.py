@@ -8,8 +8,7 @@ import numpy as np
 
 from quadsitl.jit import jit
 from quadsitl.wire import NOT_THIS_FRAME, decode_actuators, encode_state, usec_of
-from sitl.plant import DEFAULT_LIMITS, OUT_ON_GROUND, inside, step_arrays
-from sitl.wind import air_tick
+from sitl.plant import DEFAULT_LIMITS, inside, step_arrays
 
 # The tick's integer bookkeeping (``io``, int64): the link's sequence number, the length of the state frame
 # in tx, the stamp of the newest actuator message used, and what was refused: stale or duplicate answers,
@@ -30,11 +29,11 @@ def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, tick: int, period
 
 @jit
 def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray, x: np.ndarray,
-                  motors: np.ndarray, out: np.ndarray, v: np.ndarray, a: np.ndarray, d: np.ndarray,
-                  wind_x: np.ndarray, wind_rng: np.ndarray, wind_p: np.ndarray, period: float, substeps: int,
-                  method: int, tx: np.ndarray, io: np.ndarray, tick: int) -> int:  # fmt: skip
+                  motors: np.ndarray, out: np.ndarray, v: np.ndarray, a: np.ndarray, air: np.ndarray,
+                  air_rng: np.ndarray, period: float, substeps: int, method: int, tx: np.ndarray, io: np.ndarray,
+                  tick: int) -> int:  # fmt: skip
     """An actuator message stamped ``t`` (its forces in ``received``): when it answers tick ``tick``
-    (``want``), make it the command, integrate one period in the tick's wind (:func:`sitl.wind.air_tick`) and
+    (``want``), make it the command, integrate one period in the tick's wind (:func:`sitl.plant.step_arrays`) and
     encode the state of tick + 1 (DIVERGED when that state is not :func:`sitl.plant.inside` the default
     bounds)."""
     if t < 0:
@@ -47,8 +46,7 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
         return FUTURE
     io[LAST_USEC] = t
     commanded[:] = received
-    air_tick(d, wind_x, wind_rng, wind_p, period, x, out[OUT_ON_GROUND] > 0.0)
-    step_arrays(x, motors, commanded, out, v, a, period, substeps, method, np.nan, d)
+    step_arrays(x, motors, commanded, out, v, a, air, air_rng, period, substeps, method, np.nan)
     encode_tick(tx, io, x, tick + 1, period)
     s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
     return STEPPED if inside(s, DEFAULT_LIMITS) else DIVERGED
@@ -57,9 +55,8 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
 @jit
 def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, received: np.ndarray,
                   commanded: np.ndarray, x: np.ndarray, motors: np.ndarray, out: np.ndarray, v: np.ndarray,
-                  a: np.ndarray, d: np.ndarray, wind_x: np.ndarray, wind_rng: np.ndarray, wind_p: np.ndarray,
-                  period: float, substeps: int, method: int, tx: np.ndarray, io: np.ndarray,
-                  tick: int) -> int:  # fmt: skip
+                  a: np.ndarray, air: np.ndarray, air_rng: np.ndarray, period: float, substeps: int, method: int,
+                  tx: np.ndarray, io: np.ndarray, tick: int) -> int:  # fmt: skip
     """A datagram from the autopilot (rx[:length]) during tick ``tick``: STEPPED (the next state is in tx),
     DIVERGED (it is, but outside its bounds), FUTURE, NOTHING or ANOTHER_FRAME."""
     t = decode_actuators(rx, length, received, max_thrust)
@@ -68,5 +65,5 @@ def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, rec
     if t < 0:
         io[CORRUPT] += 1  # a bad CRC, or a non-finite force: never integrated
         return NOTHING
-    return take_and_step(t, want, commanded, received, x, motors, out, v, a, d, wind_x, wind_rng, wind_p, period,
-                         substeps, method, tx, io, tick)  # fmt: skip
+    return take_and_step(t, want, commanded, received, x, motors, out, v, a, air, air_rng, period, substeps, method,
+                         tx, io, tick)  # fmt: skip

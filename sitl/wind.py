@@ -48,6 +48,11 @@ MEAN_N, MEAN_E, W20, GUST_A, GUST_RISE, GUST_START, GUST_N, GUST_E, U_N, U_E, FO
 N_PARAMS = FORCE + 3
 CLOCK = 5  # the wind's clock, in the state array after the filters': ticks since lift-off, −1 before
 N_STATE = 6  # u; v (2 states); w (2 states); the clock
+# The plant's air array (air_arrays), one array for one compiled call: the disturbance d the dynamics take (6: the
+# wind [m/s, NED], the external force [N, NED]), then the wind model's state and its parameters.
+AIR_STATE = 6
+AIR_PARAMS = AIR_STATE + N_STATE
+AIR_SIZE = AIR_PARAMS + N_PARAMS
 
 
 def blowing(speed: float, from_deg: float) -> tuple[float, float]:
@@ -166,18 +171,28 @@ def wind_step(
     out[2] += tw
 
 
+def air_arrays(wind: WindParams) -> tuple[np.ndarray, np.ndarray]:
+    """The plant's air array (AIR_SIZE, layout above; calm to start with) and the turbulence's random stream, for
+    ``wind``."""
+    air = np.zeros(AIR_SIZE)
+    x, rng = wind_state(wind.seed)
+    air[AIR_STATE:AIR_PARAMS] = x
+    air[AIR_PARAMS:] = wind_params(wind)
+    return air, rng
+
+
 @jit
-def air_tick(d: np.ndarray, x: np.ndarray, rng: np.ndarray, p: np.ndarray, dt: float, state: np.ndarray,
-             on_ground: bool) -> None:  # fmt: skip
+def air_tick(air: np.ndarray, rng: np.ndarray, dt: float, state: np.ndarray, on_ground: bool) -> None:
     """The plant's disturbance for a tick of ``dt`` [s] that starts in state ``state`` (12, VehicleState order),
-    resting on the ground or not, into ``d`` (6, :data:`sitl.dynamics.CALM`'s layout): the wind [m/s, NED], then
-    the external force [N, NED].
+    resting on the ground or not, into ``air[:6]`` (:data:`sitl.dynamics.CALM`'s layout): the wind [m/s, NED],
+    then the external force [N, NED]. ``air`` is :func:`air_arrays`' array, ``rng`` its random stream.
 
     The wind's clock (``x[CLOCK]``) starts when the vehicle first leaves the ground, or at once when it starts in
     the air: the gust's start counts from lift-off, and the turbulence's filters run from then on, at the
     vehicle's altitude (−z, above the ground) and airspeed (against the wind of the tick before, in ``d``). So a
     flight meets the same air however long its vehicle waited on the ground (``quadsitl fly`` arms and switches
     modes first, ``quadsitl sim`` does not). Before that, only the mean wind blows (the ground holds the vehicle)."""
+    d, x, p = air[:AIR_STATE], air[AIR_STATE:AIR_PARAMS], air[AIR_PARAMS:]
     if x[CLOCK] < 0.0:
         if on_ground:
             d[0], d[1], d[2] = p[MEAN_N], p[MEAN_E], 0.0

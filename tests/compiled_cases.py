@@ -23,7 +23,7 @@ from quadsitl.config import WindParams, load_preset
 from quadsitl.param_arrays import actuator_array, vehicle_array
 from sitl import actuators, dynamics, integrators, tick
 from sitl.plant import OUT_SIZE
-from sitl.wind import wind_params, wind_state
+from sitl.wind import air_arrays
 
 RANDOM_STATES = 200
 
@@ -102,7 +102,7 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
     x, motors, out, received, commanded = states[0].copy(), np.zeros(4), np.zeros(OUT_SIZE), np.zeros(4), np.zeros(4)
     gusty = WindParams(speed_m_s=3.0, from_deg=200.0, turbulence="severe", gust_m_s=2.0, gust_start_s=0.05, seed=4,
                        force_n=(0.5, -0.2, 0.1))  # fmt: skip
-    air = (np.zeros(6), *wind_state(gusty.seed), wind_params(gusty))  # in a wind, with an external force
+    air = air_arrays(gusty)  # in a wind, with an external force
     cm = commander.Commander()
     cm.on_altitude_setpoint(float(refs[0, 0]))
     cm.on_attitude_setpoint(*map(float, refs[0, 1:]))
