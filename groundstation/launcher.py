@@ -171,6 +171,8 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
             if args.impair:
                 plant += ["--impair", args.impair]
             plant += wind_argv(args)
+            if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
+                plant += ["--vehicle", v.name, "--zenoh-connect", args.zenoh_listen]
             children.start("plant" + named, plant + (["--quiet"] if args.quiet else []))
         url = start_dashboard(children, web_port, args.zenoh_listen) if web_port is not None else None
         if not args.quiet:

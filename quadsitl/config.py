@@ -588,6 +588,24 @@ def _sensors(values: dict[str, Any], sim: SimParams, where: str) -> SensorParams
     return SensorParams(**values)
 
 
+def wind_change(payload: bytes | str) -> dict[str, Any]:
+    """A change of the wind while a plant flies (the Zenoh key ``quadsitl/<vehicle>/wind``): a JSON object with
+    any of the [wind] keys, each checked as in a preset; returns them checked and normalised, for
+    ``dataclasses.replace`` over the wind in effect. Anything else raises :class:`ConfigError` naming the key,
+    the value and what is allowed."""
+    try:
+        values = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"wind: not JSON: {exc}") from None
+    if not isinstance(values, dict) or not values:
+        raise ConfigError(f"wind: {values!r}: expected a JSON object with any of: {', '.join(SCHEMA['wind'])}")
+    specs = SCHEMA["wind"]
+    for key in values:
+        if key not in specs:
+            raise ConfigError(f"wind: unknown key {key!r}; allowed: {', '.join(specs)}")
+    return {key: check_value(f"wind.{key}", value, specs[key]) for key, value in values.items()}
+
+
 def available_presets() -> list[str]:
     """Names of the presets shipped with the package."""
     folder = resources.files("quadsitl") / "presets"

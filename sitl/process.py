@@ -17,6 +17,9 @@ controller never sees it), with the check of the sweeps' batch engine and ``quad
 it is not sent; the plant says one line on stderr naming the quantity, its value and the bound, tells the
 autopilot in a STATUSTEXT (severity CRITICAL, which the autopilot relays to its ground stations), and exits with
 status :data:`~quadsitl.process_util.PLANT_DIVERGED` (3).
+
+Wind: the preset's [wind] and the wind options; given a Zenoh endpoint or configuration (``quadsitl up`` gives
+its own), the plant also takes wind changes on ``quadsitl/<vehicle>/wind`` (:mod:`sitl.wind_link`).
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ import numpy as np
 
 from quadsitl import wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, add_wind_arguments, check_range, with_wind
-from quadsitl.config import ConfigError, load_preset
+from quadsitl.config import ConfigError, WindParams, load_preset
 from quadsitl.process_util import (
     PLANT_DIVERGED,
     SpinThenBlock,
@@ -47,10 +50,12 @@ from quadsitl.process_util import (
     start_process,
     wait_readable,
 )
+from quadsitl.telemetry import add_zenoh_arguments, config_from_args
 from quadsitl.timing import period_stats
 from sitl import tick
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant, outside_what, state_inside
+from sitl.wind_link import WindLink
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
@@ -268,10 +273,12 @@ def check_state(plant: Plant, k: int) -> None:
         raise DivergedError(k, plant.period, plant.x)
 
 
-def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | None) -> int:
+def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | None, wind: WindLink | None = None
+                 ) -> int:  # fmt: skip
     """The plant as the clock: send tick k's state, wait for the answer to it, integrate, until ``max_ticks``.
     The state frame goes out first; each answer to it is decoded, taken and integrated and the next state
-    encoded by one compiled call (:func:`sitl.tick.lockstep_tick`)."""
+    encoded by one compiled call (:func:`sitl.tick.lockstep_tick`). Wind changes from ``wind`` are taken
+    between two ticks."""
     period = plant.period
     k = 0
     start = time.monotonic()
@@ -307,6 +314,8 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
             link.last_heard = monotonic()
         plant.time += period
         k += 1
+        if wind is not None and wind.inbox:
+            wind.take(plant)
         if speed > 0:
             delay = start + k * period / speed - monotonic()
             if delay > 0:
@@ -315,7 +324,12 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
 
 
 def run_realtime(
-    plant: Plant, link: PlantLink, max_ticks: int | None, starts: list[float] | None = None, on_loss: str = "zero"
+    plant: Plant,
+    link: PlantLink,
+    max_ticks: int | None,
+    starts: list[float] | None = None,
+    on_loss: str = "zero",
+    wind: WindLink | None = None,
 ) -> int:
     """Integrate on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each tick's
     actual start time [s, monotonic]."""
@@ -337,9 +351,21 @@ def run_realtime(
             on_loss == "zero"
         ):
             plant.commanded[:] = 0.0
+        if wind is not None and wind.inbox:
+            wind.take(plant)
         plant.step()
         k += 1
     return k
+
+
+def open_wind_link(args: argparse.Namespace, wind: WindParams) -> WindLink | None:
+    """The Zenoh session that takes wind changes, when the command line gives an endpoint or a configuration."""
+    if not (args.zenoh_listen or args.zenoh_connect or args.zenoh_config):
+        return None
+    try:
+        return WindLink(config_from_args(args), args.vehicle, wind)
+    except Exception as exc:  # zenoh.ZError and the like: a bad endpoint or configuration
+        raise UsageError(f"Zenoh session (for wind changes on quadsitl/{args.vehicle}/wind): {exc}") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -384,6 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stats", metavar="FILE", help="write the run's pace (and, in realtime, its timing) as JSON")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary at the end (errors still print)")
     add_wind_arguments(p)
+    add_zenoh_arguments(p)  # a session only when an endpoint or a configuration is given: for wind changes
     return p
 
 
@@ -400,6 +427,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         impairment = impairment_from(args.impair, args.mode)
         link = PlantLink(bind_udp("--bind", args.bind), autopilot, preset.actuators.max_thrust, preset.sim.period,
                          impairment)  # fmt: skip
+        wind = open_wind_link(args, preset.wind)
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
@@ -407,9 +435,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     starts: list[float] = []
     try:
         if args.mode == "lockstep":
-            run_lockstep(plant, link, args.speed, args.ticks)
+            run_lockstep(plant, link, args.speed, args.ticks, wind)
         else:
-            run_realtime(plant, link, args.ticks, starts if args.stats else None, args.on_autopilot_loss)
+            run_realtime(plant, link, args.ticks, starts if args.stats else None, args.on_autopilot_loss, wind)
     except KeyboardInterrupt:  # SIGINT or SIGTERM (process_util.StopRequested): a requested stop; say what the run did
         pass
     except DivergedError as exc:  # one line, always: the run ends with a status of its own
@@ -419,6 +447,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return PLANT_DIVERGED
     finally:
         link.close()
+        if wind is not None:
+            wind.close()
     elapsed = time.monotonic() - start
     if args.stats:
         ticks = round(plant.time / preset.sim.period)

@@ -139,6 +139,23 @@ def test_a_wind_section_sets_the_wind_and_is_checked_key_by_key():
             parse_preset(PAPER_TEXT + f"\n[wind]\n{text}\n")
 
 
+def test_a_wind_change_is_checked_key_by_key_as_the_preset_section_is():
+    from quadsitl.config import wind_change
+
+    assert wind_change(b'{"speed_m_s": 5, "force_n": [1, 2, 3]}') == {"speed_m_s": 5.0, "force_n": (1.0, 2.0, 3.0)}
+    for payload, message in [
+        (b'{"speed_m_s": 80}', r"^wind\.speed_m_s = 80: expected a number in \[0, 50\] m/s$"),
+        (b'{"speed_m_s": NaN}', r"^wind\.speed_m_s = nan: expected"),
+        (b'{"turbulence": 3}', r"^wind\.turbulence = 3: expected one of: none, light, moderate, severe$"),
+        (b'{"gale": 1}', r"^wind: unknown key 'gale'; allowed: speed_m_s, from_deg, turbulence"),
+        (b"[5, 270]", r"^wind: \[5, 270\]: expected a JSON object with any of: speed_m_s"),
+        (b"{}", r"^wind: \{\}: expected a JSON object"),
+        (b"\xff", r"^wind: not JSON"),
+    ]:
+        with pytest.raises(ConfigError, match=message):
+            wind_change(payload)
+
+
 def test_the_initial_state_takes_rates():
     from sitl.plant import initial_state
 

@@ -1,6 +1,7 @@
 """The wind model (sitl/wind.py) alone: the mean wind's direction, the 1 − cos gust, and the Dryden turbulence's
 intensity, correlation and spectrum against MIL-F-8785C, seeded and the same compiled or not."""
 
+import copy
 import math
 
 import numpy as np
@@ -145,3 +146,42 @@ print(w.tobytes().hex())
 def test_compiled_and_plain_python_give_the_same_wind_bit_for_bit():
     compiled, plain = outputs(WIND_SAMPLES)
     assert len(compiled) == 500 * 3 * 16 + 1 and compiled == plain
+
+
+def test_a_change_while_flying_sets_the_wind_from_the_next_tick_and_a_gust_counts_from_the_change():
+    import dataclasses
+
+    from quadsitl.config import load_preset, wind_change
+    from quadsitl.mixer import inputs_to_forces
+    from sitl.plant import Plant
+    from sitl.wind_link import change_wind
+
+    paper = load_preset("paper")
+    plant = Plant(dataclasses.replace(paper, initial=dataclasses.replace(paper.initial, altitude=10.0)))
+    hover = inputs_to_forces((paper.vehicle.mass * paper.vehicle.gravity, 0, 0, 0), paper.vehicle.d_over_b)
+    for _ in range(1000):  # 1 s of calm air in flight
+        plant.step(hover)
+    wind, since = change_wind(plant, WindParams(), wind_change('{"speed_m_s": 4, "from_deg": 90}'), 0.0)
+    plant.step(hover)
+    assert plant.wind == pytest.approx((0.0, -4.0, 0.0), abs=1e-12) and since == 0.0  # from the east: moving west
+    # a gust of 2 m/s from the north 0.5 s after the change (at 1.001 s on the wind's clock), over 0.2 s
+    wind, since = change_wind(plant, wind, wind_change('{"gust_m_s": 2, "gust_start_s": 0.5, "gust_rise_s": 0.2}'),
+                              since)  # fmt: skip
+    assert since == pytest.approx(1.001) and wind.speed_m_s == 4.0
+    for _ in range(500):
+        plant.step(hover)
+    assert plant.wind == pytest.approx((0.0, -4.0, 0.0), abs=1e-12)  # not yet
+    for _ in range(200):
+        plant.step(hover)
+    assert plant.wind[0] == pytest.approx(-2.0 * 0.5 * (1 - math.cos(math.pi * 0.199 / 0.2)), abs=1e-9)
+    for _ in range(10):
+        plant.step(hover)
+    assert plant.wind == pytest.approx((-2.0, -4.0, 0.0), abs=1e-12)  # risen, and held
+    # a new seed restarts the turbulence's stream: the same air as a plant that had that seed from the change on
+    twin, other = copy.deepcopy(plant), copy.deepcopy(plant)
+    twin.air_rng[:] = 0  # whatever its stream was, the seed restarts it
+    for p, seed in ((plant, 5), (twin, 5), (other, 6)):
+        change_wind(p, wind, wind_change(f'{{"turbulence": "light", "seed": {seed}}}'), since)
+        for _ in range(100):
+            p.step(hover)
+    assert np.array_equal(plant.air, twin.air) and plant.wind[2] != 0.0 and plant.wind[2] != other.wind[2]
