@@ -31,7 +31,7 @@ from pathlib import Path
 
 from groundstation.fleet import VehiclePlan
 from quadsitl.cli_util import UsageError, wind_argv, wind_settings
-from quadsitl.config import Preset
+from quadsitl.config import Preset, WindParams
 from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, stop_status
 
 
@@ -246,10 +246,26 @@ def fleet_banner(fleet: list[VehiclePlan], args, dashboard_url: str | None = Non
     if not args.no_zenoh:
         lines.append(f"  telemetry:       Zenoh {args.zenoh_listen}, keys quadsitl/<vehicle>/{{state,setpoint,"
                      "actuators,status,mission}")  # fmt: skip
+    if not args.no_zenoh:
+        lines.append("  wind:            each vehicle's preset and the wind options; change one with JSON on "
+                     "quadsitl/<vehicle>/wind")  # fmt: skip
     if dashboard_url:
         lines.append(f"  dashboard:       {dashboard_url}")
     lines.append("  Ctrl-C stops.")
     return "\n".join(lines)
+
+
+def describe_wind(w: WindParams) -> str:
+    """The wind in a few words, for a banner: ``5 m/s from 270°, light turbulence, a 3 m/s gust from 0° 2 s after
+    lift-off``, or ``calm``."""
+    parts = [f"{w.speed_m_s:g} m/s from {w.from_deg:g}°"] if w.speed_m_s else []
+    if w.turbulence != "none":
+        parts.append(f"{w.turbulence} turbulence")
+    if w.gust_m_s:
+        parts.append(f"a {w.gust_m_s:g} m/s gust from {w.gust_from_deg:g}° {w.gust_start_s:g} s after lift-off")
+    if any(w.force_n):
+        parts.append(f"a force of ({', '.join(f'{f:g}' for f in w.force_n)}) N, NED")
+    return ", ".join(parts) or "calm"
 
 
 def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:
@@ -270,6 +286,8 @@ def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:
         lines.append(
             f"  telemetry:       Zenoh {args.zenoh_listen}, keys quadsitl/v1/{{state,setpoint,actuators,status}}"
         )
+    lines.append(f"  wind:            {describe_wind(preset.wind)}"
+                 + ("" if args.no_zenoh else "; change it with JSON on the Zenoh key quadsitl/v1/wind"))  # fmt: skip
     if dashboard_url:
         lines.append(f"  dashboard:       {dashboard_url}")
     lines.append("  Ctrl-C stops.")

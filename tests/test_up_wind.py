@@ -67,3 +67,21 @@ def test_a_wind_published_on_zenoh_blows_the_flying_vehicle_downwind_and_a_bad_o
         finally:
             session.close()
             c.close()
+
+
+def test_ups_banner_says_the_wind_and_where_to_change_it():
+    import argparse
+
+    from groundstation.launcher import banner, describe_wind
+    from quadsitl.config import WindParams, load_preset
+
+    assert describe_wind(WindParams()) == "calm"
+    gusty = WindParams(5.0, 270.0, "light", 3.0, 1.0, 2.0, 0.0, 0, (0.0, 0.0, 1.5))
+    assert describe_wind(gusty) == ("5 m/s from 270°, light turbulence, a 3 m/s gust from 0° 2 s after lift-off, a "
+                                    "force of (0, 0, 1.5) N, NED")  # fmt: skip
+    args = argparse.Namespace(controller=None, mode="lockstep", speed=1.0, system_id=1, gcs_remote=None,
+                              api_remote=None, no_zenoh=False, zenoh_listen="tcp/127.0.0.1:7447")  # fmt: skip
+    lines = banner(load_preset("x500"), args).splitlines()
+    assert "  wind:            calm; change it with JSON on the Zenoh key quadsitl/v1/wind" in lines
+    args.no_zenoh = True
+    assert "  wind:            calm" in banner(load_preset("x500"), args).splitlines()
