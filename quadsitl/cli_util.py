@@ -65,7 +65,7 @@ def add_wind_arguments(p: argparse.ArgumentParser) -> None:
                    "from [deg clockwise from north], e.g. 5,270: 5 m/s from the west")  # fmt: skip
     g.add_argument("--turbulence", choices=tuple(TURBULENCE_W20_KNOTS), help="Dryden turbulence (MIL-F-8785C level)")
     g.add_argument("--gust", metavar="SPEED,FROM[,START[,RISE]]", help="a 1 - cos gust: its speed [m/s], the "
-                   "direction it blows from [deg], when it starts [s of simulated time, default 0] and how long it "
+                   "direction it blows from [deg], when it starts [s after lift-off, default 0] and how long it "
                    "takes to rise [s, default 1]; then it holds")  # fmt: skip
     g.add_argument("--wind-seed", type=int, metavar="N", help="the turbulence's seed (default: the preset's, or 0)")
 

@@ -191,7 +191,7 @@ class WindParams:
     """The air the plant flies in and a disturbing force (docs/sensors.md, "Wind"): a mean wind of ``speed_m_s``
     [m/s] blowing FROM ``from_deg`` [deg, clockwise from north, as weather reports give it: 270 = from the west];
     Dryden turbulence at a MIL-F-8785C level; one discrete 1 − cos gust of ``gust_m_s`` [m/s] from
-    ``gust_from_deg``, rising over ``gust_rise_s`` from ``gust_start_s`` [s of simulated time] and then held; a
+    ``gust_from_deg``, rising over ``gust_rise_s`` from ``gust_start_s`` [s after lift-off] and then held; a
     constant external force ``force_n`` [N, NED] on the vehicle (for tests: a payload, a tether). ``seed`` seeds
     the turbulence. The default is calm: the plant flies exactly as with no [wind] section."""
 

@@ -193,13 +193,12 @@ def air_tick(air: np.ndarray, rng: np.ndarray, dt: float, state: np.ndarray, on_
     flight meets the same air however long its vehicle waited on the ground (``quadsitl fly`` arms and switches
     modes first, ``quadsitl sim`` does not). Before that, only the mean wind blows (the ground holds the vehicle)."""
     d, x, p = air[:AIR_STATE], air[AIR_STATE:AIR_PARAMS], air[AIR_PARAMS:]
+    d[3], d[4], d[5] = p[FORCE], p[FORCE + 1], p[FORCE + 2]
     if x[CLOCK] < 0.0:
         if on_ground:
             d[0], d[1], d[2] = p[MEAN_N], p[MEAN_E], 0.0
-            d[3], d[4], d[5] = p[FORCE], p[FORCE + 1], p[FORCE + 2]
             return
         x[CLOCK] = 0.0
     airspeed = math.sqrt((state[3] - d[0]) ** 2 + (state[4] - d[1]) ** 2 + (state[5] - d[2]) ** 2)
     wind_step(d, x, rng, p, x[CLOCK] * dt, dt, -state[2], airspeed)
     x[CLOCK] += 1.0
-    d[3], d[4], d[5] = p[FORCE], p[FORCE + 1], p[FORCE + 2]
