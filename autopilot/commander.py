@@ -49,6 +49,7 @@ FAILSAFE_NONE = 0
 FAILSAFE_SETPOINT_LOST = 1
 FAILSAFE_PLANT_LOST = 2
 FAILSAFE_GCS_LOST = 3
+FAILSAFE_ESTIMATOR = 4
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
 HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION = (int(m) for m in Mode)
 # The phases of RTL and of LAND.
@@ -550,6 +551,16 @@ class Commander:
         self.messages.append((2, "Plant link lost: no vehicle state"))
         if self.armed:
             self.cm[FAILSAFE] = FAILSAFE_PLANT_LOST
+            if self.mode != Mode.LAND:
+                enter(self.cm, LAND)
+                self.messages.append((2, "Failsafe: landing"))
+
+    def estimator_failed(self) -> None:
+        """The state estimate is not to be trusted (sensor mode: the estimator diverged). Armed, switch to LAND, as
+        PX4 does when its position estimate is lost."""
+        self.messages.append((2, "Estimator diverged: innovations beyond their bound"))
+        if self.armed:
+            self.cm[FAILSAFE] = FAILSAFE_ESTIMATOR
             if self.mode != Mode.LAND:
                 enter(self.cm, LAND)
                 self.messages.append((2, "Failsafe: landing"))

@@ -45,6 +45,7 @@ from quadsitl.frames import (
     quaternion_to_euler,
     rotation_vector_to_quaternion,
 )
+from quadsitl.hil import BARO_NEW, GPS_NEW, MAG_NEW, Z_ACCEL, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_GYRO, Z_MAG, Z_SIZE
 from quadsitl.jit import jit
 from quadsitl.state import VehicleState
 
@@ -68,9 +69,8 @@ GROUPS = 4  # GPS position, GPS velocity, baro, mag: io[SINCE_GPS_POS + g]
 # ---- the accumulators of the alignment (acc) and the innovation test ratios (ratio) -------------------------
 A_ACCEL, A_MAG, A_BARO, A_N_IMU, A_N_MAG, A_N_BARO, A_BARO_REF, ACC_SIZE = 0, 3, 6, 7, 8, 9, 10, 11
 
-# ---- the measurements of a tick (z) and which are new (flags) ----------------------------------------------
-Z_GYRO, Z_ACCEL, Z_MAG, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_SIZE = 0, 3, 6, 9, 10, 13, 16
-MAG_NEW, BARO_NEW, GPS_NEW = 1, 2, 4
+# ---- the measurements of a tick (z: Z_*) and which are new (flags: MAG_NEW, BARO_NEW, GPS_NEW) are laid out as
+# the plant link's decoder writes them (quadsitl.hil)
 
 
 @dataclass(frozen=True)
@@ -401,6 +401,12 @@ class Estimator:
         ``self.out``."""
         estimator_tick(flags or 0, self.z, self.period, self.start, self.x, self.P, self.hist, self.io, self.acc,
                        self.e, self.ratio, self.scratch, self.out)  # fmt: skip
+
+    @property
+    def arrays(self) -> tuple:
+        """What the autopilot's compiled tick works on (:func:`autopilot.tick.sensor_tick`): the measurements, then
+        :func:`estimator_tick`'s arrays."""
+        return self.z, self.x, self.P, self.hist, self.io, self.acc, self.e, self.ratio, self.scratch, self.out
 
     @property
     def state(self) -> VehicleState:

@@ -4,7 +4,9 @@ controller, the commander and the parameter table.
 Sockets, like PX4 SITL's:
 
 - the plant link (``--plant-listen``): answers each ODOMETRY with HIL_ACTUATOR_CONTROLS for the same
-  ``time_usec``;
+  ``time_usec``; in sensor mode (``--state sensors``, the default when the preset has a [sensors] section) each
+  tick's HIL_SENSOR (and HIL_GPS), through the estimator (:mod:`autopilot.estimator`), whose estimate is flown and
+  reported; the plant's ground truth (HIL_STATE_QUATERNION) goes to telemetry only;
 - two ground-station links, each bound to a local port and streaming to a fixed remote address as well as
   to whoever talks to it: ``gcs`` (listens on 18570, streams to 14550, where QGroundControl and MAVProxy
   listen) and ``api`` (listens on 14580, streams to 14540, where MAVSDK and offboard scripts listen).
@@ -30,15 +32,16 @@ from autopilot import gcs_messages, mission_protocol, setpoints
 from autopilot import tick as kernel
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
+from autopilot.estimator import Estimator
 from autopilot.factory import make_controller
 from autopilot.gains import GainError
 from autopilot.gcs_messages import Home, Snapshot
 from autopilot.missions import Missions
 from autopilot.params import ParamStore
 from autopilot.streams import MessageStreams
-from autopilot.tick import Batch, autopilot_tick, warm_up
+from autopilot.tick import Batch, autopilot_tick, sensor_tick, warm_up
 from quadsitl import telemetry, wire
-from quadsitl.cli_util import UsageError, add_preset_arguments, check_range, parse_floats
+from quadsitl.cli_util import UsageError, add_preset_arguments, add_state_arguments, check_range, parse_home, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
 from quadsitl.process_util import SpinThenBlock, bind_udp, parse_remote, set_receive_timeout, start_process
@@ -68,6 +71,12 @@ MISSION_MESSAGES = frozenset(
         "SET_CURRENT",
     )
 )
+SENSOR_MESSAGES = frozenset((mavlink.MAVLINK_MSG_ID_HIL_SENSOR, mavlink.MAVLINK_MSG_ID_HIL_GPS,
+                             mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION))  # fmt: skip
+MODE_MISMATCH = {
+    False: "Plant sends sensors (HIL_SENSOR); this autopilot flies on the true state: start both with --state sensors",
+    True: "Plant sends the true state (ODOMETRY); this autopilot flies on sensors: start both with --state sensors",
+}
 SUPPORTED_MODES = "supported are offboard (6), takeoff (4/2), hold (4/3), mission (4/4), RTL (4/5), land (4/6)"
 
 
@@ -125,12 +134,22 @@ class Autopilot:
         self.controller = make_controller(preset, kind)
         self.commander = Commander(self.params.base_settings)
         self.home = Home(*args.home) if args.home else Home()
+        self.sensing = preset.sensors is not None  # fly on the estimate of the plant's sensors
+        self.estimator: Estimator | None = None
+        if self.sensing:
+            s = preset.sensors
+            self.estimator = Estimator.for_field(self.period, preset.vehicle.gravity, s.mag_strength_gauss,
+                                                 s.mag_declination_deg, s.mag_inclination_deg)  # fmt: skip
+        self.truth = np.full(wire.DECODED_SIZE, np.nan)  # the plant's ground truth of the last tick (sensor mode)
+        self.hil_frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)  # one frame of a sensor datagram, being decoded
+        self.origin = (self.home.lat, self.home.lon, self.home.alt)  # where the GPS's positions are taken from
         self.missions = Missions((self.home.lat, self.home.lon, self.home.alt))  # stored, transferred and flown
         self.sysid = args.system_id
         self.compid = wire.AUTOPILOT_COMPONENT_ID
         self.mav = wire.link(self.sysid, self.compid)  # the plant link's fallback parser
         self.signing_key: bytes | None = args.signing_key
         self.gcs_mav = self._gcs_link()  # ground-station links: signed when a key is given
+        self.sensor_dropped = 0  # sensor samples with a NaN or an infinity (sensor mode), never used
         self.rx = bytearray(65535)  # the plant link's datagrams, read in place by the compiled decoder
         self.rx_array = np.frombuffer(self.rx, dtype=np.uint8)
         self.tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)  # the answer, written by control_tick
@@ -180,7 +199,7 @@ class Autopilot:
                 # thread shares two cores with a lockstep pair that polls, and may wait a few ms for one.
                 conf.insert_json5("transport/link/tx/queue/size/data", "16")
             self.session = zenoh.open(conf)
-            for stream in telemetry.STREAMS:
+            for stream in (*telemetry.STREAMS, *([telemetry.TRUTH] if self.sensing else [])):
                 self.pubs[stream] = self.session.declare_publisher(
                     telemetry.key(args.vehicle, stream),
                     encoding=telemetry.encoding(stream),
@@ -211,9 +230,14 @@ class Autopilot:
             self.commander.plant_restored()
         started = time.perf_counter()
         ctl = self.controller
-        flags = autopilot_tick(self.rx_array, nbytes, self.scratch, self.st, self.period, ctl.kind, self.commander.cm,
-                               self.mem, ctl.v, ctl.c, self.f_min, self.f_max, self.tx, self.io,
-                               self.batch.records)  # fmt: skip
+        if self.estimator is not None:
+            flags = sensor_tick(self.rx_array, nbytes, self.hil_frame, self.truth, self.origin, self.estimator.arrays,
+                                self.st, self.period, ctl.kind, self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min,
+                                self.f_max, self.tx, self.io, self.batch.records)  # fmt: skip
+        else:
+            flags = autopilot_tick(self.rx_array, nbytes, self.scratch, self.st, self.period, ctl.kind,
+                                   self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min, self.f_max, self.tx, self.io,
+                                   self.batch.records)  # fmt: skip
         if flags & kernel.ANSWER:
             self.plant_sock.sendto(self.tx_view[: self.io[kernel.TX_LEN]], sender)
         if self.missions.flying:  # the mission executor, on simulated time, after the answer went out
@@ -238,24 +262,48 @@ class Autopilot:
             self.errors_plant += 1  # a corrupt frame, or a state never to fly: the plant re-sends or moves on
         if flags & kernel.NOT_MINE:
             self._parse_slowly(nbytes, sender)
+        if flags & kernel.ESTIMATOR_CHANGED:
+            self._estimator_changed()
+
+    def _estimator_changed(self) -> None:
+        """The estimator aligned, diverged, or recovered: said to the ground stations; a divergence in flight is
+        the estimator failsafe (land)."""
+        status = int(self.io[kernel.ESTIMATE])
+        if status & kernel.ESTIMATE_DIVERGED:
+            self.commander.estimator_failed()
+        elif status & kernel.ESTIMATE_ALIGNED:
+            self._say(mavlink.MAV_SEVERITY_INFO, "EKF aligned: attitude, altitude and position from the sensors")
+        self._announce_commander()
 
     def _parse_slowly(self, nbytes: int, sender: tuple[str, int]) -> None:
-        """A plant datagram that is not exactly one unsigned ODOMETRY frame: pymavlink's to parse. ODOMETRY goes
-        to the compiled path alone; the plant's STATUSTEXT (all its chunks in one datagram: the plant's state
+        """A plant datagram the compiled decoder does not take whole (other messages with it, signed frames):
+        pymavlink's to parse. The per-tick messages of this autopilot's mode are re-framed alone for the compiled
+        path (ODOMETRY; in sensor mode HIL_SENSOR, HIL_GPS and HIL_STATE_QUATERNION together); those of the other
+        mode are refused and said. The plant's STATUSTEXT (all its chunks in one datagram: the plant's state
         diverged and the plant stopped, :mod:`sitl.process`) goes on to the ground stations as one text."""
         try:
             msgs = self.mav.parse_buffer(bytes(self.rx[:nbytes])) or []
         except mavlink.MAVError:
             self.errors_plant += 1
             return
-        said = []
+        said, frames = [], []
+        mine = SENSOR_MESSAGES if self.sensing else {mavlink.MAVLINK_MSG_ID_ODOMETRY}
+        theirs = {mavlink.MAVLINK_MSG_ID_ODOMETRY} if self.sensing else SENSOR_MESSAGES
         for msg in msgs:
-            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ODOMETRY:  # re-framed alone, for the compiled path
-                frame = msg.pack(wire.link(msg.get_srcSystem(), msg.get_srcComponent()))
-                self.rx[: len(frame)] = frame
-                self.on_plant_datagram(len(frame), sender)
-            elif msg.get_msgId() == mavlink.MAVLINK_MSG_ID_STATUSTEXT:
+            mid = msg.get_msgId()
+            if mid in mine:
+                frames.append(msg.pack(wire.link(msg.get_srcSystem(), msg.get_srcComponent())))
+            elif mid in theirs:
+                self.errors_plant += 1
+                self._say_once("state-mode", MODE_MISMATCH[self.sensing])
+            elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT:
                 said.append(msg)
+        # Re-framed for the compiled path: each ODOMETRY alone, a tick's sensor messages together (when that is
+        # not the datagram as it came, which the compiled decoder did not take).
+        for datagram in [b"".join(frames)] if self.sensing and frames else frames:
+            if len(datagram) < nbytes:
+                self.rx[: len(datagram)] = datagram
+                self.on_plant_datagram(len(datagram), sender)
         if said:  # the plant speaks (its state diverged, sitl.process): relayed to the ground stations, whole
             text = "".join(m.text for m in sorted(said, key=lambda m: m.chunk_seq))
             self._say(min(m.severity for m in said), text)
@@ -327,7 +375,10 @@ class Autopilot:
         return self.errors_comm, self.unknown, self.refused, self.errors_plant, self.not_for_us
 
     def has_state(self) -> bool:
-        """A vehicle state arrives from the plant: SYS_STATUS's sensors are healthy, and arming may proceed."""
+        """A vehicle state arrives from the plant (in sensor mode: the estimator has aligned and not diverged):
+        SYS_STATUS's sensors are healthy, and arming may proceed."""
+        if self.estimator is not None and int(self.io[kernel.ESTIMATE]) != kernel.ESTIMATE_ALIGNED:
+            return False
         return self.latest() is not None and not self.plant_lost
 
     # ---- the ground-station links --------------------------------------------------------------
@@ -815,6 +866,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_preset_arguments(p)
+    add_state_arguments(p)
     p.add_argument(
         "--plant-listen",
         default="127.0.0.1:14560",
@@ -870,22 +922,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def parse_home(text: str | None) -> tuple[float, float, float] | None:
-    if text is None:
-        return None
-    lat, lon, alt = parse_floats("--home", text, 3)
-    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0 and -1000.0 <= alt <= 100000.0):
-        raise UsageError(f"--home {text!r}: expected latitude in [-90, 90], longitude in [-180, 180], altitude "
-                         "in [-1000, 100000] m")  # fmt: skip
-    return lat, lon, alt
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     start_process()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        preset = load_preset(args.preset)
+        preset = with_state(load_preset(args.preset), args)
         check_range("--telemetry-rate", args.telemetry_rate, 0.0, 1.0 / preset.sim.period)
         check_range("--setpoint-timeout", args.setpoint_timeout, 0.0, 3600.0)
         if not 1 <= args.system_id <= 255:

@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from autopilot import commander
+from autopilot import estimator as ekf
 from autopilot.backstepping import Errors, altitude_law, attitude_law, thrust
 from autopilot.commander import (
     ARMED,
@@ -63,6 +64,7 @@ from autopilot.pd import pd_attitude, pd_thrust, pd_vertical
 from autopilot.position import channel_mode, controls_horizontal, horizontal, or_zero
 from quadsitl import telemetry
 from quadsitl.frames import altitude, climb_rate
+from quadsitl.hil import Z_GYRO, decode_sensors
 from quadsitl.jit import jit
 from quadsitl.mixer import allocate
 from quadsitl.param_arrays import D_OVER_B
@@ -75,6 +77,7 @@ GROUND_IDLE_MARGIN = 1e-6  # [m]: a reference this little above the vehicle rest
 # Telemetry record sizes [bytes] and where each stream's records start in a Batch row (quadsitl.telemetry).
 STATE_SIZE, SETPOINT_SIZE, ACTUATORS_SIZE, STATUS_SIZE = (telemetry.STREAMS[s].size for s in telemetry.STREAMS)
 assert tuple(telemetry.STREAMS) == ("state", "setpoint", "actuators", "status")
+TRUTH_AT = STATE_SIZE + SETPOINT_SIZE + ACTUATORS_SIZE + STATUS_SIZE  # × capacity: the truth's region, after them
 
 
 @jit
@@ -139,11 +142,14 @@ def _put_int(buf: np.ndarray, at: int, value: int) -> None:
 # The tick's integer bookkeeping (``io``, int64): the stamp of the last state flown, the answer's length, the
 # plant link's sequence number, the telemetry rows batched and the batch's capacity, the first tick at which a
 # telemetry message may be due, the last tick, the commander's event, and the autopilot's MAVLink ids.
-LAST_USEC, TX_LEN, SEQ, ROWS, CAPACITY, NEXT_STREAM_TICK, TICK, EVENT, SYSTEM, COMPONENT, IO_SIZE = range(11)
+# In sensor mode also: the sensor samples dropped for a non-finite value, and the estimator's status (ESTIMATE_*).
+(LAST_USEC, TX_LEN, SEQ, ROWS, CAPACITY, NEXT_STREAM_TICK, TICK, EVENT, SYSTEM, COMPONENT, DROPPED, ESTIMATE,
+ IO_SIZE) = range(13)  # fmt: skip
+ESTIMATE_ALIGNED, ESTIMATE_DIVERGED = 1, 2
 # What autopilot_tick reports (bits): an answer is in tx; telemetry messages are due; the commander has an
 # event (io[EVENT]); the batch is full; the datagram is no per-tick frame (pymavlink's to parse); it was
-# corrupt or carried a state never to fly.
-ANSWER, STREAM, EVENT_DUE, BATCH_FULL, NOT_MINE, REFUSED = 1, 2, 4, 8, 16, 32
+# corrupt or carried a state never to fly; (sensor mode) the estimator's status changed.
+ANSWER, STREAM, EVENT_DUE, BATCH_FULL, NOT_MINE, REFUSED, ESTIMATOR_CHANGED = 1, 2, 4, 8, 16, 32, 64
 
 
 @jit
@@ -227,27 +233,23 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
 
 
 @jit
-def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndarray, period: float, kind: int,
-                   cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray, f_min: float, f_max: float,
-                   tx: np.ndarray, io: np.ndarray, records: np.ndarray) -> int:  # fmt: skip
-    """A datagram from the plant (rx[:length]) → what to do (ANSWER | STREAM | ...). A new state becomes
-    ``st`` and is flown (:func:`control_tick`); a re-sent one gets the same answer again; a stale one (older
-    than the last, by less than 1 s: a jump back by more is a restarted plant) none."""
-    t = decode_state(rx, length, scratch)
-    if t < 0:
-        return NOT_MINE if t == NOT_THIS_FRAME else REFUSED
+def _new_tick(t: int, io: np.ndarray) -> int:
+    """The datagram stamped ``t``: 1 a new tick (io[LAST_USEC] takes it), 0 a re-sent one (the same answer again), −1
+    a stale one (older than the last, by less than 1 s: a jump back by more is a restarted plant, whose ticks start
+    again)."""
     last = io[LAST_USEC]
     if t == last:
-        return ANSWER
-    if last - 1_000_000 < t < last:
         return 0
-    if t < last:  # a restarted plant: its ticks start again
+    if last - 1_000_000 < t < last:
+        return -1
+    if t < last:
         io[NEXT_STREAM_TICK] = 0
     io[LAST_USEC] = t
-    st[:] = scratch
-    tick = tick_of(t, period)
-    io[TICK] = tick
-    control_tick(kind, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
+    return 1
+
+
+@jit
+def _flags(io: np.ndarray, tick: int) -> int:
     flags = ANSWER
     if tick >= io[NEXT_STREAM_TICK]:
         flags |= STREAM
@@ -258,15 +260,80 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
     return flags
 
 
+@jit
+def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndarray, period: float, kind: int,
+                   cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray, f_min: float, f_max: float,
+                   tx: np.ndarray, io: np.ndarray, records: np.ndarray) -> int:  # fmt: skip
+    """A datagram from the plant (rx[:length]) → what to do (ANSWER | STREAM | ...). A new state becomes
+    ``st`` and is flown (:func:`control_tick`); a re-sent one gets the same answer again; a stale one (older
+    than the last, by less than 1 s: a jump back by more is a restarted plant) none."""
+    t = decode_state(rx, length, scratch)
+    if t < 0:
+        return NOT_MINE if t == NOT_THIS_FRAME else REFUSED
+    new = _new_tick(t, io)
+    if new <= 0:
+        return ANSWER if new == 0 else 0
+    st[:] = scratch
+    tick = tick_of(t, period)
+    io[TICK] = tick
+    control_tick(kind, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
+    return _flags(io, tick)
+
+
+@jit
+def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarray, home: tuple, est: tuple,
+                st: np.ndarray, period: float, kind: int, cm: np.ndarray, mem: np.ndarray, v: np.ndarray,
+                c: np.ndarray, f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray,
+                records: np.ndarray) -> int:  # fmt: skip
+    """Sensor mode: a sensor datagram from the plant (:mod:`quadsitl.hil`) → what to do, as :func:`autopilot_tick`.
+    A new tick's measurements go to the estimator (``est``: :attr:`autopilot.estimator.Estimator.arrays`); its
+    estimate becomes ``st`` and is flown. The plant's ground truth is decoded into ``truth`` and goes to the
+    telemetry records only: the controllers never see it. ``home``: the local origin (lat, lon [deg], alt [m AMSL])
+    the GPS positions are taken from."""
+    z, x, P, hist, eio, acc, e, ratio, scratch, out = est
+    t, flags, dropped = decode_sensors(rx, length, home, z, truth, frame)
+    if t < 0:
+        return NOT_MINE if t == NOT_THIS_FRAME else REFUSED
+    new = _new_tick(t, io)
+    if new <= 0:
+        return ANSWER if new == 0 else 0
+    for bit in range(4):
+        io[DROPPED] += (dropped >> bit) & 1
+    ekf.estimator_tick(flags, z, period, (0.0, 0.0, 0.0), x, P, hist, eio, acc, e, ratio, scratch, out)
+    for i in range(12):
+        st[i] = out[i]
+    for i in range(3):  # the body rates the controllers' eq (1) inverse came from: the bias-corrected gyro
+        st[BODY_RATES + i] = z[Z_GYRO + i] - x[ekf.X_BG + i]
+    status = (ESTIMATE_ALIGNED if eio[ekf.ALIGNED] else 0) | (ESTIMATE_DIVERGED if eio[ekf.DIVERGED] else 0)
+    tick = tick_of(t, period)
+    io[TICK] = tick
+    row = io[ROWS]
+    if row < io[CAPACITY]:  # the truth's record, in the row control_tick fills next
+        at = io[CAPACITY] * TRUTH_AT + row * STATE_SIZE
+        _put_int(records, at, tick)
+        _put(records, at + 8, tick * period)
+        for i in range(9):
+            _put(records, at + 16 + 8 * i, truth[i])
+        for i in range(3):
+            _put(records, at + 88 + 8 * i, truth[BODY_RATES + i])
+    control_tick(kind, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
+    flags = _flags(io, tick)
+    if status != io[ESTIMATE]:
+        io[ESTIMATE] = status
+        flags |= ESTIMATOR_CHANGED
+    return flags
+
+
 class Batch:
     """Telemetry records of up to ``capacity`` ticks: one buffer, the streams' regions one after the other
-    (telemetry.STREAMS' layouts); io[ROWS] counts the rows written."""
+    (telemetry.STREAMS' layouts, then the truth's, written in sensor mode only); io[ROWS] counts the rows written."""
 
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
-        self.records = np.zeros(capacity * sum(f.size for f in telemetry.STREAMS.values()), dtype=np.uint8)
+        layouts = {**telemetry.STREAMS, telemetry.TRUTH: telemetry.TRUTH_RECORD}  # the truth last (TRUTH_AT)
+        self.records = np.zeros(capacity * sum(f.size for f in layouts.values()), dtype=np.uint8)
         self.regions, at = {}, 0
-        for stream, f in telemetry.STREAMS.items():
+        for stream, f in layouts.items():
             self.regions[stream] = (at, f.size)
             at += capacity * f.size
 
@@ -279,10 +346,12 @@ def warm_up() -> None:
     """Compile (or load from numba's cache) everything a tick calls, on made-up data, before the first tick."""
     from autopilot.commander import Commander
     from autopilot.control_params import BACKSTEPPING, control_array
-    from quadsitl import wire
+    from autopilot.estimator import Estimator
+    from quadsitl import hil, wire
     from quadsitl.param_arrays import VEHICLE_SIZE
 
     frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    datagram = np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8)
     st = np.zeros(wire.DECODED_SIZE)
     v = np.ones(VEHICLE_SIZE)
     c = control_array((0.5,) * 8, 0.001)
@@ -297,3 +366,11 @@ def warm_up() -> None:
             n = wire.encode_state(frame, 0, 1, 1, 0, st)
             autopilot_tick(frame, n, st.copy(), st, 0.001, kind, commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0,
                            frame, io, batch.records)  # fmt: skip
+            io[LAST_USEC] = -1
+            est = Estimator(0.001, 9.8, (0.2, 0.0, 0.4))
+            n = hil.encode_sensor(datagram, 0, 1, 1, 0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), (0.2, 0.0, 0.4), 1000.0,
+                                  100.0, 15.0, hil.MAG_UPDATED | hil.BARO_UPDATED)  # fmt: skip
+            n += hil.encode_gps(datagram[n:], 1, 1, 1, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (47.0, 8.0, 488.0), 1.0,
+                                1.0, 10)  # fmt: skip
+            sensor_tick(datagram, n, frame.copy(), st.copy(), (47.0, 8.0, 488.0), est.arrays, st, 0.001, kind,
+                        commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0, frame, io, batch.records)  # fmt: skip

@@ -22,10 +22,11 @@ def measure(number: int) -> dict[str, float]:
     from autopilot.control_params import BACKSTEPPING, MEM_SIZE, control_array
     from autopilot.tick import IO_SIZE, LAST_USEC, Batch, autopilot_tick
     from quadsitl import wire
-    from quadsitl.config import load_preset
+    from quadsitl.config import SensorParams, load_preset
     from quadsitl.param_arrays import actuator_array, vehicle_array
     from sitl import tick
     from sitl.plant import OUT_SIZE, step_arrays
+    from sitl.sensors import Sensors
     from sitl.wind import air_arrays
 
     preset = load_preset("paper")
@@ -36,6 +37,7 @@ def measure(number: int) -> dict[str, float]:
     ref, mem = np.array([5.0, 1.0, 1.0, 1.0]), np.zeros(MEM_SIZE)
     motors, commanded, out = np.zeros(4), np.full(4, 5.0), np.zeros(OUT_SIZE)
     air = air_arrays(preset.wind)  # calm: the preset's [wind]
+    sens = Sensors(SensorParams(), T, preset.vehicle.gravity).arrays  # truth mode: passed, not touched
     figures = {
         "backstepping controller step": per_call(lambda: backstepping.step_arrays(x, ref, mem, v, c), number),
         "pd controller step": per_call(lambda: pd.step_arrays(x, ref, mem, v, c), number),
@@ -68,7 +70,7 @@ def measure(number: int) -> dict[str, float]:
     def plant_side() -> None:
         pio[tick.LAST_USEC] = -1  # every call the answer to the tick
         tick.lockstep_tick(answer, n_answer, stamp[0], 1e4, received, commanded, xs, motors, out, v, a, *air, T, 1, 0,
-                           state_frame, pio, 0)  # fmt: skip
+                           state_frame, pio, sens, 0)  # fmt: skip
 
     stamp[0] = int(answer[10:18].view(np.uint64)[0])
     figures["autopilot tick: state frame in, answer out"] = per_call(autopilot_side, number)

@@ -28,11 +28,13 @@ from groundstation.launcher import add_dashboard_arguments
 from quadsitl.cli_util import (
     UsageError,
     add_preset_arguments,
+    add_state_arguments,
     add_wind_arguments,
     attach_negative_values,
     check_range,
     parse_floats,
     wind_settings,
+    with_state,
     with_wind,
 )
 from quadsitl.config import ConfigError, Preset, load_preset, preset_toml
@@ -269,15 +271,15 @@ PROCESSES = {
 def cmd_fly(args: argparse.Namespace) -> int:
     from groundstation.launcher import fly
 
-    preset = with_wind(_load(args.preset), args)
+    preset = with_state(with_wind(_load(args.preset), args), args)
     check_range("--duration", args.duration, 0.0, 3600.0)
     if args.speed < 0 or args.speed > 1000:
         raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
     from groundstation.trajectories import make
 
     if args.mission:
-        from autopilot.process import parse_home
         from groundstation.mission_files import load
+        from quadsitl.cli_util import parse_home
 
         if args.trajectory != "step":
             raise UsageError(f"--trajectory {args.trajectory!r} with --mission: a flight flies one or the other")
@@ -301,13 +303,13 @@ EXAMPLES_UP = """examples:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    from autopilot.process import parse_home
     from groundstation.fleet import check_vehicle_count, parse_vehicle_presets, plan_fleet
     from groundstation.launcher import up
+    from quadsitl.cli_util import parse_home
     from quadsitl.earth import PX4_HOME
     from quadsitl.process_util import parse_address, parse_remote
 
-    preset = with_wind(_load(args.preset), args)
+    preset = with_state(with_wind(_load(args.preset), args), args)
     if args.speed < 0 or args.speed > 1000:
         raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
     if not 1 <= args.system_id <= 255:
@@ -421,6 +423,7 @@ the source, or 'mkdocs serve' there.""",
     fl.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     fl.add_argument("--signing-key", metavar="HEX|FILE", help="MAVLink 2 signing between ground station and autopilot")
     add_dashboard_arguments(fl)
+    add_state_arguments(fl)
     add_wind_arguments(fl)
     fl.set_defaults(func=cmd_fly)
 
@@ -456,6 +459,7 @@ the source, or 'mkdocs serve' there.""",
             help=f"where the {name} link streams (default: 127.0.0.1:{remote})",
         )
     add_impair_argument(upp)
+    add_state_arguments(upp)
     add_wind_arguments(upp)
     upp.add_argument(
         "--system-id",

@@ -123,6 +123,7 @@ class GroundStation:
         self.logger = TelemetryLogger(self.session, args.vehicle, self.period, start)
         self.target = (args.target_system, wire.AUTOPILOT_COMPONENT_ID)
         self.armed = False
+        self.armable = False  # SYS_STATUS says the pre-arm check passes (in sensor mode: once the estimator aligned)
         self.mode: wire.Mode | None = None
         self.heard = False
         self.sim_ms = 0
@@ -170,6 +171,8 @@ class GroundStation:
                 self.mode = wire.Mode.from_px4(m.custom_mode)
             elif mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
                 self.sim_ms = m.time_boot_ms
+            elif mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
+                self.armable = bool(m.onboard_control_sensors_health & mavlink.MAV_SYS_STATUS_PREARM_CHECK)
             elif mid == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
                 self.acks[m.command] = m.result
             elif mid in (mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mavlink.MAVLINK_MSG_ID_MISSION_REQUEST):
@@ -262,8 +265,9 @@ class GroundStation:
                 # MAVLink streams on its link would only cost both ends CPU at 10,000 ticks/s.
                 for msg_id in UNNEEDED_STREAMS:
                     self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
-            elif phase == "prearm" and setpoints_sent >= 5 and self.logger.last_status is not None:
-                # Arm only once the Zenoh telemetry reaches the logger: never fly what cannot be recorded.
+            elif phase == "prearm" and setpoints_sent >= 5 and self.logger.last_status is not None and self.armable:
+                # Arm only once the Zenoh telemetry reaches the logger (never fly what cannot be recorded) and the
+                # vehicle says it may arm (SYS_STATUS's pre-arm check, as QGroundControl and MAVSDK wait for it).
                 phase, last_cmd = "arming", 0.0
             elif phase == "arming":
                 done, last_cmd = self.until_accepted(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "arming", now, last_cmd, 1.0)
@@ -344,8 +348,8 @@ class GroundStation:
                 elif now - last_cmd > UPLOAD_RETRY:
                     self.send(mavlink.MAVLink_mission_count_message(*self.target, n_items, 0))
                     last_cmd = now
-            elif phase == "prearm" and self.logger.last_status is not None:
-                phase, last_cmd = "arming", 0.0  # never fly what cannot be recorded
+            elif phase == "prearm" and self.logger.last_status is not None and self.armable:
+                phase, last_cmd = "arming", 0.0  # never fly what cannot be recorded, nor arm before the pre-arm check
             elif phase == "arming":
                 done, last_cmd = self.until_accepted(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "arming", now, last_cmd, 1.0)
                 if done:

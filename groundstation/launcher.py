@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from groundstation.fleet import VehiclePlan
-from quadsitl.cli_util import UsageError, wind_argv, wind_settings
+from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
 from quadsitl.config import Preset, WindParams
 from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, stop_status
 
@@ -158,8 +158,8 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
                   "--api-listen", v.api_listen, "--api-remote", v.api_remote]  # fmt: skip
             if args.controller is not None:
                 ap += ["--controller", args.controller]
-            if args.home is not None or len(fleet) > 1:
-                ap += ["--home", ",".join(repr(x) for x in v.home)]
+            home = ["--home", ",".join(repr(x) for x in v.home)] if args.home is not None or len(fleet) > 1 else []
+            ap += home + state_argv(args)
             if args.no_zenoh:
                 ap.append("--no-zenoh")
             else:  # the first vehicle's session listens, the others connect to it (and find each other)
@@ -170,7 +170,7 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
                 plant += ["--speed", str(args.speed)]
             if args.impair:
                 plant += ["--impair", args.impair]
-            plant += wind_argv(args)
+            plant += wind_argv(args) + state_argv(args) + home
             if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
                 plant += ["--vehicle", v.name, "--zenoh-connect", args.zenoh_listen]
             children.start("plant" + named, plant + (["--quiet"] if args.quiet else []))
@@ -311,9 +311,8 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         if args.controller:
             ap += ["--controller", args.controller]
         mission = getattr(args, "mission", None)
-        if mission and args.home:
-            ap += ["--home", args.home]
-        children.start("autopilot", ap)
+        home = ["--home", args.home] if mission and args.home else []
+        children.start("autopilot", ap + home + state_argv(args))
         if web_port is not None:
             url = start_dashboard(children, web_port, zenoh_ep)
             print(f"quadsitl fly: dashboard at {url}", flush=True)
@@ -328,7 +327,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         ]
         if args.integrator:
             plant += ["--integrator", args.integrator]
-        children.start("plant", plant + wind_argv(args) + quiet)
+        children.start("plant", plant + wind_argv(args) + state_argv(args) + home + quiet)
         gcs = ["groundstation", "--preset", preset_name, "--connect", f"127.0.0.1:{gcs_port}",
                "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out), *quiet]  # fmt: skip
         if args.duration:

@@ -28,6 +28,7 @@ def _dtype(stream: str) -> np.dtype:
 
 
 DTYPES = {stream: _dtype(stream) for stream in telemetry.STREAMS}
+DTYPES[telemetry.TRUTH] = _dtype("state")  # the plant's ground truth, in sensor mode: laid out as the state
 STATUS_FIELDS = ("tick", "armed", "mode", "failsafe", "offboard_tick")
 CHANNEL = 1 << 20  # samples per stream that may wait for drain()
 
@@ -53,9 +54,10 @@ class TelemetryLogger:
         # Each stream's samples wait in a FIFO channel inside Zenoh (no Python runs when one arrives, so the
         # logger wakes no thread per sample); drain() takes them. A full channel holds Zenoh back, and the
         # vehicle's publishers drop rather than wait: the capacity covers minutes of samples.
+        self._truth: list[np.ndarray] = []  # sensor mode: the ground truth beside the estimate
         self._subs = [
             (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(CHANNEL)))
-            for stream in telemetry.STREAMS
+            for stream in (*telemetry.STREAMS, telemetry.TRUTH)
         ]
 
     def _received(self) -> list[tuple[str, bytes]]:
@@ -73,6 +75,9 @@ class TelemetryLogger:
                 self.malformed += 1
                 continue
             recs = np.frombuffer(data, dtype=DTYPES[stream])
+            if stream == telemetry.TRUTH:
+                self._truth.append(recs)
+                continue
             if stream != "status":
                 self._raw[stream].append(recs)
                 continue
@@ -126,6 +131,14 @@ class TelemetryLogger:
                    s["pitch"], s["yaw"], s["p"], s["q"], s["r"], r["altitude_ref"], r["roll_ref"], r["pitch_ref"],
                    r["yaw_ref"], r["x_ref"], r["y_ref"], a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"],
                    a["f4"]]  # fmt: skip
+        if self._truth:  # sensor mode: the truth's columns (telemetry_csv.TRUTH_COLUMNS), NaN for a tick it missed
+            recs = np.concatenate(self._truth)[::-1]
+            _, first = np.unique(recs["tick"], return_index=True)
+            truth = recs[first]
+            at = np.minimum(np.searchsorted(truth["tick"], flown), len(truth) - 1)
+            found = truth["tick"][at] == flown
+            for name in ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"):
+                columns.append(np.where(found, truth[name][at], np.nan))
         table = np.column_stack(columns) if len(k) else np.zeros((0, len(columns)))
         return dict(zip(k.tolist(), table.tolist()))
 

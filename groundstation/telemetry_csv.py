@@ -5,6 +5,9 @@ p, q, r [rad/s, body FRD]; altitude_ref [m]; roll_ref, pitch_ref, yaw_ref [rad];
 (the horizontal position reference, NaN — written ``nan`` — while the horizontal position is not
 controlled: attitude setpoints, ``quadsitl sim``); u1 [N], u2, u3 [N], u4 [N·m]; f1..f4 commanded motor
 forces [N].
+
+In sensor mode (``--state sensors``) x..r are the autopilot's estimate, what its controllers flew on, and the
+plant's ground truth follows in :data:`TRUTH_COLUMNS` (x_true .. r_true, the same quantities and units).
 """
 
 from __future__ import annotations
@@ -18,6 +21,9 @@ COLUMNS = (
     "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "x_ref", "y_ref", "u1", "u2", "u3", "u4",
     "f1", "f2", "f3", "f4",
 )  # fmt: skip
+
+
+TRUTH_COLUMNS = tuple(f"{c}_true" for c in ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"))
 
 
 def rows_from_arrays(
@@ -38,8 +44,9 @@ def rows_from_arrays(
 
 
 def write_csv(path: Path, rows: np.ndarray) -> None:
-    """Write rows (in :data:`COLUMNS` order) with a header line."""
-    np.savetxt(path, rows, delimiter=",", header=",".join(COLUMNS), comments="", fmt="%.12g")
+    """Write rows (in :data:`COLUMNS` order, then :data:`TRUTH_COLUMNS` when they have them) with a header line."""
+    columns = COLUMNS + TRUTH_COLUMNS if rows.ndim == 2 and rows.shape[1] > len(COLUMNS) else COLUMNS
+    np.savetxt(path, rows, delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
 
 
 def read_csv(path: Path) -> dict[str, np.ndarray]:

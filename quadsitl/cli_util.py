@@ -8,7 +8,15 @@ import re
 from dataclasses import asdict, replace
 from typing import Any
 
-from quadsitl.config import SCHEMA, TURBULENCE_W20_KNOTS, ConfigError, Preset, WindParams, check_value
+from quadsitl.config import (
+    SCHEMA,
+    TURBULENCE_W20_KNOTS,
+    ConfigError,
+    Preset,
+    WindParams,
+    check_value,
+    default_sensors,
+)
 
 
 class UsageError(Exception):
@@ -24,6 +32,17 @@ def parse_floats(option: str, text: str, count: int) -> tuple[float, ...]:
     if len(values) != count or not all(math.isfinite(v) for v in values):
         raise UsageError(f"{option} {text!r}: expected {count} comma-separated finite numbers")
     return values
+
+
+def parse_home(text: str | None) -> tuple[float, float, float] | None:
+    """``--home LAT,LON,ALT`` → (lat [deg], lon [deg], alt [m AMSL]); None when not given."""
+    if text is None:
+        return None
+    lat, lon, alt = parse_floats("--home", text, 3)
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0 and -1000.0 <= alt <= 100000.0):
+        raise UsageError(f"--home {text!r}: expected latitude in [-90, 90], longitude in [-180, 180], altitude "
+                         "in [-1000, 100000] m")  # fmt: skip
+    return lat, lon, alt
 
 
 def check_range(option: str, value: float | None, lo: float, hi: float) -> None:
@@ -112,3 +131,50 @@ def wind_argv(args: argparse.Namespace) -> list[str]:
 def wind_settings(preset: Preset) -> dict[str, Any]:
     """What a run's metrics.json says of its air: ``{"wind": {...}}`` with the [wind] keys, or nothing when calm."""
     return {} if preset.wind == WindParams() else {"wind": asdict(preset.wind)}
+
+
+STATE_SOURCES = ("truth", "sensors")
+
+
+def add_state_arguments(p: argparse.ArgumentParser) -> None:
+    """``--state truth|sensors`` and ``--sensor-seed``: what the autopilot flies on (docs/sensors.md).
+    :func:`with_state` applies them."""
+    g = p.add_argument_group("state", "what the autopilot flies on")
+    g.add_argument("--state", choices=STATE_SOURCES, help="truth: the plant's true state (the paper's experiment); "
+                   "sensors: its IMU, magnetometer, barometer and GPS, through the autopilot's estimator (default: "
+                   "sensors when the preset has a [sensors] section, else truth)")  # fmt: skip
+    g.add_argument("--sensor-seed", type=int, metavar="N", help="the sensors' noise seed (default: the preset's, or 0)")
+
+
+def with_state(preset: Preset, args: argparse.Namespace) -> Preset:
+    """``preset`` flown on what ``--state`` says: with sensors (its [sensors], or the defaults) or without (the
+    truth); ``--sensor-seed`` over the sensors' seed. In sensor mode the vehicle must start at rest on the ground
+    (the estimator aligns there first); anything else is refused naming the key."""
+    state = args.state or ("sensors" if preset.sensors is not None else "truth")
+    if args.sensor_seed is not None:
+        if state != "sensors":
+            raise UsageError(f"--sensor-seed {args.sensor_seed}: the autopilot flies on the truth; add --state sensors")
+        try:
+            check_value("sensors.seed", args.sensor_seed, SCHEMA["sensors"]["seed"])
+        except ConfigError as exc:
+            raise UsageError(f"--sensor-seed {args.sensor_seed}: {exc}") from None
+    if state == "truth":
+        return replace(preset, sensors=None)
+    try:
+        sensors = preset.sensors or default_sensors(preset.sim)
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from None
+    if args.sensor_seed is not None:
+        sensors = replace(sensors, seed=args.sensor_seed)
+    i = preset.initial
+    for key in ("altitude", "climb_rate", "roll_rate", "pitch_rate", "yaw_rate"):
+        if getattr(i, key) != 0.0:
+            raise UsageError(f"--state sensors: initial.{key} = {getattr(i, key)!r}: must be 0 in sensor mode (the "
+                             "vehicle starts at rest on the ground, where the estimator aligns)")  # fmt: skip
+    return replace(preset, sensors=sensors)
+
+
+def state_argv(args: argparse.Namespace) -> list[str]:
+    """The state options given on this command line, for the processes it starts."""
+    out = ["--state", args.state] if args.state else []
+    return out + (["--sensor-seed", str(args.sensor_seed)] if args.sensor_seed is not None else [])

@@ -588,6 +588,12 @@ def _sensors(values: dict[str, Any], sim: SimParams, where: str) -> SensorParams
     return SensorParams(**values)
 
 
+def default_sensors(sim: SimParams) -> SensorParams:
+    """The sensors of a preset without a [sensors] section, flown on sensors (``--state sensors``): the defaults,
+    checked against the control rate as a section's are."""
+    return _sensors(asdict(SensorParams()), sim, "--state sensors")
+
+
 def wind_change(payload: bytes | str) -> dict[str, Any]:
     """A change of the wind while a plant flies (the Zenoh key ``quadsitl/<vehicle>/wind``): a JSON object with
     any of the [wind] keys, each checked as in a preset; returns them checked and normalised, for

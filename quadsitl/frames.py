@@ -94,10 +94,12 @@ def quaternion_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, 
 EARTH_RADIUS = 6371000.0  # [m], PX4's CONSTANTS_RADIUS_OF_EARTH
 
 
+@jit
 def ned_to_geodetic(north: float, east: float, lat0: float, lon0: float) -> tuple[float, float]:
     """Local north/east offsets [m] from a home at (lat0, lon0) [deg] → (lat, lon) [deg].
 
-    The azimuthal equidistant projection on a sphere, as PX4's ``MapProjection::reproject``.
+    The azimuthal equidistant projection on a sphere, as PX4's ``MapProjection::reproject``. Compiled: the plant's
+    GPS (:mod:`quadsitl.hil`) and the ground stations use this one function.
     """
     lat0_r, lon0_r = math.radians(lat0), math.radians(lon0)
     x, y = north / EARTH_RADIUS, east / EARTH_RADIUS
@@ -111,6 +113,7 @@ def ned_to_geodetic(north: float, east: float, lat0: float, lon0: float) -> tupl
     return math.degrees(lat), math.degrees(lon)
 
 
+@jit
 def geodetic_to_ned(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
     """Inverse of :func:`ned_to_geodetic`: (lat, lon) [deg] → north/east offsets [m] from (lat0, lon0)."""
     lat_r, lat0_r = math.radians(lat), math.radians(lat0)

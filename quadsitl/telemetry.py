@@ -12,7 +12,8 @@ plant started), ``t`` float64 simulated time [s], then float64 fields in SI unit
 setpoint: ``x_ref``, ``y_ref`` the horizontal position reference in local NED [m] (x north, y east), NaN
 while the horizontal position is not controlled (attitude setpoints, the paper's experiment);
 status: ``armed`` uint8 (0/1), ``mode`` uint8 (:data:`MODES`: 0 hold, 1 offboard, 2 land, 3 takeoff,
-4 rtl, 5 mission), ``failsafe`` uint8 (0 none, 1 setpoint stream lost), ``offboard_tick``
+4 rtl, 5 mission), ``failsafe`` uint8 (0 none, 1 setpoint stream lost, 2 plant link lost, 3 ground station lost, 4
+estimator failed), ``offboard_tick``
 int64 (tick at which the current offboard flight started, −1 when not in an offboard flight). The Zenoh
 encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v3`` (:data:`SCHEMA_VERSION`).
 
@@ -71,6 +72,12 @@ FIELDS: dict[str, tuple[str, ...]] = {
 # The status record's ``mode``: the autopilot's flight modes (PX4's, DESIGN.md §8), as quadsitl.wire.Mode numbers them.
 MODES: dict[int, str] = {0: "hold", 1: "offboard", 2: "land", 3: "takeoff", 4: "rtl", 5: "mission"}
 
+
+# In sensor mode the autopilot flies on its estimate: the state stream is that estimate, and the plant's ground truth
+# goes out beside it on quadsitl/<vehicle>/truth, a record per tick laid out as the state's (tick, t, x, y, z, vx, vy,
+# vz, roll, pitch, yaw, p, q, r). Not in STREAMS: a truth-mode run has none.
+TRUTH = "truth"
+TRUTH_RECORD = STREAMS["state"]
 
 MISSION = "mission"  # the key quadsitl/<vehicle>/mission: the stored mission, JSON (not a per-tick stream)
 MISSION_SCHEMA = 1

@@ -17,19 +17,23 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from quadsitl.config import Preset
+from quadsitl.config import Preset, SensorParams
+from quadsitl.earth import PX4_HOME
 from quadsitl.frames import wrap_pi
 from quadsitl.jit import jit
 from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
 from quadsitl.param_arrays import D_OVER_B, B, actuator_array, vehicle_array
 from quadsitl.state import Inputs, VehicleState
 from sitl.actuators import advance
-from sitl.dynamics import Disturbance, State, derivatives
+from sitl.dynamics import Disturbance, State
 from sitl.integrators import INTEGRATORS, integrate
+from sitl.sensors import Sensors
 from sitl.wind import air_arrays, air_tick
 
-# The outputs of a step besides the state, in Plant.out: mean motor forces (4), inputs u1..u4 (4), Ωr, on ground.
-OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_SIZE = 0, 4, 8, 9, 10
+# The outputs of a step besides the state, in Plant.out: mean motor forces (4), inputs u1..u4 (4), Ωr, on ground,
+# the mean acceleration over the step (3, [m/s², NED]: the change of velocity over the period, the ground's stop
+# included; what the accelerometer measures, :mod:`sitl.sensors`).
+OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_MEAN_ACCEL, OUT_SIZE = 0, 4, 8, 9, 10, 13
 
 
 def initial_state(preset: Preset) -> VehicleState:
@@ -46,19 +50,6 @@ def ground(s: State) -> tuple[State, bool]:
     if s[2] >= 0.0 and s[5] >= 0.0:  # at/below ground and not climbing (NED: z, vz down)
         return (s[0], s[1], 0.0, 0.0, 0.0, 0.0, s[6], s[7], s[8], s[9], s[10], s[11]), True
     return s, False
-
-
-@jit
-def acceleration(s: State, motors: Forces, v: np.ndarray, on_ground: bool, d: Disturbance
-                 ) -> tuple[float, float, float]:  # fmt: skip
-    """The true acceleration [m/s², NED] at state ``s`` under the motor forces acting now [N] and the wind and
-    external force ``d`` (eqs (2)–(4) with the inputs of eq (8)): what the accelerometer measures, with gravity.
-    Resting on the ground plane and not lifting off, the ground holds the vehicle: zero."""
-    u = forces_to_inputs(motors, v[D_OVER_B])
-    f = derivatives(s, u, residual_rotor_speed(motors, v[B]), v, d)
-    if on_ground and f[5] >= 0.0:
-        return 0.0, 0.0, 0.0
-    return f[3], f[4], f[5]
 
 
 @jit(inline=True)
@@ -94,6 +85,7 @@ def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: n
     air_tick(air, air_rng, period, x, out[OUT_ON_GROUND] > 0.0)
     d = air[:6]
     s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
+    v0 = (x[3], x[4], x[5])
     m = (motors[0], motors[1], motors[2], motors[3])
     c = (commanded[0], commanded[1], commanded[2], commanded[3])
     s, m, forces, u, wr, on_ground = step(s, m, c, v, a, period, substeps, method, omega_r,
@@ -106,6 +98,8 @@ def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: n
         out[OUT_INPUTS + i] = u[i]
     out[OUT_OMEGA_R] = wr
     out[OUT_ON_GROUND] = 1.0 if on_ground else 0.0
+    for i in range(3):
+        out[OUT_MEAN_ACCEL + i] = (s[3 + i] - v0[i]) / period
 
 
 # Divergence: the bounds a state must stay within (``lim``, LIMITS_SIZE): |x|, |y|, |z| [m]; |vx|, |vy|, |vz|
@@ -160,10 +154,13 @@ class Plant:
     over the last sub-step [N]), ``inputs`` (u1..u4 they make, eq (8)), ``omega_r`` [rad/s],
     ``on_ground`` (bool), ``time`` [s], ``wind`` (the wind of the last step [m/s, NED]).
     The arrays ``x`` (the state), ``motors``, ``air`` and ``air_rng`` (the wind model's, :func:`sitl.wind.air_arrays`:
-    the wind and external force of the last step first, ``d``) are what the compiled step works on.
+    the wind and external force of the last step first, ``d``) are what the compiled step works on. ``sensors``
+    (:class:`sitl.sensors.Sensors`, at ``home`` = (lat [deg], lon [deg], alt [m AMSL]), the local origin) measures
+    the state in sensor mode (the preset's [sensors]).
     """
 
-    def __init__(self, preset: Preset, integrator: str | None = None, substeps: int | None = None) -> None:
+    def __init__(self, preset: Preset, integrator: str | None = None, substeps: int | None = None,
+                 home: tuple[float, float, float] = PX4_HOME) -> None:  # fmt: skip
         self.params = preset.vehicle
         self.period = preset.sim.period
         name = integrator or preset.sim.integrator
@@ -180,6 +177,8 @@ class Plant:
         self.out[OUT_ON_GROUND] = self.x[2] >= 0.0
         self.time = 0.0
         self.air, self.air_rng = air_arrays(preset.wind)
+        # The sensors (the preset's, else the defaults: their arrays are passed in truth mode too, untouched).
+        self.sensors = Sensors(preset.sensors or SensorParams(), self.period, preset.vehicle.gravity, home)
 
     @property
     def state(self) -> VehicleState:

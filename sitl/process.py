@@ -1,6 +1,9 @@
 """The plant process (``quadsitl plant``, ``python -m sitl``): owns the truth state and integrates it.
 
-One MAVLink 2 UDP link to the autopilot (see :mod:`quadsitl.wire`).
+One MAVLink 2 UDP link to the autopilot (see :mod:`quadsitl.wire`). Each tick's datagram is the state as
+ODOMETRY (``--state truth``), or in sensor mode (``--state sensors``, the default when the preset has a [sensors]
+section) what the vehicle's sensors measure of it: HIL_SENSOR, HIL_GPS when a fix is delivered, and the ground
+truth as HIL_STATE_QUATERNION (:mod:`quadsitl.hil`), the GPS's latitude and longitude from ``--home``.
 
 - ``lockstep`` (default): the plant is the clock. For tick k it sends the state stamped with the
   simulated time, waits for the HIL_ACTUATOR_CONTROLS answering tick k, then integrates one period.
@@ -38,9 +41,19 @@ from pathlib import Path
 
 import numpy as np
 
-from quadsitl import wire
-from quadsitl.cli_util import UsageError, add_preset_arguments, add_wind_arguments, check_range, with_wind
+from quadsitl import hil, wire
+from quadsitl.cli_util import (
+    UsageError,
+    add_preset_arguments,
+    add_state_arguments,
+    add_wind_arguments,
+    check_range,
+    parse_home,
+    with_state,
+    with_wind,
+)
 from quadsitl.config import ConfigError, WindParams, load_preset
+from quadsitl.earth import PX4_HOME
 from quadsitl.process_util import (
     PLANT_DIVERGED,
     SpinThenBlock,
@@ -73,15 +86,17 @@ class PlantLink:
         max_thrust: float,
         period: float,
         impairment: Impairment | None = None,
+        sensing: bool = False,
     ):
         self.sock = sock  # bound (process_util.bind_udp)
         self.rx = bytearray(65535)
         self.rx_array = np.frombuffer(self.rx, dtype=np.uint8)
-        self.tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+        self.tx = np.zeros(max(wire.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
         self.tx_view = memoryview(self.tx)  # type: ignore[arg-type]
         self.io = np.zeros(tick.IO_SIZE, dtype=np.int64)  # sequence, frame length, last stamp used, refusals
         self.io[tick.LAST_USEC] = -1
         self.io[tick.SYSTEM], self.io[tick.COMPONENT] = wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID
+        self.io[tick.SENSING] = sensing
         self.received = np.zeros(4)  # the commanded forces [N] of the last actuator message decoded
         self.wait = SpinThenBlock(sock.recv_into, self.rx)  # lockstep's receive: polls while the autopilot answers fast
         self.sock.connect(autopilot)  # the kernel drops datagrams from anyone but the autopilot
@@ -108,8 +123,8 @@ class PlantLink:
         return int(self.io[tick.CORRUPT])
 
     def encode(self, k: int, plant: Plant) -> None:
-        """The plant's state as tick ``k``'s ODOMETRY, into tx."""
-        tick.encode_tick(self.tx, self.io, plant.x, k, self.period)
+        """Tick ``k``'s datagram (the state, or its measurements), into tx."""
+        tick.encode_tick(self.tx, self.io, plant.x, plant.out, plant.air, plant.sensors.arrays, k, self.period)
 
     def send(self) -> None:
         """Send the state frame in tx."""
@@ -245,13 +260,15 @@ class PlantLink:
 def warm_up(plant: Plant) -> None:
     """Compile (or load from numba's cache) everything a tick calls, before the first tick, on a copy."""
     twin = copy.deepcopy(plant)
-    link = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    link = np.zeros(max(wire.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
     io = np.zeros(tick.IO_SIZE, dtype=np.int64)
-    n = wire.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
     args = (twin.x, twin.motors, twin.out, twin.v, twin.a, twin.air, twin.air_rng, twin.period, twin.substeps,
-            twin.method, link, io)  # fmt: skip
-    tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, *args, 0)
-    tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), *args, 0)
+            twin.method, link, io, twin.sensors.arrays)  # fmt: skip
+    for sensing in (0, 1):
+        io[tick.SENSING] = sensing
+        n = wire.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
+        tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, *args, 0)
+        tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), *args, 0)
     wire.decode_actuators(link, n, twin.commanded, 1.0)
     twin.step()
     state_inside(twin.x)
@@ -285,7 +302,7 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     link.encode(0, plant)
     rx, received, commanded, io, tx = link.rx_array, link.received, plant.commanded, link.io, link.tx
     args = (plant.x, plant.motors, plant.out, plant.v, plant.a, plant.air, plant.air_rng, period, plant.substeps,
-            plant.method, tx, io)  # fmt: skip
+            plant.method, tx, io, plant.sensors.arrays)  # fmt: skip
     max_thrust, monotonic, receive = link.max_thrust, time.monotonic, link.receive
     check_state(plant, 0)  # the initial state; the others are checked as they are made (tick.DIVERGED)
     while max_ticks is None or k < max_ticks:
@@ -409,6 +426,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--stats", metavar="FILE", help="write the run's pace (and, in realtime, its timing) as JSON")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary at the end (errors still print)")
+    add_state_arguments(p)
+    p.add_argument("--home", metavar="LAT,LON,ALT", help="where the local origin is on the globe, for the GPS: "
+                   "degrees, degrees, metres AMSL (default: PX4 SITL's, 47.397742,8.545594,488)")  # fmt: skip
     add_wind_arguments(p)
     add_zenoh_arguments(p)  # a session only when an endpoint or a configuration is given: for wind changes
     return p
@@ -419,14 +439,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        preset = with_wind(load_preset(args.preset), args)
+        preset = with_state(with_wind(load_preset(args.preset), args), args)
+        home = parse_home(args.home) or PX4_HOME
         check_range("--speed", args.speed if args.speed != 0 else None, 0.0, 1000.0)
         autopilot = parse_address("--autopilot", args.autopilot)
-        plant = Plant(preset, integrator=args.integrator, substeps=args.substeps)
+        plant = Plant(preset, integrator=args.integrator, substeps=args.substeps, home=home)
         warm_up(plant)
         impairment = impairment_from(args.impair, args.mode)
         link = PlantLink(bind_udp("--bind", args.bind), autopilot, preset.actuators.max_thrust, preset.sim.period,
-                         impairment)  # fmt: skip
+                         impairment, sensing=preset.sensors is not None)  # fmt: skip
         wind = open_wind_link(args, preset.wind)
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

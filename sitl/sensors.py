@@ -28,14 +28,16 @@ import math
 import numpy as np
 
 from quadsitl.config import GPS_QUEUE, SensorParams
-from quadsitl.earth import HOME_ALT, ZERO_CELSIUS, isa_altitude, isa_pressure, isa_temperature, magnetic_field_ned
+from quadsitl.earth import PX4_HOME, ZERO_CELSIUS, isa_altitude, isa_pressure, isa_temperature, magnetic_field_ned
 from quadsitl.frames import euler_rates_to_body_rates, euler_to_quaternion, ned_to_body
+from quadsitl.hil import ACCEL_UPDATED, BARO_UPDATED, GYRO_UPDATED, MAG_UPDATED  # HIL_SENSOR.fields_updated
 from quadsitl.jit import jit
 from sitl.noise import gauss_markov, normal, seed_streams
 
 # ---- the parameter array (sensor_array) -----------------------------------------------------------------
 (GYRO_ND, GYRO_RW, GYRO_TAU, GYRO_BIAS0, ACC_ND, ACC_RW, ACC_TAU, ACC_BIAS0, MAG_ND, MAG_RW, MAG_TAU, MAG_N, MAG_E,
- MAG_D, BARO_NOISE, HOME_ALT_M, GPS_XY, GPS_Z, GPS_TAU, GPS_VXY, GPS_VZ, GRAVITY, PARAM_SIZE) = range(23)  # fmt: skip
+ MAG_D, BARO_NOISE, HOME_ALT_M, GPS_XY, GPS_Z, GPS_TAU, GPS_VXY, GPS_VZ, GRAVITY, HOME_LAT_DEG, HOME_LON_DEG,
+ SATELLITES, PARAM_SIZE) = range(26)  # fmt: skip
 # ---- the integer schedule (``clock``, int64, µs) --------------------------------------------------------
 (MAG_INTERVAL, BARO_INTERVAL, GPS_INTERVAL, GPS_DELAY, NEXT_MAG, NEXT_BARO, NEXT_GPS, QUEUE_HEAD, QUEUE_COUNT,
  CLOCK_SIZE) = range(10)  # fmt: skip
@@ -49,14 +51,11 @@ Q_RELEASE, Q_TIME, Q_POS, Q_VEL, Q_SIZE = 0, 1, 2, 5, 8
 (OUT_ACCEL, OUT_GYRO, OUT_MAG, OUT_PRESSURE, OUT_PRESSURE_ALT, OUT_TEMPERATURE, OUT_GPS_NEW, OUT_GPS_TIME,
  OUT_GPS_POS, OUT_GPS_VEL, OUT_SIZE) = 0, 3, 6, 9, 10, 11, 12, 13, 14, 17, 20  # fmt: skip
 
-# HIL_SENSOR.fields_updated, as PX4 reads them: accel, gyro, mag, baro (abs pressure, pressure alt, temperature)
-ACCEL_UPDATED, GYRO_UPDATED, MAG_UPDATED, BARO_UPDATED = 0b111, 0b111000, 0b111000000, 0b1101000000000
 
-
-def sensor_array(s: SensorParams, gravity: float, home_alt: float = HOME_ALT) -> np.ndarray:
+def sensor_array(s: SensorParams, gravity: float, home: tuple[float, float, float] = PX4_HOME) -> np.ndarray:
     """The sensors' figures as the compiled functions read them (SI units, gauss; the field in NED).
-    ``gravity`` [m/s²] is the plant's g (the accelerometer measures a − g); ``home_alt`` [m AMSL] is the
-    local origin's altitude (the barometer's)."""
+    ``gravity`` [m/s²] is the plant's g (the accelerometer measures a − g); ``home`` = (lat [deg], lon [deg], alt
+    [m AMSL]) is the local origin on the globe (the barometer's altitude, the GPS's latitude and longitude)."""
     field = magnetic_field_ned(
         s.mag_strength_gauss, math.radians(s.mag_declination_deg), math.radians(s.mag_inclination_deg)
     )
@@ -64,9 +63,9 @@ def sensor_array(s: SensorParams, gravity: float, home_alt: float = HOME_ALT) ->
         [s.gyro_noise_density_rad_s_sqrt_hz, s.gyro_random_walk_rad_s2_sqrt_hz, s.gyro_bias_correlation_time_s,
          s.gyro_turn_on_bias_rad_s, s.accel_noise_density_m_s2_sqrt_hz, s.accel_random_walk_m_s3_sqrt_hz,
          s.accel_bias_correlation_time_s, s.accel_turn_on_bias_m_s2, s.mag_noise_density_gauss_sqrt_hz,
-         s.mag_random_walk_gauss_s_sqrt_hz, s.mag_bias_correlation_time_s, *field, s.baro_noise_pa, home_alt,
+         s.mag_random_walk_gauss_s_sqrt_hz, s.mag_bias_correlation_time_s, *field, s.baro_noise_pa, home[2],
          s.gps_xy_error_m, s.gps_z_error_m, s.gps_error_correlation_time_s, s.gps_xy_velocity_noise_m_s,
-         s.gps_z_velocity_noise_m_s, gravity],
+         s.gps_z_velocity_noise_m_s, gravity, home[0], home[1], s.gps_satellites],
         dtype=np.float64,
     )  # fmt: skip
 
@@ -196,12 +195,14 @@ def sensors_tick(t_us: int, s: tuple, accel: tuple, dt: float, p: np.ndarray, rn
 
 class Sensors:
     """The sensors of one vehicle, with their noise processes and schedule (the arrays the compiled tick works
-    on). ``gravity`` [m/s²]: the plant's; ``home_alt`` [m AMSL]: the local origin's altitude."""
+    on). ``gravity`` [m/s²]: the plant's; ``home``: the local origin's latitude, longitude [deg] and altitude
+    [m AMSL]."""
 
-    def __init__(self, params: SensorParams, period: float, gravity: float, home_alt: float = HOME_ALT) -> None:
+    def __init__(self, params: SensorParams, period: float, gravity: float,
+                 home: tuple[float, float, float] = PX4_HOME) -> None:  # fmt: skip
         self.params = params
         self.period = period
-        self.p = sensor_array(params, gravity, home_alt)
+        self.p = sensor_array(params, gravity, home)
         self.rng = seed_streams(params.seed, STREAMS)
         self.bias = np.zeros(BIAS_SIZE)
         self.clock = clock_array(params)
@@ -214,6 +215,12 @@ class Sensors:
         :func:`sensors_tick`)."""
         return sensors_tick(t_us, tuple(state), tuple(accel), self.period, self.p, self.rng, self.bias, self.clock,
                             self.queue, self.out)  # fmt: skip
+
+    @property
+    def arrays(self) -> tuple:
+        """What the plant's compiled tick works on (:func:`sitl.tick.encode_tick`): parameters, random streams,
+        noise state, schedule, GPS queue, output."""
+        return self.p, self.rng, self.bias, self.clock, self.queue, self.out
 
     @property
     def gps_new(self) -> bool:

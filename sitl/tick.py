@@ -1,19 +1,28 @@
 """The plant's work for one lockstep tick, compiled (:mod:`quadsitl.jit`): take the autopilot's answer,
-integrate one period, and encode the next state, in one call from the process's loop
-(:func:`sitl.process.run_lockstep`)."""
+integrate one period, and encode the next tick's datagram, in one call from the process's loop
+(:func:`sitl.process.run_lockstep`).
+
+The datagram is the state as ODOMETRY, or in sensor mode (io[SENSING]) what the vehicle's sensors measure of it
+(:mod:`quadsitl.hil`: HIL_SENSOR, HIL_GPS when a fix is delivered, and HIL_STATE_QUATERNION, the truth).
+``sens`` is :attr:`sitl.sensors.Sensors.arrays` (any sensors' arrays in truth mode: they are not touched)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from quadsitl.frames import euler_to_quaternion
+from quadsitl.hil import encode_gps, encode_sensor, encode_truth
 from quadsitl.jit import jit
 from quadsitl.wire import NOT_THIS_FRAME, decode_actuators, encode_state, usec_of
-from sitl.plant import DEFAULT_LIMITS, inside, step_arrays
+from sitl import sensors as sn
+from sitl.plant import DEFAULT_LIMITS, OUT_MEAN_ACCEL, inside, step_arrays
 
 # The tick's integer bookkeeping (``io``, int64): the link's sequence number, the length of the state frame
 # in tx, the stamp of the newest actuator message used, and what was refused: stale or duplicate answers,
-# corrupt frames or non-finite forces.
-SEQ, TX_LEN, LAST_USEC, DISCARDED, CORRUPT, SYSTEM, COMPONENT, IO_SIZE = range(8)
+# corrupt frames or non-finite forces; the plant's MAVLink ids; 1 in sensor mode.
+SEQ, TX_LEN, LAST_USEC, DISCARDED, CORRUPT, SYSTEM, COMPONENT, SENSING, IO_SIZE = range(9)
 # What lockstep_tick reports besides STEPPED: an answer from the future, or no actuator message for this
 # tick in the datagram (NOTHING; ANOTHER_FRAME: not exactly one unsigned HIL_ACTUATOR_CONTROLS, for pymavlink).
 # DIVERGED: stepped, and the new state is outside sitl.plant's DEFAULT_LIMITS (or not finite): not to be sent.
@@ -21,8 +30,45 @@ STEPPED, FUTURE, NOTHING, ANOTHER_FRAME, DIVERGED = 0, 1, 2, 3, 4
 
 
 @jit
-def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, tick: int, period: float) -> None:
-    """The state ``x`` stamped with tick ``tick``'s simulated time, as ODOMETRY into ``tx``."""
+def encode_sensors(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray, sens: tuple,
+                   tick: int, period: float) -> None:  # fmt: skip
+    """Tick ``tick``'s sensor datagram into ``tx``: the sensors sample the state ``x`` once (:func:`sitl.sensors.
+    sensors_tick`), the accelerometer the mean acceleration of the step that made ``x`` (a landing's stop included,
+    as a real IMU's delta-velocity has it); then the truth."""
+    p, rng, bias, clock, queue, so = sens
+    s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
+    d = (air[0], air[1], air[2])
+    acc = (out[OUT_MEAN_ACCEL], out[OUT_MEAN_ACCEL + 1], out[OUT_MEAN_ACCEL + 2])
+    t = usec_of(tick, period)
+    fields = sn.sensors_tick(t, s, acc, period, p, rng, bias, clock, queue, so)
+    home = (p[sn.HOME_LAT_DEG], p[sn.HOME_LON_DEG], p[sn.HOME_ALT_M])
+    system, component = io[SYSTEM], io[COMPONENT]
+    io[SEQ] = (io[SEQ] + 1) & 0xFF
+    n = encode_sensor(tx, io[SEQ], system, component, t, (so[sn.OUT_ACCEL], so[sn.OUT_ACCEL + 1], so[sn.OUT_ACCEL + 2]),
+                      (so[sn.OUT_GYRO], so[sn.OUT_GYRO + 1], so[sn.OUT_GYRO + 2]),
+                      (so[sn.OUT_MAG], so[sn.OUT_MAG + 1], so[sn.OUT_MAG + 2]), so[sn.OUT_PRESSURE],
+                      so[sn.OUT_PRESSURE_ALT], so[sn.OUT_TEMPERATURE], fields)  # fmt: skip
+    if so[sn.OUT_GPS_NEW] != 0.0:
+        io[SEQ] = (io[SEQ] + 1) & 0xFF
+        n += encode_gps(tx[n:], io[SEQ], system, component, int(so[sn.OUT_GPS_TIME]),
+                        (so[sn.OUT_GPS_POS], so[sn.OUT_GPS_POS + 1], so[sn.OUT_GPS_POS + 2]),
+                        (so[sn.OUT_GPS_VEL], so[sn.OUT_GPS_VEL + 1], so[sn.OUT_GPS_VEL + 2]), home, p[sn.GPS_XY],
+                        p[sn.GPS_Z], int(p[sn.SATELLITES]))  # fmt: skip
+    f = sn.specific_force(euler_to_quaternion(s[6], s[7], s[8]), acc, p[sn.GRAVITY])
+    airspeed = math.sqrt((s[3] - d[0]) ** 2 + (s[4] - d[1]) ** 2 + (s[5] - d[2]) ** 2)
+    io[SEQ] = (io[SEQ] + 1) & 0xFF
+    n += encode_truth(tx[n:], io[SEQ], system, component, t, s, airspeed, f, home)
+    io[TX_LEN] = n
+
+
+@jit
+def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray, sens: tuple,
+                tick: int, period: float) -> None:  # fmt: skip
+    """Tick ``tick``'s datagram into ``tx``: the state ``x`` stamped with the tick's simulated time as ODOMETRY, or
+    in sensor mode its measurements (:func:`encode_sensors`)."""
+    if io[SENSING] != 0:
+        encode_sensors(tx, io, x, out, air, sens, tick, period)
+        return
     io[SEQ] = (io[SEQ] + 1) & 0xFF
     io[TX_LEN] = encode_state(tx, io[SEQ], io[SYSTEM], io[COMPONENT], usec_of(tick, period), x)
 
@@ -31,7 +77,7 @@ def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, tick: int, period
 def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray, x: np.ndarray,
                   motors: np.ndarray, out: np.ndarray, v: np.ndarray, a: np.ndarray, air: np.ndarray,
                   air_rng: np.ndarray, period: float, substeps: int, method: int, tx: np.ndarray, io: np.ndarray,
-                  tick: int) -> int:  # fmt: skip
+                  sens: tuple, tick: int) -> int:  # fmt: skip
     """An actuator message stamped ``t`` (its forces in ``received``): when it answers tick ``tick``
     (``want``), make it the command, integrate one period in the tick's wind (:func:`sitl.plant.step_arrays`) and
     encode the state of tick + 1 (DIVERGED when that state is not :func:`sitl.plant.inside` the default
@@ -47,7 +93,7 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
     io[LAST_USEC] = t
     commanded[:] = received
     step_arrays(x, motors, commanded, out, v, a, air, air_rng, period, substeps, method, np.nan)
-    encode_tick(tx, io, x, tick + 1, period)
+    encode_tick(tx, io, x, out, air, sens, tick + 1, period)
     s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
     return STEPPED if inside(s, DEFAULT_LIMITS) else DIVERGED
 
@@ -56,7 +102,7 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
 def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, received: np.ndarray,
                   commanded: np.ndarray, x: np.ndarray, motors: np.ndarray, out: np.ndarray, v: np.ndarray,
                   a: np.ndarray, air: np.ndarray, air_rng: np.ndarray, period: float, substeps: int, method: int,
-                  tx: np.ndarray, io: np.ndarray, tick: int) -> int:  # fmt: skip
+                  tx: np.ndarray, io: np.ndarray, sens: tuple, tick: int) -> int:  # fmt: skip
     """A datagram from the autopilot (rx[:length]) during tick ``tick``: STEPPED (the next state is in tx),
     DIVERGED (it is, but outside its bounds), FUTURE, NOTHING or ANOTHER_FRAME."""
     t = decode_actuators(rx, length, received, max_thrust)
@@ -66,4 +112,4 @@ def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, rec
         io[CORRUPT] += 1  # a bad CRC, or a non-finite force: never integrated
         return NOTHING
     return take_and_step(t, want, commanded, received, x, motors, out, v, a, air, air_rng, period, substeps, method,
-                         tx, io, tick)  # fmt: skip
+                         tx, io, sens, tick)  # fmt: skip

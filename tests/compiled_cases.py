@@ -19,10 +19,11 @@ from autopilot.pd import pd
 from autopilot.tick import autopilot_tick
 from groundstation.offline import run_offline
 from quadsitl import frames, mixer, wire
-from quadsitl.config import WindParams, load_preset
+from quadsitl.config import SensorParams, WindParams, load_preset
 from quadsitl.param_arrays import actuator_array, vehicle_array
 from sitl import actuators, dynamics, integrators, tick
 from sitl.plant import OUT_SIZE
+from sitl.sensors import Sensors
 from sitl.wind import air_arrays
 
 RANDOM_STATES = 200
@@ -109,7 +110,8 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
     cm.arm()
     cm.set_mode(commander.Mode.OFFBOARD)
     frames_out, bytes_out = [], []
-    tick.encode_tick(tx, io_pl, x, 0, preset.sim.period)
+    sens = Sensors(SensorParams(), preset.sim.period, preset.vehicle.gravity).arrays  # truth mode: not touched
+    tick.encode_tick(tx, io_pl, x, out, air[0], sens, 0, preset.sim.period)
     for k in range(300):
         n = int(io_pl[tick.TX_LEN])
         rx[:n] = tx[:n]
@@ -120,7 +122,7 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
         bytes_out.append(tx[:m].copy())
         rx[:m] = tx[:m]
         tick.lockstep_tick(rx, m, wire.usec_of(k, preset.sim.period), 1e4, received, commanded, x, motors, out, v, a,
-                           *air, preset.sim.period, 1, 0, tx, io_pl, k)  # fmt: skip
+                           *air, preset.sim.period, 1, 0, tx, io_pl, sens, k)  # fmt: skip
         frames_out.append(np.concatenate([x, mem, cm.cm]))
         bytes_out.append(records.copy())
     return {"ticks/values": np.array(frames_out), "ticks/answers": np.concatenate(bytes_out).astype(np.float64)}

@@ -31,7 +31,7 @@ from quadsitl.config import SensorParams, load_preset
 from quadsitl.mixer import allocate
 from quadsitl.state import Reference
 from quadsitl.wire import usec_of
-from sitl.plant import Plant, acceleration
+from sitl.plant import OUT_MEAN_ACCEL, Plant
 from sitl.sensors import (
     BARO_UPDATED,
     MAG_UPDATED,
@@ -77,8 +77,7 @@ def fly(sensor_params: SensorParams, duration: float = 18.0) -> Flight:
     truth, z, flags, bias = np.empty((n, 12)), np.zeros((n, Z_SIZE)), np.zeros(n, dtype=np.int64), np.empty((n, 3))
     for k in range(n):
         x = tuple(plant.x)
-        fields = sensors.tick(usec_of(k, T), x, acceleration(x, tuple(plant.motors), plant.v, plant.on_ground,
-                                                                     tuple(plant.d)))  # fmt: skip
+        fields = sensors.tick(usec_of(k, T), x, tuple(plant.out[OUT_MEAN_ACCEL : OUT_MEAN_ACCEL + 3]))
         truth[k], bias[k] = x, sensors.bias[0:3]
         z[k, Z_GYRO : Z_GYRO + 3] = out[OUT_GYRO : OUT_GYRO + 3]
         z[k, Z_ACCEL : Z_ACCEL + 3] = out[OUT_ACCEL : OUT_ACCEL + 3]

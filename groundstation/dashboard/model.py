@@ -35,7 +35,9 @@ STALE_AFTER = 1.0  # [s] wall without telemetry: the link shows as stale
 MAX_VEHICLES = 64  # more names than this are ignored (and counted): a stranger must not exhaust memory
 MAX_PENDING = 4096  # decimated ticks waiting for their other streams (a sample of 64 ticks holds a few)
 MODES = telemetry.MODES  # 0 hold, 1 offboard, 2 land, 3 takeoff, 4 rtl, 5 mission
-FAILSAFES = {0: "none", 1: "setpoint stream lost", 2: "plant link lost", 3: "ground station lost"}
+FAILSAFES = {
+    0: "none", 1: "setpoint stream lost", 2: "plant link lost", 3: "ground station lost", 4: "estimator failed",
+}  # fmt: skip
 
 # A row of the plot series, in this order (the page receives columns by these names).
 ROW_FIELDS = (
