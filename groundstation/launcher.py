@@ -26,7 +26,7 @@ import socket
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from groundstation.fleet import VehiclePlan
@@ -294,6 +294,24 @@ def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:
     return "\n".join(lines)
 
 
+def estimate_rms(estimate: dict, truth: dict) -> dict[str, float]:
+    """The RMS of the estimate's error over a flight: horizontal position and altitude [m], roll, pitch and yaw
+    [deg] (yaw wrapped to ±180°), from telemetry.csv's columns (``truth``: the x_true.. ones, renamed)."""
+    import numpy as np
+
+    def rms(e) -> float:
+        return round(float(np.sqrt(np.mean(np.square(e)))), 6) if len(e) else float("nan")
+
+    yaw = (estimate["yaw"] - truth["yaw"] + np.pi) % (2 * np.pi) - np.pi
+    return {
+        "horizontal_m": rms(np.hypot(estimate["x"] - truth["x"], estimate["y"] - truth["y"])),
+        "altitude_m": rms(estimate["altitude"] - truth["altitude"]),
+        "roll_deg": rms(np.degrees(estimate["roll"] - truth["roll"])),
+        "pitch_deg": rms(np.degrees(estimate["pitch"] - truth["pitch"])),
+        "yaw_deg": rms(np.degrees(yaw)),
+    }
+
+
 def fly(preset_name: str, preset: Preset, args) -> int:
     """Run one flight; returns the exit status for the ``quadsitl fly`` command."""
     out = Path(args.out)
@@ -410,6 +428,11 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
 
     data = read_csv(out / "telemetry.csv")
     t = data["t"]
+    sensing = "x_true" in data  # sensor mode: what the vehicle did is the truth; x..r is what the autopilot believed
+    if sensing:
+        estimate = {c: data[c] for c in ("x", "y", "altitude", "roll", "pitch", "yaw")}
+        data = {**data, **{c: data[c + "_true"] for c in ("x", "y", "z", "roll", "pitch", "yaw")},
+                "altitude": -data["z_true"]}  # fmt: skip
     y = outputs_from_columns(data["altitude"], data["roll"], data["pitch"], data["yaw"])
     ref = np.column_stack([data[c] for c in ("altitude_ref", "roll_ref", "pitch_ref", "yaw_ref")])
     u = np.column_stack([data[c] for c in ("u1", "u2", "u3", "u4")])
@@ -423,6 +446,10 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     flown = round(float(t[-1]) / period) + 1 if diverged else 0
     report = {"preset": preset.name, **settings, "diverged": diverged,
               "diverged_at": round(flown * period, 9) if diverged else None, "runs": metrics}  # fmt: skip
+    if sensing:  # the estimate's error over the flight (RMS), and the sensors flown
+        report["state"] = "sensors"
+        report["sensors"] = asdict(preset.sensors) if preset.sensors is not None else None
+        report["estimate_rms"] = estimate_rms(estimate, data)
     mission = getattr(args, "mission", None)
     trajectory = None if mission else trajectories.make(args.trajectory, preset.reference)
     position = None

@@ -4,6 +4,7 @@ on its estimator, and the ground truth never reaches the controllers."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import socket
 import struct
@@ -227,3 +228,7 @@ def test_fly_on_sensors_tracks_the_truth(tmp_path, procs):  # noqa: F811
     assert max(rms["roll"], rms["pitch"], rms["yaw"]) < math.radians(0.5)  # attitude RMS ≤ 0.5°
     assert 0.0 < rms["vx"] < 0.1  # an estimate, not the truth
     assert abs(d["roll_true"][-1] - math.radians(10)) < math.radians(1)  # the step was flown, in truth
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["state"] == "sensors" and m["sensors"]["profile"] == "px4"
+    assert m["estimate_rms"]["altitude_m"] == pytest.approx(rms["z"], rel=1e-3)
+    assert m["estimate_rms"]["roll_deg"] == pytest.approx(math.degrees(rms["roll"]), rel=1e-3)
