@@ -49,6 +49,10 @@ from quadsitl.hil import BARO_NEW, GPS_NEW, MAG_NEW, Z_ACCEL, Z_BARO, Z_GPS_POS,
 from quadsitl.jit import jit
 from quadsitl.state import VehicleState
 
+# ESTIMATOR_STATUS's flags (MAVLink's ESTIMATOR_STATUS_FLAGS)
+ESTIMATOR_ATTITUDE, ESTIMATOR_VELOCITY_HORIZ, ESTIMATOR_VELOCITY_VERT, ESTIMATOR_POS_HORIZ_REL = 1, 2, 4, 8
+ESTIMATOR_POS_HORIZ_ABS, ESTIMATOR_POS_VERT_ABS, ESTIMATOR_GPS_GLITCH = 16, 32, 1024
+
 # ---- the nominal state (x) and the error state (rows and columns of P) ---------------------------------------
 X_P, X_V, X_Q, X_BG, X_BA, X_SIZE = 0, 3, 6, 10, 13, 16
 DTH, DV, DP, DBG, DBA, N = 0, 3, 6, 9, 12, 15
@@ -421,6 +425,23 @@ class Estimator:
         """An innovation-bound failure: one sensor's measurements refused for ``divergence_time_s``, or a
         non-finite state."""
         return bool(self.io[DIVERGED])
+
+    def status(self) -> tuple[int, float, float, float, float, float, float]:
+        """The filter's health as ``ESTIMATOR_STATUS`` says it (PX4's EKF2 fills it likewise): the flags of what is
+        valid (ESTIMATOR_*: attitude, velocity, relative and absolute horizontal position, absolute vertical
+        position; none while aligning or diverged; GPS_GLITCH while GPS positions are refused), the innovation test
+        ratios (> 1: refused) of the velocity, horizontal position, vertical position (barometer) and magnetometer
+        (each the largest of its components, at the last fusion), and the 1σ horizontal and vertical position
+        accuracy [m] from P."""
+        r = self.ratio
+        valid = self.aligned and not self.diverged
+        flags = (ESTIMATOR_ATTITUDE | ESTIMATOR_VELOCITY_HORIZ | ESTIMATOR_VELOCITY_VERT | ESTIMATOR_POS_HORIZ_REL
+                 | ESTIMATOR_POS_HORIZ_ABS | ESTIMATOR_POS_VERT_ABS) if valid else 0  # fmt: skip
+        if self.aligned and max(r[0], r[1]) > 1.0:
+            flags |= ESTIMATOR_GPS_GLITCH
+        P = self.P
+        return (flags, float(max(r[2], r[3], r[4])), float(max(r[0], r[1])), float(r[5]), float(max(r[6], r[7], r[8])),
+                math.sqrt(max(P[DP, DP] + P[DP + 1, DP + 1], 0.0)), math.sqrt(max(P[DP + 2, DP + 2], 0.0)))  # fmt: skip
 
     @property
     def gyro_bias(self) -> np.ndarray:

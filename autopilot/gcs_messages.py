@@ -68,6 +68,9 @@ class Snapshot:
     # The position reference flown (local NED x, y [m], vx, vy [m/s], altitude [m], climb rate [m/s]); NaN where
     # not controlled (the horizontal position under attitude setpoints, the altitude under a climb rate alone).
     target: tuple[float, float, float, float, float, float] = (math.nan,) * 4 + (0.0, math.nan)
+    # ESTIMATOR_STATUS: flags, test ratios (velocity, horizontal and vertical position, magnetometer), horizontal and
+    # vertical accuracy [m] (autopilot.estimator.Estimator.status); None: the true state is flown (all valid, exact)
+    estimator: tuple[int, float, float, float, float, float, float] | None = None
 
 
 def position_target(s: Snapshot, ms: int) -> mavlink.MAVLink_position_target_local_ned_message:
@@ -199,6 +202,10 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
         return home_position(origin, *s.home, time_usec=s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
         return sys_status(s.load, s.errors, s.has_state)
+    if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
+        flags, vel, pos_h, pos_v, mag, acc_h, acc_v = s.estimator or (TRUE_STATE_FLAGS, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return mavlink.MAVLink_estimator_status_message(s.time_ms * 1000, flags, vel, pos_h, pos_v, mag, 0.0, 0.0,
+                                                        acc_h, acc_v)  # fmt: skip
     if msg_id == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
         return mavlink.MAVLink_extended_sys_state_message(mavlink.MAV_VTOL_STATE_UNDEFINED, landed_state(c, st))
     if msg_id == mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
@@ -207,6 +214,12 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
     if msg_id == mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS:
         return mavlink.MAVLink_actuator_output_status_message(s.time_ms * 1000, 0b1111, [*s.controls, *[0.0] * 28])
     raise ValueError(f"message id {msg_id} is not a telemetry stream")
+
+
+# The true state flown (--state truth): attitude, velocity and position all valid, exactly.
+TRUE_STATE_FLAGS = (mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_HORIZ | mavlink.ESTIMATOR_VELOCITY_VERT
+                    | mavlink.ESTIMATOR_POS_HORIZ_REL | mavlink.ESTIMATOR_POS_HORIZ_ABS
+                    | mavlink.ESTIMATOR_POS_VERT_ABS)  # fmt: skip
 
 
 def global_position_int(

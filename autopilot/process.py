@@ -165,6 +165,8 @@ class Autopilot:
             self.links.append(GcsLink(name, sock, remote, MessageStreams(self.period, args.telemetry_rate)))
         self.streams = self.links[0].streams  # for what every link's streams share: which ids are streamed
         self.last_heartbeat = 0.0
+        self.last_streamed = 0.0  # wall time the telemetry streams last went out (they follow the ticks)
+        self.last_records: dict[str, bytes] = {}  # each Zenoh stream's last record published
         # Input counters, reported in SYS_STATUS (errors_comm, errors_count1..4):
         self.errors_comm = 0  # ground-station datagrams that are not MAVLink or fail their CRC
         self.unknown = 0  # well-formed messages we do not handle (ignored)
@@ -317,6 +319,7 @@ class Autopilot:
 
     def _stream(self, tick: int) -> None:
         """The telemetry messages due at ``tick`` on each link."""
+        self.last_streamed = time.monotonic()
         snap, built = None, {}
         for link in self.links:
             if link.remote is None and not link.peers:
@@ -336,7 +339,9 @@ class Autopilot:
         rows = int(self.io[kernel.ROWS])
         if rows:
             for stream, pub in self.pubs.items():
-                pub.put(self.batch.payload(stream, rows))
+                payload = self.batch.payload(stream, rows)
+                pub.put(payload)
+                self.last_records[stream] = payload[-self.batch.regions[stream][1] :]
             self.io[kernel.ROWS] = 0
         self.last_flush = time.monotonic()
 
@@ -360,6 +365,7 @@ class Autopilot:
             has_state=not self.plant_lost,
             home=self._home(),
             target=self.commander.target if self.commander.armed else (math.nan,) * 4 + (ref.altitude, math.nan),
+            estimator=None if self.estimator is None else self.estimator.status(),
         )
 
     def _home(self) -> tuple[float, float, float, float]:
@@ -416,8 +422,13 @@ class Autopilot:
         self._send_gcs(gcs_messages.heartbeat(self.commander))
         self._send_mission(self.missions.protocol.mission_current())  # MISSION_CURRENT at 1 Hz, as PX4
         self.publish_plan(again=True)
-        if not self.has_state():  # no ticks, so no streams: SYS_STATUS says "not armable" here
-            self._send_gcs(gcs_messages.sys_status(self.load, self.errors, has_state=False))
+        if not self.has_state() or time.monotonic() - self.last_streamed > 1.0:
+            # No new ticks, so no streams (no plant, or a lockstep plant holding its clock until the vehicle arms):
+            # SYS_STATUS says here whether the vehicle may arm, and the last tick's telemetry records go out again,
+            # so a subscriber that joined since sees the vehicle (the same tick again: a join by tick keeps one).
+            self._send_gcs(gcs_messages.sys_status(self.load, self.errors, has_state=self.has_state()))
+            for stream, record in self.last_records.items():
+                self.pubs[stream].put(record)
 
     def on_gcs(self, m, link: GcsLink, sender: tuple[str, int]) -> None:
         new_peer = sender not in link.peers

@@ -30,6 +30,7 @@ SLOW_RATES: dict[int, float] = {  # [Hz]
     mavlink.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
 }
 
 MAX_INTERVAL_US = 60_000_000

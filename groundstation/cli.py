@@ -65,12 +65,12 @@ def _from_sweep(args: argparse.Namespace) -> Preset:
 
     if args.trial is None:
         raise UsageError("--from-sweep needs --trial K (the trial's number, as in trials.csv)")
-    given = [f"--{k.replace('_', '-')}" for k in ("preset", "controller", "duration", "integrator", "substeps", "gains",
-                                                   "poles", "compare", "wind", "turbulence", "gust", "wind_seed")
-             if getattr(args, k) is not None and getattr(args, k) is not False]  # fmt: skip
+    flown = ("preset", "controller", "duration", "integrator", "substeps", "gains", "poles", "compare", "wind",
+             "turbulence", "gust", "wind_seed", "state", "sensor_seed")  # fmt: skip
+    given = [f"--{k.replace('_', '-')}" for k in flown if getattr(args, k) not in (None, False)]
     if given:
         raise UsageError(f"{given[0]} does not go with --from-sweep: the trial flies as the sweep flew it (its "
-                         "preset, controller, duration, integrator, gains and calm air)")  # fmt: skip
+                         "preset, controller, duration, integrator, gains, calm air and true state)")  # fmt: skip
     try:
         return trial_preset(load_sweep(Path(args.from_sweep)), args.trial)
     except ConfigError as exc:
@@ -87,7 +87,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     if args.trial is not None and args.from_sweep is None:
         raise UsageError("--trial goes with --from-sweep DIR (the sweep's folder)")
-    preset = _from_sweep(args) if args.from_sweep is not None else with_wind(_load(args.preset or "paper"), args)
+    if args.from_sweep is not None:
+        preset = _from_sweep(args)
+    else:
+        preset = with_state(with_wind(_load(args.preset or "paper"), args), args)
     check_range("--duration", args.duration, 0.0, 3600.0)
     if args.substeps is not None and not 1 <= args.substeps <= 1000:
         raise UsageError(f"--substeps {args.substeps}: expected an integer in [1, 1000]")
@@ -374,6 +377,7 @@ the source, or 'mkdocs serve' there.""",
     sim.add_argument("--from-sweep", metavar="DIR", help="fly trial --trial of the sweep written into DIR again, "
                      "alone: the same flight to the bit (writes the trial's preset.toml too)")  # fmt: skip
     sim.add_argument("--trial", type=int, metavar="K", help="with --from-sweep: the trial's number")
+    add_state_arguments(sim)
     add_wind_arguments(sim)
     sim.set_defaults(func=cmd_sim, preset=None)
 

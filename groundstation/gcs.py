@@ -242,6 +242,8 @@ class GroundStation:
         last_sp_ms, last_sp_wall, last_hb, last_cmd = -1e9, 0.0, 0.0, 0.0
         setpoints_sent = 0
         wall_start, flight_wall_start = time.monotonic(), None
+        arm_tick = None if args.arm_at is None else round(args.arm_at / self.period)
+        order = ("arming", "offboard", "flying") if arm_tick is None else ("offboard", "arming", "flying")
         while phase != "done":
             now = time.monotonic()
             if now > deadline:
@@ -268,17 +270,22 @@ class GroundStation:
             elif phase == "prearm" and setpoints_sent >= 5 and self.logger.last_status is not None and self.armable:
                 # Arm only once the Zenoh telemetry reaches the logger (never fly what cannot be recorded) and the
                 # vehicle says it may arm (SYS_STATUS's pre-arm check, as QGroundControl and MAVSDK wait for it).
-                phase, last_cmd = "arming", 0.0
+                # With --arm-at, once the vehicle's clock stands there (its plant holds it until the vehicle
+                # arms), in offboard first: the flight then starts at the same tick in every run.
+                if arm_tick is None or self.logger.last_tick >= arm_tick:
+                    phase, last_cmd = order[0], 0.0
             elif phase == "arming":
                 done, last_cmd = self.until_accepted(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "arming", now, last_cmd, 1.0)
                 if done:
-                    phase, last_cmd = "offboard", 0.0
+                    phase, last_cmd = order[order.index(phase) + 1], 0.0
             elif phase == "offboard":
                 done, last_cmd = self.until_accepted(mavlink.MAV_CMD_DO_SET_MODE, "offboard mode", now, last_cmd,
                                                      mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0)  # fmt: skip
                 if done:
-                    phase, flight_wall_start = "flying", now
-                    self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: flight")
+                    phase, last_cmd = order[order.index(phase) + 1], 0.0
+            if phase == "flying" and self.progress is None:
+                flight_wall_start = now
+                self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: flight")
             elif phase == "flying" and flight_t >= self.duration:
                 phase, last_cmd = "landing", 0.0
                 self.flight_rate = (flight_t, now - flight_wall_start)  # simulated s flown, wall s
@@ -526,6 +533,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--home",
         metavar="LAT,LON,ALT",
         help="the autopilot's origin, for mission.json's north/east (default: PX4 SITL's, 47.397742,8.545594,488)",
+    )
+    p.add_argument(
+        "--arm-at",
+        type=float,
+        metavar="S",
+        help="switch to offboard and arm once the vehicle's clock reaches S simulated seconds (its lockstep plant "
+        "holding there with --hold-until-armed): the flight starts at the same tick in every run",
     )
     p.add_argument("--out", default="runs/gcs", metavar="DIR", help="where telemetry.csv and flight.tlog go")
     p.add_argument("--timeout", type=float, default=600.0, metavar="S", help="give up after S wall seconds")

@@ -31,7 +31,7 @@ from pathlib import Path
 
 from groundstation.fleet import VehiclePlan
 from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
-from quadsitl.config import Preset, WindParams
+from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
 from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, stop_status
 
 
@@ -294,24 +294,6 @@ def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:
     return "\n".join(lines)
 
 
-def estimate_rms(estimate: dict, truth: dict) -> dict[str, float]:
-    """The RMS of the estimate's error over a flight: horizontal position and altitude [m], roll, pitch and yaw
-    [deg] (yaw wrapped to ±180°), from telemetry.csv's columns (``truth``: the x_true.. ones, renamed)."""
-    import numpy as np
-
-    def rms(e) -> float:
-        return round(float(np.sqrt(np.mean(np.square(e)))), 6) if len(e) else float("nan")
-
-    yaw = (estimate["yaw"] - truth["yaw"] + np.pi) % (2 * np.pi) - np.pi
-    return {
-        "horizontal_m": rms(np.hypot(estimate["x"] - truth["x"], estimate["y"] - truth["y"])),
-        "altitude_m": rms(estimate["altitude"] - truth["altitude"]),
-        "roll_deg": rms(np.degrees(estimate["roll"] - truth["roll"])),
-        "pitch_deg": rms(np.degrees(estimate["pitch"] - truth["pitch"])),
-        "yaw_deg": rms(np.degrees(yaw)),
-    }
-
-
 def fly(preset_name: str, preset: Preset, args) -> int:
     """Run one flight; returns the exit status for the ``quadsitl fly`` command."""
     out = Path(args.out)
@@ -345,9 +327,14 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         ]
         if args.integrator:
             plant += ["--integrator", args.integrator]
-        children.start("plant", plant + wind_argv(args) + state_argv(args) + home + quiet)
+        # On sensors, the vehicle waits on the ground for SENSOR_GROUND_S (the estimator aligns in its first second)
+        # and the plant's clock holds there until it is armed: every run, and `sim`, start flying at the same tick.
+        hold = ["--hold-until-armed", repr(SENSOR_GROUND_S)] if preset.sensors is not None and not mission else []
+        children.start("plant", plant + wind_argv(args) + state_argv(args) + home + hold + quiet)
         gcs = ["groundstation", "--preset", preset_name, "--connect", f"127.0.0.1:{gcs_port}",
                "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out), *quiet]  # fmt: skip
+        if hold:
+            gcs += ["--arm-at", repr(SENSOR_GROUND_S)]
         if args.duration:
             gcs += ["--duration", str(args.duration)]
         if mission:
@@ -418,6 +405,7 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     from groundstation import trajectories
     from groundstation.figures import write_figures, write_mission_figure, write_path_figure
     from groundstation.metrics import (
+        estimate_rms,
         format_position_table,
         format_table,
         outputs_from_columns,

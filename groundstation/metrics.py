@@ -138,3 +138,20 @@ def format_position_table(metrics: dict[str, dict]) -> str:
             f"{f(m['altitude_rms']):>18}"
         )
     return "\n".join(lines)
+
+
+def estimate_rms(estimate: dict, truth: dict) -> dict[str, float]:
+    """The RMS of the estimate's error over a flight: horizontal position and altitude [m], roll, pitch and yaw
+    [deg] (yaw wrapped to ±180°), from telemetry.csv's columns (``truth``: the x_true.. ones, renamed)."""
+
+    def rms(e) -> float:
+        return round(float(np.sqrt(np.mean(np.square(e)))), 6) if len(e) else float("nan")
+
+    yaw = (estimate["yaw"] - truth["yaw"] + np.pi) % (2 * np.pi) - np.pi
+    return {
+        "horizontal_m": rms(np.hypot(estimate["x"] - truth["x"], estimate["y"] - truth["y"])),
+        "altitude_m": rms(estimate["altitude"] - truth["altitude"]),
+        "roll_deg": rms(np.degrees(estimate["roll"] - truth["roll"])),
+        "pitch_deg": rms(np.degrees(estimate["pitch"] - truth["pitch"])),
+        "yaw_deg": rms(np.degrees(yaw)),
+    }

@@ -182,6 +182,11 @@ class SensorParams:
     gps_satellites: int = 10
 
 
+# A flight on sensors (`fly` and `sim` with --state sensors) waits on the ground this long first, motors off: the
+# estimator aligns at rest in its first second. `fly`'s plant holds its clock there until the vehicle arms, so both
+# start flying at the same tick, with the same sensor noise behind them.
+SENSOR_GROUND_S = 2.0  # [s]
+
 # MIL-F-8785C's turbulence levels by the wind speed at 20 ft, W20 [knots] (sitl/wind.py's Dryden model)
 TURBULENCE_W20_KNOTS = {"none": 0.0, "light": 15.0, "moderate": 30.0, "severe": 45.0}
 

@@ -97,6 +97,7 @@ class PlantLink:
         self.io[tick.LAST_USEC] = -1
         self.io[tick.SYSTEM], self.io[tick.COMPONENT] = wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID
         self.io[tick.SENSING] = sensing
+        self.io[tick.HOLD_TICK] = -1  # lockstep: the tick at which the clock holds until the autopilot arms
         self.received = np.zeros(4)  # the commanded forces [N] of the last actuator message decoded
         self.wait = SpinThenBlock(sock.recv_into, self.rx)  # lockstep's receive: polls while the autopilot answers fast
         self.sock.connect(autopilot)  # the kernel drops datagrams from anyone but the autopilot
@@ -203,6 +204,7 @@ class PlantLink:
             elif m.time_usec > best:
                 best = m.time_usec
                 self.received[:] = wire.forces_from_message(m, self.max_thrust)
+                self.io[tick.ANSWER_ARMED] = 1 if m.mode & wire.SAFETY_ARMED else 0
         return best
 
     def apply(self, plant: Plant, t: int) -> bool:
@@ -321,6 +323,9 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
                 r = tick.take_and_step(link.decode(nbytes), want, commanded, received, *args, k)
             if r == tick.STEPPED:
                 break
+            if r == tick.HELD:  # the hold tick, the autopilot not yet armed: it is there, time waits
+                held = True
+                link.last_heard = monotonic()
             if r == tick.DIVERGED:  # x(k + 1), encoded but not sent
                 raise DivergedError(k + 1, period, plant.x)
         if held:
@@ -414,6 +419,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="F",
         help="lockstep pace cap, × real time (0 = as fast as possible; default 0)",
     )
+    p.add_argument(
+        "--hold-until-armed",
+        type=float,
+        metavar="S",
+        help="lockstep: at S simulated seconds, hold the clock until the autopilot's answer says armed (quadsitl fly "
+        "uses it with sensors: its flight then starts after the same ticks on the ground in every run)",
+    )
     p.add_argument("--integrator", choices=("euler", "rk4"), help="default: the preset's")
     p.add_argument("--substeps", type=int, metavar="N", help="default: the preset's")
     p.add_argument("--ticks", type=int, metavar="N", help="stop after N ticks (default: run until stopped)")
@@ -448,6 +460,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         impairment = impairment_from(args.impair, args.mode)
         link = PlantLink(bind_udp("--bind", args.bind), autopilot, preset.actuators.max_thrust, preset.sim.period,
                          impairment, sensing=preset.sensors is not None)  # fmt: skip
+        if args.hold_until_armed is not None:
+            if args.mode != "lockstep" or not 0.0 <= args.hold_until_armed <= 3600.0:
+                raise UsageError(f"--hold-until-armed {args.hold_until_armed!r}: expected a number of seconds in "
+                                 "[0, 3600], in lockstep")  # fmt: skip
+            link.io[tick.HOLD_TICK] = round(args.hold_until_armed / preset.sim.period)
         wind = open_wind_link(args, preset.wind)
     except (UsageError, ConfigError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

@@ -15,18 +15,20 @@ import numpy as np
 from quadsitl.frames import euler_to_quaternion
 from quadsitl.hil import encode_gps, encode_sensor, encode_truth
 from quadsitl.jit import jit
-from quadsitl.wire import NOT_THIS_FRAME, decode_actuators, encode_state, usec_of
+from quadsitl.wire import HEADER_SIZE, HIL_SIZE, NOT_THIS_FRAME, SAFETY_ARMED, decode_actuators, encode_state, usec_of
 from sitl import sensors as sn
 from sitl.plant import DEFAULT_LIMITS, OUT_MEAN_ACCEL, inside, step_arrays
 
 # The tick's integer bookkeeping (``io``, int64): the link's sequence number, the length of the state frame
 # in tx, the stamp of the newest actuator message used, and what was refused: stale or duplicate answers,
-# corrupt frames or non-finite forces; the plant's MAVLink ids; 1 in sensor mode.
-SEQ, TX_LEN, LAST_USEC, DISCARDED, CORRUPT, SYSTEM, COMPONENT, SENSING, IO_SIZE = range(9)
+# corrupt frames or non-finite forces; the plant's MAVLink ids; 1 in sensor mode; the tick at which the clock holds
+# until the autopilot arms (−1: none) and whether the answer being taken says armed.
+SEQ, TX_LEN, LAST_USEC, DISCARDED, CORRUPT, SYSTEM, COMPONENT, SENSING, HOLD_TICK, ANSWER_ARMED, IO_SIZE = range(11)
 # What lockstep_tick reports besides STEPPED: an answer from the future, or no actuator message for this
 # tick in the datagram (NOTHING; ANOTHER_FRAME: not exactly one unsigned HIL_ACTUATOR_CONTROLS, for pymavlink).
 # DIVERGED: stepped, and the new state is outside sitl.plant's DEFAULT_LIMITS (or not finite): not to be sent.
-STEPPED, FUTURE, NOTHING, ANOTHER_FRAME, DIVERGED = 0, 1, 2, 3, 4
+# HELD: the answer to the hold tick, disarmed: the clock waits (io[HOLD_TICK]).
+STEPPED, FUTURE, NOTHING, ANOTHER_FRAME, DIVERGED, HELD = 0, 1, 2, 3, 4, 5
 
 
 @jit
@@ -81,7 +83,7 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
     """An actuator message stamped ``t`` (its forces in ``received``): when it answers tick ``tick``
     (``want``), make it the command, integrate one period in the tick's wind (:func:`sitl.plant.step_arrays`) and
     encode the state of tick + 1 (DIVERGED when that state is not :func:`sitl.plant.inside` the default
-    bounds)."""
+    bounds). At io[HOLD_TICK] the clock holds (HELD) until the answer says armed (io[ANSWER_ARMED])."""
     if t < 0:
         return NOTHING
     if t <= io[LAST_USEC]:
@@ -90,6 +92,8 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
     if t != want:
         io[DISCARDED] += 1
         return FUTURE
+    if tick == io[HOLD_TICK] and io[ANSWER_ARMED] == 0:
+        return HELD
     io[LAST_USEC] = t
     commanded[:] = received
     step_arrays(x, motors, commanded, out, v, a, air, air_rng, period, substeps, method, np.nan)
@@ -111,5 +115,6 @@ def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, rec
     if t < 0:
         io[CORRUPT] += 1  # a bad CRC, or a non-finite force: never integrated
         return NOTHING
+    io[ANSWER_ARMED] = 1 if rx[HEADER_SIZE + HIL_SIZE - 1] & SAFETY_ARMED else 0
     return take_and_step(t, want, commanded, received, x, motors, out, v, a, air, air_rng, period, substeps, method,
                          tx, io, sens, tick)  # fmt: skip

@@ -98,3 +98,40 @@ def test_divergence_is_flagged_when_the_gps_jumps(px4):
 def test_a_delay_beyond_the_history_is_refused():
     with pytest.raises(ValueError, match=r"gps_delay_s = 2\.0: expected at most 1\.023 s"):
         Estimator(0.001, 9.8, (0.2, 0.0, 0.4), EstimatorParams(gps_delay_s=2.0))
+
+
+def test_estimator_status_says_what_is_valid_and_how_well(px4):
+    """ESTIMATOR_STATUS's fields from the filter: nothing valid while aligning; attitude, velocity and position
+    valid, test ratios below 1 and position accuracies from P once aligned; GPS_GLITCH while jumped fixes are
+    refused; nothing valid once diverged. The message goes out as pymavlink reads it."""
+    from autopilot import estimator as ekf
+    from autopilot.gcs_messages import Snapshot, build
+    from quadsitl import wire
+    from quadsitl.state import Reference, VehicleState
+
+    f, _ = px4
+    s = f.sensors
+    est = Estimator.for_field(f.period, f.gravity, s.mag_strength_gauss, s.mag_declination_deg, s.mag_inclination_deg)
+    z = f.z.copy()
+    z[(np.arange(len(z)) * f.period >= 10.0) & ((f.flags & GPS_NEW) != 0), Z_GPS_POS] += 50.0
+    seen = {}
+    for k in range(len(z)):
+        est.z[:] = z[k]
+        est.tick(int(f.flags[k]))
+        if k in (500, 5000, 10500, len(z) - 1):
+            seen[k] = est.status()
+    valid = (ekf.ESTIMATOR_ATTITUDE | ekf.ESTIMATOR_VELOCITY_HORIZ | ekf.ESTIMATOR_VELOCITY_VERT
+             | ekf.ESTIMATOR_POS_HORIZ_REL | ekf.ESTIMATOR_POS_HORIZ_ABS | ekf.ESTIMATOR_POS_VERT_ABS)  # fmt: skip
+    assert seen[500][0] == 0  # aligning
+    flags, vel, pos_h, pos_v, mag, acc_h, acc_v = seen[5000]
+    assert flags == valid and max(vel, pos_h, pos_v, mag) <= 1.0
+    assert 0.05 < acc_h < 1.0 and 0.01 < acc_v < 0.3  # [m]: from P, well below the initial 2 m and 0.2 m
+    assert seen[10500][0] == valid | ekf.ESTIMATOR_GPS_GLITCH and seen[10500][2] > 1.0  # refused, not yet diverged
+    assert seen[len(z) - 1][0] & valid == 0  # diverged
+    snap = Snapshot(time_ms=5000, state=VehicleState(), body_rates=(0.0, 0.0, 0.0), reference=Reference(0, 0, 0, 0),
+                    u1=0.0, controls=(0.0,) * 4, reversible=False, max_total_thrust=1.0,
+                    estimator=seen[5000])  # fmt: skip
+    msg = build(wire.mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS, snap, None, None)
+    got = wire.link(1, 1).parse_buffer(msg.pack(wire.link(1, 1)))[0]
+    assert (got.time_usec, got.flags) == (5_000_000, valid)
+    assert got.pos_horiz_accuracy == pytest.approx(acc_h, rel=1e-6) and got.vel_ratio == pytest.approx(vel, rel=1e-6)

@@ -214,14 +214,29 @@ def test_an_autopilot_on_sensors_never_flies_odometry_and_says_why(tmp_path, pro
         c.conn.close()
 
 
-def test_fly_on_sensors_tracks_the_truth(tmp_path, procs):  # noqa: F811
-    """``quadsitl fly --state sensors`` flies the x500's steps on its estimate, closed loop, with the default
-    sensors: telemetry.csv has the estimate and the truth, and they agree as docs/sensors.md says."""
-    out = tmp_path / "run"
-    p = subprocess.Popen(quadsitl("fly", "--preset", "x500", "--state", "sensors", "--out", str(out), "--quiet"))
-    procs.append(p)
-    assert p.wait(240) == 0
-    d = read_csv(out / "telemetry.csv")
+def fly_on_sensors(out, *extra: str) -> dict[str, np.ndarray]:
+    p = subprocess.Popen(
+        quadsitl("fly", "--preset", "x500", "--state", "sensors", "--out", str(out), "--quiet", *extra)
+    )
+    try:
+        assert p.wait(240) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+    return read_csv(out / "telemetry.csv")
+
+
+@pytest.fixture(scope="module")
+def flown(tmp_path_factory) -> tuple:
+    """``quadsitl fly --preset x500 --state sensors`` (the x500's 5 s of steps, the default sensors, seed 0)."""
+    out = tmp_path_factory.mktemp("fly-sensors")
+    return out, fly_on_sensors(out)
+
+
+def test_fly_on_sensors_tracks_the_truth(flown):
+    """The x500's steps flown on the estimate, closed loop, with the default sensors: telemetry.csv has the estimate
+    and the truth, and they agree as docs/sensors.md says."""
+    out, d = flown
     assert len(d["t"]) == round(X500.sim.duration / X500.sim.period)
     rms = {c: float(np.sqrt(np.mean((d[c] - d[c + "_true"]) ** 2))) for c in ("z", "roll", "pitch", "yaw", "vx")}
     assert rms["z"] < 0.1  # the issue's bound: altitude RMS ≤ 0.1 m
@@ -232,3 +247,32 @@ def test_fly_on_sensors_tracks_the_truth(tmp_path, procs):  # noqa: F811
     assert m["state"] == "sensors" and m["sensors"]["profile"] == "px4"
     assert m["estimate_rms"]["altitude_m"] == pytest.approx(rms["z"], rel=1e-3)
     assert m["estimate_rms"]["roll_deg"] == pytest.approx(math.degrees(rms["roll"]), rel=1e-3)
+
+
+def test_fly_on_sensors_is_deterministic_per_seed(flown, tmp_path):
+    """The plant holds its clock on the ground until the vehicle arms, so every run starts its flight after the same
+    ticks of sensor noise: the same seed flies the same flight to the byte, another seed another."""
+    out, _ = flown
+    again = fly_on_sensors(tmp_path / "again")
+    assert (tmp_path / "again" / "telemetry.csv").read_bytes() == (out / "telemetry.csv").read_bytes()
+    other = fly_on_sensors(tmp_path / "seed1", "--sensor-seed", "1")
+    assert np.max(np.abs(other["z"] - again["z"])) > 1e-3
+
+
+def test_fly_equals_sim_on_sensors(flown, tmp_path):
+    """``quadsitl sim --state sensors`` flies what ``fly`` flies: the same sensor noise, estimator and controller,
+    composed of the same compiled functions. The estimate agrees to float32's precision (the forces cross the wire
+    as float32), the truth to HIL_STATE_QUATERNION's quantisation (1e-7 deg, 1 mm)."""
+    _, d = flown
+    p = subprocess.run(quadsitl("sim", "--preset", "x500", "--state", "sensors", "--out", str(tmp_path), "--quiet",
+                                "--no-figures"), timeout=240)  # fmt: skip
+    assert p.returncode == 0
+    s = read_csv(tmp_path / "telemetry.csv")
+    assert len(s["t"]) == len(d["t"])
+    for c in ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r", "u1", "u2", "u3", "u4"):
+        assert np.max(np.abs(s[c] - d[c])) < 2e-5, c
+    for c in ("roll", "pitch", "yaw", "p", "q", "r"):
+        assert np.max(np.abs(s[c + "_true"] - d[c + "_true"])) < 1e-6, c
+    assert np.max(np.hypot(s["x_true"] - d["x_true"], s["y_true"] - d["y_true"])) < 0.01  # lat/lon: 1e-7 deg
+    assert np.max(np.abs(s["z_true"] - d["z_true"])) < 6e-4  # altitude: mm
+    assert np.max(np.abs(s["vx_true"] - d["vx_true"])) < 6e-3  # cm/s
