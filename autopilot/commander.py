@@ -82,7 +82,7 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
  SIZE) = range(74)  # fmt: skip
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
-TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.05, 0.1  # [m], [m/s]: resting on the ground
+TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
 TAKEOFF_TOLERANCE = 0.1  # [m]: takeoff is done when the vehicle is this close to the takeoff altitude
 LAND_ALT1, LAND_ALT2 = 10.0, 5.0  # [m] a landing slows from MPC_Z_VEL_MAX_DN above ALT1 to land_speed below ALT2
 LAND_BRAKED = 0.5  # [m/s]: a landing descends once the vehicle moves slower than this horizontally
@@ -132,12 +132,15 @@ def enter(cm: np.ndarray, mode: int) -> None:
         cm[HOLD_YAW] = cm[YAW]
         return
     a = cm[ACC_HOR]
-    cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0)
-    cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], cm[CLIMB_RATE]
+    # Resting on the ground, the reference starts and stays on it: an estimated altitude and climb rate (sensor
+    # mode) that wander by centimetres must not make a target above the vehicle, which would lift it off.
+    landed = cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB
+    cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], 0.0 if landed else max(cm[ALTITUDE], 0.0)
+    cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], 0.0 if landed else cm[CLIMB_RATE]
     cm[GEN_AX], cm[GEN_AY], cm[GEN_CLIMB_ACC] = 0.0, 0.0, 0.0
     cm[TARGET_X] = cm[X] + stop_distance(cm[VX], a)
     cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], a)
-    cm[TARGET_ALT] = max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)
+    cm[TARGET_ALT] = 0.0 if landed else max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)
     cm[HOLD_YAW] = cm[YAW]
     cm[LEG_SPEED] = cm[CRUISE]
     cm[PHASE] = 0.0

@@ -97,9 +97,9 @@ class EstimatorParams:
     align_time_s: float = 1.0
     init_tilt_rad: float = 0.01  # initial standard deviations (tilt: beyond the accelerometer bias's share)
     init_yaw_rad: float = 0.1
-    init_vel_m_s: float = 0.3
+    init_vel_m_s: float = 0.05  # the alignment is at rest
     init_pos_m: float = 2.0
-    init_alt_m: float = 0.2
+    init_alt_m: float = 0.2  # without a barometer sample during the alignment (else: the baro noise / √samples)
     init_gyro_bias_rad_s: float = 0.01
     init_accel_bias_m_s2: float = 0.05  # PX4's EKF2_ABIAS_INIT is 0.2; see docs/sensors.md
 
@@ -146,6 +146,8 @@ def align(x: np.ndarray, P: np.ndarray, acc: np.ndarray, e: np.ndarray, p0: tupl
           e[INIT_ACC_BIAS])  # fmt: skip
     for i in range(N):
         P[i, i] = sd[i] * sd[i]
+    if acc[A_N_BARO] > 0:  # the altitude's reference is the mean of the barometer's samples: known to r/n
+        P[DP + 2, DP + 2] = e[BARO_NOISE] * e[BARO_NOISE] / acc[A_N_BARO]
     # The tilt came from the accelerometer, so it carries the accelerometer's bias: level, an unknown bias δb
     # tilts the estimate by δθ_x = δb_y/g (roll), δθ_y = −δb_x/g (pitch). Said so in P, the velocity fixes
     # correct tilt and bias together instead of trading one for the other.

@@ -362,7 +362,7 @@ class Autopilot:
             max_total_thrust=4.0 * self.f_max,
             load=self.load,
             errors=self.errors,
-            has_state=not self.plant_lost,
+            has_state=self.has_state(),
             home=self._home(),
             target=self.commander.target if self.commander.armed else (math.nan,) * 4 + (ref.altitude, math.nan),
             estimator=None if self.estimator is None else self.estimator.status(),

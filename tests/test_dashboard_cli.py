@@ -109,9 +109,10 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
         session = zenoh.open(telemetry.zenoh_config(connect=[v.zenoh]))
         try:
             # Peers reach each other directly (the autopilot's session does not forward between them): wait
-            # until this one has found the dashboard's as well as the autopilot's, or its samples go nowhere.
+            # until this one has found the dashboard's as well as the autopilot's and the plant's (it takes wind
+            # changes), or its samples go nowhere.
             deadline = time.monotonic() + 10
-            while len(list(session.info.peers_zid())) < 2 and time.monotonic() < deadline:
+            while len(list(session.info.peers_zid())) < 3 and time.monotonic() < deadline:
                 time.sleep(0.05)
             rng = random.Random(5)
             for i in range(3000):

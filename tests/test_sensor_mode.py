@@ -29,6 +29,7 @@ from sitl.plant import Plant
 from tests.test_fly import procs, quadsitl  # noqa: F401 (procs: a fixture)
 
 M = wire.mavlink
+NAN = math.nan
 X500 = load_preset("x500")
 
 
@@ -276,3 +277,43 @@ def test_fly_equals_sim_on_sensors(flown, tmp_path):
     assert np.max(np.hypot(s["x_true"] - d["x_true"], s["y_true"] - d["y_true"])) < 0.01  # lat/lon: 1e-7 deg
     assert np.max(np.abs(s["z_true"] - d["z_true"])) < 6e-4  # altitude: mm
     assert np.max(np.abs(s["vx_true"] - d["vx_true"])) < 6e-3  # cm/s
+
+
+@pytest.mark.timeout(120)
+def test_up_on_sensors_arms_once_aligned_takes_off_on_the_estimate_and_publishes_the_truth():
+    """``quadsitl up --state sensors`` flown with pymavlink as a user would: armable only once the estimator has
+    aligned, ESTIMATOR_STATUS valid, a takeoff to 3 m flown on the estimate (LOCAL_POSITION_NED), and the truth on
+    quadsitl/v1/truth beside the estimate on quadsitl/v1/state."""
+    import queue
+
+    import zenoh
+
+    from quadsitl import telemetry
+    from tests.mavclient import Client, M, quadsitl_up
+
+    with quadsitl_up("--preset", "x500", "--state", "sensors", "--speed", "8") as v:
+        c = Client(v.gcs_port)
+        session = zenoh.open(telemetry.zenoh_config(connect=[v.zenoh]))
+        truth: queue.Queue = queue.Queue()
+        try:
+            session.declare_subscriber("quadsitl/v1/truth", lambda s: truth.put(s.payload.to_bytes()))
+            c.wait_armable(30)
+            status = c.wait("ESTIMATOR_STATUS", timeout=20)
+            assert status.flags & M.ESTIMATOR_ATTITUDE and status.flags & M.ESTIMATOR_POS_HORIZ_ABS
+            assert status.pos_horiz_accuracy > 0.0  # an estimate, with its uncertainty
+            assert status.time_usec >= 1_000_000  # aligned after 1 s at rest
+            assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+            c.conn.mav.command_int_send(1, 1, 0, M.MAV_CMD_NAV_TAKEOFF, 0, 0, NAN, NAN, NAN, NAN, 0, 0, 491.0)
+            c.wait("LOCAL_POSITION_NED", lambda p: abs(-p.z - 3.0) < 0.1, 40)
+            records = telemetry.records("state", truth.get(timeout=10))  # the truth: laid out as the state
+            assert records and all(len(r) == len(telemetry.FIELDS["state"]) for r in records)
+            c.pump(1.0)
+            newest = truth.get(timeout=10)
+            while not truth.empty():
+                newest = truth.get()
+            latest = telemetry.records("state", newest)[-1]
+            assert abs(-latest[4] - 3.0) < 0.15  # the truth is where the estimate says, within its error
+            assert v.proc.poll() is None
+        finally:
+            session.close()
+            c.close()
