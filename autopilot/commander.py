@@ -551,19 +551,18 @@ class Commander:
 
     def plant_lost(self) -> None:
         """No vehicle state arrives: flying blind. Armed, switch to LAND (it resumes when states do)."""
-        self.messages.append((2, "Plant link lost: no vehicle state"))
-        if self.armed:
-            self.cm[FAILSAFE] = FAILSAFE_PLANT_LOST
-            if self.mode != Mode.LAND:
-                enter(self.cm, LAND)
-                self.messages.append((2, "Failsafe: landing"))
+        self._fail_and_land("Plant link lost: no vehicle state", FAILSAFE_PLANT_LOST)
 
     def estimator_failed(self) -> None:
         """The state estimate is not to be trusted (sensor mode: the estimator diverged). Armed, switch to LAND, as
         PX4 does when its position estimate is lost."""
-        self.messages.append((2, "Estimator diverged: innovations beyond their bound"))
+        self._fail_and_land("Estimator diverged: innovations beyond their bound", FAILSAFE_ESTIMATOR)
+
+    def _fail_and_land(self, why: str, failsafe: int) -> None:
+        """Say ``why`` (critical); armed, the failsafe ``failsafe``: LAND."""
+        self.messages.append((2, why))
         if self.armed:
-            self.cm[FAILSAFE] = FAILSAFE_ESTIMATOR
+            self.cm[FAILSAFE] = failsafe
             if self.mode != Mode.LAND:
                 enter(self.cm, LAND)
                 self.messages.append((2, "Failsafe: landing"))
