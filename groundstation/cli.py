@@ -306,9 +306,9 @@ EXAMPLES_UP = """examples:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    from groundstation.fleet import check_vehicle_count, parse_vehicle_presets, plan_fleet
+    from groundstation.fleet import check_vehicle_count, plan_fleet
     from groundstation.launcher import up
-    from quadsitl.cli_util import parse_home
+    from quadsitl.cli_util import parse_home, parse_vehicle_presets
     from quadsitl.earth import PX4_HOME
     from quadsitl.process_util import parse_address, parse_remote
 
@@ -329,9 +329,12 @@ def cmd_up(args: argparse.Namespace) -> int:
     presets = parse_vehicle_presets(args.vehicle_preset, args.vehicles)
     for number, name in presets.items():
         try:
-            load_preset(name)
+            other = load_preset(name)
         except ConfigError as exc:
             raise UsageError(f"--vehicle-preset {number}={name}: {exc}") from None
+        if other.sim.period != preset.sim.period:  # the fleet's one plant process has one clock
+            raise UsageError(f"--vehicle-preset {number}={name}: its control period is {other.sim.period:g} s, "
+                             f"--preset {args.preset}'s {preset.sim.period:g} s; a fleet has one clock")  # fmt: skip
     fleet = plan_fleet(args.vehicles, preset=args.preset, first_system_id=args.system_id, home=home,
                        spacing=args.spacing, gcs_listen=args.gcs_listen, gcs_remote=args.gcs_remote,
                        api_listen=args.api_listen, api_remote=args.api_remote, vehicle_presets=presets)  # fmt: skip

@@ -22,7 +22,6 @@ vehicles are not comparable without the offsets (:attr:`VehiclePlan.offset`).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 from quadsitl.cli_util import UsageError
@@ -74,23 +73,6 @@ def check_vehicle_count(n: int) -> None:
     """``--vehicles`` in 1..MAX_VEHICLES, or a UsageError naming it (checked before the per-vehicle options)."""
     if not 1 <= n <= MAX_VEHICLES:
         raise UsageError(f"--vehicles {n}: expected an integer in 1..{MAX_VEHICLES}")
-
-
-def parse_vehicle_presets(values: Sequence[str], n: int) -> dict[int, str]:
-    """``--vehicle-preset K=PRESET`` options → {vehicle number K (1-based): preset}; refuses an unknown vehicle,
-    a repeated one and a malformed value, naming the option."""
-    out: dict[int, str] = {}
-    for text in values:
-        number, sep, preset = text.partition("=")
-        if not sep or not number.strip().isdigit() or not preset.strip():
-            raise UsageError(f"--vehicle-preset {text!r}: expected K=PRESET, e.g. 2=x500 (vehicle K of 1..{n})")
-        k = int(number)
-        if not 1 <= k <= n:
-            raise UsageError(f"--vehicle-preset {text!r}: vehicle {k} is not in the fleet (1..{n}, --vehicles {n})")
-        if k in out:
-            raise UsageError(f"--vehicle-preset {text!r}: vehicle {k} already has preset {out[k]!r}")
-        out[k] = preset.strip()
-    return out
 
 
 def plan_fleet(

@@ -150,6 +150,8 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
     try:
         if len(fleet) > 1:
             compile_once(children.env)
+        # One plant process simulates every vehicle on one clock (sitl.process.run_lockstep); an autopilot each.
+        plant = ["sitl", "--preset", args.preset, "--mode", args.mode]
         for v in fleet:
             plant_port = free_port()
             named = "" if len(fleet) == 1 else f" {v.name}"
@@ -165,15 +167,17 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
             else:  # the first vehicle's session listens, the others connect to it (and find each other)
                 ap += ["--vehicle", v.name, "--zenoh-listen" if v.index == 0 else "--zenoh-connect", args.zenoh_listen]
             children.start("autopilot" + named, ap)
-            plant = ["sitl", "--preset", v.preset, "--autopilot", f"127.0.0.1:{plant_port}", "--mode", args.mode]
-            if args.mode == "lockstep":
-                plant += ["--speed", str(args.speed)]
-            if args.impair:
-                plant += ["--impair", args.impair]
-            plant += wind_argv(args) + state_argv(args) + home
-            if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
-                plant += ["--vehicle", v.name, "--zenoh-connect", args.zenoh_listen]
-            children.start("plant" + named, plant + (["--quiet"] if args.quiet else []))
+            plant += ["--autopilot", f"127.0.0.1:{plant_port}", "--vehicle", v.name, *home]
+            if v.preset != args.preset:
+                plant += ["--vehicle-preset", f"{v.number}={v.preset}"]
+        if args.mode == "lockstep":
+            plant += ["--speed", str(args.speed)]
+        if args.impair:
+            plant += ["--impair", args.impair]
+        plant += wind_argv(args) + state_argv(args)
+        if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
+            plant += ["--zenoh-connect", args.zenoh_listen]
+        children.start("plant", plant + (["--quiet"] if args.quiet else []))
         url = start_dashboard(children, web_port, args.zenoh_listen) if web_port is not None else None
         if not args.quiet:
             print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import asdict, replace
 from typing import Any
 
@@ -43,6 +44,38 @@ def parse_home(text: str | None) -> tuple[float, float, float] | None:
         raise UsageError(f"--home {text!r}: expected latitude in [-90, 90], longitude in [-180, 180], altitude "
                          "in [-1000, 100000] m")  # fmt: skip
     return lat, lon, alt
+
+
+def parse_vehicle_presets(values: Sequence[str], n: int, fleet: str | None = None) -> dict[int, str]:
+    """``--vehicle-preset K=PRESET`` options → {vehicle number K (1-based): preset}; refuses an unknown vehicle,
+    a repeated one and a malformed value, naming the option. ``fleet`` says what made the fleet n vehicles
+    (default ``--vehicles n``)."""
+    fleet = fleet or f"--vehicles {n}"
+    out: dict[int, str] = {}
+    for text in values:
+        number, sep, preset = text.partition("=")
+        if not sep or not number.strip().isdigit() or not preset.strip():
+            raise UsageError(f"--vehicle-preset {text!r}: expected K=PRESET, e.g. 2=x500 (vehicle K of 1..{n})")
+        k = int(number)
+        if not 1 <= k <= n:
+            raise UsageError(f"--vehicle-preset {text!r}: vehicle {k} is not in the fleet (1..{n}, {fleet})")
+        if k in out:
+            raise UsageError(f"--vehicle-preset {text!r}: vehicle {k} already has preset {out[k]!r}")
+        out[k] = preset.strip()
+    return out
+
+
+def per_vehicle(option: str, values: Sequence[str] | None, n: int, fleet: str) -> list[str] | None:
+    """A repeatable option that describes one vehicle of ``n``: given once (every vehicle's) or once per vehicle,
+    in order; None when not given; a UsageError naming the option otherwise."""
+    if not values:
+        return None
+    if len(values) == 1:
+        return list(values) * n
+    if len(values) != n:
+        raise UsageError(f"{option} given {len(values)} times: expected once (for every vehicle) or {n} times (one "
+                         f"per vehicle, in order; {fleet})")  # fmt: skip
+    return list(values)
 
 
 def check_range(option: str, value: float | None, lo: float, hi: float) -> None:

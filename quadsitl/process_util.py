@@ -14,7 +14,7 @@ import socket
 import struct
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from quadsitl.cli_util import UsageError
 
@@ -185,6 +185,16 @@ def wait_readable(sock: socket.socket, seconds: float) -> bool:
     except InterruptedError:
         return False
     return bool(readable)
+
+
+def readable_of(socks: Sequence[socket.socket], seconds: float) -> list[socket.socket]:
+    """Wait up to ``seconds`` (microsecond resolution: select, where epoll and poll round up to whole milliseconds,
+    too coarse for a 1 kHz schedule) for any of ``socks`` to have a datagram; those that do."""
+    try:
+        readable, _, _ = select.select(socks, [], [], max(seconds, 0.0))
+    except InterruptedError:
+        return []
+    return readable
 
 
 def quiet_garbage_collector() -> None:

@@ -37,7 +37,9 @@ import socket
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -49,16 +51,19 @@ from quadsitl.cli_util import (
     add_wind_arguments,
     check_range,
     parse_home,
+    parse_vehicle_presets,
+    per_vehicle,
     with_state,
     with_wind,
 )
-from quadsitl.config import ConfigError, WindParams, load_preset
+from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.earth import PX4_HOME
 from quadsitl.process_util import (
     PLANT_DIVERGED,
     SpinThenBlock,
     bind_udp,
     parse_address,
+    readable_of,
     set_receive_timeout,
     start_process,
     wait_readable,
@@ -87,8 +92,10 @@ class PlantLink:
         period: float,
         impairment: Impairment | None = None,
         sensing: bool = False,
+        name: str = "",
     ):
         self.sock = sock  # bound (process_util.bind_udp)
+        self.who = f"{name}'s autopilot" if name else "autopilot"  # in messages (a fleet's name the vehicle)
         self.rx = bytearray(65535)
         self.rx_array = np.frombuffer(self.rx, dtype=np.uint8)
         self.tx = np.zeros(max(wire.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
@@ -156,7 +163,7 @@ class PlantLink:
             self.first_heard = self.last_heard
         if self.lost:
             self.lost = False
-            print("plant: autopilot back; following its commands", file=sys.stderr, flush=True)
+            print(f"plant: {self.who} back; following its commands", file=sys.stderr, flush=True)
 
     def check_lost(self, action: str) -> bool:
         """True while the autopilot has been silent for AUTOPILOT_LOST_AFTER (said once per loss)."""
@@ -164,7 +171,7 @@ class PlantLink:
             return False
         if not self.lost:
             self.lost = True
-            print(f"plant: autopilot lost (no answer for {AUTOPILOT_LOST_AFTER:g} s); {action}", file=sys.stderr,
+            print(f"plant: {self.who} lost (no answer for {AUTOPILOT_LOST_AFTER:g} s); {action}", file=sys.stderr,
                   flush=True)  # fmt: skip
         return True
 
@@ -276,68 +283,103 @@ def warm_up(plant: Plant) -> None:
     state_inside(twin.x)
 
 
+@dataclass
+class Vehicle:
+    """One vehicle the plant process simulates: its name (Zenoh's ``quadsitl/<name>/…``, and in messages when the
+    process simulates several), its preset (the state and wind options applied), its plant, its link to its
+    autopilot, and its wind changes (None: no Zenoh)."""
+
+    name: str
+    preset: Preset
+    plant: Plant
+    link: PlantLink
+    wind: WindLink | None = None
+    answered: int = 0  # real time: periods whose own answer (stamped with the period's tick) came within it ...
+    late: int = 0  # ... and periods since the autopilot's first answer whose answer did not: it flew a stale command
+
+
 class DivergedError(Exception):
-    """The plant's state at the start of tick ``tick`` left its bounds (:func:`sitl.plant.inside`): the run ends,
-    that state not sent. ``t`` is the plant's simulated time then [s], since the plant started."""
+    """The state of ``vehicle`` at the start of tick ``tick`` left its bounds (:func:`sitl.plant.inside`): the run
+    ends, that state not sent. ``t`` is the plant's simulated time then [s], since the plant started. ``named``:
+    the message names the vehicle (a fleet)."""
 
-    def __init__(self, tick: int, period: float, x: np.ndarray) -> None:
-        self.tick, self.t, self.what = tick, tick * period, outside_what(x)
-        super().__init__(f"diverged at t = {self.t:.3f} s (tick {tick} of the plant's clock): {self.what}")
+    def __init__(self, vehicle: Vehicle, tick: int, named: bool = False) -> None:
+        self.vehicle, self.tick, self.t = vehicle, tick, tick * vehicle.plant.period
+        self.what = outside_what(vehicle.plant.x)
+        who = f"vehicle {vehicle.name} " if named else ""
+        super().__init__(f"{who}diverged at t = {self.t:.3f} s (tick {tick} of the plant's clock): {self.what}")
 
 
-def check_state(plant: Plant, k: int) -> None:
+def check_state(v: Vehicle, k: int, named: bool = False) -> None:
     """The start of tick ``k``: raise :class:`DivergedError` when the state is not :func:`sitl.plant.inside` its
     default bounds (one compiled call; lockstep checks the states after the first in its compiled tick)."""
-    if not state_inside(plant.x):
-        raise DivergedError(k, plant.period, plant.x)
+    if not state_inside(v.plant.x):
+        raise DivergedError(v, k, named)
 
 
-def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | None, wind: WindLink | None = None
-                 ) -> int:  # fmt: skip
-    """The plant as the clock: send tick k's state, wait for the answer to it, integrate, until ``max_ticks``.
-    The state frame goes out first; each answer to it is decoded, taken and integrated and the next state
-    encoded by one compiled call (:func:`sitl.tick.lockstep_tick`). Wind changes from ``wind`` are taken
-    between two ticks."""
-    period = plant.period
+def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | None) -> int:
+    """The plant as the clock, one clock for every vehicle: send tick k's datagram to each vehicle's autopilot,
+    wait for every answer to it, integrate each vehicle, and only then go on to tick k + 1, until ``max_ticks``.
+    A fleet therefore advances tick by tick together and is as deterministic as one vehicle.
+
+    Each answer is decoded, taken and integrated and the vehicle's next datagram encoded by one compiled call
+    (:func:`sitl.tick.lockstep_tick`). The answers are awaited in the vehicles' order: each vehicle's come on its
+    own socket, so one that answered while another was awaited is waiting there, and the tick takes as long as the
+    slowest answer, no longer. A vehicle that does not answer within FREEWHEEL_PERIOD is sent its datagram again
+    (simulated time waits, for every vehicle). Wind changes are taken between two ticks."""
+    period = vehicles[0].plant.period
+    named = len(vehicles) > 1
     k = 0
     start = time.monotonic()
-    link.encode(0, plant)
-    rx, received, commanded, io, tx = link.rx_array, link.received, plant.commanded, link.io, link.tx
-    args = (plant.x, plant.motors, plant.out, plant.v, plant.a, plant.air, plant.air_rng, period, plant.substeps,
-            plant.method, tx, io, plant.sensors.arrays)  # fmt: skip
-    max_thrust, monotonic, receive = link.max_thrust, time.monotonic, link.receive
-    check_state(plant, 0)  # the initial state; the others are checked as they are made (tick.DIVERGED)
+    waits = []
+    for v in vehicles:
+        check_state(v, 0, named)  # the initial state; the others are checked as they are made (tick.DIVERGED)
+        v.link.encode(0, v.plant)
+        p, link = v.plant, v.link
+        args = (p.x, p.motors, p.out, p.v, p.a, p.air, p.air_rng, period, p.substeps, p.method, link.tx, link.io,
+                p.sensors.arrays)  # fmt: skip
+        waits.append((v, link, link.receive, link.rx_array, link.max_thrust, link.received, p.commanded, args))
+    links = [v.link for v in vehicles]
+    winds = [v for v in vehicles if v.wind is not None]
+    monotonic, lockstep_tick, usec_of = time.monotonic, tick.lockstep_tick, wire.usec_of
     while max_ticks is None or k < max_ticks:
-        want = wire.usec_of(k, period)
-        link.send()
-        held = link.first_heard is None
-        while True:
-            nbytes = receive(FREEWHEEL_PERIOD)
-            if nbytes < 0:
-                held = True
-                link.check_lost("holding: simulated time stops until it answers")
-                link.send()  # free-wheel: no answer yet
-                continue
-            r = tick.lockstep_tick(rx, nbytes, want, max_thrust, received, commanded, *args, k)
-            if r == tick.ANOTHER_FRAME:  # for pymavlink (several messages, signed)
-                r = tick.take_and_step(link.decode(nbytes), want, commanded, received, *args, k)
-            if r == tick.STEPPED:
-                break
-            if r == tick.HELD:  # the hold tick, the autopilot not yet armed: it is there, time waits
-                held = True
-                link.last_heard = monotonic()
-            if r == tick.DIVERGED:  # x(k + 1), encoded but not sent
-                raise DivergedError(k + 1, period, plant.x)
+        want = usec_of(k, period)
+        for link in links:
+            link.send()
+        held = links[0].first_heard is None
+        for v, link, receive, rx, max_thrust, received, commanded, args in waits:
+            while True:
+                nbytes = receive(FREEWHEEL_PERIOD)
+                if nbytes < 0:
+                    held = True
+                    link.check_lost("holding: simulated time stops until it answers")
+                    link.send()  # free-wheel: no answer yet
+                    continue
+                r = lockstep_tick(rx, nbytes, want, max_thrust, received, commanded, *args, k)
+                if r == tick.ANOTHER_FRAME:  # for pymavlink (several messages, signed)
+                    r = tick.take_and_step(link.decode(nbytes), want, commanded, received, *args, k)
+                if r == tick.STEPPED:
+                    break
+                if r == tick.HELD:  # the hold tick, the autopilot not yet armed: it is there, time waits
+                    held = True
+                    link.last_heard = monotonic()
+                if r == tick.DIVERGED:  # x(k + 1), encoded but not sent
+                    raise DivergedError(v, k + 1, named)
         if held:
-            link.heard()
+            for link in links:
+                link.heard()
             if speed > 0:  # the pace resumes from here: no burst to catch up with time spent holding
                 start = monotonic() - k * period / speed
         else:
-            link.last_heard = monotonic()
-        plant.time += period
+            now = monotonic()
+            for link in links:
+                link.last_heard = now
+        for v in vehicles:
+            v.plant.time += period
         k += 1
-        if wind is not None and wind.inbox:
-            wind.take(plant)
+        for v in winds:
+            if v.wind.inbox:
+                v.wind.take(v.plant)
         if speed > 0:
             delay = start + k * period / speed - monotonic()
             if delay > 0:
@@ -345,49 +387,77 @@ def run_lockstep(plant: Plant, link: PlantLink, speed: float, max_ticks: int | N
     return k
 
 
+def receive_within(vehicles: Sequence[Vehicle], seconds: float, socks: dict[socket.socket, Vehicle]) -> None:
+    """Real time: apply every actuator message that arrives within ``seconds`` on any vehicle's link (``socks``:
+    the vehicles by their sockets), and release the impaired datagrams that fall due."""
+    if len(vehicles) == 1:
+        vehicles[0].link.receive_within(seconds, vehicles[0].plant)
+        return
+    impaired = [v for v in vehicles if v.link.impairment is not None]
+    if impaired:
+        seconds = min(seconds, max(0.0, min(v.link.next_event() for v in impaired) - time.monotonic()))
+    arrived = {socks[s].name for s in readable_of(list(socks), seconds)}
+    for v in vehicles:
+        if v.name in arrived or v.link.impairment is not None:
+            v.link.receive_within(0.0, v.plant)  # readable now (or its queues due): takes it without waiting
+
+
 def run_realtime(
-    plant: Plant,
-    link: PlantLink,
+    vehicles: Sequence[Vehicle],
     max_ticks: int | None,
     starts: list[float] | None = None,
     on_loss: str = "zero",
-    wind: WindLink | None = None,
 ) -> int:
-    """Integrate on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each tick's
-    actual start time [s, monotonic]."""
-    period = plant.period
+    """Integrate every vehicle on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each
+    tick's actual start time [s, monotonic]."""
+    period = vehicles[0].plant.period
+    named = len(vehicles) > 1
+    socks = {v.link.sock: v for v in vehicles}
+    action = f"applying {'zero thrust' if on_loss == 'zero' else 'the last command'}"
     k = 0
     next_time = time.monotonic()
     while max_ticks is None or k < max_ticks:
         if starts is not None:
             starts.append(time.monotonic())
-        check_state(plant, k)
-        link.send_state(k, plant)
+        for v in vehicles:
+            check_state(v, k, named)
+            v.link.send_state(k, v.plant)
         next_time += period
         while True:
             remaining = next_time - time.monotonic()
             if remaining <= 0:
                 break
-            link.receive_within(remaining, plant)
-        if link.check_lost(f"applying {'zero thrust' if on_loss == 'zero' else 'the last command'}") and (
-            on_loss == "zero"
-        ):
-            plant.commanded[:] = 0.0
-        if wind is not None and wind.inbox:
-            wind.take(plant)
-        plant.step()
+            receive_within(vehicles, remaining, socks)
+        want = wire.usec_of(k, period)
+        for v in vehicles:
+            if v.link.io[tick.LAST_USEC] == want:
+                v.answered += 1
+            elif v.link.first_heard is not None:
+                v.late += 1
+            if v.link.check_lost(action) and on_loss == "zero":
+                v.plant.commanded[:] = 0.0
+            if v.wind is not None and v.wind.inbox:
+                v.wind.take(v.plant)
+            v.plant.step()
         k += 1
     return k
 
 
-def open_wind_link(args: argparse.Namespace, wind: WindParams) -> WindLink | None:
-    """The Zenoh session that takes wind changes, when the command line gives an endpoint or a configuration."""
+def open_wind_links(args: argparse.Namespace, vehicles: Sequence[Vehicle]) -> Any:
+    """One Zenoh session, when the command line gives an endpoint or a configuration, taking each vehicle's wind
+    changes on ``quadsitl/<vehicle>/wind``; None otherwise."""
     if not (args.zenoh_listen or args.zenoh_connect or args.zenoh_config):
         return None
+    import zenoh
+
+    keys = ", ".join(f"quadsitl/{v.name}/wind" for v in vehicles)
     try:
-        return WindLink(config_from_args(args), args.vehicle, wind)
+        session = zenoh.open(config_from_args(args))
     except Exception as exc:  # zenoh.ZError and the like: a bad endpoint or configuration
-        raise UsageError(f"Zenoh session (for wind changes on quadsitl/{args.vehicle}/wind): {exc}") from None
+        raise UsageError(f"Zenoh session (for wind changes on {keys}): {exc}") from None
+    for v in vehicles:
+        v.wind = WindLink(session, v.name, v.preset.wind)
+    return session
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -401,16 +471,20 @@ def build_parser() -> argparse.ArgumentParser:
     add_preset_arguments(p, controller=False)
     p.add_argument(
         "--autopilot",
-        default="127.0.0.1:14560",
+        action="append",
         metavar="HOST:PORT",
-        help="where the autopilot listens for the plant (default: 127.0.0.1:14560)",
+        help="where the autopilot listens for the plant (default: 127.0.0.1:14560); repeat it to simulate a fleet, "
+        "one vehicle per autopilot, on one clock",
     )
     p.add_argument(
         "--bind",
         default="127.0.0.1:0",
         metavar="HOST:PORT",
-        help="local address of the plant's socket (default: 127.0.0.1, any port)",
+        help="local address of the plant's socket (default: 127.0.0.1, any port; in a fleet vehicle i's is PORT + i)",
     )
+    p.add_argument("--vehicle-preset", action="append", default=[], metavar="K=PRESET",
+                   help="in a fleet, vehicle K (1-based) flies PRESET (a name or a TOML file) instead of --preset; "
+                   "every preset must have the same control period (repeatable)")  # fmt: skip
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="default: lockstep")
     p.add_argument(
         "--speed",
@@ -439,74 +513,127 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stats", metavar="FILE", help="write the run's pace (and, in realtime, its timing) as JSON")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary at the end (errors still print)")
     add_state_arguments(p)
-    p.add_argument("--home", metavar="LAT,LON,ALT", help="where the local origin is on the globe, for the GPS: "
-                   "degrees, degrees, metres AMSL (default: PX4 SITL's, 47.397742,8.545594,488)")  # fmt: skip
+    p.add_argument("--home", action="append", metavar="LAT,LON,ALT", help="where the local origin is on the globe, "
+                   "for the GPS: degrees, degrees, metres AMSL (default: PX4 SITL's, 47.397742,8.545594,488); in a "
+                   "fleet once for every vehicle or once per --autopilot, in order")  # fmt: skip
     add_wind_arguments(p)
-    add_zenoh_arguments(p)  # a session only when an endpoint or a configuration is given: for wind changes
+    p.add_argument("--vehicle", action="append", metavar="NAME", help="the vehicle's name in the Zenoh keys "
+                   "quadsitl/<vehicle>/wind (default: v1; in a fleet v1..vN, or one per --autopilot, in "
+                   "order)")  # fmt: skip
+    add_zenoh_arguments(p, vehicle=False)  # a session only when an endpoint or a configuration is given: for wind
     return p
+
+
+def fleet_from_args(args: argparse.Namespace) -> list[Vehicle]:
+    """The vehicles the command line asks for: one per ``--autopilot``, each with its preset (``--preset``, or
+    ``--vehicle-preset``), state and wind options, home and name; a UsageError naming the option otherwise.
+    Vehicle i (0-based) draws its sensor noise and turbulence from the seeds + i: every vehicle its own."""
+    autopilots = [parse_address("--autopilot", a) for a in args.autopilot or ["127.0.0.1:14560"]]
+    n = len(autopilots)
+    fleet = f"--autopilot given {n} times"
+    names = per_vehicle("--vehicle", args.vehicle, n, fleet) or [f"v{i + 1}" for i in range(n)]
+    if len(set(names)) != n:
+        raise UsageError(f"--vehicle {' '.join(names)}: two vehicles named alike; each needs a name of its own")
+    homes = [parse_home(h) for h in per_vehicle("--home", args.home, n, fleet) or [None] * n]
+    presets = parse_vehicle_presets(args.vehicle_preset, n, fleet)
+    check_range("--speed", args.speed if args.speed != 0 else None, 0.0, 1000.0)
+    host, port = parse_address("--bind", args.bind)
+    if port and port + n - 1 > 65535:
+        raise UsageError(f"--bind {args.bind}: vehicle {n} would need port {port + n - 1}, beyond 65535")
+    if args.hold_until_armed is not None and (args.mode != "lockstep" or not 0.0 <= args.hold_until_armed <= 3600.0):
+        raise UsageError(f"--hold-until-armed {args.hold_until_armed!r}: expected a number of seconds in [0, 3600], "
+                         "in lockstep")  # fmt: skip
+    impairment_from(args.impair, args.mode)  # refused here, before any socket is bound
+    base = with_state(with_wind(load_preset(args.preset), args), args)
+    vehicles: list[Vehicle] = []
+    for i, (autopilot, name, home) in enumerate(zip(autopilots, names, homes, strict=True)):
+        preset = base
+        if i + 1 in presets:
+            try:
+                preset = with_state(with_wind(load_preset(presets[i + 1]), args), args)
+            except ConfigError as exc:
+                raise UsageError(f"--vehicle-preset {i + 1}={presets[i + 1]}: {exc}") from None
+            if preset.sim.period != base.sim.period:
+                raise UsageError(f"--vehicle-preset {i + 1}={presets[i + 1]}: its control period is "
+                                 f"{preset.sim.period:g} s, --preset {args.preset}'s {base.sim.period:g} s; one clock "
+                                 "needs one period")  # fmt: skip
+        if i > 0:  # every vehicle its own noise and turbulence
+            preset = replace(preset, wind=replace(preset.wind, seed=(preset.wind.seed + i) % 2**63))
+            if preset.sensors is not None:
+                preset = replace(preset, sensors=replace(preset.sensors, seed=(preset.sensors.seed + i) % 2**63))
+        plant = Plant(preset, integrator=args.integrator, substeps=args.substeps, home=home or PX4_HOME)
+        bind = f"{host}:{port + i if port else 0}"
+        link = PlantLink(bind_udp("--bind", bind), autopilot, preset.actuators.max_thrust, preset.sim.period,
+                         impairment_from(args.impair, args.mode),
+                         sensing=preset.sensors is not None, name=name if n > 1 else "")  # fmt: skip
+        if args.hold_until_armed is not None:
+            link.io[tick.HOLD_TICK] = round(args.hold_until_armed / preset.sim.period)
+        vehicles.append(Vehicle(name, preset, plant, link))
+    return vehicles
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     start_process()
     parser = build_parser()
     args = parser.parse_args(argv)
+    vehicles: list[Vehicle] = []
+    session = None
     try:
-        preset = with_state(with_wind(load_preset(args.preset), args), args)
-        home = parse_home(args.home) or PX4_HOME
-        check_range("--speed", args.speed if args.speed != 0 else None, 0.0, 1000.0)
-        autopilot = parse_address("--autopilot", args.autopilot)
-        plant = Plant(preset, integrator=args.integrator, substeps=args.substeps, home=home)
-        warm_up(plant)
-        impairment = impairment_from(args.impair, args.mode)
-        link = PlantLink(bind_udp("--bind", args.bind), autopilot, preset.actuators.max_thrust, preset.sim.period,
-                         impairment, sensing=preset.sensors is not None)  # fmt: skip
-        if args.hold_until_armed is not None:
-            if args.mode != "lockstep" or not 0.0 <= args.hold_until_armed <= 3600.0:
-                raise UsageError(f"--hold-until-armed {args.hold_until_armed!r}: expected a number of seconds in "
-                                 "[0, 3600], in lockstep")  # fmt: skip
-            link.io[tick.HOLD_TICK] = round(args.hold_until_armed / preset.sim.period)
-        wind = open_wind_link(args, preset.wind)
+        vehicles = fleet_from_args(args)
+        warm_up(vehicles[0].plant)
+        session = open_wind_links(args, vehicles)
     except (UsageError, ConfigError) as exc:
+        for v in vehicles:
+            v.link.close()
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
+    period = vehicles[0].plant.period
     start = time.monotonic()
     starts: list[float] = []
     try:
         if args.mode == "lockstep":
-            run_lockstep(plant, link, args.speed, args.ticks, wind)
+            run_lockstep(vehicles, args.speed, args.ticks)
         else:
-            run_realtime(plant, link, args.ticks, starts if args.stats else None, args.on_autopilot_loss, wind)
+            run_realtime(vehicles, args.ticks, starts if args.stats else None, args.on_autopilot_loss)
     except KeyboardInterrupt:  # SIGINT or SIGTERM (process_util.StopRequested): a requested stop; say what the run did
         pass
     except DivergedError as exc:  # one line, always: the run ends with a status of its own
         print(f"plant: {exc}; the run ends (exit status {PLANT_DIVERGED})", file=sys.stderr, flush=True)
-        link.announce(wire.mavlink.MAV_SEVERITY_CRITICAL, f"Simulation diverged at t = {exc.t:.3f} s: {exc.what}; "
-                      "the plant stopped")  # fmt: skip
+        exc.vehicle.link.announce(wire.mavlink.MAV_SEVERITY_CRITICAL, f"Simulation diverged at t = {exc.t:.3f} s: "
+                                  f"{exc.what}; the plant stopped")  # fmt: skip
         return PLANT_DIVERGED
     finally:
-        link.close()
-        if wind is not None:
-            wind.close()
+        for v in vehicles:
+            v.link.close()
+            if v.wind is not None:
+                v.wind.close()
+        if session is not None:
+            session.close()
     elapsed = time.monotonic() - start
+    plant = vehicles[0].plant
     if args.stats:
-        ticks = round(plant.time / preset.sim.period)
-        # The pace from the autopilot's first answer on (tick 0 waits for the autopilot to start or to
-        # take this plant over, which is not the loop's speed); the whole run's wall time next to it.
-        flying = time.monotonic() - (link.first_heard or start)
-        stats = {"mode": args.mode, "ticks": ticks, "wall_s": elapsed, "answered_wall_s": flying,
-                 "ticks_per_s": max(ticks - 1, 0) / max(flying, 1e-9),
-                 "receives_polled": link.wait.polled, "receives_blocked": link.wait.blocked}  # fmt: skip
-        if args.mode == "realtime":
-            stats.update(period_stats(starts, preset.sim.period))
+        ticks = round(plant.time / period)
+        # The pace from the autopilots' first answers on (tick 0 waits for the autopilots to start or to take this
+        # plant over, which is not the loop's speed); the whole run's wall time next to it.
+        first = min((v.link.first_heard for v in vehicles if v.link.first_heard is not None), default=start)
+        flying = time.monotonic() - first
+        stats = {"mode": args.mode, "vehicles": len(vehicles), "ticks": ticks, "wall_s": elapsed,
+                 "answered_wall_s": flying, "ticks_per_s": max(ticks - 1, 0) / max(flying, 1e-9),
+                 "receives_polled": sum(v.link.wait.polled for v in vehicles),
+                 "receives_blocked": sum(v.link.wait.blocked for v in vehicles)}  # fmt: skip
+        if args.mode == "realtime":  # the clock's timing, and the autopilots' answers that missed their period
+            stats.update(period_stats(starts, period))
+            stats["answer_miss_ratios"] = [v.late / max(v.answered + v.late, 1) for v in vehicles]
         Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
     if args.quiet:
         return 0
-    print(
-        f"plant: {plant.time:.3f} s simulated in {elapsed:.3f} s; {link.discarded} stale actuator messages discarded",
-        file=sys.stderr,
-    )
-    if link.impairment is not None:
-        im = link.impairment
-        print(f"plant: link impairment dropped {im.dropped}, duplicated {im.duplicated}, reordered {im.reordered} "
-              "datagrams", file=sys.stderr)  # fmt: skip
+    fleet = f"{len(vehicles)} vehicles, " if len(vehicles) > 1 else ""
+    print(f"plant: {fleet}{plant.time:.3f} s simulated in {elapsed:.3f} s; "
+          f"{sum(v.link.discarded for v in vehicles)} stale actuator messages discarded", file=sys.stderr)  # fmt: skip
+    for v in vehicles:
+        im = v.link.impairment
+        if im is not None:
+            who = f" ({v.name})" if len(vehicles) > 1 else ""
+            print(f"plant: link impairment{who} dropped {im.dropped}, duplicated {im.duplicated}, reordered "
+                  f"{im.reordered} datagrams", file=sys.stderr)  # fmt: skip
     return 0

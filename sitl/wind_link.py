@@ -47,16 +47,15 @@ def change_wind(plant: Plant, wind: WindParams, values: dict[str, Any], gust_fro
 
 
 class WindLink:
-    """A Zenoh session that takes wind changes for ``plant`` (whose preset's wind is ``wind``)."""
+    """Wind changes for one vehicle's plant (whose preset's wind is ``wind``), on a Zenoh ``session`` that a
+    process simulating several vehicles shares among them."""
 
-    def __init__(self, config: Any, vehicle: str, wind: WindParams) -> None:
-        import zenoh
-
+    def __init__(self, session: Any, vehicle: str, wind: WindParams) -> None:
         self.wind = wind
         self.gust_from = 0.0  # [s on the wind's clock]: when the wind in effect's gust_start_s counts from
         self.inbox: deque[dict[str, Any]] = deque()  # checked changes, from Zenoh's thread to the plant's loop
         self.taken = self.refused = 0
-        self.session = zenoh.open(config)
+        self.session = session  # a Zenoh session, the process's (it closes it)
         prefix = f"{telemetry.PREFIX}/{vehicle}/wind"
         self.publisher = self.session.declare_publisher(f"{prefix}/now")
         self.subscriber = self.session.declare_subscriber(prefix, self._on_sample)
@@ -84,4 +83,6 @@ class WindLink:
             self._say()
 
     def close(self) -> None:
-        self.session.close()
+        """Undeclare the subscriber and the publisher (the session stays the caller's)."""
+        self.subscriber.undeclare()
+        self.publisher.undeclare()

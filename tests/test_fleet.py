@@ -14,8 +14,8 @@ import time
 
 import pytest
 
-from groundstation.fleet import MAX_VEHICLES, parse_vehicle_presets, plan_fleet
-from quadsitl.cli_util import UsageError
+from groundstation.fleet import MAX_VEHICLES, plan_fleet
+from quadsitl.cli_util import UsageError, parse_vehicle_presets
 from quadsitl.frames import geodetic_to_ned
 from tests.mavclient import Client, M, fleet_up
 

@@ -1,0 +1,232 @@
+"""One plant process for a fleet (``quadsitl plant --autopilot A --autopilot B ...``): one simulated clock for every
+vehicle. The test plays the autopilots itself, on real UDP sockets, so it can hold one back and watch what the
+plant sends the others; the datagrams are read with pymavlink.
+
+- Lockstep: no vehicle gets tick k + 1 before every vehicle has answered tick k; a silent autopilot holds the
+  whole fleet (its tick re-sent), and the fleet goes on when it answers.
+- Each vehicle is integrated under its own autopilot's forces only; vehicle 1 of a fleet is, to the byte, the
+  vehicle a plant of one simulates; the others draw their own sensor noise.
+- Real time: every vehicle gets a state each period and flies its own commands.
+- A vehicle that diverges ends the run, named, and only its autopilot is told.
+- Bad fleets are refused in one line naming the option, before any socket is bound.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from quadsitl import wire
+from quadsitl.config import load_preset
+from quadsitl.process_util import PLANT_DIVERGED
+
+PAPER = load_preset("paper")
+MAX_THRUST = PAPER.actuators.max_thrust
+HOVER = PAPER.vehicle.mass * 9.81 / 4  # [N] per motor, about
+
+
+class FakeAutopilot:
+    """An autopilot's end of the plant link, played by the test: a bound UDP socket, pymavlink to read the plant's
+    datagrams, the project's encoder for the answers."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(5.0)
+        self.address = f"127.0.0.1:{self.sock.getsockname()[1]}"
+        self.mav = wire.link(1, 1)
+        self.plant: tuple[str, int] | None = None
+
+    def receive(self, timeout: float = 5.0) -> list:
+        """The messages of the next datagram from the plant ([] when none comes within ``timeout``)."""
+        self.sock.settimeout(timeout)
+        try:
+            data, self.plant = self.sock.recvfrom(65535)
+        except TimeoutError:
+            return []
+        return self.mav.parse_buffer(data) or []
+
+    def next_tick(self, timeout: float = 5.0, since: int = 0) -> tuple[int, object]:
+        """(time_usec, ODOMETRY or HIL_STATE_QUATERNION) of the next state datagram stamped ``since`` or later (older
+        ones, re-sent while the plant free-wheeled, are passed over)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for m in self.receive(max(0.01, end - time.monotonic())):
+                if m.get_type() in ("ODOMETRY", "HIL_STATE_QUATERNION") and m.time_usec >= since:
+                    return m.time_usec, m
+        raise AssertionError(f"no state from the plant at {self.address} within {timeout} s")
+
+    def answer(self, time_usec: int, forces: tuple[float, float, float, float], armed: bool = True) -> None:
+        msg = wire.actuator_message(time_usec, forces, MAX_THRUST, armed)
+        self.sock.sendto(wire.pack(msg, self.mav), self.plant)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@contextlib.contextmanager
+def fleet_plant(n: int, *extra: str, tmp: Path | None = None) -> Iterator[tuple[subprocess.Popen, list[FakeAutopilot]]]:
+    aps = [FakeAutopilot() for _ in range(n)]
+    argv = [sys.executable, "-m", "sitl", "--preset", "paper"]
+    for ap in aps:
+        argv += ["--autopilot", ap.address]
+    plant = subprocess.Popen([*argv, *extra], stderr=subprocess.PIPE, text=True)
+    try:
+        yield plant, aps
+    finally:
+        if plant.poll() is None:
+            plant.terminate()
+            try:
+                plant.wait(5)
+            except subprocess.TimeoutExpired:
+                plant.kill()
+                plant.wait()
+        for ap in aps:
+            ap.close()
+
+
+@pytest.mark.timeout(60)
+def test_lockstep_no_vehicle_runs_ahead_and_a_silent_one_holds_the_fleet():
+    with fleet_plant(3, "--quiet") as (plant, aps):
+        t0 = [ap.next_tick(30)[0] for ap in aps]  # 30 s: the plant's first start may load the compiled code
+        assert t0 == [0, 0, 0]
+        # vehicles 1 and 3 answer tick 0 at once; vehicle 2 holds back: nobody may see tick 1
+        aps[0].answer(0, (HOVER,) * 4)
+        aps[2].answer(0, (HOVER,) * 4)
+        seen = {i: [] for i in range(3)}
+        end = time.monotonic() + 0.4
+        while time.monotonic() < end:
+            for i in (0, 2):
+                with contextlib.suppress(AssertionError):
+                    seen[i].append(aps[i].next_tick(0.05)[0])
+        # vehicle 2 is re-sent tick 0 (free-wheel); the answered ones get nothing new: no tick 1 anywhere
+        assert all(t == 0 for i in (0, 2) for t in seen[i]), seen
+        resent = [aps[1].next_tick(1.0)[0] for _ in range(3)]
+        assert resent == [0, 0, 0]
+        aps[1].answer(0, (HOVER,) * 4)
+        # now the fleet goes on together, tick by tick, for 200 ticks
+        for k in range(1, 200):
+            want = wire.usec_of(k, PAPER.sim.period)
+            stamps = [ap.next_tick(5, since=want if k == 1 else 0)[0] for ap in aps]
+            assert stamps == [want] * 3, (k, stamps)
+            for ap, t in zip(aps, stamps, strict=True):
+                ap.answer(t, (HOVER,) * 4)
+        assert plant.poll() is None
+
+
+def _fly(aps: list[FakeAutopilot], forces: list[tuple[float, ...]], ticks: int) -> list[list]:
+    """Answer ``ticks`` ticks, vehicle i with forces[i]; every vehicle's states, in order."""
+    states: list[list] = [[] for _ in aps]
+    for k in range(ticks):
+        for i, ap in enumerate(aps):
+            t, m = ap.next_tick(30 if k == 0 else 3)  # the first: the plant may be loading its compiled code
+            states[i].append(m)
+            ap.answer(t, forces[i])
+    return states
+
+
+@pytest.mark.timeout(60)
+def test_each_vehicle_flies_its_own_autopilots_forces():
+    climb, rest = (1.2 * HOVER,) * 4, (0.0,) * 4
+    with fleet_plant(3, "--quiet") as (_plant, aps):
+        states = _fly(aps, [rest, climb, rest], 500)
+    z = [s[-1].z for s in states]
+    assert z[1] < -0.05, z  # vehicle 2 climbed (NED: up is negative z)
+    assert z[0] == 0.0 and z[2] == 0.0, z  # the others rest on the ground
+
+
+@pytest.mark.timeout(90)
+def test_vehicle_1_of_a_fleet_is_the_lone_vehicle_and_the_others_draw_their_own_noise():
+    """Sensor mode: the datagrams vehicle 1 of a fleet of 2 gets are, byte for byte, those of a plant of one; vehicle
+    2's sensors measure the same rest with other noise (its seeds + 1)."""
+
+    def record(n: int) -> list[list[bytes]]:
+        out: list[list[bytes]] = [[] for _ in range(n)]
+        with fleet_plant(n, "--state", "sensors", "--quiet") as (_plant, aps):
+            for _ in range(300):
+                for i, ap in enumerate(aps):
+                    ap.sock.settimeout(30)
+                    data, ap.plant = ap.sock.recvfrom(65535)
+                    out[i].append(data)
+                    t = next(m.time_usec for m in ap.mav.parse_buffer(data) if m.get_type() == "HIL_SENSOR")
+                    ap.answer(t, (0.0,) * 4)
+        return out
+
+    alone, fleet = record(1), record(2)
+    assert fleet[0] == alone[0]
+    mav = wire.link(1, 1)
+    accel = [[(m.xacc, m.yacc, m.zacc) for d in f for m in mav.parse_buffer(d) if m.get_type() == "HIL_SENSOR"]
+             for f in fleet]  # fmt: skip
+    assert len(accel[0]) == len(accel[1]) == 300
+    assert accel[0] != accel[1]
+    mean_z = [sum(a[2] for a in acc) / len(acc) for acc in accel]
+    assert all(abs(m + 9.8) < 0.2 for m in mean_z), mean_z  # both at rest: −g along z, FRD
+
+
+@pytest.mark.timeout(60)
+def test_realtime_every_vehicle_gets_every_period_and_flies_its_own_command():
+    climb, rest = (1.2 * HOVER,) * 4, (0.0,) * 4
+    with fleet_plant(2, "--mode", "realtime", "--ticks", "1500", "--quiet") as (plant, aps):
+        aps[0].next_tick(30)  # started
+        last: list = [None, None]
+        counts = [0, 0]
+        end = time.monotonic() + 20
+        while plant.poll() is None and time.monotonic() < end:
+            for i, ap in enumerate(aps):
+                for m in ap.receive(0.002):
+                    if m.get_type() == "ODOMETRY":
+                        counts[i] += 1
+                        last[i] = m
+                        ap.answer(m.time_usec, climb if i == 0 else rest)
+        assert plant.wait(10) == 0
+    assert min(counts) > 1000, counts  # 1500 states each in 1.5 s of real time (a few may be lost under load)
+    assert last[0].z < -0.05 and last[1].z == 0.0, (last[0].z, last[1].z)
+
+
+@pytest.mark.timeout(60)
+def test_a_diverging_vehicle_ends_the_run_named_and_only_its_autopilot_is_told():
+    lopsided = (MAX_THRUST, 0.0, MAX_THRUST, 0.0)  # a torque no attitude survives
+    with fleet_plant(2) as (plant, aps):
+        with pytest.raises(AssertionError):  # the plant stops sending when vehicle 2 leaves its bounds
+            _fly(aps, [(HOVER,) * 4, lopsided], 5000)
+        assert plant.wait(10) == PLANT_DIVERGED
+        err = plant.stderr.read()
+        told = [[m.text for m in ap.receive(0.5) if m.get_type() == "STATUSTEXT"] for ap in aps]
+    assert "plant: vehicle v2 diverged at t = " in err, err
+    assert told[0] == [] and any("Simulation diverged" in t for t in told[1]), told
+
+
+def _refusal(*argv: str) -> str:
+    r = subprocess.run([sys.executable, "-m", "sitl", "--preset", "paper", *argv], capture_output=True, text=True,
+                       timeout=60)  # fmt: skip
+    assert r.returncode == 2, r
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    return lines[0]
+
+
+def test_bad_fleets_are_refused_naming_the_option(tmp_path):
+    three = ["--autopilot", "127.0.0.1:15001", "--autopilot", "127.0.0.1:15002", "--autopilot", "127.0.0.1:15003"]
+    slow = tmp_path / "slow.toml"
+    text = (Path(__file__).parent.parent / "quadsitl" / "presets" / "paper.toml").read_text()
+    slow.write_text(text.replace("period = 0.001", "period = 0.002"))
+    cases = {
+        ("--vehicle", "a", "--vehicle", "b"): "--vehicle given 2 times: expected once (for every vehicle) or 3 times",
+        ("--vehicle", "a", "--vehicle", "b", "--vehicle", "a"): "two vehicles named alike",
+        ("--home", "47,8,400", "--home", "47,8,400"): "--home given 2 times",
+        ("--vehicle-preset", "4=x500"): "vehicle 4 is not in the fleet (1..3, --autopilot given 3 times)",
+        ("--vehicle-preset", f"2={slow}"): "its control period is 0.002 s, --preset paper's 0.001 s",
+        ("--bind", "127.0.0.1:65534"): "vehicle 3 would need port 65536, beyond 65535",
+        ("--autopilot", "nowhere"): "--autopilot 'nowhere'",
+    }
+    for extra, expected in cases.items():
+        line = _refusal(*three, *extra)
+        assert expected in line, (extra, line)
+        assert line.startswith("quadsitl plant: error: "), line
