@@ -275,6 +275,13 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from groundstation.launcher import fly
 
     preset = with_state(with_wind(_load(args.preset), args), args)
+    if args.vehicles != 1 or args.formation:
+        from groundstation.formation_flight import check_fleet_flight, fly_fleet
+
+        if args.speed < 0 or args.speed > 1000:
+            raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
+        check_fleet_flight(args)  # refuse a bad fleet or formation (one line) before anything starts
+        return fly_fleet(args)
     check_range("--duration", args.duration, 0.0, 3600.0)
     if args.speed < 0 or args.speed > 1000:
         raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
@@ -425,6 +432,13 @@ the source, or 'mkdocs serve' there.""",
     fl.add_argument(
         "--home", metavar="LAT,LON,ALT", help="with --mission: the vehicle's home (default: PX4 SITL's, in Zürich)"
     )
+    fl.add_argument("--vehicles", type=int, default=1, metavar="N", help="fly a fleet of N vehicles in formation "
+                    "(see --formation; each vehicle's logs in DIR/v1..vN/)")  # fmt: skip
+    fl.add_argument("--formation", metavar="KIND[:altitude=M][,distance=M]", help="line (default with --vehicles), "
+                    "grid or circle: take off, form up, translate DISTANCE north (default 10 m), rotate 90°, land, "
+                    "at ALTITUDE (default 5 m; docs/fleets.md)")  # fmt: skip
+    fl.add_argument("--spacing", type=float, default=3.0, metavar="M", help="with --vehicles: metres between vehicles "
+                    "on the starting grid and in the formation (default 3)")  # fmt: skip
     fl.add_argument("--out", default="runs/fly", metavar="DIR", help="output folder (default: runs/fly)")
     fl.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     fl.add_argument("--quiet", "-q", action="store_true", help="print only errors")

@@ -110,3 +110,45 @@ def write_mission_figure(out: Path, data: dict[str, np.ndarray], mission: dict, 
             ax.annotate(str(it["seq"]), (it["east"], it["north"]), textcoords="offset points", xytext=(6, 6))
     return _finish_map(fig, ax, data["x"], data["y"], f"mission path, seen from above — {title}",
                        out / "fig_mission_path.png", fontsize=10)  # fmt: skip
+
+
+def write_formation_figure(out: Path, plan, t: np.ndarray, track: np.ndarray, series: dict, title: str) -> Path:
+    """``fig_formation.png`` in ``out``: every vehicle's path seen from above (north up, east right [m], from the
+    first vehicle's home; :mod:`groundstation.formation`) over its planned path, its start and end marked; and over
+    time, the largest formation error among the vehicles and the smallest separation between two, the phases'
+    starts marked."""
+    fig = plt.figure(figsize=(12, 6.5))
+    ax = fig.add_subplot(1, 2, 1)
+    planned = np.stack([plan.at(float(tk))[0] for tk in t[:: max(1, len(t) // 600)]], axis=1)
+    for i in range(len(track)):
+        color = f"C{i % 10}"
+        ax.plot(planned[i, :, 1], planned[i, :, 0], color=color, lw=0.9, ls=":")
+        ax.plot(track[i, :, 1], track[i, :, 0], color=color, lw=1.4, label=f"v{i + 1}")
+        ax.plot(track[i, 0, 1], track[i, 0, 0], marker="s", color=color, ms=5, ls="none")
+        ax.plot(track[i, -1, 1], track[i, -1, 0], marker="o", color=color, ms=5, ls="none")
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=7, ncol=2, title="flown (dotted: planned; ■ start, ● end)", title_fontsize=7)
+    ax.set_title(f"paths seen from above — {title}", fontsize=10)
+    top, bottom = fig.add_subplot(2, 2, 2), fig.add_subplot(2, 2, 4, sharex=None)
+    top.plot(series["t"], series["formation_max_m"], color="C3", lw=1.2)
+    top.set_ylabel("formation error, worst vehicle [m]")
+    bottom.plot(series["t"], series["separation_min_m"], color="C0", lw=1.2)
+    bottom.axhline(plan.spacing, color="k", lw=0.8, ls="--", label=f"spacing {plan.spacing:g} m")
+    bottom.set_ylabel("smallest separation [m]")
+    bottom.set_xlabel("t [s] (0: every vehicle armed)")
+    bottom.legend(loc="best", fontsize=8)
+    for axis in (top, bottom):
+        for name, start in zip(("take off", "form up", "translate", "rotate", "hold", "land"), plan.times,
+                               strict=True):  # fmt: skip
+            axis.axvline(start, color="0.6", lw=0.7)
+            axis.text(start, 1.0, f" {name}", transform=axis.get_xaxis_transform(), fontsize=7, va="top",
+                      rotation=90, color="0.4")  # fmt: skip
+        axis.grid(True, alpha=0.3)
+    fig.tight_layout()
+    path = out / "fig_formation.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -26,6 +26,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Collection
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -60,12 +61,13 @@ class Children:
     optional: tuple[str, ...] = ("dashboard",)  # a viewer: its end is reported, and the vehicle flies on
     reported: set[str] = field(default_factory=set)
 
-    def first_failure(self, done: str, prog: str = "quadsitl") -> tuple[str, int] | None:
-        """(name, status) of a child that exited when it should not have; ``done`` may exit with 0. An
-        optional child that ends is reported once on stderr (as ``prog``) and is not a failure."""
+    def first_failure(self, done: str | Collection[str], prog: str = "quadsitl") -> tuple[str, int] | None:
+        """(name, status) of a child that exited when it should not have; ``done`` (a name or several) may exit
+        with 0. An optional child that ends is reported once on stderr (as ``prog``) and is not a failure."""
+        done = (done,) if isinstance(done, str) else done
         for name, p in self.procs.items():
             rc = p.poll()
-            if rc is None or (name == done and rc == 0):
+            if rc is None or (name in done and rc == 0):
                 continue
             if name in self.optional:
                 if name not in self.reported:

@@ -134,9 +134,9 @@ class PlantLink:
         """Tick ``k``'s datagram (the state, or its measurements), into tx."""
         tick.encode_tick(self.tx, self.io, plant.x, plant.out, plant.air, plant.sensors.arrays, k, self.period)
 
-    def send(self) -> None:
-        """Send the state frame in tx."""
-        frame = self.tx_view[: self.io[tick.TX_LEN]]
+    def send(self, frame: bytes | None = None) -> None:
+        """Send the state frame in tx (or ``frame``, one sent before)."""
+        frame = self.tx_view[: self.io[tick.TX_LEN]] if frame is None else frame
         if self.impairment is not None:
             self._queue(self.outbox, bytes(frame))
             return
@@ -326,7 +326,9 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
     (:func:`sitl.tick.lockstep_tick`). The answers are awaited in the vehicles' order: each vehicle's come on its
     own socket, so one that answered while another was awaited is waiting there, and the tick takes as long as the
     slowest answer, no longer. A vehicle that does not answer within FREEWHEEL_PERIOD is sent its datagram again
-    (simulated time waits, for every vehicle). Wind changes are taken between two ticks."""
+    (simulated time waits, for every vehicle), and so is every other vehicle its datagram of tick k (an answered one
+    answers it again, and that answer is discarded as stale): an autopilot that heard nothing for a while would
+    declare its plant lost and land. Wind changes are taken between two ticks."""
     period = vehicles[0].plant.period
     named = len(vehicles) > 1
     k = 0
@@ -346,6 +348,8 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
         want = usec_of(k, period)
         for link in links:
             link.send()
+        if named:  # tick k's datagrams, to send again while any vehicle keeps the fleet waiting
+            sent = [bytes(link.tx_view[: link.io[tick.TX_LEN]]) for link in links]
         held = links[0].first_heard is None
         for v, link, receive, rx, max_thrust, received, commanded, args in waits:
             while True:
@@ -353,7 +357,11 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
                 if nbytes < 0:
                     held = True
                     link.check_lost("holding: simulated time stops until it answers")
-                    link.send()  # free-wheel: no answer yet
+                    if named:  # free-wheel the whole fleet: an autopilot that hears nothing declares its plant lost
+                        for other, frame in zip(links, sent, strict=True):
+                            other.send(frame)
+                    else:
+                        link.send()  # free-wheel: no answer yet
                     continue
                 r = lockstep_tick(rx, nbytes, want, max_thrust, received, commanded, *args, k)
                 if r == tick.ANOTHER_FRAME:  # for pymavlink (several messages, signed)
