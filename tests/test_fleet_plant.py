@@ -106,8 +106,10 @@ def test_lockstep_no_vehicle_runs_ahead_and_a_silent_one_holds_the_fleet():
             for i in (0, 2):
                 with contextlib.suppress(AssertionError):
                     seen[i].append(aps[i].next_tick(0.05)[0])
-        # vehicle 2 is re-sent tick 0 (free-wheel); the answered ones get nothing new: no tick 1 anywhere
+        # no tick 1 anywhere; the answered ones are re-sent tick 0 while vehicle 2 keeps the fleet waiting (every
+        # 50 ms: an autopilot that heard nothing for long would declare its plant lost and land)
         assert all(t == 0 for i in (0, 2) for t in seen[i]), seen
+        assert len(seen[0]) >= 4 and len(seen[2]) >= 4, seen
         resent = [aps[1].next_tick(1.0)[0] for _ in range(3)]
         assert resent == [0, 0, 0]
         aps[1].answer(0, (HOVER,) * 4)
