@@ -35,10 +35,7 @@ T = 0.001  # [s] the control period
 def dtype(stream: str) -> np.dtype:
     """The numpy layout of a stream's record (the same bytes as telemetry.STREAMS[stream])."""
     fields = telemetry.FIELDS[stream]
-    if stream == "status":
-        types = ["<u8", "<f8", "u1", "u1", "u1", "<i8"]
-    else:
-        types = ["<u8"] + ["<f8"] * (len(fields) - 1)
+    types = ["<u8", "<f8", "u1", "u1", "u1", "<i8"] if stream == "status" else ["<u8"] + ["<f8"] * (len(fields) - 1)
     dt = np.dtype({"names": list(fields), "formats": types, "itemsize": telemetry.STREAMS[stream].size,
                    "offsets": _offsets(stream)})  # fmt: skip
     assert dt.itemsize == telemetry.STREAMS[stream].size
@@ -110,8 +107,8 @@ def measure(n: int, seconds: float, batch_ms: float) -> dict:
     endpoint, url = f"tcp/127.0.0.1:{zport}", f"http://127.0.0.1:{port}/"
     dash = subprocess.Popen([sys.executable, "-m", "groundstation.dashboard.server", "--port", str(port),
                              "--zenoh-listen", endpoint, "--quiet"])  # fmt: skip
-    pub = subprocess.Popen([sys.executable, "-m", "benchmarks.fleet_dashboard", "--publish", endpoint,
-                            "--vehicles", str(n), "--seconds", str(seconds + 30), "--batch-ms", str(batch_ms)])  # fmt: skip
+    pub = subprocess.Popen([sys.executable, "-m", "benchmarks.fleet_dashboard", "--publish", endpoint, "--vehicles",
+                            str(n), "--seconds", str(seconds + 30), "--batch-ms", str(batch_ms)])  # fmt: skip
     try:
         for _ in range(200):
             try:
@@ -124,12 +121,16 @@ def measure(n: int, seconds: float, batch_ms: float) -> dict:
             page.goto(url)
             page.wait_for_function(f"() => quadsitl.fleetMarkers.length === {n}", timeout=30000)
             time.sleep(2.0)
-            page.evaluate("() => { quadsitl.fleetDrawMs = []; quadsitl.bytesIn = 0; quadsitl.updatesAt = quadsitl.updates; }")
+            page.evaluate(
+                "() => { quadsitl.fleetDrawMs = []; quadsitl.bytesIn = 0; quadsitl.updatesAt = quadsitl.updates; }"
+            )
             c0, p0, w0 = cpu_seconds(dash.pid), cpu_seconds(pub.pid), time.monotonic()
             time.sleep(seconds)
             c1, p1, w1 = cpu_seconds(dash.pid), cpu_seconds(pub.pid), time.monotonic()
-            got = page.evaluate("() => ({ms: quadsitl.fleetDrawMs, bytes: quadsitl.bytesIn, "
-                                "updates: quadsitl.updates - quadsitl.updatesAt, markers: quadsitl.fleetMarkers.length})")  # fmt: skip
+            got = page.evaluate(
+                "() => ({ms: quadsitl.fleetDrawMs, bytes: quadsitl.bytesIn, markers: "
+                "quadsitl.fleetMarkers.length, updates: quadsitl.updates - quadsitl.updatesAt})"
+            )
             page.screenshot(path=os.environ.get("QUADSITL_FLEET_SHOT", "/tmp/fleet-dashboard.png"))
             # one vehicle's plots, as today, with the fleet still publishing
             page.evaluate(f"() => quadsitl.choose('v{n}')")

@@ -67,6 +67,7 @@ def decode_info(payload: bytes) -> dict:
             raise ValueError(f"info: {name} = {v!r:.40}, expected an integer in {lo}..{hi}")
         return v
 
+    system_id = integer("system_id", 1, 255)
     home = doc.get("home")
     if not isinstance(home, dict):
         raise ValueError(f"info: home = {home!r:.40}, expected an object of latitude, longitude, altitude")
@@ -80,7 +81,7 @@ def decode_info(payload: bytes) -> dict:
     if not isinstance(preset, str) or len(preset) > 200:
         raise ValueError(f"info: preset = {preset!r:.40}, expected a string of at most 200 characters")
     return {
-        "system_id": integer("system_id", 1, 255),
+        "system_id": system_id,
         "home": tuple(coords),
         "preset": preset,
         "vehicles": integer("vehicles", 1, MAX_FLEET, 1),
