@@ -99,6 +99,12 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def samples(url: str) -> int:
+    """Zenoh samples the dashboard has taken in, every vehicle's together."""
+    with urllib.request.urlopen(url + "api/vehicles", timeout=5) as r:
+        return sum(v["link"]["samples"] for v in json.loads(r.read())["vehicles"])
+
+
 def measure(n: int, seconds: float, batch_ms: float) -> dict:
     from benchmarks.browser import chromium
     from groundstation.launcher import free_port
@@ -124,9 +130,9 @@ def measure(n: int, seconds: float, batch_ms: float) -> dict:
             page.evaluate(
                 "() => { quadsitl.fleetDrawMs = []; quadsitl.bytesIn = 0; quadsitl.updatesAt = quadsitl.updates; }"
             )
-            c0, p0, w0 = cpu_seconds(dash.pid), cpu_seconds(pub.pid), time.monotonic()
+            c0, p0, w0, s0 = cpu_seconds(dash.pid), cpu_seconds(pub.pid), time.monotonic(), samples(url)
             time.sleep(seconds)
-            c1, p1, w1 = cpu_seconds(dash.pid), cpu_seconds(pub.pid), time.monotonic()
+            c1, p1, w1, s1 = cpu_seconds(dash.pid), cpu_seconds(pub.pid), time.monotonic(), samples(url)
             got = page.evaluate(
                 "() => ({ms: quadsitl.fleetDrawMs, bytes: quadsitl.bytesIn, markers: "
                 "quadsitl.fleetMarkers.length, updates: quadsitl.updates - quadsitl.updatesAt})"
@@ -147,6 +153,7 @@ def measure(n: int, seconds: float, batch_ms: float) -> dict:
             "seconds": round(w1 - w0, 1),
             "dashboard_cpu_percent": round(100 * (c1 - c0) / (w1 - w0), 1),
             "publisher_cpu_percent": round(100 * (p1 - p0) / (w1 - w0), 1),
+            "samples_per_s": round((s1 - s0) / (w1 - w0)),
             "fleet_redraws": len(ms),
             "fleet_redraw_ms_median": round(statistics.median(ms), 2) if ms else None,
             "fleet_redraw_ms_p95": round(ms[int(0.95 * (len(ms) - 1))], 2) if ms else None,

@@ -124,9 +124,10 @@ def dashboard_port(port: int) -> int:
     return port
 
 
-def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout: float = 15.0) -> str:
+def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout: float = 60.0) -> str:
     """Start ``quadsitl dashboard`` on ``port`` subscribed to ``zenoh_endpoint``; returns its URL once it
-    accepts connections."""
+    accepts connections. A dashboard that exits fails at once; one that is alive gets ``timeout`` seconds: it runs
+    at idle priority, so while a fleet's 2N processes load on a busy machine it may wait long for a core."""
     children.start("dashboard", ["groundstation.dashboard.server", "--port", str(port), "--zenoh-connect",
                                  zenoh_endpoint, "--quiet"])  # fmt: skip
     end = time.monotonic() + timeout
@@ -136,7 +137,8 @@ def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout:
         with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.2):
             return f"http://127.0.0.1:{port}/"
         time.sleep(0.05)
-    raise RuntimeError("the dashboard did not start")
+    raise RuntimeError("the dashboard did not start" if children.procs["dashboard"].poll() is not None
+                       else f"the dashboard did not accept connections within {timeout:g} s")  # fmt: skip
 
 
 def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
