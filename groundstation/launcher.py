@@ -126,9 +126,10 @@ def dashboard_port(port: int) -> int:
     return port
 
 
-def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout: float = 15.0) -> str:
+def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout: float = 60.0) -> str:
     """Start ``quadsitl dashboard`` on ``port`` subscribed to ``zenoh_endpoint``; returns its URL once it
-    accepts connections."""
+    accepts connections. A dashboard that exits fails at once; one that is alive gets ``timeout`` seconds: it runs
+    at idle priority, so while a fleet's 2N processes load on a busy machine it may wait long for a core."""
     children.start("dashboard", ["groundstation.dashboard.server", "--port", str(port), "--zenoh-connect",
                                  zenoh_endpoint, "--quiet"])  # fmt: skip
     end = time.monotonic() + timeout
@@ -138,7 +139,8 @@ def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout:
         with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.2):
             return f"http://127.0.0.1:{port}/"
         time.sleep(0.05)
-    raise RuntimeError("the dashboard did not start")
+    raise RuntimeError("the dashboard did not start" if children.procs["dashboard"].poll() is not None
+                       else f"the dashboard did not accept connections within {timeout:g} s")  # fmt: skip
 
 
 def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
@@ -149,6 +151,7 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
         raise UsageError("--dashboard needs the Zenoh telemetry: drop --no-zenoh")
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
     check_ports_free(args, fleet)
+    info = None  # the vehicles' quadsitl/<vehicle>/info documents, once Zenoh is up
     try:
         if len(fleet) > 1:
             compile_once(children.env)
@@ -180,10 +183,13 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
         if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
             plant += ["--zenoh-connect", args.zenoh_listen]
         children.start("plant", plant + (["--quiet"] if args.quiet else []))
+        info = None if args.no_zenoh else publish_info(fleet, args.zenoh_listen)
         url = start_dashboard(children, web_port, args.zenoh_listen) if web_port is not None else None
         if not args.quiet:
             print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
         while True:
+            if info is not None:
+                info.tick(time.monotonic())
             failure = children.first_failure(done="", prog="quadsitl up")
             if failure and failure[0].startswith("plant") and failure[1] == PLANT_DIVERGED:
                 time.sleep(0.2)  # the autopilot relays the plant's STATUSTEXT to the ground stations as it comes
@@ -202,7 +208,32 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
         print(f"quadsitl up: error: {exc}; stopping the others", file=sys.stderr)
         return 1
     finally:
+        if info is not None:
+            info.close()
         children.stop()
+
+
+def publish_info(fleet: list[VehiclePlan], endpoint: str):
+    """Every vehicle's ``quadsitl/<vehicle>/info`` (system id, home, preset; groundstation.vehicle_info), put
+    once a second from a Zenoh session of the launcher's own connected to ``endpoint`` (the first autopilot's),
+    so that a dashboard anywhere on that Zenoh network places the fleet on one map. None, with a warning,
+    when the session does not open: the vehicles fly on without it."""
+    import zenoh
+
+    from groundstation.vehicle_info import InfoPublisher, encode_info
+    from quadsitl.telemetry import zenoh_config
+
+    docs = {v.name: encode_info(v.system_id, v.home, Path(v.preset).stem, len(fleet)) for v in fleet}
+    session = None
+    try:
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        return InfoPublisher(session, docs)
+    except zenoh.ZError as exc:
+        if session is not None:
+            session.close()
+        print(f"quadsitl up: warning: no vehicle info on Zenoh (homes, system ids for maps): {exc}",
+              file=sys.stderr, flush=True)  # fmt: skip
+        return None
 
 
 def compile_once(env: dict[str, str] | None) -> None:

@@ -322,3 +322,137 @@ def test_the_map_shows_the_mission_and_its_current_item_as_it_flies(browser, art
             if page is not None:
                 page.close()
             c.close()
+
+
+FLEET_COLOURS = {"v1": [31, 119, 180], "v2": [255, 127, 14], "v3": [44, 160, 44]}  # the page's first three
+
+
+def fleet_rows(page) -> dict[str, dict]:
+    """The fleet table as the page shows it: {name: {column: text}}."""
+    return page.evaluate("""() => {
+        const heads = [...document.querySelectorAll('#fleet-table thead th')].map(th => th.textContent);
+        const out = {};
+        for (const tr of document.querySelectorAll('#fleet-table tbody tr[data-name]'))
+            out[tr.dataset.name] = Object.fromEntries([...tr.children].map((td, i) => [heads[i], td.textContent]));
+        return out; }""")
+
+
+def markers(page) -> dict[str, dict]:
+    """The fleet map's markers (metres in the common frame, pixels) and the canvas's colour under each."""
+    return page.evaluate("""() => {
+        const box = document.getElementById('fleet-map'), c = box.querySelector('canvas');
+        const r = window.devicePixelRatio || 1, ctx = c.getContext('2d');
+        const out = {};
+        for (const m of JSON.parse(box.dataset.markers || '[]')) {
+            const px = ctx.getImageData(Math.round(m.px * r), Math.round(m.py * r), 1, 1).data;
+            out[m.name] = {...m, colour: Array.from(px), scale: Number(box.dataset.scale)};
+        }
+        return out; }""")
+
+
+def until(page, c: Client, js: str, timeout: float) -> None:
+    """Wait for ``js`` to hold on the page, heartbeating as a ground station meanwhile."""
+    end = time.monotonic() + timeout
+    while not page.evaluate(js):
+        assert time.monotonic() < end, f"not within {timeout} s: {js}; table: {fleet_rows(page)}"
+        c.conn.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        c.pump(0.25)
+
+
+@pytest.mark.timeout(300)
+def test_the_fleet_view_of_three_vehicles_one_flown_then_opened(browser, artifacts):
+    """``quadsitl up --vehicles 3 --spacing 5 --dashboard``: the page opens on the fleet view, three rows with system
+    ids 1, 2, 3 and three markers at their grid places in one frame (v1's home, v2 5 m east, v3 5 m north), drawn in
+    their colours; system id 2 armed, taken off and sent 4 m north over MAVLink: its row says so and its marker
+    moves there, the others stay; a click on its row opens its plots, as the single-vehicle view."""
+    from quadsitl.frames import ned_to_geodetic
+    from tests.mavclient import fleet_up
+
+    port = free_port(socket.SOCK_STREAM)
+    url = f"http://127.0.0.1:{port}/"
+    with fleet_up(3, "--spacing", "5", "--dashboard", "--dashboard-port", str(port)) as fleet:
+        c = Client(fleet.gcs_port)
+        page = None
+        try:
+            wait_http(url, timeout=150)  # the fleet compiles the equations once before it starts
+            page = browser.new_page(viewport={"width": 1500, "height": 1000})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(url)
+            placed = "() => quadsitl.selected === '' && quadsitl.fleetMarkers.length === 3 " \
+                     "&& quadsitl.fleetMarkers.every(m => m.known)"  # fmt: skip
+            until(page, c, placed, 90)
+            rows = fleet_rows(page)
+            assert sorted(rows) == ["v1", "v2", "v3"]
+            assert [rows[n]["system id"] for n in ("v1", "v2", "v3")] == ["1", "2", "3"]
+            assert all(
+                r["armed"] == "disarmed" and r["mode"] == "hold" and r["failsafe"] == "none" for r in rows.values()
+            )
+            assert all(r["telemetry"].startswith("live") for r in rows.values()), rows
+            assert rows["v2"]["home N, E"] == "0.0, 5.0 m" and rows["v3"]["home N, E"] == "5.0, 0.0 m"
+            m = markers(page)
+            grid = {"v1": (0.0, 0.0), "v2": (0.0, 5.0), "v3": (5.0, 0.0)}  # 2 columns: rows northward
+            for name, (north, east) in grid.items():
+                assert (m[name]["north"], m[name]["east"]) == (
+                    pytest.approx(north, abs=0.05),
+                    pytest.approx(east, abs=0.05),
+                )
+                assert m[name]["colour"][:3] == pytest.approx(FLEET_COLOURS[name], abs=3), (name, m[name])
+                assert m[name]["system_id"] == int(name[1])
+            s = m["v1"]["scale"]  # north up, east right, equal scales
+            assert m["v2"]["px"] - m["v1"]["px"] == pytest.approx(5 * s, abs=1.5)
+            assert m["v1"]["py"] - m["v3"]["py"] == pytest.approx(5 * s, abs=1.5)
+
+            # system id 2: arm, take off, then 4 m north of its home
+            c.wait("SYS_STATUS", lambda msg: msg.get_srcSystem() == 2 and msg.onboard_control_sensors_health
+                   & M.MAV_SYS_STATUS_PREARM_CHECK, 30)  # fmt: skip
+            c.conn.mav.command_long_send(2, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            assert c.wait("COMMAND_ACK", lambda a: a.command == M.MAV_CMD_COMPONENT_ARM_DISARM, 5).result == 0
+            nan = math.nan
+            c.conn.mav.command_long_send(2, 1, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, nan, nan, nan, nan)
+            assert c.wait("COMMAND_ACK", lambda a: a.command == M.MAV_CMD_NAV_TAKEOFF, 5).result == 0
+            row = "document.querySelector('#fleet-table tr[data-name=v2]').children"
+            until(page, c, f"() => {row}[3].textContent === 'armed' && {row}[2].textContent === 'takeoff'", 10)
+            until(page, c, f"() => {row}[2].textContent === 'hold' && parseFloat({row}[8].textContent) > 2.0", 20)
+            page.screenshot(path=str(artifacts / "dashboard-fleet-takeoff.png"), full_page=True)
+            with urllib.request.urlopen(url + "api/vehicles", timeout=5) as r:
+                v2 = next(v for v in json.loads(r.read())["vehicles"] if v["name"] == "v2")
+            assert v2["system_id"] == 2 and v2["offset"][:2] == [
+                pytest.approx(0.0, abs=1e-3),
+                pytest.approx(5.0, abs=1e-3),
+            ]
+            home2 = (v2["home"]["latitude"], v2["home"]["longitude"])
+            lat, lon = ned_to_geodetic(4.0, 0.0, *home2)
+            c.conn.mav.command_int_send(2, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION, 0, 0,
+                                        -1, 1, 0, nan, round(lat * 1e7), round(lon * 1e7), 2.5)  # fmt: skip
+            assert c.wait("COMMAND_ACK", lambda a: a.command == M.MAV_CMD_DO_REPOSITION, 5).result == 0
+            there = "() => { const m = quadsitl.fleetMarkers.find(m => m.name === 'v2'); " \
+                    "return Math.hypot(m.north - 4, m.east - 5) < 0.3; }"  # fmt: skip
+            until(page, c, there, 30)
+            m = markers(page)
+            assert m["v2"]["py"] < m["v1"]["py"] - 3 * s  # drawn north (up) of where it started
+            assert (m["v1"]["north"], m["v1"]["east"]) == (pytest.approx(0.0, abs=0.05), pytest.approx(0.0, abs=0.05))
+            assert (m["v3"]["north"], m["v3"]["east"]) == (pytest.approx(5.0, abs=0.05), pytest.approx(0.0, abs=0.05))
+            trail = page.evaluate("() => quadsitl.trails.v2.x.length")
+            assert trail > 10  # its trail, 5 points a simulated second
+            page.screenshot(path=str(artifacts / "dashboard-fleet.png"), full_page=True)
+
+            # a click on its row: v2's plots, as the single-vehicle view shows them
+            page.click("#fleet-table tr[data-name=v2]")
+            until(
+                page, c, "() => quadsitl.selected === 'v2' && quadsitl.data.t.length > 50 && quadsitl.redraws > 1", 15
+            )
+            assert page.is_hidden("#fleet-view") and page.is_visible("#plot-altitude")
+            shown = page_state(page)
+            assert shown["armed"] == "armed" and shown["mode"] == "hold"
+            assert page.evaluate("() => document.querySelector('#status [data-field=system_id]').textContent") == "2"
+            x, alt = page.evaluate("() => [quadsitl.data.x.at(-1), quadsitl.data.altitude.at(-1)]")
+            assert x == pytest.approx(4.0, abs=0.3) and alt == pytest.approx(2.5, abs=0.3)  # local: from its own home
+            page.screenshot(path=str(artifacts / "dashboard-fleet-v2.png"), full_page=True)
+            page.click("#fleet-tab")  # and back
+            until(page, c, "() => !document.getElementById('fleet-view').hidden && quadsitl.fleetRedraws > 0", 5)
+            assert not errors, errors
+        finally:
+            if page is not None:
+                page.close()
+            c.close()

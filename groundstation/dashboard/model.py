@@ -11,7 +11,16 @@ For each vehicle seen on ``quadsitl/<vehicle>/<stream>`` (:mod:`quadsitl.telemet
 * the stored mission (``quadsitl/<vehicle>/mission``, JSON): where each item flies and which is current,
   for the map; a malformed document is counted and the last good one kept;
 * the tick rate and real-time factor, from the status records' ticks and simulated times against the wall
-  clock over the last ``RATE_WINDOW`` seconds.
+  clock over the last ``RATE_WINDOW`` seconds;
+* for the fleet view: who the vehicle is and where its home is (``quadsitl/<vehicle>/info``,
+  :mod:`groundstation.vehicle_info`, put by ``quadsitl up``; a bad document is refused with its reason, kept
+  for the page, and the last good one stays), and a trail of its local x, y at ``TRAIL_RATE`` points per
+  simulated second, picked from the state samples by offset as the plot rows are.
+
+The fleet's common frame: north and east metres from the home of the first vehicle (in natural order of
+names: v1, v2, …, v10) whose home is known, the fleet's *origin*; a vehicle's place on the fleet map is its home's
+offset from the origin (:func:`quadsitl.frames.geodetic_to_ned`) plus its local x, y. A vehicle whose home is not
+known has no offset: the page draws it at its local x, y from the origin, marked as such.
 
 Rows carry display units: metres, degrees (angles and their errors), newtons and newton-metres; x, y and
 x_ref, y_ref stay in local NED metres (x north, y east) for the page's x–y map, x_ref and y_ref NaN (null in
@@ -23,17 +32,20 @@ is cleared so that the page never draws two runs as one line.
 from __future__ import annotations
 
 import math
+import re
 import struct
 from collections import deque
 from dataclasses import dataclass, field
 
+from groundstation.vehicle_info import INFO, decode_info
 from quadsitl import telemetry
-from quadsitl.frames import wrap_pi
+from quadsitl.frames import geodetic_to_ned, wrap_pi
 
 RATE_WINDOW = 2.0  # [s] wall: tick rate and real-time factor are averaged over this
 STALE_AFTER = 1.0  # [s] wall without telemetry: the link shows as stale
 MAX_VEHICLES = 64  # more names than this are ignored (and counted): a stranger must not exhaust memory
 MAX_PENDING = 4096  # decimated ticks waiting for their other streams (a sample of 64 ticks holds a few)
+TRAIL_RATE = 5.0  # fleet-map trail points per simulated second (at most the plot rate): 100 over a 20 s window
 MODES = telemetry.MODES  # 0 hold, 1 offboard, 2 land, 3 takeoff, 4 rtl, 5 mission
 FAILSAFES = {
     0: "none", 1: "setpoint stream lost", 2: "plant link lost", 3: "ground station lost", 4: "estimator failed",
@@ -46,6 +58,13 @@ ROW_FIELDS = (
     "x_ref", "y_ref",
 )  # fmt: skip
 _TICK = struct.Struct("<Q")
+_XY = struct.Struct("<2d")  # x, y of a state record, at byte 16
+_STATE_SIZE = telemetry.STREAMS["state"].size
+
+
+def natural(name: str) -> tuple:
+    """A sort key that puts v2 before v10."""
+    return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", name) if p)
 
 
 def plot_row(state: tuple, setpoint: tuple, actuators: tuple) -> tuple[float, ...]:
@@ -79,6 +98,11 @@ class Vehicle:
     _rate: deque = field(default_factory=deque)  # (wall, tick, t) of status records
     _stream_tick: dict[str, int] = field(default_factory=dict)  # the newest tick of each stream
     mission: dict | None = None  # the last mission document (quadsitl.telemetry.decode_mission), None before one
+    info: dict | None = None  # the last good info document (groundstation.vehicle_info.decode_info)
+    info_error: str | None = None  # why the newest info document was refused (None once a good one came)
+    info_refused: int = 0
+    trail: deque = field(default_factory=deque)  # (seq, t, x, y): local NED metres, TRAIL_RATE per second
+    trail_seq: int = 0
 
     # ---- ingest ---------------------------------------------------------------------------------------
 
@@ -114,6 +138,35 @@ class Vehicle:
             rec = fmt.unpack_from(payload, (k - first_tick) * fmt.size)
             self._join(k, stream, rec)
             k += d
+        if stream == "state":
+            self._trail(payload, first_tick, n, last[1])
+
+    def _trail(self, payload: bytes, first_tick: int, n: int, t_last: float) -> None:
+        """Every ``trail_every``-th plotted tick's x, y into the trail; older than the window out."""
+        d = self.decimation * max(1, round(self.plot_rate / TRAIL_RATE))
+        k = -(-first_tick // d) * d
+        while k < first_tick + n:
+            x, y = _XY.unpack_from(payload, (k - first_tick) * _STATE_SIZE + 16)
+            self.trail_seq += 1
+            self.trail.append((self.trail_seq, k * self.period, x, y))
+            k += d
+        trail = self.trail
+        while trail and trail[0][1] < t_last - self.window:
+            trail.popleft()
+
+    def ingest_info(self, payload: bytes, wall: float) -> None:
+        """A ``quadsitl/<vehicle>/info`` document: kept when well formed; otherwise refused, its reason kept for
+        the page (``info_error``) and the last good one kept."""
+        try:
+            self.info = decode_info(payload)
+        except ValueError as exc:
+            self.malformed += 1
+            self.info_refused += 1
+            self.info_error = str(exc)
+            return
+        self.info_error = None
+        self.samples += 1
+        self.last_wall = max(self.last_wall, wall)
 
     def ingest_mission(self, payload: bytes, wall: float) -> None:
         """A mission document: kept when it is well formed (counted as malformed and ignored otherwise)."""
@@ -137,6 +190,7 @@ class Vehicle:
         self._pending.clear()
         self._rate.clear()
         self._stream_tick.clear()
+        self.trail.clear()
 
     def _join(self, tick: int, stream: str, rec: tuple) -> None:
         got = self._pending.setdefault(tick, {})
@@ -198,7 +252,57 @@ class Vehicle:
         out["real_time_factor"] = rtf
         out["period"] = self.period or None
         out["generation"] = self.generation
+        info = self.info
+        out["system_id"] = info["system_id"] if info else None
+        out["home"] = dict(zip(("latitude", "longitude", "altitude"), info["home"])) if info else None
+        out["preset"] = info["preset"] if info else None
+        out["info_error"] = self.info_error
         return out
+
+    def trail_since(self, seq: int) -> list[tuple]:
+        """Trail points (t, x, y) appended after ``seq`` (the whole trail if ``seq`` is older than it)."""
+        trail = self.trail
+        if not trail or trail[-1][0] <= seq:
+            return []
+        if trail[0][0] > seq:
+            return [p[1:] for p in trail]
+        return [p[1:] for p in trail if p[0] > seq]
+
+    def fleet_entry(self, wall: float, offset: tuple[float, float, float] | None) -> dict:
+        """The vehicle as the fleet view shows it: who, status, link, rates and its pose now (local x, y [m],
+        altitude [m], yaw [deg]); ``offset`` (north, east, up [m] of its home from the fleet's origin) or None
+        when its home is not known. No plot rows, no trail (the server adds the trail's new points)."""
+        age = wall - self.last_wall
+        live = age <= STALE_AFTER
+        rate, rtf = self.rates() if live else (0.0, 0.0)
+        st, s = self.latest.get("status"), self.latest.get("state")
+        pose = None if s is None else [round(s[2], 3), round(s[3], 3), round(-s[4], 3), round(math.degrees(s[10]), 2)]
+        info = self.info
+        if info is not None:
+            home_note = None
+        elif self.info_error:
+            home_note = f"home unknown: {self.info_error}"
+        else:
+            home_note = f"home unknown: nothing on {telemetry.PREFIX}/{self.name}/{INFO} yet"
+        return {
+            "name": self.name,
+            "system_id": info["system_id"] if info else None,
+            "preset": info["preset"] if info else None,
+            "fleet_size": info["vehicles"] if info else None,
+            "offset": None if offset is None else [round(v, 3) for v in offset],
+            "home_note": home_note,
+            "armed": None if st is None else bool(st[2]),
+            "mode": None if st is None else MODES.get(st[3], f"unknown ({st[3]})"),
+            "failsafe": None if st is None else FAILSAFES.get(st[4], f"unknown ({st[4]})"),
+            "t": None if st is None else st[1],
+            "link": "live" if live else "stale",
+            "age_s": round(age, 3),
+            "malformed": self.malformed,
+            "tick_rate": None if rate is None else round(rate, 1),
+            "real_time_factor": None if rtf is None else round(rtf, 3),
+            "pose": pose,
+            "generation": self.generation,
+        }
 
     def rows_since(self, seq: int) -> list[tuple]:
         """Rows appended after ``seq`` (all rows of the window if ``seq`` is older than the window)."""
@@ -223,7 +327,9 @@ class Fleet:
         """A Zenoh sample on ``key`` (``quadsitl/<vehicle>/<stream>``) received at ``wall`` [s]."""
         parts = key.split("/")
         mission = len(parts) == 3 and parts[2] == telemetry.MISSION
-        if len(parts) != 3 or parts[0] != telemetry.PREFIX or (parts[2] not in telemetry.STREAMS and not mission):
+        info = len(parts) == 3 and parts[2] == INFO
+        if (len(parts) != 3 or parts[0] != telemetry.PREFIX
+                or (parts[2] not in telemetry.STREAMS and not mission and not info)):  # fmt: skip
             self.ignored += 1
             return
         v = self.vehicles.get(parts[1])
@@ -234,8 +340,43 @@ class Fleet:
             v = self.vehicles[parts[1]] = Vehicle(parts[1], self.plot_rate, self.window)
         if mission:
             v.ingest_mission(payload, wall)
+        elif info:
+            v.ingest_info(payload, wall)
         else:
             v.ingest(parts[2], payload, wall)
 
+    def ordered(self) -> list[Vehicle]:
+        """The vehicles in natural order of their names (v1, v2, …, v10)."""
+        return [self.vehicles[k] for k in sorted(self.vehicles, key=natural)]
+
     def summaries(self, wall: float) -> list[dict]:
-        return [v.summary(wall) for _, v in sorted(self.vehicles.items())]
+        out = [v.summary(wall) for v in self.ordered()]
+        offsets = self.offsets()
+        for s in out:
+            off = offsets.get(s["name"])
+            s["offset"] = None if off is None else [round(x, 3) for x in off]
+        return out
+
+    def origin(self) -> Vehicle | None:
+        """The fleet's origin: the first vehicle, in natural order, whose home is known (None: no home known)."""
+        return next((v for v in self.ordered() if v.info is not None), None)
+
+    def offsets(self) -> dict[str, tuple[float, float, float]]:
+        """{name: (north, east, up) [m] of its home from the origin's} for every vehicle whose home is known."""
+        o = self.origin()
+        if o is None:
+            return {}
+        lat0, lon0, alt0 = o.info["home"]
+        out = {}
+        for name, v in self.vehicles.items():
+            if v.info is not None:
+                lat, lon, alt = v.info["home"]
+                out[name] = (*geodetic_to_ned(lat, lon, lat0, lon0), alt - alt0)
+        return out
+
+    def fleet_view(self, wall: float) -> dict:
+        """The fleet view without trails: the origin and every vehicle's :meth:`Vehicle.fleet_entry`."""
+        o, offsets = self.origin(), self.offsets()
+        origin = None if o is None else {"name": o.name, **dict(zip(("latitude", "longitude", "altitude"),
+                                                                    o.info["home"]))}  # fmt: skip
+        return {"origin": origin, "vehicles": [v.fleet_entry(wall, offsets.get(v.name)) for v in self.ordered()]}

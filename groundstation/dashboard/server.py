@@ -8,12 +8,16 @@ page can never push back on the vehicle (a full ring drops its oldest samples).
 Routes (Starlette on uvicorn):
 
     GET /               the page (uPlot, vendored under static/vendor/uplot)
-    GET /api/vehicles   JSON: every vehicle with its latest state, references, actuators, status, rates
+    GET /api/vehicles   JSON: every vehicle with its latest state, references, actuators, status, rates,
+                        system id and home
+    GET /api/fleet      JSON: the fleet view: the origin, every vehicle's status, pose, home offset and trail
     GET /api/stream     server-sent events: every PUSH seconds (PUSH_FAST while a vehicle runs faster than
-                        FAST_RTF × real time), each vehicle's status and its new plot rows
+                        FAST_RTF × real time), the fleet view with each vehicle's new trail points, and with
+                        ``?vehicle=NAME`` that vehicle's full status and its new plot rows (the other vehicles'
+                        plot rows never go out: the fleet costs a page a few points per vehicle per update)
     GET /static/...     the page's scripts and styles
 
-Any number of tabs: each stream keeps its own cursor into the shared, decimated series.
+Any number of tabs: each stream keeps its own cursors into the shared, decimated series and trails.
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ from pathlib import Path
 
 import zenoh
 
-from groundstation.dashboard.model import ROW_FIELDS, Fleet
+from groundstation.dashboard.model import ROW_FIELDS, STALE_AFTER, Fleet
+from groundstation.vehicle_info import INFO
 from quadsitl import telemetry
 from quadsitl.cli_util import UsageError, check_range
 from quadsitl.process_util import bind_tcp, run_stoppable, start_process
@@ -41,6 +46,7 @@ PUSH = 0.25  # [s] wall between server-sent events to each page (the page redraw
 PUSH_FAST = 1.0  # ...and while a run goes faster than FAST_RTF × real time: such a run wants every core, and
 FAST_RTF = 2.0  # the page's work (and this server's) would take ticks from it
 MAX_ROWS = 250  # plot rows per vehicle in one update, at most (every n-th when more are new)
+MAX_TRAIL = 500  # trail points per vehicle in one update, at most (a long --window: every n-th)
 RING = 16384  # samples the ring channel holds between drains (≈ 4 s of a 1 kHz run's four streams)
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"  # where `quadsitl up` listens
 
@@ -53,6 +59,7 @@ class Dashboard:
         self.fleet = fleet
         self.sub = session.declare_subscriber(f"{telemetry.PREFIX}/*/*", zenoh.handlers.RingChannel(RING))
         self.stopping = False
+        self.said: dict[str, str | None] = {}  # the info refusal last reported on stderr, per vehicle
 
     def drain(self) -> int:
         """File every sample waiting in the ring; returns how many."""
@@ -62,32 +69,75 @@ class Dashboard:
             n += 1
         return n
 
+    def ask_info(self) -> None:
+        """Ask for every vehicle's info document now (``quadsitl up`` answers; others put it once a second)."""
+        with contextlib.suppress(zenoh.ZError):
+            for reply in self.session.get(f"{telemetry.PREFIX}/*/{INFO}", timeout=2.0):
+                if reply.ok is not None:
+                    self.fleet.ingest(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.monotonic())
+
+    def report_refusals(self) -> None:
+        """A refused info document said once on stderr (per vehicle and reason), and on the page."""
+        for name, v in self.fleet.vehicles.items():
+            if v.info_error != self.said.get(name):
+                self.said[name] = v.info_error
+                if v.info_error:
+                    print(f"quadsitl dashboard: {telemetry.PREFIX}/{name}/{INFO} refused: {v.info_error}",
+                          file=sys.stderr, flush=True)  # fmt: skip
+
     async def poll(self) -> None:
+        with contextlib.suppress(Exception):  # the answers to a get arrive on Zenoh's threads: not on the loop
+            await asyncio.to_thread(self.ask_info)
         while not self.stopping:
             self.drain()
+            self.report_refusals()
             await asyncio.sleep(POLL)
 
     def push_interval(self) -> float:
-        """Wall seconds until a page's next update: PUSH, or PUSH_FAST while any vehicle runs fast."""
+        """Wall seconds until a page's next update: PUSH, or PUSH_FAST while any live vehicle runs fast."""
         now = time.monotonic()
-        fast = any((v.summary(now)["real_time_factor"] or 0.0) > FAST_RTF for v in self.fleet.vehicles.values())
+        fast = any(
+            now - v.last_wall <= STALE_AFTER and (v.rates()[1] or 0.0) > FAST_RTF for v in self.fleet.vehicles.values()
+        )
         return PUSH_FAST if fast else PUSH
 
-    def update(self, cursors: dict[str, tuple[int, int]]) -> dict:
-        """What a page has not seen yet: each vehicle's summary and the plot rows after its cursor
-        (generation, seq), as columns. ``reset`` tells the page to drop what it drew for that vehicle."""
+    def update(self, cursors: dict, selected: str | None = None) -> dict:
+        """What a page has not seen yet: the fleet view (:meth:`Fleet.fleet_view`) with each vehicle's trail
+        points after its cursor, and for the ``selected`` vehicle (None: none) its summary and the plot rows
+        after its cursor (generation, seq), as columns. ``reset`` tells the page to drop what it drew for that
+        vehicle (its trail, its rows)."""
         now = time.monotonic()
-        out = []
-        for name, v in sorted(self.fleet.vehicles.items()):
-            gen, seq = cursors.get(name, (-1, 0))
+        view = self.fleet.fleet_view(now)
+        for entry in view["vehicles"]:
+            v = self.fleet.vehicles[entry["name"]]
+            gen, seq = cursors.get(("trail", v.name), (-1, 0))
+            reset = gen != v.generation
+            pts = v.trail_since(0 if reset else seq)
+            if len(pts) > MAX_TRAIL:
+                pts = pts[:: -(-len(pts) // MAX_TRAIL)]
+            cursors["trail", v.name] = (v.generation, v.trail_seq)
+            entry["trail"] = {"reset": reset, "t": [round(p[0], 3) for p in pts],
+                              "x": [round(p[1], 3) for p in pts], "y": [round(p[2], 3) for p in pts]}  # fmt: skip
+        vehicle = None
+        v = self.fleet.vehicles.get(selected) if selected else None
+        if v is not None:
+            gen, seq = cursors.get(v.name, (-1, 0))
             reset = gen != v.generation
             rows = v.rows_since(0 if reset else seq)
             if len(rows) > MAX_ROWS:  # a run faster than the eye: thin what this update carries
                 rows = rows[:: -(-len(rows) // MAX_ROWS)]
-            cursors[name] = (v.generation, v.seq)
+            cursors[v.name] = (v.generation, v.seq)
             cols = {f: [round(r[i], 5) for r in rows] for i, f in enumerate(ROW_FIELDS)}
-            out.append({**v.summary(now), "reset": reset, "rows": cols})
-        return {"vehicles": out, "fields": ROW_FIELDS}
+            vehicle = {**v.summary(now), "reset": reset, "rows": cols}
+        return {"fleet": view, "vehicle": vehicle, "fields": ROW_FIELDS}
+
+    def fleet_json(self) -> dict:
+        """``/api/fleet``: the fleet view with every vehicle's whole trail."""
+        view = self.fleet.fleet_view(time.monotonic())
+        for entry in view["vehicles"]:
+            pts = self.fleet.vehicles[entry["name"]].trail_since(0)
+            entry["trail"] = {"t": [p[0] for p in pts], "x": [p[1] for p in pts], "y": [p[2] for p in pts]}
+        return view
 
 
 def _json_safe(obj):
@@ -115,14 +165,20 @@ def make_app(dash: Dashboard):
     async def vehicles(_request: Request) -> JSONResponse:
         return JSONResponse(_json_safe({"vehicles": dash.fleet.summaries(time.monotonic())}))
 
+    async def fleet(_request: Request) -> JSONResponse:
+        return JSONResponse(_json_safe(dash.fleet_json()))
+
     hello = {"window": dash.fleet.window, "plot_rate": dash.fleet.plot_rate, "fields": ROW_FIELDS}
 
     async def stream(request: Request) -> StreamingResponse:
+        selected = request.query_params.get("vehicle") or None  # a name the fleet lacks: no plot rows
+
         async def events() -> AsyncIterator[str]:
-            cursors: dict[str, tuple[int, int]] = {}
+            cursors: dict = {}
             yield f"event: hello\ndata: {json.dumps(hello)}\n\n"
             while not dash.stopping and not await request.is_disconnected():
-                yield f"data: {json.dumps(_json_safe(dash.update(cursors)), separators=(',', ':'))}\n\n"
+                update = dash.update(cursors, selected)
+                yield f"data: {json.dumps(_json_safe(update), separators=(',', ':'))}\n\n"
                 await asyncio.sleep(dash.push_interval())
 
         return StreamingResponse(
@@ -144,6 +200,7 @@ def make_app(dash: Dashboard):
         routes=[
             Route("/", index),
             Route("/api/vehicles", vehicles),
+            Route("/api/fleet", fleet),
             Route("/api/stream", stream),
             Mount("/static", StaticFiles(directory=STATIC), name="static"),
         ],

@@ -6,6 +6,11 @@
 // the window, the reference path, the current setpoint when the horizontal position is controlled (x_ref
 // not null) and home at the origin; redrawn with the plots, from the same rows. The stored mission, when
 // there is one: its items numbered by seq and joined in order (dotted), the current item ringed.
+// The fleet view (the default while more than one vehicle is seen, or the launcher says the fleet has more):
+// a map of every vehicle in one frame (north, east metres from the origin's home; the server sends each home's
+// offset in metres) with its trail and heading, and a table of their status. A row or a marker opens that
+// vehicle's plots. The server sends the plot rows of the one vehicle shown (?vehicle=NAME) and, for the fleet,
+// only each vehicle's pose and new trail points.
 "use strict";
 
 const REDRAW_MS = 250;
@@ -29,9 +34,14 @@ const PLOTS = [
 const MAP = { height: 320, setpoint: "#d62728", home: "#2ca02c", grid: "#eee", text: "#777",
               plan: "#9467bd", current: "#ff7f0e" };
 
+const FLEET = { height: 520, grid: "#eee", text: "#555", minSpan: 4,
+                colours: ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+                          "#7f7f7f", "#bcbd22", "#17becf"] };
+
 const state = {
-  window: 20, fields: [], selected: "", vehicles: {}, data: {}, dirty: false,
+  window: 20, fields: [], selected: "", auto: true, vehicles: {}, data: {}, dirty: false,
   plots: {}, map: null, updates: 0, redraws: 0, lastT: null, mission: null,
+  fleet: [], origin: null, trails: {}, fleetDirty: false, fleetRedraws: 0, fleetMarkers: [], fleetDrawMs: [], bytesIn: 0,
 };
 window.quadsitl = state; // for scripts and tests: what the page holds and how often it redrew
 
@@ -61,7 +71,7 @@ function makePlots() {
     });
     if (!units.length) axes.push({ size: 60 });
     const opts = {
-      title: spec.title, width: box.clientWidth - 8, height: 220,
+      title: spec.title, width: Math.max(box.clientWidth - 8, 100), height: 220,
       scales, axes, legend: { live: false },
       series: [{ label: "t" }].concat(spec.series.map(([_f, label, stroke, dashed, unit]) => ({
         label, stroke, width: 1.5, dash: dashed ? [6, 4] : undefined, scale: unit || "y",
@@ -72,7 +82,7 @@ function makePlots() {
   });
   state.map = makeMap(root);
   new ResizeObserver(() => {
-    for (const p of Object.values(state.plots)) p.u.setSize({ width: p.box.clientWidth - 8, height: 220 });
+    for (const p of Object.values(state.plots)) p.u.setSize({ width: Math.max(p.box.clientWidth - 8, 100), height: 220 });
     state.dirty = true; // the map's canvas follows its box at the next redraw
   }).observe(root);
 }
@@ -234,6 +244,7 @@ function showStatus(v) {
     el.className = "v" + (cls ? " " + cls : "");
   };
   const s = v.status || {};
+  set("system_id", v.system_id === null || v.system_id === undefined ? "–" : String(v.system_id));
   set("armed", s.armed === undefined ? "–" : s.armed ? "armed" : "disarmed", s.armed ? "warn" : "");
   set("mode", s.mode || "–");
   const m = v.mission;
@@ -249,27 +260,211 @@ function showStatus(v) {
 
 function onUpdate(msg) {
   state.updates++;
+  const entries = msg.fleet.vehicles;
+  state.fleet = entries;
+  state.origin = msg.fleet.origin;
   const select = document.getElementById("vehicle");
-  for (const v of msg.vehicles) {
-    if (!(v.name in state.vehicles)) {
-      if (!Object.keys(state.vehicles).length) select.innerHTML = "";
+  for (const e of entries) {
+    if (!(e.name in state.vehicles)) {
       const o = document.createElement("option");
-      o.value = o.textContent = v.name;
+      o.value = o.textContent = e.name;
       select.appendChild(o);
     }
-    state.vehicles[v.name] = v;
-    if (!state.selected) { state.selected = v.name; select.value = v.name; }
-    if (v.name === state.selected) {
-      if (JSON.stringify(v.mission) !== JSON.stringify(state.mission)) { state.mission = v.mission; state.dirty = true; }
-      append(v.rows, v.reset);
-      showStatus(v);
-    }
+    state.vehicles[e.name] = e;
+    addTrail(e);
   }
+  state.fleetDirty = true;
+  if (state.auto) { // the view follows the fleet until someone picks one: one vehicle alone, or the fleet
+    const big = entries.some(e => e.fleet_size > 1);
+    const want = entries.length === 1 && !big ? entries[0].name : "";
+    if (want !== state.selected) { choose(want, true); return; }
+  }
+  const v = msg.vehicle;
+  if (v && v.name === state.selected) {
+    if (JSON.stringify(v.mission) !== JSON.stringify(state.mission)) { state.mission = v.mission; state.dirty = true; }
+    append(v.rows, v.reset);
+    showStatus(v);
+  }
+}
+
+// ---- the fleet view -------------------------------------------------------------------------------------
+
+function addTrail(e) {
+  const tr = e.trail;
+  let d = state.trails[e.name];
+  if (!d || tr.reset) d = state.trails[e.name] = { t: [], x: [], y: [] };
+  for (let i = 0; i < tr.t.length; i++) { d.t.push(tr.t[i]); d.x.push(tr.x[i]); d.y.push(tr.y[i]); }
+  const tEnd = d.t.length ? d.t[d.t.length - 1] : 0;
+  let cut = 0;
+  while (cut < d.t.length && d.t[cut] < tEnd - state.window) cut++;
+  if (cut) { d.t.splice(0, cut); d.x.splice(0, cut); d.y.splice(0, cut); }
+}
+
+function colourOf(k) { return FLEET.colours[k % FLEET.colours.length]; }
+
+function drawFleet() {
+  const t0 = performance.now();
+  const box = document.getElementById("fleet-map"), canvas = box.querySelector("canvas");
+  const ratio = window.devicePixelRatio || 1;
+  const W = Math.max(box.clientWidth - 8, 100), H = FLEET.height;
+  if (canvas.width !== Math.round(W * ratio) || canvas.height !== Math.round(H * ratio)) {
+    canvas.width = Math.round(W * ratio); canvas.height = Math.round(H * ratio);
+    canvas.style.width = W + "px"; canvas.style.height = H + "px";
+  }
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+  ctx.clearRect(0, 0, W, H);
+  // Each vehicle in the common frame: its home's offset (null: not known, drawn from the origin) + local x, y.
+  const placed = state.fleet.map((e, k) => {
+    const off = e.offset || [0, 0, 0], trail = state.trails[e.name] || { t: [], x: [], y: [] };
+    const at = e.pose && e.pose[0] !== null && e.pose[1] !== null ? [off[0] + e.pose[0], off[1] + e.pose[1]] : null;
+    return { e, k, off, trail, at, known: !!e.offset };
+  });
+  let minN = Infinity, maxN = -Infinity, minE = Infinity, maxE = -Infinity;
+  const grow = (n, east) => {
+    if (n === null || east === null) return;
+    if (n < minN) minN = n; if (n > maxN) maxN = n; if (east < minE) minE = east; if (east > maxE) maxE = east;
+  };
+  for (const p of placed) {
+    grow(p.off[0], p.off[1]);
+    if (p.at) grow(p.at[0], p.at[1]);
+    const tr = p.trail;
+    for (let i = 0; i < tr.t.length; i++) if (tr.x[i] !== null && tr.y[i] !== null) grow(p.off[0] + tr.x[i], p.off[1] + tr.y[i]);
+  }
+  if (minN === Infinity) { minN = maxN = minE = maxE = 0; }
+  const cN = (minN + maxN) / 2, cE = (minE + maxE) / 2;
+  const span = Math.max(maxN - minN, maxE - minE, FLEET.minSpan) * 1.2;
+  const scale = Math.min(W, H) / span; // px per metre, both axes
+  const px = east => W / 2 + (east - cE) * scale, py = north => H / 2 - (north - cN) * scale;
+  const step = gridStep(span, 6);
+  ctx.strokeStyle = FLEET.grid; ctx.lineWidth = 1; ctx.beginPath();
+  for (let e = Math.ceil((cE - W / 2 / scale) / step) * step; e <= cE + W / 2 / scale; e += step) {
+    ctx.moveTo(px(e), 0); ctx.lineTo(px(e), H);
+  }
+  for (let v = Math.ceil((cN - H / 2 / scale) / step) * step; v <= cN + H / 2 / scale; v += step) {
+    ctx.moveTo(0, py(v)); ctx.lineTo(W, py(v));
+  }
+  ctx.stroke();
+  ctx.fillStyle = FLEET.text; ctx.font = "11px system-ui, sans-serif";
+  ctx.fillText(`grid ${step} m`, 6, H - 6);
+  const markers = [];
+  for (const p of placed) {
+    const colour = colourOf(p.k), tr = p.trail;
+    // the trail (null breaks it), then home, then the vehicle: a triangle along its heading (yaw from north)
+    ctx.strokeStyle = colour; ctx.lineWidth = 1.5; ctx.setLineDash(p.known ? [] : [4, 3]); ctx.beginPath();
+    let pen = false;
+    for (let i = 0; i < tr.t.length; i++) {
+      if (tr.x[i] === null || tr.y[i] === null) { pen = false; continue; }
+      const X = px(p.off[1] + tr.y[i]), Y = py(p.off[0] + tr.x[i]);
+      if (pen) ctx.lineTo(X, Y); else ctx.moveTo(X, Y);
+      pen = true;
+    }
+    ctx.stroke(); ctx.setLineDash([]);
+    if (p.known) { ctx.strokeStyle = colour; ctx.lineWidth = 1.5; ctx.strokeRect(px(p.off[1]) - 4, py(p.off[0]) - 4, 8, 8); }
+    if (!p.at) continue;
+    const X = px(p.at[1]), Y = py(p.at[0]);
+    const yaw = (p.e.pose[3] || 0) * Math.PI / 180, dx = Math.sin(yaw), dy = -Math.cos(yaw);
+    ctx.beginPath();
+    ctx.moveTo(X + 13 * dx, Y + 13 * dy);
+    ctx.lineTo(X - 7 * dx + 7 * -dy, Y - 7 * dy + 7 * dx);
+    ctx.lineTo(X - 3 * dx, Y - 3 * dy);
+    ctx.lineTo(X - 7 * dx - 7 * -dy, Y - 7 * dy - 7 * dx);
+    ctx.closePath();
+    if (p.known) { ctx.fillStyle = colour; ctx.fill(); ctx.strokeStyle = "#fff"; ctx.lineWidth = 1; ctx.stroke(); }
+    else { ctx.fillStyle = "#fff"; ctx.fill(); ctx.strokeStyle = colour; ctx.lineWidth = 2; ctx.setLineDash([3, 2]); ctx.stroke(); ctx.setLineDash([]); }
+    const sid = p.e.system_id === null ? "" : ` #${p.e.system_id}`;
+    ctx.fillStyle = p.e.link === "live" ? "#222" : "#cf222e"; ctx.font = "12px system-ui, sans-serif";
+    ctx.fillText(p.e.name + sid + (p.known ? "" : " (home unknown)"), X + 11, Y - 9);
+    markers.push({ name: p.e.name, system_id: p.e.system_id, north: p.at[0], east: p.at[1], yaw: p.e.pose[3],
+                   known: p.known, px: X, py: Y });
+  }
+  state.fleetMarkers = markers;
+  box.dataset.markers = JSON.stringify(markers.map(m => ({ ...m, px: +m.px.toFixed(1), py: +m.py.toFixed(1) })));
+  box.dataset.scale = scale.toFixed(4);
+  box.dataset.step = step;
+  const o = state.origin;
+  document.getElementById("fleet-origin").textContent =
+    o ? `${o.name}'s home (${o.latitude.toFixed(6)}°, ${o.longitude.toFixed(6)}°, ${o.altitude.toFixed(1)} m)` : "no home known yet";
+  showFleetTable();
+  state.fleetRedraws++;
+  state.fleetDrawMs.push(performance.now() - t0);
+  if (state.fleetDrawMs.length > 200) state.fleetDrawMs.shift();
+}
+
+function cell(tr, k, text, cls) {
+  const td = tr.children[k];
+  if (td.textContent !== text) td.textContent = text;
+  const c = cls || "";
+  if (td.className !== c) td.className = c;
+}
+
+function showFleetTable() {
+  const body = document.querySelector("#fleet-table tbody");
+  const waiting = body.querySelector("tr.waiting");
+  if (waiting && state.fleet.length) waiting.remove();
+  state.fleet.forEach((e, k) => {
+    let tr = body.querySelector(`tr[data-name="${CSS.escape(e.name)}"]`);
+    if (!tr) {
+      tr = document.createElement("tr");
+      tr.dataset.name = e.name;
+      for (let i = 0; i < 10; i++) tr.appendChild(document.createElement("td"));
+      tr.addEventListener("click", () => choose(e.name));
+      const sw = document.createElement("span");
+      sw.className = "swatch";
+      tr.children[0].append(sw, document.createElement("span"));
+      tr.children[0].className = "name";
+      body.appendChild(tr);
+    }
+    if (body.children[k] !== tr) body.insertBefore(tr, body.children[k]);
+    tr.children[0].firstChild.style.background = colourOf(k);
+    if (tr.children[0].lastChild.textContent !== e.name) tr.children[0].lastChild.textContent = e.name;
+    cell(tr, 1, e.system_id === null ? "–" : String(e.system_id));
+    cell(tr, 2, e.mode || "–");
+    cell(tr, 3, e.armed === null ? "–" : e.armed ? "armed" : "disarmed", e.armed ? "warn" : "");
+    cell(tr, 4, e.failsafe || "–", e.failsafe && e.failsafe !== "none" ? "bad" : "ok");
+    cell(tr, 5, `${e.link} (${fmt(e.age_s * 1000, 0, " ms")})`, e.link === "live" ? "ok" : "bad");
+    cell(tr, 6, fmt(e.tick_rate, 0, " /s"));
+    cell(tr, 7, fmt(e.real_time_factor, 2, "×"));
+    cell(tr, 8, e.pose ? fmt(e.pose[2], 2, " m") : "–");
+    cell(tr, 9, e.offset ? `${e.offset[0].toFixed(1)}, ${e.offset[1].toFixed(1)} m` : e.home_note, e.offset ? "home" : "home bad");
+  });
+}
+
+function clickMap(ev) {
+  const rect = ev.target.getBoundingClientRect(), x = ev.clientX - rect.left, y = ev.clientY - rect.top;
+  let best = null, bestD = 20;
+  for (const m of state.fleetMarkers) {
+    const d = Math.hypot(m.px - x, m.py - y);
+    if (d < bestD) { best = m; bestD = d; }
+  }
+  if (best) choose(best.name);
+}
+
+// ---- choosing what to show ------------------------------------------------------------------------------
+
+function choose(name, auto) {
+  state.auto = !!auto;
+  state.selected = name;
+  document.getElementById("vehicle").value = name;
+  document.getElementById("fleet-view").hidden = !!name;
+  document.getElementById("single-view").hidden = !name;
+  document.getElementById("fleet-tab").classList.toggle("active", !name);
+  state.data = emptyData(); // the next update for it carries its whole window: ask for it afresh
+  state.mission = null;
+  state.lastT = null;
+  state.dirty = state.fleetDirty = true;
+  if (stream) stream.close();
+  stream = connect();
+}
+
+function redrawAny() {
+  if (state.selected) redraw();
+  else if (state.fleetDirty) { state.fleetDirty = false; drawFleet(); }
 }
 
 function connect() {
   const badge = document.getElementById("connection");
-  const es = new EventSource("/api/stream");
+  const es = new EventSource("/api/stream" + (state.selected ? "?vehicle=" + encodeURIComponent(state.selected) : ""));
   es.addEventListener("hello", e => {
     const h = JSON.parse(e.data);
     state.window = h.window;
@@ -278,20 +473,19 @@ function connect() {
     document.getElementById("window").textContent = h.window;
     document.getElementById("plot-rate").textContent = h.plot_rate;
   });
-  es.onmessage = e => onUpdate(JSON.parse(e.data));
+  es.onmessage = e => { state.bytesIn += e.data.length; onUpdate(JSON.parse(e.data)); };
   es.onopen = () => { badge.textContent = "connected"; badge.className = "badge ok"; };
   es.onerror = () => { badge.textContent = "reconnecting"; badge.className = "badge bad"; };
   return es;
 }
 
-document.getElementById("vehicle").addEventListener("change", e => {
-  state.selected = e.target.value;
-  state.data = emptyData(); // the next update for it carries its whole window: ask for it afresh
-  state.mission = null;
-  stream.close();
-  stream = connect();
-});
+document.getElementById("vehicle").addEventListener("change", e => choose(e.target.value));
+document.getElementById("fleet-tab").addEventListener("click", () => choose(""));
+document.querySelector("#fleet-map canvas").addEventListener("click", clickMap);
+new ResizeObserver(() => { state.fleetDirty = true; }).observe(document.getElementById("fleet-view"));
 
+let stream = null;
+state.choose = choose; // for scripts and tests: show one vehicle (its name) or the fleet ("")
 makePlots();
-let stream = connect();
-setInterval(redraw, REDRAW_MS);
+choose("", true);
+setInterval(redrawAny, REDRAW_MS);
