@@ -35,6 +35,7 @@ from groundstation.launcher import (
     compile_once,
     describe,
     keep_dashboard,
+    publish_info,
     signing_env,
     start_dashboard,
     write_report,
@@ -99,6 +100,7 @@ def fly_fleet(args: argparse.Namespace) -> int:
 
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
     gcs_names = [f"gcs {v.name}" for v in fleet]
+    info = None
     try:
         compile_once(children.env)
         plant = ["sitl", "--preset", args.preset, "--speed", str(args.speed), "--hold-until-armed",
@@ -124,6 +126,7 @@ def fly_fleet(args: argparse.Namespace) -> int:
         if args.integrator:
             plant += ["--integrator", args.integrator]
         children.start("plant", plant + wind_argv(args) + state_argv(args) + quiet)
+        info = publish_info(fleet, zenoh_ep)  # system ids and homes, for the dashboard's fleet view
         if web_port is not None:
             print(f"quadsitl fly: dashboard at {start_dashboard(children, web_port, zenoh_ep)}", flush=True)
         for v, api_port in zip(fleet, gcs_ports, strict=True):
@@ -154,6 +157,8 @@ def fly_fleet(args: argparse.Namespace) -> int:
                 return 1
             if all(children.procs[name].poll() == 0 for name in gcs_names):
                 break
+            if info is not None:
+                info.tick(time.monotonic())
             time.sleep(0.05)
         for name in list(children.procs):
             if name != "dashboard":
@@ -170,6 +175,8 @@ def fly_fleet(args: argparse.Namespace) -> int:
         print(f"quadsitl fly: error: {exc}; stopping the others", file=sys.stderr)
         return 1
     finally:
+        if info is not None:
+            info.close()
         children.stop()
     return 0
 
