@@ -20,10 +20,12 @@ machines drift:
 6. the sweeps' batch engine: vehicle-steps per second of ``quadsitl sweep``'s engine (the paper's controller and
    plant, 5 s trials), in one process and over one worker process per core, against ``quadsitl sim``'s scalar
    loop (the same compiled equations, called from Python once per tick).
-7. fleets: N vehicles at once (N autopilot and N plant processes), growing N. In real time at 1 kHz, the worst
-   vehicle's deadline-miss ratio against one vehicle's, with CPU (% of a core) and memory per vehicle;
-   ``fleet_max_realtime`` is the largest N whose every vehicle misses under 1 % of its deadlines. In lockstep, the
-   fleet's ticks per second (all vehicles) against one vehicle's.
+7. fleets: N vehicles at once (N autopilot processes and one plant process on one clock, as ``up --vehicles N``),
+   growing N. In real time at 1 kHz, with the dashboard's page open when the machine has a browser: the worst
+   vehicle's deadline-miss ratio (its tick started late, or its autopilot's answer missed the period) against one
+   vehicle's, with CPU (% of a core) and memory per vehicle; ``fleet_max_realtime`` is the largest N whose every
+   vehicle misses under 1 % of its periods. In lockstep, the fleet's ticks per second (all vehicles) against one
+   vehicle's.
 """
 
 from __future__ import annotations
@@ -331,10 +333,12 @@ def bench_fanout(r: Report, workdir: Path, nice: int) -> None:
 
 
 @contextlib.contextmanager
-def dashboard_page(browser, endpoint: str) -> Iterator[object]:
-    """``quadsitl dashboard`` on the autopilot's Zenoh session, its page open in ``browser``."""
+def dashboard_page(browser, endpoint: str | Sequence[str]) -> Iterator[object]:
+    """``quadsitl dashboard`` on the autopilots' Zenoh sessions (an endpoint, or several), its page open in
+    ``browser``."""
     port = free_port(socket.SOCK_STREAM)
-    dash = _python("groundstation.dashboard.server", "--port", str(port), "--zenoh-connect", endpoint, "--quiet")
+    connect = [a for e in ([endpoint] if isinstance(endpoint, str) else endpoint) for a in ("--zenoh-connect", e)]
+    dash = _python("groundstation.dashboard.server", "--port", str(port), *connect, "--quiet")
     page = browser.new_page(viewport={"width": 1400, "height": 1100})
     try:
         end = time.monotonic() + 20
@@ -509,19 +513,53 @@ def _wait_heartbeat(api_port: int, timeout: float = 60.0) -> None:
         gcs.close()
 
 
-def fleet_run(n: int, workdir: Path, ticks: int, mode: str) -> dict:
+FIFO_PRIORITY = 10  # SCHED_FIFO's priority for a fleet's processes, as `chrt -f 10 quadsitl up ...` gives them
+
+
+@contextlib.contextmanager
+def fifo_scheduling(enabled: bool) -> Iterator[None]:
+    """While entered (and ``enabled``), this process runs under SCHED_FIFO at FIFO_PRIORITY, so the processes it
+    starts inherit it, as under ``chrt -f``; PermissionError without root or CAP_SYS_NICE."""
+    if not enabled:
+        yield
+        return
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
+
+
+def fifo_missing() -> str | None:
+    """Why this machine cannot run a fleet under SCHED_FIFO (one line), or None when it can."""
+    try:
+        with fifo_scheduling(True):
+            return None
+    except (PermissionError, AttributeError, OSError) as exc:
+        return f"SCHED_FIFO is not permitted here ({exc}): it needs root or CAP_SYS_NICE"
+
+
+def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | None = None, fifo: bool = False
+              ) -> dict:  # fmt: skip
     """``n`` vehicles (an autopilot each and one plant process simulating all of them on one clock, as ``quadsitl up
     --vehicles N`` runs them, the paper preset) flying ``ticks`` ticks in ``mode`` (``realtime`` or ``lockstep``).
     The vehicles are not armed: an autopilot armed in hold on the ground idles (no control law) as a disarmed one
     does, and the law is about 1 µs of a tick's ~100 µs, so every tick costs what a flying one does, without a race
     to arm a short lockstep run before it ends. Returns the deadline-miss ratio of the fleet's clock (real time),
     the fleet's ticks per second (all vehicles' ticks over the wall time from the autopilots' first answers), and
-    CPU [% of a core] and memory [MB] per vehicle (its autopilot and its share of the plant process)."""
+    CPU [% of a core] and memory [MB] per vehicle (its autopilot and its share of the plant process). With a
+    ``browser``, the dashboard watches every vehicle, its page open there (the fleet view, for several), as a user
+    watching the fleet would have it; its CPU is not counted in the vehicles'. ``fifo``: the autopilots and the
+    plant run under SCHED_FIFO (:func:`fifo_scheduling`); the dashboard does not (it runs at idle priority)."""
     with contextlib.ExitStack() as stack:
-        aps = [stack.enter_context(autopilot_process(workdir)) for _ in range(n)]
+        with fifo_scheduling(fifo):
+            aps = [stack.enter_context(autopilot_process(workdir)) for _ in range(n)]
         ap_pids = [pid for _, _, _, pid in aps]
         for _, api, _, _ in aps:
             _wait_heartbeat(api)
+        if browser is not None:
+            stack.enter_context(dashboard_page(browser, [endpoint for _, _, endpoint, _ in aps]))
         stats = workdir / f"fleet-{n}-{mode}-{time.monotonic_ns()}.json"
         ap_cpu0 = [_cpu_seconds(pid) for pid in ap_pids]
         started = time.monotonic()
@@ -529,7 +567,8 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str) -> dict:
                 "--mode", mode]  # fmt: skip
         for plant_port, _, _, _ in aps:
             argv += ["--autopilot", f"127.0.0.1:{plant_port}"]
-        plant = subprocess.Popen(argv, stderr=subprocess.DEVNULL)
+        with fifo_scheduling(fifo):
+            plant = subprocess.Popen(argv, stderr=subprocess.DEVNULL)
         try:
             rss = [_rss_mb(pid) for pid in ap_pids]
             _, status, usage = os.wait4(plant.pid, 0)  # reaped here, with its CPU time and peak memory
@@ -550,6 +589,7 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str) -> dict:
         # a vehicle misses a period when its plant tick starts late (the fleet's clock) or when its autopilot's
         # answer does not come within it (the vehicle flies the previous command)
         "worst_miss_ratio": max([res.get("deadline_miss_ratio", 0.0), *res.get("answer_miss_ratios", [0.0])]),
+        "answer_miss_ratios": res.get("answer_miss_ratios", []),
         "ticks_per_s": n * res["ticks_per_s"],  # the fleet's clock's ticks per second, once per vehicle
         "cpu_per_vehicle_pct": 100.0 * (ap_cpu + plant_cpu) / wall / n,
         "memory_per_vehicle_mb": sum(rss) / n,
@@ -557,27 +597,52 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str) -> dict:
 
 
 def bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float) -> dict:
-    r.section(f"7. fleets: N vehicles at once, {seconds:g} s at 1 kHz in real time, then in lockstep")
+    """See the module's docstring (7.); the real-time runs with the dashboard's page open when this machine has
+    Playwright and Chromium (said in the section's title)."""
+    with contextlib.ExitStack() as stack:
+        browser = None
+        if browser_missing() is None:
+            from benchmarks.browser import chromium
+
+            browser = stack.enter_context(chromium())
+        return _bench_fleet(r, workdir, sizes, seconds, browser)
+
+
+def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float, browser: object | None) -> dict:
+    watched = "the dashboard open in headless Chromium"
+    if browser is None:
+        watched = f"no dashboard: {browser_missing()}"
+    r.section(f"7. fleets: N vehicles at once, {seconds:g} s at 1 kHz in real time ({watched}), then in lockstep")
     ticks = round(seconds * 1000)
-    one_rt = fleet_run(1, workdir, ticks, "realtime")
+    out: dict[str, object] = {"fleet_dashboard_open": browser is not None}
+    why_not_fifo = fifo_missing()
+    for fifo, key, how in ((False, "fleet_max_realtime", "default scheduling"),
+                           (True, "fleet_max_realtime_fifo", f"SCHED_FIFO {FIFO_PRIORITY}")):  # fmt: skip
+        if fifo and why_not_fifo:
+            r.add(f"real time under SCHED_FIFO: not measured: {why_not_fifo}", 0, "")
+            out[key] = None
+            continue
+        one = fleet_run(1, workdir, ticks, "realtime", browser, fifo)
+        largest = 0
+        for n in sizes:
+            rt = one if n == 1 else fleet_run(n, workdir, ticks, "realtime", browser, fifo)
+            r.add(f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio", rt["worst_miss_ratio"],
+                  "ratio", one["worst_miss_ratio"], "one vehicle", ratio=None)  # fmt: skip
+            r.add(f"fleet of {n}, real time, {how}: the clock's deadline-miss ratio (ticks started a period late)",
+                  rt["clock_miss_ratio"], "ratio", one["clock_miss_ratio"], "one vehicle", ratio=None)  # fmt: skip
+            r.add(f"fleet of {n}, real time, {how}: CPU per vehicle", rt["cpu_per_vehicle_pct"], "% of a core")
+            r.add(f"fleet of {n}, real time, {how}: memory per vehicle", rt["memory_per_vehicle_mb"], "MB")
+            if rt["worst_miss_ratio"] >= 0.01:
+                break  # the next sizes would miss more
+            largest = n
+        out[key] = largest
     lockstep_ticks = 4 * ticks  # a few seconds at several times real time
     one_ls = fleet_run(1, workdir, lockstep_ticks, "lockstep")
-    largest = 0
     for n in sizes:
-        rt = one_rt if n == 1 else fleet_run(n, workdir, ticks, "realtime")
-        r.add(f"fleet of {n}, real time: worst vehicle's deadline-miss ratio", rt["worst_miss_ratio"], "ratio",
-              one_rt["worst_miss_ratio"], "one vehicle", ratio=None)  # fmt: skip
-        r.add(f"fleet of {n}, real time: the clock's deadline-miss ratio (its ticks that started a period late)",
-              rt["clock_miss_ratio"], "ratio", one_rt["clock_miss_ratio"], "one vehicle", ratio=None)  # fmt: skip
-        r.add(f"fleet of {n}, real time: CPU per vehicle", rt["cpu_per_vehicle_pct"], "% of a core")
-        r.add(f"fleet of {n}, real time: memory per vehicle", rt["memory_per_vehicle_mb"], "MB")
         ls = one_ls if n == 1 else fleet_run(n, workdir, lockstep_ticks, "lockstep")
         r.add(f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)",
               ls["ticks_per_s"], "1/s", one_ls["ticks_per_s"], "one vehicle")  # fmt: skip
-        if rt["worst_miss_ratio"] >= 0.01:
-            break  # the next sizes would miss more
-        largest = n
-    return {"fleet_max_realtime": largest}
+    return out
 
 
 def optional_parts_missing(parts: Sequence[str]) -> dict[str, str]:
