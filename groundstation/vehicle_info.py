@@ -52,14 +52,7 @@ def encode_info(system_id: int, home: tuple[float, float, float], preset: str = 
 def decode_info(payload: bytes) -> dict:
     """An info document → {system_id, home: (lat, lon, alt), preset, vehicles}, checked. Raises ValueError naming
     what is wrong (too long, not JSON, a missing or mistyped field, a value out of range)."""
-    if len(payload) > MAX_INFO_BYTES:
-        raise ValueError(f"info: {len(payload)} bytes, at most {MAX_INFO_BYTES}")
-    try:
-        doc = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"info: not JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise ValueError(f"info: expected an object, got {type(doc).__name__}")
+    doc = telemetry.json_object(payload, "info", MAX_INFO_BYTES)
 
     def integer(name: str, lo: int, hi: int, default: int | None = None) -> int:
         v = doc.get(name, default)

@@ -216,6 +216,24 @@ def start_process(quiet_gc: bool = True) -> None:
         quiet_garbage_collector()
 
 
+def clock_above_its_peers() -> bool:
+    """Under a real-time policy (``chrt -f P quadsitl up ...``: every process inherits SCHED_FIFO or SCHED_RR at P),
+    raise this process one priority above the others: the plant, whose clock every vehicle's period hangs on,
+    then never waits behind an autopilot. True when it did; nothing under the default policy, or when the system
+    refuses (no root or CAP_SYS_NICE)."""
+    try:
+        policy = os.sched_getscheduler(0)
+        if policy not in (os.SCHED_FIFO, os.SCHED_RR):
+            return False
+        priority = os.sched_getparam(0).sched_priority
+        if priority >= os.sched_get_priority_max(policy):
+            return False
+        os.sched_setscheduler(0, policy, os.sched_param(priority + 1))
+    except (AttributeError, OSError):
+        return False
+    return True
+
+
 class StopRequested(KeyboardInterrupt):
     """Raised in the main thread by SIGINT or SIGTERM once :func:`handle_stop_signals` has run. It is a
     KeyboardInterrupt, so every ``except KeyboardInterrupt`` (and every ``finally``) handles SIGTERM exactly as

@@ -122,17 +122,24 @@ def encode_mission(version: int, current: int, state: int, items: Sequence[dict]
     return json.dumps(doc, separators=(",", ":"), allow_nan=False).encode()
 
 
-def decode_mission(payload: bytes) -> dict:
-    """A mission document → the dict :func:`encode_mission` wrote, checked field by field. Raises ValueError
-    naming what is wrong (too long, not JSON, a missing or mistyped field, a value out of range)."""
-    if len(payload) > MAX_MISSION_BYTES:
-        raise ValueError(f"mission: {len(payload)} bytes, at most {MAX_MISSION_BYTES}")
+def json_object(payload: bytes, what: str, limit: int) -> dict:
+    """A JSON document's object, or a ValueError naming ``what`` it was: longer than ``limit`` bytes, not JSON, not
+    an object."""
+    if len(payload) > limit:
+        raise ValueError(f"{what}: {len(payload)} bytes, at most {limit}")
     try:
         doc = json.loads(payload)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"mission: not JSON ({exc})") from None
+        raise ValueError(f"{what}: not JSON ({exc})") from None
     if not isinstance(doc, dict):
-        raise ValueError(f"mission: expected an object, got {type(doc).__name__}")
+        raise ValueError(f"{what}: expected an object, got {type(doc).__name__}")
+    return doc
+
+
+def decode_mission(payload: bytes) -> dict:
+    """A mission document → the dict :func:`encode_mission` wrote, checked field by field. Raises ValueError
+    naming what is wrong (too long, not JSON, a missing or mistyped field, a value out of range)."""
+    doc = json_object(payload, "mission", MAX_MISSION_BYTES)
 
     def integer(obj: dict, name: str, lo: int, hi: int) -> int:
         v = obj.get(name)

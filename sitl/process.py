@@ -62,6 +62,7 @@ from quadsitl.process_util import (
     PLANT_DIVERGED,
     SpinThenBlock,
     bind_udp,
+    clock_above_its_peers,
     parse_address,
     readable_of,
     set_receive_timeout,
@@ -596,6 +597,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
     period = vehicles[0].plant.period
+    if args.mode == "realtime":
+        clock_above_its_peers()  # under chrt -f: the clock one priority above the autopilots
     start = time.monotonic()
     starts: list[float] = []
     try:
