@@ -104,6 +104,28 @@ function makeMap(root) {
 }
 
 // A "nice" grid step (1, 2 or 5 × 10^k) for a span [m] shown over about `lines` grid lines.
+// A map seen from above, north up and east right at equal scales, holding the box [minN, maxN, minE, maxE] [m]
+// (at least minSpan metres, times pad): draws its grid (about `lines` lines, its spacing printed) in style's
+// colours and returns the projections px(east), py(north), the scale [px per metre] and the grid step [m].
+function mapFrame(ctx, W, H, [minN, maxN, minE, maxE], minSpan, pad, lines, style) {
+  const cN = (minN + maxN) / 2, cE = (minE + maxE) / 2;
+  const span = Math.max(maxN - minN, maxE - minE, minSpan) * pad;
+  const scale = Math.min(W, H) / span;
+  const px = east => W / 2 + (east - cE) * scale, py = north => H / 2 - (north - cN) * scale;
+  const step = gridStep(span, lines);
+  ctx.strokeStyle = style.grid; ctx.lineWidth = 1; ctx.beginPath();
+  for (let e = Math.ceil((cE - W / 2 / scale) / step) * step; e <= cE + W / 2 / scale; e += step) {
+    ctx.moveTo(px(e), 0); ctx.lineTo(px(e), H);
+  }
+  for (let v = Math.ceil((cN - H / 2 / scale) / step) * step; v <= cN + H / 2 / scale; v += step) {
+    ctx.moveTo(0, py(v)); ctx.lineTo(W, py(v));
+  }
+  ctx.stroke();
+  ctx.fillStyle = style.text; ctx.font = "11px system-ui, sans-serif";
+  ctx.fillText(`grid ${step} m`, 6, H - 6);
+  return { px, py, scale, step };
+}
+
 function gridStep(span, lines) {
   const raw = span / lines, k = Math.pow(10, Math.floor(Math.log10(raw)));
   return [1, 2, 5, 10].map(m => m * k).find(s => s >= raw);
@@ -132,22 +154,7 @@ function drawMap() {
   const mission = state.mission;
   const placed = mission ? mission.items.filter(it => it.x !== null && it.y !== null) : [];
   for (const it of placed) grow(it.x, it.y);
-  const cN = (minN + maxN) / 2, cE = (minE + maxE) / 2;
-  const span = Math.max(maxN - minN, maxE - minE, 2) * 1.1;
-  const scale = Math.min(W, H) / span; // px per metre
-  const px = east => W / 2 + (east - cE) * scale, py = north => H / 2 - (north - cN) * scale;
-  // Grid and its spacing.
-  const step = gridStep(span, 5);
-  ctx.strokeStyle = MAP.grid; ctx.lineWidth = 1; ctx.beginPath();
-  for (let e = Math.ceil((cE - W / 2 / scale) / step) * step; e <= cE + W / 2 / scale; e += step) {
-    ctx.moveTo(px(e), 0); ctx.lineTo(px(e), H);
-  }
-  for (let v = Math.ceil((cN - H / 2 / scale) / step) * step; v <= cN + H / 2 / scale; v += step) {
-    ctx.moveTo(0, py(v)); ctx.lineTo(W, py(v));
-  }
-  ctx.stroke();
-  ctx.fillStyle = MAP.text; ctx.font = "11px system-ui, sans-serif";
-  ctx.fillText(`grid ${step} m`, 6, H - 6);
+  const { px, py, scale } = mapFrame(ctx, W, H, [minN, maxN, minE, maxE], 2, 1.1, 5, MAP);
   // The measured path, then the reference dashed over it (where they coincide, both show): null breaks a line.
   const trail = (xs, ys, color, dash, width) => {
     ctx.strokeStyle = color; ctx.lineWidth = width; ctx.setLineDash(dash); ctx.beginPath();
@@ -332,21 +339,7 @@ function drawFleet() {
     for (let i = 0; i < tr.t.length; i++) if (tr.x[i] !== null && tr.y[i] !== null) grow(p.off[0] + tr.x[i], p.off[1] + tr.y[i]);
   }
   if (minN === Infinity) { minN = maxN = minE = maxE = 0; }
-  const cN = (minN + maxN) / 2, cE = (minE + maxE) / 2;
-  const span = Math.max(maxN - minN, maxE - minE, FLEET.minSpan) * 1.2;
-  const scale = Math.min(W, H) / span; // px per metre, both axes
-  const px = east => W / 2 + (east - cE) * scale, py = north => H / 2 - (north - cN) * scale;
-  const step = gridStep(span, 6);
-  ctx.strokeStyle = FLEET.grid; ctx.lineWidth = 1; ctx.beginPath();
-  for (let e = Math.ceil((cE - W / 2 / scale) / step) * step; e <= cE + W / 2 / scale; e += step) {
-    ctx.moveTo(px(e), 0); ctx.lineTo(px(e), H);
-  }
-  for (let v = Math.ceil((cN - H / 2 / scale) / step) * step; v <= cN + H / 2 / scale; v += step) {
-    ctx.moveTo(0, py(v)); ctx.lineTo(W, py(v));
-  }
-  ctx.stroke();
-  ctx.fillStyle = FLEET.text; ctx.font = "11px system-ui, sans-serif";
-  ctx.fillText(`grid ${step} m`, 6, H - 6);
+  const { px, py, scale, step } = mapFrame(ctx, W, H, [minN, maxN, minE, maxE], FLEET.minSpan, 1.2, 6, FLEET);
   const markers = [];
   for (const p of placed) {
     const colour = colourOf(p.k), tr = p.trail;
