@@ -126,6 +126,21 @@ function mapFrame(ctx, W, H, [minN, maxN, minE, maxE], minSpan, pad, lines, styl
   return { px, py, scale, step };
 }
 
+// A map's canvas as wide as its box and `height` px high (CSS pixels, sharp on any pixel ratio), cleared:
+// its context and size.
+function clearCanvas(box, canvas, height) {
+  const ratio = window.devicePixelRatio || 1;
+  const W = Math.max(box.clientWidth - 8, 100), H = height;
+  if (canvas.width !== Math.round(W * ratio) || canvas.height !== Math.round(H * ratio)) {
+    canvas.width = Math.round(W * ratio); canvas.height = Math.round(H * ratio);
+    canvas.style.width = W + "px"; canvas.style.height = H + "px";
+  }
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+  ctx.clearRect(0, 0, W, H);
+  return { ctx, W, H };
+}
+
 function gridStep(span, lines) {
   const raw = span / lines, k = Math.pow(10, Math.floor(Math.log10(raw)));
   return [1, 2, 5, 10].map(m => m * k).find(s => s >= raw);
@@ -134,15 +149,7 @@ function gridStep(span, lines) {
 function drawMap() {
   const { box, canvas } = state.map;
   const d = state.data, n = d.t ? d.t.length : 0;
-  const ratio = window.devicePixelRatio || 1;
-  const W = Math.max(box.clientWidth - 8, 100), H = MAP.height;
-  if (canvas.width !== Math.round(W * ratio) || canvas.height !== Math.round(H * ratio)) {
-    canvas.width = Math.round(W * ratio); canvas.height = Math.round(H * ratio);
-    canvas.style.width = W + "px"; canvas.style.height = H + "px";
-  }
-  const ctx = canvas.getContext("2d");
-  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
-  ctx.clearRect(0, 0, W, H);
+  const { ctx, W, H } = clearCanvas(box, canvas, MAP.height);
   // Bounds over everything drawn (home included), equal scales, at least ±1 m, 10 % margin.
   let minN = 0, maxN = 0, minE = 0, maxE = 0;
   const grow = (north, east) => {
@@ -312,15 +319,7 @@ function colourOf(k) { return FLEET.colours[k % FLEET.colours.length]; }
 function drawFleet() {
   const t0 = performance.now();
   const box = document.getElementById("fleet-map"), canvas = box.querySelector("canvas");
-  const ratio = window.devicePixelRatio || 1;
-  const W = Math.max(box.clientWidth - 8, 100), H = FLEET.height;
-  if (canvas.width !== Math.round(W * ratio) || canvas.height !== Math.round(H * ratio)) {
-    canvas.width = Math.round(W * ratio); canvas.height = Math.round(H * ratio);
-    canvas.style.width = W + "px"; canvas.style.height = H + "px";
-  }
-  const ctx = canvas.getContext("2d");
-  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
-  ctx.clearRect(0, 0, W, H);
+  const { ctx, W, H } = clearCanvas(box, canvas, FLEET.height);
   // Each vehicle in the common frame: its home's offset (null: not known, drawn from the origin) + local x, y.
   const placed = state.fleet.map((e, k) => {
     const off = e.offset || [0, 0, 0], trail = state.trails[e.name] || { t: [], x: [], y: [] };
