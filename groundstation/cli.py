@@ -5,6 +5,7 @@
     quadsitl up       plant and autopilot on PX4 SITL's ports, for QGroundControl, MAVProxy, MAVSDK
     quadsitl dashboard  live telemetry of every vehicle on Zenoh, in the browser
     quadsitl replay   play a recorded telemetry.csv or .tlog back onto Zenoh
+    quadsitl router   a Zenoh router, for telemetry across machines
     quadsitl presets  list the shipped presets, or show one
     quadsitl gains    check backstepping gains against the paper's conditions (41)–(44)
     quadsitl sweep    Monte-Carlo sweeps: many trials batched on the compiled equations, a table and its summary
@@ -268,6 +269,7 @@ PROCESSES = {
     "bench": ("benchmarks.bench", "measure the SITL's speed against this machine's own baselines"),
     "dashboard": ("groundstation.dashboard.server", "live telemetry dashboard in the browser, fed by Zenoh"),
     "replay": ("groundstation.replay", "play a recorded telemetry.csv or .tlog back onto Zenoh"),
+    "router": ("groundstation.router", "a Zenoh router, for telemetry across machines"),
 }
 
 
