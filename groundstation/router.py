@@ -77,6 +77,21 @@ def endpoints_of(conf, path: str) -> list[str]:
     return list(value or [])
 
 
+def router_reachable(option: str, text: str) -> None:
+    """Refuse, before anything starts, a router endpoint nothing answers on: a TCP endpoint (tcp, tls, ws) must
+    accept a connection within 3 s. A Zenoh client (the vehicles of ``up --zenoh-connect``) cannot open its
+    session without its router."""
+    proto, host, port = parse_endpoint(option, text, "tcp/10.0.0.2:7447")
+    if PROTOCOLS[proto] != socket.SOCK_STREAM:
+        return
+    try:
+        socket.create_connection((host, port), timeout=3.0).close()
+    except OSError as exc:
+        why = "no answer within 3 s" if isinstance(exc, TimeoutError) else exc.strerror or str(exc)
+        raise UsageError(f"{option} {text}: no router answers there ({why}); start it first there: quadsitl router "
+                         f"--listen {proto}/0.0.0.0:{port}") from None  # fmt: skip
+
+
 EXAMPLES = """examples:
   quadsitl router                                        # tcp/127.0.0.1:7447: this machine only
   quadsitl router --listen tcp/0.0.0.0:7447              # where other hosts reach it (open TCP 7447)
