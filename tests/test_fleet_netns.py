@@ -26,6 +26,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 SUBNET = "10.213.47"  # A is .1, B is .2: a /24 that exists only inside the two namespaces
 A_ADDR, B_ADDR = f"{SUBNET}.1", f"{SUBNET}.2"
+IP = shutil.which("ip") or next((p for p in ("/usr/sbin/ip", "/sbin/ip") if os.access(p, os.X_OK)), None)
 
 
 def unavailable() -> str | None:
@@ -33,7 +34,7 @@ def unavailable() -> str | None:
         return "needs Linux network namespaces"
     if os.geteuid() != 0:
         return "needs root to make network namespaces (ip netns add); CI runs it as root"
-    if shutil.which("ip") is None:
+    if IP is None:
         return "needs iproute2's ip (./scripts/test installs it: apt-get install iproute2)"
     return None
 
@@ -46,7 +47,7 @@ def not_here(why: str) -> None:
 
 
 def ip(*args: str) -> None:
-    r = subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10)
+    r = subprocess.run([IP, *args], capture_output=True, text=True, timeout=10)
     if r.returncode != 0:
         raise RuntimeError(f"ip {' '.join(args)}: {r.stderr.strip()}")
 
@@ -73,7 +74,7 @@ class Hosts:
 
     def start(self, ns: str, name: str, *args: str) -> subprocess.Popen:
         """``quadsitl ARGS`` in namespace ``ns``; its stdout and stderr in tmp/NAME.out and .err."""
-        argv = ["ip", "netns", "exec", ns, sys.executable, "-m", "groundstation.cli", *args]
+        argv = [IP, "netns", "exec", ns, sys.executable, "-m", "groundstation.cli", *args]
         with open(self.tmp / f"{name}.out", "w") as out, open(self.tmp / f"{name}.err", "w") as err:
             proc = subprocess.Popen(argv, cwd=ROOT, stdout=out, stderr=err, start_new_session=True)
         self.procs.append(proc)
@@ -94,7 +95,7 @@ class Hosts:
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait()
         for ns in (self.a, self.b):  # deleting a namespace deletes its end of the veth pair, and so the pair
-            subprocess.run(["ip", "netns", "del", ns], capture_output=True, timeout=10)
+            subprocess.run([IP, "netns", "del", ns], capture_output=True, timeout=10)
 
 
 @pytest.fixture
@@ -137,7 +138,7 @@ def test_two_hosts_telemetry_through_a_router_and_mavsdk_flies_vehicle_2_across(
                  "--gcs-remote", f"{B_ADDR}:14550", "--api-remote", f"{B_ADDR}:14540")  # fmt: skip
     up_started = time.time()
     client = subprocess.run(
-        ["ip", "netns", "exec", h.b, sys.executable, "-m", "tests.netns_client", "--dashboard",
+        [IP, "netns", "exec", h.b, sys.executable, "-m", "tests.netns_client", "--dashboard",
          "http://127.0.0.1:8050", "--router", "tcp/127.0.0.1:7447", "--gcs", "14550", "--api", "14541"],
         cwd=ROOT, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
