@@ -141,7 +141,7 @@ def serve(args: argparse.Namespace) -> int:
         if not args.quiet:
             where = ", ".join(endpoints_of(conf, "listen/endpoints")) or "nothing (connect only)"
             joined = endpoints_of(conf, "connect/endpoints")
-            also = f", connected to {', '.join(joined)}" if joined else ""
+            also = f", connecting to {', '.join(joined)}" if joined else ""
             print(f"quadsitl router: Zenoh router {session.zid()} listening on {where}{also}; Ctrl-C stops", flush=True)
         while True:
             time.sleep(1.0)
