@@ -6,12 +6,14 @@ version is tests/test_fleet_netns.py."""
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
+import urllib.request
 
 import pytest
 
@@ -124,10 +126,17 @@ def test_a_vehicle_of_up_sends_its_telemetry_through_a_router():
     router, _ = start_router("--listen", endpoint)
     up = subprocess.Popen([sys.executable, "-m", "groundstation.cli", "up", "--zenoh-connect", endpoint,
                            "--gcs-listen", f"127.0.0.1:{free_ports(1)}", "--gcs-remote", f"127.0.0.1:{free_port()}",
-                           "--api-listen", f"127.0.0.1:{free_ports(1)}", "--api-remote", f"127.0.0.1:{free_port()}"],
-                          stdout=subprocess.PIPE, text=True)  # fmt: skip
+                           "--api-listen", f"127.0.0.1:{free_ports(1)}", "--api-remote", f"127.0.0.1:{free_port()}",
+                           "--dashboard", "--dashboard-port", "0"], stdout=subprocess.PIPE, text=True)  # fmt: skip
     names: set[str] = set()
     try:
+        banner = ""
+        while not banner.endswith("  Ctrl-C stops.\n"):
+            line = up.stdout.readline()
+            assert line, f"up ended before its banner (status {up.wait()}): {banner}"
+            banner += line
+        assert f"  telemetry:       Zenoh through the router at {endpoint}, keys quadsitl/v1/" in banner, banner
+        url = banner.split("  dashboard:       ")[1].split()[0]
         with client_session(endpoint) as session:
             sub = session.declare_subscriber("quadsitl/*/state", lambda s: names.add(str(s.key_expr)))
             end = time.monotonic() + 60
@@ -135,11 +144,11 @@ def test_a_vehicle_of_up_sends_its_telemetry_through_a_router():
                 time.sleep(0.1)
             sub.undeclare()
         assert names == {"quadsitl/v1/state"}
+        with urllib.request.urlopen(f"{url}api/vehicles", timeout=5) as r:  # up's dashboard, through the router too
+            assert [v["name"] for v in json.load(r)["vehicles"]] == ["v1"]
     finally:
         assert stop(up) == 0
         stop(router)
-    banner = up.stdout.read()
-    assert f"  telemetry:       Zenoh through the router at {endpoint}, keys quadsitl/v1/" in banner, banner
 
 
 def test_with_a_router_every_session_is_its_client():
