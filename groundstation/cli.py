@@ -5,6 +5,7 @@
     quadsitl up       plant and autopilot on PX4 SITL's ports, for QGroundControl, MAVProxy, MAVSDK
     quadsitl dashboard  live telemetry of every vehicle on Zenoh, in the browser
     quadsitl replay   play a recorded telemetry.csv or .tlog back onto Zenoh
+    quadsitl router   a Zenoh router, for telemetry across machines
     quadsitl presets  list the shipped presets, or show one
     quadsitl gains    check backstepping gains against the paper's conditions (41)–(44)
     quadsitl sweep    Monte-Carlo sweeps: many trials batched on the compiled equations, a table and its summary
@@ -268,6 +269,7 @@ PROCESSES = {
     "bench": ("benchmarks.bench", "measure the SITL's speed against this machine's own baselines"),
     "dashboard": ("groundstation.dashboard.server", "live telemetry dashboard in the browser, fed by Zenoh"),
     "replay": ("groundstation.replay", "play a recorded telemetry.csv or .tlog back onto Zenoh"),
+    "router": ("groundstation.router", "a Zenoh router, for telemetry across machines"),
 }
 
 
@@ -308,6 +310,7 @@ EXAMPLES_UP = """examples:
   quadsitl up --speed 5                         # lockstep at 5× real time
   quadsitl up --mode realtime                   # free-running plant on the wall clock
   quadsitl up --gcs-remote 192.168.1.20:14550   # stream to a ground station on another machine
+  quadsitl up --vehicles 2 --zenoh-connect tcp/192.168.1.20:7447   # telemetry through a router there
   quadsitl up --dashboard                       # and the live dashboard at http://127.0.0.1:8050
 """
 
@@ -331,6 +334,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         if getattr(args, option) is not None:
             parse_remote("--" + option.replace("_", "-"), getattr(args, option))
     home = parse_home(args.home) or PX4_HOME
+    zenoh_and_addresses(args)
     impairment_from(args.impair, args.mode)  # refuse a bad --impair here, before starting anything
     check_vehicle_count(args.vehicles)
     presets = parse_vehicle_presets(args.vehicle_preset, args.vehicles)
@@ -346,6 +350,30 @@ def cmd_up(args: argparse.Namespace) -> int:
                        spacing=args.spacing, gcs_listen=args.gcs_listen, gcs_remote=args.gcs_remote,
                        api_listen=args.api_listen, api_remote=args.api_remote, vehicle_presets=presets)  # fmt: skip
     return up(preset, args, fleet)
+
+
+def zenoh_and_addresses(args: argparse.Namespace) -> None:
+    """``up`` across machines: the Zenoh endpoints checked and resolved (the first autopilot listens on
+    tcp/127.0.0.1:7447 unless the vehicles connect to a router instead), and a MAVLink link that streams to
+    another host binds, unless told where, the address this host reaches that host from (a loopback-bound
+    socket cannot send there), on its PX4 port."""
+    from groundstation.fleet import API_LISTEN, GCS_LISTEN, address_toward
+    from groundstation.router import router_reachable
+
+    for text in args.zenoh_connect:
+        if args.no_zenoh or args.zenoh_listen:
+            other = "--no-zenoh" if args.no_zenoh else f"--zenoh-listen {args.zenoh_listen}"
+            raise UsageError(f"--zenoh-connect {text} with {other}: expected one or the other (with a router, "
+                             "subscribers connect to the router; run one here too for a local one)")  # fmt: skip
+        router_reachable("--zenoh-connect", text)
+    if args.zenoh_listen is None and not args.zenoh_connect:
+        args.zenoh_listen = "tcp/127.0.0.1:7447"
+    for link, port in (("gcs", GCS_LISTEN), ("api", API_LISTEN)):
+        remote = getattr(args, f"{link}_remote")
+        if getattr(args, f"{link}_listen") is None and remote is not None and remote.lower() != "none":
+            host = address_toward(f"--{link}-remote", remote)
+            if not host.startswith("127."):
+                setattr(args, f"{link}_listen", f"{host}:{port}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -510,10 +538,13 @@ the source, or 'mkdocs serve' there.""",
     upp.add_argument("--home", metavar="LAT,LON,ALT", help="home position (default: PX4 SITL's, in Zürich)")
     upp.add_argument(
         "--zenoh-listen",
-        default="tcp/127.0.0.1:7447",
         metavar="ENDPOINT",
-        help="where the autopilot's Zenoh session listens (default: tcp/127.0.0.1:7447)",
+        help="where the (first) autopilot's Zenoh session listens (default: tcp/127.0.0.1:7447; none with "
+        "--zenoh-connect)",
     )
+    upp.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
+                     help="instead: every vehicle's Zenoh sessions are clients of this router, on this host or "
+                     "another (`quadsitl router`, started first; repeatable), e.g. tcp/10.0.0.2:7447")  # fmt: skip
     upp.add_argument("--no-zenoh", action="store_true", help="no Zenoh telemetry")
     add_dashboard_arguments(upp)
     upp.add_argument("--quiet", "-q", action="store_true", help="print only errors")

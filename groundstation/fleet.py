@@ -1,4 +1,5 @@
-"""A fleet's plan, pure: for ``quadsitl up --vehicles N``, each vehicle's system id, Zenoh name, MAVLink ports,
+"""A fleet's plan, pure (but :func:`address_toward`, which asks the routing table): for ``quadsitl up
+--vehicles N``, each vehicle's system id, Zenoh name, MAVLink ports,
 home and preset, by PX4's multi-vehicle SITL conventions; checked before anything starts.
 
 PX4 (``Tools/simulation/sitl_multiple_run.sh``, ``ROMFS/px4fmu_common/init.d-posix/px4-rc.mavlink``), for
@@ -22,6 +23,8 @@ vehicles are not comparable without the offsets (:attr:`VehiclePlan.offset`).
 from __future__ import annotations
 
 import math
+import socket
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from quadsitl.cli_util import UsageError
@@ -67,6 +70,29 @@ def _shifted(option: str, text: str | None, default: int, i: int) -> str:
     if port + i > 65535:
         raise UsageError(f"{option} {text}: vehicle {i + 1} would need port {port + i}, beyond 65535")
     return f"{host}:{port + i}"
+
+
+def address_toward(option: str, remote: str) -> str:
+    """The address of this host's interface that faces ``remote`` (HOST:PORT), by the routing table (a UDP
+    socket's connect sends nothing); a UsageError naming the option when there is no route or no such host."""
+    host, port = parse_address(option, remote)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        try:
+            sock.connect((host, port or 9))
+        except OSError as exc:
+            raise UsageError(f"{option} {remote}: this host cannot reach {host}: {exc.strerror or exc}") from None
+        return sock.getsockname()[0]
+
+
+def zenoh_argv(index: int, listen: str | None, routers: Sequence[str], autopilot: bool) -> list[str]:
+    """The Zenoh options of vehicle ``index``'s autopilot (or plant) in ``up``. On one host, the first autopilot
+    listens on ``listen`` and every other session connects to it (peers then find each other). With ``routers``
+    (``--zenoh-connect``, on this host or another) every session is instead a Zenoh client of the router: all
+    its telemetry goes through the router's one port, as a firewall between hosts wants (a peer would also try
+    direct connections to the other peers, on ports of their own)."""
+    if routers:
+        return ["--zenoh-mode", "client", *(arg for r in routers for arg in ("--zenoh-connect", r))]
+    return ["--zenoh-listen" if autopilot and index == 0 else "--zenoh-connect", listen] if listen else []
 
 
 def check_vehicle_count(n: int) -> None:

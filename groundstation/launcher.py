@@ -30,7 +30,7 @@ from collections.abc import Collection
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from groundstation.fleet import VehiclePlan
+from groundstation.fleet import VehiclePlan, zenoh_argv
 from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
 from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
 from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, stop_status
@@ -169,8 +169,8 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
             ap += home + state_argv(args)
             if args.no_zenoh:
                 ap.append("--no-zenoh")
-            else:  # the first vehicle's session listens, the others connect to it (and find each other)
-                ap += ["--vehicle", v.name, "--zenoh-listen" if v.index == 0 else "--zenoh-connect", args.zenoh_listen]
+            else:  # the first vehicle's session listens, the others connect to it (and find each other), or a router
+                ap += ["--vehicle", v.name, *zenoh_argv(v.index, args.zenoh_listen, args.zenoh_connect, True)]
             children.start("autopilot" + named, ap)
             plant += ["--autopilot", f"127.0.0.1:{plant_port}", "--vehicle", v.name, *home]
             if v.preset != args.preset:
@@ -181,10 +181,10 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
             plant += ["--impair", args.impair]
         plant += wind_argv(args) + state_argv(args)
         if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
-            plant += ["--zenoh-connect", args.zenoh_listen]
+            plant += zenoh_argv(0, args.zenoh_listen, args.zenoh_connect, autopilot=False)
         children.start("plant", plant + (["--quiet"] if args.quiet else []))
-        info = None if args.no_zenoh else publish_info(fleet, args.zenoh_listen)
-        url = start_dashboard(children, web_port, args.zenoh_listen) if web_port is not None else None
+        info = None if args.no_zenoh else publish_info(fleet, zenoh_endpoint(args))
+        url = start_dashboard(children, web_port, zenoh_endpoint(args)) if web_port is not None else None
         if not args.quiet:
             print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
         while True:
@@ -256,7 +256,7 @@ def check_ports_free(args, fleet: list[VehiclePlan]) -> None:
                 bind_udp(option, address).close()
             except UsageError as exc:
                 raise UsageError(f"{exc} (vehicle {v.number})" if len(fleet) > 1 else str(exc)) from None
-    if not args.no_zenoh and args.zenoh_listen.startswith("tcp/"):
+    if not args.no_zenoh and args.zenoh_listen and args.zenoh_listen.startswith("tcp/"):
         host, _, port = args.zenoh_listen[4:].rpartition(":")
         if not port.isdigit():
             raise UsageError(f"--zenoh-listen {args.zenoh_listen}: expected tcp/HOST:PORT")
@@ -272,16 +272,17 @@ def fleet_banner(fleet: list[VehiclePlan], args, dashboard_url: str | None = Non
     lines = [
         f"quadsitl up: {len(fleet)} vehicles, {args.controller or 'each preset'}'s controller, {pace}",
         f"  ground stations: every vehicle streams MAVLink to udp {gcs}"
-        + (f"    mavproxy.py --master=udpin:{gcs}" if gcs != "none" else ""),
+        + (f"    {on_host(gcs)}mavproxy.py --master=udpin:{client_address(gcs)}" if gcs != "none" else ""),
         "  vehicle  sysid  preset      north,east [m]  gcs link        api link → offboard API (MAVSDK)",
     ]
     for v in fleet:
         api = "none" if v.api_remote == "none" else f"udpin://0.0.0.0:{v.api_remote.rpartition(':')[2]}"
+        api += "" if v.api_remote == "none" else f" {on_host(v.api_remote)}".rstrip(": ")
         where = f"{v.offset[0]:6.1f},{v.offset[1]:<7.1f}"
         lines.append(f"  {v.name:7}  {v.system_id:5}  {Path(v.preset).stem[:10]:10}  {where}  {v.gcs_listen:15} "
                      f"{v.api_listen} → {api}")  # fmt: skip
     if not args.no_zenoh:
-        lines.append(f"  telemetry:       Zenoh {args.zenoh_listen}, keys quadsitl/<vehicle>/{{state,setpoint,"
+        lines.append(f"  telemetry:       Zenoh {zenoh_where(args)}, keys quadsitl/<vehicle>/{{state,setpoint,"
                      "actuators,status,mission}")  # fmt: skip
     if not args.no_zenoh:
         lines.append("  wind:            each vehicle's preset and the wind options; change one with JSON on "
@@ -290,6 +291,30 @@ def fleet_banner(fleet: list[VehiclePlan], args, dashboard_url: str | None = Non
         lines.append(f"  dashboard:       {dashboard_url}")
     lines.append("  Ctrl-C stops.")
     return "\n".join(lines)
+
+
+def on_host(remote: str) -> str:
+    """``on HOST: `` for a client that runs on another host than the vehicles' (HOST:PORT), else nothing."""
+    host = remote.rpartition(":")[0]
+    return "" if host.startswith("127.") or host == "localhost" else f"on {host}: "
+
+
+def client_address(remote: str) -> str:
+    """The address a client listens on to hear a link that streams to ``remote``: itself on this host, every
+    interface (0.0.0.0) on another."""
+    return f"0.0.0.0:{remote.rpartition(':')[2]}" if on_host(remote) else remote
+
+
+def zenoh_endpoint(args) -> str:
+    """Where a subscriber of ``up``'s telemetry connects: the first autopilot's listener, else the router."""
+    return args.zenoh_listen or args.zenoh_connect[0]
+
+
+def zenoh_where(args) -> str:
+    """The banner's Zenoh endpoints: the first autopilot's listener and the routers the sessions connect to."""
+    routers = getattr(args, "zenoh_connect", None) or []
+    via = f"through the router at {', '.join(routers)}" if routers else ""
+    return " and ".join(w for w in (args.zenoh_listen, via) if w)
 
 
 def describe_wind(w: WindParams) -> str:
@@ -321,7 +346,7 @@ def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:
             lines.append(f"  {name + ':':17}MAVLink to udp {remote}    {tool.format(remote)}")
     if not args.no_zenoh:
         lines.append(
-            f"  telemetry:       Zenoh {args.zenoh_listen}, keys quadsitl/v1/{{state,setpoint,actuators,status}}"
+            f"  telemetry:       Zenoh {zenoh_where(args)}, keys quadsitl/v1/{{state,setpoint,actuators,status}}"
         )
     lines.append(f"  wind:            {describe_wind(preset.wind)}"
                  + ("" if args.no_zenoh else "; change it with JSON on the Zenoh key quadsitl/v1/wind"))  # fmt: skip

@@ -16,7 +16,7 @@ from groundstation.offline import run_offline
 from groundstation.progress import FlightProgress, announce_if_slow, format_eta
 from quadsitl.config import load_preset
 
-COMMANDS = ["sim", "fly", "up", "presets", "gains", "sweep", "plant", "autopilot", "gcs", "bench"]
+COMMANDS = ["sim", "fly", "up", "presets", "gains", "sweep", "plant", "autopilot", "gcs", "bench", "router"]
 # "gcs: flight t = 4.10 / 5 s, 2.0× real time, ETA 1 s"
 PROGRESS_LINE = re.compile(r"^gcs: flight t = \d+\.\d\d / 5 s, \d+\.\d× real time, ETA (\d+ s|\d+:\d\d)$", re.M)
 DONE_LINE = re.compile(r"^gcs: flight t = 5\.00 / 5 s, \d+\.\d× real time, done in \d+\.\d s$", re.M)
