@@ -183,7 +183,7 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
         if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
             plant += zenoh_argv(0, args.zenoh_listen, args.zenoh_connect, autopilot=False)
         children.start("plant", plant + (["--quiet"] if args.quiet else []))
-        info = None if args.no_zenoh else publish_info(fleet, zenoh_endpoint(args))
+        info = None if args.no_zenoh else publish_info(fleet, zenoh_endpoint(args), client=bool(args.zenoh_connect))
         url = start_dashboard(children, web_port, zenoh_endpoint(args)) if web_port is not None else None
         if not args.quiet:
             print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
@@ -213,11 +213,12 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
         children.stop()
 
 
-def publish_info(fleet: list[VehiclePlan], endpoint: str):
+def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False):
     """Every vehicle's ``quadsitl/<vehicle>/info`` (system id, home, preset; groundstation.vehicle_info), put
-    once a second from a Zenoh session of the launcher's own connected to ``endpoint`` (the first autopilot's),
-    so that a dashboard anywhere on that Zenoh network places the fleet on one map. None, with a warning,
-    when the session does not open: the vehicles fly on without it."""
+    once a second from a Zenoh session of the launcher's own connected to ``endpoint`` (the first autopilot's,
+    or with ``client`` a router's, whose client it then is, as the vehicles' sessions are), so that a dashboard
+    anywhere on that Zenoh network places the fleet on one map. None, with a warning, when the session does not
+    open: the vehicles fly on without it."""
     import zenoh
 
     from groundstation.vehicle_info import InfoPublisher, encode_info
@@ -226,7 +227,7 @@ def publish_info(fleet: list[VehiclePlan], endpoint: str):
     docs = {v.name: encode_info(v.system_id, v.home, Path(v.preset).stem, len(fleet)) for v in fleet}
     session = None
     try:
-        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        session = zenoh.open(zenoh_config("client" if client else "peer", connect=[endpoint]))
         return InfoPublisher(session, docs)
     except zenoh.ZError as exc:
         if session is not None:
