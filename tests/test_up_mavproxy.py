@@ -131,3 +131,42 @@ def test_mavproxy_sees_the_vehicle_sets_parameters_arms_and_flies_offboard(mavpr
     mp.expect(r"NAV_LAND: ACCEPTED")
     mp.expect(r"^(.*> )?DISARMED", timeout=20)
     mp.expect(r"Mode LAND", seen_before=True)
+
+
+@pytest.mark.timeout(120)
+def test_mavproxy_on_the_shared_port_sees_every_vehicle_of_a_fleet_and_arms_the_one_it_targets(tmp_path):
+    """``up --vehicles 3``: one MAVProxy on the ground stations' port detects three vehicles with distinct system
+    ids; ``vehicle 3`` at its prompt points it at system id 3, and ``arm throttle`` arms vehicle 3 only (each
+    vehicle's armed flag read from its Zenoh status stream)."""
+    import zenoh
+
+    from quadsitl import telemetry
+    from tests.mavclient import fleet_up
+
+    with fleet_up(3) as v:
+        armed: dict[str, bool] = {}
+        session = zenoh.open(telemetry.zenoh_config(connect=[v.zenoh]))
+
+        def on_status(sample) -> None:
+            rows = telemetry.records("status", sample.payload.to_bytes())
+            armed[str(sample.key_expr).split("/")[1]] = bool(rows[-1][telemetry.FIELDS["status"].index("armed")])
+
+        sub = session.declare_subscriber("quadsitl/*/status", on_status)
+        mp = MAVProxy(v.gcs_port, tmp_path)
+        try:
+            seen: set[int] = set()
+            while len(seen) < 3:
+                seen.add(int(mp.expect(r"Detected vehicle (\d+):1 on link", timeout=60).group(1)))
+            assert seen == {1, 2, 3}, mp.log
+            mp.send("vehicle 3")
+            mp.send("arm throttle")
+            mp.expect(r"ARMED", timeout=30)
+            end = time.monotonic() + 10
+            while time.monotonic() < end and armed != {"v1": False, "v2": False, "v3": True}:
+                time.sleep(0.1)
+            assert armed == {"v1": False, "v2": False, "v3": True}, (armed, mp.log[-20:])
+        finally:
+            mp.close()
+            sub.undeclare()
+            session.close()
+        assert v.proc.poll() is None, "quadsitl up died while MAVProxy used it"
