@@ -259,9 +259,11 @@ def fleet_metrics(p: Plan, t: np.ndarray, track: np.ndarray) -> dict:
         }  # fmt: skip
     n = p.n
     separation = {"min_m": None, "t_s": None, "vehicles": None}
+    closest = np.full(len(t), np.nan)  # the smallest separation at each t [m]
     if n > 1:
         i, j = np.triu_indices(n, 1)
         d = np.linalg.norm(track[i] - track[j], axis=2)  # (pairs, len(t))
+        closest = d.min(axis=0)
         pair, k = np.unravel_index(int(np.argmin(d)), d.shape)
         separation = {"min_m": float(d[pair, k]), "t_s": float(t[k]), "vehicles": [int(i[pair]) + 1,
                                                                                     int(j[pair]) + 1]}  # fmt: skip
@@ -269,9 +271,7 @@ def fleet_metrics(p: Plan, t: np.ndarray, track: np.ndarray) -> dict:
         "formation": p.kind, "vehicles": n, "spacing_m": p.spacing, "altitude_m": p.altitude,
         "distance_m": p.distance, "phases": dict(zip(PHASES, p.times[:-1], strict=True)), "plan_s": p.duration,
         "per_phase": per_phase, "min_separation": separation,
-        "series": {"t": t, "formation_max_m": formation.max(axis=0),
-                   "separation_min_m": (np.min(np.linalg.norm(track[i] - track[j], axis=2), axis=0)
-                                        if n > 1 else np.full(len(t), np.nan))},
+        "series": {"t": t, "formation_max_m": formation.max(axis=0), "separation_min_m": closest},
     }  # fmt: skip
 
 

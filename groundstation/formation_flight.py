@@ -18,7 +18,6 @@ which vehicles; :func:`groundstation.formation.fleet_metrics`), ``DIR/formation.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import socket
 import sys
@@ -33,6 +32,7 @@ from groundstation.launcher import (
     FLY_DIVERGED,
     Children,
     compile_once,
+    dashboard_port,
     describe,
     keep_dashboard,
     publish_info,
@@ -71,9 +71,6 @@ def parse_formation(text: str) -> tuple[str, float, float]:
 
 def check_fleet_flight(args: argparse.Namespace) -> tuple[list[VehiclePlan], formation.Plan]:
     """The fleet and its plan, or a UsageError naming the option, before anything starts."""
-    from groundstation.fleet import check_vehicle_count
-
-    check_vehicle_count(args.vehicles)
     if args.mission:
         raise UsageError(f"--mission {args.mission} with --vehicles {args.vehicles}: a fleet flies --formation")
     if args.trajectory != "step":
@@ -96,8 +93,6 @@ def fly_fleet(args: argparse.Namespace) -> int:
     zenoh_ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     children = Children(env=signing_env(args.signing_key))
     quiet = ["--quiet"] if args.quiet else []
-    from groundstation.launcher import dashboard_port
-
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
     gcs_names = [f"gcs {v.name}" for v in fleet]
     info = None
@@ -190,9 +185,16 @@ def write_fleet_report(out: Path, fleet: list[VehiclePlan], plan: formation.Plan
     runs = []
     for v in fleet:
         folder = out / v.name
-        one = copy.copy(args)
-        one.trajectory, one.out, one.quiet, one.no_figures, one.mission = str(folder / "trajectory.csv"), str(
-            folder), True, True, None  # fmt: skip
+        one = argparse.Namespace(
+            **{
+                **vars(args),
+                "trajectory": str(folder / "trajectory.csv"),
+                "out": str(folder),
+                "quiet": True,
+                "no_figures": True,
+                "mission": None,
+            }
+        )  # its own report, quietly
         write_report(folder, with_state(with_wind(load_preset(v.preset), args), args), one)
         runs.append(read_csv(folder / "telemetry.csv"))
     t, track = formation.common_track(plan, runs)
