@@ -25,7 +25,7 @@ import sys
 import time
 from collections.abc import Sequence
 
-from quadsitl.cli_util import UsageError
+from quadsitl.cli_util import UsageError, serve_until_stopped
 from quadsitl.process_util import run_stoppable, start_process
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # Zenoh's (and zenohd's) port, on loopback as everything here by default
@@ -151,15 +151,7 @@ def serve(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     start_process(quiet_gc=False)
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return serve(args)
-    except UsageError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:  # SIGINT or SIGTERM (StopRequested): it routes until stopped, so that is its end
-        return 0
+    return serve_until_stopped(build_parser(), serve, argv)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import math
 import re
-from collections.abc import Sequence
+import sys
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, replace
 from typing import Any
 
@@ -22,6 +23,20 @@ from quadsitl.config import (
 
 class UsageError(Exception):
     """Bad command-line input: printed as one line, exit status 2."""
+
+
+def serve_until_stopped(parser: argparse.ArgumentParser, serve: Callable[[argparse.Namespace], int],
+                        argv: Sequence[str] | None) -> int:  # fmt: skip
+    """The main of a command that serves until stopped (the router, the dashboard): ``serve(args)``'s status; a
+    UsageError as one line and status 2; SIGINT or SIGTERM (StopRequested) as its end, status 0."""
+    args = parser.parse_args(argv)
+    try:
+        return serve(args)
+    except UsageError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
 
 
 def parse_floats(option: str, text: str, count: int) -> tuple[float, ...]:

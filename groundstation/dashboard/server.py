@@ -37,7 +37,7 @@ import zenoh
 from groundstation.dashboard.model import ROW_FIELDS, STALE_AFTER, Fleet
 from groundstation.vehicle_info import INFO
 from quadsitl import telemetry
-from quadsitl.cli_util import UsageError, check_range
+from quadsitl.cli_util import UsageError, check_range, serve_until_stopped
 from quadsitl.process_util import bind_tcp, run_stoppable, start_process
 
 STATIC = Path(__file__).parent / "static"
@@ -285,15 +285,7 @@ def yield_to_the_vehicle() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     start_process(quiet_gc=False)
     yield_to_the_vehicle()
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return serve(args)
-    except UsageError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:  # SIGINT or SIGTERM (StopRequested): it serves until stopped, so that is its end
-        return 0
+    return serve_until_stopped(build_parser(), serve, argv)
 
 
 if __name__ == "__main__":
