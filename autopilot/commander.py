@@ -9,7 +9,9 @@ Rules (PX4's, DESIGN.md §8–§9):
 - Boot: disarmed, HOLD. Arming is allowed in HOLD, TAKEOFF and OFFBOARD; arming into OFFBOARD needs a fresh
   setpoint stream. Switching to OFFBOARD needs a fresh setpoint stream. Home is where the vehicle arms.
 - Setpoint stream: SET_ATTITUDE_TARGET and SET_POSITION_TARGET_* feed it; it is fresh while the newest
-  arrived within ``setpoint_timeout`` seconds of *simulated* time.
+  arrived within ``setpoint_timeout`` seconds of *simulated* time, or of wall time (the shell tells,
+  :meth:`Commander.wall_clock`): a ground station lives on the wall clock and cannot keep pace with a lockstep
+  run sped up 40×, where PX4's 1 s is 25 ms of its time. The stream is lost when it is stale on both clocks.
 - OFFBOARD: each axis group flies its last setpoint: horizontal (x, y: position, velocity or acceleration;
   none given: the last attitude setpoint's roll and pitch, level before one), vertical (altitude or climb
   rate; the altitude on entering offboard until one arrives), heading (yaw, yaw rate, or the heading on
@@ -59,9 +61,10 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 # The commander's state array (positions local NED [m], altitudes up [m], velocities [m/s], angles [rad]):
 (ARMED, MODE, FAILSAFE,
  # the offboard setpoints (NaN: not given): horizontal position, velocity, acceleration; altitude, climb rate
- # and its rate; attitude; yaw and yaw rate; the time of the newest [s]; the tick the offboard flight started
+ # and its rate; attitude; yaw and yaw rate; the time of the newest [s]; whether the newest is within the
+ # timeout of wall time (1.0, set by the shell); the tick the offboard flight started
  SP_X, SP_Y, SP_VX, SP_VY, SP_AX, SP_AY, SP_ALT, SP_CLIMB, SP_CLIMB_ACC, ROLL_SP, PITCH_SP, YAW_SP, SP_YAW_RATE,
- LAST_SP_TIME, OFFBOARD_TICK,
+ LAST_SP_TIME, SP_WALL_FRESH, OFFBOARD_TICK,
  # the auto modes: the moving reference (position, velocity, acceleration), its target, the heading held,
  # the speed limit of the current leg, the phase (RTL), the takeoff altitude, the descending altitude of a
  # landing and when the vehicle came to rest (NaN: it has not)
@@ -79,7 +82,7 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
  # roll, pitch, yaw (NaN: the yaw rate alone), yaw rate; and whether the velocity limits apply
  REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
  REF_YAW_RATE, REF_LIMITED,
- SIZE) = range(74)  # fmt: skip
+ SIZE) = range(75)  # fmt: skip
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
@@ -90,7 +93,7 @@ LAND_BRAKED = 0.5  # [m/s]: a landing descends once the vehicle moves slower tha
 
 @dataclass
 class CommanderSettings:
-    setpoint_timeout: float = 1.0  # [s] simulated, like PX4's COM_OF_LOSS_T
+    setpoint_timeout: float = 1.0  # [s] simulated (and wall, see the module), like PX4's COM_OF_LOSS_T
     land_speed: float = 1.0  # [m/s] MPC_LAND_SPEED
     landed_time: float = 0.5  # [s]
     land_target: float = -0.5  # [m] the landing reference goes this far below the ground
@@ -110,7 +113,7 @@ class CommanderSettings:
 
 @jit
 def stream_fresh(cm: np.ndarray) -> bool:
-    return cm[NOW] - cm[LAST_SP_TIME] <= cm[SETPOINT_TIMEOUT]
+    return cm[NOW] - cm[LAST_SP_TIME] <= cm[SETPOINT_TIMEOUT] or cm[SP_WALL_FRESH] == 1.0
 
 
 @jit
@@ -341,6 +344,7 @@ class Commander:
         self.cm[OFFBOARD_TICK] = -1.0
         self.settings = settings or CommanderSettings()
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) to announce
+        self.setpoint_wall = -math.inf  # [s] the shell's wall clock when the newest setpoint arrived
 
     # ---- the state, by name --------------------------------------------------------------------
 
@@ -440,9 +444,17 @@ class Commander:
     def stream_fresh(self) -> bool:
         return bool(stream_fresh(self.cm))
 
-    def on_attitude_setpoint(self, roll: float | None, pitch: float | None, yaw: float | None) -> None:
+    def wall_clock(self, wall: float) -> None:
+        """The shell's wall clock [s], every few milliseconds: the setpoint stream stays fresh while its newest
+        setpoint arrived (``wall=`` of the setpoint handlers) within the timeout of wall time too."""
+        self.cm[SP_WALL_FRESH] = 1.0 if wall - self.setpoint_wall <= self.settings.setpoint_timeout else 0.0
+
+    def on_attitude_setpoint(
+        self, roll: float | None, pitch: float | None, yaw: float | None, wall: float = -math.inf
+    ) -> None:
         """A SET_ATTITUDE_TARGET (None for an axis the type_mask ignores): roll and pitch take over the
-        horizontal axes from any position, velocity or acceleration setpoint."""
+        horizontal axes from any position, velocity or acceleration setpoint. ``wall``: the shell's wall clock
+        [s] (see :meth:`wall_clock`)."""
         old = self.attitude_setpoint or (0.0, 0.0, float(self.cm[YAW]))
         cm = self.cm
         cm[ROLL_SP] = old[0] if roll is None else roll
@@ -451,22 +463,24 @@ class Commander:
         cm[SP_YAW_RATE] = math.nan
         cm[SP_X : SP_AY + 1] = math.nan
         cm[LAST_SP_TIME] = cm[NOW]
+        self.setpoint_wall = max(self.setpoint_wall, wall)
 
-    def on_altitude_setpoint(self, altitude: float | None) -> None:
+    def on_altitude_setpoint(self, altitude: float | None, wall: float = -math.inf) -> None:
         """An altitude alone (None: nothing but a sign of life for the stream)."""
         nan = math.nan
-        self.on_position_setpoint(vertical=None if altitude is None else (altitude, nan, nan))
+        self.on_position_setpoint(vertical=None if altitude is None else (altitude, nan, nan), wall=wall)
 
     def on_position_setpoint(
         self,
         horizontal: tuple[float, float, float, float, float, float] | None = None,
         vertical: tuple[float, float, float] | None = None,
         heading: tuple[float, float] | None = None,
+        wall: float = -math.inf,
     ) -> None:
         """A SET_POSITION_TARGET_*, already validated and in local NED: ``horizontal`` (x, y, vx, vy, ax, ay),
         ``vertical`` (altitude, climb rate, its rate), ``heading`` (yaw, yaw rate), NaN for a field the
         type_mask ignores; None for a group whose fields are all ignored (it stays as it was). Any setpoint
-        counts for the stream."""
+        counts for the stream. ``wall``: the shell's wall clock [s] (see :meth:`wall_clock`)."""
         cm = self.cm
         if horizontal is not None:
             cm[SP_X : SP_AY + 1] = horizontal
@@ -477,6 +491,7 @@ class Commander:
         elif horizontal is not None and not math.isnan(cm[SP_YAW_RATE]):
             cm[YAW_SP], cm[SP_YAW_RATE] = cm[YAW], math.nan  # a new setpoint without a yaw rate stops turning
         cm[LAST_SP_TIME] = cm[NOW]
+        self.setpoint_wall = max(self.setpoint_wall, wall)
 
     def arm(self) -> tuple[bool, str]:
         if self.armed:

@@ -562,7 +562,7 @@ class Autopilot:
         except setpoints.SetpointError as exc:
             self._refuse(f"position {exc.kind}", str(exc))
             return
-        self.commander.on_position_setpoint(*groups)
+        self.commander.on_position_setpoint(*groups, wall=time.monotonic())
 
     def _attitude_target(self, m) -> None:
         """SET_ATTITUDE_TARGET: the attitude reference. type_mask 128 (attitude ignored) carries no
@@ -583,7 +583,7 @@ class Autopilot:
             self._refuse("tilt", f"Attitude setpoint refused: roll {roll:.3f}, pitch {pitch:.3f} rad beyond "
                                  f"ATT_TILT_MAX {tilt:.3f} rad")  # fmt: skip
             return
-        self.commander.on_attitude_setpoint(roll, pitch, yaw)
+        self.commander.on_attitude_setpoint(roll, pitch, yaw, wall=time.monotonic())
 
     # ---- parameters ----------------------------------------------------------------------------
 
@@ -799,6 +799,7 @@ class Autopilot:
             if wall >= next_poll:
                 next_poll = wall + GCS_POLL
                 self.poll_gcs()
+                self.commander.wall_clock(wall)
                 for out in self.missions.protocol.tick(wall):  # re-requests and timeouts of mission transfers
                     self._send_mission(out)
                 timeout = self.commander.settings.datalink_timeout

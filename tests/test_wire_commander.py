@@ -97,6 +97,32 @@ def test_setpoint_loss_is_timed_in_simulated_time_and_lands():
     assert ref is None and not c.armed and c.messages[-1][1] == "Landed, disarmed"
 
 
+def test_a_ground_station_on_the_wall_clock_is_not_lost_to_a_sped_up_simulation():
+    """The stream is lost only when stale on both clocks: 40× real time, a ground station's setpoints 25 ms of
+    wall time apart are 1 s of simulated time apart, and PX4's 1 s (simulated) would land the vehicle."""
+    c = Commander(CommanderSettings(setpoint_timeout=0.5))
+    _tick(c, 0)
+    c.on_altitude_setpoint(2.0, wall=100.0)
+    c.arm()
+    c.set_mode(wire.Mode.OFFBOARD)
+    hovering = VehicleState(z=-2.0)
+    c.wall_clock(100.3)  # 0.3 s of wall time: fresh on that clock
+    for k in range(1, 2000):  # 2 s simulated: stale on that one
+        assert _tick(c, k, hovering).altitude == 2.0 and c.mode == wire.Mode.OFFBOARD
+    c.wall_clock(100.6)  # now stale on both
+    _tick(c, 2000, hovering)
+    assert c.mode == wire.Mode.LAND and c.failsafe == FAILSAFE_SETPOINT_LOST
+    # A fresh setpoint in simulated time alone keeps the stream, whatever the wall clock says (slow motion).
+    c = Commander(CommanderSettings(setpoint_timeout=0.5))
+    _tick(c, 0)
+    c.on_position_setpoint(vertical=(2.0, math.nan, math.nan), wall=100.0)
+    c.arm()
+    c.set_mode(wire.Mode.OFFBOARD)
+    c.wall_clock(105.0)
+    assert _tick(c, 400, hovering).altitude == 2.0 and c.mode == wire.Mode.OFFBOARD
+    assert _tick(c, 600, hovering).altitude != 2.0 and c.mode == wire.Mode.LAND
+
+
 def test_arming_into_offboard_without_stream_is_denied():
     c = Commander()
     _tick(c, 0)
