@@ -137,7 +137,7 @@ def test_offboard_flight_with_telemetry_mass_mismatch_and_landing(client):
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
     fly_setpoints(c, 3.0, **ref)
     hb = c.heartbeat()
-    assert hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and c.conn.flightmode == "OFFBOARD"
+    assert hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and c.conn.flightmode == "OFFBOARD", c.texts
     att, pos = c.latest["ATTITUDE"], c.latest["LOCAL_POSITION_NED"]
     assert (att.roll, att.pitch, att.yaw) == pytest.approx((0.1, -0.1, 0.5), abs=2e-3)
     assert pos.z == pytest.approx(-3.0, abs=2e-3)
