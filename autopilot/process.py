@@ -186,6 +186,7 @@ class Autopilot:
         self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom_into, self.rx)  # polls while the plant answers fast
         self.session = None
         self.pubs: dict[str, zenoh.Publisher] = {}
+        self.slow: telemetry.SlowCopies | None = None  # the overview (quadsitl/<vehicle>/slow/<stream>)
         self.plan_pub: zenoh.Publisher | None = None  # quadsitl/<vehicle>/mission: the plan, for maps
         self.plan_published: tuple = ()  # what the last mission document said (version, current, state, home)
         self.batch = Batch(BATCH_TICKS)
@@ -208,6 +209,7 @@ class Autopilot:
                     congestion_control=zenoh.CongestionControl.DROP,
                 )
             self.io[kernel.CAPACITY] = BATCH_TICKS  # records are batched only while there is a session
+            self.slow = telemetry.SlowCopies(self.session, args.vehicle)
             self.plan_pub = self.session.declare_publisher(
                 telemetry.key(args.vehicle, telemetry.MISSION), encoding=telemetry.mission_encoding()
             )
@@ -344,6 +346,8 @@ class Autopilot:
                 self.last_records[stream] = payload[-self.batch.regions[stream][1] :]
             self.io[kernel.ROWS] = 0
         self.last_flush = time.monotonic()
+        if rows and self.slow is not None:
+            self.slow.offer(self.last_records.get, self.last_flush)
 
     def _snapshot(self) -> Snapshot | None:
         latest = self.latest()
@@ -429,6 +433,8 @@ class Autopilot:
             self._send_gcs(gcs_messages.sys_status(self.load, self.errors, has_state=self.has_state()))
             for stream, record in self.last_records.items():
                 self.pubs[stream].put(record)
+            if self.slow is not None:
+                self.slow.offer(self.last_records.get, time.monotonic())
 
     def on_gcs(self, m, link: GcsLink, sender: tuple[str, int]) -> None:
         new_peer = sender not in link.peers
@@ -858,7 +864,8 @@ class Autopilot:
     def close(self) -> None:
         if self.pubs:
             self.flush_telemetry()
-        for pub in (*self.pubs.values(), *([self.plan_pub] if self.plan_pub else [])):
+        slow = list(self.slow.pubs.values()) if self.slow else []
+        for pub in (*self.pubs.values(), *slow, *([self.plan_pub] if self.plan_pub else [])):
             pub.undeclare()
         if self.session is not None:
             self.session.close()

@@ -62,6 +62,7 @@ def publish(endpoint: str, n: int, seconds: float, batch_ms: float) -> None:
     pubs = [{s: session.declare_publisher(telemetry.key(v.name, s), encoding=telemetry.encoding(s),
                                           congestion_control=zenoh.CongestionControl.DROP)
              for s in telemetry.STREAMS} for v in fleet]  # fmt: skip
+    overviews = [telemetry.SlowCopies(session, v.name) for v in fleet]  # as an autopilot puts them
     types = {s: dtype(s) for s in telemetry.STREAMS}
     start, tick = time.monotonic(), 1
     end = start + seconds
@@ -87,6 +88,7 @@ def publish(endpoint: str, n: int, seconds: float, batch_ms: float) -> None:
             rec["status"]["armed"], rec["status"]["mode"] = 1, 1
             for s, pub in p.items():
                 pub.put(rec[s].tobytes())
+            overviews[i].offer(lambda s, rec=rec: rec[s][-1:].tobytes(), now)
         tick = upto
         time.sleep(max(0.0, batch_ms / 1000 - (time.monotonic() - now)))
     info.close()

@@ -102,6 +102,7 @@ def publish(
         )
         for s in telemetry.STREAMS
     }
+    slow = telemetry.SlowCopies(session, vehicle)  # the overview, as an autopilot puts it
     try:
         wait_for_subscribers(list(pubs.values()), wait)
         n, ticks, times = len(recording), recording.ticks, recording.times
@@ -133,6 +134,7 @@ def publish(
                     pub.put(bytes(payload[s][i * sizes[s] : j * sizes[s]]))
                     stats.records[s] += j - i
                     stats.samples[s] += 1
+                slow.offer(lambda s, j=j: bytes(payload[s][(j - 1) * sizes[s] : j * sizes[s]]), now)
                 # simulated time covered: from the previous record (the first one covers one period)
                 stats.simulated += times[j - 1] - (times[i - 1] if i else times[0] - recording.period)
                 last_flush, i = now, j
@@ -141,7 +143,7 @@ def publish(
                 break
     finally:
         stats.finished = clock()
-        for pub in pubs.values():
+        for pub in (*pubs.values(), *slow.pubs.values()):
             pub.undeclare()
     return stats
 

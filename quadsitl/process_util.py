@@ -88,6 +88,7 @@ def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
 
 SPIN_ENV = "QUADSITL_SPIN_US"  # the polling budget in µs (0: always block)
 SPIN_BUDGET = 200e-6  # [s] how long a hot lockstep loop polls for the next datagram before it blocks
+HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
 SPIN_MISSES = 32  # polls that ran out of budget in a window, beyond which polling stops for a while
 SPIN_COOL = (0.25, 4.0)  # [s] how long it stops: doubling from the first to the second while it keeps failing
@@ -112,10 +113,12 @@ class SpinThenBlock:
 
     A process that blocks in ``recv`` pays a wake-up when the datagram comes, and on a virtual machine the
     wake-up of a halted core: tens of µs, more than the per-tick work of either side. A loop that is hot
-    (its previous wait was shorter than the budget: the other side answers within microseconds) polls
-    instead and does not sleep. A loop that is paced (``--speed 1``: a millisecond between datagrams) or
-    whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to blocking,
-    so it spends no CPU on polling.
+    (its last HOT_AFTER waits were each shorter than the budget: the other side answers within microseconds)
+    polls instead and does not sleep. A loop that is paced (``--speed 1``, real time: a millisecond between
+    datagrams) or whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to
+    blocking, so it spends no CPU on polling. A paced loop that finds one datagram already waiting (it was
+    late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
+    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
 
     Polling only pays while both processes have a core each. On a machine whose cores are taken by
     something else, a poller holds a core its peer needs, and the loop slows down instead: the polls
@@ -133,6 +136,7 @@ class SpinThenBlock:
         self.block = functools.partial(recv, *args)
         self.budget = spin_budget() if budget is None else budget
         self.hot = False
+        self._short = 0  # consecutive waits shorter than the budget
         self.polled = 0  # datagrams that came while polling
         self.blocked = 0  # waits that blocked
         self.cooled = 0  # times polling was stopped for not paying
@@ -162,7 +166,8 @@ class SpinThenBlock:
         try:
             return self.block()
         finally:
-            self.hot = time.perf_counter() - start < self.budget
+            self._short = self._short + 1 if time.perf_counter() - start < self.budget else 0
+            self.hot = self._short >= HOT_AFTER
 
     def _verdict(self, miss: bool) -> None:
         self._polls += 1

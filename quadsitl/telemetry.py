@@ -48,7 +48,7 @@ import argparse
 import json
 import math
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -87,6 +87,43 @@ MISSION_STATES: dict[int, str] = {0: "unknown", 1: "none", 2: "not started", 3: 
 
 def key(vehicle: str, stream: str) -> str:
     return f"{PREFIX}/{vehicle}/{stream}"
+
+
+# The overview: every publisher of the streams also puts the newest record of each, alone, on
+# quadsitl/<vehicle>/slow/<stream>, at most every SLOW_PERIOD seconds of wall time. A map of a fleet subscribes to
+# that (quadsitl/*/slow/*) and takes the full rate only of the vehicle it shows: a publisher sends a sample only
+# where a subscriber matches, so the other vehicles' full-rate streams never leave their process.
+SLOW = "slow"
+SLOW_PERIOD = 0.05  # [s] wall: 20 samples a second per stream
+
+
+def slow_key(vehicle: str, stream: str) -> str:
+    return f"{PREFIX}/{vehicle}/{SLOW}/{stream}"
+
+
+class SlowCopies:
+    """The overview's publishers of one vehicle (see SLOW): :meth:`offer` the newest record of each stream as often
+    as you like; it is put at most every SLOW_PERIOD wall seconds."""
+
+    def __init__(self, session: zenoh.Session, vehicle: str, streams: Sequence[str] = tuple(STREAMS)) -> None:
+        import zenoh
+
+        self.pubs = {s: session.declare_publisher(slow_key(vehicle, s), encoding=encoding(s),
+                                                  congestion_control=zenoh.CongestionControl.DROP)
+                     for s in streams}  # fmt: skip
+        self.due = -math.inf
+
+    def offer(self, newest: Callable[[str], bytes | None], now: float) -> bool:
+        """Put ``newest(stream)`` (one record; None: none yet) on each stream's slow key if SLOW_PERIOD has passed
+        since the last put (``now``: wall seconds, monotonic); True when it did."""
+        if now < self.due:
+            return False
+        self.due = now + SLOW_PERIOD
+        for stream, pub in self.pubs.items():
+            record = newest(stream)
+            if record:
+                pub.put(record)
+        return True
 
 
 def encoding(stream: str) -> zenoh.Encoding:

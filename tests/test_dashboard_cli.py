@@ -119,7 +119,8 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
                 stream = rng.choice([*telemetry.STREAMS, "junk"])
                 vehicle = "v1" if i % 3 else f"x{rng.randrange(500)}"
                 payload = rng.randbytes(rng.choice([0, 1, 7, 13, 50, 112, 113, 400]))
-                session.put(f"quadsitl/{vehicle}/{stream}", payload)
+                # the overview every vehicle is followed by, and the full rate a page would take
+                session.put(f"quadsitl/{vehicle}/{'slow/' if i % 2 else ''}{stream}", payload)
                 if i % 500 == 0:
                     session.put("quadsitl/a/b/c/d", b"deep")
                     session.put("elsewhere/v1/state", b"x")

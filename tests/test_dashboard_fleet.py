@@ -217,3 +217,51 @@ def test_the_launchers_info_publisher_puts_once_a_second_and_answers_a_get():
     finally:
         sub_session.close()
         pub.close()
+
+
+@pytest.mark.timeout(60)
+def test_only_a_vehicle_a_page_shows_is_followed_at_the_full_rate():
+    """Real Zenoh sessions: the dashboard follows every vehicle through its overview, and matches a vehicle's
+    full-rate publishers only while a page shows it (so the others' autopilots send nothing at the full rate)."""
+    import zenoh
+
+    from groundstation.launcher import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    pub_session = zenoh.open(telemetry.zenoh_config(listen=[endpoint]))
+    dash_session = zenoh.open(telemetry.zenoh_config(connect=[endpoint]))
+    try:
+        full = {v: pub_session.declare_publisher(telemetry.key(v, "state")) for v in ("v1", "v2")}
+        overview = {v: telemetry.SlowCopies(pub_session, v) for v in ("v1", "v2")}
+        dash = Dashboard(dash_session, Fleet())
+
+        def matching(v: str, want: bool) -> bool:
+            deadline = time.monotonic() + 5
+            while full[v].matching_status.matching != want and time.monotonic() < deadline:
+                time.sleep(0.02)
+            return full[v].matching_status.matching == want
+
+        deadline = time.monotonic() + 5
+        while set(dash.fleet.vehicles) != {"v1", "v2"} and time.monotonic() < deadline:
+            for i, o in enumerate(overview.values()):
+                o.due = -math.inf
+                o.offer(lambda s, i=i: records(s, [100 + i], **({"armed": 1, "mode": 0, "failsafe": 0,
+                                                                  "offboard_tick": -1} if s == "status" else {})),
+                        time.monotonic())  # fmt: skip
+            time.sleep(0.05)
+            dash.drain()
+        assert set(dash.fleet.vehicles) == {"v1", "v2"}  # both on the map through their overviews
+        assert dash.fleet.vehicles["v2"].latest["state"][0] == 101
+        assert matching("v1", False) and matching("v2", False)  # no page: nobody takes the full rate
+        assert dash.watch("v2") and dash.watch("v2")  # two pages show v2
+        assert matching("v2", True) and matching("v1", False)
+        dash.unwatch("v2")
+        assert matching("v2", True)  # one page still shows it
+        dash.unwatch("v2")
+        assert matching("v2", False)
+        for bad in ("", "*", "**", "a/b", "v$1", "v?", "v#"):
+            assert not dash.watch(bad) and bad not in dash.watched
+        assert matching("v1", False)
+    finally:
+        dash_session.close()
+        pub_session.close()

@@ -173,3 +173,52 @@ def test_the_mission_document_is_kept_for_the_map_and_a_bad_one_is_counted_and_i
     fleet.ingest("quadsitl/v1/mission", telemetry.encode_mission(3, 0, 1, []), 0.2)  # cleared
     cleared = fleet.summaries(0.2)[0]["mission"]
     assert cleared["items"] == [] and cleared["state_name"] == "none"
+
+
+def slow(fleet: Fleet, tick: int, wall: float, vehicle: str = "v1", x: float | None = None) -> None:
+    """The overview of tick ``tick``: each stream's record alone on quadsitl/<vehicle>/slow/<stream>."""
+    for stream in ("state", "setpoint", "actuators"):
+        rec = records(stream, [tick])
+        if stream == "state" and x is not None:
+            rec = rec[:16] + telemetry.STREAMS["state"].pack(tick, tick * T, x, *[0.0] * 11)[16:]
+        fleet.ingest(f"quadsitl/{vehicle}/slow/{stream}", rec, wall)
+    fleet.ingest(f"quadsitl/{vehicle}/slow/status", records("status", [tick], armed=1, mode=1, failsafe=0,
+                                                            offboard_tick=0), wall)  # fmt: skip
+
+
+def test_the_overview_alone_keeps_a_vehicle_on_the_map_with_rows_trail_and_rates():
+    """A vehicle followed only through its overview (20 records a second per stream, the dashboard's view of a
+    fleet's vehicles nobody shows): its latest records, a plot row and a trail point per overview tick (at most
+    TRAIL_RATE a simulated second), rates, and a new run still noticed."""
+    from groundstation.dashboard.model import TRAIL_RATE
+
+    fleet = Fleet()
+    for i in range(1, 41):  # 2 s of wall, 50 ms apart, in real time
+        slow(fleet, 50 * i, 0.05 * i, x=0.1 * i)
+    v = fleet.vehicles["v1"]
+    assert v.latest["state"][0] == 2000 and v.latest["status"][3] == 1 and v.malformed == 0
+    assert [r[1][0] for r in v.rows][:3] == pytest.approx([0.05, 0.1, 0.15])  # a row per overview tick
+    assert len(v.rows) == 40
+    trail = v.trail_since(0)
+    assert len(trail) == round(2.0 * TRAIL_RATE) and trail[-1] == pytest.approx((1.85, 3.7, 0.0))  # t, x, y
+    rate, rtf = v.rates()
+    assert rate == pytest.approx(1000.0) and rtf == pytest.approx(1.0)
+    gen = v.generation
+    slow(fleet, 10, 2.1)  # ticks went back: a new run under the same name
+    assert v.generation == gen + 1 and len(v.rows) == 1
+    # an overview sample of more than one record is not one
+    fleet.ingest("quadsitl/v1/slow/state", records("state", [60, 61]), 2.2)
+    assert v.malformed == 1
+
+
+def test_the_overview_is_ignored_while_the_full_rate_comes_and_taken_again_when_it_stops():
+    fleet = Fleet()
+    feed(fleet, range(0, 100), 1.0)
+    v = fleet.vehicles["v1"]
+    rows, samples = len(v.rows), v.samples
+    slow(fleet, 99, 1.5)  # the same vehicle's overview, while its full rate comes: a duplicate, dropped
+    assert (len(v.rows), v.samples) == (rows, samples)
+    feed(fleet, range(100, 200), 1.6)  # the full rate goes on: no new run, its rows as before
+    assert v.generation == 0 and len(v.rows) == 2 * rows
+    slow(fleet, 3000, 1.6 + 1.01)  # a second without the full rate (the page stopped showing it): the overview
+    assert v.latest["state"][0] == 3000 and len(v.rows) == 2 * rows + 1 and v.generation == 0

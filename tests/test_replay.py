@@ -58,6 +58,14 @@ def fly_run(tmp_path_factory) -> Path:
     return out
 
 
+def _records_bytes(sub: Subscriber, stream: str) -> list[bytes]:
+    """Every full-rate record of ``stream`` the subscriber got, as bytes."""
+    size = telemetry.STREAMS[stream].size
+    with sub._lock:
+        data = b"".join(d for s, d, _ in sub.samples if s == stream)
+    return [data[i : i + size] for i in range(0, len(data), size)]
+
+
 class Subscriber:
     """A Zenoh session listening on a free loopback port, subscribed to quadsitl/<vehicle>/**: the replay
     connects to it, so the subscription exists before anything is published."""
@@ -70,14 +78,14 @@ class Subscriber:
         self._sub = self.session.declare_subscriber(f"quadsitl/{vehicle}/**", self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        stream = str(sample.key_expr).rsplit("/", 1)[1]
+        stream = str(sample.key_expr).split("/", 2)[2]  # "state", or "slow/state" (the overview)
         with self._lock:
             self.samples.append((stream, sample.payload.to_bytes(), time.monotonic()))
 
     def records(self, stream: str) -> list[tuple]:
         with self._lock:
             samples = [data for s, data, _ in self.samples if s == stream]
-        return [rec for data in samples for rec in telemetry.records(stream, data)]
+        return [rec for data in samples for rec in telemetry.records(stream.rsplit("/", 1)[-1], data)]
 
     def wait_for(self, count: int, seconds: float = 5.0) -> None:
         """Until every stream has ``count`` records (or the time is up)."""
@@ -172,6 +180,11 @@ def test_csv_every_tick_arrives_in_order_with_the_csv_values(sim_csv):
             np.testing.assert_array_equal(got, want, err_msg=stream)
     # Batched as the autopilot does: at full speed far fewer samples than records.
     assert len([s for s, _, _ in sub.samples if s == "state"]) < n / 10
+    # The overview, as an autopilot puts it: the newest record alone on quadsitl/<vehicle>/slow/<stream>, the
+    # first at once, then at most one per SLOW_PERIOD (the whole replay takes less).
+    for stream in telemetry.STREAMS:
+        slow = [data for s, data, _ in sub.samples if s == f"slow/{stream}"]
+        assert len(slow) == 1 and slow[0] in {rec for rec in map(bytes, _records_bytes(sub, stream))}, stream
     assert "published 500 state, 500 setpoint, 500 actuators, 500 status records" in r.stderr
     assert "0.500 s simulated" in r.stderr
 

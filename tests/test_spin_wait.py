@@ -8,7 +8,7 @@ import time
 import pytest
 
 from quadsitl.cli_util import UsageError
-from quadsitl.process_util import SPIN_ENV, SPIN_WINDOW, SpinThenBlock, spin_budget
+from quadsitl.process_util import HOT_AFTER, SPIN_ENV, SPIN_WINDOW, SpinThenBlock, spin_budget
 
 
 @pytest.fixture
@@ -24,18 +24,26 @@ def pair():
 def test_a_fast_peer_is_polled_and_a_paced_one_is_waited_for(pair):
     a, b = pair
     wait = SpinThenBlock(a.recv, budget=0.05)
-    b.send(b"1")
-    assert wait() == b"1" and wait.blocked == 1 and wait.hot  # a first wait blocks; it was quick: hot
+    for i in range(HOT_AFTER):  # quick waits, blocking, until HOT_AFTER of them in a row make it hot
+        assert not wait.hot
+        b.send(b"b%d" % i)
+        assert wait() == b"b%d" % i and wait.blocked == i + 1
+    assert wait.hot
     for i in range(5):
         b.send(str(i).encode())
         assert wait() == str(i).encode()
-    assert wait.polled == 5 and wait.blocked == 1
+    assert wait.polled == 5 and wait.blocked == HOT_AFTER
     # A paced peer: nothing for longer than the budget, so the poll gives up and the wait blocks.
     threading.Timer(0.12, lambda: b.send(b"late")).start()
-    assert wait() == b"late" and wait.blocked == 2 and not wait.hot
+    assert wait() == b"late" and wait.blocked == HOT_AFTER + 1 and not wait.hot
     b.send(b"next")
     time.sleep(0.01)
-    assert wait() == b"next" and wait.blocked == 3  # not hot: blocks (the datagram is there: at once)
+    assert wait() == b"next" and wait.blocked == HOT_AFTER + 2  # not hot: blocks (the datagram is there: at once)
+    # A paced loop that finds a datagram already waiting (it was late) stays cold: it would poll the whole budget
+    # for the next one, a period away.
+    assert not wait.hot
+    threading.Timer(0.08, lambda: b.send(b"paced")).start()
+    assert wait() == b"paced" and wait.polled == 5 and wait.blocked == HOT_AFTER + 3
 
 
 def test_polling_stops_for_a_while_when_it_does_not_pay():
@@ -50,7 +58,8 @@ def test_polling_stops_for_a_while_when_it_does_not_pay():
         return b"x"
 
     wait = SpinThenBlock(late_peer, budget=0.002)
-    wait()  # a first blocking wait makes it hot
+    for _ in range(HOT_AFTER):  # quick blocking waits make it hot
+        wait()
     for _ in range(SPIN_WINDOW):
         wait()
     assert wait.cooled == 1
@@ -58,7 +67,7 @@ def test_polling_stops_for_a_while_when_it_does_not_pay():
     for _ in range(20):
         wait()
     assert calls["poll"] == polls  # cooling off: every wait blocks
-    assert wait.blocked == 21
+    assert wait.blocked == HOT_AFTER + 20
 
 
 def test_the_budget_comes_from_the_environment_and_is_checked(monkeypatch):

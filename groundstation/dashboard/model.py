@@ -103,10 +103,17 @@ class Vehicle:
     info_refused: int = 0
     trail: deque = field(default_factory=deque)  # (seq, t, x, y): local NED metres, TRAIL_RATE per second
     trail_seq: int = 0
+    full_wall: float = -math.inf  # [s] wall: when a full-rate sample last came (the overview's are then ignored)
+    _slow_tick: dict[str, int] = field(default_factory=dict)  # the newest tick of each stream's overview
 
     # ---- ingest ---------------------------------------------------------------------------------------
 
-    def ingest(self, stream: str, payload: bytes, wall: float) -> None:
+    def ingest(self, stream: str, payload: bytes, wall: float, slow: bool = False) -> None:
+        """A sample of ``stream``: full rate (consecutive ticks), or with ``slow`` the overview's one record
+        (quadsitl/<vehicle>/slow/<stream>, :data:`quadsitl.telemetry.SLOW`), taken only while no full-rate sample
+        has come for STALE_AFTER: its record is a plot row and a trail point of its own, whatever its tick."""
+        if slow and wall - self.full_wall <= STALE_AFTER:
+            return
         fmt = telemetry.STREAMS[stream]
         size = len(payload)
         if not size or size % fmt.size:
@@ -118,11 +125,17 @@ class Vehicle:
             self.malformed += 1
             return
         first_tick = _TICK.unpack_from(payload, 0)[0]
+        if slow and n != 1:
+            self.malformed += 1
+            return
         self.samples += 1
         self.last_wall = wall
-        if first_tick < self._stream_tick.get(stream, -1) - 1:  # ticks went back: a new run, same name
+        ticks = self._slow_tick if slow else self._stream_tick  # each source's own: they interleave on a switch
+        if first_tick < ticks.get(stream, -1) - 1:  # ticks went back: a new run, same name
             self._restart()
-        self._stream_tick[stream] = last[0]
+        ticks[stream] = last[0]
+        if not slow:
+            self.full_wall = wall
         if stream == "status":
             self._rate.append((wall, last[0], last[1]))
             while len(self._rate) > 2 and wall - self._rate[1][0] >= RATE_WINDOW:
@@ -132,6 +145,14 @@ class Vehicle:
             self._learn_period(last)
             if not self.decimation:
                 return
+        if slow:
+            self._join(first_tick, stream, last)
+            if stream == "state" and (not self.trail or last[1] - self.trail[-1][1] >= 1.0 / TRAIL_RATE - 1e-9):
+                self.trail_seq += 1
+                self.trail.append((self.trail_seq, last[1], last[2], last[3]))
+                while self.trail[0][1] < last[1] - self.window:
+                    self.trail.popleft()
+            return
         d = self.decimation
         k = -(-first_tick // d) * d  # the first multiple of d at or after the sample's first tick
         while k < first_tick + n:
@@ -190,6 +211,7 @@ class Vehicle:
         self._pending.clear()
         self._rate.clear()
         self._stream_tick.clear()
+        self._slow_tick.clear()
         self.trail.clear()
 
     def _join(self, tick: int, stream: str, rec: tuple) -> None:
@@ -326,6 +348,9 @@ class Fleet:
     def ingest(self, key: str, payload: bytes, wall: float) -> None:
         """A Zenoh sample on ``key`` (``quadsitl/<vehicle>/<stream>``) received at ``wall`` [s]."""
         parts = key.split("/")
+        slow = len(parts) == 4 and parts[2] == telemetry.SLOW and parts[3] in telemetry.STREAMS
+        if slow:
+            parts = [parts[0], parts[1], parts[3]]
         mission = len(parts) == 3 and parts[2] == telemetry.MISSION
         info = len(parts) == 3 and parts[2] == INFO
         if (len(parts) != 3 or parts[0] != telemetry.PREFIX
@@ -343,7 +368,7 @@ class Fleet:
         elif info:
             v.ingest_info(payload, wall)
         else:
-            v.ingest(parts[2], payload, wall)
+            v.ingest(parts[2], payload, wall, slow)
 
     def ordered(self) -> list[Vehicle]:
         """The vehicles in natural order of their names (v1, v2, …, v10)."""

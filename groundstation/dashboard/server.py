@@ -1,9 +1,13 @@
 """``quadsitl dashboard``: live telemetry in the browser, fed by Zenoh.
 
-One Zenoh subscriber on ``quadsitl/*/*`` (every vehicle, every stream) hands its samples to a ring
-channel in Zenoh's own thread; a task polls it every ``POLL`` seconds and files them into the pure
-:class:`~groundstation.dashboard.model.Fleet`, so no Python runs per sample on Zenoh's side and a slow
-page can never push back on the vehicle (a full ring drops its oldest samples).
+Zenoh subscribers hand their samples to ring channels in Zenoh's own threads; a task polls them every ``POLL``
+seconds and files them into the pure :class:`~groundstation.dashboard.model.Fleet`, so no Python runs per sample
+on Zenoh's side and a slow page can never push back on the vehicle (a full ring drops its oldest samples). Every
+vehicle is followed through its overview (``quadsitl/*/slow/*``: the newest record of each stream, 20 times a
+second, :data:`quadsitl.telemetry.SLOW`), its mission and its info; only a vehicle a page shows is followed at the
+full rate (``quadsitl/<vehicle>/*``, while a page shows it). A publisher sends only where a subscriber matches, so
+the other vehicles' full-rate streams stay in their autopilots: with the page open, a fleet's autopilots spend what
+they would without it.
 
 Routes (Starlette on uvicorn):
 
@@ -26,6 +30,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import math
 import os
 import sys
 import time
@@ -34,7 +39,7 @@ from pathlib import Path
 
 import zenoh
 
-from groundstation.dashboard.model import ROW_FIELDS, STALE_AFTER, Fleet
+from groundstation.dashboard.model import MAX_VEHICLES, ROW_FIELDS, STALE_AFTER, Fleet
 from groundstation.vehicle_info import INFO
 from quadsitl import telemetry
 from quadsitl.cli_util import UsageError, check_range, serve_until_stopped
@@ -57,17 +62,50 @@ class Dashboard:
     def __init__(self, session: zenoh.Session, fleet: Fleet) -> None:
         self.session = session
         self.fleet = fleet
-        self.sub = session.declare_subscriber(f"{telemetry.PREFIX}/*/*", zenoh.handlers.RingChannel(RING))
+        p = telemetry.PREFIX
+        self.subs = [session.declare_subscriber(k, zenoh.handlers.RingChannel(RING))
+                     for k in (f"{p}/*/{telemetry.SLOW}/*", f"{p}/*/{telemetry.MISSION}", f"{p}/*/{INFO}")]  # fmt: skip
+        self.watched: dict[str, list] = {}  # name: [its full-rate subscriber, pages showing it]
         self.stopping = False
         self.said: dict[str, str | None] = {}  # the info refusal last reported on stderr, per vehicle
 
     def drain(self) -> int:
-        """File every sample waiting in the ring; returns how many."""
-        n, now, ingest, recv = 0, time.monotonic(), self.fleet.ingest, self.sub.try_recv
-        while (sample := recv()) is not None:
-            ingest(str(sample.key_expr), sample.payload.to_bytes(), now)
-            n += 1
+        """File every sample waiting in the rings; returns how many."""
+        n, now, ingest = 0, time.monotonic(), self.fleet.ingest
+        for sub in (*self.subs, *(w[0] for w in self.watched.values())):
+            recv = sub.try_recv
+            while (sample := recv()) is not None:
+                ingest(str(sample.key_expr), sample.payload.to_bytes(), now)
+                n += 1
         return n
+
+    def watch(self, name: str) -> bool:
+        """A page shows vehicle ``name``: follow it at the full rate (one subscriber, however many pages). False
+        when ``name`` cannot be a key chunk, or MAX_VEHICLES are followed already."""
+        w = self.watched.get(name)
+        if w is None:
+            if not name or any(c in name for c in "/*$#?") or len(self.watched) >= MAX_VEHICLES:
+                return False
+            try:
+                sub = self.session.declare_subscriber(telemetry.key(name, "*"), zenoh.handlers.RingChannel(RING))
+            except zenoh.ZError:
+                return False
+            w = self.watched[name] = [sub, 0]
+        w[1] += 1
+        return True
+
+    def unwatch(self, name: str) -> None:
+        """A page stopped showing ``name``; the last one lets its full rate go (its overview takes over at once)."""
+        w = self.watched.get(name)
+        if w is None:
+            return
+        w[1] -= 1
+        if w[1] <= 0:
+            del self.watched[name]
+            with contextlib.suppress(zenoh.ZError):
+                w[0].undeclare()
+            if name in self.fleet.vehicles:
+                self.fleet.vehicles[name].full_wall = -math.inf
 
     def ask_info(self) -> None:
         """Ask for every vehicle's info document now (``quadsitl up`` answers; others put it once a second)."""
@@ -175,11 +213,16 @@ def make_app(dash: Dashboard):
 
         async def events() -> AsyncIterator[str]:
             cursors: dict = {}
-            yield f"event: hello\ndata: {json.dumps(hello)}\n\n"
-            while not dash.stopping and not await request.is_disconnected():
-                update = dash.update(cursors, selected)
-                yield f"data: {json.dumps(_json_safe(update), separators=(',', ':'))}\n\n"
-                await asyncio.sleep(dash.push_interval())
+            watching = selected is not None and dash.watch(selected)  # its full rate while this page shows it
+            try:
+                yield f"event: hello\ndata: {json.dumps(hello)}\n\n"
+                while not dash.stopping and not await request.is_disconnected():
+                    update = dash.update(cursors, selected)
+                    yield f"data: {json.dumps(_json_safe(update), separators=(',', ':'))}\n\n"
+                    await asyncio.sleep(dash.push_interval())
+            finally:
+                if watching:
+                    dash.unwatch(selected)
 
         return StreamingResponse(
             events(), media_type="text/event-stream", headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
@@ -264,8 +307,9 @@ def serve(args: argparse.Namespace) -> int:
         server.run(sockets=[sock])
     finally:
         dash.stopping = True
-        with contextlib.suppress(Exception):
-            dash.sub.undeclare()
+        for sub in (*dash.subs, *(w[0] for w in dash.watched.values())):
+            with contextlib.suppress(Exception):
+                sub.undeclare()
         session.close()
         sock.close()
     return 0
