@@ -175,10 +175,19 @@ class Publisher:
 
         self.session = zenoh.open(telemetry.zenoh_config(connect=[endpoint]))
         self.pubs = {s: self.session.declare_publisher(telemetry.key(vehicle, s)) for s in telemetry.STREAMS}
-        end = time.monotonic() + 10  # peers connect directly: wait until the dashboard's session is found
-        while not all(p.matching_status.matching for p in self.pubs.values()):
-            assert time.monotonic() < end, "the dashboard's Zenoh session was not found"
+        self.slow = telemetry.SlowCopies(self.session, vehicle)  # the overview, as the autopilot puts it
+        self.wait_matching(self.slow.pubs.values(), "the dashboard's Zenoh session was not found")
+
+    @staticmethod
+    def wait_matching(pubs, why: str) -> None:
+        end = time.monotonic() + 10  # peers connect directly: wait until the dashboard's subscribers are found
+        while not all(p.matching_status.matching for p in pubs):
+            assert time.monotonic() < end, why
             time.sleep(0.02)
+
+    def wait_shown(self) -> None:
+        """Until a page shows this vehicle: the dashboard then takes its full rate."""
+        self.wait_matching(self.pubs.values(), "no page showed the vehicle: its full rate was not subscribed")
 
     def put(self, ticks: range, point, mode: int = 1) -> None:
         """One sample per stream of ``ticks`` (T = 1 ms); ``point(t)`` → (x, y, x_ref, y_ref) [m, NED]."""
@@ -195,9 +204,10 @@ class Publisher:
             out["status"] += st["status"].pack(k, t, 1, mode, 0, 0)
         for s, pub in self.pubs.items():
             pub.put(out[s])
+        self.slow.offer(lambda s: out[s][-telemetry.STREAMS[s].size :], time.monotonic())
 
     def close(self) -> None:
-        for p in self.pubs.values():
+        for p in (*self.pubs.values(), *self.slow.pubs.values()):
             p.undeclare()
         self.session.close()
 
@@ -245,6 +255,8 @@ def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
         errors: list[str] = []
         page.on("pageerror", lambda e: errors.append(str(e)))
         page.goto(url)
+        pub.put(range(1, 2), circle_point)  # its overview puts the vehicle on the page, which shows it (one alone)
+        pub.wait_shown()
         for first in range(1, 8001, 200):  # 8 s of flight, 200 ticks a sample
             pub.put(range(first, first + 200), circle_point)
             time.sleep(0.01)

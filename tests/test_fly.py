@@ -131,11 +131,15 @@ def test_fly_circle_tracks_the_position_reference(circle_flight):
     x_ref, y_ref = data["x_ref"][finite], data["y_ref"][finite]
     assert np.abs(np.hypot(x_ref, y_ref - 4.0) - 4.0).max() < 1e-4
     # How far behind depends on the machine's load, not on quadsitl: lockstep runs at several times real time, so
-    # a ground station scheduled 50 ms late (wall) falls 0.3 s of flight behind (0.16-0.67 m seen on 2-core
-    # machines). The bound, 1 m (0.64 s of flight at 1.57 m/s), catches a ground station that sends a stale or
-    # wrong plan, not a busy machine.
+    # a ground station scheduled 50 ms late (wall) falls 0.3 s of flight behind (95th percentiles of 0.16-0.67 m
+    # seen on 2-core machines, 1.28 m once on a CI machine running other tests beside it; the vehicle flies on
+    # since the setpoint stream counts as lost only when stale on both clocks). So the plan is checked where the
+    # load cannot move it: it never goes back along the circle (not a stale or reordered plan), and the typical
+    # lag, the median, is under 1 m (0.64 s of flight at 1.57 m/s: not a wrong plan).
+    phase = np.unwrap(np.arctan2(x_ref, 4.0 - y_ref))
+    assert np.diff(phase).min() > -1e-4 and phase[-1] == pytest.approx(2 * math.pi, abs=0.5)
     lag = np.hypot(x_ref - want[finite, 0], y_ref - want[finite, 1])
-    assert np.percentile(lag, 95) < LAG_M, np.percentile(lag, 95)
+    assert np.median(lag) < LAG_M, np.median(lag)
     # The vehicle goes round: as far as the circle's far side (2R east), and back home. The lap ends at home at
     # full speed: the last reference is behind home by the ground station's lag (which varies from run to run),
     # the vehicle behind that reference by its tracking error (0.16 and 0.28 m in one run).
