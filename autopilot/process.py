@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import select
 import socket
 import sys
 import time
@@ -37,6 +38,7 @@ from autopilot.factory import make_controller
 from autopilot.gains import GainError
 from autopilot.gcs_messages import Home, Snapshot
 from autopilot.missions import Missions
+from autopilot.offboard_lockstep import OffboardLockstep
 from autopilot.params import ParamStore
 from autopilot.streams import MessageStreams
 from autopilot.tick import Batch, autopilot_tick, sensor_tick, warm_up
@@ -71,6 +73,9 @@ MISSION_MESSAGES = frozenset(
         "SET_CURRENT",
     )
 )
+OFFBOARD_SETPOINTS = frozenset((mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
+                                mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
+                                mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT))  # fmt: skip
 SENSOR_MESSAGES = frozenset((mavlink.MAVLINK_MSG_ID_HIL_SENSOR, mavlink.MAVLINK_MSG_ID_HIL_GPS,
                              mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION))  # fmt: skip
 MODE_MISMATCH = {
@@ -184,6 +189,9 @@ class Autopilot:
         act = preset.actuators
         self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
         self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom_into, self.rx)  # polls while the plant answers fast
+        lead = args.offboard_lockstep
+        self.pace = None if lead is None else OffboardLockstep(lead, self.period)  # autopilot.offboard_lockstep
+        self.pending: tuple[bytes, tuple[str, int]] | None = None  # an answer to the plant waiting for a setpoint
         self.session = None
         self.pubs: dict[str, zenoh.Publisher] = {}
         self.slow: telemetry.SlowCopies | None = None  # the overview (quadsitl/<vehicle>/slow/<stream>)
@@ -243,7 +251,10 @@ class Autopilot:
                                    self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min, self.f_max, self.tx, self.io,
                                    self.batch.records)  # fmt: skip
         if flags & kernel.ANSWER:
-            self.plant_sock.sendto(self.tx_view[: self.io[kernel.TX_LEN]], sender)
+            if self.pace is not None and self.pace.must_wait(int(self.io[kernel.TICK]), self._offboard(), wall):
+                self.pending = (bytes(self.tx_view[: self.io[kernel.TX_LEN]]), sender)
+            else:
+                self.plant_sock.sendto(self.tx_view[: self.io[kernel.TX_LEN]], sender)
         if self.missions.flying:  # the mission executor, on simulated time, after the answer went out
             for out in self.missions.step(self.commander, self.commander.now):
                 self._send_mission(out)
@@ -461,6 +472,8 @@ class Autopilot:
         if not self._for_me(m.target_system, getattr(m, "target_component", 0)):  # SET_MODE has no component
             self.not_for_us += 1
             return
+        if self.pace is not None and mid in OFFBOARD_SETPOINTS:
+            self.pace.stamp(m.time_boot_ms)
         if mid in (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT):
             self._command(m, link)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
@@ -789,6 +802,9 @@ class Autopilot:
         next_poll = 0.0
         receive = self.plant_wait
         while True:
+            if self.pending is not None:
+                self.wait_for_setpoint()
+                continue
             try:
                 nbytes, sender = receive()
             except (BlockingIOError, InterruptedError):
@@ -818,6 +834,26 @@ class Autopilot:
                     self.heartbeat()
                     for link in self.links:
                         link.forget_silent(wall)
+
+    def _offboard(self) -> bool:
+        return self.commander.armed and self.commander.mode == wire.Mode.OFFBOARD
+
+    def wait_for_setpoint(self) -> None:
+        """``--offboard-lockstep``: the answer to the plant's tick waits (and with it the simulated clock) until
+        an offboard setpoint made for a recent enough moment arrives, or HOLD_MAX of wall time has passed
+        (:mod:`autopilot.offboard_lockstep`). The ground station sees the tick the clock waits at at once; the
+        plant's re-sends of the tick wait in the socket (answered afterwards as any repeat is)."""
+        if self.io[kernel.ROWS]:
+            self.flush_telemetry()
+        select.select([link.sock for link in self.links], [], [], GCS_POLL)
+        wall = time.monotonic()
+        self.poll_gcs()
+        self.commander.wall_clock(wall)
+        self.plant_heard = wall  # the plant waits for this answer: it is not lost
+        if self.pending is not None and not self.pace.must_wait(int(self.io[kernel.TICK]), self._offboard(), wall):
+            buf, sender = self.pending
+            self.pending = None
+            self.plant_sock.sendto(buf, sender)
 
     def _gcs_link(self, old: mavlink.MAVLink | None = None) -> mavlink.MAVLink:
         """A fresh ground-link parser/packer; with a key, signed (and keeping the old one's signing
@@ -862,6 +898,11 @@ class Autopilot:
                         print(f"autopilot: error: handling {m.get_type()} from {sender}: {exc!r}", file=sys.stderr)
 
     def close(self) -> None:
+        if self.pace is not None and self.pace.waits:
+            p = self.pace
+            print(f"autopilot: --offboard-lockstep: the clock waited for a setpoint {p.waits} times, "
+                  f"{p.waited:.3f} s of wall time in all ({p.gave_up_count} ran out of {p.hold_max:g} s)",
+                  file=sys.stderr)  # fmt: skip
         if self.pubs:
             self.flush_telemetry()
         slow = list(self.slow.pubs.values()) if self.slow else []
@@ -930,6 +971,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="offboard setpoint loss failsafe, simulated seconds (default: 1; parameter COM_OF_LOSS_T)",
     )
     p.add_argument(
+        "--offboard-lockstep",
+        type=float,
+        metavar="S",
+        help="lockstep, for a ground station that stamps its offboard setpoints' time_boot_ms with this vehicle's "
+        "clock (quadsitl fly's): answer no plant tick more than S simulated seconds after the moment the newest "
+        "setpoint was made for, waiting at most 0.25 s of wall time per setpoint, so a ground station that falls "
+        "behind a sped-up run holds its clock (default: off, as PX4)",
+    )
+    p.add_argument(
         "--signing-key",
         metavar="HEX|FILE",
         help="MAVLink 2 signing on the ground-station links: 64 hex digits or a file holding them; unsigned, "
@@ -949,6 +999,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         preset = with_state(load_preset(args.preset), args)
         check_range("--telemetry-rate", args.telemetry_rate, 0.0, 1.0 / preset.sim.period)
         check_range("--setpoint-timeout", args.setpoint_timeout, 0.0, 3600.0)
+        if args.offboard_lockstep is not None:
+            check_range("--offboard-lockstep", args.offboard_lockstep, preset.sim.period, 60.0)
         if not 1 <= args.system_id <= 255:
             raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
         args.home = parse_home(args.home)

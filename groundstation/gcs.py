@@ -6,8 +6,11 @@ simulated seconds, then lands and waits for the disarm. Its Zenoh subscriber log
 ``telemetry.csv``; its MAVLink link, both directions, goes to ``flight.tlog`` (each packet preceded by
 an 8-byte big-endian microsecond timestamp, as MAVProxy and QGroundControl write it).
 
-Setpoints are paced in simulated time: one per 20 ms of simulated time seen in the autopilot's ATTITUDE
-stream, and at least every 100 ms of wall time, so a sped-up lockstep run never starves the stream. An
+Setpoints are paced in simulated time: one per 20 ms of the vehicle's time seen (its ATTITUDE stream or its
+Zenoh telemetry, whichever is newer), and at least every 100 ms of wall time, so a sped-up lockstep run never
+starves the stream. Each is the trajectory at that moment and is stamped with it (time_boot_ms): ``quadsitl
+fly`` starts the autopilot with ``--offboard-lockstep``, which holds the vehicle's clock when the newest
+setpoint was made for a moment more than 0.5 s of simulated time ago (:mod:`autopilot.offboard_lockstep`). An
 attitude trajectory (:mod:`groundstation.trajectories`) sends a pair, SET_ATTITUDE_TARGET and a z-only
 SET_POSITION_TARGET_LOCAL_NED; a position trajectory one SET_POSITION_TARGET_LOCAL_NED in
 MAV_FRAME_LOCAL_NED with type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to
@@ -121,12 +124,12 @@ class GroundStation:
         self.session = zenoh.open(conf)
         start = "armed" if self.mission is not None else "offboard"
         self.logger = TelemetryLogger(self.session, args.vehicle, self.period, start)
+        self.sim_ms = 0  # the vehicle's time [ms] in its newest ATTITUDE (MAVLink comes before Zenoh's batches)
         self.target = (args.target_system, wire.AUTOPILOT_COMPONENT_ID)
         self.armed = False
         self.armable = False  # SYS_STATUS says the pre-arm check passes (in sensor mode: once the estimator aligned)
         self.mode: wire.Mode | None = None
         self.heard = False
-        self.sim_ms = 0
         self.acks: dict[int, int] = {}
         self.flight_rate: tuple[float, float] | None = None
         self.progress: FlightProgress | None = None  # from the switch to offboard until landing
@@ -170,7 +173,7 @@ class GroundStation:
                 self.armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
                 self.mode = wire.Mode.from_px4(m.custom_mode)
             elif mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
-                self.sim_ms = m.time_boot_ms
+                self.sim_ms = max(self.sim_ms, m.time_boot_ms)
             elif mid == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
                 self.armable = bool(m.onboard_control_sensors_health & mavlink.MAV_SYS_STATUS_PREARM_CHECK)
             elif mid == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
@@ -196,7 +199,7 @@ class GroundStation:
             return
         ts, tc = self.target
         q = euler_to_quaternion(ref.roll, ref.pitch, ref.yaw)
-        ms, frame = self.sim_ms, mavlink.MAV_FRAME_LOCAL_NED
+        ms, frame = self.stamp_ms(), mavlink.MAV_FRAME_LOCAL_NED
         self.send(mavlink.MAVLink_set_attitude_target_message(ms, ts, tc, MASK_IGNORE_RATES, q, 0, 0, 0, 0.5))
         z = -ref.altitude  # NED: z down
         self.send(mavlink.MAVLink_set_position_target_local_ned_message(
@@ -206,10 +209,24 @@ class GroundStation:
         """SET_POSITION_TARGET_LOCAL_NED, frame LOCAL_NED: x, y [m] and z = −altitude, the velocity
         feed-forward vx, vy and vz = −climb [m/s], yaw [rad]."""
         ts, tc = self.target
-        frame = mavlink.MAV_FRAME_LOCAL_NED
+        ms, frame = self.stamp_ms(), mavlink.MAV_FRAME_LOCAL_NED
         self.send(mavlink.MAVLink_set_position_target_local_ned_message(
-            self.sim_ms, ts, tc, frame, MASK_POSITION_VELOCITY_YAW, sp.x, sp.y, -sp.altitude, sp.vx, sp.vy, -sp.climb,
+            ms, ts, tc, frame, MASK_POSITION_VELOCITY_YAW, sp.x, sp.y, -sp.altitude, sp.vx, sp.vy, -sp.climb,
             0, 0, 0, sp.yaw, 0))  # fmt: skip
+
+    def vehicle_tick(self) -> int:
+        """The vehicle's newest tick seen: in its telemetry (Zenoh, batched) or its ATTITUDE stream (MAVLink)."""
+        return max(self.logger.last_tick, round(self.sim_ms / 1000.0 / self.period))
+
+    def stamp_ms(self) -> int:
+        """A setpoint's time_boot_ms [ms]: the vehicle's time of its newest tick seen, which the trajectory is
+        sampled at (the autopilot's ``--offboard-lockstep`` holds its clock by it)."""
+        return max(0, round(self.vehicle_tick() * self.period * 1000)) & 0xFFFFFFFF
+
+    def trajectory_time(self) -> float:
+        """Flight time [s] of the vehicle's newest tick seen (0 before the flight starts)."""
+        start = self.logger.flight_start_tick
+        return 0.0 if start < 0 else max(0.0, (self.vehicle_tick() - start) * self.period)
 
     def command(self, command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))
@@ -256,15 +273,15 @@ class GroundStation:
                 self.send(hb(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
             flight_t = self.logger.flight_time()
             if phase in ("prearm", "arming", "offboard", "flying") and (
-                self.sim_ms - last_sp_ms >= 20 or now - last_sp_wall >= 0.1
+                self.stamp_ms() - last_sp_ms >= 20 or now - last_sp_wall >= 0.1
             ):
-                self.send_setpoint(self.trajectory(max(flight_t, 0.0)))
-                last_sp_ms, last_sp_wall = self.sim_ms, now
+                self.send_setpoint(self.trajectory(self.trajectory_time()))
+                last_sp_ms, last_sp_wall = self.stamp_ms(), now
                 setpoints_sent += 1
             if phase == "connect" and self.heard:
                 phase = "prearm"
-                # This ground station logs telemetry from Zenoh and paces itself by ATTITUDE: the other
-                # MAVLink streams on its link would only cost both ends CPU at 10,000 ticks/s.
+                # This ground station logs telemetry from Zenoh and paces itself by it; ATTITUDE goes on to the
+                # .tlog, the other MAVLink streams on its link would only cost both ends CPU at 10,000 ticks/s.
                 for msg_id in UNNEEDED_STREAMS:
                     self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
             elif phase == "prearm" and setpoints_sent >= 5 and self.logger.last_status is not None and self.armable:

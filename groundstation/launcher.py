@@ -35,6 +35,11 @@ from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
 from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
 from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, stop_status
 
+# [s] simulated: `fly`'s vehicle clock waits for a ground station whose newest setpoint was made for a moment longer
+# ago than this (autopilot.offboard_lockstep): above the ground station's usual lag at full lockstep speed (0.2-0.3 s
+# at 40x), so a quiet machine never waits, and a busy one never flies a reference older than this.
+OFFBOARD_LOCKSTEP = 0.5
+
 
 def signing_env(key_text: str | None) -> dict[str, str] | None:
     """The environment that hands a signing key to the children: the environment, not the command line,
@@ -370,7 +375,8 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
               "--api-listen", f"127.0.0.1:{gcs_port}", "--api-remote", "none", "--gcs-listen",
-              f"127.0.0.1:{free_port()}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep]  # fmt: skip
+              f"127.0.0.1:{free_port()}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep,
+              "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP)]  # fmt: skip
         if args.controller:
             ap += ["--controller", args.controller]
         mission = getattr(args, "mission", None)

@@ -1,0 +1,71 @@
+"""Offboard lockstep: in a lockstep run the vehicle's clock waits for a ground station that falls behind it.
+
+A lockstep run goes as fast as the plant and the autopilot answer each other: 20–60× real time. A ground station
+that streams a trajectory follows the vehicle's time through its telemetry, so each setpoint is made for a moment
+already past, by the ground station's latency times that speed: 5 ms of wall time is 0.2 s of flight at 40×, and
+one stall of a busy machine can be seconds. The reference flown then depends on the machine's load.
+
+With ``quadsitl autopilot --offboard-lockstep S`` (``quadsitl fly`` uses it) the autopilot answers no plant tick
+more than S simulated seconds after the moment its newest offboard setpoint was made for: the setpoint's
+``time_boot_ms``, which quadsitl's ground station stamps from the vehicle's own clock (the tick of the newest
+telemetry it has seen, as the ATTITUDE stream's ``time_boot_ms``). So the reference flown lags the trajectory by
+at most S on any machine. The clock waits at most :data:`HOLD_MAX` of wall time for one setpoint: a ground
+station that has gone is then the setpoint-loss failsafe's business, as without the option (and the plant, which
+says "autopilot lost" after 0.5 s without an answer, never hears silence that long).
+
+PX4's lockstep never waits for an offboard API, and a client that stamps ``time_boot_ms`` from its own clock
+(MAVSDK does) would make every setpoint wait :data:`HOLD_MAX`: so the option is off by default, for ground
+stations that stamp with the vehicle's time.
+
+Pure and I/O-free: the autopilot's shell calls :meth:`OffboardLockstep.stamp` for each offboard setpoint and
+:meth:`OffboardLockstep.must_wait` after each tick it would answer, and while it waits.
+"""
+
+from __future__ import annotations
+
+HOLD_MAX = 0.25  # [s] wall: the longest the clock waits for one setpoint
+
+
+class OffboardLockstep:
+    """When the answer to a plant tick must wait for a newer offboard setpoint.
+
+    ``lead`` [s, simulated]: how far the vehicle's clock may run past the moment the newest setpoint was made for;
+    ``period`` [s]: the control period (a tick); ``hold_max`` [s, wall]: the longest wait for one setpoint."""
+
+    def __init__(self, lead: float, period: float, hold_max: float = HOLD_MAX) -> None:
+        self.period = period
+        self.lead_ticks = round(lead / period)
+        self.hold_max = hold_max
+        self.newest = -1  # the tick the newest setpoint was made for (−1: none stamped yet)
+        self.gave_up = -1  # the newest tick when a wait last ran out: no further wait until a newer setpoint
+        self.since: float | None = None  # [s] wall: when the current wait began
+        self.waits = 0  # how many times the clock waited
+        self.gave_up_count = 0  # of which ran out of HOLD_MAX
+        self.waited = 0.0  # [s] wall: the time spent waiting, in all
+
+    def stamp(self, time_boot_ms: int) -> None:
+        """A setpoint made for the vehicle's time ``time_boot_ms`` [ms] (its tick × period)."""
+        self.newest = max(self.newest, round(time_boot_ms / 1000.0 / self.period))
+
+    def must_wait(self, tick: int, flying_offboard: bool, wall: float) -> bool:
+        """True while the answer to ``tick`` must wait: flying offboard, the newest setpoint made for more than
+        ``lead`` before ``tick``, and this setpoint not yet waited for ``hold_max`` [s] of ``wall`` time."""
+        behind = flying_offboard and self.newest >= 0 and tick - self.newest > self.lead_ticks
+        if not behind or self.newest == self.gave_up:
+            self._end(wall)
+            return False
+        if self.since is None:
+            self.since = wall
+            self.waits += 1
+            return True
+        if wall - self.since >= self.hold_max:
+            self.gave_up = self.newest
+            self.gave_up_count += 1
+            self._end(wall)
+            return False
+        return True
+
+    def _end(self, wall: float) -> None:
+        if self.since is not None:
+            self.waited += wall - self.since
+            self.since = None

@@ -1,0 +1,78 @@
+"""autopilot.offboard_lockstep alone (the pure rule of when the clock waits for a ground station), and the
+autopilot's ``--offboard-lockstep`` option refused with one line. The processes are in test_fly.py's circle
+flight: its ground station is stopped again and again, and the reference flown never lags the plan by more than
+the lead."""
+
+import subprocess
+import sys
+
+import pytest
+
+from autopilot.offboard_lockstep import HOLD_MAX, OffboardLockstep
+
+PERIOD = 0.001
+
+
+def pace(lead: float = 0.5) -> OffboardLockstep:
+    return OffboardLockstep(lead, PERIOD)
+
+
+def test_the_clock_runs_while_the_newest_setpoint_is_recent_and_waits_beyond_the_lead():
+    p = pace()
+    p.stamp(1000)  # made for t = 1 s: tick 1000
+    assert not p.must_wait(1000, True, wall=0.0)
+    assert not p.must_wait(1500, True, wall=0.0)  # exactly the lead: still answered
+    assert p.must_wait(1501, True, wall=0.0)  # one tick beyond
+    assert p.must_wait(1501, True, wall=0.1)  # still, while no newer setpoint comes
+    p.stamp(1100)  # a newer one, made for 1.1 s: tick 1501 is within 0.5 s of it
+    assert not p.must_wait(1501, True, wall=0.12)
+    assert p.waits == 1 and p.waited == pytest.approx(0.12) and p.gave_up_count == 0
+
+
+def test_no_wait_unless_flying_offboard_or_before_any_stamped_setpoint():
+    p = pace()
+    assert not p.must_wait(10_000, True, wall=0.0)  # nothing stamped yet
+    p.stamp(0)
+    assert not p.must_wait(10_000, False, wall=0.0)  # disarmed, or in another mode
+    assert p.must_wait(10_000, True, wall=0.0)
+    assert not p.must_wait(10_000, False, wall=0.05)  # a mode change ends the wait
+    assert p.waits == 1
+
+
+def test_a_stamp_never_goes_back_and_one_from_the_future_never_waits():
+    p = pace()
+    p.stamp(5000)
+    p.stamp(1000)  # an older one, reordered on the way: the newest stays
+    assert p.newest == 5000 and not p.must_wait(5500, True, wall=0.0)
+    p.stamp(9_000_000)  # a foreign clock ahead of the vehicle's: never a wait
+    assert not p.must_wait(6000, True, wall=0.0)
+
+
+def test_a_wait_runs_out_after_hold_max_and_is_not_repeated_for_the_same_setpoint():
+    """A ground station that has gone: the clock waits HOLD_MAX once, then runs (the setpoint-loss failsafe's
+    business); a newer setpoint that is again too old may be waited for again."""
+    p = pace()
+    p.stamp(0)
+    assert p.must_wait(600, True, wall=10.0)
+    assert p.must_wait(600, True, wall=10.0 + HOLD_MAX * 0.99)
+    assert not p.must_wait(600, True, wall=10.0 + HOLD_MAX)
+    assert not p.must_wait(5000, True, wall=11.0)  # the same setpoint, much older now: no second wait
+    assert p.gave_up_count == 1 and p.waited == pytest.approx(HOLD_MAX)
+    p.stamp(4000)
+    assert p.must_wait(5000, True, wall=12.0)  # a newer setpoint, 1 s old: waited for
+    assert p.waits == 2
+
+
+def test_the_lead_is_counted_in_ticks_of_the_period():
+    p = OffboardLockstep(0.05, 0.004)  # 12.5 ticks, rounded
+    p.stamp(400)  # tick 100
+    assert not p.must_wait(112, True, wall=0.0) and p.must_wait(113, True, wall=0.0)
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "100"])
+def test_a_bad_lead_is_refused_with_one_line(value):
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "autopilot", "--no-zenoh",
+                        f"--offboard-lockstep={value}"], capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"--offboard-lockstep {float(value)!r}: expected a number in (0.001, 60]" in lines[0]
