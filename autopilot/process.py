@@ -40,7 +40,7 @@ from autopilot.gcs_messages import Home, Snapshot
 from autopilot.missions import Missions
 from autopilot.offboard_lockstep import OffboardLockstep
 from autopilot.params import ParamStore
-from autopilot.streams import MessageStreams
+from autopilot.streams import MessageStreams, phase_of
 from autopilot.tick import Batch, autopilot_tick, sensor_tick, warm_up
 from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, add_state_arguments, check_range, parse_home, with_state
@@ -167,7 +167,8 @@ class Autopilot:
         for name in ("gcs", "api"):
             remote = parse_remote(f"--{name}-remote", getattr(args, f"{name}_remote"))
             sock = bind_udp(f"--{name}-listen", getattr(args, f"{name}_listen"))
-            self.links.append(GcsLink(name, sock, remote, MessageStreams(self.period, args.telemetry_rate)))
+            streams = MessageStreams(self.period, args.telemetry_rate, phase_of(self.sysid))
+            self.links.append(GcsLink(name, sock, remote, streams))
         self.streams = self.links[0].streams  # for what every link's streams share: which ids are streamed
         self.last_heartbeat = 0.0
         self.last_streamed = 0.0  # wall time the telemetry streams last went out (they follow the ticks)

@@ -220,7 +220,8 @@ def bench_costs(r: Report, ping: float) -> None:
 
 
 @contextlib.contextmanager
-def autopilot_process(workdir: Path, env: dict[str, str] | None = None) -> Iterator[tuple[int, int, str, int]]:
+def autopilot_process(workdir: Path, env: dict[str, str] | None = None, system_id: int = 1
+                      ) -> Iterator[tuple[int, int, str, int]]:  # fmt: skip
     """An autopilot on free ports: (plant port, api port, Zenoh endpoint, its process id). :func:`run_plant` with
     the api port arms it in hold at the start of each run, as a ground station would. (On the ground an autopilot
     armed in hold idles, as PX4's does, so the control law itself, about 1 µs of a ~100 µs tick, does not run.)"""
@@ -228,7 +229,7 @@ def autopilot_process(workdir: Path, env: dict[str, str] | None = None) -> Itera
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
                  f"127.0.0.1:{api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
-                 "none", "--zenoh-listen", endpoint, env=env)  # fmt: skip
+                 "none", "--zenoh-listen", endpoint, "--system-id", str(system_id), env=env)  # fmt: skip
     try:
         yield plant_port, api_port, endpoint, ap.pid
     finally:
@@ -554,7 +555,8 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
     plant run under SCHED_FIFO (:func:`fifo_scheduling`); the dashboard does not (it runs at idle priority)."""
     with contextlib.ExitStack() as stack:
         with fifo_scheduling(fifo):
-            aps = [stack.enter_context(autopilot_process(workdir)) for _ in range(n)]
+            # system ids 1..n, as `quadsitl up --vehicles N` gives them (each streams on ticks of its own)
+            aps = [stack.enter_context(autopilot_process(workdir, system_id=i + 1)) for i in range(n)]
         ap_pids = [pid for _, _, _, pid in aps]
         for _, api, _, _ in aps:
             _wait_heartbeat(api)

@@ -12,7 +12,7 @@ from autopilot.commander import Commander, CommanderSettings
 from autopilot.factory import make_controller
 from autopilot.params import INDEX, MAX_NAME, SPECS, ParamStore, apply
 from autopilot.pd import PDController
-from autopilot.streams import MessageStreams
+from autopilot.streams import FAST, MessageStreams, phase_of
 from quadsitl.config import load_preset
 from quadsitl.frames import geodetic_to_ned, ned_to_geodetic
 from quadsitl.state import Reference, VehicleState
@@ -141,6 +141,32 @@ def test_message_intervals_in_ticks():
     assert "not streamed" in s.set_interval(mavlink.MAVLINK_MSG_ID_ODOMETRY, 1000)
     assert "expected -1, 0" in s.set_interval(att, -5)
     assert s.interval_us(mavlink.MAVLINK_MSG_ID_ODOMETRY) == 0
+
+
+def test_streams_are_spread_over_ticks_and_over_a_fleets_vehicles():
+    """No tick builds more than six messages (once, every 100th built eleven): the four fast ones, with the two
+    positions on their 10 and 5 Hz ticks, or one other; each stream keeps its rate; vehicles of a fleet send their
+    fast messages on different ticks; next_due finds every due tick."""
+    fast = set(FAST)
+    positions = {mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT}
+    for sysid in (1, 2, 7, 11):
+        s = MessageStreams(0.001, 50.0, phase_of(sysid))
+        due = [s.due(t) for t in range(2000)]
+        assert max(map(len, due)) == 6
+        assert all(fast <= set(d) <= fast | positions or len(d) <= 1 for d in due)
+        for mid, n in s.defaults.items():
+            assert sum(mid in d for d in due) == 2000 // n, mid
+        t, seen = -1, []
+        while (t := s.next_due(t)) < 2000:
+            seen.append(t)
+        assert seen == [k for k, d in enumerate(due) if d]
+    ticks = [[t for t in range(20) if mavlink.MAVLINK_MSG_ID_ATTITUDE in MessageStreams(0.001, 50.0, phase_of(i))
+              .due(t)] for i in range(1, 11)]  # fmt: skip
+    assert len({tuple(x) for x in ticks}) == 10
+    # a changed interval keeps its phase
+    s = MessageStreams(0.001, 50.0, phase_of(3))
+    assert s.set_interval(mavlink.MAVLINK_MSG_ID_SYS_STATUS, 100_000) == ""
+    assert [t for t in range(300) if mavlink.MAVLINK_MSG_ID_SYS_STATUS in s.due(t)] == [13, 113, 213]
 
 
 # ---- telemetry messages --------------------------------------------------------------------------
