@@ -32,6 +32,7 @@ import contextlib
 import json
 import math
 import os
+import signal
 import sys
 import time
 from collections.abc import AsyncIterator, Sequence
@@ -304,7 +305,7 @@ def serve(args: argparse.Namespace) -> int:
         where = ", ".join(args.zenoh_connect or args.zenoh_listen or [args.zenoh_config])
         print(f"quadsitl dashboard: http://{host}:{port}/  (Zenoh {where}; Ctrl-C stops)", flush=True)
     try:
-        server.run(sockets=[sock])
+        run_server(server, sock)
     finally:
         dash.stopping = True
         for sub in (*dash.subs, *(w[0] for w in dash.watched.values())):
@@ -313,6 +314,20 @@ def serve(args: argparse.Namespace) -> int:
         session.close()
         sock.close()
     return 0
+
+
+def run_server(server, sock) -> None:
+    """``server.run(sockets=[sock])``, with its event loop made while SIGINT and SIGTERM wait: a stop request in
+    the middle of the loop's construction left a half-made loop whose clean-up printed a traceback at exit (seen
+    once in CI). A stop that came meanwhile is raised as soon as the loop is whole, and the Runner closes it."""
+    stops = {signal.SIGINT, signal.SIGTERM}
+    with asyncio.Runner(loop_factory=server.config.get_loop_factory()) as runner:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, stops)
+        try:
+            runner.get_loop()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        runner.run(server.serve(sockets=[sock]))
 
 
 def yield_to_the_vehicle() -> None:
