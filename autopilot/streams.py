@@ -10,9 +10,8 @@ together (one snapshot, one datagram) at ticks ≡ ``phase`` modulo their interv
 GPS_RAW_INT on the same ticks (a map and a local plot agree tick for tick), and each of the other slower ones on
 a tick of its own between them. So no tick builds more than six messages, where at 1 kHz every 100th tick once
 built eleven (about 0.3 ms of Python): in a real-time fleet all of its autopilots did it in the same
-millisecond, and the last of them missed its deadline. An autopilot's
-``phase`` follows from its system id (:func:`phase_of`), so a fleet's vehicles stream on different ticks too,
-and a lockstep run stays deterministic.
+millisecond, and the last of them missed its deadline. An autopilot's ``phase`` follows from its system id
+(:func:`phase_of`), so a fleet's vehicles stream on different ticks too, and a lockstep run stays deterministic.
 """
 
 from __future__ import annotations

@@ -225,8 +225,7 @@ class GroundStation:
 
     def trajectory_time(self) -> float:
         """Flight time [s] of the vehicle's newest tick seen (0 before the flight starts)."""
-        start = self.logger.flight_start_tick
-        return 0.0 if start < 0 else max(0.0, (self.vehicle_tick() - start) * self.period)
+        return max(0.0, self.logger.flight_time(self.vehicle_tick()))
 
     def command(self, command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))

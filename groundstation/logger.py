@@ -142,11 +142,12 @@ class TelemetryLogger:
         table = np.column_stack(columns) if len(k) else np.zeros((0, len(columns)))
         return dict(zip(k.tolist(), table.tolist()))
 
-    def flight_time(self) -> float:
-        """Simulated seconds flown under the trajectory so far (−1 before the flight starts)."""
+    def flight_time(self, tick: int | None = None) -> float:
+        """Simulated seconds flown under the trajectory at ``tick`` (default: the newest tick seen; −1 before the
+        flight starts)."""
         if self.flight_start_tick < 0:
             return -1.0
-        return (self.last_tick - self.flight_start_tick) * self.period
+        return ((self.last_tick if tick is None else tick) - self.flight_start_tick) * self.period
 
     def close(self) -> None:
         for _stream, sub in self._subs:
