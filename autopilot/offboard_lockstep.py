@@ -24,6 +24,7 @@ Pure and I/O-free: the autopilot's shell calls :meth:`OffboardLockstep.stamp` fo
 from __future__ import annotations
 
 HOLD_MAX = 0.25  # [s] wall: the longest the clock waits for one setpoint
+NO_WAIT = 2**63 - 1  # free_until: no tick waits
 
 
 class OffboardLockstep:
@@ -64,6 +65,16 @@ class OffboardLockstep:
             self._end(wall)
             return False
         return True
+
+    def free_until(self, flying_offboard: bool) -> int:
+        """The last tick whose answer need not ask :meth:`must_wait` (it would answer False and change nothing):
+        so a compiled loop answers up to it alone (:mod:`autopilot.plant_loop`). −1 while a wait is under way;
+        NO_WAIT when no tick will wait until a newer setpoint comes (or the vehicle leaves or enters offboard)."""
+        if self.since is not None:
+            return -1
+        if not flying_offboard or self.newest < 0 or self.newest == self.gave_up:
+            return NO_WAIT
+        return self.newest + self.lead_ticks
 
     def _end(self, wall: float) -> None:
         if self.since is not None:

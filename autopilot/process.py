@@ -29,7 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 import zenoh
 
-from autopilot import gcs_messages, mission_protocol, setpoints
+from autopilot import gcs_messages, mission_protocol, plant_loop, setpoints
 from autopilot import tick as kernel
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
@@ -42,11 +42,11 @@ from autopilot.offboard_lockstep import OffboardLockstep
 from autopilot.params import ParamStore
 from autopilot.streams import MessageStreams, phase_of
 from autopilot.tick import Batch, autopilot_tick, sensor_tick, warm_up
-from quadsitl import telemetry, wire
+from quadsitl import fastio, telemetry, wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, add_state_arguments, check_range, parse_home, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
-from quadsitl.process_util import SpinThenBlock, bind_udp, parse_remote, set_receive_timeout, start_process
+from quadsitl.process_util import HOT_AFTER, SpinThenBlock, bind_udp, parse_remote, set_receive_timeout, start_process
 from quadsitl.state import Reference, VehicleState
 
 mavlink = wire.mavlink
@@ -56,6 +56,7 @@ BATCH_WALL = 0.005  # [s] wall: Zenoh telemetry goes out at least this often (ev
 BATCH_TICKS = 512  # and at the latest after this many ticks
 PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lost (failsafe)
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
+PLANT_HOLDING = 0.005  # [s] wall: a plant quiet this long may be holding its clock (_answer_armed)
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
 GCS_BUDGET = 0.001  # [s] wall: the most time one reading of the ground-station sockets may take
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
@@ -190,6 +191,12 @@ class Autopilot:
         act = preset.actuators
         self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
         self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom_into, self.rx)  # polls while the plant answers fast
+        # The plant link served in compiled code (autopilot.plant_loop), once a plant is heard on an IPv4 socket:
+        self.fast = fastio.compiled_loops() and self.plant_sock.family == socket.AF_INET
+        self.plant_address: np.ndarray | None = None  # the locked plant's sockaddr (fast only)
+        self.sender = np.zeros(fastio.SOCKADDR_IN, dtype=np.uint8)  # where a datagram came from (fast only)
+        self.sender_len = np.zeros(1, dtype=np.int32)
+        self.loop_stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
         lead = args.offboard_lockstep
         self.pace = None if lead is None else OffboardLockstep(lead, self.period)  # autopilot.offboard_lockstep
         self.pending: tuple[bytes, tuple[str, int]] | None = None  # an answer to the plant waiting for a setpoint
@@ -235,6 +242,7 @@ class Autopilot:
                 self.errors_plant += 1
                 return
             self.plant_peer = sender
+            self.plant_address = fastio.sockaddr(sender) if self.fast else None
             self.io[kernel.LAST_USEC] = -1  # a new plant: its clock starts afresh
             self.io[kernel.NEXT_STREAM_TICK] = 0
         self.plant_heard = wall
@@ -242,15 +250,26 @@ class Autopilot:
             self.plant_lost = False
             self.commander.plant_restored()
         started = time.perf_counter()
-        ctl = self.controller
         if self.estimator is not None:
-            flags = sensor_tick(self.rx_array, nbytes, self.hil_frame, self.truth, self.origin, self.estimator.arrays,
-                                self.st, self.period, ctl.kind, self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min,
-                                self.f_max, self.tx, self.io, self.batch.records)  # fmt: skip
+            flags = sensor_tick(self.rx_array, nbytes, *self.tick_arguments())
         else:
-            flags = autopilot_tick(self.rx_array, nbytes, self.scratch, self.st, self.period, ctl.kind,
-                                   self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min, self.f_max, self.tx, self.io,
-                                   self.batch.records)  # fmt: skip
+            flags = autopilot_tick(self.rx_array, nbytes, *self.tick_arguments())
+        self._finish_tick(flags, nbytes, sender, wall)
+        self.load = (time.perf_counter() - started) / self.period
+
+    def tick_arguments(self) -> tuple:
+        """The compiled tick's arguments after the datagram (autopilot.tick: autopilot_tick's, or in sensor mode
+        sensor_tick's)."""
+        ctl = self.controller
+        common = (self.st, self.period, ctl.kind, self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min, self.f_max,
+                  self.tx, self.io, self.batch.records)  # fmt: skip
+        if self.estimator is not None:
+            return (self.hil_frame, self.truth, self.origin, self.estimator.arrays, *common)
+        return (self.scratch, *common)
+
+    def _finish_tick(self, flags: int, nbytes: int, sender: tuple[str, int], wall: float) -> None:
+        """What follows the compiled tick in Python: the answer (or, with --offboard-lockstep, its wait for a
+        setpoint), the mission executor, and what the flags leave to Python."""
         if flags & kernel.ANSWER:
             if self.pace is not None and self.pace.must_wait(int(self.io[kernel.TICK]), self._offboard(), wall):
                 self.pending = (bytes(self.tx_view[: self.io[kernel.TX_LEN]]), sender)
@@ -261,7 +280,44 @@ class Autopilot:
                 self._send_mission(out)
         if flags > kernel.ANSWER:
             self._after_tick(flags, nbytes, sender)
-        self.load = (time.perf_counter() - started) / self.period
+
+    def _answer_armed(self) -> None:
+        """Just armed, and the plant quiet for PLANT_HOLDING: a lockstep plant that holds its clock until the vehicle
+        arms (``quadsitl plant --hold-until-armed``) waits for an answer saying armed. The answer to its last tick
+        goes again at once (its forces as computed then, armed), instead of at the plant's next re-send, 50 ms
+        later; a plant that has moved on discards it as stale."""
+        if self.plant_peer is None or self.io[kernel.LAST_USEC] < 0 or self.pending is not None:
+            return
+        if time.monotonic() - self.plant_heard < PLANT_HOLDING:
+            return
+        kernel.answer_again(int(self.io[kernel.LAST_USEC]), self.commander.cm, self.mem, self.f_max, self.tx, self.io)
+        self.plant_sock.sendto(self.tx_view[: self.io[kernel.TX_LEN]], self.plant_peer)
+
+    def serve_plant(self, next_poll: float) -> None:
+        """Serve the plant link in compiled code (:mod:`autopilot.plant_loop`) until Python has something to do
+        (a tick whose flags need it, a stranger's datagram, the next ground-link poll or telemetry batch at
+        ``next_poll`` or before, a quiet plant), and do it."""
+        wait, stats = self.plant_wait, self.loop_stats
+        stats[:] = 0
+        stats[plant_loop.SHORT] = wait.short
+        polling = wait.polling()
+        deadline = min(next_poll, self.last_flush + BATCH_WALL if self.io[kernel.ROWS] else next_poll)
+        limit = plant_loop.NO_LIMIT if self.pace is None else self.pace.free_until(self._offboard())
+        status, nbytes, flags = plant_loop.serve(
+            self.plant_sock.fileno(), self.rx_array, self.sender, self.sender_len, self.plant_address, self.tx, self.io,
+            self.tick_arguments(), int(deadline * 1e9), polling, int(wait.budget * 1e9), HOT_AFTER, limit, stats
+        )  # fmt: skip
+        wall = time.monotonic()
+        wait.tally(int(stats[plant_loop.POLLED]), int(stats[plant_loop.LATE]), polling and status == plant_loop.QUIET,
+                   int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))  # fmt: skip
+        if stats[plant_loop.ANSWERED]:
+            self.plant_heard = wall
+            self.load = stats[plant_loop.TICK_NS] * 1e-9 / self.period
+        if status == plant_loop.TICKED:
+            self.plant_heard = wall
+            self._finish_tick(flags, nbytes, self.plant_peer, wall)
+        elif status == plant_loop.STRANGER:
+            self.on_plant_datagram(nbytes, fastio.address_of(self.sender))
 
     def _after_tick(self, flags: int, nbytes: int, sender: tuple[str, int]) -> None:
         """What a tick leaves to Python, now and then: telemetry messages, announcements, a full batch, and the
@@ -647,6 +703,8 @@ class Autopilot:
                 reason = "" if c.armed else gcs_messages.arming_check(self.has_state())
                 ok, reason = (False, reason) if reason else c.arm()
                 result = accepted if ok else denied
+                if ok:
+                    self._answer_armed()
             elif m.param1 == 0.0:
                 latest = self.latest()
                 in_air = latest is not None and gcs_messages.in_air(c, latest[1])
@@ -806,12 +864,15 @@ class Autopilot:
             if self.pending is not None:
                 self.wait_for_setpoint()
                 continue
-            try:
-                nbytes, sender = receive()
-            except (BlockingIOError, InterruptedError):
-                nbytes = -1
-            if nbytes >= 0:
-                self.on_plant_datagram(nbytes, sender)
+            if self.plant_address is not None and not self.plant_lost and not self.missions.flying:
+                self.serve_plant(next_poll)  # the plant's ticks in compiled code, until Python has something to do
+            else:
+                try:
+                    nbytes, sender = receive()
+                except (BlockingIOError, InterruptedError):
+                    nbytes = -1
+                if nbytes >= 0:
+                    self.on_plant_datagram(nbytes, sender)
             wall = time.monotonic()
             if self.plant_peer is not None and not self.plant_lost and wall - self.plant_heard > PLANT_LOST_AFTER:
                 self.plant_lost = True
@@ -1008,6 +1069,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.signing_key = wire.resolve_signing_key(args.signing_key)
         warm_up()  # compiled before the first tick (numba's cache makes this quick after the first run)
         ap = Autopilot(preset, args)
+        if ap.fast:
+            plant_loop.warm_up(ap.tick_arguments())
     except (UsageError, ConfigError, GainError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2

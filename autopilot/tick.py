@@ -249,7 +249,7 @@ def _new_tick(t: int, io: np.ndarray) -> int:
 
 
 @jit
-def _answer_again(t: int, cm: np.ndarray, mem: np.ndarray, f_max: float, tx: np.ndarray, io: np.ndarray) -> int:
+def answer_again(t: int, cm: np.ndarray, mem: np.ndarray, f_max: float, tx: np.ndarray, io: np.ndarray) -> int:
     """A re-sent datagram (stamped ``t``, the last tick's): the same answer, its forces as computed then, with the
     armed flag as it is now (a lockstep plant holding its clock until the vehicle arms reads it)."""
     forces = (mem[MEM_FORCES], mem[MEM_FORCES + 1], mem[MEM_FORCES + 2], mem[MEM_FORCES + 3])
@@ -281,7 +281,7 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
         return NOT_MINE if t == NOT_THIS_FRAME else REFUSED
     new = _new_tick(t, io)
     if new <= 0:
-        return _answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
+        return answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
     st[:] = scratch
     tick = tick_of(t, period)
     io[TICK] = tick
@@ -305,7 +305,7 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
         return NOT_MINE if t == NOT_THIS_FRAME else REFUSED
     new = _new_tick(t, io)
     if new <= 0:
-        return _answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
+        return answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
     for bit in range(4):
         io[DROPPED] += (dropped >> bit) & 1
     ekf.estimator_tick(flags, z, period, (0.0, 0.0, 0.0), x, P, hist, eio, acc, e, ratio, scratch, out)

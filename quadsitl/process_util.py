@@ -91,6 +91,7 @@ SPIN_BUDGET = 200e-6  # [s] how long a hot lockstep loop polls for the next data
 HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
 SPIN_MISSES = 32  # polls that ran out of budget in a window, beyond which polling stops for a while
+SPIN_STRIKES = 2  # failing windows in a row that stop polling: a burst (another process's few ms) is not enough
 SPIN_COOL = (0.25, 4.0)  # [s] how long it stops: doubling from the first to the second while it keeps failing
 
 
@@ -143,6 +144,7 @@ class SpinThenBlock:
         self._polls = self._misses = 0
         self._cool_until = 0.0
         self._cool = SPIN_COOL[0]
+        self._strikes = 0  # failing windows in a row
 
     def __call__(self):
         """What ``recv`` returns; raises as it does (BlockingIOError on SO_RCVTIMEO's timeout)."""
@@ -169,17 +171,46 @@ class SpinThenBlock:
             self._short = self._short + 1 if time.perf_counter() - start < self.budget else 0
             self.hot = self._short >= HOT_AFTER
 
+    def polling(self) -> bool:
+        """True when the next wait polls: the loop is hot, polling is on and not stopped for a while."""
+        return self.hot and self.budget > 0 and time.perf_counter() >= self._cool_until
+
+    def tally(self, polled: int, late: int, ran_out: bool, blocked: int, short: int) -> None:
+        """Waits made elsewhere with this budget, the way :meth:`__call__` makes them (a compiled loop,
+        :mod:`autopilot.plant_loop`): ``polled`` datagrams came while polling, ``late`` of them after half the
+        budget; ``ran_out``: a poll then found none within the budget (a miss, after which the loop is no longer
+        hot and the next wait blocks); ``blocked`` waits blocked, the last ``short`` of them in a row each shorter
+        than the budget."""
+        self.polled += polled
+        for i in range(polled):
+            self._verdict(miss=i < late)
+        if ran_out:
+            self._verdict(miss=True)
+            self._short, self.hot = 0, False
+        if blocked:
+            self.blocked += blocked
+            self._short = short
+            self.hot = short >= HOT_AFTER
+
+    @property
+    def short(self) -> int:
+        """Consecutive waits, up to now, each shorter than the budget."""
+        return self._short
+
     def _verdict(self, miss: bool) -> None:
         self._polls += 1
         self._misses += miss
         if self._polls < SPIN_WINDOW:
             return
-        if self._misses > SPIN_MISSES:
-            self._cool_until = time.perf_counter() + self._cool
-            self._cool = min(2 * self._cool, SPIN_COOL[1])
-            self.cooled += 1
-        else:
-            self._cool = SPIN_COOL[0]
+        if self._misses <= SPIN_MISSES:
+            self._cool, self._strikes = SPIN_COOL[0], 0
+        else:  # a failing window: polling stops after SPIN_STRIKES in a row, or at once if it failed since it resumed
+            self._strikes += 1
+            if self._strikes >= SPIN_STRIKES or self._cool > SPIN_COOL[0]:
+                self._cool_until = time.perf_counter() + self._cool
+                self._cool = min(2 * self._cool, SPIN_COOL[1])
+                self._strikes = 0
+                self.cooled += 1
         self._polls = self._misses = 0
 
 

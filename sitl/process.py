@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from quadsitl import hil, wire
+from quadsitl import fastio, hil, wire
 from quadsitl.cli_util import (
     UsageError,
     add_preset_arguments,
@@ -59,6 +59,7 @@ from quadsitl.cli_util import (
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.earth import PX4_HOME
 from quadsitl.process_util import (
+    HOT_AFTER,
     PLANT_DIVERGED,
     SpinThenBlock,
     bind_udp,
@@ -71,13 +72,14 @@ from quadsitl.process_util import (
 )
 from quadsitl.telemetry import add_zenoh_arguments, config_from_args
 from quadsitl.timing import period_stats
-from sitl import tick
+from sitl import lockstep_loop, tick
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant, outside_what, state_inside
 from sitl.wind_link import WindLink
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
+LOOP_RETURN_NS = 1_000_000  # [ns] wall: the compiled clock comes back to Python at least this often (signals, wind)
 AUTOPILOT_LOST_AFTER = 0.5  # [s] wall without an actuator message: the autopilot is lost
 
 
@@ -282,6 +284,21 @@ def warm_up(plant: Plant) -> None:
     wire.decode_actuators(link, n, twin.commanded, 1.0)
     twin.step()
     state_inside(twin.x)
+    if fastio.AVAILABLE:  # the compiled clock, on a loopback pair: each wait finds an answer to tick 0
+        io[tick.SENSING], io[tick.LAST_USEC] = 0, -1
+        udp = (socket.AF_INET, socket.SOCK_DGRAM)
+        with socket.socket(*udp) as a, socket.socket(*udp) as b:
+            a.bind(("127.0.0.1", 0))
+            b.bind(("127.0.0.1", 0))
+            a.connect(b.getsockname())
+            b.connect(a.getsockname())
+            set_receive_timeout(a, 0.1)
+            for polling in (True, False):
+                io[tick.LAST_USEC] = -1
+                b.send(link[:n].tobytes())
+                lockstep_loop.run(a.fileno(), np.zeros(65535, dtype=np.uint8), 0, 1, 1.0, twin.commanded.copy(),
+                                  twin.commanded, args, 0, polling, 1000, HOT_AFTER,
+                                  np.zeros(lockstep_loop.STATS_SIZE, dtype=np.int64))  # fmt: skip
 
 
 @dataclass
@@ -345,26 +362,66 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
     links = [v.link for v in vehicles]
     winds = [v for v in vehicles if v.wind is not None]
     monotonic, lockstep_tick, usec_of = time.monotonic, tick.lockstep_tick, wire.usec_of
+    # One vehicle, unpaced: once its autopilot has answered, the ticks run in compiled code (sitl.lockstep_loop)
+    # until Python has something to do; the loop below then goes on from where it stopped.
+    fast = len(vehicles) == 1 and speed <= 0 and fastio.compiled_loops() and links[0].impairment is None
+    stats = np.zeros(lockstep_loop.STATS_SIZE, dtype=np.int64)
+    end = np.iinfo(np.int64).max if max_ticks is None else max_ticks
     while max_ticks is None or k < max_ticks:
+        taken = None  # (length, result) of a datagram the compiled loop took for tick k, its answer not yet found
+        sent = False
+        if fast and links[0].first_heard is not None:
+            v, link, _, rx, max_thrust, received, commanded, args = waits[0]
+            wait = link.wait
+            stats[:] = 0
+            stats[lockstep_loop.SHORT] = wait.short
+            polling = wait.polling()
+            k0 = k
+            status, k, nbytes, r = lockstep_loop.run(
+                link.sock.fileno(), rx, k, end, max_thrust, received, commanded, args,
+                time.monotonic_ns() + LOOP_RETURN_NS, polling, int(wait.budget * 1e9), HOT_AFTER, stats
+            )  # fmt: skip
+            wait.tally(int(stats[lockstep_loop.POLLED]), int(stats[lockstep_loop.LATE]),
+                       status == lockstep_loop.QUIET, int(stats[lockstep_loop.BLOCKED]),
+                       int(stats[lockstep_loop.SHORT]))  # fmt: skip
+            if k > k0:
+                link.last_heard = monotonic()
+                for _ in range(k - k0):
+                    v.plant.time += period
+            if status in (lockstep_loop.DUE, lockstep_loop.END):
+                for w in winds:
+                    if w.wind.inbox:
+                        w.wind.take(w.plant)
+                continue
+            sent = True
+            if status == lockstep_loop.TAKEN:
+                taken = (nbytes, r)
+            elif status == lockstep_loop.TIMED_OUT:
+                taken = (-1, None)
         want = usec_of(k, period)
-        for link in links:
-            link.send()
+        if not sent:
+            for link in links:
+                link.send()
         if named:  # tick k's datagrams, to send again while any vehicle keeps the fleet waiting
-            sent = [bytes(link.tx_view[: link.io[tick.TX_LEN]]) for link in links]
+            sent_frames = [bytes(link.tx_view[: link.io[tick.TX_LEN]]) for link in links]
         held = links[0].first_heard is None
         for v, link, receive, rx, max_thrust, received, commanded, args in waits:
             while True:
-                nbytes = receive(FREEWHEEL_PERIOD)
+                if taken is not None:
+                    (nbytes, r), taken = taken, None
+                else:
+                    nbytes, r = receive(FREEWHEEL_PERIOD), None
                 if nbytes < 0:
                     held = True
                     link.check_lost("holding: simulated time stops until it answers")
                     if named:  # free-wheel the whole fleet: an autopilot that hears nothing declares its plant lost
-                        for other, frame in zip(links, sent, strict=True):
+                        for other, frame in zip(links, sent_frames, strict=True):
                             other.send(frame)
                     else:
                         link.send()  # free-wheel: no answer yet
                     continue
-                r = lockstep_tick(rx, nbytes, want, max_thrust, received, commanded, *args, k)
+                if r is None:
+                    r = lockstep_tick(rx, nbytes, want, max_thrust, received, commanded, *args, k)
                 if r == tick.ANOTHER_FRAME:  # for pymavlink (several messages, signed)
                     r = tick.take_and_step(link.decode(nbytes), want, commanded, received, *args, k)
                 if r == tick.STEPPED:
@@ -592,6 +649,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     vehicles: list[Vehicle] = []
     session = None
     try:
+        fastio.compiled_loops()  # $QUADSITL_COMPILED_LOOPS checked before anything starts
         vehicles = fleet_from_args(args)
         warm_up(vehicles[0].plant)
         session = open_wind_links(args, vehicles)

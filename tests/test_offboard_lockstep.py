@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from autopilot.offboard_lockstep import HOLD_MAX, OffboardLockstep
+from autopilot.offboard_lockstep import HOLD_MAX, NO_WAIT, OffboardLockstep
 
 PERIOD = 0.001
 
@@ -61,6 +61,19 @@ def test_a_wait_runs_out_after_hold_max_and_is_not_repeated_for_the_same_setpoin
     p.stamp(4000)
     assert p.must_wait(5000, True, wall=12.0)  # a newer setpoint, 1 s old: waited for
     assert p.waits == 2
+
+
+def test_free_until_is_the_last_tick_answered_without_a_wait():
+    """What a compiled loop may answer alone (autopilot.plant_loop): every tick up to it, must_wait agrees."""
+    p = pace()
+    assert p.free_until(True) == NO_WAIT  # nothing stamped yet
+    p.stamp(1000)
+    assert p.free_until(False) == NO_WAIT  # not flying offboard
+    last = p.free_until(True)
+    assert last == 1500 and not p.must_wait(last, True, wall=0.0) and p.must_wait(last + 1, True, wall=0.0)
+    assert p.free_until(True) == -1  # a wait under way: every tick is Python's
+    assert not p.must_wait(last + 1, True, wall=HOLD_MAX)  # it runs out for this setpoint
+    assert p.free_until(True) == NO_WAIT
 
 
 def test_the_lead_is_counted_in_ticks_of_the_period():

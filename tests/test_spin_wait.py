@@ -8,7 +8,15 @@ import time
 import pytest
 
 from quadsitl.cli_util import UsageError
-from quadsitl.process_util import HOT_AFTER, SPIN_ENV, SPIN_WINDOW, SpinThenBlock, spin_budget
+from quadsitl.process_util import (
+    HOT_AFTER,
+    SPIN_ENV,
+    SPIN_MISSES,
+    SPIN_STRIKES,
+    SPIN_WINDOW,
+    SpinThenBlock,
+    spin_budget,
+)
 
 
 @pytest.fixture
@@ -62,12 +70,28 @@ def test_polling_stops_for_a_while_when_it_does_not_pay():
         wait()
     for _ in range(SPIN_WINDOW):
         wait()
+    assert wait.cooled == 0  # one window of late answers may be a burst (another process's few ms): polling goes on
+    for _ in range(SPIN_WINDOW * (SPIN_STRIKES - 1)):
+        wait()
     assert wait.cooled == 1
     polls = calls["poll"]
     for _ in range(20):
         wait()
     assert calls["poll"] == polls  # cooling off: every wait blocks
     assert wait.blocked == HOT_AFTER + 20
+
+
+def test_waits_made_by_a_compiled_loop_count_as_its_own():
+    wait = SpinThenBlock(lambda *a: b"x", budget=0.001)
+    assert not wait.polling()
+    wait.tally(0, 0, False, blocked=HOT_AFTER, short=HOT_AFTER)  # blocking waits, each short: hot
+    assert wait.polling() and wait.blocked == HOT_AFTER and wait.short == HOT_AFTER
+    wait.tally(SPIN_WINDOW - 1, 0, ran_out=True, blocked=0, short=0)  # a poll ran out: blocks next, as __call__
+    assert not wait.polling() and wait.polled == SPIN_WINDOW - 1 and wait.cooled == 0
+    wait.tally(0, 0, False, blocked=HOT_AFTER, short=HOT_AFTER)
+    for _ in range(SPIN_STRIKES):  # windows with too many late datagrams, in a row: polling stops for a while
+        wait.tally(SPIN_WINDOW, SPIN_MISSES + 1, False, 0, 0)
+    assert wait.cooled == 1 and wait.hot and not wait.polling()
 
 
 def test_the_budget_comes_from_the_environment_and_is_checked(monkeypatch):

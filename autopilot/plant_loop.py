@@ -1,0 +1,136 @@
+"""The autopilot's plant link served by compiled code: receive the plant's datagram, fly the tick, send the answer,
+and again, without coming back to Python between two ticks (:func:`serve`).
+
+Each tick the Python loop of :mod:`autopilot.process` paid for what the tick itself does not need: a receive and a
+send through Python's socket objects, the call into the compiled tick (numba checks the type of each of its
+sixteen arguments on every call), a few clock reads and comparisons. In a lockstep run that was about as much time
+as the tick's own work. :func:`serve` does the same per tick, in the same order, on the same compiled tick
+(:func:`autopilot.tick.autopilot_tick` or :func:`~autopilot.tick.sensor_tick`), and gives the loop back to
+Python whenever Python has something to do:
+
+- the tick reports more than an answer (telemetry messages or an event due, a full batch, a datagram pymavlink
+  must parse, ...), or its answer must wait for an offboard setpoint (``limit_tick``, :mod:`autopilot.
+  offboard_lockstep`): :data:`TICKED`, the answer not sent, for Python to finish the tick as it always has;
+- a datagram from another sender than the plant the link is locked to: :data:`STRANGER`, the datagram in ``rx``
+  and its sender in ``addr``;
+- the wall-clock moment ``deadline_ns`` has passed (the ground links' next poll, the next telemetry batch):
+  :data:`DUE`;
+- no datagram came within the wait (``spin_ns`` of polling, or the socket's receive timeout when blocking):
+  :data:`QUIET`.
+
+So every datagram is handled exactly as the Python loop handles it, and lockstep runs are unchanged to the bit
+(tested: :mod:`tests.test_plant_loop`). The wait is the one :class:`quadsitl.process_util.SpinThenBlock` chooses:
+polling for ``spin_ns`` while the loop is hot, a blocking receive otherwise; what the waits found goes back to it
+in ``stats`` (:meth:`~quadsitl.process_util.SpinThenBlock.tally`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from autopilot import tick as kernel
+from quadsitl import fastio
+from quadsitl.jit import jit
+
+TICKED, STRANGER, DUE, QUIET = 0, 1, 2, 3
+# stats (int64): ticks answered here; datagrams that came while polling, of which late (after half the budget);
+# blocking waits, and the consecutive ones shorter than the budget at the end (SpinThenBlock's "hot" count); the
+# last tick's duration [ns].
+ANSWERED, POLLED, LATE, BLOCKED, SHORT, TICK_NS, STATS_SIZE = range(7)
+NO_LIMIT = np.iinfo(np.int64).max
+
+if fastio.AVAILABLE:
+    from numba.extending import overload
+
+    def fly_datagram(rx: np.ndarray, length: int, targs: tuple) -> int:
+        """The tick of the datagram rx[:length]: :func:`autopilot.tick.autopilot_tick` (``targs``: its arguments
+        after the datagram) or, in sensor mode, :func:`autopilot.tick.sensor_tick` (its arguments)."""
+        raise NotImplementedError  # compiled code only: the overload below
+
+    @overload(fly_datagram, jit_options={"cache": True})
+    def _fly_datagram(rx, length, targs):
+        if len(targs) == 13:  # the state mode's arguments (autopilot_tick), else the sensor mode's
+            return lambda rx, length, targs: kernel.autopilot_tick(rx, length, *targs)
+        return lambda rx, length, targs: kernel.sensor_tick(rx, length, *targs)
+
+    @jit
+    def serve(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray, tx: np.ndarray,
+              io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, hot_after: int,
+              limit_tick: int, stats: np.ndarray) -> tuple:  # fmt: skip
+        """Serve the plant on socket ``fd`` until Python has something to do (the module's docstring) → (status,
+        the datagram's length or −1, the tick's flags). Datagrams are read into ``rx``, their sender into ``addr``
+        (``addrlen``: its length, int32[1]); ``peer`` is the locked plant's address (:func:`quadsitl.fastio.
+        sockaddr`); ``tx`` and ``io`` are the tick's answer buffer and bookkeeping (also in ``targs``).
+
+        ``polling``: each wait polls for up to ``budget_ns`` [ns]; else it blocks in the receive (the socket's
+        own timeout ends it: QUIET), and once ``hot_after`` consecutive waits were each shorter than the budget
+        the loop goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]."""
+        flags_wait = fastio.MSG_DONTWAIT if polling else 0
+        while True:
+            began = fastio.monotonic_ns()
+            while True:
+                addrlen[0] = fastio.SOCKADDR_IN
+                n = fastio.recvfrom(fd, rx.ctypes.data, rx.size, flags_wait, addr.ctypes.data, addrlen.ctypes.data)
+                if n >= 0 or not polling:
+                    break
+                fastio.sched_yield()  # a task waiting for this core (the peer itself, on the same one) runs first
+                if fastio.monotonic_ns() - began > budget_ns:
+                    return QUIET, -1, 0
+            now = fastio.monotonic_ns()
+            if polling:
+                stats[POLLED] += 1
+                if now - began > budget_ns // 2:
+                    stats[LATE] += 1
+            else:
+                stats[BLOCKED] += 1
+                stats[SHORT] = stats[SHORT] + 1 if now - began < budget_ns else 0
+            if n < 0:
+                return QUIET, -1, 0
+            if addrlen[0] != fastio.SOCKADDR_IN:
+                return STRANGER, n, 0
+            for i in range(8):  # family, port, IPv4 address
+                if addr[i] != peer[i]:
+                    return STRANGER, n, 0
+            flags = fly_datagram(rx, n, targs)
+            if flags != kernel.ANSWER or io[kernel.TICK] > limit_tick:
+                return TICKED, n, flags
+            fastio.sendto(fd, tx.ctypes.data, io[kernel.TX_LEN], 0, peer.ctypes.data, fastio.SOCKADDR_IN)
+            stats[ANSWERED] += 1
+            end = fastio.monotonic_ns()
+            stats[TICK_NS] = end - now
+            if end >= deadline_ns or (not polling and stats[SHORT] == hot_after):
+                return DUE, -1, 0
+
+
+def _copied(value: object) -> object:
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if isinstance(value, tuple):
+        return tuple(_copied(v) for v in value)
+    return value
+
+
+def warm_up(targs: tuple) -> None:
+    """Compile (or load from numba's cache) :func:`serve` for these tick arguments (the autopilot's own, copied:
+    nothing of its state is touched) before the first tick: one made-up ODOMETRY datagram served on a loopback
+    socket."""
+    if not fastio.AVAILABLE:
+        return
+    import socket
+
+    from quadsitl import wire
+    from quadsitl.process_util import set_receive_timeout
+
+    targs = _copied(targs)
+    tx, io = targs[-3], targs[-2]
+    frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    n = wire.encode_state(frame, 0, 1, 1, 0, np.zeros(wire.DECODED_SIZE))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        set_receive_timeout(sock, 0.1)
+        peer = fastio.sockaddr(sock.getsockname())
+        rx, addr, addrlen = np.zeros(65535, dtype=np.uint8), np.zeros_like(peer), np.zeros(1, dtype=np.int32)
+        for polling in (True, False):
+            sock.sendto(frame[:n].tobytes(), sock.getsockname())
+            serve(sock.fileno(), rx, addr, addrlen, peer, tx, io, targs, 0, polling, 1000, 8, NO_LIMIT,
+                  np.zeros(STATS_SIZE, dtype=np.int64))  # fmt: skip

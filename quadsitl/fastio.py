@@ -1,0 +1,137 @@
+"""The C library's datagram calls and clock, callable from compiled code: so that a lockstep loop can receive,
+tick and answer without coming back to Python between two ticks (:mod:`autopilot.plant_loop`,
+:mod:`sitl.lockstep_loop`).
+
+Each is a numba intrinsic that declares the libc function by name in the compiled module (``recvfrom``,
+``sendto``, ``send``, ``clock_gettime``), so the machine code calls it directly, as C would, and numba's on-disk
+cache keeps it (a ctypes function pointer would be a different address in every process, which numba refuses to
+cache). Buffers are passed as addresses (``array.ctypes.data``); the caller keeps the arrays alive.
+
+Linux only (the socket address layout below is Linux's ``struct sockaddr_in``); with ``NUMBA_DISABLE_JIT=1`` none
+of this exists, and the processes keep their Python loops (:data:`AVAILABLE`).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import struct
+import sys
+
+import numpy as np
+
+from quadsitl.cli_util import UsageError
+from quadsitl.jit import DISABLED
+
+AVAILABLE = not DISABLED and sys.platform == "linux"
+"""True when the compiled loops can run here: compiled code (not ``NUMBA_DISABLE_JIT``) on Linux."""
+
+LOOPS_ENV = "QUADSITL_COMPILED_LOOPS"  # 0: the processes keep their Python loops (for comparison; 1 is the default)
+
+
+def compiled_loops() -> bool:
+    """Whether the plant and the autopilot serve their lockstep link in compiled code: where :data:`AVAILABLE`,
+    unless ``$QUADSITL_COMPILED_LOOPS`` is 0 (the Python loops, which handle every datagram the same way)."""
+    text = os.environ.get(LOOPS_ENV, "1")
+    if text not in ("0", "1"):
+        raise UsageError(f"${LOOPS_ENV} = {text!r}: expected 0 (Python loops) or 1 (compiled loops, the default)")
+    return AVAILABLE and text == "1"
+
+
+MSG_DONTWAIT = 0x40  # Linux's flag: a receive that returns at once (−1) when nothing is waiting
+SOCKADDR_IN = 16  # bytes of a struct sockaddr_in (family, port, IPv4 address, padding)
+CLOCK_MONOTONIC = 1
+
+
+def sockaddr(address: tuple[str, int]) -> np.ndarray:
+    """An IPv4 (host, port) as the bytes of a Linux ``struct sockaddr_in``, to compare with what ``recvfrom``
+    fills in and to give ``sendto``."""
+    host, port = address[0], address[1]
+    raw = struct.pack("=H", socket.AF_INET) + struct.pack("!H", port) + socket.inet_aton(host) + bytes(8)
+    return np.frombuffer(raw, dtype=np.uint8).copy()
+
+
+def address_of(raw: np.ndarray) -> tuple[str, int]:
+    """The (host, port) of a ``struct sockaddr_in`` that ``recvfrom`` filled in."""
+    data = raw.tobytes()
+    return socket.inet_ntoa(data[4:8]), struct.unpack("!H", data[2:4])[0]
+
+
+if AVAILABLE:
+    from llvmlite import ir
+    from numba import types
+    from numba.core import cgutils
+    from numba.extending import intrinsic
+
+    _I32, _I64 = ir.IntType(32), ir.IntType(64)
+    _PTR = ir.IntType(8).as_pointer()
+
+    def _libc(builder, name: str, ret, params):
+        return cgutils.get_or_insert_function(builder.module, ir.FunctionType(ret, params), name)
+
+    def _ptr(builder, value):
+        return builder.inttoptr(value, _PTR)
+
+    @intrinsic
+    def recvfrom(typingctx, fd, buf, size, flags, addr, addrlen):
+        """recvfrom(fd, buf address, size, flags, sockaddr address, socklen_t address) → bytes or −1."""
+        sig = types.int64(types.int64, types.intp, types.int64, types.int64, types.intp, types.intp)
+
+        def codegen(context, builder, signature, args):
+            fn = _libc(builder, "recvfrom", _I64, [_I32, _PTR, _I64, _I32, _PTR, _PTR])
+            fd_, buf_, size_, flags_, addr_, len_ = args
+            return builder.call(fn, [builder.trunc(fd_, _I32), _ptr(builder, buf_), size_, builder.trunc(flags_, _I32),
+                                     _ptr(builder, addr_), _ptr(builder, len_)])  # fmt: skip
+
+        return sig, codegen
+
+    @intrinsic
+    def sendto(typingctx, fd, buf, size, flags, addr, addrlen):
+        """sendto(fd, buf address, size, flags, sockaddr address, its length) → bytes sent or −1."""
+        sig = types.int64(types.int64, types.intp, types.int64, types.int64, types.intp, types.int64)
+
+        def codegen(context, builder, signature, args):
+            fn = _libc(builder, "sendto", _I64, [_I32, _PTR, _I64, _I32, _PTR, _I32])
+            fd_, buf_, size_, flags_, addr_, len_ = args
+            return builder.call(fn, [builder.trunc(fd_, _I32), _ptr(builder, buf_), size_, builder.trunc(flags_, _I32),
+                                     _ptr(builder, addr_), builder.trunc(len_, _I32)])  # fmt: skip
+
+        return sig, codegen
+
+    @intrinsic
+    def send(typingctx, fd, buf, size, flags):
+        """send(fd, buf address, size, flags) on a connected socket → bytes sent or −1."""
+        sig = types.int64(types.int64, types.intp, types.int64, types.int64)
+
+        def codegen(context, builder, signature, args):
+            fn = _libc(builder, "send", _I64, [_I32, _PTR, _I64, _I32])
+            fd_, buf_, size_, flags_ = args
+            return builder.call(fn, [builder.trunc(fd_, _I32), _ptr(builder, buf_), size_, builder.trunc(flags_, _I32)])
+
+        return sig, codegen
+
+    @intrinsic
+    def sched_yield(typingctx):
+        """sched_yield(): let another task waiting for this core run first (0, or −1)."""
+        sig = types.int64()
+
+        def codegen(context, builder, signature, args):
+            fn = _libc(builder, "sched_yield", _I32, [])
+            return builder.sext(builder.call(fn, []), _I64)
+
+        return sig, codegen
+
+    @intrinsic
+    def monotonic_ns(typingctx):
+        """CLOCK_MONOTONIC in integer nanoseconds (time.monotonic_ns's clock)."""
+        sig = types.int64()
+
+        def codegen(context, builder, signature, args):
+            fn = _libc(builder, "clock_gettime", _I32, [_I32, _I64.as_pointer()])
+            ts = cgutils.alloca_once(builder, _I64, size=2)
+            builder.call(fn, [ir.Constant(_I32, CLOCK_MONOTONIC), ts])
+            seconds = builder.load(ts)
+            nanos = builder.load(builder.gep(ts, [ir.Constant(_I32, 1)]))
+            return builder.add(builder.mul(seconds, ir.Constant(_I64, 1_000_000_000)), nanos)
+
+        return sig, codegen

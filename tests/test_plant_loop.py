@@ -1,0 +1,204 @@
+"""The compiled lockstep loops (autopilot.plant_loop, sitl.lockstep_loop, on quadsitl.fastio's libc calls): each
+datagram handled as the Python loops handle it, Python given the loop back whenever it has something to do, and
+flights the same to the bit with the compiled loops and without them."""
+
+import socket
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from autopilot import plant_loop
+from autopilot import tick as kernel
+from autopilot.process import Autopilot, build_parser
+from quadsitl import fastio, wire
+from quadsitl.config import load_preset
+from quadsitl.process_util import free_port, set_receive_timeout
+
+pytestmark = pytest.mark.skipif(not fastio.AVAILABLE, reason="compiled loops: Linux, numba on")
+PERIOD = 0.001
+
+
+def test_libc_calls_move_datagrams_and_read_the_monotonic_clock():
+    a, b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM), socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        a.bind(("127.0.0.1", 0))
+        b.bind(("127.0.0.1", 0))
+        to_a = fastio.sockaddr(a.getsockname())
+        assert fastio.address_of(to_a) == a.getsockname()
+        data = np.arange(7, dtype=np.uint8)
+        sent = _sendto(b.fileno(), data, to_a)
+        assert sent == 7
+        rx, sender, length = np.zeros(64, dtype=np.uint8), np.zeros(fastio.SOCKADDR_IN, np.uint8), np.zeros(1, np.int32)
+        time.sleep(0.01)
+        assert _recvfrom(a.fileno(), rx, sender, length) == 7
+        assert rx[:7].tolist() == list(range(7)) and fastio.address_of(sender) == b.getsockname()
+        assert _recvfrom(a.fileno(), rx, sender, length) == -1  # nothing waits: MSG_DONTWAIT returns at once
+        before = time.monotonic_ns()
+        now = _clock()
+        assert before <= now <= time.monotonic_ns()  # time.monotonic's clock
+    finally:
+        a.close()
+        b.close()
+
+
+if fastio.AVAILABLE:
+    from quadsitl.jit import jit
+
+    @jit
+    def _sendto(fd, data, to):
+        return fastio.sendto(fd, data.ctypes.data, data.size, 0, to.ctypes.data, fastio.SOCKADDR_IN)
+
+    @jit
+    def _recvfrom(fd, rx, sender, length):
+        length[0] = fastio.SOCKADDR_IN
+        return fastio.recvfrom(fd, rx.ctypes.data, rx.size, fastio.MSG_DONTWAIT, sender.ctypes.data,
+                               length.ctypes.data)  # fmt: skip
+
+    @jit
+    def _clock():
+        return fastio.monotonic_ns()
+
+
+@pytest.fixture
+def vehicle():
+    """An autopilot (the process's object, no Zenoh) and a socket that plays its plant."""
+    port = free_port()
+    args = build_parser().parse_args(["--preset", "paper", "--plant-listen", f"127.0.0.1:{port}", "--gcs-listen",
+                                      "127.0.0.1:0", "--gcs-remote", "none", "--api-listen", "127.0.0.1:0",
+                                      "--api-remote", "none", "--no-zenoh"])  # fmt: skip
+    args.home, args.signing_key = None, None
+    ap = Autopilot(load_preset("paper"), args)
+    plant = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    plant.bind(("127.0.0.1", 0))
+    set_receive_timeout(plant, 2.0)
+    yield ap, plant, ("127.0.0.1", port)
+    plant.close()
+    ap.close()
+
+
+def state_frame(tick: int) -> bytes:
+    frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    n = wire.encode_state(frame, tick & 0xFF, wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID, wire.usec_of(tick, PERIOD),
+                          (0.0,) * 12)  # fmt: skip
+    return frame[:n].tobytes()
+
+
+def answer_of(data: bytes) -> tuple[int, bool]:
+    """(stamp, armed) of a HIL_ACTUATOR_CONTROLS datagram."""
+    buf = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    buf[: len(data)] = np.frombuffer(data, dtype=np.uint8)
+    stamp = wire.decode_actuators(buf, len(data), np.zeros(4), 1.0)
+    assert stamp >= 0
+    return stamp, bool(buf[wire.HEADER_SIZE + wire.HIL_SIZE - 1] & wire.SAFETY_ARMED)
+
+
+def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIMIT, polling: bool = True):
+    stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
+    out = plant_loop.serve(ap.plant_sock.fileno(), ap.rx_array, ap.sender, ap.sender_len, ap.plant_address, ap.tx,
+                           ap.io, ap.tick_arguments(), time.monotonic_ns() + int(deadline_s * 1e9), polling,
+                           50_000_000, 8, limit, stats)  # fmt: skip
+    return out, stats
+
+
+def test_the_compiled_loop_answers_each_tick_and_gives_python_what_it_must_do(vehicle):
+    ap, plant, autopilot = vehicle
+    plant.sendto(state_frame(1), autopilot)
+    nbytes, sender = ap.plant_sock.recvfrom_into(ap.rx)  # the first datagram: Python's loop locks to the plant
+    ap.on_plant_datagram(nbytes, sender)
+    assert answer_of(plant.recv(1000)) == (1000, False) and ap.plant_address is not None
+    for k in range(2, 12):
+        plant.sendto(state_frame(k), autopilot)
+    time.sleep(0.05)
+    stamps, returns = [], []
+    while True:
+        (status, nbytes, flags), stats = serve(ap, deadline_s=0.5)
+        # Every tick that needs nothing else is answered in the loop; one with a telemetry message due is Python's
+        # to finish (its answer not sent yet); then nothing comes within the budget.
+        stamps += [answer_of(plant.recv(1000))[0] for _ in range(int(stats[plant_loop.ANSWERED]))]
+        returns.append(status)
+        if status != plant_loop.TICKED:
+            break
+        assert flags & kernel.STREAM and flags & kernel.ANSWER
+        ap._finish_tick(flags, nbytes, ap.plant_peer, time.monotonic())  # what Python does then: the answer goes
+        stamps.append(answer_of(plant.recv(1000))[0])
+    assert stamps == [1000 * k for k in range(2, 12)] and ap.io[kernel.TICK] == 11
+    assert returns[-1] == plant_loop.QUIET and 1 < len(returns) < 10  # Python's turn only now and then
+
+
+def test_a_stranger_a_deadline_and_a_limit_hand_the_loop_back(vehicle):
+    ap, plant, autopilot = vehicle
+    plant.sendto(state_frame(1), autopilot)
+    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
+    plant.recv(1000)
+    ap.io[kernel.NEXT_STREAM_TICK] = 10**9  # no telemetry message due in this test
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+        other.bind(("127.0.0.1", 0))
+        other.sendto(state_frame(2), autopilot)
+        time.sleep(0.02)
+        (status, nbytes, _), _ = serve(ap)
+        assert status == plant_loop.STRANGER and fastio.address_of(ap.sender) == other.getsockname()
+        assert nbytes == len(state_frame(2)) and ap.io[kernel.TICK] == 1  # not flown: the plant's own tick only
+    plant.sendto(state_frame(2), autopilot)
+    plant.sendto(state_frame(3), autopilot)
+    time.sleep(0.02)
+    (status, _, _), stats = serve(ap, deadline_s=0.0)  # the deadline has passed: back after one tick
+    assert status == plant_loop.DUE and stats[plant_loop.ANSWERED] == 1 and answer_of(plant.recv(1000))[0] == 2000
+    (status, _, flags), stats = serve(ap, limit=2)  # tick 3 is past the limit: its answer is Python's to send
+    assert status == plant_loop.TICKED and flags == kernel.ANSWER and stats[plant_loop.ANSWERED] == 0
+    assert ap.io[kernel.TICK] == 3
+
+
+def test_a_blocking_loop_comes_back_to_poll_once_the_plant_answers_fast(vehicle):
+    ap, plant, autopilot = vehicle
+    plant.sendto(state_frame(1), autopilot)
+    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
+    plant.recv(1000)
+    ap.io[kernel.NEXT_STREAM_TICK] = 10**9
+    set_receive_timeout(ap.plant_sock, 0.5)
+    for k in range(2, 14):
+        plant.sendto(state_frame(k), autopilot)
+    time.sleep(0.02)
+    (status, _, _), stats = serve(ap, polling=False)  # each wait short (the datagrams wait): hot after 8
+    assert status == plant_loop.DUE and stats[plant_loop.BLOCKED] == 8 and stats[plant_loop.SHORT] == 8
+    ap.plant_wait.tally(0, 0, False, int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))
+    assert ap.plant_wait.polling()
+
+
+def test_arming_answers_a_holding_plant_at_once(vehicle):
+    ap, plant, autopilot = vehicle
+    plant.sendto(state_frame(1), autopilot)
+    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
+    assert answer_of(plant.recv(1000)) == (1000, False)
+    time.sleep(0.01)  # the plant holds tick 1 (quadsitl plant --hold-until-armed): it says nothing
+    arm = mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    ap._command(arm, ap.links[1])
+    assert ap.commander.armed
+    assert answer_of(plant.recv(1000)) == (1000, True)  # the same tick's answer, armed, without a re-send
+
+
+@pytest.mark.parametrize("preset", ["paper", "sensors"])
+def test_flights_are_the_same_to_the_bit_with_and_without_the_compiled_loops(tmp_path, cli, preset, monkeypatch):
+    argv = ["fly", "--preset", "x500" if preset == "sensors" else "paper", "--duration", "2", "--no-figures", "--quiet"]
+    if preset == "sensors":
+        argv += ["--state", "sensors"]
+    tables = {}
+    for loops in ("0", "1"):
+        monkeypatch.setenv(fastio.LOOPS_ENV, loops)
+        out = tmp_path / loops
+        r = cli(*argv, "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        tables[loops] = (out / "telemetry.csv").read_text()
+    assert tables["0"] == tables["1"] and len(tables["1"].splitlines()) == 2001
+
+
+def test_a_bad_loops_setting_is_one_line_from_both_processes(cli, monkeypatch):
+    monkeypatch.setenv(fastio.LOOPS_ENV, "yes")
+    for argv in (["autopilot", "--no-zenoh", "--plant-listen", "127.0.0.1:0"], ["plant", "--ticks", "1"]):
+        r = cli(*argv)
+        assert r.returncode == 2
+        assert r.stderr.strip().splitlines() == [
+            f"quadsitl {argv[0]}: error: ${fastio.LOOPS_ENV} = 'yes': expected 0 (Python loops) or 1 (compiled loops, "
+            "the default)"
+        ]
