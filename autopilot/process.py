@@ -57,6 +57,7 @@ BATCH_TICKS = 512  # and at the latest after this many ticks
 PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lost (failsafe)
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 PLANT_HOLDING = 0.005  # [s] wall: a plant quiet this long may be holding its clock (_answer_armed)
+NO_STREAMS = 2**40  # [ticks] how far off the next telemetry message is when no link has a destination
 GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are read while the plant link is busy
 GCS_BUDGET = 0.001  # [s] wall: the most time one reading of the ground-station sockets may take
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
@@ -402,7 +403,12 @@ class Autopilot:
                 frames.append(built[mid])
             if frames:  # one datagram per link and tick, as PX4 fills its UDP buffer
                 link.send(b"".join(frames))
-        self.io[kernel.NEXT_STREAM_TICK] = min(link.streams.next_due(tick) for link in self.links)
+        # Only links with somewhere to send count (a link nobody listens on would call Python every few ticks for
+        # nothing); a new peer starts the streams again (on_gcs).
+        self.io[kernel.NEXT_STREAM_TICK] = min(
+            (link.streams.next_due(tick) for link in self.links if link.remote is not None or link.peers),
+            default=tick + NO_STREAMS,
+        )
 
     def flush_telemetry(self) -> None:
         """Publish the batched records (every stream gets the same ticks)."""
@@ -509,6 +515,7 @@ class Autopilot:
         link.peers[sender] = time.monotonic()
         if new_peer:
             self.heartbeat()
+            self.io[kernel.NEXT_STREAM_TICK] = 0  # its streams start at the next tick
         mid = m.get_msgId()
         if not hasattr(m, "target_system"):
             if mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT:

@@ -63,11 +63,12 @@ if fastio.AVAILABLE:
 
 @pytest.fixture
 def vehicle():
-    """An autopilot (the process's object, no Zenoh) and a socket that plays its plant."""
+    """An autopilot (the process's object, no Zenoh; its api link streams telemetry to a port) and a socket that
+    plays its plant."""
     port = free_port()
     args = build_parser().parse_args(["--preset", "paper", "--plant-listen", f"127.0.0.1:{port}", "--gcs-listen",
                                       "127.0.0.1:0", "--gcs-remote", "none", "--api-listen", "127.0.0.1:0",
-                                      "--api-remote", "none", "--no-zenoh"])  # fmt: skip
+                                      "--api-remote", f"127.0.0.1:{free_port()}", "--no-zenoh"])  # fmt: skip
     args.home, args.signing_key = None, None
     ap = Autopilot(load_preset("paper"), args)
     plant = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
