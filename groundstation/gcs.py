@@ -462,6 +462,10 @@ class GroundStation:
         write_csv(self.out / "telemetry.csv", rows)
         if self.flight_rate is not None:
             sim, wall_flown = self.flight_rate
+            start = self.logger.flight_start_tick
+            pace = self.logger.pace(start, start + round(sim / self.period))
+            if pace is not None:  # the vehicle's own pace, by its telemetry's publication times (TelemetryLogger.pace)
+                sim, wall_flown = pace[0] * self.period, pace[1]
             rate = {"simulated_s": sim, "wall_s": wall_flown, "ticks_per_s": sim / self.period / max(wall_flown, 1e-9),
                     "real_time_factor": sim / max(wall_flown, 1e-9)}  # fmt: skip
             (self.out / "rate.json").write_text(json.dumps(rate, indent=2) + "\n")

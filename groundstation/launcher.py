@@ -396,9 +396,11 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         ]
         if args.integrator:
             plant += ["--integrator", args.integrator]
-        # On sensors, the vehicle waits on the ground for SENSOR_GROUND_S (the estimator aligns in its first second)
-        # and the plant's clock holds there until it is armed: every run, and `sim`, start flying at the same tick.
-        hold = ["--hold-until-armed", repr(SENSOR_GROUND_S)] if preset.sensors is not None and not mission else []
+        # The vehicle waits on the ground for SENSOR_GROUND_S (on sensors, the estimator aligns in its first second)
+        # and the plant's clock holds there until it is armed: every run, and `sim`, start flying at the same tick,
+        # and plant and autopilot wait (a datagram every 50 ms) instead of racing through ground ticks on the cores
+        # the ground station needs to start (which made the lockstep loops give up polling into the flight).
+        hold = ["--hold-until-armed", repr(SENSOR_GROUND_S)] if not mission else []
         children.start("plant", plant + wind_argv(args) + state_argv(args) + home + hold + quiet)
         gcs = ["groundstation", "--preset", preset_name, "--connect", f"127.0.0.1:{gcs_port}",
                "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out), *quiet]  # fmt: skip

@@ -51,6 +51,7 @@ class TelemetryLogger:
         self.last_status: dict | None = None
         self.flight_start_tick = -1
         self.malformed = 0
+        self._published: list[tuple[int, float]] = []  # (a status batch's last tick, its publication time [s])
         # Each stream's samples wait in a FIFO channel inside Zenoh (no Python runs when one arrives, so the
         # logger wakes no thread per sample); drain() takes them. A full channel holds Zenoh back, and the
         # vehicle's publishers drop rather than wait: the capacity covers minutes of samples.
@@ -60,16 +61,16 @@ class TelemetryLogger:
             for stream in (*telemetry.STREAMS, telemetry.TRUTH)
         ]
 
-    def _received(self) -> list[tuple[str, bytes]]:
+    def _received(self) -> list[tuple[str, bytes, zenoh.Timestamp | None]]:
         out = []
         for stream, sub in self._subs:
             while (sample := sub.try_recv()) is not None:
-                out.append((stream, sample.payload.to_bytes()))
+                out.append((stream, sample.payload.to_bytes(), sample.timestamp))
         return out
 
     def drain(self) -> None:
         """File what arrived; follow the status stream."""
-        for stream, data in self._received():
+        for stream, data, stamp in self._received():
             size = DTYPES[stream].itemsize
             if not data or len(data) % size:
                 self.malformed += 1
@@ -83,6 +84,8 @@ class TelemetryLogger:
                 continue
             self.last_status = {name: int(recs[-1][name]) for name in STATUS_FIELDS}
             self.last_tick = max(self.last_tick, int(recs["tick"].max()))
+            if stamp is not None:  # the publisher's clock when the batch went out (the autopilot's, on its machine)
+                self._published.append((int(recs["tick"][-1]), stamp.get_time().timestamp()))
             start, armed = recs["offboard_tick"], recs["armed"] != 0
             if self.start == "armed":
                 self._follow_armed(recs["tick"], armed)
@@ -148,6 +151,16 @@ class TelemetryLogger:
         if self.flight_start_tick < 0:
             return -1.0
         return ((self.last_tick if tick is None else tick) - self.flight_start_tick) * self.period
+
+    def pace(self, first_tick: int, last_tick: int) -> tuple[int, float] | None:
+        """How fast the vehicle went from ``first_tick`` to ``last_tick``: (ticks, wall seconds) between the
+        publication times of two status batches, the first that ends at or after first_tick and the last that ends at
+        or before last_tick (the autopilot stamps each batch as it goes out: the figure is the vehicle's own pace,
+        without this logger's delays). None without two such batches, or without timestamps."""
+        inside = [(tick, t) for tick, t in self._published if first_tick <= tick <= last_tick]
+        if len(inside) < 2 or inside[-1][1] <= inside[0][1]:
+            return None
+        return inside[-1][0] - inside[0][0], inside[-1][1] - inside[0][1]
 
     def close(self) -> None:
         for _stream, sub in self._subs:

@@ -231,6 +231,19 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
     report = json.loads((out / "metrics.json").read_text())
     assert report["diverged"] is False and report["diverged_at"] is None
+    # The flight's pace, from the autopilot's publication times of its telemetry: most of the 2 s flight's ticks.
+    rate = json.loads((out / "rate.json").read_text())
+    assert 1.0 < rate["simulated_s"] <= 2.2 and rate["wall_s"] > 0
+    assert rate["ticks_per_s"] == pytest.approx(rate["simulated_s"] / 0.001 / rate["wall_s"])
+
+
+def test_the_pace_is_measured_between_batches_inside_the_flight():
+    from groundstation.logger import TelemetryLogger
+
+    logger = TelemetryLogger.__new__(TelemetryLogger)  # pace() alone: no Zenoh session needed
+    logger._published = [(90, 0.9), (104, 1.0), (160, 1.5), (208, 1.9), (260, 2.5)]  # (last tick, publication [s])
+    assert logger.pace(100, 250) == (104, pytest.approx(0.9))  # from the batch ending at 104 to the one at 208
+    assert logger.pace(100, 150) is None  # one batch only: no pace
 
 
 WINDY = ("--wind", "3,90", "--turbulence", "moderate", "--gust", "2,0,0.5,0.3", "--wind-seed", "4")
