@@ -33,10 +33,9 @@ from quadsitl import fastio
 from quadsitl.jit import jit
 
 TICKED, STRANGER, DUE, QUIET = 0, 1, 2, 3
-# stats (int64): ticks answered here; datagrams that came while polling, of which late (after half the budget);
-# blocking waits, and the consecutive ones shorter than the budget at the end (SpinThenBlock's "hot" count); the
-# last tick's duration [ns].
-ANSWERED, POLLED, LATE, BLOCKED, SHORT, TICK_NS, STATS_SIZE = range(7)
+# stats (int64): ticks answered here, the waits (quadsitl.fastio.receive's counts), the last tick's duration [ns].
+ANSWERED, TICK_NS, STATS_SIZE = 0, 5, 6
+POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fastio.SHORT
 NO_LIMIT = np.iinfo(np.int64).max
 
 if fastio.AVAILABLE:
@@ -65,27 +64,11 @@ if fastio.AVAILABLE:
         ``polling``: each wait polls for up to ``budget_ns`` [ns]; else it blocks in the receive (the socket's
         own timeout ends it: QUIET), and once ``hot_after`` consecutive waits were each shorter than the budget
         the loop goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]."""
-        flags_wait = fastio.MSG_DONTWAIT if polling else 0
         while True:
-            began = fastio.monotonic_ns()
-            while True:
-                addrlen[0] = fastio.SOCKADDR_IN
-                n = fastio.recvfrom(fd, rx.ctypes.data, rx.size, flags_wait, addr.ctypes.data, addrlen.ctypes.data)
-                if n >= 0 or not polling:
-                    break
-                fastio.sched_yield()  # a task waiting for this core (the peer itself, on the same one) runs first
-                if fastio.monotonic_ns() - began > budget_ns:
-                    return QUIET, -1, 0
-            now = fastio.monotonic_ns()
-            if polling:
-                stats[POLLED] += 1
-                if now - began > budget_ns // 2:
-                    stats[LATE] += 1
-            else:
-                stats[BLOCKED] += 1
-                stats[SHORT] = stats[SHORT] + 1 if now - began < budget_ns else 0
-            if n < 0:
+            n = fastio.receive(fd, rx, addr, addrlen, polling, budget_ns, stats)
+            if n == fastio.RAN_OUT or n < 0:
                 return QUIET, -1, 0
+            now = fastio.monotonic_ns()
             if addrlen[0] != fastio.SOCKADDR_IN:
                 return STRANGER, n, 0
             for i in range(8):  # family, port, IPv4 address

@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from quadsitl.cli_util import UsageError
-from quadsitl.jit import DISABLED
+from quadsitl.jit import DISABLED, jit
 
 AVAILABLE = not DISABLED and sys.platform == "linux"
 """True when the compiled loops can run here: compiled code (not ``NUMBA_DISABLE_JIT``) on Linux."""
@@ -41,6 +41,11 @@ def compiled_loops() -> bool:
 MSG_DONTWAIT = 0x40  # Linux's flag: a receive that returns at once (−1) when nothing is waiting
 SOCKADDR_IN = 16  # bytes of a struct sockaddr_in (family, port, IPv4 address, padding)
 CLOCK_MONOTONIC = 1
+# A compiled loop's waits, counted in its stats (int64) by :func:`receive` (index 0 is the loop's own count):
+# datagrams that came while polling, of which late (after half the budget); blocking waits, and the consecutive
+# ones shorter than the budget (SpinThenBlock's "hot" count: :meth:`quadsitl.process_util.SpinThenBlock.tally`).
+POLLED, LATE, BLOCKED, SHORT = 1, 2, 3, 4
+RAN_OUT = -2  # receive(): polling found no datagram within the budget
 
 
 def sockaddr(address: tuple[str, int]) -> np.ndarray:
@@ -135,3 +140,30 @@ if AVAILABLE:
             return builder.add(builder.mul(seconds, ir.Constant(_I64, 1_000_000_000)), nanos)
 
         return sig, codegen
+
+    @jit
+    def receive(fd: int, rx: np.ndarray, sender: np.ndarray, length: np.ndarray, polling: bool, budget_ns: int,
+                stats: np.ndarray) -> int:  # fmt: skip
+        """One datagram from socket ``fd`` into ``rx`` (its sender's address into ``sender``, the address's length
+        into ``length``, int32[1]) → its length. ``polling``: poll for up to ``budget_ns`` [ns], yielding the core
+        between polls to any task waiting for it (RAN_OUT when none came); else block (−1 when the socket's receive
+        timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE, BLOCKED, SHORT)."""
+        flags = MSG_DONTWAIT if polling else 0
+        began = monotonic_ns()
+        while True:
+            length[0] = SOCKADDR_IN
+            n = recvfrom(fd, rx.ctypes.data, rx.size, flags, sender.ctypes.data, length.ctypes.data)
+            if n >= 0 or not polling:
+                break
+            sched_yield()  # a task waiting for this core (the peer itself, when both are on one) runs first
+            if monotonic_ns() - began > budget_ns:
+                return RAN_OUT
+        took = monotonic_ns() - began
+        if polling:
+            stats[POLLED] += 1
+            if took > budget_ns // 2:
+                stats[LATE] += 1
+        else:
+            stats[BLOCKED] += 1
+            stats[SHORT] = stats[SHORT] + 1 if took < budget_ns else 0
+        return n

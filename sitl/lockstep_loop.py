@@ -24,9 +24,9 @@ from sitl import tick
 # and its answer still awaited: a datagram taken with another result than STEPPED (TAKEN), no datagram within the
 # polling budget (QUIET) or the socket's receive timeout (TIMED_OUT).
 DUE, END, TAKEN, QUIET, TIMED_OUT = range(5)
-# stats (int64), as autopilot.plant_loop's: ticks stepped; datagrams that came while polling, of which late;
-# blocking waits, and the consecutive ones shorter than the budget at the end.
-STEPPED, POLLED, LATE, BLOCKED, SHORT, STATS_SIZE = range(6)
+# stats (int64): ticks stepped here, then the waits (quadsitl.fastio.receive's counts).
+STEPPED, STATS_SIZE = 0, 5
+POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fastio.SHORT
 
 
 @jit
@@ -41,33 +41,18 @@ def run(fd: int, rx: np.ndarray, k: int, max_k: int, max_thrust: float, received
     timeout ends it: TIMED_OUT), and once ``hot_after`` consecutive waits were each shorter than the budget the
     clock goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]."""
     period, tx, io = targs[7], targs[10], targs[11]
-    flags_wait = fastio.MSG_DONTWAIT if polling else 0
+    sender, length = np.zeros(fastio.SOCKADDR_IN, dtype=np.uint8), np.zeros(1, dtype=np.int32)  # (connected: the peer)
     while k < max_k:
         want = usec_of(k, period)
         fastio.send(fd, tx.ctypes.data, io[tick.TX_LEN], 0)
-        while True:  # tick k's answer
-            began = fastio.monotonic_ns()
-            while True:
-                n = fastio.recvfrom(fd, rx.ctypes.data, rx.size, flags_wait, 0, 0)
-                if n >= 0 or not polling:
-                    break
-                fastio.sched_yield()  # a task waiting for this core (the peer itself, on the same one) runs first
-                if fastio.monotonic_ns() - began > budget_ns:
-                    return QUIET, k, -1, 0
-            now = fastio.monotonic_ns()
-            if polling:
-                stats[POLLED] += 1
-                if now - began > budget_ns // 2:
-                    stats[LATE] += 1
-            else:
-                stats[BLOCKED] += 1
-                stats[SHORT] = stats[SHORT] + 1 if now - began < budget_ns else 0
-                if n < 0:
-                    return TIMED_OUT, k, -1, 0
-            r = tick.lockstep_tick(rx, n, want, max_thrust, received, commanded, *targs, k)
-            if r != tick.STEPPED:
-                return TAKEN, k, n, r
-            break
+        n = fastio.receive(fd, rx, sender, length, polling, budget_ns, stats)  # tick k's answer
+        if n == fastio.RAN_OUT:
+            return QUIET, k, -1, 0
+        if n < 0:
+            return TIMED_OUT, k, -1, 0
+        r = tick.lockstep_tick(rx, n, want, max_thrust, received, commanded, *targs, k)
+        if r != tick.STEPPED:
+            return TAKEN, k, n, r
         stats[STEPPED] += 1
         k += 1
         if fastio.monotonic_ns() >= deadline_ns or (not polling and stats[SHORT] == hot_after):
