@@ -158,6 +158,13 @@ def test_mavproxy_on_the_shared_port_sees_every_vehicle_of_a_fleet_and_arms_the_
             while len(seen) < 3:
                 seen.add(int(mp.expect(r"Detected vehicle (\d+):1 on link", timeout=60).group(1)))
             assert seen == {1, 2, 3}, mp.log
+            # A vehicle's first heartbeat may come before its first state (the fleet's plant re-sends its tick to a
+            # vehicle that starts late every 50 ms): arming is denied until then, as PX4's pre-arm checks deny it.
+            # Its telemetry flowing says it has one.
+            end = time.monotonic() + 30
+            while time.monotonic() < end and set(armed) != {"v1", "v2", "v3"}:
+                time.sleep(0.05)
+            assert set(armed) == {"v1", "v2", "v3"}, armed
             mp.send("vehicle 3")
             mp.send("arm throttle")
             mp.expect(r"ARMED", timeout=30)
