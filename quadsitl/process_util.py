@@ -87,7 +87,12 @@ def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
 
 
 SPIN_ENV = "QUADSITL_SPIN_US"  # the polling budget in µs (0: always block)
-SPIN_BUDGET = 200e-6  # [s] how long a hot lockstep loop polls for the next datagram before it blocks
+# [s] How long a hot lockstep loop polls for the next datagram before it blocks, and the longest wait that keeps
+# it hot. Above the wake-up of a blocked process on a virtual machine (100-200 µs where a halted core must be woken,
+# as on Firecracker guests): with 200 µs there, each time the peer ran Python for a moment, its waits blocked,
+# took longer than the budget, and the loop stayed cold for hundreds of ticks. Below half a 1 kHz period: a loop
+# paced at real time (about 1 ms between datagrams) never turns hot.
+SPIN_BUDGET = 500e-6
 HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
 SPIN_MISSES = 32  # polls that ran out of budget in a window, beyond which polling stops for a while
