@@ -50,5 +50,22 @@ def describe() -> dict[str, object]:
     }
 
 
+def cpu_times() -> tuple[int, int]:
+    """(steal, total) of all CPUs since boot [clock ticks] from /proc/stat: steal is the time the hypervisor ran
+    something else while this machine had work for its virtual CPU. (0, 0) where /proc/stat is not there."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+    except OSError:
+        return 0, 0
+    ticks = [int(f) for f in fields[1:9]]  # user nice system idle iowait irq softirq steal
+    return ticks[7], sum(ticks)
+
+
+def steal_ratio(before: tuple[int, int], after: tuple[int, int]) -> float:
+    """The share of CPU time the hypervisor stole between two :func:`cpu_times` readings (0 on bare metal)."""
+    total = after[1] - before[1]
+    return (after[0] - before[0]) / total if total > 0 else 0.0
+
+
 def one_line(m: dict[str, object]) -> str:
     return f"{m['cpu']}, {m['cores']} cores, hypervisor {m['hypervisor']}, Linux {m['kernel']}, Python {m['python']}"
