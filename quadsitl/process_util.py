@@ -124,7 +124,9 @@ class SpinThenBlock:
     datagrams) or whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to
     blocking, so it spends no CPU on polling. A paced loop that finds one datagram already waiting (it was
     late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
-    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
+    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need. A hot loop whose poll runs
+    out (the peer ran Python for a moment, or lost its core) blocks for the rest of that wait, and is hot again after
+    one short wait.
 
     Polling only pays while both processes have a core each. On a machine whose cores are taken by
     something else, a poller holds a core its peer needs, and the loop slows down instead: the polls
@@ -163,7 +165,9 @@ class SpinThenBlock:
                     if time.perf_counter() < end:
                         continue
                     self._verdict(miss=True)
-                    break
+                    self._ran_out()
+                    self.blocked += 1
+                    return self.block()  # the rest of a hot loop's hiccup: the next short wait makes it hot again
                 self.polled += 1
                 # A datagram that took more than half the budget to come was late: the peer had to wait for
                 # a core. Counted as a miss, as is a poll that ran out of budget.
@@ -191,11 +195,18 @@ class SpinThenBlock:
             self._verdict(miss=i < late)
         if ran_out:
             self._verdict(miss=True)
-            self._short, self.hot = 0, False
+            self._ran_out()
         if blocked:
             self.blocked += blocked
             self._short = short
             self.hot = short >= HOT_AFTER
+
+    def _ran_out(self) -> None:
+        """A hot loop's poll found nothing within the budget: the peer had a hiccup (a moment of Python, a core
+        taken away), or the loop is now paced. It blocks, and one short wait makes it hot again (a paced loop's next
+        wait is long, and it stays cold): with HOT_AFTER short waits to wait for instead, each hiccup cost nine
+        blocked waits, each a wake-up (100-200 µs on a virtual machine that halts idle cores)."""
+        self._short, self.hot = HOT_AFTER - 1, False
 
     @property
     def short(self) -> int:
