@@ -1,6 +1,7 @@
 """End to end: the real processes on free loopback ports, always cleaned up."""
 
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from groundstation import trajectories
+from groundstation import gcs, trajectories
 from groundstation.launcher import OFFBOARD_LOCKSTEP, free_port
 from groundstation.telemetry_csv import read_csv
 from quadsitl.state import Reference
@@ -133,6 +134,9 @@ def test_fly_sends_a_position_trajectory_as_offboard_position_setpoints(circle_f
     # Up to 50 Hz of simulated time over the 22 s, fewer the faster the lockstep runs (the ground station reads its
     # link every 2 ms of wall time), and never fewer than one per OFFBOARD_LOCKSTEP (the vehicle's clock waits).
     assert attitude_targets == 0 and len(sent) > 22 / OFFBOARD_LOCKSTEP
+    # a changing reference: at most one per SETPOINT_MS (50 Hz) of the vehicle's time
+    stamps = [m.time_boot_ms for m in sent]
+    assert all(b - a >= gcs.SETPOINT_MS for a, b in itertools.pairwise(stamps) if b != a)
     moving = 0
     for m in sent:
         assert (m.coordinate_frame, m.type_mask) == (mavutil.mavlink.MAV_FRAME_LOCAL_NED, 2496)
@@ -224,10 +228,19 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
         assert np.isnan(data["x_ref"]).all() and np.isnan(data["y_ref"]).all()
     # The .tlog is standard: pymavlink reads it, both directions are in it.
     tlog = mavutil.mavlink_connection(str(out / "flight.tlog"))
-    seen = set()
+    seen, targets = set(), []
     while (m := tlog.recv_match()) is not None:
         seen.add(m.get_type())
+        if m.get_type() == "SET_ATTITUDE_TARGET":
+            targets.append((m.time_boot_ms, m._timestamp, tuple(m.q), m.thrust))
     assert {"HEARTBEAT", "ATTITUDE", "COMMAND_ACK", "COMMAND_LONG", "SET_ATTITUDE_TARGET"} <= seen
+    # A constant reference goes again at 10 Hz of the vehicle's time (and of wall time while its clock waits on the
+    # ground), not 50: the same setpoint every time.
+    assert len({(q, thrust) for _, _, q, thrust in targets}) == 1
+    for (ms0, wall0, _, _), (ms1, wall1, _, _) in itertools.pairwise(targets):
+        assert ms1 - ms0 >= gcs.KEEPALIVE_MS or wall1 - wall0 >= gcs.KEEPALIVE_WALL - 0.003, (ms0, ms1, wall1 - wall0)
+    flown = [ms for ms, _, _, _ in targets if ms > targets[0][0]]
+    assert 2000 / gcs.KEEPALIVE_MS - 2 <= len(set(flown)) <= 5000 / gcs.KEEPALIVE_MS  # 2 s flown, and the landing
     assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
     report = json.loads((out / "metrics.json").read_text())
     assert report["diverged"] is False and report["diverged_at"] is None
