@@ -177,7 +177,10 @@ class SpinThenBlock:
         try:
             return self.block()
         finally:
-            self._short = self._short + 1 if time.perf_counter() - start < self.budget else 0
+            if self._short < 0:  # the rest of a wait whose poll ran out in a compiled loop: not a wait of its own
+                self._short = -self._short
+            else:
+                self._short = self._short + 1 if time.perf_counter() - start < self.budget else 0
             self.hot = self._short >= HOT_AFTER
 
     def polling(self) -> bool:
@@ -193,9 +196,10 @@ class SpinThenBlock:
         self.polled += polled
         for i in range(polled):
             self._verdict(miss=i < late)
-        if ran_out:
+        if ran_out:  # the compiled loop returned at once: its next blocking wait is the rest of this one
             self._verdict(miss=True)
             self._ran_out()
+            self._short = -self._short
         if blocked:
             self.blocked += blocked
             self._short = short
@@ -210,7 +214,8 @@ class SpinThenBlock:
 
     @property
     def short(self) -> int:
-        """Consecutive waits, up to now, each shorter than the budget."""
+        """Consecutive waits, up to now, each shorter than the budget; negative after a compiled loop's poll ran out
+        (:meth:`tally`): the next blocking wait is the rest of that one, not counted (quadsitl.fastio.receive)."""
         return self._short
 
     def _verdict(self, miss: bool) -> None:
