@@ -147,8 +147,7 @@ if AVAILABLE:
         """One datagram from socket ``fd`` into ``rx`` (its sender's address into ``sender``, the address's length
         into ``length``, int32[1]) → its length. ``polling``: poll for up to ``budget_ns`` [ns], yielding the core
         between polls to any task waiting for it (RAN_OUT when none came); else block (−1 when the socket's receive
-        timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE, BLOCKED, SHORT; a negative SHORT marks
-        a blocking wait as the rest of one whose poll ran out: not counted, SHORT becomes −SHORT)."""
+        timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE, BLOCKED, SHORT)."""
         flags = MSG_DONTWAIT if polling else 0
         began = monotonic_ns()
         while True:
@@ -166,8 +165,5 @@ if AVAILABLE:
                 stats[LATE] += 1
         else:
             stats[BLOCKED] += 1
-            if stats[SHORT] < 0:  # the rest of a hot loop's wait whose poll ran out: not a wait of its own
-                stats[SHORT] = -stats[SHORT]
-            else:
-                stats[SHORT] = stats[SHORT] + 1 if took < budget_ns else 0
+            stats[SHORT] = stats[SHORT] + 1 if took < budget_ns else 0
         return n

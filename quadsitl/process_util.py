@@ -87,12 +87,7 @@ def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
 
 
 SPIN_ENV = "QUADSITL_SPIN_US"  # the polling budget in µs (0: always block)
-# [s] How long a hot lockstep loop polls for the next datagram before it blocks, and the longest wait that keeps
-# it hot. Above the wake-up of a blocked process on a virtual machine (100-200 µs where a halted core must be woken,
-# as on Firecracker guests): with 200 µs there, each time the peer ran Python for a moment, its waits blocked,
-# took longer than the budget, and the loop stayed cold for hundreds of ticks. Below half a 1 kHz period: a loop
-# paced at real time (about 1 ms between datagrams) never turns hot.
-SPIN_BUDGET = 500e-6
+SPIN_BUDGET = 200e-6  # [s] how long a hot lockstep loop polls for the next datagram before it blocks
 HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
 SPIN_MISSES = 32  # polls that ran out of budget in a window, beyond which polling stops for a while
@@ -124,9 +119,7 @@ class SpinThenBlock:
     datagrams) or whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to
     blocking, so it spends no CPU on polling. A paced loop that finds one datagram already waiting (it was
     late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
-    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need. A hot loop whose poll runs
-    out (the peer ran Python for a moment, or lost its core) blocks for the rest of that wait, and is hot again after
-    one short wait.
+    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
 
     Polling only pays while both processes have a core each. On a machine whose cores are taken by
     something else, a poller holds a core its peer needs, and the loop slows down instead: the polls
@@ -165,9 +158,7 @@ class SpinThenBlock:
                     if time.perf_counter() < end:
                         continue
                     self._verdict(miss=True)
-                    self._ran_out()
-                    self.blocked += 1
-                    return self.block()  # the rest of a hot loop's hiccup: the next short wait makes it hot again
+                    break
                 self.polled += 1
                 # A datagram that took more than half the budget to come was late: the peer had to wait for
                 # a core. Counted as a miss, as is a poll that ran out of budget.
@@ -177,10 +168,7 @@ class SpinThenBlock:
         try:
             return self.block()
         finally:
-            if self._short < 0:  # the rest of a wait whose poll ran out in a compiled loop: not a wait of its own
-                self._short = -self._short
-            else:
-                self._short = self._short + 1 if time.perf_counter() - start < self.budget else 0
+            self._short = self._short + 1 if time.perf_counter() - start < self.budget else 0
             self.hot = self._short >= HOT_AFTER
 
     def polling(self) -> bool:
@@ -196,26 +184,17 @@ class SpinThenBlock:
         self.polled += polled
         for i in range(polled):
             self._verdict(miss=i < late)
-        if ran_out:  # the compiled loop returned at once: its next blocking wait is the rest of this one
+        if ran_out:
             self._verdict(miss=True)
-            self._ran_out()
-            self._short = -self._short
+            self._short, self.hot = 0, False
         if blocked:
             self.blocked += blocked
             self._short = short
             self.hot = short >= HOT_AFTER
 
-    def _ran_out(self) -> None:
-        """A hot loop's poll found nothing within the budget: the peer had a hiccup (a moment of Python, a core
-        taken away), or the loop is now paced. It blocks, and one short wait makes it hot again (a paced loop's next
-        wait is long, and it stays cold): with HOT_AFTER short waits to wait for instead, each hiccup cost nine
-        blocked waits, each a wake-up (100-200 µs on a virtual machine that halts idle cores)."""
-        self._short, self.hot = HOT_AFTER - 1, False
-
     @property
     def short(self) -> int:
-        """Consecutive waits, up to now, each shorter than the budget; negative after a compiled loop's poll ran out
-        (:meth:`tally`): the next blocking wait is the rest of that one, not counted (quadsitl.fastio.receive)."""
+        """Consecutive waits, up to now, each shorter than the budget."""
         return self._short
 
     def _verdict(self, miss: bool) -> None:

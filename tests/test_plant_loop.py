@@ -2,10 +2,7 @@
 datagram handled as the Python loops handle it, Python given the loop back whenever it has something to do, and
 flights the same to the bit with the compiled loops and without them."""
 
-import contextlib
 import socket
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -17,7 +14,7 @@ from autopilot import tick as kernel
 from autopilot.process import Autopilot, build_parser
 from quadsitl import fastio, wire
 from quadsitl.config import load_preset
-from quadsitl.process_util import HOT_AFTER, free_port, set_receive_timeout
+from quadsitl.process_util import free_port, set_receive_timeout
 
 pytestmark = pytest.mark.skipif(not fastio.AVAILABLE, reason="compiled loops: Linux, numba on")
 PERIOD = 0.001
@@ -168,64 +165,6 @@ def test_a_blocking_loop_comes_back_to_poll_once_the_plant_answers_fast(vehicle)
     assert status == plant_loop.DUE and stats[plant_loop.BLOCKED] == 8 and stats[plant_loop.SHORT] == 8
     ap.plant_wait.tally(0, 0, False, int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))
     assert ap.plant_wait.polling()
-
-
-def test_after_a_poll_runs_out_the_rest_of_that_wait_does_not_count(vehicle):
-    """A loop paced at 1 kHz that got hot polls 500 µs of a period and runs out; the rest of that wait, shorter than the
-    budget, must not count as a short wait of its own (it would make the loop hot again every period, polling half of
-    each), while one short wait after it does make it hot again (a hiccup of a lockstep peer)."""
-    ap, plant, autopilot = vehicle
-    plant.sendto(state_frame(1), autopilot)
-    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
-    plant.recv(1000)
-    ap.io[kernel.NEXT_STREAM_TICK] = 10**9
-    set_receive_timeout(ap.plant_sock, 0.5)
-    wait = ap.plant_wait
-    wait.tally(0, 0, False, HOT_AFTER, HOT_AFTER)
-    stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
-
-    def serve_once(polling: bool) -> tuple[int, np.ndarray]:
-        stats[:] = 0
-        stats[plant_loop.SHORT] = wait.short
-        status, _, _ = plant_loop.serve(ap.plant_sock.fileno(), ap.rx_array, ap.sender, ap.sender_len,
-                                        ap.plant_address, ap.tx, ap.io, ap.tick_arguments(),
-                                        time.monotonic_ns() + 10**9, polling, 100_000_000, HOT_AFTER,
-                                        plant_loop.NO_LIMIT, stats)  # fmt: skip
-        wait.tally(int(stats[plant_loop.POLLED]), int(stats[plant_loop.LATE]), polling and status == plant_loop.QUIET,
-                   int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))  # fmt: skip
-        return status, stats
-
-    # The plant's next state comes later than the 100 ms poll (from another process: the compiled loop holds the GIL),
-    # the one after it 300 ms later: the rest of the first wait (shorter than the budget) is not counted, the second
-    # is long: cold.
-    with later(plant, autopilot, [(0.1, state_frame(2)), (0.3, state_frame(3))]):
-        assert serve_once(True)[0] == plant_loop.QUIET and not wait.polling() and wait.short == -(HOT_AFTER - 1)
-        status, stats = serve_once(False)  # states 2 and 3, then the socket's timeout
-    assert status == plant_loop.QUIET and stats[plant_loop.BLOCKED] == 3 and stats[plant_loop.ANSWERED] == 2
-    assert wait.short == 0 and not wait.polling()
-    # a hiccup of a lockstep peer instead: the rest of the wait that ran out, then one short wait, and it is hot
-    wait.tally(0, 0, False, HOT_AFTER, HOT_AFTER)
-    with later(plant, autopilot, [(0.1, state_frame(4)), (0.0, state_frame(5))]):
-        assert serve_once(True)[0] == plant_loop.QUIET
-        status, stats = serve_once(False)
-    assert status == plant_loop.DUE and stats[plant_loop.BLOCKED] == 2 and wait.polling()
-
-
-@contextlib.contextmanager
-def later(sock: socket.socket, to: tuple[str, int], frames: list[tuple[float, bytes]]):
-    """Another process sends ``frames`` from ``sock`` (its descriptor passed on) to ``to``, each after its delay [s],
-    starting some 20-50 ms from now (its start-up)."""
-    script = ("import socket, sys, time\n"
-              "s = socket.socket(fileno=int(sys.argv[1]))\n"
-              "for delay, frame in eval(sys.argv[2]):\n"
-              "    time.sleep(delay)\n"
-              "    s.sendto(frame, eval(sys.argv[3]))\n")  # fmt: skip
-    proc = subprocess.Popen([sys.executable, "-c", script, str(sock.fileno()), repr(frames), repr(to)],
-                            pass_fds=[sock.fileno()])  # fmt: skip
-    try:
-        yield
-    finally:
-        proc.wait(10)
 
 
 def test_arming_answers_a_holding_plant_at_once(vehicle):
