@@ -59,15 +59,14 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
         measured = (1, 2) if one["value"] - floor["value"] < 0.01 else (1,)
         assert (f"fleet of 2, real time, {how}: CPU per vehicle" in figures) == (measured == (1, 2))
         for n in measured:
-            beyond = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio beyond the floor"]
-            worst = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio"]["value"]
-            assert beyond["value"] == pytest.approx(worst - floor["value"])
             assert 0 < figures[f"fleet of {n}, real time, {how}: CPU per vehicle"]["value"] < 200  # % of a core
             assert 50 < figures[f"fleet of {n}, real time, {how}: memory per vehicle"]["value"] < 2000  # MB
             clock = figures[f"fleet of {n}, real time, {how}: the clock's deadline-miss ratio (ticks started a "
                             "period late)"]["value"]  # fmt: skip
             worst = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio"]["value"]
             assert 0.0 <= clock <= worst <= 1.0  # a late tick is a late period for every vehicle
+            beyond = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio beyond the floor"]
+            assert beyond["value"] == pytest.approx(worst - floor["value"])
         # the largest fleet that kept its deadlines: a size asked for, or 0 (2 vehicles on a loaded CI machine miss);
         # over the floor, at least as many
         assert report[key] in (0, 1, 2) and report[f"{key}_over_floor"] in (0, 1, 2)
