@@ -53,7 +53,7 @@ from autopilot.gains import stability_interval
 from autopilot.limits import clamp, tilt_factor
 from quadsitl.config import PositionParams, VehicleParams
 from quadsitl.frames import altitude, climb_rate, wrap_pi
-from quadsitl.jit import jit
+from quadsitl.jit import jit, specialized
 from quadsitl.mixer import inputs_to_forces, residual_rotor_speed
 from quadsitl.param_arrays import ARM, D_OVER_B, IXX, IYY, IZZ, JR, K3, K4, K5, K6, MASS, B, G, vehicle_array
 from quadsitl.state import Inputs, Reference, VehicleState
@@ -237,6 +237,7 @@ class BacksteppingController:
         self.v = vehicle_array(vehicle)
         self.c = control_array(self.poles, period, kp, kd, max_tilt, thrust_min, thrust_max, position)
         self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
+        self._step = specialized(step_arrays, self.x, self.ref, self.mem, self.v, self.c)
         self.reset()
 
     @property
@@ -251,7 +252,7 @@ class BacksteppingController:
 
     def step(self, state: VehicleState, reference: Reference) -> Inputs:
         self.x[:], self.ref[:], self.mem[MEM_U : MEM_U + 4] = state, reference, self.last
-        step_arrays(self.x, self.ref, self.mem, self.v, self.c)
+        self._step(self.x, self.ref, self.mem, self.v, self.c)
         self.last = Inputs._make(self.mem[MEM_U : MEM_U + 4].tolist())
         self.errors = tuple(self.mem[MEM_ERRORS : MEM_ERRORS + 8].tolist())
         self.omega_r = float(self.mem[MEM_OMEGA_R])

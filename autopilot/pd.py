@@ -41,7 +41,7 @@ from autopilot.control_params import (
 from autopilot.limits import clamp, tilt_factor
 from quadsitl.config import PositionParams, VehicleParams
 from quadsitl.frames import altitude, climb_rate, wrap_pi
-from quadsitl.jit import jit
+from quadsitl.jit import jit, specialized
 from quadsitl.param_arrays import ARM, IXX, IYY, IZZ, MASS, G, vehicle_array
 from quadsitl.state import Inputs, Reference, VehicleState
 
@@ -123,6 +123,7 @@ class PDController:
         self.v = vehicle_array(vehicle)
         self.c = control_array(poles, period, kp, kd, max_tilt, thrust_min, thrust_max, position)
         self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
+        self._step = specialized(step_arrays, self.x, self.ref, self.mem, self.v, self.c)
         self.last = Inputs()
 
     @property
@@ -135,6 +136,6 @@ class PDController:
 
     def step(self, state: VehicleState, reference: Reference) -> Inputs:
         self.x[:], self.ref[:] = state, reference
-        step_arrays(self.x, self.ref, self.mem, self.v, self.c)
+        self._step(self.x, self.ref, self.mem, self.v, self.c)
         self.last = Inputs._make(self.mem[MEM_U : MEM_U + 4].tolist())
         return self.last

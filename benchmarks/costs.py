@@ -23,6 +23,7 @@ def measure(number: int) -> dict[str, float]:
     from autopilot.tick import IO_SIZE, LAST_USEC, Batch, autopilot_tick
     from quadsitl import wire
     from quadsitl.config import SensorParams, load_preset
+    from quadsitl.jit import specialized
     from quadsitl.param_arrays import actuator_array, vehicle_array
     from sitl import tick
     from sitl.plant import OUT_SIZE, step_arrays
@@ -38,15 +39,21 @@ def measure(number: int) -> dict[str, float]:
     motors, commanded, out = np.zeros(4), np.full(4, 5.0), np.zeros(OUT_SIZE)
     air = air_arrays(preset.wind)  # calm: the preset's [wind]
     sens = Sensors(SensorParams(), T, preset.vehicle.gravity).arrays  # truth mode: passed, not touched
+    # Called as the controllers and the Plant call them, every tick: their machine code without numba's dispatch
+    # (quadsitl.jit.specialized); the plant's step also through the dispatch, to show what that costs.
+    bs, pd_ = (specialized(m.step_arrays, x, ref, mem, v, c) for m in (backstepping, pd))
     figures = {
-        "backstepping controller step": per_call(lambda: backstepping.step_arrays(x, ref, mem, v, c), number),
-        "pd controller step": per_call(lambda: pd.step_arrays(x, ref, mem, v, c), number),
+        "backstepping controller step": per_call(lambda: bs(x, ref, mem, v, c), number),
+        "pd controller step": per_call(lambda: pd_(x, ref, mem, v, c), number),
     }
     for name, method, substeps in (("euler", 0, 1), ("rk4", 1, 1)):
         xs = x.copy()
-        figures[f"plant step ({name})"] = per_call(
-            lambda xs=xs, method=method, substeps=substeps: step_arrays(
-                xs, motors, commanded, out, v, a, *air, T, substeps, method, np.nan), number)  # fmt: skip
+        args = (xs, motors, commanded, out, v, a, *air, T, substeps, method, np.nan)
+        plant_step = specialized(step_arrays, *args)
+        figures[f"plant step ({name})"] = per_call(lambda f=plant_step, args=args: f(*args), number)
+        if name == "euler":
+            dispatched = per_call(lambda args=args: step_arrays(*args), number)
+            figures["plant step (euler), through numba's dispatch"] = dispatched
 
     # The processes' whole ticks, frame in to frame out (no sockets).
     state_frame, answer = np.zeros(wire.FRAME_MAX, np.uint8), np.zeros(wire.FRAME_MAX, np.uint8)

@@ -20,7 +20,7 @@ import numpy as np
 from quadsitl.config import Preset, SensorParams
 from quadsitl.earth import PX4_HOME
 from quadsitl.frames import wrap_pi
-from quadsitl.jit import jit
+from quadsitl.jit import jit, specialized
 from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
 from quadsitl.param_arrays import D_OVER_B, B, actuator_array, vehicle_array
 from quadsitl.state import Inputs, VehicleState
@@ -162,12 +162,12 @@ class Plant:
     def __init__(self, preset: Preset, integrator: str | None = None, substeps: int | None = None,
                  home: tuple[float, float, float] = PX4_HOME) -> None:  # fmt: skip
         self.params = preset.vehicle
-        self.period = preset.sim.period
+        self.period = float(preset.sim.period)
         name = integrator or preset.sim.integrator
         if name not in INTEGRATORS:
             raise ValueError(f"integrator {name!r}: expected one of {', '.join(INTEGRATORS)}")
         self.method = INTEGRATORS[name]
-        self.substeps = substeps or preset.sim.substeps
+        self.substeps = int(substeps or preset.sim.substeps)
         self.v = vehicle_array(preset.vehicle)
         self.a = actuator_array(preset.actuators)
         self.x = np.array(initial_state(preset), dtype=np.float64)
@@ -179,6 +179,8 @@ class Plant:
         self.air, self.air_rng = air_arrays(preset.wind)
         # The sensors (the preset's, else the defaults: their arrays are passed in truth mode too, untouched).
         self.sensors = Sensors(preset.sensors or SensorParams(), self.period, preset.vehicle.gravity, home)
+        self._step = specialized(step_arrays, self.x, self.motors, self.commanded, self.out, self.v, self.a, self.air,
+                                 self.air_rng, self.period, self.substeps, self.method, math.nan)  # fmt: skip
 
     @property
     def state(self) -> VehicleState:
@@ -221,6 +223,6 @@ class Plant:
         """
         if commanded is not None:
             self.commanded[:] = commanded
-        step_arrays(self.x, self.motors, self.commanded, self.out, self.v, self.a, self.air, self.air_rng, self.period,
-                    self.substeps, self.method, math.nan if omega_r is None else omega_r)  # fmt: skip
+        self._step(self.x, self.motors, self.commanded, self.out, self.v, self.a, self.air, self.air_rng, self.period,
+                   self.substeps, self.method, math.nan if omega_r is None else float(omega_r))  # fmt: skip
         self.time += self.period

@@ -78,3 +78,35 @@ def test_cli_gains_that_are_not_finite_are_refused_before_anything_compiles(tmp_
                            env={**os.environ, "NUMBA_CACHE_DIR": str(cache)})  # fmt: skip
         assert r.returncode == 2 and "expected 8 comma-separated finite numbers" in r.stderr, r.stderr
     assert not [p for p in cache.rglob("*") if p.is_file()]
+
+
+@pytest.mark.skipif(DISABLED, reason="compares the machine code called two ways")
+def test_the_specialized_entry_is_the_dispatched_function_to_the_bit():
+    """Plant.step and the controllers call their machine code without numba's dispatch (quadsitl.jit.specialized):
+    over a flight of random commands, states and references, the same numbers to the bit as the call through the
+    dispatcher, in the same arrays."""
+    from autopilot import backstepping, pd
+    from autopilot.factory import make_controller
+    from quadsitl.config import load_preset
+    from sitl.plant import Plant, step_arrays
+
+    rng = np.random.default_rng(7)
+    preset = load_preset("paper")
+    fast, slow = Plant(preset), Plant(preset)
+    for _ in range(500):
+        commanded = tuple(rng.uniform(0.0, 8.0, 4))
+        omega_r = None if rng.random() < 0.5 else float(rng.normal(0.0, 50.0))
+        fast.step(commanded, omega_r)
+        slow.commanded[:] = commanded
+        step_arrays(slow.x, slow.motors, slow.commanded, slow.out, slow.v, slow.a, slow.air, slow.air_rng, slow.period,
+                    slow.substeps, slow.method, np.nan if omega_r is None else omega_r)  # fmt: skip
+        assert np.array_equal(fast.x, slow.x) and np.array_equal(fast.out, slow.out)
+        assert np.array_equal(fast.motors, slow.motors)
+    for module, kind in ((backstepping, "backstepping"), (pd, "pd")):
+        ctl, twin = make_controller(preset, kind), make_controller(preset, kind)
+        assert ctl._step is not module.step_arrays  # the machine code itself, not the dispatcher
+        twin._step = module.step_arrays
+        for _ in range(200):
+            state, reference = rng.normal(0.0, 0.5, 12), (rng.uniform(0.5, 5.0), *rng.normal(0.0, 0.2, 3))
+            assert ctl.step(state, reference) == twin.step(state, reference), kind
+            assert np.array_equal(ctl.mem, twin.mem), kind
