@@ -10,6 +10,7 @@ import pytest
 from quadsitl.cli_util import UsageError
 from quadsitl.process_util import (
     HOT_AFTER,
+    PATIENCE,
     SPIN_ENV,
     SPIN_MISSES,
     SPIN_STRIKES,
@@ -41,8 +42,13 @@ def test_a_fast_peer_is_polled_and_a_paced_one_is_waited_for(pair):
         b.send(str(i).encode())
         assert wait() == str(i).encode()
     assert wait.polled == 5 and wait.blocked == HOT_AFTER
-    # A paced peer: nothing for longer than the budget, so the poll gives up and the wait blocks.
-    threading.Timer(0.12, lambda: b.send(b"late")).start()
+    # A hot loop rides out a wait longer than the budget, up to PATIENCE budgets (the peer ran a moment of Python):
+    # it stays hot. (A cold loop turns hot only on waits shorter than the budget, so a run paced at a period longer
+    # than the budget never polls.)
+    threading.Timer(0.08, lambda: b.send(b"moment")).start()
+    assert wait() == b"moment" and wait.polled == 6 and wait.blocked == HOT_AFTER and wait.hot
+    # A paced peer: nothing for longer than the patience, so the poll gives up and the wait blocks.
+    threading.Timer(PATIENCE * 0.05 + 0.06, lambda: b.send(b"late")).start()
     assert wait() == b"late" and wait.blocked == HOT_AFTER + 1 and not wait.hot
     b.send(b"next")
     time.sleep(0.01)
@@ -51,7 +57,7 @@ def test_a_fast_peer_is_polled_and_a_paced_one_is_waited_for(pair):
     # for the next one, a period away.
     assert not wait.hot
     threading.Timer(0.08, lambda: b.send(b"paced")).start()
-    assert wait() == b"paced" and wait.polled == 5 and wait.blocked == HOT_AFTER + 3
+    assert wait() == b"paced" and wait.polled == 6 and wait.blocked == HOT_AFTER + 3
 
 
 def test_polling_stops_for_a_while_when_it_does_not_pay():
