@@ -146,9 +146,9 @@ if AVAILABLE:
     def receive(fd: int, rx: np.ndarray, sender: np.ndarray, length: np.ndarray, polling: bool, budget_ns: int,
                 stats: np.ndarray) -> int:  # fmt: skip
         """One datagram from socket ``fd`` into ``rx`` (its sender's address into ``sender``, the address's length
-        into ``length``, int32[1]) → its length. ``polling``: poll for up to PATIENCE × ``budget_ns`` [ns], yielding the core
-        between polls to any task waiting for it (RAN_OUT when none came); else block (−1 when the socket's receive
-        timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE, BLOCKED, SHORT)."""
+        into ``length``, int32[1]) → its length. ``polling``: poll for up to PATIENCE × ``budget_ns`` [ns],
+        yielding the core between polls to any task waiting for it (RAN_OUT when none came); else block (−1 when
+        the socket's receive timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE, BLOCKED, SHORT)."""
         flags = MSG_DONTWAIT if polling else 0
         began = monotonic_ns()
         while True:

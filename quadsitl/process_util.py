@@ -118,9 +118,10 @@ class SpinThenBlock:
     guest). A loop that is hot (its last HOT_AFTER waits were each shorter than the budget: the other side answers
     within microseconds) polls instead and does not sleep, and rides out a longer wait, up to PATIENCE budgets (a
     moment of Python on the other side: a telemetry batch, a ground-station message) without going cold. Only
-    waits shorter than the budget make a loop hot, so a run paced at a period longer than the budget never polls. A loop that is paced (``--speed 1``, real time: a millisecond between
-    datagrams) or whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to
-    blocking, so it spends no CPU on polling. A paced loop that finds one datagram already waiting (it was
+    waits shorter than the budget make a loop hot, so a run paced at a period longer than the budget never polls.
+    A loop that is paced (``--speed 1``, real time: a millisecond between datagrams) or whose peer has gone
+    (free-wheeling) finds its wait longer than its patience and goes back to blocking, so it spends no CPU on
+    polling. A paced loop that finds one datagram already waiting (it was
     late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
     away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
 
