@@ -87,7 +87,7 @@ def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
 
 
 SPIN_ENV = "QUADSITL_SPIN_US"  # the polling budget in µs (0: always block)
-SPIN_BUDGET = 200e-6  # [s] how long a hot lockstep loop polls for the next datagram before it blocks
+SPIN_BUDGET = 200e-6  # [s] waits shorter than this make a lockstep loop hot; hot, it polls PATIENCE of these
 HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
 PATIENCE = 2.5  # a hot loop polls for up to PATIENCE budgets (500 µs) before it blocks (see SpinThenBlock)
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
@@ -121,9 +121,9 @@ class SpinThenBlock:
     waits shorter than the budget make a loop hot, so a run paced at a period longer than the budget never polls.
     A loop that is paced (``--speed 1``, real time: a millisecond between datagrams) or whose peer has gone
     (free-wheeling) finds its wait longer than its patience and goes back to blocking, so it spends no CPU on
-    polling. A paced loop that finds one datagram already waiting (it was
-    late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
-    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
+    polling. A paced loop that finds one datagram already waiting (it was late, behind a busy core) does not
+    turn hot: it would poll its whole patience for the next one, a millisecond away, and in a real-time fleet
+    under SCHED_FIFO hold a core its fleet-mates need.
 
     Polling only pays while both processes have a core each. On a machine whose cores are taken by
     something else, a poller holds a core its peer needs, and the loop slows down instead: the polls
