@@ -93,6 +93,7 @@ def test_the_specialized_entry_is_the_dispatched_function_to_the_bit():
     rng = np.random.default_rng(7)
     preset = load_preset("paper")
     fast, slow = Plant(preset), Plant(preset)
+    assert fast._step is not step_arrays  # the machine code itself, not the dispatcher
     for _ in range(500):
         commanded = tuple(rng.uniform(0.0, 8.0, 4))
         omega_r = None if rng.random() < 0.5 else float(rng.normal(0.0, 50.0))
