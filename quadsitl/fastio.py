@@ -22,7 +22,6 @@ import numpy as np
 
 from quadsitl.cli_util import UsageError
 from quadsitl.jit import DISABLED, jit
-from quadsitl.process_util import PATIENCE
 
 AVAILABLE = not DISABLED and sys.platform == "linux"
 """True when the compiled loops can run here: compiled code (not ``NUMBA_DISABLE_JIT``) on Linux."""
@@ -46,7 +45,7 @@ CLOCK_MONOTONIC = 1
 # datagrams that came while polling, of which late (after half the budget); blocking waits, and the consecutive
 # ones shorter than the budget (SpinThenBlock's "hot" count: :meth:`quadsitl.process_util.SpinThenBlock.tally`).
 POLLED, LATE, BLOCKED, SHORT = 1, 2, 3, 4
-RAN_OUT = -2  # receive(): polling found no datagram within PATIENCE budgets
+RAN_OUT = -2  # receive(): polling found no datagram within the budget
 
 
 def sockaddr(address: tuple[str, int]) -> np.ndarray:
@@ -146,9 +145,9 @@ if AVAILABLE:
     def receive(fd: int, rx: np.ndarray, sender: np.ndarray, length: np.ndarray, polling: bool, budget_ns: int,
                 stats: np.ndarray) -> int:  # fmt: skip
         """One datagram from socket ``fd`` into ``rx`` (its sender's address into ``sender``, the address's length
-        into ``length``, int32[1]) → its length. ``polling``: poll for up to PATIENCE × ``budget_ns`` [ns],
-        yielding the core between polls to any task waiting for it (RAN_OUT when none came); else block (−1 when
-        the socket's receive timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE, BLOCKED, SHORT)."""
+        into ``length``, int32[1]) → its length. ``polling``: poll for up to ``budget_ns`` [ns], yielding the core
+        between polls to any task waiting for it (RAN_OUT when none came); else block (−1 when the socket's receive
+        timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE, BLOCKED, SHORT)."""
         flags = MSG_DONTWAIT if polling else 0
         began = monotonic_ns()
         while True:
@@ -157,7 +156,7 @@ if AVAILABLE:
             if n >= 0 or not polling:
                 break
             sched_yield()  # a task waiting for this core (the peer itself, when both are on one) runs first
-            if monotonic_ns() - began > PATIENCE * budget_ns:
+            if monotonic_ns() - began > budget_ns:
                 return RAN_OUT
         took = monotonic_ns() - began
         if polling:

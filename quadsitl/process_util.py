@@ -87,9 +87,8 @@ def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
 
 
 SPIN_ENV = "QUADSITL_SPIN_US"  # the polling budget in µs (0: always block)
-SPIN_BUDGET = 200e-6  # [s] waits shorter than this make a lockstep loop hot; hot, it polls PATIENCE of these
+SPIN_BUDGET = 200e-6  # [s] how long a hot lockstep loop polls for the next datagram before it blocks
 HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
-PATIENCE = 2.5  # a hot loop polls for up to PATIENCE budgets (500 µs) before it blocks (see SpinThenBlock)
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
 SPIN_MISSES = 32  # polls that ran out of budget in a window, beyond which polling stops for a while
 SPIN_STRIKES = 2  # failing windows in a row that stop polling: a burst (another process's few ms) is not enough
@@ -111,19 +110,16 @@ def spin_budget() -> float:
 
 
 class SpinThenBlock:
-    """Receive for a lockstep loop: poll without blocking for up to PATIENCE × ``budget`` seconds, then block.
+    """Receive for a lockstep loop: poll without blocking for up to ``budget`` seconds, then block.
 
     A process that blocks in ``recv`` pays a wake-up when the datagram comes, and on a virtual machine the
-    wake-up of a halted core: tens of µs, more than the per-tick work of either side (130–210 µs on a Firecracker
-    guest). A loop that is hot (its last HOT_AFTER waits were each shorter than the budget: the other side answers
-    within microseconds) polls instead and does not sleep, and rides out a longer wait, up to PATIENCE budgets (a
-    moment of Python on the other side: a telemetry batch, a ground-station message) without going cold. Only
-    waits shorter than the budget make a loop hot, so a run paced at a period longer than the budget never polls.
-    A loop that is paced (``--speed 1``, real time: a millisecond between datagrams) or whose peer has gone
-    (free-wheeling) finds its wait longer than its patience and goes back to blocking, so it spends no CPU on
-    polling. A paced loop that finds one datagram already waiting (it was late, behind a busy core) does not
-    turn hot: it would poll its whole patience for the next one, a millisecond away, and in a real-time fleet
-    under SCHED_FIFO hold a core its fleet-mates need.
+    wake-up of a halted core: tens of µs, more than the per-tick work of either side. A loop that is hot
+    (its last HOT_AFTER waits were each shorter than the budget: the other side answers within microseconds)
+    polls instead and does not sleep. A loop that is paced (``--speed 1``, real time: a millisecond between
+    datagrams) or whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to
+    blocking, so it spends no CPU on polling. A paced loop that finds one datagram already waiting (it was
+    late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
+    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
 
     Polling only pays while both processes have a core each. On a machine whose cores are taken by
     something else, a poller holds a core its peer needs, and the loop slows down instead: the polls
@@ -154,7 +150,7 @@ class SpinThenBlock:
         """What ``recv`` returns; raises as it does (BlockingIOError on SO_RCVTIMEO's timeout)."""
         start = time.perf_counter()
         if self.hot and start >= self._cool_until:
-            end, poll = start + PATIENCE * self.budget, self.poll
+            end, poll = start + self.budget, self.poll
             while True:
                 try:
                     out = poll()
