@@ -54,18 +54,18 @@ if fastio.AVAILABLE:
 
     @jit
     def serve(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray, tx: np.ndarray,
-              io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, hot_after: int,
-              limit_tick: int, stats: np.ndarray) -> tuple:  # fmt: skip
+              io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, patience_ns: int,
+              hot_after: int, limit_tick: int, stats: np.ndarray) -> tuple:  # fmt: skip
         """Serve the plant on socket ``fd`` until Python has something to do (the module's docstring) → (status,
         the datagram's length or −1, the tick's flags). Datagrams are read into ``rx``, their sender into ``addr``
         (``addrlen``: its length, int32[1]); ``peer`` is the locked plant's address (:func:`quadsitl.fastio.
         sockaddr`); ``tx`` and ``io`` are the tick's answer buffer and bookkeeping (also in ``targs``).
 
-        ``polling``: each wait polls for up to ``budget_ns`` [ns]; else it blocks in the receive (the socket's
+        ``polling``: each wait polls for up to ``patience_ns`` [ns]; else it blocks in the receive (the socket's
         own timeout ends it: QUIET), and once ``hot_after`` consecutive waits were each shorter than the budget
         the loop goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]."""
         while True:
-            n = fastio.receive(fd, rx, addr, addrlen, polling, budget_ns, stats)
+            n = fastio.receive(fd, rx, addr, addrlen, polling, budget_ns, patience_ns, stats)
             if n == fastio.RAN_OUT or n < 0:
                 return QUIET, -1, 0
             now = fastio.monotonic_ns()
@@ -115,5 +115,5 @@ def warm_up(targs: tuple) -> None:
         rx, addr, addrlen = np.zeros(65535, dtype=np.uint8), np.zeros_like(peer), np.zeros(1, dtype=np.int32)
         for polling in (True, False):
             sock.sendto(frame[:n].tobytes(), sock.getsockname())
-            serve(sock.fileno(), rx, addr, addrlen, peer, tx, io, targs, 0, polling, 1000, 8, NO_LIMIT,
+            serve(sock.fileno(), rx, addr, addrlen, peer, tx, io, targs, 0, polling, 1000, 1000, 8, NO_LIMIT,
                   np.zeros(STATS_SIZE, dtype=np.int64))  # fmt: skip

@@ -46,7 +46,15 @@ from quadsitl import fastio, telemetry, wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, add_state_arguments, check_range, parse_home, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import quaternion_to_euler
-from quadsitl.process_util import HOT_AFTER, SpinThenBlock, bind_udp, parse_remote, set_receive_timeout, start_process
+from quadsitl.process_util import (
+    HOT_AFTER,
+    PATIENCE,
+    SpinThenBlock,
+    bind_udp,
+    parse_remote,
+    set_receive_timeout,
+    start_process,
+)
 from quadsitl.state import Reference, VehicleState
 
 mavlink = wire.mavlink
@@ -191,7 +199,9 @@ class Autopilot:
         self.said: dict[str, float] = {}  # topic → wall time of the last such warning
         act = preset.actuators
         self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
-        self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom_into, self.rx)  # polls while the plant answers fast
+        # Polls while the plant answers fast, with patience: the autopilot is hot only where nothing paces the plant
+        # (or paces it at 5x real time and more, where it polls nearly all of each period anyway).
+        self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom_into, self.rx, patience=PATIENCE)
         # The plant link served in compiled code (autopilot.plant_loop), once a plant is heard on an IPv4 socket:
         self.fast = fastio.compiled_loops() and self.plant_sock.family == socket.AF_INET
         self.plant_address: np.ndarray | None = None  # the locked plant's sockaddr (fast only)
@@ -306,7 +316,8 @@ class Autopilot:
         limit = plant_loop.NO_LIMIT if self.pace is None else self.pace.free_until(self._offboard())
         status, nbytes, flags = plant_loop.serve(
             self.plant_sock.fileno(), self.rx_array, self.sender, self.sender_len, self.plant_address, self.tx, self.io,
-            self.tick_arguments(), int(deadline * 1e9), polling, int(wait.budget * 1e9), HOT_AFTER, limit, stats
+            self.tick_arguments(), int(deadline * 1e9), polling, int(wait.budget * 1e9),
+            int(wait.patience * 1e9), HOT_AFTER, limit, stats
         )  # fmt: skip
         wall = time.monotonic()
         wait.tally(int(stats[plant_loop.POLLED]), int(stats[plant_loop.LATE]), polling and status == plant_loop.QUIET,

@@ -143,11 +143,12 @@ if AVAILABLE:
 
     @jit
     def receive(fd: int, rx: np.ndarray, sender: np.ndarray, length: np.ndarray, polling: bool, budget_ns: int,
-                stats: np.ndarray) -> int:  # fmt: skip
+                patience_ns: int, stats: np.ndarray) -> int:  # fmt: skip
         """One datagram from socket ``fd`` into ``rx`` (its sender's address into ``sender``, the address's length
-        into ``length``, int32[1]) → its length. ``polling``: poll for up to ``budget_ns`` [ns], yielding the core
+        into ``length``, int32[1]) → its length. ``polling``: poll for up to ``patience_ns`` [ns], yielding the core
         between polls to any task waiting for it (RAN_OUT when none came); else block (−1 when the socket's receive
-        timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE, BLOCKED, SHORT)."""
+        timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE: after half of ``budget_ns``;
+        BLOCKED, SHORT: a blocking wait shorter than ``budget_ns``; :class:`quadsitl.process_util.SpinThenBlock`)."""
         flags = MSG_DONTWAIT if polling else 0
         began = monotonic_ns()
         while True:
@@ -156,7 +157,7 @@ if AVAILABLE:
             if n >= 0 or not polling:
                 break
             sched_yield()  # a task waiting for this core (the peer itself, when both are on one) runs first
-            if monotonic_ns() - began > budget_ns:
+            if monotonic_ns() - began > patience_ns:
                 return RAN_OUT
         took = monotonic_ns() - began
         if polling:

@@ -87,7 +87,8 @@ def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
 
 
 SPIN_ENV = "QUADSITL_SPIN_US"  # the polling budget in µs (0: always block)
-SPIN_BUDGET = 200e-6  # [s] how long a hot lockstep loop polls for the next datagram before it blocks
+SPIN_BUDGET = 200e-6  # [s] waits shorter than this make a lockstep loop hot; hot, it polls this long, then blocks
+PATIENCE = 2e-3  # [s] how long a hot loop polls before it blocks where nothing waits on its pace (SpinThenBlock)
 HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
 SPIN_MISSES = 32  # polls that ran out of budget in a window, beyond which polling stops for a while
@@ -110,7 +111,8 @@ def spin_budget() -> float:
 
 
 class SpinThenBlock:
-    """Receive for a lockstep loop: poll without blocking for up to ``budget`` seconds, then block.
+    """Receive for a lockstep loop: poll without blocking for up to ``budget`` seconds (``patience``, if longer),
+    then block.
 
     A process that blocks in ``recv`` pays a wake-up when the datagram comes, and on a virtual machine the
     wake-up of a halted core: tens of µs, more than the per-tick work of either side. A loop that is hot
@@ -121,6 +123,17 @@ class SpinThenBlock:
     late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
     away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
 
+    A loop whose peer answers within microseconds but now and then takes longer (a moment of Python there: a
+    telemetry batch, a ground-station message, the scheduler giving its core to another process for a while) turns
+    cold at each such moment with a budget of 200 µs. Turning hot again takes HOT_AFTER blocking waits, and where
+    waking a process costs 100–200 µs (a Firecracker guest) each of them is slow, so an unpaced lockstep run spends
+    most of its time there. Such a loop is given ``patience`` (PATIENCE, 2 ms): it polls that long before it
+    blocks. Only a loop that nothing paces gets it, as it costs CPU when the peer is late: the plant in an unpaced
+    run (it knows its pace), and the autopilot, which is hot only when its datagrams come less than a budget apart
+    (unpaced, or paced at 5× real time and more, where it polls nearly all the time anyway). A paced plant's wait
+    for each answer is short too, so it turns hot; without patience it keeps polling at most a budget when an
+    answer is late, and leaves the core to the processes a paced run serves (an idle-priority dashboard).
+
     Polling only pays while both processes have a core each. On a machine whose cores are taken by
     something else, a poller holds a core its peer needs, and the loop slows down instead: the polls
     then run out of budget. When more than SPIN_MISSES of SPIN_WINDOW polls do, polling stops for
@@ -129,13 +142,22 @@ class SpinThenBlock:
     results are unchanged.
     """
 
-    def __init__(self, recv: Callable[..., object], into: bytearray | None = None, budget: float | None = None) -> None:
+    def __init__(
+        self,
+        recv: Callable[..., object],
+        into: bytearray | None = None,
+        budget: float | None = None,
+        patience: float | None = None,
+    ) -> None:
         # ``recv`` is sock.recv or sock.recvfrom (a blocking socket, with SO_RCVTIMEO as needed); with a buffer
-        # ``into``, sock.recv_into or sock.recvfrom_into, which read into it instead of making bytes.
+        # ``into``, sock.recv_into or sock.recvfrom_into, which read into it instead of making bytes. ``patience``
+        # [s]: how long a hot loop polls (None: the budget; never less than the budget).
         args = (65535,) if into is None else (into, 0)
         self.poll = functools.partial(recv, *args, socket.MSG_DONTWAIT)
         self.block = functools.partial(recv, *args)
         self.budget = spin_budget() if budget is None else budget
+        self.patience = self.budget
+        self.be_patient(patience)
         self.hot = False
         self._short = 0  # consecutive waits shorter than the budget
         self.polled = 0  # datagrams that came while polling
@@ -146,11 +168,16 @@ class SpinThenBlock:
         self._cool = SPIN_COOL[0]
         self._strikes = 0  # failing windows in a row
 
+    def be_patient(self, patience: float | None) -> None:
+        """Poll for up to ``patience`` seconds when hot (None: the budget; never less than the budget; with polling
+        off, a budget of 0, nothing polls)."""
+        self.patience = self.budget if patience is None or self.budget <= 0 else max(patience, self.budget)
+
     def __call__(self):
         """What ``recv`` returns; raises as it does (BlockingIOError on SO_RCVTIMEO's timeout)."""
         start = time.perf_counter()
         if self.hot and start >= self._cool_until:
-            end, poll = start + self.budget, self.poll
+            end, poll = start + self.patience, self.poll
             while True:
                 try:
                     out = poll()
@@ -161,7 +188,7 @@ class SpinThenBlock:
                     break
                 self.polled += 1
                 # A datagram that took more than half the budget to come was late: the peer had to wait for
-                # a core. Counted as a miss, as is a poll that ran out of budget.
+                # a core. Counted as a miss, as is a poll that ran out of patience.
                 self._verdict(miss=time.perf_counter() - start > 0.5 * self.budget)
                 return out  # still hot
         self.blocked += 1
@@ -178,7 +205,7 @@ class SpinThenBlock:
     def tally(self, polled: int, late: int, ran_out: bool, blocked: int, short: int) -> None:
         """Waits made elsewhere with this budget, the way :meth:`__call__` makes them (a compiled loop,
         :mod:`autopilot.plant_loop`): ``polled`` datagrams came while polling, ``late`` of them after half the
-        budget; ``ran_out``: a poll then found none within the budget (a miss, after which the loop is no longer
+        budget; ``ran_out``: a poll then found none within its patience (a miss, after which the loop is no longer
         hot and the next wait blocks); ``blocked`` waits blocked, the last ``short`` of them in a row each shorter
         than the budget."""
         self.polled += polled

@@ -31,13 +31,13 @@ POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fasti
 
 @jit
 def run(fd: int, rx: np.ndarray, k: int, max_k: int, max_thrust: float, received: np.ndarray,
-        commanded: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, hot_after: int,
-        stats: np.ndarray) -> tuple:  # fmt: skip
+        commanded: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, patience_ns: int,
+        hot_after: int, stats: np.ndarray) -> tuple:  # fmt: skip
     """Run the clock from tick ``k`` (its datagram encoded, not sent) on the connected socket ``fd`` until Python has
     something to do (the module's docstring) → (status, the tick, the datagram's length, lockstep_tick's result).
     ``targs``: :func:`sitl.tick.lockstep_tick`'s arguments from ``x`` to ``sens`` (``tx`` and ``io`` among them).
 
-    ``polling``: each wait polls for up to ``budget_ns`` [ns]; else it blocks in the receive (the socket's own
+    ``polling``: each wait polls for up to ``patience_ns`` [ns]; else it blocks in the receive (the socket's own
     timeout ends it: TIMED_OUT), and once ``hot_after`` consecutive waits were each shorter than the budget the
     clock goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]."""
     period, tx, io = targs[7], targs[10], targs[11]
@@ -45,7 +45,7 @@ def run(fd: int, rx: np.ndarray, k: int, max_k: int, max_thrust: float, received
     while k < max_k:
         want = usec_of(k, period)
         fastio.send(fd, tx.ctypes.data, io[tick.TX_LEN], 0)
-        n = fastio.receive(fd, rx, sender, length, polling, budget_ns, stats)  # tick k's answer
+        n = fastio.receive(fd, rx, sender, length, polling, budget_ns, patience_ns, stats)  # tick k's answer
         if n == fastio.RAN_OUT:
             return QUIET, k, -1, 0
         if n < 0:

@@ -60,6 +60,7 @@ from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.earth import PX4_HOME
 from quadsitl.process_util import (
     HOT_AFTER,
+    PATIENCE,
     PLANT_DIVERGED,
     SpinThenBlock,
     bind_udp,
@@ -297,7 +298,7 @@ def warm_up(plant: Plant) -> None:
                 io[tick.LAST_USEC] = -1
                 b.send(link[:n].tobytes())
                 lockstep_loop.run(a.fileno(), np.zeros(65535, dtype=np.uint8), 0, 1, 1.0, twin.commanded.copy(),
-                                  twin.commanded, args, 0, polling, 1000, HOT_AFTER,
+                                  twin.commanded, args, 0, polling, 1000, 1000, HOT_AFTER,
                                   np.zeros(lockstep_loop.STATS_SIZE, dtype=np.int64))  # fmt: skip
 
 
@@ -355,6 +356,9 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
     for v in vehicles:
         check_state(v, 0, named)  # the initial state; the others are checked as they are made (tick.DIVERGED)
         v.link.encode(0, v.plant)
+        # Unpaced, a late answer is polled for with patience (nothing else waits on this run's pace); paced, the
+        # processes the pace serves get the core back after a budget (SpinThenBlock).
+        v.link.wait.be_patient(PATIENCE if speed <= 0 else None)
         p, link = v.plant, v.link
         args = (p.x, p.motors, p.out, p.v, p.a, p.air, p.air_rng, period, p.substeps, p.method, link.tx, link.io,
                 p.sensors.arrays)  # fmt: skip
@@ -379,7 +383,8 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
             k0 = k
             status, k, nbytes, r = lockstep_loop.run(
                 link.sock.fileno(), rx, k, end, max_thrust, received, commanded, args,
-                time.monotonic_ns() + LOOP_RETURN_NS, polling, int(wait.budget * 1e9), HOT_AFTER, stats
+                time.monotonic_ns() + LOOP_RETURN_NS, polling, int(wait.budget * 1e9),
+                int(wait.patience * 1e9), HOT_AFTER, stats
             )  # fmt: skip
             wait.tally(int(stats[lockstep_loop.POLLED]), int(stats[lockstep_loop.LATE]),
                        status == lockstep_loop.QUIET, int(stats[lockstep_loop.BLOCKED]),
@@ -694,7 +699,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                  "answered_wall_s": flying, "ticks_per_s": max(ticks - 1, 0) / max(flying, 1e-9),
                  "cpu_s": time.process_time() - cpu_start,  # this process's CPU over wall_s (not its start-up)
                  "receives_polled": sum(v.link.wait.polled for v in vehicles),
-                 "receives_blocked": sum(v.link.wait.blocked for v in vehicles)}  # fmt: skip
+                 "receives_blocked": sum(v.link.wait.blocked for v in vehicles),
+                 "polling_budget_s": vehicles[0].link.wait.budget,  # SpinThenBlock: what makes a wait hot
+                 "polling_patience_s": vehicles[0].link.wait.patience}  # fmt: skip
         if args.mode == "realtime":  # the clock's timing, and the autopilots' answers that missed their period
             stats.update(period_stats(starts, period))
             stats["answer_miss_ratios"] = [v.late / max(v.answered + v.late, 1) for v in vehicles]

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from quadsitl.process_util import free_port
+from quadsitl.process_util import PATIENCE, SPIN_BUDGET, free_port
 
 
 @pytest.mark.timeout(60)
@@ -32,3 +32,22 @@ def test_a_late_autopilot_does_not_make_the_plant_race_to_catch_up(tmp_path):
     assert s["ticks"] == 3000
     # 5 × real time at 1 kHz; with the 1.5 s of holding caught up it would run at the machine's full speed
     assert 4000 < s["ticks_per_s"] < 5500, s
+    # Paced: a late answer is polled for one budget only, then the core goes to the processes the pace serves.
+    assert s["polling_patience_s"] == s["polling_budget_s"] == SPIN_BUDGET
+
+
+@pytest.mark.timeout(60)
+def test_an_unpaced_plant_polls_for_a_late_answer_with_patience(tmp_path):
+    port, stats = free_port(), tmp_path / "stats.json"
+    autopilot = subprocess.Popen([sys.executable, "-m", "autopilot", "--preset", "paper", "--plant-listen",
+                                  f"127.0.0.1:{port}", "--api-listen", "127.0.0.1:0", "--api-remote", "none",
+                                  "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--no-zenoh"])  # fmt: skip
+    try:
+        r = subprocess.run([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot", f"127.0.0.1:{port}",
+                            "--ticks", "3000", "--stats", str(stats), "--quiet"], timeout=50)  # fmt: skip
+        assert r.returncode == 0
+    finally:
+        autopilot.kill()
+        autopilot.wait()
+    s = json.loads(stats.read_text())
+    assert s["ticks"] == 3000 and s["polling_budget_s"] == SPIN_BUDGET and s["polling_patience_s"] == PATIENCE

@@ -3,6 +3,8 @@ datagram handled as the Python loops handle it, Python given the loop back whene
 flights the same to the bit with the compiled loops and without them."""
 
 import socket
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -61,6 +63,36 @@ if fastio.AVAILABLE:
         return fastio.monotonic_ns()
 
 
+def test_the_compiled_receive_polls_for_its_patience_and_counts_the_wait():
+    a, b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM), socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        a.bind(("127.0.0.1", 0))
+        b.connect(a.getsockname())
+        rx, sender, length = np.zeros(64, dtype=np.uint8), np.zeros(fastio.SOCKADDR_IN, np.uint8), np.zeros(1, np.int32)
+        stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
+        budget, patience = 5_000_000, 20_000_000_000  # [ns]
+        # The late peer is another process: the compiled receive holds the GIL while it polls, as the autopilot's
+        # and the plant's loops do (their peers are processes too).
+        port = a.getsockname()[1]
+        peer = subprocess.Popen([sys.executable, "-c", "import socket, sys, time; sys.stdin.readline(); "
+                                 f"time.sleep(0.1); socket.socket(2, 2).sendto(b'late', ('127.0.0.1', {port}))"],
+                                stdin=subprocess.PIPE, text=True)  # fmt: skip
+        peer.stdin.write("go\n")
+        peer.stdin.flush()
+        began = time.monotonic()
+        n = fastio.receive(a.fileno(), rx, sender, length, True, budget, patience, stats)
+        assert peer.wait(10) == 0
+        assert n == 4 and bytes(rx[:4]) == b"late" and time.monotonic() - began >= 0.09
+        # Polled for (not blocked on), and late: it came after half the budget.
+        assert stats[plant_loop.POLLED] == 1 and stats[plant_loop.LATE] == 1 and stats[plant_loop.BLOCKED] == 0
+        began = time.monotonic()
+        assert fastio.receive(a.fileno(), rx, sender, length, True, budget, budget, stats) == fastio.RAN_OUT
+        assert 0.004 <= time.monotonic() - began < 1.0 and stats[plant_loop.POLLED] == 1  # gave up after the budget
+    finally:
+        a.close()
+        b.close()
+
+
 @pytest.fixture
 def vehicle():
     """An autopilot (the process's object, no Zenoh; its api link streams telemetry to a port) and a socket that
@@ -99,7 +131,7 @@ def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIM
     stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
     out = plant_loop.serve(ap.plant_sock.fileno(), ap.rx_array, ap.sender, ap.sender_len, ap.plant_address, ap.tx,
                            ap.io, ap.tick_arguments(), time.monotonic_ns() + int(deadline_s * 1e9), polling,
-                           50_000_000, 8, limit, stats)  # fmt: skip
+                           50_000_000, 50_000_000, 8, limit, stats)  # fmt: skip
     return out, stats
 
 

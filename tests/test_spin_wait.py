@@ -54,6 +54,27 @@ def test_a_fast_peer_is_polled_and_a_paced_one_is_waited_for(pair):
     assert wait() == b"paced" and wait.polled == 5 and wait.blocked == HOT_AFTER + 3
 
 
+def test_a_patient_loop_polls_through_a_late_datagram_and_stays_hot(pair):
+    a, b = pair
+    wait = SpinThenBlock(a.recv, budget=0.02, patience=0.6)
+    assert wait.patience == 0.6
+    for i in range(HOT_AFTER):
+        b.send(b"%d" % i)
+        wait()
+    assert wait.hot
+    # Later than the budget, within the patience: polled for, not blocked on, and the loop is still hot.
+    threading.Timer(0.1, lambda: b.send(b"late")).start()
+    assert wait() == b"late" and wait.polled == 1 and wait.blocked == HOT_AFTER and wait.hot
+    # Without patience (a paced plant's), the same wait gives up polling after the budget and blocks.
+    wait.be_patient(None)
+    assert wait.patience == 0.02
+    threading.Timer(0.1, lambda: b.send(b"later")).start()
+    assert wait() == b"later" and wait.polled == 1 and wait.blocked == HOT_AFTER + 1 and not wait.hot
+    # Patience is never shorter than the budget, and with polling off there is none.
+    assert SpinThenBlock(a.recv, budget=0.02, patience=0.001).patience == 0.02
+    assert SpinThenBlock(a.recv, budget=0.0, patience=0.5).patience == 0.0
+
+
 def test_polling_stops_for_a_while_when_it_does_not_pay():
     calls = {"poll": 0, "block": 0}
 
