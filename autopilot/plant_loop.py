@@ -8,9 +8,12 @@ as the tick's own work. :func:`serve` does the same per tick, in the same order,
 (:func:`autopilot.tick.autopilot_tick` or :func:`~autopilot.tick.sensor_tick`), and gives the loop back to
 Python whenever Python has something to do:
 
-- the tick reports more than an answer (telemetry messages or an event due, a full batch, a datagram pymavlink
-  must parse, ...), or its answer must wait for an offboard setpoint (``limit_tick``, :mod:`autopilot.
-  offboard_lockstep`): :data:`TICKED`, the answer not sent, for Python to finish the tick as it always has;
+- the tick reports more than an answer (telemetry messages or an event due, a full batch, ...): :data:`SENT`,
+  its answer already sent, so the plant integrates and sends the next tick while Python does the rest of this
+  one (Python's work changes nothing the answer says, and ran after the answer went out before too);
+- the tick has no answer (a datagram pymavlink must parse, a refused one, ...), or its answer must wait for an
+  offboard setpoint (``limit_tick``, :mod:`autopilot.offboard_lockstep`): :data:`TICKED`, the answer not sent,
+  for Python to finish the tick as it always has;
 - a datagram from another sender than the plant the link is locked to: :data:`STRANGER`, the datagram in ``rx``
   and its sender in ``addr``;
 - the wall-clock moment ``deadline_ns`` has passed (the ground links' next poll, the next telemetry batch):
@@ -32,7 +35,7 @@ from autopilot import tick as kernel
 from quadsitl import fastio
 from quadsitl.jit import jit
 
-TICKED, STRANGER, DUE, QUIET = 0, 1, 2, 3
+TICKED, STRANGER, DUE, QUIET, SENT = 0, 1, 2, 3, 4
 # stats (int64): ticks answered here, the waits (quadsitl.fastio.receive's counts), the last tick's duration [ns].
 ANSWERED, TICK_NS, STATS_SIZE = 0, 5, 6
 POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fastio.SHORT
@@ -57,9 +60,10 @@ if fastio.AVAILABLE:
               io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, patience_ns: int,
               hot_after: int, limit_tick: int, stats: np.ndarray) -> tuple:  # fmt: skip
         """Serve the plant on socket ``fd`` until Python has something to do (the module's docstring) → (status,
-        the datagram's length or −1, the tick's flags). Datagrams are read into ``rx``, their sender into ``addr``
-        (``addrlen``: its length, int32[1]); ``peer`` is the locked plant's address (:func:`quadsitl.fastio.
-        sockaddr`); ``tx`` and ``io`` are the tick's answer buffer and bookkeeping (also in ``targs``).
+        the datagram's length or −1, the tick's flags: with SENT, the answer among them was sent). Datagrams are
+        read into ``rx``, their sender into ``addr`` (``addrlen``: its length, int32[1]); ``peer`` is the locked
+        plant's address (:func:`quadsitl.fastio.sockaddr`); ``tx`` and ``io`` are the tick's answer buffer and
+        bookkeeping (also in ``targs``).
 
         ``polling``: each wait polls for up to ``patience_ns`` [ns]; else it blocks in the receive (the socket's
         own timeout ends it: QUIET), and once ``hot_after`` consecutive waits were each shorter than the budget
@@ -75,12 +79,14 @@ if fastio.AVAILABLE:
                 if addr[i] != peer[i]:
                     return STRANGER, n, 0
             flags = fly_datagram(rx, n, targs)
-            if flags != kernel.ANSWER or io[kernel.TICK] > limit_tick:
+            if not flags & kernel.ANSWER or io[kernel.TICK] > limit_tick:
                 return TICKED, n, flags
             fastio.sendto(fd, tx.ctypes.data, io[kernel.TX_LEN], 0, peer.ctypes.data, fastio.SOCKADDR_IN)
             stats[ANSWERED] += 1
             end = fastio.monotonic_ns()
             stats[TICK_NS] = end - now
+            if flags != kernel.ANSWER:
+                return SENT, n, flags
             if end >= deadline_ns or (not polling and stats[SHORT] == hot_after):
                 return DUE, -1, 0
 

@@ -325,7 +325,9 @@ class Autopilot:
         if stats[plant_loop.ANSWERED]:
             self.plant_heard = wall
             self.load = stats[plant_loop.TICK_NS] * 1e-9 / self.period
-        if status == plant_loop.TICKED:
+        if status == plant_loop.SENT:  # the answer went out in the loop: the rest of the tick
+            self._finish_tick(flags & ~kernel.ANSWER, nbytes, self.plant_peer, wall)
+        elif status == plant_loop.TICKED:
             self.plant_heard = wall
             self._finish_tick(flags, nbytes, self.plant_peer, wall)
         elif status == plant_loop.STRANGER:

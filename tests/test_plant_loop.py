@@ -147,16 +147,20 @@ def test_the_compiled_loop_answers_each_tick_and_gives_python_what_it_must_do(ve
     stamps, returns = [], []
     while True:
         (status, nbytes, flags), stats = serve(ap, deadline_s=0.5)
-        # Every tick that needs nothing else is answered in the loop; one with a telemetry message due is Python's
-        # to finish (its answer not sent yet); then nothing comes within the budget.
+        # Every tick is answered in the loop; one with a telemetry message due is Python's to finish, its answer
+        # already sent; then nothing comes within the budget.
         stamps += [answer_of(plant.recv(1000))[0] for _ in range(int(stats[plant_loop.ANSWERED]))]
         returns.append(status)
-        if status != plant_loop.TICKED:
+        if status != plant_loop.SENT:
             break
         assert flags & kernel.STREAM and flags & kernel.ANSWER
-        ap._finish_tick(flags, nbytes, ap.plant_peer, time.monotonic())  # what Python does then: the answer goes
-        stamps.append(answer_of(plant.recv(1000))[0])
+        ap._finish_tick(flags & ~kernel.ANSWER, nbytes, ap.plant_peer, time.monotonic())  # the telemetry goes
+    # Each tick answered once, in order, the SENT ones too, and nothing more.
     assert stamps == [1000 * k for k in range(2, 12)] and ap.io[kernel.TICK] == 11
+    assert plant_loop.SENT in returns
+    plant.setblocking(False)
+    with pytest.raises(BlockingIOError):
+        plant.recv(1000)
     assert returns[-1] == plant_loop.QUIET and 1 < len(returns) < 10  # Python's turn only now and then
 
 
