@@ -45,7 +45,7 @@ CLOCK_MONOTONIC = 1
 # datagrams that came while polling, of which late (after half the budget); blocking waits, and the consecutive
 # ones shorter than the budget (SpinThenBlock's "hot" count: :meth:`quadsitl.process_util.SpinThenBlock.tally`).
 POLLED, LATE, BLOCKED, SHORT = 1, 2, 3, 4
-RAN_OUT = -2  # receive(): polling found no datagram within the budget
+RAN_OUT = -2  # receive(): polling found no datagram within its patience
 
 
 def sockaddr(address: tuple[str, int]) -> np.ndarray:

@@ -91,7 +91,7 @@ SPIN_BUDGET = 200e-6  # [s] waits shorter than this make a lockstep loop hot; ho
 PATIENCE = 2e-3  # [s] how long a hot loop polls before it blocks where nothing waits on its pace (SpinThenBlock)
 HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
-SPIN_MISSES = 32  # polls that ran out of budget in a window, beyond which polling stops for a while
+SPIN_MISSES = 32  # polls that ran out (or came late) in a window, beyond which polling stops for a while
 SPIN_STRIKES = 2  # failing windows in a row that stop polling: a burst (another process's few ms) is not enough
 SPIN_COOL = (0.25, 4.0)  # [s] how long it stops: doubling from the first to the second while it keeps failing
 
@@ -156,7 +156,6 @@ class SpinThenBlock:
         self.poll = functools.partial(recv, *args, socket.MSG_DONTWAIT)
         self.block = functools.partial(recv, *args)
         self.budget = spin_budget() if budget is None else budget
-        self.patience = self.budget
         self.be_patient(patience)
         self.hot = False
         self._short = 0  # consecutive waits shorter than the budget
