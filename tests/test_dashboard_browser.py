@@ -55,6 +55,11 @@ def fly(c: Client, seconds: float, altitude: float) -> None:
         c.pump(0.05)
 
 
+def vehicle_clock(c: Client) -> tuple[float, float]:
+    """(wall [s], the vehicle's clock [s]) from the latest ATTITUDE the client has received."""
+    return time.monotonic(), c.latest["ATTITUDE"].time_boot_ms / 1000.0
+
+
 def page_state(page) -> dict:
     return page.evaluate(
         "() => ({updates: quadsitl.updates, redraws: quadsitl.redraws, lastT: quadsitl.lastT, "
@@ -108,15 +113,20 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
             assert first["link"].startswith("live")
 
             fly(c, 0.3, 1.0)
+            began = vehicle_clock(c)
             assert c.command(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0).result == 0
             assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
             fly(c, 2.0, 1.0)
+            ended = vehicle_clock(c)
             armed = page_state(page)
             assert armed["armed"] == "armed" and armed["mode"] == "offboard"
             assert armed["redraws"] > first["redraws"] and armed["lastT"] > first["lastT"] + 1.5
             assert armed["points"] > 50
+            # The rate the page shows is the rate the vehicle runs at (1 kHz ticks; about 1000 /s at 1× real
+            # time, less when the machine is loaded), as its own clock in the MAVLink stream tells it.
+            ran = (ended[1] - began[1]) / (ended[0] - began[0]) / 1e-3
             rate = float(armed["rate"].split()[0])
-            assert 500 < rate < 2000, armed  # lockstep at 1× real time: about 1000 ticks/s
+            assert ran > 100 and 0.5 * ran < rate < 2.0 * ran, (armed, ran)
             page.screenshot(path=str(artifacts / "dashboard-hover.png"), full_page=True)
 
             # A step up with the preset's gains, then a step down with slower altitude gains (set over
