@@ -8,6 +8,7 @@ import errno
 import functools
 import gc
 import os
+import random
 import select
 import signal
 import socket
@@ -15,6 +16,7 @@ import struct
 import sys
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from quadsitl.cli_util import UsageError
 
@@ -36,8 +38,40 @@ def parse_remote(option: str, text: str) -> tuple[str, int] | None:
     return None if text.lower() == "none" else parse_address(option, text)
 
 
+PICK_PORTS = (20000, 32768)
+"""[first, end) of the ports :func:`free_port` picks from: above PX4's (14540-14589, 18570-18599) and below Linux's
+default ephemeral range (32768-60999)."""
+EPHEMERAL_RANGE = "/proc/sys/net/ipv4/ip_local_port_range"
+_pick = random.Random()  # its own state: picking a port never moves a seeded generator's
+
+
+def ephemeral_range() -> tuple[int, int]:
+    """[first, last] of the ports the OS hands to a socket bound to port 0 or connected unbound (Linux's
+    ``ip_local_port_range``; its default where that is not readable)."""
+    try:
+        first, last = (int(x) for x in Path(EPHEMERAL_RANGE).read_text().split())
+    except (OSError, ValueError):
+        return 32768, 60999
+    return first, last
+
+
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    """A port the OS says is free on 127.0.0.1 now (UDP by default, TCP with SOCK_STREAM)."""
+    """A port free on 127.0.0.1 now (UDP by default, TCP with SOCK_STREAM), for a process about to be started to bind.
+
+    It is picked at random from PICK_PORTS outside the ephemeral range, so that no socket that binds port 0 or
+    connects, in any process, is handed it by the OS before the process it is for binds it (a port the OS had just
+    said free, from the ephemeral range, was: two runs at once, one of them failed with "Address already in use").
+    Where the ephemeral range covers PICK_PORTS, a port the OS says is free."""
+    first, last = ephemeral_range()
+    outside = [p for p in range(*PICK_PORTS) if not first <= p <= last]
+    for _ in range(64 if outside else 0):
+        port = _pick.choice(outside)
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue  # in use: another
+            return port
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
