@@ -71,10 +71,11 @@ def page_state(page) -> dict:
     )
 
 
-def settle_time(page, t_from: float, target: float, start: float, timeout: float = 15.0) -> float:
+def settle_time(page, c: Client, t_from: float, target: float, start: float, timeout: float = 15.0) -> float:
     """Simulated seconds from the reference step at or after ``t_from`` until the altitude the page holds
     first covers 90 % of the way from ``start`` to ``target``. The page may run behind the flight on a loaded
-    machine (the dashboard runs at idle priority): this waits up to ``timeout`` s of wall time for it to hold both."""
+    machine (the dashboard runs at idle priority): this waits up to ``timeout`` s of wall time for it to hold both,
+    while ``c`` goes on sending the setpoint (a second without one is the setpoint-loss failsafe)."""
     goal = start + 0.9 * (target - start)
     end = time.monotonic() + timeout
     while True:
@@ -90,7 +91,7 @@ def settle_time(page, t_from: float, target: float, start: float, timeout: float
             last = d["t"][-1] if d["t"] else None
             raise AssertionError(f"the page holds no step to {target} m after t = {t_from} s and its 90 % point "
                                  f"(step at {t_step}, the page's last t = {last})")  # fmt: skip
-        time.sleep(0.2)
+        fly(c, 0.2, target)
 
 
 @pytest.mark.timeout(120)
@@ -133,12 +134,12 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
             # MAVLink): the page shows the slower response.
             t0 = armed["lastT"]
             fly(c, 2.0, 2.0)
-            fast = settle_time(page, t0, 2.0, 1.0)
+            fast = settle_time(page, c, t0, 2.0, 1.0)
             for name in ("BS_K1", "BS_K2"):
                 assert c.param_set(name, 3.0).param_value == pytest.approx(3.0)
             t1 = page_state(page)["lastT"]
             fly(c, 3.0, 1.0)
-            slow = settle_time(page, t1, 1.0, 2.0)
+            slow = settle_time(page, c, t1, 1.0, 2.0)
             page.screenshot(path=str(artifacts / "dashboard-gain-change.png"), full_page=True)
             # k = 10 1/s: a double pole, 90 % in about 0.39 s; k = 3 1/s: about 1.3 s.
             assert 0.2 < fast < 0.6, fast

@@ -197,10 +197,12 @@ def test_fly_circle_tracks_the_position_reference(circle_flight):
         assert lag.max() < LAG_M, (lag.max(), np.flatnonzero(lag >= LAG_M)[:5], r.stderr)
         assert phase[-1] == pytest.approx(2 * math.pi, abs=LAG_M / 4.0), r.stderr
         assert math.hypot(x_ref[-1], y_ref[-1]) < LAG_M, r.stderr
-    # The vehicle goes round: as far as the circle's far side (2R east), and back home, behind its last reference
-    # by its tracking error (0.16 and 0.28 m in one run).
+    # The vehicle goes round: as far as the circle's far side (2R east), and back home, off its last reference
+    # by its tracking error (0.16 and 0.28 m in one run) and by as much as that reference trails the plan: the
+    # vehicle flies on at the setpoint's velocity while the ground station is stopped (0.57 m in a CI run whose last
+    # reference trailed by 0.46 s).
     assert data["y"].max() > 2 * 4.0 - 0.5 and data["x"].max() > 4.0 - 0.5 and data["x"].min() < -4.0 + 0.5
-    assert math.hypot(data["x"][-1] - x_ref[-1], data["y"][-1] - y_ref[-1]) < 0.5
+    assert math.hypot(data["x"][-1] - x_ref[-1], data["y"][-1] - y_ref[-1]) < 0.5 + lag[-1], (lag[-1], r.stderr)
     m = json.loads((out / "metrics.json").read_text())["position"]["backstepping"]
     assert m["samples"] == int(finite.sum())
     assert m["horizontal_rms"] < 0.4 and m["horizontal_max"] < 1.0, m  # 0.23 and 0.46 m when written
