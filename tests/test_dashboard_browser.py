@@ -5,10 +5,12 @@ Screenshots go to ``$QUADSITL_ARTIFACTS`` (default: the test's temporary folder)
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import socket
+import threading
 import time
 import urllib.request
 from pathlib import Path
@@ -48,13 +50,6 @@ def wait_http(url: str, timeout: float = 20.0) -> None:
     raise AssertionError(f"nothing answered at {url} within {timeout} s")
 
 
-def fly(c: Client, seconds: float, altitude: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        c.setpoint(altitude)
-        c.pump(0.05)
-
-
 def vehicle_clock(c: Client) -> tuple[float, float]:
     """(wall [s], the vehicle's clock [s]) from the latest ATTITUDE the client has received."""
     return time.monotonic(), c.latest["ATTITUDE"].time_boot_ms / 1000.0
@@ -71,11 +66,34 @@ def page_state(page) -> dict:
     )
 
 
-def settle_time(page, c: Client, t_from: float, target: float, start: float, timeout: float = 15.0) -> float:
+class SetpointStream:
+    """Altitude setpoints sent from a thread every 50 ms, as an offboard client streams them (MAVSDK does) whatever
+    else it is doing: a page screenshot or a wait on a page behind the flight on a loaded machine can outlast the
+    setpoint-loss failsafe's second. ``altitude`` [m] is the one sent; the client's receiving stays with the test."""
+
+    def __init__(self, c: Client, altitude: float) -> None:
+        self.altitude = altitude
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(c,), daemon=True)
+
+    def _run(self, c: Client) -> None:
+        while not self._stop.is_set():
+            c.setpoint(self.altitude)
+            self._stop.wait(0.05)
+
+    def __enter__(self) -> SetpointStream:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def settle_time(page, t_from: float, target: float, start: float, timeout: float = 15.0) -> float:
     """Simulated seconds from the reference step at or after ``t_from`` until the altitude the page holds
     first covers 90 % of the way from ``start`` to ``target``. The page may run behind the flight on a loaded
-    machine (the dashboard runs at idle priority): this waits up to ``timeout`` s of wall time for it to hold both,
-    while ``c`` goes on sending the setpoint (a second without one is the setpoint-loss failsafe)."""
+    machine (the dashboard runs at idle priority): this waits up to ``timeout`` s of wall time for it to hold both."""
     goal = start + 0.9 * (target - start)
     end = time.monotonic() + timeout
     while True:
@@ -91,7 +109,7 @@ def settle_time(page, c: Client, t_from: float, target: float, start: float, tim
             last = d["t"][-1] if d["t"] else None
             raise AssertionError(f"the page holds no step to {target} m after t = {t_from} s and its 90 % point "
                                  f"(step at {t_step}, the page's last t = {last})")  # fmt: skip
-        fly(c, 0.2, target)
+        time.sleep(0.2)
 
 
 @pytest.mark.timeout(120)
@@ -104,6 +122,7 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
         page = browser.new_page(viewport={"width": 1400, "height": 1100})
         errors: list[str] = []
         page.on("pageerror", lambda e: errors.append(str(e)))
+        stack = contextlib.ExitStack()
         try:
             c.heartbeat()
             page.goto(url)
@@ -113,11 +132,12 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
             assert first["armed"] == "disarmed" and first["mode"] == "hold"
             assert first["link"].startswith("live")
 
-            fly(c, 0.3, 1.0)
+            sp = stack.enter_context(SetpointStream(c, 1.0))
+            c.pump(0.3)
             began = vehicle_clock(c)
             assert c.command(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0).result == 0
             assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
-            fly(c, 2.0, 1.0)
+            c.pump(2.0)
             ended = vehicle_clock(c)
             armed = page_state(page)
             assert armed["armed"] == "armed" and armed["mode"] == "offboard"
@@ -133,13 +153,15 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
             # A step up with the preset's gains, then a step down with slower altitude gains (set over
             # MAVLink): the page shows the slower response.
             t0 = armed["lastT"]
-            fly(c, 2.0, 2.0)
-            fast = settle_time(page, c, t0, 2.0, 1.0)
+            sp.altitude = 2.0
+            c.pump(2.0)
+            fast = settle_time(page, t0, 2.0, 1.0)
             for name in ("BS_K1", "BS_K2"):
                 assert c.param_set(name, 3.0).param_value == pytest.approx(3.0)
             t1 = page_state(page)["lastT"]
-            fly(c, 3.0, 1.0)
-            slow = settle_time(page, c, t1, 1.0, 2.0)
+            sp.altitude = 1.0
+            c.pump(3.0)
+            slow = settle_time(page, t1, 1.0, 2.0)
             page.screenshot(path=str(artifacts / "dashboard-gain-change.png"), full_page=True)
             # k = 10 1/s: a double pole, 90 % in about 0.39 s; k = 3 1/s: about 1.3 s.
             assert 0.2 < fast < 0.6, fast
@@ -147,6 +169,7 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
             assert not errors, errors
             assert (artifacts / "dashboard-gain-change.png").stat().st_size > 20_000
         finally:
+            stack.close()
             page.close()
             c.close()
 
