@@ -165,10 +165,27 @@ class Client:
     def heartbeat(self, timeout: float = 15.0):
         return self.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1, timeout)
 
-    def command(self, cmd: int, *params: float, timeout: float = 5.0):
+    def drain(self) -> None:
+        """Read (and note) every message already waiting, without blocking."""
+        while (m := self.conn.recv_match(blocking=False)) is not None:
+            self._note(m)
+
+    def command(self, cmd: int, *params: float, timeout: float = 5.0, resend: float = 1.0):
+        """COMMAND_LONG to system 1 → its COMMAND_ACK, by the MAVLink command protocol as ground stations run it: the
+        messages already waiting are read first (a backlog that fills the socket's buffer drops the ACK), and the
+        command goes again, its confirmation counted up, every ``resend`` seconds without an ACK."""
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
-        self.conn.mav.command_long_send(1, 1, cmd, 0, *p)
-        return self.wait("COMMAND_ACK", lambda m: m.command == cmd, timeout)
+        self.drain()
+        end = time.monotonic() + timeout
+        for confirmation in range(256):
+            self.conn.mav.command_long_send(1, 1, cmd, confirmation, *p)
+            left = end - time.monotonic()
+            try:
+                return self.wait("COMMAND_ACK", lambda m: m.command == cmd, min(resend, left))
+            except AssertionError:
+                if left <= resend:
+                    raise
+        raise AssertionError(f"no COMMAND_ACK for command {cmd} after 256 sends")
 
     def text_containing(self, needle: str, timeout: float = 3.0) -> str:
         end = time.monotonic() + timeout
