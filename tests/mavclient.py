@@ -196,9 +196,19 @@ class Client:
             self.pump(0.05)
         raise AssertionError(f"no STATUSTEXT containing {needle!r}; got {self.texts}")
 
-    def param_set(self, name: str, value: float):
-        self.conn.mav.param_set_send(1, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
-        return self.wait("PARAM_VALUE", lambda m: m.param_id == name)
+    def param_set(self, name: str, value: float, timeout: float = 10.0, resend: float = 1.0):
+        """PARAM_SET → the PARAM_VALUE that answers it; as :meth:`command`, the backlog read first and the request
+        sent again every ``resend`` seconds without an answer (as QGroundControl and MAVSDK do)."""
+        self.drain()
+        end = time.monotonic() + timeout
+        while True:
+            self.conn.mav.param_set_send(1, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
+            left = end - time.monotonic()
+            try:
+                return self.wait("PARAM_VALUE", lambda m: m.param_id == name, min(resend, left))
+            except AssertionError:
+                if left <= resend:
+                    raise
 
     def setpoint(self, altitude: float, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0) -> None:
         from quadsitl.frames import euler_to_quaternion

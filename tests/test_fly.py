@@ -21,6 +21,7 @@ from groundstation.telemetry_csv import read_csv
 from quadsitl.state import Reference
 
 BIN = Path(sys.executable).parent
+PREARM_CHECK = mavutil.mavlink.MAV_SYS_STATUS_PREARM_CHECK  # SYS_STATUS: healthy = armable
 
 
 def quadsitl(*args: str) -> list[str]:
@@ -377,9 +378,14 @@ def test_setpoint_loss_failsafe_with_a_raw_pymavlink_client(procs):
                     return ack.result
             return None
 
-        for _ in range(5):
+        # Arm once the vehicle says it may (SYS_STATUS's pre-arm check: the plant's states arrive), as a ground
+        # station waits for it: the plant may take seconds to start on a loaded machine.
+        prearm, end = False, time.monotonic() + 20
+        while not prearm and time.monotonic() < end:
             setpoints()
-            time.sleep(0.05)
+            st = gcs.recv_match(type="SYS_STATUS", blocking=True, timeout=0.05)
+            prearm = st is not None and bool(st.onboard_control_sensors_health & PREARM_CHECK)
+        assert prearm, "the vehicle never said it may arm"
         assert command(400, 1) == 0
         assert command(176, 1, 6, 0) == 0
         end = time.monotonic() + 3  # fly to 1 m
