@@ -140,7 +140,8 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
             c.pump(2.0)
             ended = vehicle_clock(c)
             armed = page_state(page)
-            assert armed["armed"] == "armed" and armed["mode"] == "offboard"
+            # (what the vehicle said, should it have left offboard: a failsafe names itself in a STATUSTEXT)
+            assert armed["armed"] == "armed" and armed["mode"] == "offboard", (armed, c.texts)
             assert armed["redraws"] > first["redraws"] and armed["lastT"] > first["lastT"] + 1.5
             assert armed["points"] > 50
             # The rate the page shows is the rate the vehicle runs at (1 kHz ticks; about 1000 /s at 1× real
