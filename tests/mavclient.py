@@ -170,22 +170,32 @@ class Client:
         while (m := self.conn.recv_match(blocking=False)) is not None:
             self._note(m)
 
-    def command(self, cmd: int, *params: float, timeout: float = 5.0, resend: float = 1.0):
-        """COMMAND_LONG to system 1 → its COMMAND_ACK, by the MAVLink command protocol as ground stations run it: the
-        messages already waiting are read first (a backlog that fills the socket's buffer drops the ACK), and the
-        command goes again, its confirmation counted up, every ``resend`` seconds without an ACK."""
-        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+    def _request(self, send, msg_type: str, cond, timeout: float, resend: float):
+        """``send(attempt)`` until a ``msg_type`` message for which ``cond`` holds answers it, as ground stations run
+        a request: the messages already waiting are read first (a backlog that fills the socket's buffer drops the
+        answer), and the request goes again every ``resend`` seconds without an answer, for up to ``timeout``."""
         self.drain()
         end = time.monotonic() + timeout
-        for confirmation in range(256):
-            self.conn.mav.command_long_send(1, 1, cmd, confirmation, *p)
+        attempt = 0
+        while True:
+            send(attempt)
             left = end - time.monotonic()
             try:
-                return self.wait("COMMAND_ACK", lambda m: m.command == cmd, min(resend, left))
+                return self.wait(msg_type, cond, min(resend, left))
             except AssertionError:
                 if left <= resend:
                     raise
-        raise AssertionError(f"no COMMAND_ACK for command {cmd} after 256 sends")
+            attempt += 1
+
+    def command(self, cmd: int, *params: float, timeout: float = 5.0, resend: float = 1.0):
+        """COMMAND_LONG to system 1 → its COMMAND_ACK, by the MAVLink command protocol (:meth:`_request`): a resent
+        command has its confirmation counted up."""
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+
+        def send(attempt: int) -> None:
+            self.conn.mav.command_long_send(1, 1, cmd, min(attempt, 255), *p)
+
+        return self._request(send, "COMMAND_ACK", lambda m: m.command == cmd, timeout, resend)
 
     def text_containing(self, needle: str, timeout: float = 3.0) -> str:
         end = time.monotonic() + timeout
@@ -197,18 +207,12 @@ class Client:
         raise AssertionError(f"no STATUSTEXT containing {needle!r}; got {self.texts}")
 
     def param_set(self, name: str, value: float, timeout: float = 10.0, resend: float = 1.0):
-        """PARAM_SET → the PARAM_VALUE that answers it; as :meth:`command`, the backlog read first and the request
-        sent again every ``resend`` seconds without an answer (as QGroundControl and MAVSDK do)."""
-        self.drain()
-        end = time.monotonic() + timeout
-        while True:
+        """PARAM_SET → the PARAM_VALUE that answers it (:meth:`_request`, as QGroundControl and MAVSDK resend it)."""
+
+        def send(attempt: int) -> None:
             self.conn.mav.param_set_send(1, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
-            left = end - time.monotonic()
-            try:
-                return self.wait("PARAM_VALUE", lambda m: m.param_id == name, min(resend, left))
-            except AssertionError:
-                if left <= resend:
-                    raise
+
+        return self._request(send, "PARAM_VALUE", lambda m: m.param_id == name, timeout, resend)
 
     def setpoint(self, altitude: float, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0) -> None:
         from quadsitl.frames import euler_to_quaternion
