@@ -21,13 +21,16 @@ import math
 import struct
 from dataclasses import dataclass
 
+import numpy as np
+
+from autopilot import stream_frames
 from autopilot.commander import TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, Commander
 from quadsitl import __version__
 from quadsitl.earth import PX4_HOME
-from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
+from quadsitl.frames import euler_to_quaternion
 from quadsitl.state import Reference, VehicleState
+from quadsitl.wire import FRAME_MAX, Mode, mavlink, message_of
 from quadsitl.wire import STATUSTEXT_LEN as STATUSTEXT_LEN  # STATUSTEXT: one place for all, quadsitl.wire
-from quadsitl.wire import Mode, mavlink
 from quadsitl.wire import statustext as statustext
 
 
@@ -147,57 +150,35 @@ def pwm(control: float, reversible: bool) -> int:
     return round(1000.0 + 1000.0 * min(max(c, 0.0), 1.0))
 
 
-INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
-UINT16_UNKNOWN = 65535  # MAVLink's "unknown" for uint16 fields (GPS_RAW_INT eph, epv, vel, cog)
-
-
-def _clamp_int(value: float, lo: int, hi: int) -> int:
-    """``value`` rounded into [lo, hi]; 0 when it is not finite (never raises)."""
-    return int(min(max(round(value), lo), hi)) if math.isfinite(value) else 0
-
-
 def _lat_lon_e7(origin: Origin, north: float, east: float) -> tuple[int, int]:
-    """Local north/east [m] from ``origin`` → (lat, lon) [1e-7 deg], PX4's projection; (0, 0) for a
-    non-finite position (never raises)."""
-    if not (math.isfinite(north) and math.isfinite(east)):
-        return 0, 0
-    lat, lon = ned_to_geodetic(north, east, origin.lat, origin.lon)
-    return _clamp_int(lat * 1e7, -900_000_000, 900_000_000), _clamp_int(lon * 1e7, -1_800_000_000, 1_800_000_000)
+    """Local north/east [m] from ``origin`` → (lat, lon) [1e-7 deg] (:func:`autopilot.stream_frames.lat_lon_e7`)."""
+    return stream_frames.lat_lon_e7(origin.lat, origin.lon, north, east)
 
 
-def _amsl_mm(origin: Origin, z: float) -> int:
-    """Local z [m, down] → altitude AMSL [mm]."""
-    return _clamp_int((origin.alt - z) * 1000, INT32_MIN, INT32_MAX)
+def _frame_values(s: Snapshot, origin: Origin) -> tuple:
+    """:func:`autopilot.stream_frames.encode`'s arguments after the time, from a snapshot."""
+    thrust = min(max(s.u1 / s.max_total_thrust, 0.0), 1.0)
+    return (tuple(s.state), tuple(s.body_rates), tuple(s.reference), thrust, (origin.lat, origin.lon, origin.alt),
+            s.home[2])  # fmt: skip
 
 
-def _cdeg(angle: float) -> int:
-    """An angle [rad] → centidegrees in [0, 36000)."""
-    return round(math.degrees(angle) % 360.0 * 100) % 36000 if math.isfinite(angle) else 0
+def compiled_frame(msg_id: int, s: Snapshot, origin: Origin, seq: int = 0, system: int = 1,
+                   component: int = 1) -> bytes:  # fmt: skip
+    """The frame of one of :data:`autopilot.stream_frames.COMPILED`'s messages for this snapshot: the bytes the
+    autopilot's tick builds for it (:func:`autopilot.stream_frames.encode`)."""
+    buf = np.zeros(FRAME_MAX, dtype=np.uint8)
+    n = stream_frames.encode(buf, stream_frames.SLOT_OF[msg_id], seq, system, component, s.time_ms,
+                             *_frame_values(s, origin))  # fmt: skip
+    return buf[:n].tobytes()
 
 
 def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
     """The telemetry message ``msg_id`` for this tick (one of :mod:`autopilot.streams`' ids)."""
-    st, ms, (p, q, r) = s.state, s.time_ms & 0xFFFFFFFF, s.body_rates
-    if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE:
-        return mavlink.MAVLink_attitude_message(ms, st.roll, st.pitch, st.yaw, p, q, r)
-    if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
-        return mavlink.MAVLink_attitude_quaternion_message(
-            ms, *euler_to_quaternion(st.roll, st.pitch, st.yaw), p, q, r, [0.0] * 4
-        )
-    if msg_id == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
-        return mavlink.MAVLink_local_position_ned_message(ms, st.x, st.y, st.z, st.vx, st.vy, st.vz)
-    if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET:
-        ref = s.reference
-        qd = euler_to_quaternion(ref.roll, ref.pitch, ref.yaw)
-        thrust = min(max(s.u1 / s.max_total_thrust, 0.0), 1.0)
-        # type_mask 7: the body-rate fields are not used.
-        return mavlink.MAVLink_attitude_target_message(ms, 7, qd, 0.0, 0.0, 0.0, thrust)
+    st, ms = s.state, s.time_ms & 0xFFFFFFFF
+    if msg_id in stream_frames.SLOT_OF:  # built by compiled code, as the tick builds them
+        return message_of(compiled_frame(msg_id, s, origin))
     if msg_id == mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
         return position_target(s, ms)
-    if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-        return global_position_int(origin, st, s.time_ms, home_z=s.home[2])
-    if msg_id == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
-        return gps_raw_int(origin, st, s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
         return home_position(origin, *s.home, time_usec=s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
@@ -220,49 +201,6 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
 TRUE_STATE_FLAGS = (mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_HORIZ | mavlink.ESTIMATOR_VELOCITY_VERT
                     | mavlink.ESTIMATOR_POS_HORIZ_REL | mavlink.ESTIMATOR_POS_HORIZ_ABS
                     | mavlink.ESTIMATOR_POS_VERT_ABS)  # fmt: skip
-
-
-def global_position_int(
-    origin: Origin, state: VehicleState, time_ms: int, home_z: float = 0.0
-) -> mavlink.MAVLink_global_position_int_message:
-    """``GLOBAL_POSITION_INT``: the position of ``state`` (local NED [m] from ``origin``) as latitude and
-    longitude [1e-7 deg] and altitude AMSL [mm]; ``relative_alt`` [mm] is the altitude above home, whose
-    local z [m, down] is ``home_z`` (PX4: above the arming position); NED velocity [cm/s]; heading [cdeg]
-    from yaw. ``time_ms``: simulated time since start [ms]."""
-    lat, lon = _lat_lon_e7(origin, state.x, state.y)
-    return mavlink.MAVLink_global_position_int_message(
-        time_ms & 0xFFFFFFFF, lat, lon, _amsl_mm(origin, state.z),
-        _clamp_int((home_z - state.z) * 1000, INT32_MIN, INT32_MAX),
-        _clamp_int(state.vx * 100, -32768, 32767), _clamp_int(state.vy * 100, -32768, 32767),
-        _clamp_int(state.vz * 100, -32768, 32767), _cdeg(state.yaw),
-    )  # fmt: skip
-
-
-# What GPS_RAW_INT claims about the simulated receiver. Its fix is the true state, so its uncertainties are
-# those of the encoding: 1e-7 deg of latitude ≈ 1.1 cm, 1 mm of altitude, 1 cm/s of speed.
-GPS_SATELLITES = 10
-GPS_DOP = 1.0  # HDOP and VDOP (an ideal geometry)
-GPS_H_ACC = 11  # [mm]
-GPS_V_ACC = 1  # [mm]
-GPS_VEL_ACC = 10  # [mm/s]
-
-
-def gps_raw_int(origin: Origin, state: VehicleState, time_usec: int) -> mavlink.MAVLink_gps_raw_int_message:
-    """``GPS_RAW_INT`` of a perfect receiver at ``state`` (local NED [m] and m/s from ``origin``): a 3D fix
-    with ``GPS_SATELLITES`` satellites; latitude and longitude [1e-7 deg] by PX4's projection; altitude
-    AMSL [mm] (also as ``alt_ellipsoid``: no geoid is modelled); eph/epv = DOP·100; ground speed ``vel``
-    [cm/s]; course over ground ``cog`` [cdeg, 0 = north, clockwise], UINT16_MAX (unknown) while the ground
-    speed rounds to 0 cm/s; accuracies ``h_acc``, ``v_acc`` [mm] and ``vel_acc`` [mm/s]; yaw 0 (the
-    receiver has no heading). ``time_usec``: simulated time since start [µs]."""
-    lat, lon = _lat_lon_e7(origin, state.x, state.y)
-    alt = _amsl_mm(origin, state.z)
-    vel = _clamp_int(math.hypot(state.vx, state.vy) * 100, 0, UINT16_UNKNOWN - 1)
-    cog = _cdeg(math.atan2(state.vy, state.vx)) if vel > 0 else UINT16_UNKNOWN
-    dop = round(GPS_DOP * 100)
-    return mavlink.MAVLink_gps_raw_int_message(
-        max(int(time_usec), 0), mavlink.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, dop, dop, vel, cog, GPS_SATELLITES,
-        alt, GPS_H_ACC, GPS_V_ACC, GPS_VEL_ACC, 0, 0,
-    )  # fmt: skip
 
 
 SENSORS = (  # the simulated vehicle's sensors: the plant's state stands for all of them
@@ -302,7 +240,8 @@ def sys_status(
     comm, c1, c2, c3, c4 = (min(max(int(e), 0), 65535) for e in (*errors, 0, 0, 0, 0, 0)[:5])
     health = HEALTH_ALWAYS | (HEALTH_WITH_STATE if has_state else 0)
     return mavlink.MAVLink_sys_status_message(
-        PRESENT, PRESENT, health, _clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1, c2, c3, c4, 0, 0, 0,
+        PRESENT, PRESENT, health, stream_frames.clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1, c2, c3,
+        c4, 0, 0, 0,
     )  # fmt: skip
 
 
@@ -325,7 +264,7 @@ def home_position(
     lat, lon = _lat_lon_e7(origin, x, y)
     q = [float(v) for v in euler_to_quaternion(0.0, 0.0, float(yaw))] if math.isfinite(yaw) else [1.0, 0, 0, 0]
     return mavlink.MAVLink_home_position_message(
-        lat, lon, _amsl_mm(origin, z), x, y, z, q, 0.0, 0.0, 0.0, max(int(time_usec), 0)
+        lat, lon, stream_frames.amsl_mm(origin.alt, z), x, y, z, q, 0.0, 0.0, 0.0, max(int(time_usec), 0)
     )
 
 

@@ -51,14 +51,32 @@ if fastio.AVAILABLE:
 
     @overload(fly_datagram, jit_options={"cache": True})
     def _fly_datagram(rx, length, targs):
-        if len(targs) == 13:  # the state mode's arguments (autopilot_tick), else the sensor mode's
+        if len(targs) == 14:  # the state mode's arguments (autopilot_tick), else the sensor mode's
             return lambda rx, length, targs: kernel.autopilot_tick(rx, length, *targs)
         return lambda rx, length, targs: kernel.sensor_tick(rx, length, *targs)
 
     @jit
+    def send_frames(frames: tuple, links: tuple) -> bool:
+        """The telemetry datagrams the tick built (``frames``: :attr:`autopilot.stream_frames.StreamFrames.out`) to
+        each link's destinations (``links``: :attr:`Destinations.out`) → False when a send failed (counted in its
+        destination's errors, for Python to deal with)."""
+        lens, datagrams = frames[2], frames[1]
+        addrs, fds, of_link, errors, count = links
+        ok = True
+        for d in range(count[0]):
+            n = lens[of_link[d]]
+            if n > 0:
+                sent = fastio.sendto(fds[d], datagrams[of_link[d]].ctypes.data, n, 0, addrs[d].ctypes.data,
+                                     fastio.SOCKADDR_IN)  # fmt: skip
+                if sent < 0:
+                    errors[d] += 1
+                    ok = False
+        return ok
+
+    @jit
     def serve(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray, tx: np.ndarray,
               io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, patience_ns: int,
-              hot_after: int, limit_tick: int, stats: np.ndarray) -> tuple:  # fmt: skip
+              hot_after: int, limit_tick: int, stats: np.ndarray, links: tuple) -> tuple:  # fmt: skip
         """Serve the plant on socket ``fd`` until Python has something to do (the module's docstring) → (status,
         the datagram's length or −1, the tick's flags: with SENT, the answer among them was sent). Datagrams are
         read into ``rx``, their sender into ``addr`` (``addrlen``: its length, int32[1]); ``peer`` is the locked
@@ -67,7 +85,11 @@ if fastio.AVAILABLE:
 
         ``polling``: each wait polls for up to ``patience_ns`` [ns]; else it blocks in the receive (the socket's
         own timeout ends it: QUIET), and once ``hot_after`` consecutive waits were each shorter than the budget
-        the loop goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]."""
+        the loop goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns].
+
+        The telemetry frames a tick built (FRAMES) go to the ground-station links' destinations (``links``:
+        :attr:`Destinations.out`) after the answer; with no destination list (count −1: one Python cannot give
+        here), or when a send fails, the tick's flags keep FRAMES and Python sends them."""
         while True:
             n = fastio.receive(fd, rx, addr, addrlen, polling, budget_ns, patience_ns, stats)
             if n == fastio.RAN_OUT or n < 0:
@@ -83,12 +105,50 @@ if fastio.AVAILABLE:
                 return TICKED, n, flags
             fastio.sendto(fd, tx.ctypes.data, io[kernel.TX_LEN], 0, peer.ctypes.data, fastio.SOCKADDR_IN)
             stats[ANSWERED] += 1
+            if flags & kernel.FRAMES and links[4][0] >= 0 and send_frames(targs[-1], links):
+                flags &= ~kernel.FRAMES
             end = fastio.monotonic_ns()
             stats[TICK_NS] = end - now
             if flags != kernel.ANSWER:
                 return SENT, n, flags
             if end >= deadline_ns or (not polling and stats[SHORT] == hot_after):
                 return DUE, -1, 0
+
+
+MAX_DESTINATIONS = 16  # ground-station destinations the compiled loop sends the telemetry frames to
+
+
+class Destinations:
+    """Where :func:`serve` sends the telemetry frames the ticks build (``out``): each destination's IPv4 address,
+    the socket (of its link) it goes from, the link's index (its datagram), and the sends that failed. With none
+    set (:meth:`set` with None: a destination the compiled loop cannot reach, IPv6 or too many), Python sends."""
+
+    def __init__(self) -> None:
+        self.addrs = np.zeros((MAX_DESTINATIONS, fastio.SOCKADDR_IN), dtype=np.uint8)
+        self.fds = np.zeros(MAX_DESTINATIONS, dtype=np.int64)
+        self.of_link = np.zeros(MAX_DESTINATIONS, dtype=np.int64)
+        self.errors = np.zeros(MAX_DESTINATIONS, dtype=np.int64)
+        self.count = np.array([-1], dtype=np.int64)
+        self.out = (self.addrs, self.fds, self.of_link, self.errors, self.count)
+        self.entries: list[tuple[int, tuple[str, int]]] = []  # (link index, address), in the arrays' order
+
+    def set(self, entries: list[tuple[int, int, tuple[str, int]]] | None) -> None:
+        """The destinations: (link index, socket fd, IPv4 address) each; None: Python sends."""
+        self.errors[:] = 0
+        if entries is None or len(entries) > MAX_DESTINATIONS:
+            self.entries, self.count[0] = [], -1
+            return
+        for i, (link, fd, address) in enumerate(entries):
+            self.addrs[i] = fastio.sockaddr(address)
+            self.fds[i], self.of_link[i] = fd, link
+        self.entries = [(link, address) for link, _, address in entries]
+        self.count[0] = len(entries)
+
+    def failed(self) -> list[tuple[int, tuple[str, int]]]:
+        """The destinations a send to failed since the last call: (link index, address) each."""
+        out = [self.entries[i] for i in np.flatnonzero(self.errors[: max(self.count[0], 0)])]
+        self.errors[:] = 0
+        return out
 
 
 def _copied(value: object) -> object:
@@ -111,7 +171,7 @@ def warm_up(targs: tuple) -> None:
     from quadsitl.process_util import set_receive_timeout
 
     targs = _copied(targs)
-    tx, io = targs[-3], targs[-2]
+    tx, io = targs[-4], targs[-3]
     frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
     n = wire.encode_state(frame, 0, 1, 1, 0, np.zeros(wire.DECODED_SIZE))
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
@@ -122,4 +182,4 @@ def warm_up(targs: tuple) -> None:
         for polling in (True, False):
             sock.sendto(frame[:n].tobytes(), sock.getsockname())
             serve(sock.fileno(), rx, addr, addrlen, peer, tx, io, targs, 0, polling, 1000, 1000, 8, NO_LIMIT,
-                  np.zeros(STATS_SIZE, dtype=np.int64))  # fmt: skip
+                  np.zeros(STATS_SIZE, dtype=np.int64), Destinations().out)  # fmt: skip

@@ -40,6 +40,8 @@ from autopilot.gcs_messages import Home, Snapshot
 from autopilot.missions import Missions
 from autopilot.offboard_lockstep import OffboardLockstep
 from autopilot.params import ParamStore
+from autopilot.stream_frames import COMPILED as COMPILED_STREAMS
+from autopilot.stream_frames import StreamFrames
 from autopilot.streams import MessageStreams, phase_of
 from autopilot.tick import Batch, autopilot_tick, sensor_tick, warm_up
 from quadsitl import fastio, telemetry, wire
@@ -110,12 +112,13 @@ class GcsLink:
         self.send_errors = 0  # datagrams the OS refused to send (a peer gone, a remote this socket cannot reach)
         self._told: set[tuple[tuple[str, int], int | None]] = set()  # (destination, errno) already reported
 
-    def send(self, buf: bytes) -> None:
-        """``buf`` to every destination. A send the OS refuses drops a learned peer (it is heard again if it
-        comes back) and is counted; each destination's first failure of a kind is one line on stderr, so a
-        remote this link cannot reach (a loopback-bound socket and another host's address: EINVAL) is never
-        silent, and a flight controller never stops for it."""
-        for peer in self.destinations():
+    def send(self, buf: bytes, to: list[tuple[str, int]] | None = None) -> bool:
+        """``buf`` to every destination (or those in ``to``) → False when a learned peer was dropped. A send the OS
+        refuses drops a learned peer (it is heard again if it comes back) and is counted; each destination's first
+        failure of a kind is one line on stderr, so a remote this link cannot reach (a loopback-bound socket and
+        another host's address: EINVAL) is never silent, and a flight controller never stops for it."""
+        peers = len(self.peers)
+        for peer in self.destinations() if to is None else to:
             try:
                 self.sock.sendto(buf, peer)
             except OSError as exc:
@@ -127,6 +130,7 @@ class GcsLink:
                     why = exc.strerror or exc
                     print(f"autopilot: {self.name} link: cannot send to {peer[0]}:{peer[1]} from {host}:{port}: {why} "
                           "(said once for this destination and error)", file=sys.stderr)  # fmt: skip
+        return len(self.peers) == peers
 
     def destinations(self) -> list[tuple[str, int]]:
         out = list(self.peers)
@@ -134,10 +138,12 @@ class GcsLink:
             out.append(self.remote)
         return out
 
-    def forget_silent(self, now: float) -> None:
-        for peer, seen in list(self.peers.items()):
-            if now - seen > PEER_TIMEOUT:
-                del self.peers[peer]
+    def forget_silent(self, now: float) -> bool:
+        """Forget the peers not heard for PEER_TIMEOUT → whether any was."""
+        silent = [peer for peer, seen in self.peers.items() if now - seen > PEER_TIMEOUT]
+        for peer in silent:
+            del self.peers[peer]
+        return bool(silent)
 
 
 class Autopilot:
@@ -180,8 +186,14 @@ class Autopilot:
             streams = MessageStreams(self.period, args.telemetry_rate, phase_of(self.sysid))
             self.links.append(GcsLink(name, sock, remote, streams))
         self.streams = self.links[0].streams  # for what every link's streams share: which ids are streamed
+        # The per-tick telemetry messages (autopilot.stream_frames) are built by the compiled tick and sent by the
+        # compiled loop, on unsigned links (a signed link's frames are pymavlink's to sign: Python builds them all).
+        self.compiled_streams = self.signing_key is None
+        self.frames = StreamFrames(len(self.links), (self.home.lat, self.home.lon, self.home.alt),
+                                   4.0 * preset.actuators.max_thrust)  # fmt: skip
+        self.destinations = plant_loop.Destinations()
         self.last_heartbeat = 0.0
-        self.last_streamed = 0.0  # wall time the telemetry streams last went out (they follow the ticks)
+        self.heartbeat_tick = -1  # the tick flown when the last heartbeat went out
         self.last_records: dict[str, bytes] = {}  # each Zenoh stream's last record published
         # Input counters, reported in SYS_STATUS (errors_comm, errors_count1..4):
         self.errors_comm = 0  # ground-station datagrams that are not MAVLink or fail their CRC
@@ -240,6 +252,7 @@ class Autopilot:
             self.plan_pub = self.session.declare_publisher(
                 telemetry.key(args.vehicle, telemetry.MISSION), encoding=telemetry.mission_encoding()
             )
+        self.refresh_streams()
 
     # ---- the control tick ----------------------------------------------------------------------
 
@@ -273,7 +286,7 @@ class Autopilot:
         sensor_tick's)."""
         ctl = self.controller
         common = (self.st, self.period, ctl.kind, self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min, self.f_max,
-                  self.tx, self.io, self.batch.records)  # fmt: skip
+                  self.tx, self.io, self.batch.records, self.frames.out)  # fmt: skip
         if self.estimator is not None:
             return (self.hil_frame, self.truth, self.origin, self.estimator.arrays, *common)
         return (self.scratch, *common)
@@ -291,6 +304,39 @@ class Autopilot:
                 self._send_mission(out)
         if flags > kernel.ANSWER:
             self._after_tick(flags, nbytes, sender)
+
+    def _send_frames(self) -> None:
+        """The telemetry datagrams the tick built (kernel.FRAMES), sent from Python: each link's to its
+        destinations."""
+        dropped = False
+        for i, link in enumerate(self.links):
+            if self.frames.lens[i]:
+                dropped |= not link.send(self.frames.datagram(i))
+        if dropped:
+            self.refresh_streams()
+
+    def refresh_streams(self) -> None:
+        """After a change of the links' destinations or message intervals: which per-tick messages the compiled
+        tick builds for each link (those with somewhere to send), where the compiled loop sends them, and when
+        Python's next messages are due."""
+        entries: list | None = []
+        for i, link in enumerate(self.links):
+            live = link.remote is not None or bool(link.peers)
+            for slot, mid in enumerate(COMPILED_STREAMS):
+                interval, phase = link.streams.schedule(mid)
+                self.frames.sched[i, slot] = (interval if live and self.compiled_streams else 0), phase
+            if entries is not None and live:
+                if link.sock.family != socket.AF_INET:
+                    entries = None
+                    continue
+                try:
+                    for peer in link.destinations():
+                        fastio.sockaddr(peer)  # an IPv4 address in dotted form (else OSError: Python sends)
+                        entries.append((i, link.sock.fileno(), peer))
+                except OSError:
+                    entries = None
+        self.destinations.set(entries if self.fast else None)
+        self.io[kernel.NEXT_STREAM_TICK] = 0  # recomputed at the next tick
 
     def _answer_armed(self) -> None:
         """Just armed, and the plant quiet for PLANT_HOLDING: a lockstep plant that holds its clock until the vehicle
@@ -317,7 +363,7 @@ class Autopilot:
         status, nbytes, flags = plant_loop.serve(
             self.plant_sock.fileno(), self.rx_array, self.sender, self.sender_len, self.plant_address, self.tx, self.io,
             self.tick_arguments(), int(deadline * 1e9), polling, int(wait.budget * 1e9),
-            int(wait.patience * 1e9), HOT_AFTER, limit, stats
+            int(wait.patience * 1e9), HOT_AFTER, limit, stats, self.destinations.out
         )  # fmt: skip
         wall = time.monotonic()
         wait.tally(int(stats[plant_loop.POLLED]), int(stats[plant_loop.LATE]), polling and status == plant_loop.QUIET,
@@ -326,6 +372,11 @@ class Autopilot:
             self.plant_heard = wall
             self.load = stats[plant_loop.TICK_NS] * 1e-9 / self.period
         if status == plant_loop.SENT:  # the answer went out in the loop: the rest of the tick
+            if flags & kernel.FRAMES and self.destinations.count[0] >= 0:  # the loop sent them; some failed
+                flags &= ~kernel.FRAMES
+                for i, peer in self.destinations.failed():
+                    self.links[i].send(self.frames.datagram(i), to=[peer])  # said and dropped as any failed send
+                self.refresh_streams()
             self._finish_tick(flags & ~kernel.ANSWER, nbytes, self.plant_peer, wall)
         elif status == plant_loop.TICKED:
             self.plant_heard = wall
@@ -336,6 +387,8 @@ class Autopilot:
     def _after_tick(self, flags: int, nbytes: int, sender: tuple[str, int]) -> None:
         """What a tick leaves to Python, now and then: telemetry messages, announcements, a full batch, and the
         datagrams the compiled decoder does not take."""
+        if flags & kernel.FRAMES:
+            self._send_frames()
         if flags & kernel.STREAM:
             self._stream(int(self.io[kernel.TICK]))
         if flags & kernel.EVENT_DUE:
@@ -402,24 +455,26 @@ class Autopilot:
         return int(self.io[kernel.TICK]), VehicleState._make(self.st[:12].tolist()), c.reference if c.armed else c.hold
 
     def _stream(self, tick: int) -> None:
-        """The telemetry messages due at ``tick`` on each link."""
-        self.last_streamed = time.monotonic()
+        """The telemetry messages due at ``tick`` on each link that the compiled tick does not build."""
         snap, built = None, {}
+        skip = COMPILED_STREAMS if self.compiled_streams else ()
+        self.gcs_mav.seq = int(self.io[kernel.GCS_SEQ])
         for link in self.links:
             if link.remote is None and not link.peers:
                 continue
             frames = []
-            for mid in link.streams.due(tick):
+            for mid in link.streams.due(tick, skip):
                 if mid not in built:
                     snap = snap or self._snapshot()
                     built[mid] = wire.pack(gcs_messages.build(mid, snap, self.commander, self.home), self.gcs_mav)
                 frames.append(built[mid])
-            if frames:  # one datagram per link and tick, as PX4 fills its UDP buffer
-                link.send(b"".join(frames))
+            if frames and not link.send(b"".join(frames)):  # one datagram per link and tick, as PX4 fills its buffer
+                self.refresh_streams()
+        self.io[kernel.GCS_SEQ] = self.gcs_mav.seq
         # Only links with somewhere to send count (a link nobody listens on would call Python every few ticks for
         # nothing); a new peer starts the streams again (on_gcs).
         self.io[kernel.NEXT_STREAM_TICK] = min(
-            (link.streams.next_due(tick) for link in self.links if link.remote is not None or link.peers),
+            (link.streams.next_due(tick, skip) for link in self.links if link.remote is not None or link.peers),
             default=tick + NO_STREAMS,
         )
 
@@ -481,7 +536,9 @@ class Autopilot:
     # ---- the ground-station links --------------------------------------------------------------
 
     def _send_gcs(self, msg) -> None:
+        self.gcs_mav.seq = int(self.io[kernel.GCS_SEQ])  # one sequence with the frames the tick builds
         buf = wire.pack(msg, self.gcs_mav)
+        self.io[kernel.GCS_SEQ] = self.gcs_mav.seq
         for link in self.links:
             link.send(buf)
 
@@ -513,7 +570,9 @@ class Autopilot:
         self._send_gcs(gcs_messages.heartbeat(self.commander))
         self._send_mission(self.missions.protocol.mission_current())  # MISSION_CURRENT at 1 Hz, as PX4
         self.publish_plan(again=True)
-        if not self.has_state() or time.monotonic() - self.last_streamed > 1.0:
+        tick = int(self.io[kernel.TICK])
+        still, self.heartbeat_tick = tick == self.heartbeat_tick, tick
+        if not self.has_state() or still:
             # No new ticks, so no streams (no plant, or a lockstep plant holding its clock until the vehicle arms):
             # SYS_STATUS says here whether the vehicle may arm, and the last tick's telemetry records go out again,
             # so a subscriber that joined since sees the vehicle (the same tick again: a join by tick keeps one).
@@ -528,7 +587,7 @@ class Autopilot:
         link.peers[sender] = time.monotonic()
         if new_peer:
             self.heartbeat()
-            self.io[kernel.NEXT_STREAM_TICK] = 0  # its streams start at the next tick
+            self.refresh_streams()  # its streams start at the next tick
         mid = m.get_msgId()
         if not hasattr(m, "target_system"):
             if mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
@@ -777,7 +836,7 @@ class Autopilot:
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             reason = link.streams.set_interval(as_int(m.param1), m.param2) if math.isfinite(m.param2) else "NaN"
             result = denied if reason else accepted
-            self.io[kernel.NEXT_STREAM_TICK] = 0  # recomputed at the next tick
+            self.refresh_streams()
         elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
             mid = as_int(m.param1)
             if link.streams.supported(mid):
@@ -914,8 +973,8 @@ class Autopilot:
                 if wall - self.last_heartbeat >= 1.0:
                     self.last_heartbeat = wall
                     self.heartbeat()
-                    for link in self.links:
-                        link.forget_silent(wall)
+                    if any([link.forget_silent(wall) for link in self.links]):
+                        self.refresh_streams()
 
     def _offboard(self) -> bool:
         return self.commander.armed and self.commander.mode == wire.Mode.OFFBOARD

@@ -16,6 +16,8 @@ millisecond, and the last of them missed its deadline. An autopilot's ``phase`` 
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 from pymavlink.dialects.v20 import common as mavlink
 
 FAST = (
@@ -106,10 +108,16 @@ class MessageStreams:
         n = self.every[msg_id]
         return -1 if n == 0 else round(n * self.period * 1e6)
 
-    def due(self, tick: int) -> list[int]:
-        """The message ids to send at ``tick``."""
-        return [mid for mid, n, phase in self._active if (tick - phase) % n == 0]
+    def due(self, tick: int, skip: Collection[int] = ()) -> list[int]:
+        """The message ids to send at ``tick`` (but those in ``skip``)."""
+        return [mid for mid, n, phase in self._active if (tick - phase) % n == 0 and mid not in skip]
 
-    def next_due(self, tick: int) -> int:
-        """The first tick after ``tick`` at which a message is due (so the loop need not ask every tick)."""
-        return min((tick + 1 + (phase - tick - 1) % n for _, n, phase in self._active), default=tick + 2**62)
+    def next_due(self, tick: int, skip: Collection[int] = ()) -> int:
+        """The first tick after ``tick`` at which a message (not in ``skip``) is due (so the loop need not ask every
+        tick)."""
+        return min((tick + 1 + (phase - tick - 1) % n for mid, n, phase in self._active if mid not in skip),
+                   default=tick + 2**62)  # fmt: skip
+
+    def schedule(self, mid: int) -> tuple[int, int]:
+        """(interval, phase) [ticks] of message ``mid``; interval 0: off."""
+        return self.every.get(mid, 0), self.phases.get(mid, 0)

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from autopilot import commander
+from autopilot import commander, stream_frames
 from autopilot import estimator as ekf
 from autopilot.backstepping import Errors, altitude_law, attitude_law, thrust
 from autopilot.commander import (
@@ -143,13 +143,16 @@ def _put_int(buf: np.ndarray, at: int, value: int) -> None:
 # plant link's sequence number, the telemetry rows batched and the batch's capacity, the first tick at which a
 # telemetry message may be due, the last tick, the commander's event, and the autopilot's MAVLink ids.
 # In sensor mode also: the sensor samples dropped for a non-finite value, and the estimator's status (ESTIMATE_*).
-(LAST_USEC, TX_LEN, SEQ, ROWS, CAPACITY, NEXT_STREAM_TICK, TICK, EVENT, SYSTEM, COMPONENT, DROPPED, ESTIMATE,
- IO_SIZE) = range(13)  # fmt: skip
+# GCS_SEQ: the ground-station links' MAVLink sequence number, shared by the frames built here
+# (autopilot.stream_frames) and those pymavlink packs.
+(LAST_USEC, TX_LEN, SEQ, ROWS, CAPACITY, NEXT_STREAM_TICK, TICK, EVENT, SYSTEM, COMPONENT, DROPPED, ESTIMATE, GCS_SEQ,
+ IO_SIZE) = range(14)  # fmt: skip
 ESTIMATE_ALIGNED, ESTIMATE_DIVERGED = 1, 2
 # What autopilot_tick reports (bits): an answer is in tx; telemetry messages are due; the commander has an
 # event (io[EVENT]); the batch is full; the datagram is no per-tick frame (pymavlink's to parse); it was
-# corrupt or carried a state never to fly; (sensor mode) the estimator's status changed.
-ANSWER, STREAM, EVENT_DUE, BATCH_FULL, NOT_MINE, REFUSED, ESTIMATOR_CHANGED = 1, 2, 4, 8, 16, 32, 64
+# corrupt or carried a state never to fly; (sensor mode) the estimator's status changed; telemetry frames built here
+# wait in the links' datagrams (autopilot.stream_frames.StreamFrames) to be sent.
+ANSWER, STREAM, EVENT_DUE, BATCH_FULL, NOT_MINE, REFUSED, ESTIMATOR_CHANGED, FRAMES = 1, 2, 4, 8, 16, 32, 64, 128
 
 
 @jit
@@ -270,11 +273,21 @@ def _flags(io: np.ndarray, tick: int) -> int:
 
 
 @jit
+def _frames(tick: int, period: float, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, io: np.ndarray,
+            frames: tuple) -> int:  # fmt: skip
+    """The telemetry frames due at ``tick`` (:func:`autopilot.stream_frames.stream_tick`) → FRAMES when any."""
+    due = stream_frames.stream_tick(tick, period, st, cm, mem, io[GCS_SEQ : GCS_SEQ + 1], io[SYSTEM], io[COMPONENT],
+                                    frames)  # fmt: skip
+    return FRAMES if due else 0
+
+
+@jit
 def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndarray, period: float, kind: int,
                    cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray, f_min: float, f_max: float,
-                   tx: np.ndarray, io: np.ndarray, records: np.ndarray) -> int:  # fmt: skip
+                   tx: np.ndarray, io: np.ndarray, records: np.ndarray, frames: tuple) -> int:  # fmt: skip
     """A datagram from the plant (rx[:length]) → what to do (ANSWER | STREAM | ...). A new state becomes
-    ``st`` and is flown (:func:`control_tick`); a re-sent one gets the same answer again; a stale one (older
+    ``st`` and is flown (:func:`control_tick`), and its telemetry frames due are built (``frames``:
+    :attr:`autopilot.stream_frames.StreamFrames.out`); a re-sent one gets the same answer again; a stale one (older
     than the last, by less than 1 s: a jump back by more is a restarted plant) none."""
     t = decode_state(rx, length, scratch)
     if t < 0:
@@ -286,14 +299,14 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
     tick = tick_of(t, period)
     io[TICK] = tick
     control_tick(kind, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
-    return _flags(io, tick)
+    return _flags(io, tick) | _frames(tick, period, st, cm, mem, io, frames)
 
 
 @jit
 def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarray, home: tuple, est: tuple,
                 st: np.ndarray, period: float, kind: int, cm: np.ndarray, mem: np.ndarray, v: np.ndarray,
-                c: np.ndarray, f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray,
-                records: np.ndarray) -> int:  # fmt: skip
+                c: np.ndarray, f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, records: np.ndarray,
+                frames: tuple) -> int:  # fmt: skip
     """Sensor mode: a sensor datagram from the plant (:mod:`quadsitl.hil`) → what to do, as :func:`autopilot_tick`.
     A new tick's measurements go to the estimator (``est``: :attr:`autopilot.estimator.Estimator.arrays`); its
     estimate becomes ``st`` and is flown. The plant's ground truth is decoded into ``truth`` and goes to the
@@ -326,7 +339,7 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
         for i in range(3):
             _put(records, at + 88 + 8 * i, truth[BODY_RATES + i])
     control_tick(kind, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
-    flags = _flags(io, tick)
+    flags = _flags(io, tick) | _frames(tick, period, st, cm, mem, io, frames)
     if status != io[ESTIMATE]:
         io[ESTIMATE] = status
         flags |= ESTIMATOR_CHANGED
@@ -365,6 +378,8 @@ def warm_up() -> None:
     v = np.ones(VEHICLE_SIZE)
     c = control_array((0.5,) * 8, 0.001)
     batch = Batch(2)
+    frames = stream_frames.StreamFrames(2, (47.0, 8.0, 488.0), 40.0)
+    frames.sched[:, :, 0] = 1  # every message on every link, every tick
     for kind in (BACKSTEPPING, PD):
         for armed in (False, True):
             commander = Commander()
@@ -374,7 +389,7 @@ def warm_up() -> None:
             io[LAST_USEC], io[CAPACITY] = -1, batch.capacity
             n = wire.encode_state(frame, 0, 1, 1, 0, st)
             autopilot_tick(frame, n, st.copy(), st, 0.001, kind, commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0,
-                           frame, io, batch.records)  # fmt: skip
+                           frame, io, batch.records, frames.out)  # fmt: skip
             io[LAST_USEC] = -1
             est = Estimator(0.001, 9.8, (0.2, 0.0, 0.4))
             n = hil.encode_sensor(datagram, 0, 1, 1, 0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), (0.2, 0.0, 0.4), 1000.0,
@@ -382,4 +397,5 @@ def warm_up() -> None:
             n += hil.encode_gps(datagram[n:], 1, 1, 1, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (47.0, 8.0, 488.0), 1.0,
                                 1.0, 10)  # fmt: skip
             sensor_tick(datagram, n, frame.copy(), st.copy(), (47.0, 8.0, 488.0), est.arrays, st, 0.001, kind,
-                        commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0, frame, io, batch.records)  # fmt: skip
+                        commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0, frame, io, batch.records,
+                        frames.out)  # fmt: skip

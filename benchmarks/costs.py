@@ -20,6 +20,7 @@ def measure(number: int) -> dict[str, float]:
     from autopilot import backstepping, pd
     from autopilot.commander import Commander
     from autopilot.control_params import BACKSTEPPING, MEM_SIZE, control_array
+    from autopilot.stream_frames import StreamFrames
     from autopilot.tick import IO_SIZE, LAST_USEC, Batch, autopilot_tick
     from quadsitl import wire
     from quadsitl.config import SensorParams, load_preset
@@ -60,6 +61,7 @@ def measure(number: int) -> dict[str, float]:
     n_state = wire.encode_state(state_frame, 0, 1, 25, 1000, x)
     st, scratch = np.zeros(wire.DECODED_SIZE), np.zeros(wire.DECODED_SIZE)
     commander, batch = Commander(), Batch(64)
+    frames = StreamFrames(2, (47.0, 8.0, 488.0), 4 * 1e4).out  # no stream due: as on most ticks
     commander.arm()
     io = np.zeros(IO_SIZE, dtype=np.int64)
     stamp = [0]
@@ -67,7 +69,7 @@ def measure(number: int) -> dict[str, float]:
     def autopilot_side() -> None:
         io[LAST_USEC] = -1  # every call a new state
         autopilot_tick(state_frame, n_state, scratch, st, T, BACKSTEPPING, commander.cm, mem, v, c, -1e4, 1e4,
-                       answer, io, batch.records)  # fmt: skip
+                       answer, io, batch.records, frames)  # fmt: skip
 
     autopilot_side()
     n_answer = int(io[1])

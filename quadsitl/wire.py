@@ -400,6 +400,17 @@ def pack(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
     return frame
 
 
+_PARSER = link(0, 0)
+
+
+def message_of(frame: bytes) -> mavlink.MAVLink_message:
+    """The pymavlink message of one unsigned MAVLink 2 frame (a frame built by compiled code, to be sent through
+    pymavlink: a signed link, a message asked for)."""
+    msg = _PARSER.decode(bytearray(frame))
+    _PARSER.seq = 0
+    return msg
+
+
 # ---- MAVLink 2 message signing on the ground-station links -------------------------------------------
 
 SIGNING_ENV = "QUADSITL_SIGNING_KEY"

@@ -16,6 +16,7 @@ from autopilot import commander
 from autopilot.backstepping import backstepping
 from autopilot.control_params import BACKSTEPPING, MEM_SIZE, PD, control_array
 from autopilot.pd import pd
+from autopilot.stream_frames import StreamFrames
 from autopilot.tick import autopilot_tick
 from groundstation.offline import run_offline
 from quadsitl import frames, mixer, wire
@@ -112,12 +113,14 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
     frames_out, bytes_out = [], []
     sens = Sensors(SensorParams(), preset.sim.period, preset.vehicle.gravity).arrays  # truth mode: not touched
     tick.encode_tick(tx, io_pl, x, out, air[0], sens, 0, preset.sim.period)
+    no_frames = StreamFrames(2, (47.0, 8.0, 488.0), 40.0).out  # no stream on any link
     for k in range(300):
         n = int(io_pl[tick.TX_LEN])
         rx[:n] = tx[:n]
         kind = BACKSTEPPING if k < 150 else PD
         io_ap[3] = k % 4  # the batch's row
-        autopilot_tick(rx, n, scratch, st, preset.sim.period, kind, cm.cm, mem, v, c, -1e4, 1e4, tx, io_ap, records)
+        autopilot_tick(rx, n, scratch, st, preset.sim.period, kind, cm.cm, mem, v, c, -1e4, 1e4, tx, io_ap, records,
+                       no_frames)  # fmt: skip
         m = int(io_ap[1])
         bytes_out.append(tx[:m].copy())
         rx[:m] = tx[:m]

@@ -352,7 +352,8 @@ def test_gps_raw_int_is_a_3d_fix_at_the_true_position_and_velocity():
     assert gps.time_usec == 1_234_000
 
     def fix(**kw):
-        return roundtrip(gcs_messages.gps_raw_int(origin, VehicleState(**kw), 0))
+        s = snapshot(state=VehicleState(**kw), time_ms=0)
+        return roundtrip(gcs_messages.build(mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, s, Commander(), origin))
 
     assert fix(vy=-1.0).cog == 27000 and fix(vx=-1.0).cog == 18000 and fix(vx=1.0, vz=5.0).cog == 0
     at_rest = fix(vz=-3.0)  # climbing straight up: no ground speed, no course

@@ -131,7 +131,7 @@ def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIM
     stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
     out = plant_loop.serve(ap.plant_sock.fileno(), ap.rx_array, ap.sender, ap.sender_len, ap.plant_address, ap.tx,
                            ap.io, ap.tick_arguments(), time.monotonic_ns() + int(deadline_s * 1e9), polling,
-                           50_000_000, 50_000_000, 8, limit, stats)  # fmt: skip
+                           50_000_000, 50_000_000, 8, limit, stats, ap.destinations.out)  # fmt: skip
     return out, stats
 
 
@@ -162,6 +162,34 @@ def test_the_compiled_loop_answers_each_tick_and_gives_python_what_it_must_do(ve
     with pytest.raises(BlockingIOError):
         plant.recv(1000)
     assert returns[-1] == plant_loop.QUIET and 1 < len(returns) < 10  # Python's turn only now and then
+
+
+def test_the_loop_sends_the_ticks_telemetry_frames_itself(vehicle):
+    """A tick with only compiled telemetry due (ATTITUDE and the other 50 Hz messages, GLOBAL_POSITION_INT,
+    GPS_RAW_INT) does not come back to Python: the loop sends the frames to the link's destinations after the
+    answer."""
+    ap, plant, autopilot = vehicle
+    ground = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ground.bind(("127.0.0.1", 0))
+    set_receive_timeout(ground, 2.0)
+    ap.links[1].remote = ground.getsockname()  # the api link streams to it
+    ap.refresh_streams()
+    plant.sendto(state_frame(199), autopilot)
+    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
+    plant.recv(1000)
+    assert ap.destinations.count[0] == 1
+    for k in (200, 201, 202):  # 200: all six due (phase 0; GPS_RAW_INT at 5 Hz), the others nothing
+        plant.sendto(state_frame(k), autopilot)
+    time.sleep(0.05)
+    (status, _, _), stats = serve(ap, deadline_s=0.3)
+    assert status == plant_loop.QUIET and stats[plant_loop.ANSWERED] == 3  # never back to Python in between
+    assert [answer_of(plant.recv(1000))[0] for _ in range(3)] == [200_000, 201_000, 202_000]
+    msgs = wire.link(0, 0).parse_buffer(ground.recv(65535))
+    assert [m.get_type() for m in msgs] == ["GPS_RAW_INT", "ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED",
+                                            "GLOBAL_POSITION_INT", "ATTITUDE_TARGET"]  # fmt: skip
+    assert {m.time_boot_ms for m in msgs[1:]} == {200} and msgs[0].time_usec == 200_000
+    assert len({m.get_seq() for m in msgs}) == 6
+    ground.close()
 
 
 def test_a_stranger_a_deadline_and_a_limit_hand_the_loop_back(vehicle):

@@ -20,6 +20,7 @@ from autopilot.commander import Commander, Mode
 from autopilot.control_params import MEM_SIZE
 from autopilot.estimator import Estimator
 from autopilot.factory import make_controller
+from autopilot.stream_frames import StreamFrames
 from groundstation.launcher import free_port
 from groundstation.telemetry_csv import read_csv
 from quadsitl import earth, hil, wire
@@ -144,7 +145,8 @@ class SensorAutopilot:
         rx = datagram.copy()
         flags = kernel.sensor_tick(rx, len(rx), self.frame, self.truth, earth.PX4_HOME, self.est.arrays, self.st,
                                    self.period, self.ctl.kind, self.cm.cm, self.mem, self.ctl.v, self.ctl.c, self.f_min,
-                                   self.f_max, self.tx, self.io, self.batch.records)  # fmt: skip
+                                   self.f_max, self.tx, self.io, self.batch.records,
+                                   StreamFrames(2, earth.PX4_HOME, 40.0).out)  # fmt: skip
         assert flags & kernel.ANSWER
         return bytes(self.tx[: self.io[kernel.TX_LEN]])
 

@@ -119,6 +119,25 @@ def test_commands_versions_and_message_intervals(client):
     assert not [a for a in c.acks if a.command == M.MAV_CMD_NAV_TAKEOFF][1:]
 
 
+def test_one_sequence_for_every_message_on_the_link_so_no_loss_is_reported(client):
+    """The streams the compiled tick builds (ATTITUDE ... GPS_RAW_INT) and the messages pymavlink packs (HEARTBEAT,
+    SYS_STATUS, COMMAND_ACK, ...) share the link's one sequence number: pymavlink (as MAVProxy and QGroundControl)
+    counts no message lost, and messages of both kinds arrive."""
+    c = client
+    c.conn.mav_loss = c.conn.mav_count = 0
+    assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT).result == M.MAV_RESULT_ACCEPTED
+    seen: set[str] = set()
+    end = time.monotonic() + 2.5
+    while time.monotonic() < end:
+        m = c.conn.recv_match(blocking=True, timeout=0.05)
+        if m is not None:
+            seen.add(m.get_type())
+    compiled = {"ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED", "ATTITUDE_TARGET", "GLOBAL_POSITION_INT",
+                "GPS_RAW_INT"}  # fmt: skip
+    assert compiled <= seen and {"HEARTBEAT", "SYS_STATUS", "EXTENDED_SYS_STATE", "SERVO_OUTPUT_RAW"} <= seen
+    assert c.conn.mav_count > 300 and c.conn.mav_loss == 0, (c.conn.mav_count, c.conn.mav_loss)
+
+
 def test_offboard_flight_with_telemetry_mass_mismatch_and_landing(client):
     c = client
     c.heartbeat()

@@ -1,0 +1,255 @@
+"""The telemetry messages that follow every tick, built by compiled code (:mod:`quadsitl.jit`): GPS_RAW_INT,
+ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, GLOBAL_POSITION_INT and ATTITUDE_TARGET (:data:`COMPILED`).
+
+These are the messages a ground station asks for at tens of Hz, on the ticks their stream is due
+(:mod:`autopilot.streams`). Built in Python, each cost the autopilot's loop a return from compiled code and
+100–200 µs of Python (a snapshot, pymavlink's message, the frame), while the plant waited: in an unpaced lockstep run
+at 20,000 ticks/s the 50 Hz ATTITUDE stream alone took a fifth of the run. Here the tick builds them
+(:func:`stream_tick`, called by :func:`autopilot.tick.autopilot_tick`) into one datagram per link, from the arrays
+the tick already has, and the compiled plant loop sends them (:func:`autopilot.plant_loop.serve`).
+
+Each message's fields are computed once, here: :func:`encode` is also what ``gcs_messages.build`` returns for
+these ids (a ``MAV_CMD_REQUEST_MESSAGE``, a signed link, the Python loop). The payload layouts are read from
+pymavlink's message classes (their ``struct`` formats), never typed by hand, and the frames are the bytes pymavlink
+would send (tested). Units and frames as :mod:`autopilot.gcs_messages` documents them (PX4's conventions).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+
+from autopilot.commander import ARMED, HOLD_YAW, HOME_ALT, REF_ALT, REF_PITCH, REF_ROLL, REF_YAW, TARGET_ALT
+from autopilot.control_params import MEM_U
+from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
+from quadsitl.jit import jit
+from quadsitl.wire import BODY_RATES, FRAME_MAX, HEADER_SIZE, finish_frame, mavlink
+
+_CLASSES = (  # by message id, the order of the frames in a datagram
+    mavlink.MAVLink_gps_raw_int_message,
+    mavlink.MAVLink_attitude_message,
+    mavlink.MAVLink_attitude_quaternion_message,
+    mavlink.MAVLink_local_position_ned_message,
+    mavlink.MAVLink_global_position_int_message,
+    mavlink.MAVLink_attitude_target_message,
+)
+COMPILED: tuple[int, ...] = tuple(c.id for c in _CLASSES)
+"""The message ids built here, in :data:`SLOTS`' order."""
+GPS, ATT, ATT_Q, LPN, GPI, ATT_T = range(len(_CLASSES))  # slots
+SLOT_COUNT = len(_CLASSES)
+SLOT_OF = {mid: i for i, mid in enumerate(COMPILED)}
+
+# A field's type on the wire: struct codes → what put_field writes.
+_TYPES = {"B": 0, "h": 1, "H": 2, "i": 3, "I": 4, "Q": 5, "f": 6}
+_SIZES = {"B": 1, "h": 2, "H": 2, "i": 4, "I": 4, "Q": 8, "f": 4}
+MAX_FIELDS = 20
+
+
+def _layout(cls: type) -> list[tuple[int, int]]:
+    """(payload offset, type) of every value of ``cls``'s payload in wire order, an array field's elements one by
+    one: read from pymavlink's ``struct`` format."""
+    out, at = [], 0
+    for count, code in re.findall(r"(\d*)([BhHiIQf])", cls.unpacker.format):
+        for _ in range(int(count or 1)):
+            out.append((at, _TYPES[code]))
+            at += _SIZES[code]
+    assert at == cls.unpacker.size, cls
+    return out
+
+
+_LAYOUTS = [_layout(c) for c in _CLASSES]
+LAYOUT = np.zeros((SLOT_COUNT, MAX_FIELDS, 2), dtype=np.int64)
+FIELD_COUNT = np.array([len(f) for f in _LAYOUTS], dtype=np.int64)
+for _i, _fields in enumerate(_LAYOUTS):
+    LAYOUT[_i, : len(_fields)] = _fields
+PAYLOAD_SIZE = np.array([c.unpacker.size for c in _CLASSES], dtype=np.int64)
+MSG_ID = np.array(COMPILED, dtype=np.int64)
+CRC_EXTRA = np.array([c.crc_extra for c in _CLASSES], dtype=np.int64)
+
+# ``tel`` (float64): what the frames need besides the tick's arrays: the local frame's geodetic origin (latitude,
+# longitude [deg], altitude AMSL [m]) and the largest total thrust 4·F_max [N] (ATTITUDE_TARGET's thrust is u1 over it).
+ORIGIN_LAT, ORIGIN_LON, ORIGIN_ALT, MAX_TOTAL_THRUST, TEL_SIZE = range(5)
+
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+UINT16_UNKNOWN = 65535  # MAVLink's "unknown" for uint16 fields (GPS_RAW_INT eph, epv, vel, cog)
+# What GPS_RAW_INT claims about the simulated receiver. Its fix is the true state, so its uncertainties are
+# those of the encoding: 1e-7 deg of latitude ≈ 1.1 cm, 1 mm of altitude, 1 cm/s of speed.
+GPS_SATELLITES = 10
+GPS_DOP = 1.0  # HDOP and VDOP (an ideal geometry)
+GPS_H_ACC = 11  # [mm]
+GPS_V_ACC = 1  # [mm]
+GPS_VEL_ACC = 10  # [mm/s]
+GPS_FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
+ATTITUDE_TARGET_MASK = 7  # the body-rate fields are not used
+
+
+@jit
+def clamp_int(value: float, lo: int, hi: int) -> int:
+    """``value`` rounded (half to even, as Python's round) into [lo, hi]; 0 when it is not finite."""
+    if not math.isfinite(value):
+        return 0
+    return round(min(max(value, float(lo)), float(hi)))
+
+
+@jit
+def cdeg(angle: float) -> int:
+    """An angle [rad] → centidegrees in [0, 36000); 0 when it is not finite."""
+    if not math.isfinite(angle):
+        return 0
+    return round(math.degrees(angle) % 360.0 * 100) % 36000
+
+
+@jit
+def lat_lon_e7(lat0: float, lon0: float, north: float, east: float) -> tuple[int, int]:
+    """Local north/east [m] from the origin (lat0, lon0 [deg]) → (lat, lon) [1e-7 deg], PX4's projection; (0, 0)
+    for a non-finite position."""
+    if not (math.isfinite(north) and math.isfinite(east)):
+        return 0, 0
+    lat, lon = ned_to_geodetic(north, east, lat0, lon0)
+    return clamp_int(lat * 1e7, -900_000_000, 900_000_000), clamp_int(lon * 1e7, -1_800_000_000, 1_800_000_000)
+
+
+@jit
+def amsl_mm(alt0: float, z: float) -> int:
+    """Local z [m, down] below an origin at ``alt0`` [m AMSL] → altitude AMSL [mm]."""
+    return clamp_int((alt0 - z) * 1000, INT32_MIN, INT32_MAX)
+
+
+@jit
+def _values(slot: int, vals: np.ndarray, time_ms: int, x: tuple, rates: tuple, ref: tuple, thrust: float,
+            origin: tuple, home_z: float) -> None:  # fmt: skip
+    """The payload values of message ``slot`` in wire order (pymavlink's ``ordered_fieldnames``, arrays expanded)."""
+    ms = time_ms & 0xFFFFFFFF
+    if slot == GPS:  # a perfect receiver at the state: a 3D fix, its course unknown while it does not move
+        lat, lon = lat_lon_e7(origin[0], origin[1], x[0], x[1])
+        alt = amsl_mm(origin[2], x[2])
+        vel = clamp_int(math.hypot(x[3], x[4]) * 100, 0, UINT16_UNKNOWN - 1)
+        cog = cdeg(math.atan2(x[4], x[3])) if vel > 0 else UINT16_UNKNOWN
+        dop = round(GPS_DOP * 100)
+        _set(vals, (max(time_ms * 1000, 0), lat, lon, alt, dop, dop, vel, cog, GPS_FIX_3D, GPS_SATELLITES, alt,
+                    GPS_H_ACC, GPS_V_ACC, GPS_VEL_ACC, 0, 0))  # fmt: skip
+    elif slot == ATT:
+        _set(vals, (float(ms), x[6], x[7], x[8], rates[0], rates[1], rates[2]))
+    elif slot == ATT_Q:
+        q = euler_to_quaternion(x[6], x[7], x[8])
+        _set(vals, (float(ms), q[0], q[1], q[2], q[3], rates[0], rates[1], rates[2], 0.0, 0.0, 0.0, 0.0))
+    elif slot == LPN:
+        _set(vals, (float(ms), x[0], x[1], x[2], x[3], x[4], x[5]))
+    elif slot == GPI:  # relative_alt: above home; velocity [cm/s]; heading from yaw
+        lat, lon = lat_lon_e7(origin[0], origin[1], x[0], x[1])
+        _set(vals, (ms, lat, lon, amsl_mm(origin[2], x[2]), clamp_int((home_z - x[2]) * 1000, INT32_MIN, INT32_MAX),
+                    clamp_int(x[3] * 100, -32768, 32767), clamp_int(x[4] * 100, -32768, 32767),
+                    clamp_int(x[5] * 100, -32768, 32767), cdeg(x[8])))  # fmt: skip
+    else:  # ATT_T: the attitude reference as a quaternion, the thrust as a fraction of the largest
+        q = euler_to_quaternion(ref[1], ref[2], ref[3])
+        _set(vals, (float(ms), q[0], q[1], q[2], q[3], 0.0, 0.0, 0.0, thrust, float(ATTITUDE_TARGET_MASK)))
+
+
+@jit
+def _set(vals: np.ndarray, v: tuple) -> None:
+    for i in range(len(v)):
+        vals[i] = v[i]
+
+
+@jit
+def _put(buf: np.ndarray, at: int, kind: int, value: float) -> None:
+    if kind == 6:
+        buf[at : at + 4].view(np.float32)[0] = value
+    elif kind == 0:
+        buf[at] = np.uint8(int(value) & 0xFF)
+    elif kind == 1 or kind == 2:
+        buf[at : at + 2].view(np.uint16)[0] = np.uint16(int(value) & 0xFFFF)
+    elif kind == 3 or kind == 4:
+        buf[at : at + 4].view(np.uint32)[0] = np.uint32(int(value) & 0xFFFFFFFF)
+    else:
+        buf[at : at + 8].view(np.uint64)[0] = np.uint64(int(value))
+
+
+@jit
+def encode(buf: np.ndarray, slot: int, seq: int, system: int, component: int, time_ms: int, x: tuple, rates: tuple,
+           ref: tuple, thrust: float, origin: tuple, home_z: float) -> int:  # fmt: skip
+    """Message ``slot`` (:data:`COMPILED`'s order) as a MAVLink 2 frame at the start of ``buf`` (FRAME_MAX bytes) →
+    its length. ``time_ms``: simulated time [ms]; ``x``: the 12 VehicleState fields (local NED [m], [m/s], ZYX Euler
+    angles [rad] and their rates); ``rates``: body rates p, q, r [rad/s]; ``ref``: the reference shown (altitude [m],
+    roll, pitch, yaw [rad]); ``thrust``: u1 over the largest total thrust; ``origin``: the local frame's (lat, lon
+    [deg], alt [m AMSL]); ``home_z``: home's local z [m, down]."""
+    vals = np.empty(MAX_FIELDS)
+    _values(slot, vals, time_ms, x, rates, ref, thrust, origin, home_z)
+    size = PAYLOAD_SIZE[slot]
+    buf[HEADER_SIZE : HEADER_SIZE + size] = 0
+    for i in range(FIELD_COUNT[slot]):
+        _put(buf, HEADER_SIZE + LAYOUT[slot, i, 0], LAYOUT[slot, i, 1], vals[i])
+    return finish_frame(buf, size, seq, system, component, MSG_ID[slot], CRC_EXTRA[slot])
+
+
+@jit
+def tick_values(st: np.ndarray, cm: np.ndarray, mem: np.ndarray, tel: np.ndarray) -> tuple:
+    """What :func:`encode` needs, from the tick's arrays (:mod:`autopilot.tick`): (x, rates, ref, thrust, origin,
+    home_z). The reference shown is the one flown, or disarmed the altitude and heading held, level."""
+    x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])
+    rates = (st[BODY_RATES], st[BODY_RATES + 1], st[BODY_RATES + 2])
+    if cm[ARMED] != 0.0:
+        ref = (cm[REF_ALT], cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW])
+    else:
+        ref = (cm[TARGET_ALT], 0.0, 0.0, cm[HOLD_YAW])
+    thrust = min(max(mem[MEM_U] / tel[MAX_TOTAL_THRUST], 0.0), 1.0)
+    origin = (tel[ORIGIN_LAT], tel[ORIGIN_LON], tel[ORIGIN_ALT])
+    return x, rates, ref, thrust, origin, -cm[HOME_ALT]
+
+
+@jit
+def stream_tick(tick: int, period: float, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, seq: np.ndarray,
+                system: int, component: int, out: tuple) -> bool:  # fmt: skip
+    """The frames due at ``tick`` on each link into that link's datagram → whether any is due. ``out``: (sched,
+    frames, lens, tel, scratch): sched[link, slot] = (interval [ticks], phase [ticks]), interval 0 = not on this
+    link; frames[link] the link's datagram, lens[link] its length (0: nothing due); ``tel`` (TEL_SIZE); ``scratch``
+    FRAME_MAX bytes. A message due on several links is built once (one sequence number, seq[0], as a ground-station
+    link's messages share one) and goes into each link's datagram, in :data:`COMPILED`'s order."""
+    sched, frames, lens, tel, scratch = out
+    links = sched.shape[0]
+    lens[:] = 0
+    due = False
+    for slot in range(SLOT_COUNT):
+        for link in range(links):
+            every = sched[link, slot, 0]
+            if every > 0 and (tick - sched[link, slot, 1]) % every == 0:
+                due = True
+    if not due:
+        return False
+    time_ms = round(tick * period * 1000)
+    x, rates, ref, thrust, origin, home_z = tick_values(st, cm, mem, tel)
+    for slot in range(SLOT_COUNT):
+        n = 0
+        for link in range(links):
+            every = sched[link, slot, 0]
+            if every > 0 and (tick - sched[link, slot, 1]) % every == 0:
+                if n == 0:
+                    n = encode(scratch, slot, seq[0], system, component, time_ms, x, rates, ref, thrust, origin,
+                               home_z)  # fmt: skip
+                    seq[0] = (seq[0] + 1) & 0xFF
+                at = lens[link]
+                frames[link, at : at + n] = scratch[:n]
+                lens[link] = at + n
+    return True
+
+
+DATAGRAM_MAX = SLOT_COUNT * FRAME_MAX
+
+
+class StreamFrames:
+    """The arrays :func:`stream_tick` works in, for ``links`` ground-station links (``out``)."""
+
+    def __init__(self, links: int, origin: tuple[float, float, float], max_total_thrust: float) -> None:
+        self.sched = np.zeros((links, SLOT_COUNT, 2), dtype=np.int64)
+        self.frames = np.zeros((links, DATAGRAM_MAX), dtype=np.uint8)
+        self.lens = np.zeros(links, dtype=np.int64)
+        self.tel = np.zeros(TEL_SIZE)
+        self.tel[ORIGIN_LAT : ORIGIN_ALT + 1] = origin
+        self.tel[MAX_TOTAL_THRUST] = max_total_thrust
+        self.scratch = np.zeros(FRAME_MAX, dtype=np.uint8)
+        self.out = (self.sched, self.frames, self.lens, self.tel, self.scratch)
+
+    def datagram(self, link: int) -> bytes:
+        return self.frames[link, : self.lens[link]].tobytes()

@@ -1,0 +1,139 @@
+"""The per-tick telemetry messages built by compiled code (autopilot.stream_frames): the bytes pymavlink sends for
+the same fields, computed here independently from the messages' definitions (PX4's conventions), on random states;
+and the schedule per link the tick follows."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from autopilot import stream_frames as sf
+from autopilot.commander import ARMED, HOLD_YAW, HOME_ALT, REF_ALT, REF_PITCH, REF_ROLL, REF_YAW, TARGET_ALT, Commander
+from autopilot.control_params import MEM_SIZE, MEM_U
+from quadsitl import wire
+from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
+from quadsitl.wire import mavlink
+
+ORIGIN = (47.397742, 8.545594, 488.0)
+
+
+def _int(value: float, lo: int, hi: int) -> int:
+    return int(min(max(round(value), lo), hi)) if math.isfinite(value) else 0
+
+
+def _cdeg(angle: float) -> int:
+    return round(math.degrees(angle) % 360.0 * 100) % 36000 if math.isfinite(angle) else 0
+
+
+def reference_message(mid: int, time_ms: int, x, rates, ref, thrust: float, origin, home_z: float):
+    """The message as its definition says, in plain Python (the test's own reading of the MAVLink messages)."""
+    ms = time_ms & 0xFFFFFFFF
+    roll, pitch, yaw = x[6:9]
+    if math.isfinite(x[0]) and math.isfinite(x[1]):
+        lat, lon = ned_to_geodetic(x[0], x[1], origin[0], origin[1])
+        lat, lon = _int(lat * 1e7, -900_000_000, 900_000_000), _int(lon * 1e7, -1_800_000_000, 1_800_000_000)
+    else:
+        lat = lon = 0
+    alt = _int((origin[2] - x[2]) * 1000, -(2**31), 2**31 - 1)
+    if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+        return mavlink.MAVLink_attitude_message(ms, roll, pitch, yaw, *rates)
+    if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
+        return mavlink.MAVLink_attitude_quaternion_message(ms, *euler_to_quaternion(roll, pitch, yaw), *rates, [0] * 4)
+    if mid == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+        return mavlink.MAVLink_local_position_ned_message(ms, *x[:6])
+    if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET:
+        q = euler_to_quaternion(ref[1], ref[2], ref[3])
+        return mavlink.MAVLink_attitude_target_message(ms, 7, q, 0.0, 0.0, 0.0, thrust)
+    if mid == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+        v = [_int(c * 100, -32768, 32767) for c in x[3:6]]
+        rel = _int((home_z - x[2]) * 1000, -(2**31), 2**31 - 1)
+        return mavlink.MAVLink_global_position_int_message(ms, lat, lon, alt, rel, *v, _cdeg(yaw))
+    assert mid == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT
+    vel = _int(math.hypot(x[3], x[4]) * 100, 0, 65534)
+    cog = _cdeg(math.atan2(x[4], x[3])) if vel > 0 else 65535
+    return mavlink.MAVLink_gps_raw_int_message(max(time_ms * 1000, 0), 3, lat, lon, alt, 100, 100, vel, cog, 10, alt,
+                                               11, 1, 10, 0, 0)  # fmt: skip
+
+
+def random_case(rng: np.random.Generator):
+    x = tuple(float(v) for v in rng.normal(0.0, [50, 50, 30, 5, 5, 2, 0.5, 0.5, 3, 1, 1, 1]))
+    rates = tuple(float(v) for v in rng.normal(0.0, 1.0, 3))
+    ref = tuple(float(v) for v in rng.normal(0.0, [5, 0.3, 0.3, 2]))
+    return int(rng.integers(0, 2**33)), x, rates, ref, float(rng.uniform(0, 1)), -float(rng.uniform(0, 5))
+
+
+@pytest.mark.parametrize("mid", sf.COMPILED)
+def test_each_frame_is_the_bytes_pymavlink_sends_for_the_messages_definition(mid):
+    rng = np.random.default_rng(mid)
+    buf, mav = np.zeros(wire.FRAME_MAX, dtype=np.uint8), wire.link(3, 1)
+    cases = [random_case(rng) for _ in range(200)]
+    cases.append((1234, (0.0,) * 12, (0.0,) * 3, (0.0, 0.0, 0.0, math.nan), 0.0, 0.0))  # at rest; a yaw rate alone
+    cases.append((5, (1e9, -1e9, -1e9, 1e5, -1e5, 1e5, 0.0, 0.0, -7.0, 0, 0, 0), (0.0,) * 3, (0,) * 4, 1.0, 0.0))
+    cases.append((7, (math.nan,) * 12, (0.0,) * 3, (0,) * 4, 0.5, 0.0))  # nothing finite: the fields say 0
+    for seq, (time_ms, x, rates, ref, thrust, home_z) in enumerate(cases):
+        n = sf.encode(buf, sf.SLOT_OF[mid], seq & 0xFF, 3, 1, time_ms, x, rates, ref, thrust, ORIGIN, home_z)
+        mav.seq = seq & 0xFF
+        assert bytes(buf[:n]) == reference_message(mid, time_ms, x, rates, ref, thrust, ORIGIN, home_z).pack(mav), (
+            seq,
+            x,
+        )
+
+
+def test_the_helpers_round_half_to_even_and_clamp_as_python_does():
+    for value in (0.5, 1.5, 2.5, -0.5, -2.5, 1e30, -1e30, 12.4999, math.inf, math.nan):
+        assert sf.clamp_int(value, -100, 100) == _int(value, -100, 100)
+    for angle in (-0.1, -3.5, 7.0, -1e-18, 0.0, math.pi, math.nan):
+        assert sf.cdeg(angle) == _cdeg(angle)
+
+
+def tick_arrays(armed: bool):
+    st = np.arange(15, dtype=float) * 0.1
+    c = Commander()
+    cm = c.cm
+    cm[ARMED] = 1.0 if armed else 0.0
+    cm[REF_ALT], cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW] = 5.0, 0.1, -0.1, 1.0
+    cm[TARGET_ALT], cm[HOLD_YAW], cm[HOME_ALT] = 2.0, -1.0, 0.25
+    mem = np.zeros(MEM_SIZE)
+    mem[MEM_U] = 30.0
+    return st, cm, mem
+
+
+@pytest.mark.parametrize("armed", [True, False])
+def test_the_tick_shows_the_reference_flown_or_disarmed_the_one_held(armed):
+    st, cm, mem = tick_arrays(armed)
+    frames = sf.StreamFrames(1, ORIGIN, 40.0)
+    x, rates, ref, thrust, origin, home_z = sf.tick_values(st, cm, mem, frames.tel)
+    assert x == tuple(st[:12]) and rates == tuple(st[12:15]) and origin == ORIGIN and home_z == -0.25
+    assert ref == ((5.0, 0.1, -0.1, 1.0) if armed else (2.0, 0.0, 0.0, -1.0))
+    assert thrust == 0.75
+
+
+def test_the_tick_builds_what_is_due_on_each_link_once_in_id_order():
+    st, cm, mem = tick_arrays(True)
+    frames = sf.StreamFrames(2, ORIGIN, 40.0)
+    att, gpi, lpn = (sf.SLOT_OF[m] for m in (30, 33, 32))
+    frames.sched[0, att] = (20, 4)  # 50 Hz at phase 4
+    frames.sched[1, att] = (10, 4)  # 100 Hz on the other link
+    frames.sched[0, gpi] = (100, 4)
+    frames.sched[1, lpn] = (20, 5)
+    seq = np.array([250], dtype=np.int64)
+
+    def tick(k: int) -> list[list[int]]:
+        due = sf.stream_tick(k, 0.001, st, cm, mem, seq, 1, 1, frames.out)
+        out = []
+        for link in range(2):
+            msgs = wire.link(0, 0).parse_buffer(frames.datagram(link)) or []
+            out.append([(m.get_msgId(), m.get_seq()) for m in msgs])
+        assert due == any(out)
+        return out
+
+    assert tick(3) == [[], []] and seq[0] == 250
+    assert tick(4) == [[(30, 250), (33, 251)], [(30, 250)]]  # ATTITUDE built once, in both; then GPI
+    assert tick(14) == [[], [(30, 252)]]
+    assert tick(25) == [[], [(32, 253)]]
+    assert tick(24) == [[(30, 254)], [(30, 254)]]
+    assert tick(104) == [[(30, 255), (33, 0)], [(30, 255)]]  # the sequence wraps
+    a, b = frames.datagram(0), frames.datagram(1)
+    assert a[: len(b)] == b  # the same ATTITUDE bytes on both links
