@@ -152,14 +152,15 @@ def pwm(control: float, reversible: bool) -> int:
 
 def _lat_lon_e7(origin: Origin, north: float, east: float) -> tuple[int, int]:
     """Local north/east [m] from ``origin`` → (lat, lon) [1e-7 deg] (:func:`autopilot.stream_frames.lat_lon_e7`)."""
-    return stream_frames.lat_lon_e7(origin.lat, origin.lon, north, east)
+    return stream_frames.lat_lon_e7(float(origin.lat), float(origin.lon), float(north), float(east))
 
 
 def _frame_values(s: Snapshot, origin: Origin) -> tuple:
-    """:func:`autopilot.stream_frames.encode`'s arguments after the time, from a snapshot."""
+    """:func:`autopilot.stream_frames.encode`'s arguments after the time, from a snapshot: all floats, so that the
+    encoder has one signature (compiled before the first tick: :func:`warm_up`)."""
     thrust = min(max(s.u1 / s.max_total_thrust, 0.0), 1.0)
-    return (tuple(s.state), tuple(s.body_rates), tuple(s.reference), thrust, (origin.lat, origin.lon, origin.alt),
-            s.home[2])  # fmt: skip
+    return (tuple(map(float, s.state)), tuple(map(float, s.body_rates)), tuple(map(float, s.reference)),
+            float(thrust), (float(origin.lat), float(origin.lon), float(origin.alt)), float(s.home[2]))  # fmt: skip
 
 
 def compiled_frame(msg_id: int, s: Snapshot, origin: Origin, seq: int = 0, system: int = 1,
@@ -167,7 +168,7 @@ def compiled_frame(msg_id: int, s: Snapshot, origin: Origin, seq: int = 0, syste
     """The frame of one of :data:`autopilot.stream_frames.COMPILED`'s messages for this snapshot: the bytes the
     autopilot's tick builds for it (:func:`autopilot.stream_frames.encode`)."""
     buf = np.zeros(FRAME_MAX, dtype=np.uint8)
-    n = stream_frames.encode(buf, stream_frames.SLOT_OF[msg_id], seq, system, component, s.time_ms,
+    n = stream_frames.encode(buf, stream_frames.SLOT_OF[msg_id], seq, system, component, int(s.time_ms),
                              *_frame_values(s, origin))  # fmt: skip
     return buf[:n].tobytes()
 
@@ -240,8 +241,8 @@ def sys_status(
     comm, c1, c2, c3, c4 = (min(max(int(e), 0), 65535) for e in (*errors, 0, 0, 0, 0, 0)[:5])
     health = HEALTH_ALWAYS | (HEALTH_WITH_STATE if has_state else 0)
     return mavlink.MAVLink_sys_status_message(
-        PRESENT, PRESENT, health, stream_frames.clamp_int(load * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1, c2, c3,
-        c4, 0, 0, 0,
+        PRESENT, PRESENT, health, stream_frames.clamp_int(float(load) * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1,
+        c2, c3, c4, 0, 0, 0,
     )  # fmt: skip
 
 
@@ -264,7 +265,7 @@ def home_position(
     lat, lon = _lat_lon_e7(origin, x, y)
     q = [float(v) for v in euler_to_quaternion(0.0, 0.0, float(yaw))] if math.isfinite(yaw) else [1.0, 0, 0, 0]
     return mavlink.MAVLink_home_position_message(
-        lat, lon, stream_frames.amsl_mm(origin.alt, z), x, y, z, q, 0.0, 0.0, 0.0, max(int(time_usec), 0)
+        lat, lon, stream_frames.amsl_mm(float(origin.alt), float(z)), x, y, z, q, 0.0, 0.0, 0.0, max(int(time_usec), 0)
     )
 
 
@@ -305,3 +306,14 @@ def ftp_refusal(request: bytes | list[int]) -> bytes:
     seq, session, opcode, *_ = _FTP_HEADER.unpack_from(bytes(request[: _FTP_HEADER.size]))
     head = _FTP_HEADER.pack((seq + 1) & 0xFFFF, session, FTP_NAK, 1, opcode, 0, 0, 0)
     return (head + bytes([FTP_ERR_UNKNOWN_COMMAND])).ljust(251, b"\0")
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the compiled code the Python-built messages call, before the first tick:
+    every streamed message once, from a made-up snapshot."""
+    from autopilot.streams import MessageStreams
+
+    s = Snapshot(time_ms=0, state=VehicleState(), body_rates=(0.0, 0.0, 0.0), reference=Reference(0.0, 0.0, 0.0, 0.0),
+                 u1=0.0, controls=(0.0, 0.0, 0.0, 0.0), reversible=False, max_total_thrust=1.0)  # fmt: skip
+    for mid in MessageStreams(0.001, 50.0).defaults:
+        build(mid, s, Commander(), Origin())

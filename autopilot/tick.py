@@ -366,6 +366,7 @@ class Batch:
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) everything a tick calls, on made-up data, before the first tick."""
+    from autopilot import gcs_messages
     from autopilot.commander import Commander
     from autopilot.control_params import BACKSTEPPING, control_array
     from autopilot.estimator import Estimator
@@ -380,6 +381,7 @@ def warm_up() -> None:
     batch = Batch(2)
     frames = stream_frames.StreamFrames(2, (47.0, 8.0, 488.0), 40.0)
     frames.sched[:, :, 0] = 1  # every message on every link, every tick
+    gcs_messages.warm_up()  # what Python builds (requested, signed, the slower streams) calls compiled code too
     for kind in (BACKSTEPPING, PD):
         for armed in (False, True):
             commander = Commander()

@@ -187,15 +187,28 @@ class Client:
                     raise
             attempt += 1
 
-    def command(self, cmd: int, *params: float, timeout: float = 5.0, resend: float = 1.0):
-        """COMMAND_LONG to system 1 → its COMMAND_ACK, by the MAVLink command protocol (:meth:`_request`): a resent
-        command has its confirmation counted up."""
+    def command(self, cmd: int, *params: float, timeout: float = 5.0, resend: float = 1.0, system: int = 1):
+        """COMMAND_LONG to ``system`` → its COMMAND_ACK, by the MAVLink command protocol (:meth:`_request`): a
+        resent command has its confirmation counted up."""
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
 
         def send(attempt: int) -> None:
-            self.conn.mav.command_long_send(1, 1, cmd, min(attempt, 255), *p)
+            self.conn.mav.command_long_send(system, 1, cmd, min(attempt, 255), *p)
 
-        return self._request(send, "COMMAND_ACK", lambda m: m.command == cmd, timeout, resend)
+        def answers(m) -> bool:
+            return m.command == cmd and m.get_srcSystem() == system
+
+        return self._request(send, "COMMAND_ACK", answers, timeout, resend)
+
+    def command_int(self, system: int, frame: int, cmd: int, *params: float, timeout: float = 5.0,
+                    resend: float = 1.0):  # fmt: skip
+        """COMMAND_INT to ``system`` (params 1–4, x, y as integers, z) → its COMMAND_ACK, resent as :meth:`command`."""
+
+        def send(attempt: int) -> None:
+            self.conn.mav.command_int_send(system, 1, frame, cmd, 0, 0, *params)
+
+        return self._request(send, "COMMAND_ACK", lambda m: m.command == cmd and m.get_srcSystem() == system, timeout,
+                             resend)  # fmt: skip
 
     def text_containing(self, needle: str, timeout: float = 3.0) -> str:
         end = time.monotonic() + timeout

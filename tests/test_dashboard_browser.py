@@ -478,11 +478,10 @@ def test_the_fleet_view_of_three_vehicles_one_flown_then_opened(browser, artifac
             # system id 2: arm, take off, then 4 m north of its home
             c.wait("SYS_STATUS", lambda msg: msg.get_srcSystem() == 2 and msg.onboard_control_sensors_health
                    & M.MAV_SYS_STATUS_PREARM_CHECK, 30)  # fmt: skip
-            c.conn.mav.command_long_send(2, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-            assert c.wait("COMMAND_ACK", lambda a: a.command == M.MAV_CMD_COMPONENT_ARM_DISARM, 5).result == 0
+            # (commands resent every second without an ACK, by the MAVLink command protocol, as ground stations do)
+            assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1, system=2).result == 0
             nan = math.nan
-            c.conn.mav.command_long_send(2, 1, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, nan, nan, nan, nan)
-            assert c.wait("COMMAND_ACK", lambda a: a.command == M.MAV_CMD_NAV_TAKEOFF, 5).result == 0
+            assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan, nan, system=2).result == 0
             row = "document.querySelector('#fleet-table tr[data-name=v2]').children"
             until(page, c, f"() => {row}[3].textContent === 'armed' && {row}[2].textContent === 'takeoff'", 10)
             until(page, c, f"() => {row}[2].textContent === 'hold' && parseFloat({row}[8].textContent) > 2.0", 20)
@@ -495,9 +494,9 @@ def test_the_fleet_view_of_three_vehicles_one_flown_then_opened(browser, artifac
             ]
             home2 = (v2["home"]["latitude"], v2["home"]["longitude"])
             lat, lon = ned_to_geodetic(4.0, 0.0, *home2)
-            c.conn.mav.command_int_send(2, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION, 0, 0,
-                                        -1, 1, 0, nan, round(lat * 1e7), round(lon * 1e7), 2.5)  # fmt: skip
-            assert c.wait("COMMAND_ACK", lambda a: a.command == M.MAV_CMD_DO_REPOSITION, 5).result == 0
+            ack = c.command_int(2, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION, -1, 1, 0, nan,
+                                round(lat * 1e7), round(lon * 1e7), 2.5)  # fmt: skip
+            assert ack.result == 0
             there = "() => { const m = quadsitl.fleetMarkers.find(m => m.name === 'v2'); " \
                     "return Math.hypot(m.north - 4, m.east - 5) < 0.3; }"  # fmt: skip
             until(page, c, there, 30)

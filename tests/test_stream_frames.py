@@ -137,3 +137,23 @@ def test_the_tick_builds_what_is_due_on_each_link_once_in_id_order():
     assert tick(104) == [[(30, 255), (33, 0)], [(30, 255)]]  # the sequence wraps
     a, b = frames.datagram(0), frames.datagram(1)
     assert a[: len(b)] == b  # the same ATTITUDE bytes on both links
+
+
+def test_nothing_compiles_on_the_tick_path_once_warmed_up():
+    """After the autopilot's warm-up, building any streamed message from Python (a requested message, a signed
+    link, the slower streams), from a snapshot of ints or floats, compiles nothing more: no stall on the tick path."""
+    from autopilot import gcs_messages
+    from autopilot.streams import MessageStreams
+    from autopilot.tick import warm_up
+    from quadsitl.state import Reference, VehicleState
+
+    warm_up()
+    compiled = (sf.clamp_int, sf.cdeg, sf.lat_lon_e7, sf.amsl_mm, sf.encode)
+    before = [len(f.signatures) for f in compiled]
+    for value in (0, 1.5):  # ints as a caller may pass them, and floats
+        s = gcs_messages.Snapshot(time_ms=12, state=VehicleState(*(value,) * 12), body_rates=(value,) * 3,
+                                  reference=Reference(value, value, value, value), u1=value, controls=(value,) * 4,
+                                  reversible=False, max_total_thrust=40, home=(value,) * 4)  # fmt: skip
+        for mid in MessageStreams(0.001, 50.0).defaults:
+            gcs_messages.build(mid, s, Commander(), gcs_messages.Origin())
+    assert [len(f.signatures) for f in compiled] == before
