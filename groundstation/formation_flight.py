@@ -100,12 +100,14 @@ def fly_fleet(args: argparse.Namespace) -> int:
         compile_once(children.env)
         plant = ["sitl", "--preset", args.preset, "--speed", str(args.speed), "--hold-until-armed",
                  repr(SENSOR_GROUND_S)]  # fmt: skip
-        gcs_ports = []
+        gcs_ports, taken = [], set()  # ports picked for processes that have not bound them yet
         for v in fleet:
             folder = out / v.name
             folder.mkdir(parents=True, exist_ok=True)
             formation.write_vehicle_csv(folder / "trajectory.csv", plan, v.index)
-            plant_port, api_port = free_port(), free_port()
+            plant_port = free_port(avoid=taken)
+            api_port = free_port(avoid=taken | {plant_port})
+            taken |= {plant_port, api_port}
             gcs_ports.append(api_port)
             home = ",".join(repr(x) for x in v.home)
             ap = ["autopilot", "--preset", v.preset, "--plant-listen", f"127.0.0.1:{plant_port}",

@@ -162,8 +162,10 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
             compile_once(children.env)
         # One plant process simulates every vehicle on one clock (sitl.process.run_lockstep); an autopilot each.
         plant = ["sitl", "--preset", args.preset, "--mode", args.mode]
+        taken = planned_ports(fleet)  # an internal port never lands on a later vehicle's, not yet bound
         for v in fleet:
-            plant_port = free_port()
+            plant_port = free_port(avoid=taken)
+            taken.add(plant_port)
             named = "" if len(fleet) == 1 else f" {v.name}"
             ap = ["autopilot", "--preset", v.preset, "--plant-listen", f"127.0.0.1:{plant_port}",
                   "--system-id", str(v.system_id), "--gcs-listen", v.gcs_listen, "--gcs-remote", v.gcs_remote,
@@ -251,6 +253,18 @@ def compile_once(env: dict[str, str] | None) -> None:
     )
     if subprocess.run([sys.executable, "-c", code], env=env).returncode != 0:
         raise RuntimeError("compiling the equations failed (above)")
+
+
+def planned_ports(fleet: list[VehiclePlan]) -> set[int]:
+    """Every port named in ``fleet``'s links (listen and remote, any host): ports the fleet's own processes and
+    clients bind soon, which ``up`` must not hand out for its internal links."""
+    ports = set()
+    for v in fleet:
+        for address in (v.gcs_listen, v.gcs_remote, v.api_listen, v.api_remote):
+            port = address.rpartition(":")[2]
+            if port.isdigit() and int(port):
+                ports.add(int(port))
+    return ports
 
 
 def check_ports_free(args, fleet: list[VehiclePlan]) -> None:
@@ -366,7 +380,10 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     """Run one flight; returns the exit status for the ``quadsitl fly`` command."""
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    plant_port, gcs_port, zenoh_port = free_port(), free_port(), free_port(socket.SOCK_STREAM)
+    plant_port = free_port()
+    gcs_port = free_port(avoid={plant_port})
+    gcs_listen = free_port(avoid={plant_port, gcs_port})  # three UDP ports none of which is bound yet: distinct
+    zenoh_port = free_port(socket.SOCK_STREAM)
     zenoh_ep = f"tcp/127.0.0.1:{zenoh_port}"
     quiet = ["--quiet"] if args.quiet else []
     children = Children(env=signing_env(args.signing_key))
@@ -375,7 +392,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     try:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
               "--api-listen", f"127.0.0.1:{gcs_port}", "--api-remote", "none", "--gcs-listen",
-              f"127.0.0.1:{free_port()}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep,
+              f"127.0.0.1:{gcs_listen}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep,
               "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP)]  # fmt: skip
         if args.controller:
             ap += ["--controller", args.controller]

@@ -15,7 +15,7 @@ import socket
 import struct
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 
 from quadsitl.cli_util import UsageError
@@ -55,15 +55,19 @@ def ephemeral_range() -> tuple[int, int]:
     return first, last
 
 
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+def free_port(kind: int = socket.SOCK_DGRAM, avoid: Collection[int] = ()) -> int:
     """A port free on 127.0.0.1 now (UDP by default, TCP with SOCK_STREAM), for a process about to be started to bind.
+
+    ``avoid``: ports that are free now but taken soon (a plan's ports its processes have not bound yet), never
+    returned.
 
     It is picked at random from PICK_PORTS outside the ephemeral range, so that no socket that binds port 0 or
     connects, in any process, is handed it by the OS before the process it is for binds it (a port the OS had just
     said free, from the ephemeral range, was: two runs at once, one of them failed with "Address already in use").
     Where the ephemeral range covers PICK_PORTS, a port the OS says is free."""
     first, last = ephemeral_range()
-    outside = [p for p in range(*PICK_PORTS) if not first <= p <= last]
+    skip = set(avoid)
+    outside = [p for p in range(*PICK_PORTS) if not first <= p <= last and p not in skip]
     for _ in range(64 if outside else 0):
         port = _pick.choice(outside)
         with socket.socket(socket.AF_INET, kind) as s:
@@ -72,9 +76,13 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
             except OSError:
                 continue  # in use: another
             return port
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    for _ in range(64):
+        with socket.socket(socket.AF_INET, kind) as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port not in skip:
+            return port
+    raise OSError("no free port on 127.0.0.1")
 
 
 def bind_tcp(

@@ -39,16 +39,21 @@ class Vehicle:
         return self.proc.returncode
 
 
-def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> int:
-    """The first of ``n`` consecutive ports that are free on 127.0.0.1 now (for a fleet's PORT + i plan)."""
+def free_ports(n: int, kind: int = socket.SOCK_DGRAM, taken: set[int] | None = None) -> int:
+    """The first of ``n`` consecutive ports that are free on 127.0.0.1 now (for a fleet's PORT + i plan), none of
+    them in ``taken`` (ports picked before, not bound yet), which gets them."""
+    taken = set() if taken is None else taken
     for _ in range(200):
-        base = free_port(kind)
+        base = free_port(kind, avoid=taken)
+        if taken.intersection(range(base, base + n)):
+            continue
         socks = []
         try:
             for i in range(n):
                 s = socket.socket(socket.AF_INET, kind)
                 socks.append(s)
                 s.bind(("127.0.0.1", base + i))
+            taken.update(range(base, base + n))
             return base
         except OSError:
             continue
@@ -67,11 +72,13 @@ def quadsitl_up(*extra: str):
 def fleet_up(n: int, *extra: str):
     """``quadsitl up --vehicles n`` on free loopback ports: every vehicle's ground-station link streams to
     ``gcs_port``; vehicle i's offboard-API link to ``api_port`` + i (as PX4's 14540 + i)."""
-    gcs, api = free_port(), free_ports(n)
+    taken: set[int] = set()  # the five UDP ranges are picked before anything binds them: distinct
+    gcs, api = free_ports(1, taken=taken), free_ports(n, taken=taken)
+    gcs_listen, api_listen = free_ports(n, taken=taken), free_ports(n, taken=taken)
     zenoh = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     argv = [sys.executable, "-m", "groundstation.cli", "up", "--quiet", "--vehicles", str(n),
-            "--gcs-listen", f"127.0.0.1:{free_ports(n)}", "--gcs-remote", f"127.0.0.1:{gcs}",
-            "--api-listen", f"127.0.0.1:{free_ports(n)}", "--api-remote", f"127.0.0.1:{api}",
+            "--gcs-listen", f"127.0.0.1:{gcs_listen}", "--gcs-remote", f"127.0.0.1:{gcs}",
+            "--api-listen", f"127.0.0.1:{api_listen}", "--api-remote", f"127.0.0.1:{api}",
             "--zenoh-listen", zenoh, *extra]  # fmt: skip
     proc = subprocess.Popen(argv, start_new_session=True)
     v = Vehicle(proc, gcs, api, zenoh)

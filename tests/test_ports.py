@@ -1,15 +1,22 @@
 """quadsitl.process_util.free_port: the ports handed to child processes come from outside the OS's ephemeral range
-(no other socket is given them by the OS before the child binds), are free when picked, and the pick falls back to
-the OS's own choice where the ephemeral range leaves nothing outside it."""
+(no other socket is given them by the OS before the child binds), are free when picked, never one a plan has named
+but not bound yet, and the pick falls back to the OS's own choice where the ephemeral range leaves nothing outside
+it."""
 
 from __future__ import annotations
 
+import random
 import socket
+from typing import ClassVar
 
 import pytest
 
+from groundstation import cli, launcher
+from groundstation.fleet import plan_fleet
+from groundstation.launcher import planned_ports
 from quadsitl import process_util
 from quadsitl.process_util import PICK_PORTS, ephemeral_range, free_port
+from tests.mavclient import free_ports
 
 
 @pytest.mark.parametrize("kind", [socket.SOCK_DGRAM, socket.SOCK_STREAM])
@@ -38,3 +45,78 @@ def test_an_ephemeral_range_over_every_pickable_port_falls_back_to_the_os(monkey
     assert first <= port <= last  # the OS's choice for port 0, from its (real) ephemeral range
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", port))
+
+
+def test_ports_to_avoid_are_never_picked(monkeypatch):
+    """Ports a plan has named but its processes have not bound yet are free now; ``avoid`` keeps them out."""
+    monkeypatch.setattr(process_util, "ephemeral_range", lambda: (60000, 60999))
+    base = free_ports(4)
+    monkeypatch.setattr(process_util, "PICK_PORTS", (base, base + 4))
+    avoid = {base, base + 1, base + 3}
+    assert {free_port(avoid=avoid) for _ in range(50)} == {base + 2}
+
+
+class _Recorder:
+    """Children that start nothing: records each command line; the plant "fails" at once, so ``up`` returns."""
+
+    started: ClassVar[list[list[str]]] = []
+
+    def __init__(self, env=None):
+        self.env, self.procs = env, {}
+
+    def start(self, name, args):
+        _Recorder.started.append(args)
+
+    def first_failure(self, done, prog="quadsitl"):
+        return ("plant", 1)
+
+    def stop(self, grace=3.0):
+        pass
+
+
+def test_up_never_hands_a_vehicle_a_port_of_a_later_vehicles_plan(monkeypatch):
+    """``up --vehicles`` picks each autopilot's plant port before the later autopilots bind their listen ports:
+    every port the plan names, and every plant port picked before, is kept out of those picks (a plant port once
+    landed on a later vehicle's ``--api-listen``, which then failed with "Address already in use"). The pickable
+    range here is the plan's ports and exactly three more."""
+    taken: set[int] = set()
+    gcs_listen, api_listen = free_ports(3, taken=taken), free_ports(3, taken=taken)
+    spare = [free_ports(1, taken=taken) for _ in range(3)]
+    monkeypatch.setattr(process_util, "ephemeral_range", lambda: (60000, 60999))
+    monkeypatch.setattr(process_util, "PICK_PORTS", (min(taken), max(taken) + 1))
+    monkeypatch.setattr(process_util, "_pick", random.Random(1))
+    real_choice = process_util._pick.choice
+    monkeypatch.setattr(process_util._pick, "choice", lambda seq: real_choice([p for p in seq if p in taken]))
+    monkeypatch.setattr(launcher, "Children", _Recorder)
+    monkeypatch.setattr(launcher, "compile_once", lambda env: None)
+    _Recorder.started = []
+    status = cli.main(
+        [
+            "up",
+            "--quiet",
+            "--no-zenoh",
+            "--vehicles",
+            "3",
+            "--gcs-remote",
+            "none",
+            "--api-remote",
+            "none",
+            "--gcs-listen",
+            f"127.0.0.1:{gcs_listen}",
+            "--api-listen",
+            f"127.0.0.1:{api_listen}",
+        ]
+    )
+    assert status == 1  # the recorder's plant "failed"
+    autopilots = [a for a in _Recorder.started if a[0] == "autopilot"]
+    plant_ports = [int(a[a.index("--plant-listen") + 1].rpartition(":")[2]) for a in autopilots]
+    assert sorted(plant_ports) == sorted(spare)
+
+
+def test_the_ports_of_a_plan():
+    fleet = plan_fleet(4, preset="paper", gcs_listen="127.0.0.1:21000", gcs_remote="127.0.0.1:22000",
+                       api_listen="127.0.0.1:23000", api_remote="10.0.0.2:24000")  # fmt: skip
+    ports = planned_ports(fleet)
+    assert ports == {21000, 21001, 21002, 21003, 22000, 23000, 23001, 23002, 23003, 24000, 24001, 24002, 24003}
+    default = planned_ports(plan_fleet(2, preset="paper", gcs_remote="none", api_listen="127.0.0.1:0"))
+    assert default == {18570, 18571, 14540, 14541}  # the gcs link's PX4 default, the api link's remotes; 0 is any

@@ -124,9 +124,11 @@ def test_a_vehicle_of_up_sends_its_telemetry_through_a_router():
     port = free_port(socket.SOCK_STREAM)
     endpoint = f"tcp/127.0.0.1:{port}"
     router, _ = start_router("--listen", endpoint)
+    taken: set[int] = set()
+    gcs_listen, gcs, api_listen, api = (free_ports(1, taken=taken) for _ in range(4))
     up = subprocess.Popen([sys.executable, "-m", "groundstation.cli", "up", "--zenoh-connect", endpoint,
-                           "--gcs-listen", f"127.0.0.1:{free_ports(1)}", "--gcs-remote", f"127.0.0.1:{free_port()}",
-                           "--api-listen", f"127.0.0.1:{free_ports(1)}", "--api-remote", f"127.0.0.1:{free_port()}",
+                           "--gcs-listen", f"127.0.0.1:{gcs_listen}", "--gcs-remote", f"127.0.0.1:{gcs}",
+                           "--api-listen", f"127.0.0.1:{api_listen}", "--api-remote", f"127.0.0.1:{api}",
                            "--dashboard", "--dashboard-port", "0"], stdout=subprocess.PIPE, text=True)  # fmt: skip
     names: set[str] = set()
     try:
