@@ -163,12 +163,12 @@ def _frame_values(s: Snapshot, origin: Origin) -> tuple:
             float(thrust), (float(origin.lat), float(origin.lon), float(origin.alt)), float(s.home[2]))  # fmt: skip
 
 
-def compiled_frame(msg_id: int, s: Snapshot, origin: Origin, seq: int = 0, system: int = 1,
-                   component: int = 1) -> bytes:  # fmt: skip
+def compiled_frame(msg_id: int, s: Snapshot, origin: Origin) -> bytes:
     """The frame of one of :data:`autopilot.stream_frames.COMPILED`'s messages for this snapshot: the bytes the
-    autopilot's tick builds for it (:func:`autopilot.stream_frames.encode`)."""
+    autopilot's tick builds for it (:func:`autopilot.stream_frames.encode`), with sequence 0 and system and component
+    1: :func:`build` hands it to pymavlink, which packs it again with the link's own."""
     buf = np.zeros(FRAME_MAX, dtype=np.uint8)
-    n = stream_frames.encode(buf, stream_frames.SLOT_OF[msg_id], seq, system, component, int(s.time_ms),
+    n = stream_frames.encode(buf, stream_frames.SLOT_OF[msg_id], 0, 1, 1, int(s.time_ms),
                              *_frame_values(s, origin))  # fmt: skip
     return buf[:n].tobytes()
 

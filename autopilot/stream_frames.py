@@ -25,7 +25,7 @@ from autopilot.commander import ARMED, HOLD_YAW, HOME_ALT, REF_ALT, REF_PITCH, R
 from autopilot.control_params import MEM_U
 from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.jit import jit
-from quadsitl.wire import BODY_RATES, FRAME_MAX, HEADER_SIZE, finish_frame, mavlink
+from quadsitl.wire import BODY_RATES, FRAME_MAX, HEADER_SIZE, UINT16_UNKNOWN, finish_frame, mavlink
 
 _CLASSES = (  # by message id, the order of the frames in a datagram
     mavlink.MAVLink_gps_raw_int_message,
@@ -73,7 +73,6 @@ CRC_EXTRA = np.array([c.crc_extra for c in _CLASSES], dtype=np.int64)
 ORIGIN_LAT, ORIGIN_LON, ORIGIN_ALT, MAX_TOTAL_THRUST, TEL_SIZE = range(5)
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
-UINT16_UNKNOWN = 65535  # MAVLink's "unknown" for uint16 fields (GPS_RAW_INT eph, epv, vel, cog)
 # What GPS_RAW_INT claims about the simulated receiver. Its fix is the true state, so its uncertainties are
 # those of the encoding: 1e-7 deg of latitude ≈ 1.1 cm, 1 mm of altitude, 1 cm/s of speed.
 GPS_SATELLITES = 10

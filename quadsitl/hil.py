@@ -40,6 +40,7 @@ from quadsitl.wire import (
     HEADER_SIZE,
     MAVLINK2_STX,
     NOT_THIS_FRAME,
+    UINT16_UNKNOWN,
     _get_f32,
     _put_f32,
     crc16,
@@ -60,7 +61,6 @@ DATAGRAM_MAX = 3 * (HEADER_SIZE + 2) + SENSOR_SIZE + GPS_SIZE + TRUTH_SIZE  # th
 
 G_MILLI = 9.80665e-3  # [m/s² per mG]: HIL_STATE_QUATERNION's accelerations count standard gravity's thousandths
 GPS_FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
-UINT16_UNKNOWN = 65535
 
 # HIL_SENSOR.fields_updated, as PX4 reads them: accel, gyro, mag, baro (abs pressure, pressure alt, temperature)
 ACCEL_UPDATED, GYRO_UPDATED, MAG_UPDATED, BARO_UPDATED = 0b111, 0b111000, 0b111000000, 0b1101000000000

@@ -136,7 +136,7 @@ def forces_from_message(m: mavlink.MAVLink_hil_actuator_controls_message, max_th
     return (c[0] * max_thrust, c[1] * max_thrust, c[2] * max_thrust, c[3] * max_thrust)
 
 
-UINT16_UNKNOWN = 65535
+UINT16_UNKNOWN = 65535  # MAVLink's "unknown" for uint16 fields (GPS eph, epv, vel, cog)
 
 
 def hil_gps_message(
