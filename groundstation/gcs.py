@@ -38,7 +38,7 @@ import socket
 import struct
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -68,12 +68,19 @@ UPLOAD_RETRY = 1.0  # [s] wall: MISSION_COUNT again when the vehicle has not ask
 UPLOAD_TIMEOUT = 10.0  # [s] wall: give the upload up
 COMMAND_RETRY = 0.5  # [s] wall: a command is sent again until acknowledged (MAVSDK waits 0.5 s too)
 LOOP = 0.002  # [s] wall: how often the ground station reads its socket and Zenoh channels, and may send
+# While the reference holds still (the paper's step, a hover), nothing it sends changes: it reads and sends every
+# STEADY_SIM of the vehicle's time instead, at most every LOOP_STEADY of wall time. Each wake-up takes one of the two
+# cores from the lockstep pair for a moment: 500 a second cost `fly` 7-12 % of its ticks (docs/performance.md). The
+# keep-alive then goes every STEADY_SIM (not KEEPALIVE_MS), well within the vehicle's --offboard-lockstep lead (0.5 s)
+# and setpoint timeout (1 s); the reference is looked at STEADY_LOOKAHEAD ahead, so a step is sent on LOOP's time.
+LOOP_STEADY, STEADY_SIM, STEADY_LOOKAHEAD = 0.010, 0.15, 1.0  # [s] wall, simulated, simulated
 # Setpoints: a changed one at most every SETPOINT_MS of the vehicle's time (50 Hz), the same one again every
 # KEEPALIVE_MS (10 Hz; the vehicle's setpoint timeout is 1 s, its --offboard-lockstep lead 0.5 s), and at least
 # every KEEPALIVE_WALL of wall time (a vehicle whose clock does not move still hears the stream). A constant
 # reference (the paper's step) sent 50 times a simulated second cost both ends a share of their cores for nothing:
 # at 25x real time, 2,500 messages a second built here and parsed by the autopilot's Python.
 SETPOINT_MS, KEEPALIVE_MS, KEEPALIVE_WALL = 20, 100, 0.1
+PACE_WINDOW = 0.05  # [s] wall: the vehicle's pace is measured over this long
 
 
 UNNEEDED_STREAMS = (
@@ -89,6 +96,20 @@ UNNEEDED_STREAMS = (
 
 class GcsError(Exception):
     pass
+
+
+def holds_still(trajectory: Callable[[float], object], t: float, last_sent: object) -> bool:
+    """True when the reference at flight time ``t`` [s] is the one last sent and is still that one STEADY_LOOKAHEAD
+    later: the ground station may read less often (a step ahead is read at LOOP's pace, from a second before it)."""
+    sp = trajectory(t)
+    return sp == last_sent and trajectory(t + STEADY_LOOKAHEAD) == sp
+
+
+def read_interval(pace: float) -> float:
+    """The wall time [s] from one read to the next while the reference holds still, for a vehicle whose clock runs
+    ``pace`` simulated seconds per wall second (0: not known): STEADY_SIM of its time, between LOOP and
+    LOOP_STEADY."""
+    return LOOP if pace <= 0.0 else min(LOOP_STEADY, max(LOOP, STEADY_SIM / pace))
 
 
 def ack_name(result: int) -> str:
@@ -140,6 +161,9 @@ class GroundStation:
         self.flight_rate: tuple[float, float] | None = None
         self.progress: FlightProgress | None = None  # from the switch to offboard until landing
         self.next_poll = 0.0  # monotonic time of the next socket read (poll)
+        self.interval = LOOP  # [s] wall: from this read to the next
+        self._pace_mark = (0.0, 0)  # (monotonic time, vehicle tick) the vehicle's pace is measured from
+        self.pace = 0.0  # simulated seconds per wall second, over the last PACE_WINDOW (0: not known)
         # the mission: items requested (seq, legacy), the upload's MISSION_ACK, MISSION_CURRENT, reached items
         self.requested: list[int] = []
         self.mission_ack: int | None = None
@@ -158,10 +182,11 @@ class GroundStation:
             self.sock.send(buf)
 
     def poll(self) -> None:
-        """Read everything waiting, at most every LOOP seconds: between reads the datagrams wait in the socket
-        (a ground station that woke for each one would take a core from the lockstep pair each time)."""
+        """Read everything waiting, at most every ``interval`` seconds (LOOP, or longer while the reference holds
+        still: :func:`read_interval`): between reads the datagrams wait in the socket (a ground station that
+        woke for each one would take a core from the lockstep pair each time)."""
         time.sleep(max(0.0, self.next_poll - time.monotonic()))
-        self.next_poll = time.monotonic() + LOOP
+        self.next_poll = time.monotonic() + self.interval
         self.sock.settimeout(0.0)
         for _ in range(1000):
             try:
@@ -219,6 +244,16 @@ class GroundStation:
         self.send(mavlink.MAVLink_set_position_target_local_ned_message(
             ms, ts, tc, frame, MASK_POSITION_VELOCITY_YAW, sp.x, sp.y, -sp.altitude, sp.vx, sp.vy, -sp.climb,
             0, 0, 0, sp.yaw, 0))  # fmt: skip
+
+    def measure_pace(self, now: float) -> float:
+        """The vehicle's pace [simulated s per wall s] over the last PACE_WINDOW of wall time (its ticks arrive in
+        batches: a shorter window would read 0 or a burst); 0 until known."""
+        since, tick = self._pace_mark
+        if now - since >= PACE_WINDOW:
+            newest = self.vehicle_tick()
+            self.pace = (newest - tick) * self.period / (now - since) if since else 0.0
+            self._pace_mark = (now, newest)
+        return self.pace
 
     def vehicle_tick(self) -> int:
         """The vehicle's newest tick seen: in its telemetry (Zenoh, batched) or its ATTITUDE stream (MAVLink)."""
@@ -278,8 +313,12 @@ class GroundStation:
                 hb = mavlink.MAVLink_heartbeat_message
                 self.send(hb(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
             flight_t = self.logger.flight_time()
+            self.interval = LOOP
             if phase in ("prearm", "arming", "offboard", "flying"):
-                sp, since = self.trajectory(self.trajectory_time()), self.stamp_ms() - last_sp_ms
+                t = self.trajectory_time()
+                sp, since = self.trajectory(t), self.stamp_ms() - last_sp_ms
+                if phase == "flying" and holds_still(self.trajectory, t, last_sp):
+                    self.interval = read_interval(self.measure_pace(now))
                 if (
                     (since >= SETPOINT_MS and sp != last_sp)
                     or since >= KEEPALIVE_MS
