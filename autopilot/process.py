@@ -62,7 +62,10 @@ from quadsitl.state import Reference, VehicleState
 mavlink = wire.mavlink
 PEER_TIMEOUT = 30.0  # [s] wall: stop streaming to a peer that has been silent this long
 FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
-BATCH_WALL = 0.005  # [s] wall: Zenoh telemetry goes out at least this often (every 5 ticks at 1 kHz real time)
+# [s] wall: Zenoh telemetry goes out at least this often (every 20 ticks at 1 kHz real time; 50 samples a second per
+# stream, more than a dashboard draws). Each batch wakes Zenoh's threads here and in every subscriber, on the cores a
+# lockstep pair needs: 5 ms cost `fly` about a tenth of its ticks (docs/performance.md).
+BATCH_WALL = 0.020
 BATCH_TICKS = 512  # and at the latest after this many ticks
 PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lost (failsafe)
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
