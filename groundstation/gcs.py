@@ -312,12 +312,14 @@ class GroundStation:
                 last_hb = now
                 hb = mavlink.MAVLink_heartbeat_message
                 self.send(hb(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
-            flight_t = self.logger.flight_time()
+            # By the 50 Hz ATTITUDE as well as the Zenoh batches (up to 512 ticks each): the end is seen on time.
+            flight_t = self.logger.flight_time(self.vehicle_tick())
             self.interval = LOOP
             if phase in ("prearm", "arming", "offboard", "flying"):
                 t = self.trajectory_time()
                 sp, since = self.trajectory(t), self.stamp_ms() - last_sp_ms
-                if phase == "flying" and holds_still(self.trajectory, t, last_sp):
+                ending = t + STEADY_LOOKAHEAD >= self.duration  # the landing is a change too: read on LOOP's time
+                if phase == "flying" and not ending and holds_still(self.trajectory, t, last_sp):
                     self.interval = read_interval(self.measure_pace(now))
                 if (
                     (since >= SETPOINT_MS and sp != last_sp)
