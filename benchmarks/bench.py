@@ -715,6 +715,15 @@ def parse_sizes(text: str) -> list[int]:
     return sizes
 
 
+def steal_since(r: Report, before: tuple[int, int]) -> float:
+    """The hypervisor's share of CPU time since ``before`` (:func:`benchmarks.machine.cpu_times`), as the section's
+    last figure: on a virtual machine the same section can read 0.38 and 0.66 in two runs back to back, and a host
+    busy elsewhere is one reason to tell."""
+    steal = machine.steal_ratio(before, machine.cpu_times())
+    r.add("  the hypervisor's steal time during the section", steal, "ratio")
+    return steal
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not 1 <= args.rounds <= 10:
@@ -750,9 +759,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             if "coldstart" in parts:
                 bench_cold_start(r, work)
             if "lockstep" in parts:
+                before = machine.cpu_times()
                 fly, ping, floor = bench_lockstep(r, work, args.rounds)
                 ratio = fly / floor
                 extra["lockstep_ratio_blocking"] = fly / ping
+                extra["steal_lockstep"] = steal_since(r, before)
                 bench_contention(r, work)
             if "costs" in parts:
                 bench_costs(r, ping or pingpong.measure())
@@ -761,7 +772,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             if "realtime" in parts:
                 bench_realtime(r, work, args.realtime_seconds)
             if "dashboard" in parts and "dashboard" not in skipped:
+                before = machine.cpu_times()
                 extra.update(bench_dashboard(r, work, args.rounds))
+                extra["steal_dashboard"] = steal_since(r, before)
             if "batch" in parts:
                 extra.update(bench_batch(r, args.batch_trials))
             if "fleet" in parts:

@@ -118,3 +118,14 @@ def test_missing_names_what_the_browser_needs_and_how_to_get_it(monkeypatch):
     assert browser.missing() == f"Playwright is not installed: {browser.INSTALL_PLAYWRIGHT}"
     with pytest.raises(RuntimeError, match="Playwright is not installed"), browser.chromium():
         pass
+
+
+def test_a_sections_steal_time_is_the_hosts_share_of_the_cpu_time_since_it_began():
+    from benchmarks import bench, machine
+
+    steal, total = machine.cpu_times()
+    r = bench.Report(quiet=True)
+    value = bench.steal_since(r, (steal - 30, total - 1000))  # as if 30 of the last 1,000 clock ticks were stolen
+    assert 0.02 < value <= 0.03  # a few more ticks may pass before the second reading
+    assert r.figures[-1].name.strip() == "the hypervisor's steal time during the section"
+    assert r.figures[-1].value == value and r.figures[-1].unit == "ratio"
