@@ -30,8 +30,10 @@ def test_a_late_autopilot_does_not_make_the_plant_race_to_catch_up(tmp_path):
                 p.wait()
     s = json.loads(stats.read_text())
     assert s["ticks"] == 3000
-    # 5 × real time at 1 kHz; with the 1.5 s of holding caught up it would run at the machine's full speed
-    assert 4000 < s["ticks_per_s"] < 5500, s
+    # 5 × real time at 1 kHz; with the 1.5 s of holding caught up it would run at the machine's full speed (10,000+).
+    # Not below 2,500: a loaded CI run held 3,630, its wake-ups on a virtual machine's halted cores (the blocking
+    # ping-pong of `quadsitl bench` reads 3,600-35,000 round trips/s on one guest) slower than 5x real time needs.
+    assert 2500 < s["ticks_per_s"] < 5500, s
     # Paced: a late answer is polled for one budget only, then the core goes to the processes the pace serves.
     assert s["polling_patience_s"] == s["polling_budget_s"] == SPIN_BUDGET
 
