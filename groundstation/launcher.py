@@ -33,7 +33,7 @@ from pathlib import Path
 from groundstation.fleet import VehiclePlan, zenoh_argv
 from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
 from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
-from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, stop_status
+from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, parse_remote, stop_status
 
 # [s] simulated: `fly`'s vehicle clock waits for a ground station whose newest setpoint was made for a moment longer
 # ago than this (autopilot.offboard_lockstep): above the ground station's usual lag at full lockstep speed (0.2-0.3 s
@@ -260,10 +260,11 @@ def planned_ports(fleet: list[VehiclePlan]) -> set[int]:
     clients bind soon, which ``up`` must not hand out for its internal links."""
     ports = set()
     for v in fleet:
-        for address in (v.gcs_listen, v.gcs_remote, v.api_listen, v.api_remote):
-            port = address.rpartition(":")[2]
-            if port.isdigit() and int(port):
-                ports.add(int(port))
+        for option, address in (("--gcs-listen", v.gcs_listen), ("--gcs-remote", v.gcs_remote),
+                                ("--api-listen", v.api_listen), ("--api-remote", v.api_remote)):  # fmt: skip
+            parsed = parse_remote(option, address)  # None for "none"
+            if parsed is not None and parsed[1]:  # port 0: any, chosen by the OS
+                ports.add(parsed[1])
     return ports
 
 
