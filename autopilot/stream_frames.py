@@ -25,6 +25,7 @@ from autopilot.commander import ARMED, HOLD_YAW, HOME_ALT, REF_ALT, REF_PITCH, R
 from autopilot.control_params import MEM_U
 from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.jit import jit
+from quadsitl.rawbytes import put
 from quadsitl.wire import BODY_RATES, FRAME_MAX, HEADER_SIZE, UINT16_UNKNOWN, finish_frame, mavlink
 
 _CLASSES = (  # by message id, the order of the frames in a datagram
@@ -155,15 +156,15 @@ def _set(vals: np.ndarray, v: tuple) -> None:
 @jit
 def _put(buf: np.ndarray, at: int, kind: int, value: float) -> None:
     if kind == 6:
-        buf[at : at + 4].view(np.float32)[0] = value
+        put(buf, at, np.float32(value))
     elif kind == 0:
         buf[at] = np.uint8(int(value) & 0xFF)
     elif kind == 1 or kind == 2:
-        buf[at : at + 2].view(np.uint16)[0] = np.uint16(int(value) & 0xFFFF)
+        put(buf, at, np.uint16(int(value) & 0xFFFF))
     elif kind == 3 or kind == 4:
-        buf[at : at + 4].view(np.uint32)[0] = np.uint32(int(value) & 0xFFFFFFFF)
+        put(buf, at, np.uint32(int(value) & 0xFFFFFFFF))
     else:
-        buf[at : at + 8].view(np.uint64)[0] = np.uint64(int(value))
+        put(buf, at, np.uint64(int(value)))
 
 
 @jit

@@ -68,6 +68,7 @@ from quadsitl.hil import Z_GYRO, decode_sensors
 from quadsitl.jit import jit
 from quadsitl.mixer import allocate
 from quadsitl.param_arrays import D_OVER_B
+from quadsitl.rawbytes import put
 from quadsitl.state import Inputs
 from quadsitl.wire import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actuators, tick_of
 
@@ -131,12 +132,12 @@ def fly(
 
 @jit
 def _put(buf: np.ndarray, at: int, value: float) -> None:
-    buf[at : at + 8].view(np.float64)[0] = value
+    put(buf, at, np.float64(value))
 
 
 @jit
 def _put_int(buf: np.ndarray, at: int, value: int) -> None:
-    buf[at : at + 8].view(np.int64)[0] = value
+    put(buf, at, np.int64(value))
 
 
 # The tick's integer bookkeeping (``io``, int64): the stamp of the last state flown, the answer's length, the

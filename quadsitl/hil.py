@@ -35,6 +35,7 @@ from quadsitl.frames import (
     quaternion_to_euler,
 )
 from quadsitl.jit import jit
+from quadsitl.rawbytes import get
 from quadsitl.wire import (
     BAD_CRC,
     HEADER_SIZE,
@@ -232,7 +233,7 @@ def decode_sensors(buf: np.ndarray, length: int, home: tuple, z: np.ndarray, tru
         if msg_id < 0:
             return msg_id, 0, 0
         if msg_id == SENSOR_ID:
-            t = frame[HEADER_SIZE : HEADER_SIZE + 8].view(np.int64)[0] & 0x7FFFFFFFFFFFFFFF
+            t = get(frame, HEADER_SIZE, np.int64) & 0x7FFFFFFFFFFFFFFF
             fields = _get_int(frame, 60, 4, False)
             ax, ay, az = _get_f32(frame, 8), _get_f32(frame, 12), _get_f32(frame, 16)
             gx, gy, gz = _get_f32(frame, 20), _get_f32(frame, 24), _get_f32(frame, 28)

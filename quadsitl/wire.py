@@ -199,6 +199,8 @@ import struct  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from quadsitl.rawbytes import get, put  # noqa: E402
+
 MAVLINK2_STX = 0xFD
 HEADER_SIZE = 10  # stx, len, incompat, compat, seq, sysid, compid, msgid (24 bit)
 FRAME_MAX = 280  # a MAVLink 2 frame's largest size: header, 255 bytes of payload, CRC, 13-byte signature
@@ -222,26 +224,42 @@ DECODED_SIZE = 15
 NOT_THIS_FRAME, BAD_CRC, NOT_FINITE = -1, -2, -3
 
 
-def _crc_table() -> np.ndarray:
-    """CRC-16/MCRF4XX (X.25), MAVLink's checksum, one byte at a time."""
-    table = np.zeros(256, dtype=np.uint16)
+def _crc_tables() -> np.ndarray:
+    """CRC-16/MCRF4XX (X.25), MAVLink's checksum, as tables for eight bytes at a time ("slicing by 8", Intel's
+    scheme for reflected CRCs): row 0 is the one-byte table, row k what a byte does to the CRC with k more zero
+    bytes after it."""
+    tables = np.zeros((8, 256), dtype=np.int32)  # int32: its numbers mix with int64's in compiled code
     for i in range(256):
         tmp = i  # crc_accumulate with crc = 0: tmp = byte ^ (crc & 0xff)
         tmp = (tmp ^ (tmp << 4)) & 0xFF
-        table[i] = ((tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
-    return table
+        tables[0, i] = ((tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
+    for k in range(1, 8):
+        for i in range(256):
+            prev = int(tables[k - 1, i])
+            tables[k, i] = (prev >> 8) ^ int(tables[0, prev & 0xFF])
+    return tables
 
 
-CRC_TABLE = _crc_table()
+CRC_TABLES = _crc_tables()
 
 
 @jit
 def crc16(buf: np.ndarray, start: int, end: int, crc_extra: int) -> int:
-    """MAVLink's CRC of buf[start:end] followed by the message's CRC_EXTRA byte."""
+    """MAVLink's CRC of buf[start:end] followed by the message's CRC_EXTRA byte: eight bytes per step, whose
+    table lookups do not wait on each other (a byte at a time, each waits on the last: 3.5 times as long for an
+    ODOMETRY frame), then the rest a byte at a time."""
+    t = CRC_TABLES
     crc = 0xFFFF
-    for i in range(start, end):
-        crc = (crc >> 8) ^ int(CRC_TABLE[(crc ^ int(buf[i])) & 0xFF])
-    return (crc >> 8) ^ int(CRC_TABLE[(crc ^ crc_extra) & 0xFF])
+    i = start
+    while i + 8 <= end:
+        c = crc ^ (int(buf[i]) | int(buf[i + 1]) << 8)
+        crc = (int(t[7, c & 0xFF]) ^ int(t[6, c >> 8]) ^ int(t[5, buf[i + 2]]) ^ int(t[4, buf[i + 3]])
+               ^ int(t[3, buf[i + 4]]) ^ int(t[2, buf[i + 5]]) ^ int(t[1, buf[i + 6]])
+               ^ int(t[0, buf[i + 7]]))  # fmt: skip
+        i += 8
+    for j in range(i, end):
+        crc = (crc >> 8) ^ int(t[0, (crc ^ int(buf[j])) & 0xFF])
+    return (crc >> 8) ^ int(t[0, (crc ^ crc_extra) & 0xFF])
 
 
 @jit
@@ -279,12 +297,12 @@ def check_frame(buf: np.ndarray, length: int, msg_id: int, crc_extra: int, size:
 
 @jit
 def _put_f32(buf: np.ndarray, at: int, value: float) -> None:
-    buf[HEADER_SIZE + at : HEADER_SIZE + at + 4].view(np.float32)[0] = value
+    put(buf, HEADER_SIZE + at, np.float32(value))
 
 
 @jit
 def _get_f32(buf: np.ndarray, at: int) -> float:
-    return np.float64(buf[HEADER_SIZE + at : HEADER_SIZE + at + 4].view(np.float32)[0])  # float() keeps float32
+    return np.float64(get(buf, HEADER_SIZE + at, np.float32))  # float() keeps float32
 
 
 @jit
@@ -294,7 +312,7 @@ def encode_state(buf: np.ndarray, seq: int, system: int, component: int, time_us
     roll, pitch, yaw = s[6], s[7], s[8]
     q = euler_to_quaternion(roll, pitch, yaw)
     p, qr, r = euler_rates_to_body_rates(roll, pitch, s[9], s[10], s[11])
-    buf[HEADER_SIZE : HEADER_SIZE + 8].view(np.uint64)[0] = time_usec
+    put(buf, HEADER_SIZE, np.uint64(time_usec))
     _put_f32(buf, 8, s[0])
     _put_f32(buf, 12, s[1])
     _put_f32(buf, 16, s[2])
@@ -332,14 +350,15 @@ def decode_state(buf: np.ndarray, length: int, out: np.ndarray) -> int:
     out[0], out[1], out[2], out[3], out[4], out[5] = x, y, z, vx, vy, vz
     out[6], out[7], out[8], out[9], out[10], out[11] = roll, pitch, yaw, rd, pd, yd
     out[12], out[13], out[14] = p, q, r
-    return int(buf[HEADER_SIZE : HEADER_SIZE + 8].view(np.uint64)[0] & 0x7FFFFFFFFFFFFFFF)
+    return int(get(buf, HEADER_SIZE, np.uint64) & 0x7FFFFFFFFFFFFFFF)
 
 
 @jit
 def encode_actuators(buf: np.ndarray, seq: int, system: int, component: int, time_usec: int, forces: tuple,
                      max_thrust: float, armed: bool) -> int:  # fmt: skip
     """HIL_ACTUATOR_CONTROLS (= :func:`actuator_message`) into ``buf``: controls[j] = F_j / F_max."""
-    buf[HEADER_SIZE : HEADER_SIZE + 16].view(np.uint64)[:] = (time_usec, 0)
+    put(buf, HEADER_SIZE, np.uint64(time_usec))
+    put(buf, HEADER_SIZE + 8, np.uint64(0))
     for i in range(4):
         _put_f32(buf, 16 + 4 * i, forces[i] / max_thrust)
     buf[HEADER_SIZE + 32 : HEADER_SIZE + HIL_SIZE - 1] = 0
@@ -359,7 +378,7 @@ def decode_actuators(buf: np.ndarray, length: int, out: np.ndarray, scale: float
     if not (math.isfinite(c0) and math.isfinite(c1) and math.isfinite(c2) and math.isfinite(c3)):
         return NOT_FINITE
     out[0], out[1], out[2], out[3] = c0 * scale, c1 * scale, c2 * scale, c3 * scale
-    return int(buf[HEADER_SIZE : HEADER_SIZE + 8].view(np.uint64)[0] & 0x7FFFFFFFFFFFFFFF)
+    return int(get(buf, HEADER_SIZE, np.uint64) & 0x7FFFFFFFFFFFFFFF)
 
 
 SAFETY_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
