@@ -27,7 +27,7 @@ def measure(number: int) -> dict[str, float]:
     from quadsitl.jit import specialized
     from quadsitl.param_arrays import actuator_array, vehicle_array
     from sitl import tick
-    from sitl.plant import OUT_SIZE, step_arrays
+    from sitl.plant import OUT_SIZE, Plant, step_work
     from sitl.sensors import Sensors
     from sitl.wind import air_arrays
 
@@ -47,13 +47,14 @@ def measure(number: int) -> dict[str, float]:
         "backstepping controller step": per_call(lambda: bs(x, ref, mem, v, c), number),
         "pd controller step": per_call(lambda: pd_(x, ref, mem, v, c), number),
     }
-    for name, method, substeps in (("euler", 0, 1), ("rk4", 1, 1)):
-        xs = x.copy()
-        args = (xs, motors, commanded, out, v, a, *air, T, substeps, method, np.nan)
-        plant_step = specialized(step_arrays, *args)
+    for name in ("euler", "rk4"):
+        plant = Plant(preset, integrator=name)
+        plant.x[:], plant.commanded[:] = x, commanded
+        args = (plant.work, plant.params, plant.air_rng, T, plant.substeps, plant.method, np.nan)
+        plant_step = specialized(step_work, *args)
         figures[f"plant step ({name})"] = per_call(lambda f=plant_step, args=args: f(*args), number)
         if name == "euler":
-            dispatched = per_call(lambda args=args: step_arrays(*args), number)
+            dispatched = per_call(lambda args=args: step_work(*args), number)
             figures["plant step (euler), through numba's dispatch"] = dispatched
 
     # The processes' whole ticks, frame in to frame out (no sockets).

@@ -84,12 +84,12 @@ def specialized(fn: F, *args: object) -> F:
     """The machine code of the :func:`jit` function ``fn`` for the types of ``args`` (compiled, or loaded from the
     cache, now), callable without numba's dispatch: a call from Python then skips working out the type of every
     argument and choosing among the compiled versions, which for the plant's step (12 arguments) took about 1 µs
-    of its 1.2 (half that remains: unpacking the arrays). For the objects that call one function on the same
-    arrays every tick (:class:`sitl.plant.Plant`, the controllers); they must pass arguments of exactly these
-    types (the same arrays, or arrays of the same dtype, dimensions and layout): an array of another dtype is
-    refused with a TypeError, but one of other dimensions is not checked, and a number is converted to the type
-    it had here (an int where a float was given becomes a float; a float where an int was, an int). With
-    ``NUMBA_DISABLE_JIT=1``, ``fn`` itself."""
+    of its 1.2 (what remains is mostly unpacking the arrays: :func:`sitl.plant.step_work` takes three). For the
+    objects that call one function on the same arrays every tick (:class:`sitl.plant.Plant`, the controllers);
+    they must pass arguments of exactly these types (the same arrays, or arrays of the same dtype, dimensions and
+    layout): an array of another dtype is refused with a TypeError, but one of other dimensions is not checked, and
+    a number is converted to the type it had here (an int where a float was given becomes a float; a float where
+    an int was, an int). With ``NUMBA_DISABLE_JIT=1``, ``fn`` itself."""
     if DISABLED:
         return fn
     return fn.compile(tuple(numba.typeof(a) for a in args))  # type: ignore[attr-defined]

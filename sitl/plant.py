@@ -22,18 +22,22 @@ from quadsitl.earth import PX4_HOME
 from quadsitl.frames import wrap_pi
 from quadsitl.jit import jit, specialized
 from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
-from quadsitl.param_arrays import D_OVER_B, B, actuator_array, vehicle_array
+from quadsitl.param_arrays import D_OVER_B, VEHICLE_SIZE, B, actuator_array, vehicle_array
 from quadsitl.state import Inputs, VehicleState
 from sitl.actuators import advance
 from sitl.dynamics import Disturbance, State
 from sitl.integrators import INTEGRATORS, integrate
 from sitl.sensors import Sensors
-from sitl.wind import air_arrays, air_tick
+from sitl.wind import AIR_SIZE, air_arrays, air_tick
 
 # The outputs of a step besides the state, in Plant.out: mean motor forces (4), inputs u1..u4 (4), Ωr, on ground,
 # the mean acceleration over the step (3, [m/s², NED]: the change of velocity over the period, the ground's stop
 # included; what the accelerometer measures, :mod:`sitl.sensors`).
 OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_MEAN_ACCEL, OUT_SIZE = 0, 4, 8, 9, 10, 13
+# Plant.work, the one array its per-step arrays are views of: the state, the motor forces, the command, the outputs,
+# the air (sitl.wind's layout).
+W_X, W_MOTORS, W_COMMANDED, W_OUT, W_AIR = 0, 12, 16, 20, 20 + OUT_SIZE
+WORK_SIZE = W_AIR + AIR_SIZE
 
 
 def initial_state(preset: Preset) -> VehicleState:
@@ -102,6 +106,17 @@ def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: n
         out[OUT_MEAN_ACCEL + i] = (s[3 + i] - v0[i]) / period
 
 
+@jit
+def step_work(w: np.ndarray, params: np.ndarray, air_rng: np.ndarray, period: float, substeps: int, method: int,
+              omega_r: float) -> None:  # fmt: skip
+    """:func:`step_arrays` on :class:`Plant`'s arrays: ``w`` its work array (WORK_SIZE: W_*), ``params`` its
+    vehicle array then its actuator array. Three arrays to unpack instead of eight when Python calls it: numba
+    wraps each array it is given in an object of its own on every call (about 40 ns each on a 2-core KVM guest)."""
+    step_arrays(w[W_X:W_MOTORS], w[W_MOTORS:W_COMMANDED], w[W_COMMANDED:W_OUT], w[W_OUT:W_AIR],
+                params[:VEHICLE_SIZE], params[VEHICLE_SIZE:], w[W_AIR:], air_rng, period, substeps, method,
+                omega_r)  # fmt: skip
+
+
 # Divergence: the bounds a state must stay within (``lim``, LIMITS_SIZE): |x|, |y|, |z| [m]; |vx|, |vy|, |vz|
 # [m/s]; |roll|, |pitch| [rad] (strictly below); |Euler-angle rates| [rad/s]; and the yaw within 1000 turns.
 # One check (:func:`inside`) for every runtime: the sweeps' batch engine (with a sweep's own ``[limits]``), the
@@ -168,19 +183,35 @@ class Plant:
             raise ValueError(f"integrator {name!r}: expected one of {', '.join(INTEGRATORS)}")
         self.method = INTEGRATORS[name]
         self.substeps = int(substeps or preset.sim.substeps)
-        self.v = vehicle_array(preset.vehicle)
-        self.a = actuator_array(preset.actuators)
-        self.x = np.array(initial_state(preset), dtype=np.float64)
-        self.motors = np.zeros(4)
-        self.commanded = np.zeros(4)
-        self.out = np.zeros(OUT_SIZE)
+        # The arrays the compiled step works on, as views of two (step_work): the parameters, and the rest.
+        self.params = np.concatenate([vehicle_array(preset.vehicle), actuator_array(preset.actuators)])
+        self.work = np.zeros(WORK_SIZE)
+        self._views()
+        self.x[:] = initial_state(preset)
         self.out[OUT_ON_GROUND] = self.x[2] >= 0.0
         self.time = 0.0
-        self.air, self.air_rng = air_arrays(preset.wind)
+        self.air[:], self.air_rng = air_arrays(preset.wind)
         # The sensors (the preset's, else the defaults: their arrays are passed in truth mode too, untouched).
         self.sensors = Sensors(preset.sensors or SensorParams(), self.period, preset.vehicle.gravity, home)
-        self._step = specialized(step_arrays, self.x, self.motors, self.commanded, self.out, self.v, self.a, self.air,
-                                 self.air_rng, self.period, self.substeps, self.method, math.nan)  # fmt: skip
+        self._step = specialized(step_work, self.work, self.params, self.air_rng, self.period, self.substeps,
+                                 self.method, math.nan)  # fmt: skip
+
+    _VIEWS = ("v", "a", "x", "motors", "commanded", "out", "air")
+
+    def _views(self) -> None:
+        self.v, self.a = self.params[:VEHICLE_SIZE], self.params[VEHICLE_SIZE:]
+        self.x = self.work[W_X:W_MOTORS]
+        self.motors = self.work[W_MOTORS:W_COMMANDED]
+        self.commanded = self.work[W_COMMANDED:W_OUT]
+        self.out = self.work[W_OUT:W_AIR]
+        self.air = self.work[W_AIR:]
+
+    def __getstate__(self) -> dict:  # copies and pickles: the views are made again from the two arrays
+        return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._views()
 
     @property
     def state(self) -> VehicleState:
@@ -223,6 +254,6 @@ class Plant:
         """
         if commanded is not None:
             self.commanded[:] = commanded
-        self._step(self.x, self.motors, self.commanded, self.out, self.v, self.a, self.air, self.air_rng, self.period,
-                   self.substeps, self.method, math.nan if omega_r is None else float(omega_r))  # fmt: skip
+        omega_r = math.nan if omega_r is None else float(omega_r)
+        self._step(self.work, self.params, self.air_rng, self.period, self.substeps, self.method, omega_r)
         self.time += self.period
