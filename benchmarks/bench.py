@@ -235,13 +235,20 @@ def bench_costs(r: Report, ping: float) -> None:
 
 
 @contextlib.contextmanager
-def autopilot_process(workdir: Path, env: dict[str, str] | None = None, system_id: int = 1
-                      ) -> Iterator[tuple[int, int, str, int]]:  # fmt: skip
+def autopilot_process(workdir: Path, env: dict[str, str] | None = None, system_id: int = 1,
+                      taken: set[int] | None = None) -> Iterator[tuple[int, int, str, int]]:  # fmt: skip
     """An autopilot on free ports: (plant port, api port, Zenoh endpoint, its process id). :func:`run_plant` with
     the api port arms it in hold at the start of each run, as a ground station would. (On the ground an autopilot
-    armed in hold idles, as PX4's does, so the control law itself, about 1 µs of a ~100 µs tick, does not run.)"""
-    plant_port, api_port = free_port(), free_port()
-    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    armed in hold idles, as PX4's does, so the control law itself, about 1 µs of a ~100 µs tick, does not run.)
+    ``taken``: ports picked for processes that may not have bound them yet (a fleet's other autopilots), never
+    picked here; this one's are added to it."""
+    taken = set() if taken is None else taken
+    picks = []
+    for kind in (socket.SOCK_DGRAM, socket.SOCK_DGRAM, socket.SOCK_STREAM):
+        picks.append(free_port(kind, avoid=taken))
+        taken.add(picks[-1])
+    plant_port, api_port, zenoh_port = picks
+    endpoint = f"tcp/127.0.0.1:{zenoh_port}"
     ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
                  f"127.0.0.1:{api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
                  "none", "--zenoh-listen", endpoint, "--system-id", str(system_id), env=env)  # fmt: skip
@@ -571,7 +578,8 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
     with contextlib.ExitStack() as stack:
         with fifo_scheduling(fifo):
             # system ids 1..n, as `quadsitl up --vehicles N` gives them (each streams on ticks of its own)
-            aps = [stack.enter_context(autopilot_process(workdir, system_id=i + 1)) for i in range(n)]
+            taken: set[int] = set()  # every autopilot's ports distinct, picked before any of them binds
+            aps = [stack.enter_context(autopilot_process(workdir, system_id=i + 1, taken=taken)) for i in range(n)]
         ap_pids = [pid for _, _, _, pid in aps]
         for _, api, _, _ in aps:
             _wait_heartbeat(api)

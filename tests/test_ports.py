@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import random
 import socket
+from types import SimpleNamespace
 from typing import ClassVar
 
 import pytest
@@ -120,3 +121,23 @@ def test_the_ports_of_a_plan():
     assert ports == {21000, 21001, 21002, 21003, 22000, 23000, 23001, 23002, 23003, 24000, 24001, 24002, 24003}
     default = planned_ports(plan_fleet(2, preset="paper", gcs_remote="none", api_listen="127.0.0.1:0"))
     assert default == {18570, 18571, 14540, 14541}  # the gcs link's PX4 default, the api link's remotes; 0 is any
+
+
+def test_a_benchs_fleet_gives_every_autopilot_ports_of_its_own(monkeypatch, tmp_path):
+    """``quadsitl bench --only fleet`` starts N autopilots before any binds its ports: each one's picks keep out of
+    the others' (a fleet of 12 once got a Zenoh port another autopilot was about to bind, "Address already in
+    use"). The pickable range here is exactly the six ports two autopilots need, so any repeat would show."""
+    from benchmarks import bench
+
+    base = free_ports(6)
+    monkeypatch.setattr(process_util, "ephemeral_range", lambda: (60000, 60999))
+    monkeypatch.setattr(process_util, "PICK_PORTS", (base, base + 6))
+    started = []
+    monkeypatch.setattr(bench, "_python", lambda *args, **kw: started.append(args) or SimpleNamespace(pid=0))
+    monkeypatch.setattr(bench, "_stop", lambda proc: None)
+    taken: set[int] = set()
+    with (bench.autopilot_process(tmp_path, system_id=1, taken=taken) as first,
+          bench.autopilot_process(tmp_path, system_id=2, taken=taken) as second):  # fmt: skip
+        ports = [p for plant, api, zenoh, _ in (first, second) for p in (plant, api, int(zenoh.rsplit(":", 1)[1]))]
+    assert sorted(ports) == list(range(base, base + 6)) and taken == set(ports)
+    assert len(started) == 2
