@@ -35,7 +35,7 @@ from quadsitl.frames import (
     quaternion_to_euler,
 )
 from quadsitl.jit import jit
-from quadsitl.rawbytes import get
+from quadsitl.rawbytes import get, put
 from quadsitl.wire import (
     BAD_CRC,
     HEADER_SIZE,
@@ -78,18 +78,23 @@ IMU_DROPPED, MAG_DROPPED, BARO_DROPPED, GPS_DROPPED = 1, 2, 4, 8
 
 @jit
 def _put(buf: np.ndarray, at: int, dtype_bytes: int, value: int) -> None:
-    """An integer field of ``dtype_bytes`` bytes, little-endian, at payload offset ``at``."""
-    for i in range(dtype_bytes):
-        buf[HEADER_SIZE + at + i] = (value >> (8 * i)) & 0xFF
+    """An integer field of ``dtype_bytes`` bytes (2, 4 or 8), little-endian two's complement, at payload offset
+    ``at`` (its low bytes, as C's cast to the field's type keeps them)."""
+    if dtype_bytes == 8:
+        put(buf, HEADER_SIZE + at, np.int64(value))
+    elif dtype_bytes == 4:
+        put(buf, HEADER_SIZE + at, np.uint32(value & 0xFFFFFFFF))
+    else:
+        put(buf, HEADER_SIZE + at, np.uint16(value & 0xFFFF))
 
 
 @jit
 def _get_int(buf: np.ndarray, at: int, size: int, signed: bool) -> int:
-    v = 0
-    for i in range(size):
-        v |= int(buf[HEADER_SIZE + at + i]) << (8 * i)
-    if signed and v >= 1 << (8 * size - 1):
-        v -= 1 << (8 * size)
+    """The integer field of ``size`` bytes (2 or 4) at payload offset ``at``, signed or not."""
+    if size == 4:
+        v = int(get(buf, HEADER_SIZE + at, np.int32)) if signed else int(get(buf, HEADER_SIZE + at, np.uint32))
+    else:
+        v = int(get(buf, HEADER_SIZE + at, np.int16)) if signed else int(get(buf, HEADER_SIZE + at, np.uint16))
     return v
 
 
