@@ -204,9 +204,12 @@ def test_api_vehicles_and_any_number_of_tabs(browser):
             assert set(veh["state"]) >= {"t", "x", "y", "z", "roll", "pitch", "yaw", "p", "q", "r"}
             assert set(veh["setpoint"]) == {"t", "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "x_ref", "y_ref"}
             assert veh["setpoint"]["x_ref"] is None  # NaN: in hold, nothing controls x and y yet
-            # every tab follows the same vehicle independently
+            # every tab follows the same vehicle independently: each reaches the time the furthest one shows (a tab
+            # may be a redraw behind on a loaded machine; one that stopped following never gets there)
             last = [p.evaluate("() => quadsitl.lastT") for p in pages]
-            assert max(last) - min(last) < 1.0
+            assert all(t is not None and t > 0 for t in last)
+            for p in pages:
+                p.wait_for_function(f"() => quadsitl.lastT >= {max(last)}", timeout=10000)
         finally:
             for p in pages:
                 p.close()
