@@ -965,6 +965,8 @@ class Autopilot:
             if wall >= next_poll:
                 next_poll = wall + GCS_POLL
                 self.poll_gcs()
+                if self.slow is not None:  # the newest records, turned away by the overview's period: owed
+                    self.slow.catch_up(self.last_records.get, wall)
                 self.commander.wall_clock(wall)
                 for out in self.missions.protocol.tick(wall):  # re-requests and timeouts of mission transfers
                     self._send_mission(out)
@@ -1049,6 +1051,8 @@ class Autopilot:
                   file=sys.stderr)  # fmt: skip
         if self.pubs:
             self.flush_telemetry()
+        if self.slow is not None and self.slow.owed:  # the overview ends on the last record
+            self.slow.offer(self.last_records.get, time.monotonic(), force=True)
         slow = list(self.slow.pubs.values()) if self.slow else []
         for pub in (*self.pubs.values(), *slow, *([self.plan_pub] if self.plan_pub else [])):
             pub.undeclare()

@@ -419,7 +419,10 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         # and plant and autopilot wait (a datagram every 50 ms) instead of racing through ground ticks on the cores
         # the ground station needs to start (which made the lockstep loops give up polling into the flight).
         hold = ["--hold-until-armed", repr(SENSOR_GROUND_S)] if not mission else []
-        children.start("plant", plant + wind_argv(args) + state_argv(args) + home + hold + quiet)
+        # Once landed and disarmed the flight is over: the clock holds, so the results are written on idle cores
+        # (it ran on, both loops polling, until the ground station had written its files and the plant was stopped).
+        children.start("plant", plant + wind_argv(args) + state_argv(args) + home + hold + ["--hold-when-landed"]
+                       + quiet)  # fmt: skip
         gcs = ["groundstation", "--preset", preset_name, "--connect", f"127.0.0.1:{gcs_port}",
                "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out), *quiet]  # fmt: skip
         if hold:

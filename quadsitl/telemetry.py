@@ -103,7 +103,9 @@ def slow_key(vehicle: str, stream: str) -> str:
 
 class SlowCopies:
     """The overview's publishers of one vehicle (see SLOW): :meth:`offer` the newest record of each stream as often
-    as you like; it is put at most every SLOW_PERIOD wall seconds."""
+    as you like; it is put at most every SLOW_PERIOD wall seconds. An offer turned away is owed: :meth:`catch_up`
+    puts the newest records once the period is over, so the overview ends on the vehicle's last record even when
+    its clock stops (a lockstep plant holding it once landed) and nothing new is offered."""
 
     def __init__(self, session: zenoh.Session, vehicle: str, streams: Sequence[str] = tuple(STREAMS)) -> None:
         import zenoh
@@ -112,18 +114,24 @@ class SlowCopies:
                                                   congestion_control=zenoh.CongestionControl.DROP)
                      for s in streams}  # fmt: skip
         self.due = -math.inf
+        self.owed = False  # an offer was turned away since the last put
 
-    def offer(self, newest: Callable[[str], bytes | None], now: float) -> bool:
+    def offer(self, newest: Callable[[str], bytes | None], now: float, force: bool = False) -> bool:
         """Put ``newest(stream)`` (one record; None: none yet) on each stream's slow key if SLOW_PERIOD has passed
-        since the last put (``now``: wall seconds, monotonic); True when it did."""
-        if now < self.due:
+        since the last put, or with ``force`` (``now``: wall seconds, monotonic); True when it did."""
+        if now < self.due and not force:
+            self.owed = True
             return False
-        self.due = now + SLOW_PERIOD
+        self.due, self.owed = now + SLOW_PERIOD, False
         for stream, pub in self.pubs.items():
             record = newest(stream)
             if record:
                 pub.put(record)
         return True
+
+    def catch_up(self, newest: Callable[[str], bytes | None], now: float) -> bool:
+        """Put what an offer turned away, once SLOW_PERIOD has passed since the last put; True when it did."""
+        return self.owed and self.offer(newest, now)
 
 
 def encoding(stream: str) -> zenoh.Encoding:

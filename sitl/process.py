@@ -575,6 +575,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="lockstep: at S simulated seconds, hold the clock until the autopilot's answer says armed (quadsitl fly "
         "uses it with sensors: its flight then starts after the same ticks on the ground in every run)",
     )
+    p.add_argument("--hold-when-landed", action="store_true",
+                   help="lockstep, one vehicle: once the vehicle has flown, hold the clock while the autopilot's "
+                   "answer says disarmed and the vehicle rests on the ground; arming again resumes it (quadsitl fly: "
+                   "the flight is over, and nothing ticks while the results are written)")  # fmt: skip
     p.add_argument("--integrator", choices=("euler", "rk4"), help="default: the preset's")
     p.add_argument("--substeps", type=int, metavar="N", help="default: the preset's")
     p.add_argument("--ticks", type=int, metavar="N", help="stop after N ticks (default: run until stopped)")
@@ -618,6 +622,10 @@ def fleet_from_args(args: argparse.Namespace) -> list[Vehicle]:
     if args.hold_until_armed is not None and (args.mode != "lockstep" or not 0.0 <= args.hold_until_armed <= 3600.0):
         raise UsageError(f"--hold-until-armed {args.hold_until_armed!r}: expected a number of seconds in [0, 3600], "
                          "in lockstep")  # fmt: skip
+    if args.hold_when_landed and (args.mode != "lockstep" or n > 1):
+        vehicles = f"{n} vehicle{'s' if n > 1 else ''}"
+        raise UsageError(f"--hold-when-landed: only in lockstep with one vehicle (here: {args.mode}, {vehicles}); "
+                         "a fleet's one clock would stop for all when the first one lands")  # fmt: skip
     impairment_from(args.impair, args.mode)  # refused here, before any socket is bound
     base = with_state(with_wind(load_preset(args.preset), args), args)
     vehicles: list[Vehicle] = []
@@ -643,6 +651,7 @@ def fleet_from_args(args: argparse.Namespace) -> list[Vehicle]:
                          sensing=preset.sensors is not None, name=name if n > 1 else "")  # fmt: skip
         if args.hold_until_armed is not None:
             link.io[tick.HOLD_TICK] = round(args.hold_until_armed / preset.sim.period)
+        link.io[tick.HOLD_LANDED] = int(args.hold_when_landed)
         vehicles.append(Vehicle(name, preset, plant, link))
     return vehicles
 

@@ -17,17 +17,20 @@ from quadsitl.hil import encode_gps, encode_sensor, encode_truth
 from quadsitl.jit import jit
 from quadsitl.wire import HEADER_SIZE, HIL_SIZE, NOT_THIS_FRAME, SAFETY_ARMED, decode_actuators, encode_state, usec_of
 from sitl import sensors as sn
-from sitl.plant import DEFAULT_LIMITS, OUT_MEAN_ACCEL, inside, step_arrays
+from sitl.plant import DEFAULT_LIMITS, OUT_MEAN_ACCEL, OUT_ON_GROUND, inside, step_arrays
 
 # The tick's integer bookkeeping (``io``, int64): the link's sequence number, the length of the state frame
 # in tx, the stamp of the newest actuator message used, and what was refused: stale or duplicate answers,
 # corrupt frames or non-finite forces; the plant's MAVLink ids; 1 in sensor mode; the tick at which the clock holds
-# until the autopilot arms (−1: none) and whether the answer being taken says armed.
-SEQ, TX_LEN, LAST_USEC, DISCARDED, CORRUPT, SYSTEM, COMPONENT, SENSING, HOLD_TICK, ANSWER_ARMED, IO_SIZE = range(11)
+# until the autopilot arms (−1: none) and whether the answer being taken says armed; 1 when the clock holds once the
+# flight is over (an answer says disarmed, the vehicle on the ground, after one said armed), and 1 once one did.
+(SEQ, TX_LEN, LAST_USEC, DISCARDED, CORRUPT, SYSTEM, COMPONENT, SENSING, HOLD_TICK, ANSWER_ARMED, HOLD_LANDED, FLOWN,
+ IO_SIZE) = range(13)  # fmt: skip
 # What lockstep_tick reports besides STEPPED: an answer from the future, or no actuator message for this
 # tick in the datagram (NOTHING; ANOTHER_FRAME: not exactly one unsigned HIL_ACTUATOR_CONTROLS, for pymavlink).
 # DIVERGED: stepped, and the new state is outside sitl.plant's DEFAULT_LIMITS (or not finite): not to be sent.
-# HELD: the answer to the hold tick, disarmed: the clock waits (io[HOLD_TICK]).
+# HELD: the answer to the hold tick, disarmed (io[HOLD_TICK]), or one saying disarmed with the vehicle on the ground
+# after a flight (io[HOLD_LANDED]): the clock waits.
 STEPPED, FUTURE, NOTHING, ANOTHER_FRAME, DIVERGED, HELD = 0, 1, 2, 3, 4, 5
 
 
@@ -83,7 +86,9 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
     """An actuator message stamped ``t`` (its forces in ``received``): when it answers tick ``tick``
     (``want``), make it the command, integrate one period in the tick's wind (:func:`sitl.plant.step_arrays`) and
     encode the state of tick + 1 (DIVERGED when that state is not :func:`sitl.plant.inside` the default
-    bounds). At io[HOLD_TICK] the clock holds (HELD) until the answer says armed (io[ANSWER_ARMED])."""
+    bounds). At io[HOLD_TICK] the clock holds (HELD) until the answer says armed (io[ANSWER_ARMED]); with
+    io[HOLD_LANDED], it holds at any tick once the flight is over: the answer says disarmed, an earlier one said
+    armed, and the vehicle rests on the ground (``out``'s on-ground flag of the step that made ``x``)."""
     if t < 0:
         return NOTHING
     if t <= io[LAST_USEC]:
@@ -92,8 +97,11 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
     if t != want:
         io[DISCARDED] += 1
         return FUTURE
-    if tick == io[HOLD_TICK] and io[ANSWER_ARMED] == 0:
-        return HELD
+    if io[ANSWER_ARMED] == 0:
+        if tick == io[HOLD_TICK] or (io[HOLD_LANDED] != 0 and io[FLOWN] != 0 and out[OUT_ON_GROUND] > 0.0):
+            return HELD
+    else:
+        io[FLOWN] = 1
     io[LAST_USEC] = t
     commanded[:] = received
     step_arrays(x, motors, commanded, out, v, a, air, air_rng, period, substeps, method, np.nan)

@@ -265,3 +265,45 @@ def test_only_a_vehicle_a_page_shows_is_followed_at_the_full_rate():
     finally:
         dash_session.close()
         pub_session.close()
+
+
+def test_the_overview_ends_on_the_last_record_even_when_nothing_new_comes():
+    """Real Zenoh sessions: an offer inside the overview's period is owed, and put once the period is over (a
+    lockstep clock held once landed offers nothing new; the overview must still show the landing), or at once when
+    forced (an autopilot that stops)."""
+    import zenoh
+
+    from groundstation.launcher import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    pub_session = zenoh.open(telemetry.zenoh_config(listen=[endpoint]))
+    sub_session = zenoh.open(telemetry.zenoh_config(connect=[endpoint]))
+    try:
+        sub = sub_session.declare_subscriber(telemetry.slow_key("v1", "state"), zenoh.handlers.FifoChannel(64))
+        overview = telemetry.SlowCopies(pub_session, "v1", streams=("state",))
+        deadline = time.monotonic() + 10
+        while not overview.pubs["state"].matching_status.matching:
+            assert time.monotonic() < deadline, "the subscriber was not found"
+            time.sleep(0.02)
+        newest = {"state": records("state", [1])}
+        t = 1000.0  # wall seconds, as the autopilot passes them
+        assert overview.offer(newest.get, t) and not overview.owed
+        newest["state"] = records("state", [2])
+        assert not overview.offer(newest.get, t + 0.01) and overview.owed  # inside the period: owed
+        assert not overview.catch_up(newest.get, t + 0.02)  # still inside it
+        assert overview.catch_up(newest.get, t + telemetry.SLOW_PERIOD + 0.001) and not overview.owed
+        assert not overview.catch_up(newest.get, t + 1.0)  # nothing owed: nothing put
+        newest["state"] = records("state", [3])
+        assert not overview.offer(newest.get, t + telemetry.SLOW_PERIOD + 0.01)
+        assert overview.offer(newest.get, t + telemetry.SLOW_PERIOD + 0.02, force=True)
+        got, deadline = [], time.monotonic() + 5
+        while len(got) < 3 and time.monotonic() < deadline:
+            sample = sub.try_recv()
+            if sample is None:
+                time.sleep(0.01)
+                continue
+            got.append(sample.payload.to_bytes())
+        assert got == [records("state", [k]) for k in (1, 2, 3)]
+    finally:
+        sub_session.close()
+        pub_session.close()

@@ -231,12 +231,21 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
         assert np.isnan(data["x_ref"]).all() and np.isnan(data["y_ref"]).all()
     # The .tlog is standard: pymavlink reads it, both directions are in it.
     tlog = mavutil.mavlink_connection(str(out / "flight.tlog"))
-    seen, targets = set(), []
+    seen, targets, vehicle_ms, texts = set(), [], 0, []
     while (m := tlog.recv_match()) is not None:
         seen.add(m.get_type())
         if m.get_type() == "SET_ATTITUDE_TARGET":
             targets.append((m.time_boot_ms, m._timestamp, tuple(m.q), m.thrust))
+        elif m.get_type() == "ATTITUDE":
+            vehicle_ms = max(vehicle_ms, m.time_boot_ms)
+        elif m.get_type() == "STATUSTEXT":
+            texts.append(m.text)
     assert {"HEARTBEAT", "ATTITUDE", "COMMAND_ACK", "COMMAND_LONG", "SET_ATTITUDE_TARGET"} <= seen
+    # Landed and disarmed, the flight is over and the plant's clock holds (--hold-when-landed): it ends within the
+    # ground station's last read of the vehicle's 50 Hz ATTITUDE, not tens of simulated seconds later.
+    assert texts[-1] == "Landed, disarmed", texts
+    simulated = float(re.search(r"plant: ([0-9.]+) s simulated", r.stderr).group(1))
+    assert 0.0 <= simulated - vehicle_ms / 1000.0 < 1.0, (simulated, vehicle_ms)
     # A constant reference goes again at 10 Hz of the vehicle's time at most (every STEADY_SIM once the ground station
     # reads less often for it, and at 10 Hz of wall time while the clock waits on the ground), not 50: the same
     # setpoint every time.
