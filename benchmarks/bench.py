@@ -234,28 +234,69 @@ def bench_costs(r: Report, ping: float) -> None:
 # ---- 3. telemetry fan-out ---------------------------------------------------------------------------
 
 
+class StartedAutopilot:
+    """An autopilot process on free ports (:func:`autopilot_process`); unpacks as (plant port, api port, Zenoh
+    endpoint, process id)."""
+
+    def __init__(self, env: dict[str, str] | None, system_id: int, taken: set[int]) -> None:
+        self.env, self.system_id, self.taken = env, system_id, taken
+        self.attempts = 0
+        self.start()
+
+    def start(self) -> None:
+        picks = []
+        for kind in (socket.SOCK_DGRAM, socket.SOCK_DGRAM, socket.SOCK_STREAM):
+            picks.append(free_port(kind, avoid=self.taken))
+            self.taken.add(picks[-1])
+        self.plant_port, self.api_port, zenoh_port = picks
+        self.endpoint = f"tcp/127.0.0.1:{zenoh_port}"
+        self.proc = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{self.plant_port}",
+                            "--api-listen", f"127.0.0.1:{self.api_port}", "--api-remote", "none", "--gcs-listen",
+                            "127.0.0.1:0", "--gcs-remote", "none", "--zenoh-listen", self.endpoint, "--system-id",
+                            str(self.system_id), env=self.env)  # fmt: skip
+        self.attempts += 1
+
+    def __iter__(self) -> Iterator:
+        return iter((self.plant_port, self.api_port, self.endpoint, self.proc.pid))
+
+    def wait_ready(self, timeout: float = 60.0) -> None:
+        """Until it answers a ground station's heartbeat (started and warmed up). One that exits first is started
+        again on other ports, up to START_ATTEMPTS times in all: another process (a test beside the bench) may
+        bind a picked port before the autopilot does ("Address already in use")."""
+        while True:
+            try:
+                _wait_heartbeat(self.api_port, timeout, alive=lambda: self.proc.poll() is None)
+                return
+            except AutopilotExitedError:
+                if self.attempts >= START_ATTEMPTS:
+                    raise RuntimeError(f"the autopilot exited with status {self.proc.returncode} while starting, "
+                                       f"{self.attempts} times, each on other ports") from None  # fmt: skip
+                self.start()
+
+
+START_ATTEMPTS = 3
+
+
+class AutopilotExitedError(RuntimeError):
+    """The autopilot's process ended before it answered a heartbeat."""
+
+
 @contextlib.contextmanager
 def autopilot_process(workdir: Path, env: dict[str, str] | None = None, system_id: int = 1,
-                      taken: set[int] | None = None) -> Iterator[tuple[int, int, str, int]]:  # fmt: skip
-    """An autopilot on free ports: (plant port, api port, Zenoh endpoint, its process id). :func:`run_plant` with
-    the api port arms it in hold at the start of each run, as a ground station would. (On the ground an autopilot
-    armed in hold idles, as PX4's does, so the control law itself, about 1 µs of a ~100 µs tick, does not run.)
-    ``taken``: ports picked for processes that may not have bound them yet (a fleet's other autopilots), never
-    picked here; this one's are added to it."""
-    taken = set() if taken is None else taken
-    picks = []
-    for kind in (socket.SOCK_DGRAM, socket.SOCK_DGRAM, socket.SOCK_STREAM):
-        picks.append(free_port(kind, avoid=taken))
-        taken.add(picks[-1])
-    plant_port, api_port, zenoh_port = picks
-    endpoint = f"tcp/127.0.0.1:{zenoh_port}"
-    ap = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{plant_port}", "--api-listen",
-                 f"127.0.0.1:{api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
-                 "none", "--zenoh-listen", endpoint, "--system-id", str(system_id), env=env)  # fmt: skip
+                      taken: set[int] | None = None, ready: bool = True) -> Iterator[StartedAutopilot]:  # fmt: skip
+    """An autopilot on free ports, unpacking as (plant port, api port, Zenoh endpoint, its process id), and with
+    ``ready`` started and warmed up (:meth:`StartedAutopilot.wait_ready`; else call it before its ports are used: a
+    fleet's start together). :func:`run_plant` with the api port arms it in hold at the start of each run, as a
+    ground station would. (On the ground an autopilot armed in hold idles, as PX4's does, so the control law
+    itself, about 1 µs of a ~100 µs tick, does not run.) ``taken``: ports picked for processes that may not have
+    bound them yet (a fleet's other autopilots), never picked here; this one's are added to it."""
+    ap = StartedAutopilot(env, system_id, set() if taken is None else taken)
     try:
-        yield plant_port, api_port, endpoint, ap.pid
+        if ready:
+            ap.wait_ready()
+        yield ap
     finally:
-        _stop(ap)
+        _stop(ap.proc)
 
 
 def _arm_in_hold(api_port: int, plant: subprocess.Popen) -> None:
@@ -518,9 +559,10 @@ def _rss_mb(pid: int) -> float:
     return 0.0
 
 
-def _wait_heartbeat(api_port: int, timeout: float = 60.0) -> None:
+def _wait_heartbeat(api_port: int, timeout: float = 60.0, alive: Callable[[], bool] | None = None) -> None:
     """Until the autopilot on ``api_port`` answers a ground station's heartbeat with its own (it is started and
-    warmed up), so that a real-time plant's ticks are not spent waiting for an autopilot still starting."""
+    warmed up), so that a real-time plant's ticks are not spent waiting for an autopilot still starting;
+    :class:`AutopilotExitedError` as soon as ``alive()`` says its process has gone."""
     from pymavlink import mavutil
 
     os.environ.setdefault("MAVLINK20", "1")
@@ -528,6 +570,8 @@ def _wait_heartbeat(api_port: int, timeout: float = 60.0) -> None:
     try:
         end = time.monotonic() + timeout
         while time.monotonic() < end:
+            if alive is not None and not alive():
+                raise AutopilotExitedError(f"the autopilot on port {api_port} exited while starting")
             gcs.mav.heartbeat_send(6, 8, 0, 0, 0)  # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID
             if gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2) is not None:
                 return
@@ -554,6 +598,13 @@ def fifo_scheduling(enabled: bool) -> Iterator[None]:
         os.sched_setscheduler(0, policy, param)
 
 
+def raise_to_fifo(pid: int) -> None:
+    """Every thread of process ``pid`` to SCHED_FIFO at FIFO_PRIORITY (threads it starts later inherit it)."""
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        with contextlib.suppress(ProcessLookupError):  # a thread that has just ended
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+
+
 def fifo_missing() -> str | None:
     """Why this machine cannot run a fleet under SCHED_FIFO (one line), or None when it can."""
     try:
@@ -573,16 +624,21 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
     the fleet's ticks per second (all vehicles' ticks over the wall time from the autopilots' first answers), and
     CPU [% of a core] and memory [MB] per vehicle (its autopilot and its share of the plant process). With a
     ``browser``, the dashboard watches every vehicle, its page open there (the fleet view, for several), as a user
-    watching the fleet would have it; its CPU is not counted in the vehicles'. ``fifo``: the autopilots and the
-    plant run under SCHED_FIFO (:func:`fifo_scheduling`); the dashboard does not (it runs at idle priority)."""
+    watching the fleet would have it; its CPU is not counted in the vehicles'. ``fifo``: the autopilots (raised to it
+    once started: :func:`raise_to_fifo`) and the plant run under SCHED_FIFO (:func:`fifo_scheduling`); the
+    dashboard does not (it runs at idle priority)."""
     with contextlib.ExitStack() as stack:
-        with fifo_scheduling(fifo):
-            # system ids 1..n, as `quadsitl up --vehicles N` gives them (each streams on ticks of its own)
-            taken: set[int] = set()  # every autopilot's ports distinct, picked before any of them binds
-            aps = [stack.enter_context(autopilot_process(workdir, system_id=i + 1, taken=taken)) for i in range(n)]
-        ap_pids = [pid for _, _, _, pid in aps]
-        for _, api, _, _ in aps:
-            _wait_heartbeat(api)
+        # system ids 1..n, as `quadsitl up --vehicles N` gives them (each streams on ticks of its own), all started at
+        # once and then waited for; under the default scheduler, and raised to SCHED_FIFO once started: N start-ups
+        # (imports, compiled code loading) at FIFO priority would take both cores from everything else for seconds
+        taken: set[int] = set()  # every autopilot's ports distinct, picked before any of them binds
+        aps = [stack.enter_context(autopilot_process(workdir, system_id=i + 1, taken=taken, ready=False))
+               for i in range(n)]  # fmt: skip
+        for ap in aps:
+            ap.wait_ready()
+            if fifo:
+                raise_to_fifo(ap.proc.pid)
+        ap_pids = [ap.proc.pid for ap in aps]
         if browser is not None:
             stack.enter_context(dashboard_page(browser, [endpoint for _, _, endpoint, _ in aps]))
         stats = workdir / f"fleet-{n}-{mode}-{time.monotonic_ns()}.json"

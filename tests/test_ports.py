@@ -136,8 +136,29 @@ def test_a_benchs_fleet_gives_every_autopilot_ports_of_its_own(monkeypatch, tmp_
     monkeypatch.setattr(bench, "_python", lambda *args, **kw: started.append(args) or SimpleNamespace(pid=0))
     monkeypatch.setattr(bench, "_stop", lambda proc: None)
     taken: set[int] = set()
-    with (bench.autopilot_process(tmp_path, system_id=1, taken=taken) as first,
-          bench.autopilot_process(tmp_path, system_id=2, taken=taken) as second):  # fmt: skip
+    with (bench.autopilot_process(tmp_path, system_id=1, taken=taken, ready=False) as first,
+          bench.autopilot_process(tmp_path, system_id=2, taken=taken, ready=False) as second):  # fmt: skip
         ports = [p for plant, api, zenoh, _ in (first, second) for p in (plant, api, int(zenoh.rsplit(":", 1)[1]))]
     assert sorted(ports) == list(range(base, base + 6)) and taken == set(ports)
     assert len(started) == 2
+
+
+def test_a_benchs_autopilot_whose_port_was_bound_meanwhile_starts_again_on_others(monkeypatch, tmp_path):
+    """Another process (a test beside the bench) may bind a port between the bench's pick and the autopilot's bind:
+    the autopilot exits ("Address already in use"), and the bench starts it again on other ports."""
+    from benchmarks import bench
+
+    with socket.socket() as other:
+        other.bind(("127.0.0.1", 0))
+        other.listen()
+        busy = other.getsockname()[1]
+        picks = []
+
+        def pick(kind: int = socket.SOCK_DGRAM, avoid=()) -> int:
+            picks.append(kind)
+            return busy if len(picks) == 3 else free_port(kind, avoid=avoid)  # the first start's Zenoh port
+
+        monkeypatch.setattr(bench, "free_port", pick)
+        with bench.autopilot_process(tmp_path) as ap:
+            assert ap.attempts == 2 and len(picks) == 6 and ap.proc.poll() is None
+            assert ap.endpoint != f"tcp/127.0.0.1:{busy}" and busy in ap.taken
