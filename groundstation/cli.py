@@ -311,6 +311,7 @@ EXAMPLES_UP = """examples:
   quadsitl up --mode realtime                   # free-running plant on the wall clock
   quadsitl up --gcs-remote 192.168.1.20:14550   # stream to a ground station on another machine
   quadsitl up --vehicles 2 --zenoh-connect tcp/192.168.1.20:7447   # telemetry through a router there
+  quadsitl up --vehicles 2 --zenoh-connect tls/router.lan:7447 --zenoh-config client-tls.json5   # over TLS
   quadsitl up --dashboard                       # and the live dashboard at http://127.0.0.1:8050
 """
 
@@ -352,6 +353,22 @@ def cmd_up(args: argparse.Namespace) -> int:
     return up(preset, args, fleet)
 
 
+def check_zenoh_config(option: str, path: str) -> str:
+    """A Zenoh JSON5 configuration file that Zenoh reads → its absolute path (the processes that open it may run
+    elsewhere); a UsageError naming the option, the file and Zenoh's complaint otherwise."""
+    import zenoh
+
+    file = Path(path)
+    if not file.is_file():
+        raise UsageError(f"{option} {path}: no such file (a Zenoh JSON5 configuration: see docs/security.md)")
+    try:
+        zenoh.Config.from_file(str(file))
+    except zenoh.ZError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "not a Zenoh configuration"
+        raise UsageError(f"{option} {path}: Zenoh cannot read it: {first}") from None
+    return str(file.resolve())
+
+
 def zenoh_and_addresses(args: argparse.Namespace) -> None:
     """``up`` across machines: the Zenoh endpoints checked and resolved (the first autopilot listens on
     tcp/127.0.0.1:7447 unless the vehicles connect to a router instead), and a MAVLink link that streams to
@@ -360,6 +377,10 @@ def zenoh_and_addresses(args: argparse.Namespace) -> None:
     from groundstation.fleet import API_LISTEN, GCS_LISTEN, address_toward
     from groundstation.router import router_reachable
 
+    if args.zenoh_config is not None:
+        if args.no_zenoh:
+            raise UsageError(f"--zenoh-config {args.zenoh_config} with --no-zenoh: expected one or the other")
+        args.zenoh_config = check_zenoh_config("--zenoh-config", args.zenoh_config)
     for text in args.zenoh_connect:
         if args.no_zenoh or args.zenoh_listen:
             other = "--no-zenoh" if args.no_zenoh else f"--zenoh-listen {args.zenoh_listen}"
@@ -545,6 +566,10 @@ the source, or 'mkdocs serve' there.""",
     upp.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
                      help="instead: every vehicle's Zenoh sessions are clients of this router, on this host or "
                      "another (`quadsitl router`, started first; repeatable), e.g. tcp/10.0.0.2:7447")  # fmt: skip
+    upp.add_argument("--zenoh-config", metavar="FILE",
+                     help="a Zenoh JSON5 configuration for every session up opens (the vehicles', the plant's, the "
+                     "dashboard's): TLS and access control, e.g. for a router that requires them (docs/security.md); "
+                     "--zenoh-listen and --zenoh-connect replace its endpoints")  # fmt: skip
     upp.add_argument("--no-zenoh", action="store_true", help="no Zenoh telemetry")
     add_dashboard_arguments(upp)
     upp.add_argument("--quiet", "-q", action="store_true", help="print only errors")

@@ -84,15 +84,18 @@ def address_toward(option: str, remote: str) -> str:
         return sock.getsockname()[0]
 
 
-def zenoh_argv(index: int, listen: str | None, routers: Sequence[str], autopilot: bool) -> list[str]:
+def zenoh_argv(index: int, listen: str | None, routers: Sequence[str], autopilot: bool, config: str | None = None
+               ) -> list[str]:  # fmt: skip
     """The Zenoh options of vehicle ``index``'s autopilot (or plant) in ``up``. On one host, the first autopilot
     listens on ``listen`` and every other session connects to it (peers then find each other). With ``routers``
     (``--zenoh-connect``, on this host or another) every session is instead a Zenoh client of the router: all
     its telemetry goes through the router's one port, as a firewall between hosts wants (a peer would also try
-    direct connections to the other peers, on ports of their own)."""
+    direct connections to the other peers, on ports of their own). ``config``: a Zenoh configuration file every
+    session also takes (TLS, access control; the endpoints given here replace its own)."""
+    extra = ["--zenoh-config", config] if config else []
     if routers:
-        return ["--zenoh-mode", "client", *(arg for r in routers for arg in ("--zenoh-connect", r))]
-    return ["--zenoh-listen" if autopilot and index == 0 else "--zenoh-connect", listen] if listen else []
+        return ["--zenoh-mode", "client", *(arg for r in routers for arg in ("--zenoh-connect", r)), *extra]
+    return [*(["--zenoh-listen" if autopilot and index == 0 else "--zenoh-connect", listen] if listen else []), *extra]
 
 
 def check_vehicle_count(n: int) -> None:

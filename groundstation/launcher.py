@@ -131,12 +131,15 @@ def dashboard_port(port: int) -> int:
     return port
 
 
-def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout: float = 60.0) -> str:
-    """Start ``quadsitl dashboard`` on ``port`` subscribed to ``zenoh_endpoint``; returns its URL once it
-    accepts connections. A dashboard that exits fails at once; one that is alive gets ``timeout`` seconds: it runs
-    at idle priority, so while a fleet's 2N processes load on a busy machine it may wait long for a core."""
+def start_dashboard(children: Children, port: int, zenoh_endpoint: str, timeout: float = 60.0,
+                    zenoh_config: str | None = None) -> str:  # fmt: skip
+    """Start ``quadsitl dashboard`` on ``port`` subscribed to ``zenoh_endpoint`` (with the Zenoh configuration
+    file ``zenoh_config``, if any); returns its URL once it accepts connections. A dashboard that exits fails at
+    once; one that is alive gets ``timeout`` seconds: it runs at idle priority, so while a fleet's 2N processes load
+    on a busy machine it may wait long for a core."""
+    config = ["--zenoh-config", zenoh_config] if zenoh_config else []
     children.start("dashboard", ["groundstation.dashboard.server", "--port", str(port), "--zenoh-connect",
-                                 zenoh_endpoint, "--quiet"])  # fmt: skip
+                                 zenoh_endpoint, *config, "--quiet"])  # fmt: skip
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         if children.procs["dashboard"].poll() is not None:
@@ -177,7 +180,8 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
             if args.no_zenoh:
                 ap.append("--no-zenoh")
             else:  # the first vehicle's session listens, the others connect to it (and find each other), or a router
-                ap += ["--vehicle", v.name, *zenoh_argv(v.index, args.zenoh_listen, args.zenoh_connect, True)]
+                ap += ["--vehicle", v.name, *zenoh_argv(v.index, args.zenoh_listen, args.zenoh_connect, True,
+                                                        args.zenoh_config)]  # fmt: skip
             children.start("autopilot" + named, ap)
             plant += ["--autopilot", f"127.0.0.1:{plant_port}", "--vehicle", v.name, *home]
             if v.preset != args.preset:
@@ -188,10 +192,13 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
             plant += ["--impair", args.impair]
         plant += wind_argv(args) + state_argv(args)
         if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
-            plant += zenoh_argv(0, args.zenoh_listen, args.zenoh_connect, autopilot=False)
+            plant += zenoh_argv(0, args.zenoh_listen, args.zenoh_connect, False, args.zenoh_config)
         children.start("plant", plant + (["--quiet"] if args.quiet else []))
-        info = None if args.no_zenoh else publish_info(fleet, zenoh_endpoint(args), client=bool(args.zenoh_connect))
-        url = start_dashboard(children, web_port, zenoh_endpoint(args)) if web_port is not None else None
+        info = None if args.no_zenoh else publish_info(fleet, zenoh_endpoint(args), bool(args.zenoh_connect),
+                                                       args.zenoh_config)  # fmt: skip
+        url = None
+        if web_port is not None:
+            url = start_dashboard(children, web_port, zenoh_endpoint(args), zenoh_config=args.zenoh_config)
         if not args.quiet:
             print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
         while True:
@@ -220,12 +227,12 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
         children.stop()
 
 
-def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False):
+def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False, config_file: str | None = None):
     """Every vehicle's ``quadsitl/<vehicle>/info`` (system id, home, preset; groundstation.vehicle_info), put
     once a second from a Zenoh session of the launcher's own connected to ``endpoint`` (the first autopilot's,
     or with ``client`` a router's, whose client it then is, as the vehicles' sessions are), so that a dashboard
-    anywhere on that Zenoh network places the fleet on one map. None, with a warning, when the session does not
-    open: the vehicles fly on without it."""
+    anywhere on that Zenoh network places the fleet on one map (``config_file``: the vehicles' Zenoh configuration,
+    TLS for one). None, with a warning, when the session does not open: the vehicles fly on without it."""
     import zenoh
 
     from groundstation.vehicle_info import InfoPublisher, encode_info
@@ -234,7 +241,7 @@ def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False):
     docs = {v.name: encode_info(v.system_id, v.home, Path(v.preset).stem, len(fleet)) for v in fleet}
     session = None
     try:
-        session = zenoh.open(zenoh_config("client" if client else "peer", connect=[endpoint]))
+        session = zenoh.open(zenoh_config("client" if client else "peer", connect=[endpoint], config_file=config_file))
         return InfoPublisher(session, docs)
     except zenoh.ZError as exc:
         if session is not None:
@@ -335,7 +342,8 @@ def zenoh_where(args) -> str:
     """The banner's Zenoh endpoints: the first autopilot's listener and the routers the sessions connect to."""
     routers = getattr(args, "zenoh_connect", None) or []
     via = f"through the router at {', '.join(routers)}" if routers else ""
-    return " and ".join(w for w in (args.zenoh_listen, via) if w)
+    config = getattr(args, "zenoh_config", None)
+    return " and ".join(w for w in (args.zenoh_listen, via) if w) + (f" (configuration {config})" if config else "")
 
 
 def describe_wind(w: WindParams) -> str:

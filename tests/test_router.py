@@ -168,6 +168,13 @@ def test_with_a_router_every_session_is_its_client():
         assert zenoh_argv(index, None, ["tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447"], autopilot) == [
             "--zenoh-mode", "client", "--zenoh-connect", "tcp/10.0.0.2:7447", "--zenoh-connect", "tcp/10.0.0.3:7447"
         ]  # fmt: skip
+    # up --zenoh-config: every session takes the file as well, its endpoints replaced by these
+    assert zenoh_argv(1, None, ["tls/10.0.0.2:7447"], True, "/etc/tls.json5") == [
+        "--zenoh-mode", "client", "--zenoh-connect", "tls/10.0.0.2:7447", "--zenoh-config", "/etc/tls.json5"
+    ]  # fmt: skip
+    assert zenoh_argv(0, "tcp/127.0.0.1:7447", [], True, "/etc/tls.json5") == [
+        "--zenoh-listen", "tcp/127.0.0.1:7447", "--zenoh-config", "/etc/tls.json5"
+    ]  # fmt: skip
 
 
 def test_the_fleet_banner_says_where_each_client_runs_when_it_is_another_host():

@@ -1,18 +1,21 @@
 """Zenoh with TLS and access control, through Zenoh's own configuration files (docs/zenoh/): telemetry
 still flows to a subscriber that trusts the CA, and not to one that does not."""
 
+import json
 import shutil
 import socket
 import subprocess
 import sys
 import threading
 import time
+import urllib.request
 from pathlib import Path
 
 import pytest
 import zenoh
 
 from groundstation.launcher import free_port
+from tests.mavclient import free_ports
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "zenoh"
 
@@ -79,3 +82,83 @@ def test_telemetry_flows_over_tls_with_access_control_and_not_to_an_untrusting_s
     untrusted = tmp / "untrusted.json5"
     untrusted.write_text(trusted.read_text().replace('root_ca_certificate: "certs/ca.pem"', ""))
     assert received(untrusted, tmp, 2.0) == 0
+
+
+@pytest.mark.timeout(180)
+def test_up_flies_a_fleet_through_a_tls_router_with_its_configuration(tmp_path):
+    """``up --zenoh-config``: every session up opens takes the file (here: trust the CA of a router that speaks only
+    TLS), the vehicles', the plant's, the vehicle info's and the dashboard's alike."""
+    from tests.test_router import start_router, stop
+
+    if shutil.which("openssl") is None:
+        pytest.fail("openssl is needed to make the test certificates (./scripts/test installs it)")
+    subprocess.run(["sh", str(DOCS / "make-certs.sh"), str(tmp_path / "certs")], check=True, capture_output=True)
+    port = free_port(socket.SOCK_STREAM)
+    router_conf = config(DOCS / "router-tls.json5", tmp_path / "router.json5", port)
+    client_conf = config(DOCS / "subscriber-tls.json5", tmp_path / "client.json5", port)
+    for conf in (router_conf, client_conf):  # absolute certificate paths: the processes start elsewhere
+        conf.write_text(conf.read_text().replace('"certs/', f'"{tmp_path}/certs/'))
+    endpoint = f"tls/localhost:{port}"
+    router, banner = start_router("--zenoh-config", str(router_conf))
+    assert f"listening on {endpoint}" in banner, banner
+    taken: set[int] = set()
+    gcs, api = free_ports(1, taken=taken), free_ports(2, taken=taken)
+    gcs_listen, api_listen = free_ports(2, taken=taken), free_ports(2, taken=taken)
+    up = subprocess.Popen([sys.executable, "-m", "groundstation.cli", "up", "--vehicles", "2", "--zenoh-connect",
+                           endpoint, "--zenoh-config", str(client_conf), "--gcs-listen", f"127.0.0.1:{gcs_listen}",
+                           "--gcs-remote", f"127.0.0.1:{gcs}", "--api-listen", f"127.0.0.1:{api_listen}",
+                           "--api-remote", f"127.0.0.1:{api}", "--dashboard", "--dashboard-port", "0"],
+                          stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        text = ""
+        while not text.endswith("  Ctrl-C stops.\n"):
+            line = up.stdout.readline()
+            assert line, f"up ended before its banner (status {up.wait()}): {text}"
+            text += line
+        assert f"through the router at {endpoint} (configuration {client_conf})" in text, text
+        url = text.split("  dashboard:       ")[1].split()[0]
+        names: set[str] = set()
+        session = zenoh.open(zenoh.Config.from_file(str(client_conf)))  # a subscriber that trusts the CA, via TLS
+        try:
+            sub = session.declare_subscriber("quadsitl/*/state", lambda s: names.add(str(s.key_expr)))
+            end = time.monotonic() + 60
+            while len(names) < 2 and time.monotonic() < end and up.poll() is None:
+                time.sleep(0.1)
+            sub.undeclare()
+        finally:
+            session.close()
+        assert names == {"quadsitl/v1/state", "quadsitl/v2/state"}
+        listed: list[str] = []  # the dashboard, through the router over TLS as well (it runs at idle priority)
+        end = time.monotonic() + 30
+        while len(listed) < 2 and time.monotonic() < end:
+            with urllib.request.urlopen(f"{url}api/vehicles", timeout=5) as r:
+                listed = sorted(v["name"] for v in json.load(r)["vehicles"])
+            time.sleep(0.2)
+        assert listed == ["v1", "v2"]
+    finally:
+        assert stop(up) == 0
+        stop(router)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["--zenoh-config", "missing.json5"],
+            "--zenoh-config missing.json5: no such file (a Zenoh JSON5 configuration: see docs/security.md)",
+        ),
+        (["--zenoh-config", "bad.json5"], "--zenoh-config bad.json5: Zenoh cannot read it: "),
+        (
+            ["--zenoh-config", "good.json5", "--no-zenoh"],
+            "--zenoh-config good.json5 with --no-zenoh: expected one or the other",
+        ),
+    ],
+)
+def test_up_refuses_a_zenoh_configuration_it_cannot_use_before_anything_starts(tmp_path, argv, message):
+    (tmp_path / "bad.json5").write_text("{ mode: [unclosed")
+    (tmp_path / "good.json5").write_text('{ mode: "peer" }')
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "up", *argv], capture_output=True, text=True,
+                       timeout=60, cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 2 and r.stdout == ""
+    (line,) = r.stderr.strip().splitlines()
+    assert line.startswith(f"quadsitl up: error: {message}"), line
