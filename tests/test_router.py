@@ -42,6 +42,16 @@ def stop(proc: subprocess.Popen) -> int:
     return proc.returncode
 
 
+def read_banner(up: subprocess.Popen) -> str:
+    """``quadsitl up``'s banner from its stdout, up to its last line."""
+    banner = ""
+    while not banner.endswith("  Ctrl-C stops.\n"):
+        line = up.stdout.readline()
+        assert line, f"up ended before its banner (status {up.wait()}): {banner}"
+        banner += line
+    return banner
+
+
 def client_session(endpoint: str):
     import zenoh
 
@@ -132,11 +142,7 @@ def test_a_vehicle_of_up_sends_its_telemetry_through_a_router():
                            "--dashboard", "--dashboard-port", "0"], stdout=subprocess.PIPE, text=True)  # fmt: skip
     names: set[str] = set()
     try:
-        banner = ""
-        while not banner.endswith("  Ctrl-C stops.\n"):
-            line = up.stdout.readline()
-            assert line, f"up ended before its banner (status {up.wait()}): {banner}"
-            banner += line
+        banner = read_banner(up)
         assert f"  telemetry:       Zenoh through the router at {endpoint}, keys quadsitl/v1/" in banner, banner
         url = banner.split("  dashboard:       ")[1].split()[0]
         with client_session(endpoint) as session:

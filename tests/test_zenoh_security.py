@@ -88,7 +88,7 @@ def test_telemetry_flows_over_tls_with_access_control_and_not_to_an_untrusting_s
 def test_up_flies_a_fleet_through_a_tls_router_with_its_configuration(tmp_path):
     """``up --zenoh-config``: every session up opens takes the file (here: trust the CA of a router that speaks only
     TLS), the vehicles', the plant's, the vehicle info's and the dashboard's alike."""
-    from tests.test_router import start_router, stop
+    from tests.test_router import read_banner, start_router, stop
 
     if shutil.which("openssl") is None:
         pytest.fail("openssl is needed to make the test certificates (./scripts/test installs it)")
@@ -110,11 +110,7 @@ def test_up_flies_a_fleet_through_a_tls_router_with_its_configuration(tmp_path):
                            "--api-remote", f"127.0.0.1:{api}", "--dashboard", "--dashboard-port", "0"],
                           stdout=subprocess.PIPE, text=True)  # fmt: skip
     try:
-        text = ""
-        while not text.endswith("  Ctrl-C stops.\n"):
-            line = up.stdout.readline()
-            assert line, f"up ended before its banner (status {up.wait()}): {text}"
-            text += line
+        text = read_banner(up)
         assert f"through the router at {endpoint} (configuration {client_conf})" in text, text
         url = text.split("  dashboard:       ")[1].split()[0]
         names: set[str] = set()
