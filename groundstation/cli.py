@@ -311,7 +311,7 @@ EXAMPLES_UP = """examples:
   quadsitl up --mode realtime                   # free-running plant on the wall clock
   quadsitl up --gcs-remote 192.168.1.20:14550   # stream to a ground station on another machine
   quadsitl up --vehicles 2 --zenoh-connect tcp/192.168.1.20:7447   # telemetry through a router there
-  quadsitl up --vehicles 2 --zenoh-connect tls/router.lan:7447 --zenoh-config client-tls.json5   # over TLS
+  quadsitl up --vehicles 2 --zenoh-connect tls/router.lan:7447 --zenoh-config subscriber-tls.json5   # over TLS
   quadsitl up --dashboard                       # and the live dashboard at http://127.0.0.1:8050
 """
 
