@@ -1,0 +1,86 @@
+"""The real-time plant's clock (:func:`sitl.process.run_realtime`) counts an autopilot's answer by when it came, not
+by when the plant got round to reading it: an answer waiting in the plant's socket when the period ends is taken
+before the step, even when the plant's own wake-up came late (the scheduler ran something else)."""
+
+from __future__ import annotations
+
+import socket
+
+import numpy as np
+import pytest
+
+from quadsitl import wire
+from sitl import process
+
+
+def answer_every_state(ap: socket.socket, forces: tuple[float, ...], max_thrust: float) -> int:
+    """What an autopilot does: each state datagram waiting on ``ap`` answered with ``forces`` [N], stamped with the
+    state's time; the number answered."""
+    rx = np.zeros(65535, dtype=np.uint8)
+    tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    decoded = np.zeros(wire.DECODED_SIZE)
+    answered = 0
+    while True:
+        try:
+            n, sender = ap.recvfrom_into(rx)
+        except BlockingIOError:
+            return answered
+        stamp = wire.decode_state(rx, n, decoded)
+        assert stamp >= 0
+        m = wire.encode_actuators(tx, 0, 1, 1, stamp, forces, max_thrust, True)
+        ap.sendto(tx[:m].tobytes(), sender)
+        answered += 1
+
+
+@pytest.mark.parametrize("vehicles", [1, 3])
+def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late(monkeypatch, vehicles):
+    aps = []
+    for _ in range(vehicles):
+        ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        ap.bind(("127.0.0.1", 0))
+        ap.setblocking(False)
+        aps.append(ap)
+    argv = ["--preset", "paper", "--mode", "realtime"]
+    for ap in aps:
+        argv += ["--autopilot", f"127.0.0.1:{ap.getsockname()[1]}"]
+    fleet = process.fleet_from_args(process.build_parser().parse_args(argv))
+    max_thrust = fleet[0].link.max_thrust
+    forces = (0.3 * max_thrust, 0.31 * max_thrust, 0.32 * max_thrust, 0.33 * max_thrust)
+    process.warm_up(fleet[0].plant)  # compiled code loaded before the clock starts, the plant's and ...
+    scratch = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    wire.decode_state(
+        scratch, wire.encode_state(scratch, 0, 1, 1, 0, np.zeros(wire.DECODED_SIZE)), np.zeros(wire.DECODED_SIZE)
+    )
+    wire.encode_actuators(scratch, 0, 1, 1, 0, forces, max_thrust, True)  # ... the answering autopilot's
+    real = process.receive_within
+    overslept = []
+
+    def late_wake(vs, seconds, socks):
+        """The period's wait as a plant descheduled past its end: every autopilot answers at once (well within the
+        period), and the plant wakes only after the period is over, without having read the answers. (A tick that
+        starts late has no wait before its period ends: only the plant's reading after it.)"""
+        for ap in aps:
+            answer_every_state(ap, forces, max_thrust)
+        if seconds <= 0.0:
+            real(vs, seconds, socks)
+            return
+        overslept.append(seconds)
+        deadline = process.time.monotonic() + seconds + 2e-5
+        while process.time.monotonic() < deadline:
+            pass
+
+    monkeypatch.setattr(process, "receive_within", late_wake)
+    try:
+        ticks = 20
+        assert process.run_realtime(fleet, ticks) == ticks
+        assert overslept  # periods whose wait overslept (each makes the next tick late: on a quiet machine most)
+        for v in fleet:
+            # tick 0's answer counts from the start (the autopilot is heard from then on); every period answered
+            assert (v.answered, v.late) == (ticks, 0), v.name
+            assert np.allclose(v.plant.commanded, forces)  # the answer was flown, not the previous command
+            assert v.link.io[process.tick.LAST_USEC] == wire.usec_of(ticks - 1, v.plant.period)
+    finally:
+        for v in fleet:
+            v.link.close()
+        for ap in aps:
+            ap.close()
