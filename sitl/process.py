@@ -505,7 +505,7 @@ def run_realtime(
             receive_within(vehicles, remaining, socks)
         # What came before the period ended is taken now, without waiting: a plant whose own wake-up came late (the
         # scheduler ran something else) would otherwise leave an answer that came in time in its socket, fly the
-        # last command and count the period as missed by the autopilot (in a fleet of 4, 1.6-50 % of the periods)
+        # last command and count the period as missed by the autopilot
         receive_within(vehicles, 0.0, socks)
         want = wire.usec_of(k, period)
         for v in vehicles:
