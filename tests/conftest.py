@@ -1,6 +1,7 @@
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -23,18 +24,18 @@ def run_cli(*args: str, timeout: float = 120, module: str | None = None) -> subp
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
 
 
-@pytest.fixture(scope="session", autouse=True)
-def compiled():
-    """Compile every per-tick function into numba's cache once, before the processes the tests start need it
-    (a fresh checkout has no cache: each process would otherwise compile on its own, several at a time)."""
+def _warm_the_autopilot() -> None:
     from autopilot.tick import warm_up
+
+    warm_up()
+
+
+def _warm_the_plant() -> None:
     from quadsitl.config import load_preset
     from sitl import process
     from sitl.plant import Plant
 
-    warm_up()
     process.warm_up(Plant(load_preset("paper")))
-    _warm_the_autopilots_loop()
 
 
 def _warm_the_autopilots_loop() -> None:
@@ -53,6 +54,62 @@ def _warm_the_autopilots_loop() -> None:
             plant_loop.warm_up(ap.tick_arguments())
         finally:
             ap.close()
+
+
+# What the session compiles into numba's cache, in parts: (name, what it needs in the cache first, how). The
+# autopilot's loop calls its tick: compiled after it, it takes the tick from the cache instead of compiling it again.
+WARM_PARTS = (
+    ("autopilot", (), _warm_the_autopilot),
+    ("plant", (), _warm_the_plant),
+    ("autopilot-loop", ("autopilot",), _warm_the_autopilots_loop),
+)
+
+
+def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.1) -> list[str]:
+    """Compile ``parts`` into numba's cache, each once among the pytest-xdist workers that share the directory
+    ``shared``: a worker takes a part nobody has taken whose needs are done (worker ``worker`` starts with the part
+    of that index, so two workers start on different parts), marks it done, and returns once every part is done.
+    Returns the parts this worker compiled (or loaded from a cache already warm)."""
+    import fcntl
+
+    mine: list[str] = []
+    first = worker % len(parts)
+    order = [*parts[first:], *parts[:first]]
+    while True:
+        done = {name for name, _, _ in parts if (shared / f"{name}.done").exists()}
+        if len(done) == len(parts):
+            return mine
+        for name, needs, warm in order:
+            if name in done or not set(needs) <= done:
+                continue
+            with open(shared / f"{name}.lock", "w") as lock:
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    continue  # another worker is on it
+                if not (shared / f"{name}.done").exists():
+                    warm()
+                    mine.append(name)
+                    (shared / f"{name}.done").touch()
+            break
+        else:
+            time.sleep(poll)  # every part left is taken, or waits on one that is
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compiled(tmp_path_factory):
+    """Compile every per-tick function into numba's cache once, before the processes the tests start need it
+    (a fresh checkout has no cache: each process would otherwise compile on its own, several at a time). Under
+    pytest-xdist the workers share the parts (:func:`warm_among_workers`): on a 2-core guest each worker spent about 110
+    s compiling everything, and both now wait about 70 s (the autopilot's tick alone is about 60 s)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker is None:
+        for _, _, warm in WARM_PARTS:
+            warm()
+        return
+    shared = tmp_path_factory.getbasetemp().parent / "numba-warm"  # the run's, common to its workers
+    shared.mkdir(exist_ok=True)
+    warm_among_workers(WARM_PARTS, shared, int(worker.removeprefix("gw")))
 
 
 @pytest.fixture
