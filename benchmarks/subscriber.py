@@ -18,9 +18,9 @@ from quadsitl import telemetry
 def main(endpoint: str, vehicle: str, nice: int) -> None:
     if nice:
         os.nice(nice)
-    # SIGTERM blocked before Zenoh starts its threads (they inherit the mask) and taken by sigwait below: a handler
-    # would run only if the kernel delivered the signal to the main thread, and delivered to one of Zenoh's it left
-    # the main thread waiting for ever (a subscriber gave no result in 2 of about 10 fan-out runs)
+    # SIGTERM blocked before Zenoh starts its threads (they inherit the mask) and taken by sigwait below, which needs
+    # no Python handler and takes it whichever thread the kernel would have picked: a subscriber waiting on an Event
+    # for its handler gave no result within 20 s in 2 of about 20 fan-out runs (never caught in the act)
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
     conf = telemetry.zenoh_config("peer", connect=[endpoint])
     session = zenoh.open(conf)
