@@ -373,6 +373,7 @@ def run_stoppable(main: Callable[[], int], stopped: int | None = 0) -> int:
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 FORCE_AFTER = 2.0  # [s] a second stop signal later than this after the first interrupts the clean-up too
+LOST_STOP_AGAIN = 0.005  # [s] when a stop request raised where Python drops exceptions is raised again
 _stop_requested_at: float | None = None
 
 
@@ -399,6 +400,28 @@ def handle_stop_signals() -> None:
 
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)
+    lost: list[int] = []
+    previous = sys.unraisablehook
+
+    def unraisable(info: object) -> None:
+        """A StopRequested raised where Python cannot raise (a finalizer, a ctypes callback: llvmlite's while numba
+        loads compiled code) is only printed and dropped: the process went on as if never asked to stop. It is
+        raised again a moment later, from SIGALRM, where the main thread then is."""
+        exc = getattr(info, "exc_value", None)
+        if isinstance(exc, StopRequested):
+            lost.append(exc.signum)
+            signal.setitimer(signal.ITIMER_REAL, LOST_STOP_AGAIN)
+            return
+        previous(info)
+
+    def again(_signum: int, _frame: object) -> None:
+        if lost:
+            signum = lost.pop()
+            lost.clear()
+            raise StopRequested(signum)
+
+    signal.signal(signal.SIGALRM, again)
+    sys.unraisablehook = unraisable
 
 
 def die_with_parent() -> None:

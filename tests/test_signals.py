@@ -172,3 +172,36 @@ def test_a_stop_that_main_did_not_catch_ends_the_process_quietly():
     assert run_stoppable(starting_up) == 0  # a command that runs until stopped
     assert run_stoppable(starting_up, stopped=None) == 143  # a job cut short: 128 + SIGTERM
     assert run_stoppable(lambda: 7) == 7
+
+
+LOST_STOP = """
+import os, signal, sys, time
+from quadsitl.process_util import handle_stop_signals, run_stoppable
+
+class Finalized:
+    def __del__(self):  # Python prints and drops what a finalizer raises (llvmlite's do, while numba loads code)
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(1000):  # the handler runs here, inside the finalizer
+            pass
+
+def main():
+    handle_stop_signals()
+    Finalized()
+    time.sleep(10)  # not reached: the stop is raised again where the main thread is
+    return 3
+
+sys.exit(run_stoppable(main, stopped=None))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_raised_where_python_drops_exceptions_is_raised_again(sig):
+    """A stop signal whose StopRequested lands in a finalizer or a ctypes callback (an autopilot stopped while numba
+    loaded its compiled code: it went on running, and a test's 10 s wait for its exit ran out) still stops the
+    process, at once and with the signal's status, and without an 'Exception ignored' line."""
+    code = LOST_STOP.replace("signal.SIGTERM", f"signal.{sig.name}")
+    started = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert time.monotonic() - started < 8.0, "the stop was lost: the process slept on"
+    assert r.returncode == 128 + sig, (r.returncode, r.stderr)
+    assert "Exception ignored" not in r.stderr and "Traceback" not in r.stderr, r.stderr
