@@ -1,6 +1,7 @@
 """The real-time plant's clock (:func:`sitl.process.run_realtime`) counts an autopilot's answer by when it came, not
-by when the plant got round to reading it: an answer waiting in the plant's socket when the period ends is taken
-before the step, even when the plant's own wake-up came late (the scheduler ran something else)."""
+by when the plant got round to reading it: the plant sleeps through each period and takes every answer waiting in
+its sockets when the period ends, before the step, even when its own wake-up came late (the scheduler ran something
+else)."""
 
 from __future__ import annotations
 
@@ -52,24 +53,20 @@ def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late
         scratch, wire.encode_state(scratch, 0, 1, 1, 0, np.zeros(wire.DECODED_SIZE)), np.zeros(wire.DECODED_SIZE)
     )
     wire.encode_actuators(scratch, 0, 1, 1, 0, forces, max_thrust, True)  # ... the answering autopilot's
-    real = process.receive_within
+    real_sleep_until = process.sleep_until
     overslept = []
 
-    def late_wake(vs, seconds, socks):
+    def late_wake(deadline):
         """The period's wait as a plant descheduled past its end: every autopilot answers at once (well within the
-        period), and the plant wakes only after the period is over, without having read the answers. (A tick that
-        starts late has no wait before its period ends: only the plant's reading after it.)"""
+        period), and the plant wakes only after the period is over. (A tick that starts late has no wait before its
+        period ends: only the plant's reading after it.)"""
         for ap in aps:
             answer_every_state(ap, forces, max_thrust)
-        if seconds <= 0.0:
-            real(vs, seconds, socks)
-            return
-        overslept.append(seconds)
-        deadline = process.time.monotonic() + seconds + 2e-5
-        while process.time.monotonic() < deadline:
-            pass
+        if deadline > process.time.monotonic():
+            overslept.append(deadline)
+        real_sleep_until(deadline + 2e-5)
 
-    monkeypatch.setattr(process, "receive_within", late_wake)
+    monkeypatch.setattr(process, "sleep_until", late_wake)
     try:
         ticks = 20
         assert process.run_realtime(fleet, ticks) == ticks
