@@ -34,12 +34,11 @@ import numpy as np
 from autopilot import tick as kernel
 from quadsitl import fastio
 from quadsitl.jit import jit
-from quadsitl.process_util import LONG_AFTER
 
 TICKED, STRANGER, DUE, QUIET, SENT = 0, 1, 2, 3, 4
 # stats (int64): ticks answered here, the waits (quadsitl.fastio.receive's counts), the last tick's duration [ns].
-ANSWERED, TICK_NS, STATS_SIZE = 0, 6, 7
-POLLED, LATE, BLOCKED, SHORT, LONG = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fastio.SHORT, fastio.LONG
+ANSWERED, TICK_NS, STATS_SIZE = 0, 5, 6
+POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fastio.SHORT
 NO_LIMIT = np.iinfo(np.int64).max
 
 if fastio.AVAILABLE:
@@ -112,11 +111,7 @@ if fastio.AVAILABLE:
             stats[TICK_NS] = end - now
             if flags != kernel.ANSWER:
                 return SENT, n, flags
-            if (
-                end >= deadline_ns
-                or (not polling and stats[SHORT] == hot_after)
-                or (polling and stats[LONG] >= LONG_AFTER)
-            ):
+            if end >= deadline_ns or (not polling and stats[SHORT] == hot_after):
                 return DUE, -1, 0
 
 

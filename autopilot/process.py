@@ -359,7 +359,7 @@ class Autopilot:
         ``next_poll`` or before, a quiet plant), and do it."""
         wait, stats = self.plant_wait, self.loop_stats
         stats[:] = 0
-        stats[plant_loop.SHORT], stats[plant_loop.LONG] = wait.short, wait.long
+        stats[plant_loop.SHORT] = wait.short
         polling = wait.polling()
         deadline = min(next_poll, self.last_flush + BATCH_WALL if self.io[kernel.ROWS] else next_poll)
         limit = plant_loop.NO_LIMIT if self.pace is None else self.pace.free_until(self._offboard())
@@ -370,8 +370,7 @@ class Autopilot:
         )  # fmt: skip
         wall = time.monotonic()
         wait.tally(int(stats[plant_loop.POLLED]), int(stats[plant_loop.LATE]), polling and status == plant_loop.QUIET,
-                   int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]),
-                   int(stats[plant_loop.LONG]))  # fmt: skip
+                   int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))  # fmt: skip
         if stats[plant_loop.ANSWERED]:
             self.plant_heard = wall
             self.load = stats[plant_loop.TICK_NS] * 1e-9 / self.period

@@ -43,9 +43,8 @@ SOCKADDR_IN = 16  # bytes of a struct sockaddr_in (family, port, IPv4 address, p
 CLOCK_MONOTONIC = 1
 # A compiled loop's waits, counted in its stats (int64) by :func:`receive` (index 0 is the loop's own count):
 # datagrams that came while polling, of which late (after half the budget); blocking waits, and the consecutive
-# ones shorter than the budget (SpinThenBlock's "hot" count: :meth:`quadsitl.process_util.SpinThenBlock.tally`);
-# the consecutive polls that each waited longer than the budget (its "paced" count).
-POLLED, LATE, BLOCKED, SHORT, LONG = 1, 2, 3, 4, 5
+# ones shorter than the budget (SpinThenBlock's "hot" count: :meth:`quadsitl.process_util.SpinThenBlock.tally`).
+POLLED, LATE, BLOCKED, SHORT = 1, 2, 3, 4
 RAN_OUT = -2  # receive(): polling found no datagram within its patience
 
 
@@ -149,8 +148,7 @@ if AVAILABLE:
         into ``length``, int32[1]) → its length. ``polling``: poll for up to ``patience_ns`` [ns], yielding the core
         between polls to any task waiting for it (RAN_OUT when none came); else block (−1 when the socket's receive
         timeout ends the wait). The wait is counted in ``stats`` (POLLED, LATE: after half of ``budget_ns``;
-        BLOCKED, SHORT: a blocking wait shorter than ``budget_ns``; LONG: consecutive polls longer than ``budget_ns``;
-        :class:`quadsitl.process_util.SpinThenBlock`)."""
+        BLOCKED, SHORT: a blocking wait shorter than ``budget_ns``; :class:`quadsitl.process_util.SpinThenBlock`)."""
         flags = MSG_DONTWAIT if polling else 0
         began = monotonic_ns()
         while True:
@@ -166,7 +164,6 @@ if AVAILABLE:
             stats[POLLED] += 1
             if took > budget_ns // 2:
                 stats[LATE] += 1
-            stats[LONG] = stats[LONG] + 1 if took > budget_ns else 0
         else:
             stats[BLOCKED] += 1
             stats[SHORT] = stats[SHORT] + 1 if took < budget_ns else 0

@@ -132,7 +132,6 @@ SPIN_ENV = "QUADSITL_SPIN_US"  # the polling budget in µs (0: always block)
 SPIN_BUDGET = 200e-6  # [s] waits shorter than this make a lockstep loop hot; hot, it polls this long, then blocks
 PATIENCE = 2e-3  # [s] how long a hot loop polls before it blocks where nothing waits on its pace (SpinThenBlock)
 HOT_AFTER = 8  # consecutive waits shorter than the budget that make a loop hot
-LONG_AFTER = 3  # consecutive polls, each longer than the budget, that make a hot loop cold again (a paced peer)
 SPIN_WINDOW = 256  # waits per verdict on whether polling pays
 SPIN_MISSES = 32  # polls that ran out (or came late) in a window, beyond which polling stops for a while
 SPIN_STRIKES = 2  # failing windows in a row that stop polling: a burst (another process's few ms) is not enough
@@ -164,11 +163,7 @@ class SpinThenBlock:
     datagrams) or whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to
     blocking, so it spends no CPU on polling. A paced loop that finds one datagram already waiting (it was
     late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
-    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need. A paced loop that did turn
-    hot (a real-time plant catching up after a stall sends its ticks back to back, so its autopilot's waits were
-    short) turns cold again after LONG_AFTER polls in a row that each waited longer than the budget: with patience
-    it would otherwise poll through the millisecond between two ticks, every tick, until polling stopped for not
-    paying.
+    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
 
     A loop whose peer answers within microseconds but now and then takes longer (a moment of Python there: a
     telemetry batch, a ground-station message, the scheduler giving its core to another process for a while) turns
@@ -206,7 +201,6 @@ class SpinThenBlock:
         self.be_patient(patience)
         self.hot = False
         self._short = 0  # consecutive waits shorter than the budget
-        self._long = 0  # consecutive polls longer than the budget
         self.polled = 0  # datagrams that came while polling
         self.blocked = 0  # waits that blocked
         self.cooled = 0  # times polling was stopped for not paying
@@ -232,18 +226,12 @@ class SpinThenBlock:
                     if time.perf_counter() < end:
                         continue
                     self._verdict(miss=True)
-                    self._long = 0
                     break
                 self.polled += 1
                 # A datagram that took more than half the budget to come was late: the peer had to wait for
                 # a core. Counted as a miss, as is a poll that ran out of patience.
-                took = time.perf_counter() - start
-                self._verdict(miss=took > 0.5 * self.budget)
-                self._long = self._long + 1 if took > self.budget else 0
-                if self._long >= LONG_AFTER:  # a paced peer: block from now on
-                    self._long = self._short = 0
-                    self.hot = False
-                return out
+                self._verdict(miss=time.perf_counter() - start > 0.5 * self.budget)
+                return out  # still hot
         self.blocked += 1
         try:
             return self.block()
@@ -255,13 +243,12 @@ class SpinThenBlock:
         """True when the next wait polls: the loop is hot, polling is on and not stopped for a while."""
         return self.hot and self.budget > 0 and time.perf_counter() >= self._cool_until
 
-    def tally(self, polled: int, late: int, ran_out: bool, blocked: int, short: int, long: int = 0) -> None:
+    def tally(self, polled: int, late: int, ran_out: bool, blocked: int, short: int) -> None:
         """Waits made elsewhere with this budget, the way :meth:`__call__` makes them (a compiled loop,
         :mod:`autopilot.plant_loop`): ``polled`` datagrams came while polling, ``late`` of them after half the
         budget; ``ran_out``: a poll then found none within its patience (a miss, after which the loop is no longer
         hot and the next wait blocks); ``blocked`` waits blocked, the last ``short`` of them in a row each shorter
-        than the budget; the last ``long`` polls in a row each waited longer than the budget (LONG_AFTER of them: no
-        longer hot)."""
+        than the budget."""
         self.polled += polled
         for i in range(polled):
             self._verdict(miss=i < late)
@@ -272,20 +259,11 @@ class SpinThenBlock:
             self.blocked += blocked
             self._short = short
             self.hot = short >= HOT_AFTER
-        self._long = 0 if ran_out else long
-        if self._long >= LONG_AFTER:
-            self._long = self._short = 0
-            self.hot = False
 
     @property
     def short(self) -> int:
         """Consecutive waits, up to now, each shorter than the budget."""
         return self._short
-
-    @property
-    def long(self) -> int:
-        """Consecutive polls, up to now, each longer than the budget."""
-        return self._long
 
     def _verdict(self, miss: bool) -> None:
         self._polls += 1

@@ -17,7 +17,6 @@ import numpy as np
 
 from quadsitl import fastio
 from quadsitl.jit import jit
-from quadsitl.process_util import LONG_AFTER
 from quadsitl.wire import usec_of
 from sitl import tick
 
@@ -26,8 +25,8 @@ from sitl import tick
 # polling budget (QUIET) or the socket's receive timeout (TIMED_OUT).
 DUE, END, TAKEN, QUIET, TIMED_OUT = range(5)
 # stats (int64): ticks stepped here, then the waits (quadsitl.fastio.receive's counts).
-STEPPED, STATS_SIZE = 0, 6
-POLLED, LATE, BLOCKED, SHORT, LONG = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fastio.SHORT, fastio.LONG
+STEPPED, STATS_SIZE = 0, 5
+POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fastio.SHORT
 
 
 @jit
@@ -56,10 +55,6 @@ def run(fd: int, rx: np.ndarray, k: int, max_k: int, max_thrust: float, received
             return TAKEN, k, n, r
         stats[STEPPED] += 1
         k += 1
-        if (
-            fastio.monotonic_ns() >= deadline_ns
-            or (not polling and stats[SHORT] == hot_after)
-            or (polling and stats[LONG] >= LONG_AFTER)
-        ):
+        if fastio.monotonic_ns() >= deadline_ns or (not polling and stats[SHORT] == hot_after):
             return DUE, k, -1, 0
     return END, k, -1, 0

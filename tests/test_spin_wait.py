@@ -10,7 +10,6 @@ import pytest
 from quadsitl.cli_util import UsageError
 from quadsitl.process_util import (
     HOT_AFTER,
-    LONG_AFTER,
     SPIN_ENV,
     SPIN_MISSES,
     SPIN_STRIKES,
@@ -76,32 +75,6 @@ def test_a_patient_loop_polls_through_a_late_datagram_and_stays_hot(pair):
     assert SpinThenBlock(a.recv, budget=0.0, patience=0.5).patience == 0.0
 
 
-def test_a_patient_loop_blocks_again_once_its_peer_is_paced(pair):
-    # A burst of quick datagrams makes the loop hot (a real-time plant catching up after a stall); then they come a
-    # period apart again, longer than the budget and within the patience: one such wait now and then is polled
-    # through (the patience's purpose), LONG_AFTER of them in a row make the loop block.
-    a, b = pair
-    wait = SpinThenBlock(a.recv, budget=0.005, patience=1.0)
-    for i in range(HOT_AFTER):
-        b.send(b"%d" % i)
-        wait()
-    assert wait.hot
-
-    def paced(text: bytes) -> bytes:
-        threading.Timer(0.03, lambda: b.send(text)).start()
-        return wait()
-
-    for _ in range(3):  # long, quick, long, ...: never LONG_AFTER in a row
-        assert paced(b"long") == b"long" and wait.hot and wait.long == 1
-        b.send(b"quick")
-        assert wait() == b"quick" and wait.hot and wait.long == 0
-    for i in range(LONG_AFTER):
-        assert wait.hot
-        assert paced(b"p%d" % i) == b"p%d" % i
-    assert not wait.hot and wait.polled == 6 + LONG_AFTER and wait.blocked == HOT_AFTER
-    assert paced(b"next") == b"next" and wait.blocked == HOT_AFTER + 1 and wait.polled == 6 + LONG_AFTER
-
-
 def test_polling_stops_for_a_while_when_it_does_not_pay():
     calls = {"poll": 0, "block": 0}
 
@@ -140,13 +113,6 @@ def test_waits_made_by_a_compiled_loop_count_as_its_own():
     for _ in range(SPIN_STRIKES):  # windows with too many late datagrams, in a row: polling stops for a while
         wait.tally(SPIN_WINDOW, SPIN_MISSES + 1, False, 0, 0)
     assert wait.cooled == 1 and wait.hot and not wait.polling()
-    # Polls that each waited longer than the budget, LONG_AFTER in a row: a paced peer, no longer hot.
-    wait = SpinThenBlock(lambda *a: b"x", budget=0.001)
-    wait.tally(0, 0, False, blocked=HOT_AFTER, short=HOT_AFTER)
-    wait.tally(LONG_AFTER - 1, LONG_AFTER - 1, False, 0, 0, long=LONG_AFTER - 1)
-    assert wait.polling() and wait.long == LONG_AFTER - 1
-    wait.tally(2, 2, False, 0, 0, long=LONG_AFTER + 1)
-    assert not wait.polling() and not wait.hot and wait.long == 0 and wait.short == 0
 
 
 def test_the_budget_comes_from_the_environment_and_is_checked(monkeypatch):
