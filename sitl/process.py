@@ -469,8 +469,9 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
 
 
 def receive_within(vehicles: Sequence[Vehicle], seconds: float, socks: dict[socket.socket, Vehicle]) -> None:
-    """Real time: apply every actuator message that arrives within ``seconds`` on any vehicle's link (``socks``:
-    the vehicles by their sockets), and release the impaired datagrams that fall due."""
+    """Real time with impaired links (``--impair``): apply every actuator message that arrives within ``seconds`` on
+    any vehicle's link (``socks``: the vehicles by their sockets), and release the impaired datagrams that fall
+    due; without impairment the plant sleeps through the period instead (:func:`run_realtime`)."""
     if len(vehicles) == 1:
         vehicles[0].link.receive_within(seconds, vehicles[0].plant)
         return
