@@ -388,7 +388,7 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
             v, link, _, rx, max_thrust, received, commanded, args = waits[0]
             wait = link.wait
             stats[:] = 0
-            stats[lockstep_loop.SHORT], stats[lockstep_loop.LONG] = wait.short, wait.long
+            stats[lockstep_loop.SHORT] = wait.short
             polling = wait.polling()
             k0 = k
             status, k, nbytes, r = lockstep_loop.run(
@@ -398,7 +398,7 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
             )  # fmt: skip
             wait.tally(int(stats[lockstep_loop.POLLED]), int(stats[lockstep_loop.LATE]),
                        status == lockstep_loop.QUIET, int(stats[lockstep_loop.BLOCKED]),
-                       int(stats[lockstep_loop.SHORT]), int(stats[lockstep_loop.LONG]))  # fmt: skip
+                       int(stats[lockstep_loop.SHORT]))  # fmt: skip
             if k > k0:
                 link.last_heard = monotonic()
                 for _ in range(k - k0):
