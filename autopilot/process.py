@@ -51,6 +51,7 @@ from quadsitl.frames import quaternion_to_euler
 from quadsitl.process_util import (
     HOT_AFTER,
     PATIENCE,
+    PaceGauge,
     SpinThenBlock,
     bind_udp,
     parse_remote,
@@ -214,9 +215,10 @@ class Autopilot:
         self.said: dict[str, float] = {}  # topic → wall time of the last such warning
         act = preset.actuators
         self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
-        # Polls while the plant answers fast, with patience: the autopilot is hot only where nothing paces the plant
-        # (or paces it at 5x real time and more, where it polls nearly all of each period anyway).
+        # Polls while the plant answers fast, with patience where nothing paces the plant (measured from the ticks'
+        # pace: serve_plant), without where something does (real time, --speed below 2)
         self.plant_wait = SpinThenBlock(self.plant_sock.recvfrom_into, self.rx, patience=PATIENCE)
+        self.plant_pace = PaceGauge(self.period)
         # The plant link served in compiled code (autopilot.plant_loop), once a plant is heard on an IPv4 socket:
         self.fast = fastio.compiled_loops() and self.plant_sock.family == socket.AF_INET
         self.plant_address: np.ndarray | None = None  # the locked plant's sockaddr (fast only)
@@ -374,6 +376,9 @@ class Autopilot:
         if stats[plant_loop.ANSWERED]:
             self.plant_heard = wall
             self.load = stats[plant_loop.TICK_NS] * 1e-9 / self.period
+        pace = self.plant_pace.update(int(self.io[kernel.TICK]), wall)
+        if pace is not None:
+            wait.be_patient(PaceGauge.patience(pace))
         if status == plant_loop.SENT:  # the answer went out in the loop: the rest of the tick
             if flags & kernel.FRAMES and self.destinations.count[0] >= 0:  # the loop sent them; some failed
                 flags &= ~kernel.FRAMES

@@ -136,6 +136,8 @@ SPIN_WINDOW = 256  # waits per verdict on whether polling pays
 SPIN_MISSES = 32  # polls that ran out (or came late) in a window, beyond which polling stops for a while
 SPIN_STRIKES = 2  # failing windows in a row that stop polling: a burst (another process's few ms) is not enough
 SPIN_COOL = (0.25, 4.0)  # [s] how long it stops: doubling from the first to the second while it keeps failing
+PACE_WINDOW = 0.1  # [s] wall: how long PaceGauge averages a peer's pace over
+PACED_BELOW = 2.0  # [× real time] a peer whose ticks come slower than this is paced (PaceGauge)
 
 
 def spin_budget() -> float:
@@ -171,8 +173,9 @@ class SpinThenBlock:
     waking a process costs 100–200 µs (a Firecracker guest) each of them is slow, so an unpaced lockstep run spends
     most of its time there. Such a loop is given ``patience`` (PATIENCE, 2 ms): it polls that long before it
     blocks. Only a loop that nothing paces gets it, as it costs CPU when the peer is late: the plant in an unpaced
-    run (it knows its pace), and the autopilot, which is hot only when its datagrams come less than a budget apart
-    (unpaced, or paced at 5× real time and more, where it polls nearly all the time anyway). A paced plant's wait
+    run (it knows its pace), and the autopilot while its plant's ticks come at PACED_BELOW × real time or faster (it
+    measures their pace: :class:`PaceGauge`; a real-time plant catching up after a stall sends ticks back to back,
+    and an autopilot made hot by them would otherwise poll through every millisecond after). A paced plant's wait
     for each answer is short too, so it turns hot; without patience it keeps polling at most a budget when an
     answer is late, and leaves the core to the processes a paced run serves (an idle-priority dashboard).
 
@@ -280,6 +283,39 @@ class SpinThenBlock:
                 self._strikes = 0
                 self.cooled += 1
         self._polls = self._misses = 0
+
+
+class PaceGauge:
+    """How fast a peer's ticks come, in multiples of real time, over windows of ``window`` seconds of wall time: how
+    the autopilot knows what its plant knows, whether the run is paced (real time, ``--speed``), from the ticks'
+    own numbers. A paced loop should not be patient (:class:`SpinThenBlock`): a real-time plant that falls behind
+    (a stalled machine) catches up by sending its late ticks back to back, the autopilot's waits are then short and
+    make it hot, and with patience it would poll (``sched_yield``) through every period between two paced ticks
+    until polling stopped for not paying, hundreds of periods later."""
+
+    def __init__(self, period: float, window: float = PACE_WINDOW) -> None:
+        self.period = period  # [s] one tick of simulated time
+        self.window = window
+        self._since: tuple[int, float] | None = None  # (tick, wall) where the window began
+
+    def update(self, tick: int, wall: float) -> float | None:
+        """``tick``: the newest tick heard; ``wall``: now [s, monotonic] → the pace over the window this call ends
+        [× real time: simulated over wall seconds], or None while the window is still open. A tick number that went
+        back (a new plant run) reads as a negative pace."""
+        if self._since is None:
+            self._since = (tick, wall)
+            return None
+        tick0, wall0 = self._since
+        if wall - wall0 < self.window:
+            return None
+        self._since = (tick, wall)
+        return (tick - tick0) * self.period / (wall - wall0)
+
+    @staticmethod
+    def patience(pace: float) -> float | None:
+        """The patience for a loop whose peer keeps ``pace``: PATIENCE unpaced (PACED_BELOW × real time or faster),
+        none (the budget) paced."""
+        return PATIENCE if pace >= PACED_BELOW else None
 
 
 def wait_readable(sock: socket.socket, seconds: float) -> bool:

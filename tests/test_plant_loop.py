@@ -16,7 +16,7 @@ from autopilot import tick as kernel
 from autopilot.process import Autopilot, build_parser
 from quadsitl import fastio, wire
 from quadsitl.config import load_preset
-from quadsitl.process_util import free_port, set_receive_timeout
+from quadsitl.process_util import PACE_WINDOW, PATIENCE, free_port, set_receive_timeout
 
 pytestmark = pytest.mark.skipif(not fastio.AVAILABLE, reason="compiled loops: Linux, numba on")
 PERIOD = 0.001
@@ -229,6 +229,38 @@ def test_a_blocking_loop_comes_back_to_poll_once_the_plant_answers_fast(vehicle)
     assert status == plant_loop.DUE and stats[plant_loop.BLOCKED] == 8 and stats[plant_loop.SHORT] == 8
     ap.plant_wait.tally(0, 0, False, int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))
     assert ap.plant_wait.polling()
+
+
+def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle):
+    # A paced plant (real time, --speed 1) must not find its autopilot polling through each period with patience
+    # (after a real-time plant's catch-up burst made it hot); an unpaced one keeps the patience (lockstep's speed).
+    ap, plant, autopilot = vehicle
+    plant.sendto(state_frame(1), autopilot)
+    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
+    plant.recv(1000)
+    ap.io[kernel.NEXT_STREAM_TICK] = 10**9
+    set_receive_timeout(ap.plant_sock, 0.5)
+    wait = ap.plant_wait
+    assert wait.patience == PATIENCE
+    k = 2
+    began = time.monotonic()
+    while time.monotonic() - began < 3 * PACE_WINDOW:  # a tick every 5 ms of wall: 0.2 x real time
+        plant.sendto(state_frame(k), autopilot)
+        k += 1
+        ap.serve_plant(0.0)  # back to Python after the tick
+        assert answer_of(plant.recv(1000))[0] == wire.usec_of(k - 1, PERIOD)
+        time.sleep(0.005)
+    assert wait.patience == wait.budget
+    began = time.monotonic()
+    while time.monotonic() - began < 3 * PACE_WINDOW and wait.patience != PATIENCE:  # as fast as it answers
+        for _ in range(20):
+            plant.sendto(state_frame(k), autopilot)
+            k += 1
+        for _ in range(20):
+            ap.serve_plant(0.0)
+        for _ in range(20):
+            plant.recv(1000)
+    assert wait.patience == PATIENCE
 
 
 def test_arming_answers_a_holding_plant_at_once(vehicle):

@@ -10,10 +10,13 @@ import pytest
 from quadsitl.cli_util import UsageError
 from quadsitl.process_util import (
     HOT_AFTER,
+    PACED_BELOW,
+    PATIENCE,
     SPIN_ENV,
     SPIN_MISSES,
     SPIN_STRIKES,
     SPIN_WINDOW,
+    PaceGauge,
     SpinThenBlock,
     spin_budget,
 )
@@ -113,6 +116,20 @@ def test_waits_made_by_a_compiled_loop_count_as_its_own():
     for _ in range(SPIN_STRIKES):  # windows with too many late datagrams, in a row: polling stops for a while
         wait.tally(SPIN_WINDOW, SPIN_MISSES + 1, False, 0, 0)
     assert wait.cooled == 1 and wait.hot and not wait.polling()
+
+
+def test_the_pace_gauge_tells_a_paced_peer_from_one_nothing_paces():
+    gauge = PaceGauge(period=0.001, window=0.125)  # (times in binary fractions: exact sums)
+    assert gauge.update(0, 10.0) is None  # the first window begins
+    assert gauge.update(60, 10.0625) is None  # still open
+    assert gauge.update(125, 10.125) == pytest.approx(1.0)  # real time: 125 ticks of 1 ms in 0.125 s
+    # A real-time plant's catch-up burst (ticks back to back) inside a window leaves it paced: the window counts.
+    assert gauge.update(250, 10.25) == pytest.approx(1.0)
+    assert gauge.update(4000, 10.375) == pytest.approx(30.0)  # lockstep, unpaced
+    assert gauge.update(0, 10.5) < 0  # a new plant run, its ticks from 0 again
+    assert PaceGauge.patience(1.0) is None and PaceGauge.patience(-1.0) is None
+    assert PaceGauge.patience(PACED_BELOW - 0.01) is None
+    assert PaceGauge.patience(PACED_BELOW) == PaceGauge.patience(30.0) == PATIENCE
 
 
 def test_the_budget_comes_from_the_environment_and_is_checked(monkeypatch):
