@@ -192,12 +192,17 @@ def test_the_loop_sends_the_ticks_telemetry_frames_itself(vehicle):
     ground.close()
 
 
-def test_a_stranger_a_deadline_and_a_limit_hand_the_loop_back(vehicle):
-    ap, plant, autopilot = vehicle
+def locked_without_streams(ap: Autopilot, plant: socket.socket, autopilot: tuple[str, int]) -> None:
+    """The autopilot locked to ``plant`` by its first datagram (tick 1, answered), with no telemetry message due."""
     plant.sendto(state_frame(1), autopilot)
     ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
     plant.recv(1000)
-    ap.io[kernel.NEXT_STREAM_TICK] = 10**9  # no telemetry message due in this test
+    ap.io[kernel.NEXT_STREAM_TICK] = 10**9
+
+
+def test_a_stranger_a_deadline_and_a_limit_hand_the_loop_back(vehicle):
+    ap, plant, autopilot = vehicle
+    locked_without_streams(ap, plant, autopilot)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
         other.bind(("127.0.0.1", 0))
         other.sendto(state_frame(2), autopilot)
@@ -217,10 +222,7 @@ def test_a_stranger_a_deadline_and_a_limit_hand_the_loop_back(vehicle):
 
 def test_a_blocking_loop_comes_back_to_poll_once_the_plant_answers_fast(vehicle):
     ap, plant, autopilot = vehicle
-    plant.sendto(state_frame(1), autopilot)
-    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
-    plant.recv(1000)
-    ap.io[kernel.NEXT_STREAM_TICK] = 10**9
+    locked_without_streams(ap, plant, autopilot)
     set_receive_timeout(ap.plant_sock, 0.5)
     for k in range(2, 14):
         plant.sendto(state_frame(k), autopilot)
@@ -235,10 +237,7 @@ def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle):
     # A paced plant (real time, --speed 1) must not find its autopilot polling through each period with patience
     # (after a real-time plant's catch-up burst made it hot); an unpaced one keeps the patience (lockstep's speed).
     ap, plant, autopilot = vehicle
-    plant.sendto(state_frame(1), autopilot)
-    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
-    plant.recv(1000)
-    ap.io[kernel.NEXT_STREAM_TICK] = 10**9
+    locked_without_streams(ap, plant, autopilot)
     set_receive_timeout(ap.plant_sock, 0.5)
     wait = ap.plant_wait
     assert wait.patience == PATIENCE
