@@ -436,24 +436,25 @@ def handle_stop_signals() -> None:
 
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)
-    lost: list[int] = []
+    lost: int | None = None  # the signal of a StopRequested that was dropped, until raised again
     previous = sys.unraisablehook
 
     def unraisable(info: object) -> None:
         """A StopRequested raised where Python cannot raise (a finalizer, a ctypes callback: llvmlite's while numba
         loads compiled code) is only printed and dropped: the process went on as if never asked to stop. It is
         raised again a moment later, from SIGALRM, where the main thread then is."""
+        nonlocal lost
         exc = getattr(info, "exc_value", None)
         if isinstance(exc, StopRequested):
-            lost.append(exc.signum)
+            lost = exc.signum
             signal.setitimer(signal.ITIMER_REAL, LOST_STOP_AGAIN)
             return
         previous(info)
 
     def again(_signum: int, _frame: object) -> None:
-        if lost:
-            signum = lost.pop()
-            lost.clear()
+        nonlocal lost
+        if lost is not None:
+            signum, lost = lost, None
             raise StopRequested(signum)
 
     signal.signal(signal.SIGALRM, again)

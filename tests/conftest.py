@@ -65,20 +65,18 @@ WARM_PARTS = (
 )
 
 
-def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.1) -> list[str]:
+def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.1) -> None:
     """Compile ``parts`` into numba's cache, each once among the pytest-xdist workers that share the directory
     ``shared``: a worker takes a part nobody has taken whose needs are done (worker ``worker`` starts with the part
-    of that index, so two workers start on different parts), marks it done, and returns once every part is done.
-    Returns the parts this worker compiled (or loaded from a cache already warm)."""
+    of that index, so two workers start on different parts), marks it done, and returns once every part is done."""
     import fcntl
 
-    mine: list[str] = []
     first = worker % len(parts)
     order = [*parts[first:], *parts[:first]]
     while True:
         done = {name for name, _, _ in parts if (shared / f"{name}.done").exists()}
         if len(done) == len(parts):
-            return mine
+            return
         for name, needs, warm in order:
             if name in done or not set(needs) <= done:
                 continue
@@ -89,7 +87,6 @@ def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.
                     continue  # another worker is on it
                 if not (shared / f"{name}.done").exists():
                     warm()
-                    mine.append(name)
                     (shared / f"{name}.done").touch()
             break
         else:
