@@ -119,11 +119,14 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
         session = zenoh.open(telemetry.zenoh_config(connect=[v.zenoh]))
         try:
             # Peers reach each other directly (the autopilot's session does not forward between them): wait
-            # until this one has found the dashboard's as well as the autopilot's and the plant's (it takes wind
-            # changes), or its samples go nowhere.
-            deadline = time.monotonic() + 10
-            while len(list(session.info.peers_zid())) < 3 and time.monotonic() < deadline:
+            # until this one has found the dashboard's subscriber (the only one on the overview keys), or its
+            # samples go nowhere. Counting peers is not enough: the launcher's info session is one too.
+            probe = session.declare_publisher(f"{telemetry.PREFIX}/v1/{telemetry.SLOW}/{next(iter(telemetry.STREAMS))}")
+            deadline = time.monotonic() + 30
+            while not probe.matching_status.matching and time.monotonic() < deadline:
                 time.sleep(0.05)
+            assert probe.matching_status.matching, "the dashboard's Zenoh subscriber was never found"
+            probe.undeclare()
             rng = random.Random(5)
             for i in range(3000):
                 stream = rng.choice([*telemetry.STREAMS, "junk"])
