@@ -110,7 +110,7 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
     from groundstation.dashboard.model import MAX_VEHICLES
     from quadsitl import telemetry
     from tests.mavclient import quadsitl_up
-    from tests.test_dashboard_browser import wait_http
+    from tests.test_dashboard_browser import Publisher, wait_http
 
     port = free_port(socket.SOCK_STREAM)
     url = f"http://127.0.0.1:{port}/"
@@ -122,10 +122,7 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
             # until this one has found the dashboard's subscriber (the only one on the overview keys), or its
             # samples go nowhere. Counting peers is not enough: the launcher's info session is one too.
             probe = session.declare_publisher(f"{telemetry.PREFIX}/v1/{telemetry.SLOW}/{next(iter(telemetry.STREAMS))}")
-            deadline = time.monotonic() + 30
-            while not probe.matching_status.matching and time.monotonic() < deadline:
-                time.sleep(0.05)
-            assert probe.matching_status.matching, "the dashboard's Zenoh subscriber was never found"
+            Publisher.wait_matching([probe], "the dashboard's Zenoh subscriber was never found")
             probe.undeclare()
             rng = random.Random(5)
             for i in range(3000):
