@@ -85,7 +85,7 @@ GPS_FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
 ATTITUDE_TARGET_MASK = 7  # the body-rate fields are not used
 
 
-@jit
+@jit(inline=True)
 def clamp_int(value: float, lo: int, hi: int) -> int:
     """``value`` rounded (half to even, as Python's round) into [lo, hi]; 0 when it is not finite."""
     if not math.isfinite(value):
@@ -147,13 +147,13 @@ def _values(slot: int, vals: np.ndarray, time_ms: int, x: tuple, rates: tuple, r
         _set(vals, (float(ms), q[0], q[1], q[2], q[3], 0.0, 0.0, 0.0, thrust, float(ATTITUDE_TARGET_MASK)))
 
 
-@jit
+@jit(inline=True)
 def _set(vals: np.ndarray, v: tuple) -> None:
     for i in range(len(v)):
         vals[i] = v[i]
 
 
-@jit
+@jit(inline=True)
 def _put(buf: np.ndarray, at: int, kind: int, value: float) -> None:
     if kind == 6:
         put(buf, at, np.float32(value))

@@ -76,7 +76,7 @@ TRUTH_DECODED = 15
 IMU_DROPPED, MAG_DROPPED, BARO_DROPPED, GPS_DROPPED = 1, 2, 4, 8
 
 
-@jit
+@jit(inline=True)
 def _put(buf: np.ndarray, at: int, dtype_bytes: int, value: int) -> None:
     """An integer field of ``dtype_bytes`` bytes (2, 4 or 8), little-endian two's complement, at payload offset
     ``at`` (its low bytes, as C's cast to the field's type keeps them)."""
@@ -88,7 +88,7 @@ def _put(buf: np.ndarray, at: int, dtype_bytes: int, value: int) -> None:
         put(buf, HEADER_SIZE + at, np.uint16(value & 0xFFFF))
 
 
-@jit
+@jit(inline=True)
 def _get_int(buf: np.ndarray, at: int, size: int, signed: bool) -> int:
     """The integer field of ``size`` bytes (2 or 4) at payload offset ``at``, signed or not."""
     if size == 4:

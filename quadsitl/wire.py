@@ -243,7 +243,7 @@ def _crc_tables() -> np.ndarray:
 CRC_TABLES = _crc_tables()
 
 
-@jit
+@jit(inline=True)
 def crc16(buf: np.ndarray, start: int, end: int, crc_extra: int) -> int:
     """MAVLink's CRC of buf[start:end] followed by the message's CRC_EXTRA byte: eight bytes per step, whose
     table lookups do not wait on each other (a byte at a time, each waits on the last: 3.5 times as long for an
@@ -262,7 +262,7 @@ def crc16(buf: np.ndarray, start: int, end: int, crc_extra: int) -> int:
     return (crc >> 8) ^ int(t[0, (crc ^ crc_extra) & 0xFF])
 
 
-@jit
+@jit(inline=True)
 def finish_frame(buf: np.ndarray, size: int, seq: int, system: int, component: int, msg_id: int,
                  crc_extra: int) -> int:  # fmt: skip
     """Frame the ``size``-byte payload at buf[HEADER_SIZE:]: drop its trailing zero bytes (MAVLink 2 does),
@@ -295,12 +295,12 @@ def check_frame(buf: np.ndarray, length: int, msg_id: int, crc_extra: int, size:
     return 0
 
 
-@jit
+@jit(inline=True)
 def _put_f32(buf: np.ndarray, at: int, value: float) -> None:
     put(buf, HEADER_SIZE + at, np.float32(value))
 
 
-@jit
+@jit(inline=True)
 def _get_f32(buf: np.ndarray, at: int) -> float:
     return np.float64(get(buf, HEADER_SIZE + at, np.float32))  # float() keeps float32
 
