@@ -65,17 +65,34 @@ WARM_PARTS = (
 )
 
 
-def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.1) -> None:
+def _warm_the_engine(version: int):
+    def warm() -> None:
+        from groundstation.sweep.run import VERSIONS, warm_version
+
+        warm_version(*VERSIONS[version])
+
+    return warm
+
+
+# The sweeps' batch engine, each of its versions one part (about 30 s each on a 2-core guest): only the tests of
+# the sweeps need it (the fixture batch_engine), so a worker compiles it while it would otherwise wait for the
+# parts above, and no test waits for it but those.
+ENGINE_PARTS = (("engine-paper", (), _warm_the_engine(0)), ("engine-general", (), _warm_the_engine(1)))
+
+
+def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.1, extra: tuple = ()) -> None:
     """Compile ``parts`` into numba's cache, each once among the pytest-xdist workers that share the directory
     ``shared``: a worker takes a part nobody has taken whose needs are done (worker ``worker`` starts with the part
-    of that index, so two workers start on different parts), marks it done, and returns once every part is done."""
+    of that index, so two workers start on different parts), marks it done, and returns once every part is done.
+    While the parts left are all taken by others, or wait on one that is, it takes a part of ``extra`` instead, if
+    one is left: work some tests need later, done now instead of waiting."""
     import fcntl
 
     first = worker % len(parts)
-    order = [*parts[first:], *parts[:first]]
+    order = [*parts[first:], *parts[:first], *extra]
     while True:
-        done = {name for name, _, _ in parts if (shared / f"{name}.done").exists()}
-        if len(done) == len(parts):
+        done = {name for name, _, _ in order if (shared / f"{name}.done").exists()}
+        if all(name in done for name, _, _ in parts):
             return
         for name, needs, warm in order:
             if name in done or not set(needs) <= done:
@@ -93,20 +110,33 @@ def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.
             time.sleep(poll)  # every part left is taken, or waits on one that is
 
 
+def _warm(parts: tuple, tmp_path_factory, extra: tuple = ()) -> None:
+    """``parts`` compiled: here, or among the pytest-xdist workers (:func:`warm_among_workers`)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker is None:
+        for _, _, warm in parts:
+            warm()
+        return
+    shared = tmp_path_factory.getbasetemp().parent / "numba-warm"  # the run's, common to its workers
+    shared.mkdir(exist_ok=True)
+    warm_among_workers(parts, shared, int(worker.removeprefix("gw")), extra=extra)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def compiled(tmp_path_factory):
     """Compile every per-tick function into numba's cache once, before the processes the tests start need it
     (a fresh checkout has no cache: each process would otherwise compile on its own, several at a time). Under
     pytest-xdist the workers share the parts (:func:`warm_among_workers`): on a 2-core guest each worker spent about 110
-    s compiling everything, and both now wait about 70 s (the autopilot's tick alone is about 60 s)."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER")
-    if worker is None:
-        for _, _, warm in WARM_PARTS:
-            warm()
-        return
-    shared = tmp_path_factory.getbasetemp().parent / "numba-warm"  # the run's, common to its workers
-    shared.mkdir(exist_ok=True)
-    warm_among_workers(WARM_PARTS, shared, int(worker.removeprefix("gw")))
+    s compiling everything, and both now wait about 70 s (the autopilot's tick alone is about 60 s); the worker
+    that would wait for the autopilot compiles the batch engine meanwhile."""
+    _warm(WARM_PARTS, tmp_path_factory, extra=ENGINE_PARTS)
+
+
+@pytest.fixture(scope="session")
+def batch_engine(compiled, tmp_path_factory):
+    """The sweeps' batch engine in numba's cache (tests that fly it, or start processes that do): compiled here, or
+    waited for while another worker compiles it."""
+    _warm(ENGINE_PARTS, tmp_path_factory)
 
 
 @pytest.fixture

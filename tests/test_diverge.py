@@ -25,7 +25,7 @@ from quadsitl.config import load_preset, preset_toml
 from sitl import plant, process, simulate, tick
 from tests.test_fly import alive, children_of, quadsitl
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first
 
 DIVERGING = """
     description = "roll's PD made unstable in one trial of two (ω·T above 2)"

@@ -15,7 +15,7 @@ from groundstation.sweep.run import fly, run_sweep
 from groundstation.sweep.spec import draw, load_spec, parse_spec
 from quadsitl.config import ConfigError
 
-pytestmark = pytest.mark.timeout(180)  # the first test in a fresh checkout compiles the engine (~20 s)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first
 
 
 def spec_of(body: str, name: str = "test"):

@@ -20,7 +20,7 @@ import pytest
 from quadsitl.process_util import free_port
 from tests.conftest import run_cli
 
-pytestmark = pytest.mark.timeout(120)  # ~25 s on the 2-core machine; a fresh checkout compiles the engine first
+pytestmark = [pytest.mark.timeout(120), pytest.mark.usefixtures("batch_engine")]  # ~25 s on the 2-core machine
 
 DASK = [str(Path(sys.executable).parent / "dask")]  # distributed's console script
 QUADSITL = str(Path(sys.executable).parent / "quadsitl")

@@ -15,7 +15,7 @@ from groundstation.sweep import figures as figs
 from groundstation.sweep.run import run_sweep
 from groundstation.sweep.spec import draw, load_spec, nominal_poles, parse_spec, trial_arrays
 
-pytestmark = pytest.mark.timeout(180)  # the first test in a fresh checkout compiles the engine (~20 s)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first
 
 
 def spec_of(body: str, name: str = "test"):

@@ -12,7 +12,7 @@ import pytest
 from groundstation.sweep.spec import draw, load_spec, nominal, parse_spec, trial_arrays, trial_preset
 from quadsitl.config import ConfigError, parse_preset, preset_toml
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first
 
 EVERYTHING = """
     preset = "paper"

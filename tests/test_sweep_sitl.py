@@ -11,7 +11,7 @@ import pytest
 from groundstation.telemetry_csv import read_csv
 from tests.test_diverge import DIVERGING  # one trial stable, one whose roll PD is unstable
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first
 
 SPEC = """
     description = "both engines"

@@ -91,6 +91,10 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
     return ChunkResult(trials, params, metrics, arrays.admissible, arrays.reason, kept)
 
 
+VERSIONS = ((BACKSTEPPING, 1, EULER), (PD, 1, EULER))
+"""(controller, substeps, integrator) of each compiled version of the engine: the paper's and the general one."""
+
+
 def warm_up(spec: SweepSpec | None = None) -> None:
     """Compile the batch engine (or load it from numba's cache) on made-up data, before workers start: they then
     load it instead of compiling it each; the version ``spec`` flies (:func:`groundstation.sweep.engine.run_chunk`),
@@ -100,17 +104,22 @@ def warm_up(spec: SweepSpec | None = None) -> None:
 
         compile_once(None)
         return
+    versions = VERSIONS if spec is None else [(KINDS[spec.controller], spec.preset.sim.substeps, _method(spec))]
+    for kind, substeps, method in versions:
+        warm_version(kind, substeps, method)
+
+
+def warm_version(kind: int, substeps: int, method: int) -> None:
+    """Compile (or load) the engine's version that flies controller ``kind`` with ``substeps`` steps of integrator
+    ``method`` per tick (the paper's configuration has a version of its own; every other shares one)."""
     from autopilot.control_params import SIZE
     from quadsitl.param_arrays import ACTUATOR_SIZE, VEHICLE_SIZE
 
-    every = [(BACKSTEPPING, 1, EULER), (PD, 1, EULER)]  # the paper's version and the general one
-    versions = every if spec is None else [(KINDS[spec.controller], spec.preset.sim.substeps, _method(spec))]
     one = np.ones((1, 12))
-    for kind, substeps, method in versions:
-        engine.run_chunk(one, np.ones((1, VEHICLE_SIZE)), np.ones((1, ACTUATOR_SIZE)), np.ones((1, VEHICLE_SIZE)),
-                         np.full((1, SIZE), 0.5), np.zeros((1, 4)), kind, 1, 0.001, substeps, method, np.zeros(1),
-                         np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
-                         np.zeros((1, 1, engine.KEEP_SIZE)))  # fmt: skip
+    engine.run_chunk(one, np.ones((1, VEHICLE_SIZE)), np.ones((1, ACTUATOR_SIZE)), np.ones((1, VEHICLE_SIZE)),
+                     np.full((1, SIZE), 0.5), np.zeros((1, 4)), kind, 1, 0.001, substeps, method, np.zeros(1),
+                     np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
+                     np.zeros((1, 1, engine.KEEP_SIZE)))  # fmt: skip
 
 
 def chunks(trials: int, workers: int, chunk: int | None = None) -> list[np.ndarray]:
