@@ -7,9 +7,26 @@ import sys
 
 import pytest
 
+# Runs `quadsitl bench` with Playwright made unimportable, as on a machine where the project was installed
+# without its test extra (`pip install -e .`).
+WITHOUT_PLAYWRIGHT = """
+import sys
+sys.modules["playwright"] = None  # `import playwright...` now raises ImportError
+from groundstation.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
 
-def test_bench_costs_report_json_with_names_units_and_baselines(cli):
-    r = cli("bench", "--only", "costs", "--json", timeout=120)
+
+@pytest.fixture(scope="module")
+def costs_without_playwright() -> subprocess.CompletedProcess:
+    """``quadsitl bench --only costs --only dashboard --json`` where Playwright is not installed (one run, about 20 s,
+    that two tests read: the costs it reports, and the dashboard section it skips)."""
+    return subprocess.run([sys.executable, "-c", WITHOUT_PLAYWRIGHT, "bench", "--only", "costs", "--only", "dashboard",
+                           "--json"], capture_output=True, text=True, timeout=120)  # fmt: skip
+
+
+def test_bench_costs_report_json_with_names_units_and_baselines(costs_without_playwright):
+    r = costs_without_playwright
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)
     assert set(report) >= {"lockstep_ratio", "figures", "machine", "elapsed_s"}
@@ -82,19 +99,8 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
         assert lockstep["value"] > 1000 and lockstep["unit"] == "1/s" and lockstep["baseline_name"] == "one vehicle"
 
 
-# Runs `quadsitl bench` with Playwright made unimportable, as on a machine where the project was installed
-# without its test extra (`pip install -e .`).
-WITHOUT_PLAYWRIGHT = """
-import sys
-sys.modules["playwright"] = None  # `import playwright...` now raises ImportError
-from groundstation.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-
-
-def test_bench_without_playwright_skips_the_dashboard_and_still_writes_the_report():
-    r = subprocess.run([sys.executable, "-c", WITHOUT_PLAYWRIGHT, "bench", "--only", "costs", "--only", "dashboard",
-                        "--json"], capture_output=True, text=True, timeout=120)  # fmt: skip
+def test_bench_without_playwright_skips_the_dashboard_and_still_writes_the_report(costs_without_playwright):
+    r = costs_without_playwright
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)
     # The dashboard's figures are absent, not zero or null, and the report says why.
