@@ -157,8 +157,11 @@ def test_a_vehicle_of_up_sends_its_telemetry_through_a_router():
         listed: list[str] = []
         end = time.monotonic() + 30
         while not listed and time.monotonic() < end:
-            with urllib.request.urlopen(f"{url}api/vehicles", timeout=5) as r:
-                listed = [v["name"] for v in json.load(r)["vehicles"]]
+            try:
+                with urllib.request.urlopen(f"{url}api/vehicles", timeout=5) as r:
+                    listed = [v["name"] for v in json.load(r)["vehicles"]]
+            except OSError:  # a timeout: the idle-priority dashboard had no CPU for 5 s (seen with 3 pytest workers)
+                pass
             time.sleep(0.2)
         assert listed == ["v1"]
     finally:
