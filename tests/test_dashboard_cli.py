@@ -17,9 +17,28 @@ from groundstation.launcher import free_port
 from tests.test_fly import alive, children_of, procs, quadsitl  # noqa: F401 (procs is a fixture)
 
 
-def vehicles(url: str) -> list[dict]:
-    with urllib.request.urlopen(url + "api/vehicles", timeout=5) as r:
-        return json.loads(r.read())["vehicles"]
+def vehicles(url: str, timeout: float = 30.0) -> list[dict]:
+    """The dashboard's ``api/vehicles``, asked again after a time-out for up to ``timeout`` s: ``quadsitl up`` runs
+    its dashboard at idle priority, and a loaded machine can leave it without CPU for seconds."""
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            with urllib.request.urlopen(url + "api/vehicles", timeout=5) as r:
+                return json.loads(r.read())["vehicles"]
+        except OSError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.2)
+
+
+def wait_listed(url: str, count: int, timeout: float = 30.0) -> list[str]:
+    """The names of the vehicles the dashboard at ``url`` lists, once it lists ``count`` (or at ``timeout`` s)."""
+    end = time.monotonic() + timeout
+    while True:
+        listed = sorted(v["name"] for v in vehicles(url, max(0.0, end - time.monotonic())))
+        if len(listed) >= count or time.monotonic() > end:
+            return listed
+        time.sleep(0.2)
 
 
 @pytest.mark.timeout(90)

@@ -6,20 +6,19 @@ version is tests/test_fleet_netns.py."""
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
-import urllib.request
 
 import pytest
 
 from groundstation.fleet import plan_fleet, zenoh_argv
 from groundstation.launcher import fleet_banner, free_port
 from tests.mavclient import free_ports
+from tests.test_dashboard_cli import wait_listed
 
 
 def start_router(*args: str) -> tuple[subprocess.Popen, str]:
@@ -154,16 +153,7 @@ def test_a_vehicle_of_up_sends_its_telemetry_through_a_router():
         assert names == {"quadsitl/v1/state"}
         # up's dashboard, through the router too: it runs at idle priority, and on a loaded machine it may hear the
         # vehicle a moment after this subscriber did.
-        listed: list[str] = []
-        end = time.monotonic() + 30
-        while not listed and time.monotonic() < end:
-            try:
-                with urllib.request.urlopen(f"{url}api/vehicles", timeout=5) as r:
-                    listed = [v["name"] for v in json.load(r)["vehicles"]]
-            except OSError:  # a timeout: the idle-priority dashboard had no CPU for 5 s (seen with 3 pytest workers)
-                pass
-            time.sleep(0.2)
-        assert listed == ["v1"]
+        assert wait_listed(url, 1) == ["v1"]
     finally:
         assert stop(up) == 0
         stop(router)

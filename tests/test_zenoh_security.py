@@ -1,14 +1,12 @@
 """Zenoh with TLS and access control, through Zenoh's own configuration files (docs/zenoh/): telemetry
 still flows to a subscriber that trusts the CA, and not to one that does not."""
 
-import json
 import shutil
 import socket
 import subprocess
 import sys
 import threading
 import time
-import urllib.request
 from pathlib import Path
 
 import pytest
@@ -16,6 +14,7 @@ import zenoh
 
 from groundstation.launcher import free_port
 from tests.mavclient import free_ports
+from tests.test_dashboard_cli import wait_listed
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "zenoh"
 
@@ -124,13 +123,7 @@ def test_up_flies_a_fleet_through_a_tls_router_with_its_configuration(tmp_path):
         finally:
             session.close()
         assert names == {"quadsitl/v1/state", "quadsitl/v2/state"}
-        listed: list[str] = []  # the dashboard, through the router over TLS as well (it runs at idle priority)
-        end = time.monotonic() + 30
-        while len(listed) < 2 and time.monotonic() < end:
-            with urllib.request.urlopen(f"{url}api/vehicles", timeout=5) as r:
-                listed = sorted(v["name"] for v in json.load(r)["vehicles"])
-            time.sleep(0.2)
-        assert listed == ["v1", "v2"]
+        assert wait_listed(url, 2) == ["v1", "v2"]  # the dashboard, through the router over TLS as well
     finally:
         assert stop(up) == 0
         stop(router)
