@@ -85,6 +85,32 @@ def test_tick_rate_and_real_time_factor_follow_the_wall_clock():
     assert stale["link"]["telemetry"] == "stale" and stale["tick_rate"] == 0.0
 
 
+def test_rates_use_the_publication_time_so_a_backlog_taken_at_once_is_no_burst():
+    """A dashboard starved of CPU takes 1.5 s of samples in one drain, every one received at the same moment, then
+    drains every 0.25 s again. The rates follow when the samples were sent (the Zenoh timestamp), so after every
+    drain they read the vehicle's pace, 2× real time; by the receiving times the backlog's old simulated times sat
+    at the start of the window, and the same samples read 3.9-13.6× (CI's starved dashboard showed 3.7)."""
+    stamped, unstamped = Fleet(), Fleet()
+    drains: dict[float, list] = {}
+    for i, first in enumerate(range(1, 6001, 100)):  # 100 ticks (0.1 s simulated) published every 50 ms: 2×
+        sent = i * 0.05
+        received = 1.5 if sent < 1.5 else math.ceil(sent / 0.25 + 1e-9) * 0.25
+        drains.setdefault(received, []).append((records("status", range(first, first + 100)), sent))
+    seen: list[tuple] = []
+    for received, samples in sorted(drains.items()):
+        for status, sent in samples:
+            stamped.ingest("quadsitl/v1/status", status, received, 1000.0 + sent)
+            unstamped.ingest("quadsitl/v1/status", status, received)
+        seen.append((stamped.vehicles["v1"].rates(), unstamped.vehicles["v1"].rates()))
+    for (rate, rtf), _ in seen:
+        assert rtf == pytest.approx(2.0, rel=1e-9) and rate == pytest.approx(2000, rel=1e-9)
+    assert max(rtf or 0.0 for _, (_, rtf) in seen) > 3.0  # what the receiving times alone make of them
+    # a publisher that stops stamping (a session of the user's own configuration): the window starts again on this
+    # process's clock, never a difference between the two clocks
+    stamped.ingest("quadsitl/v1/status", records("status", range(6001, 6101)), 7.0)
+    assert stamped.vehicles["v1"].rates() == (None, None)
+
+
 def test_status_names_mode_and_failsafe():
     fleet = Fleet()
     feed(fleet, range(1, 10), wall=0.0, armed=0, mode=2, failsafe=2, offboard_tick=-1)

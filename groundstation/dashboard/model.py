@@ -11,7 +11,8 @@ For each vehicle seen on ``quadsitl/<vehicle>/<stream>`` (:mod:`quadsitl.telemet
 * the stored mission (``quadsitl/<vehicle>/mission``, JSON): where each item flies and which is current,
   for the map; a malformed document is counted and the last good one kept;
 * the tick rate and real-time factor, from the status records' ticks and simulated times against the wall
-  clock over the last ``RATE_WINDOW`` seconds;
+  clock over the last ``RATE_WINDOW`` seconds: the time each record was published (its Zenoh timestamp, the
+  publisher's clock), or, for a publisher that does not stamp, when it came;
 * for the fleet view: who the vehicle is and where its home is (``quadsitl/<vehicle>/info``,
   :mod:`groundstation.vehicle_info`, put by ``quadsitl up``; a bad document is refused with its reason, kept
   for the page, and the last good one stays), and a trail of its local x, y at ``TRAIL_RATE`` points per
@@ -95,7 +96,8 @@ class Vehicle:
     samples: int = 0
     malformed: int = 0
     _pending: dict[int, dict[str, tuple]] = field(default_factory=dict)
-    _rate: deque = field(default_factory=deque)  # (wall, tick, t) of status records
+    _rate: deque = field(default_factory=deque)  # (when [s], tick, t) of status records: sent, or else received
+    _rate_clock: str = "wall"  # whose clock _rate's times are: "sent" (the publisher's) or "wall" (this process's)
     _stream_tick: dict[str, int] = field(default_factory=dict)  # the newest tick of each stream
     mission: dict | None = None  # the last mission document (quadsitl.telemetry.decode_mission), None before one
     info: dict | None = None  # the last good info document (groundstation.vehicle_info.decode_info)
@@ -108,10 +110,11 @@ class Vehicle:
 
     # ---- ingest ---------------------------------------------------------------------------------------
 
-    def ingest(self, stream: str, payload: bytes, wall: float, slow: bool = False) -> None:
+    def ingest(self, stream: str, payload: bytes, wall: float, slow: bool = False, sent: float | None = None) -> None:
         """A sample of ``stream``: full rate (consecutive ticks), or with ``slow`` the overview's one record
         (quadsitl/<vehicle>/slow/<stream>, :data:`quadsitl.telemetry.SLOW`), taken only while no full-rate sample
-        has come for STALE_AFTER: its record is a plot row and a trail point of its own, whatever its tick."""
+        has come for STALE_AFTER: its record is a plot row and a trail point of its own, whatever its tick. ``sent``:
+        when it was published [s, the publisher's clock], if the sample says; the rates use it instead of ``wall``."""
         if slow and wall - self.full_wall <= STALE_AFTER:
             return
         fmt = telemetry.STREAMS[stream]
@@ -137,8 +140,13 @@ class Vehicle:
         if not slow:
             self.full_wall = wall
         if stream == "status":
-            self._rate.append((wall, last[0], last[1]))
-            while len(self._rate) > 2 and wall - self._rate[1][0] >= RATE_WINDOW:
+            clock = "sent" if sent is not None else "wall"
+            if clock != self._rate_clock:  # the rates never mix the publisher's clock with this one
+                self._rate.clear()
+                self._rate_clock = clock
+            stamp = wall if sent is None else sent
+            self._rate.append((stamp, last[0], last[1]))
+            while len(self._rate) > 2 and stamp - self._rate[1][0] >= RATE_WINDOW:
                 self._rate.popleft()
         self.latest[stream] = last
         if not self.decimation:
@@ -345,8 +353,9 @@ class Fleet:
         self.vehicles: dict[str, Vehicle] = {}
         self.ignored = 0  # samples on keys that are not telemetry, or beyond MAX_VEHICLES
 
-    def ingest(self, key: str, payload: bytes, wall: float) -> None:
-        """A Zenoh sample on ``key`` (``quadsitl/<vehicle>/<stream>``) received at ``wall`` [s]."""
+    def ingest(self, key: str, payload: bytes, wall: float, sent: float | None = None) -> None:
+        """A Zenoh sample on ``key`` (``quadsitl/<vehicle>/<stream>``) received at ``wall`` [s] (published at
+        ``sent`` [s, the publisher's clock], if it says)."""
         parts = key.split("/")
         slow = len(parts) == 4 and parts[2] == telemetry.SLOW and parts[3] in telemetry.STREAMS
         if slow:
@@ -368,7 +377,7 @@ class Fleet:
         elif info:
             v.ingest_info(payload, wall)
         else:
-            v.ingest(parts[2], payload, wall, slow)
+            v.ingest(parts[2], payload, wall, slow, sent)
 
     def ordered(self) -> list[Vehicle]:
         """The vehicles in natural order of their names (v1, v2, …, v10)."""

@@ -57,6 +57,11 @@ RING = 16384  # samples the ring channel holds between drains (≈ 4 s of a 1 kH
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"  # where `quadsitl up` listens
 
 
+def ts_seconds(ts: zenoh.Timestamp) -> float:
+    """A Zenoh timestamp [s since the epoch, the publisher's clock]."""
+    return ts.get_time().timestamp()
+
+
 class Dashboard:
     """The shell around the fleet model: the Zenoh subscriber and the per-page update builder."""
 
@@ -76,7 +81,8 @@ class Dashboard:
         for sub in (*self.subs, *(w[0] for w in self.watched.values())):
             recv = sub.try_recv
             while (sample := recv()) is not None:
-                ingest(str(sample.key_expr), sample.payload.to_bytes(), now)
+                ts = sample.timestamp  # when it was published (telemetry.zenoh_config stamps it), if it says
+                ingest(str(sample.key_expr), sample.payload.to_bytes(), now, None if ts is None else ts_seconds(ts))
                 n += 1
         return n
 
