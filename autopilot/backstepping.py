@@ -51,8 +51,8 @@ from autopilot.control_params import (
 )
 from autopilot.gains import stability_interval
 from autopilot.limits import clamp, tilt_factor
+from quadsitl.compiled_frames import altitude, climb_rate, wrap_pi
 from quadsitl.config import PositionParams, VehicleParams
-from quadsitl.frames import altitude, climb_rate, wrap_pi
 from quadsitl.jit import jit, specialized
 from quadsitl.mixer import inputs_to_forces, residual_rotor_speed
 from quadsitl.param_arrays import ARM, D_OVER_B, IXX, IYY, IZZ, JR, K3, K4, K5, K6, MASS, B, G, vehicle_array

@@ -34,8 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quadsitl.earth import magnetic_field_ned
-from quadsitl.frames import (
+from quadsitl.compiled_frames import (
     body_rates_to_euler_rates,
     body_to_ned,
     euler_to_quaternion,
@@ -45,6 +44,7 @@ from quadsitl.frames import (
     quaternion_to_euler,
     rotation_vector_to_quaternion,
 )
+from quadsitl.earth import magnetic_field_ned
 from quadsitl.hil import BARO_NEW, GPS_NEW, MAG_NEW, Z_ACCEL, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_GYRO, Z_MAG, Z_SIZE
 from quadsitl.jit import jit
 from quadsitl.state import VehicleState

@@ -26,11 +26,12 @@ import numpy as np
 from autopilot import stream_frames
 from autopilot.commander import TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, Commander
 from quadsitl import __version__
-from quadsitl.earth import PX4_HOME
-from quadsitl.frames import euler_to_quaternion
+from quadsitl.codec import FRAME_MAX
+from quadsitl.compiled_frames import euler_to_quaternion
+from quadsitl.frames import PX4_HOME
 from quadsitl.state import Reference, VehicleState
-from quadsitl.wire import FRAME_MAX, Mode, mavlink, message_of
 from quadsitl.wire import STATUSTEXT_LEN as STATUSTEXT_LEN  # STATUSTEXT: one place for all, quadsitl.wire
+from quadsitl.wire import Mode, mavlink, message_of
 from quadsitl.wire import statustext as statustext
 
 

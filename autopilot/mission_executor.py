@@ -67,7 +67,7 @@ from dataclasses import dataclass
 
 from autopilot import mission_protocol as mp
 from autopilot.setpoints import local_altitude
-from quadsitl.frames import geodetic_to_ned
+from quadsitl.compiled_frames import geodetic_to_ned
 
 NAN = math.nan
 ACCEPTANCE_RADIUS = 2.0

@@ -39,8 +39,8 @@ from autopilot.control_params import (
     control_array,
 )
 from autopilot.limits import clamp, tilt_factor
+from quadsitl.compiled_frames import altitude, climb_rate, wrap_pi
 from quadsitl.config import PositionParams, VehicleParams
-from quadsitl.frames import altitude, climb_rate, wrap_pi
 from quadsitl.jit import jit, specialized
 from quadsitl.param_arrays import ARM, IXX, IYY, IZZ, MASS, G, vehicle_array
 from quadsitl.state import Inputs, Reference, VehicleState

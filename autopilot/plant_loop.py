@@ -167,13 +167,13 @@ def warm_up(targs: tuple) -> None:
         return
     import socket
 
-    from quadsitl import wire
+    from quadsitl import codec
     from quadsitl.process_util import set_receive_timeout
 
     targs = _copied(targs)
     tx, io = targs[-4], targs[-3]
-    frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-    n = wire.encode_state(frame, 0, 1, 1, 0, np.zeros(wire.DECODED_SIZE))
+    frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    n = codec.encode_state(frame, 0, 1, 1, 0, np.zeros(codec.DECODED_SIZE))
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         set_receive_timeout(sock, 0.1)

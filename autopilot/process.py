@@ -44,10 +44,10 @@ from autopilot.stream_frames import COMPILED as COMPILED_STREAMS
 from autopilot.stream_frames import StreamFrames
 from autopilot.streams import MessageStreams, phase_of
 from autopilot.tick import Batch, autopilot_tick, sensor_tick, warm_up
-from quadsitl import fastio, telemetry, wire
+from quadsitl import codec, fastio, telemetry, wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, add_state_arguments, check_range, parse_home, with_state
+from quadsitl.compiled_frames import quaternion_to_euler
 from quadsitl.config import ConfigError, Preset, load_preset
-from quadsitl.frames import quaternion_to_euler
 from quadsitl.process_util import (
     HOT_AFTER,
     PATIENCE,
@@ -165,8 +165,8 @@ class Autopilot:
             s = preset.sensors
             self.estimator = Estimator.for_field(self.period, preset.vehicle.gravity, s.mag_strength_gauss,
                                                  s.mag_declination_deg, s.mag_inclination_deg)  # fmt: skip
-        self.truth = np.full(wire.DECODED_SIZE, np.nan)  # the plant's ground truth of the last tick (sensor mode)
-        self.hil_frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)  # one frame of a sensor datagram, being decoded
+        self.truth = np.full(codec.DECODED_SIZE, np.nan)  # the plant's ground truth of the last tick (sensor mode)
+        self.hil_frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)  # one frame of a sensor datagram, being decoded
         self.origin = (self.home.lat, self.home.lon, self.home.alt)  # where the GPS's positions are taken from
         self.missions = Missions((self.home.lat, self.home.lon, self.home.alt))  # stored, transferred and flown
         self.sysid = args.system_id
@@ -177,10 +177,10 @@ class Autopilot:
         self.sensor_dropped = 0  # sensor samples with a NaN or an infinity (sensor mode), never used
         self.rx = bytearray(65535)  # the plant link's datagrams, read in place by the compiled decoder
         self.rx_array = np.frombuffer(self.rx, dtype=np.uint8)
-        self.tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)  # the answer, written by control_tick
+        self.tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)  # the answer, written by control_tick
         self.tx_view = memoryview(self.tx)  # type: ignore[arg-type]
-        self.st = np.zeros(wire.DECODED_SIZE)  # the decoded state (VehicleState fields, then p, q, r)
-        self.scratch = np.zeros(wire.DECODED_SIZE)  # a state being decoded
+        self.st = np.zeros(codec.DECODED_SIZE)  # the decoded state (VehicleState fields, then p, q, r)
+        self.scratch = np.zeros(codec.DECODED_SIZE)  # a state being decoded
         self.mem = np.zeros(MEM_SIZE)  # the command, forces, errors and Ωr of the last tick (autopilot.tick)
         self.plant_sock = bind_udp("--plant-listen", args.plant_listen)
         self.links: list[GcsLink] = []
@@ -474,7 +474,7 @@ class Autopilot:
             for mid in link.streams.due(tick, skip):
                 if mid not in built:
                     snap = snap or self._snapshot()
-                    built[mid] = wire.pack(gcs_messages.build(mid, snap, self.commander, self.home), self.gcs_mav)
+                    built[mid] = codec.pack(gcs_messages.build(mid, snap, self.commander, self.home), self.gcs_mav)
                 frames.append(built[mid])
             if frames and not link.send(b"".join(frames)):  # one datagram per link and tick, as PX4 fills its buffer
                 self.refresh_streams()
@@ -508,7 +508,7 @@ class Autopilot:
         return Snapshot(
             time_ms=round(tick * self.period * 1000),
             state=state,
-            body_rates=tuple(self.st[wire.BODY_RATES : wire.BODY_RATES + 3].tolist()),
+            body_rates=tuple(self.st[codec.BODY_RATES : codec.BODY_RATES + 3].tolist()),
             reference=ref,
             u1=float(self.mem[MEM_U]),
             controls=tuple(f / self.f_max for f in forces),
@@ -545,7 +545,7 @@ class Autopilot:
 
     def _send_gcs(self, msg) -> None:
         self.gcs_mav.seq = int(self.io[kernel.GCS_SEQ])  # one sequence with the frames the tick builds
-        buf = wire.pack(msg, self.gcs_mav)
+        buf = codec.pack(msg, self.gcs_mav)
         self.io[kernel.GCS_SEQ] = self.gcs_mav.seq
         for link in self.links:
             link.send(buf)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from quadsitl.frames import geodetic_to_ned
+from quadsitl.compiled_frames import geodetic_to_ned
 
 LOCAL_NED, GLOBAL, GLOBAL_INT, GLOBAL_RELATIVE_ALT_INT, BODY_NED, GLOBAL_TERRAIN_ALT_INT = 1, 0, 5, 6, 8, 11
 GLOBAL_RELATIVE_ALT, MISSION = 3, 2

@@ -23,10 +23,11 @@ import numpy as np
 
 from autopilot.commander import ARMED, HOLD_YAW, HOME_ALT, REF_ALT, REF_PITCH, REF_ROLL, REF_YAW, TARGET_ALT
 from autopilot.control_params import MEM_U
-from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
+from quadsitl.codec import BODY_RATES, FRAME_MAX, HEADER_SIZE, finish_frame
+from quadsitl.compiled_frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.jit import jit
 from quadsitl.rawbytes import put
-from quadsitl.wire import BODY_RATES, FRAME_MAX, HEADER_SIZE, UINT16_UNKNOWN, finish_frame, mavlink
+from quadsitl.wire import UINT16_UNKNOWN, mavlink
 
 _CLASSES = (  # by message id, the order of the frames in a datagram
     mavlink.MAVLink_gps_raw_int_message,

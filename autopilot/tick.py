@@ -1,11 +1,11 @@
 """The autopilot's work for one control tick, compiled (:mod:`quadsitl.jit`): the control law, the
 allocation, the answer to the plant and the telemetry records, in one call from the process's loop.
 
-The process (:mod:`autopilot.process`) decodes the state (:func:`quadsitl.wire.decode_state`), asks the
+The process (:mod:`autopilot.process`) decodes the state (:func:`quadsitl.codec.decode_state`), asks the
 commander for the reference, then calls :func:`control_tick`; everything else it does per tick is a
 few comparisons. The arrays it passes:
 
-- ``st``: the decoded state (:data:`quadsitl.wire.DECODED_SIZE`: the VehicleState fields, then p, q, r);
+- ``st``: the decoded state (:data:`quadsitl.codec.DECODED_SIZE`: the VehicleState fields, then p, q, r);
 - ``mem``: the controller's memory and outputs (:mod:`autopilot.control_params`: MEM_*);
 - ``v``, ``c``: the autopilot's vehicle model and control parameters (:mod:`quadsitl.param_arrays`,
   :mod:`autopilot.control_params`);
@@ -63,14 +63,14 @@ from autopilot.control_params import (
 from autopilot.pd import pd_attitude, pd_thrust, pd_vertical
 from autopilot.position import channel_mode, controls_horizontal, horizontal, or_zero
 from quadsitl import telemetry
-from quadsitl.frames import altitude, climb_rate
+from quadsitl.codec import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actuators, tick_of
+from quadsitl.compiled_frames import altitude, climb_rate
 from quadsitl.hil import Z_GYRO, decode_sensors
 from quadsitl.jit import jit
 from quadsitl.mixer import allocate
 from quadsitl.param_arrays import D_OVER_B
 from quadsitl.rawbytes import put
 from quadsitl.state import Inputs
-from quadsitl.wire import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actuators, tick_of
 
 _ZERO_ERRORS = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 GROUND_IDLE_MARGIN = 1e-6  # [m]: a reference this little above the vehicle resting on the ground asks for no climb
@@ -371,12 +371,12 @@ def warm_up() -> None:
     from autopilot.commander import Commander
     from autopilot.control_params import BACKSTEPPING, control_array
     from autopilot.estimator import Estimator
-    from quadsitl import hil, wire
+    from quadsitl import codec, hil
     from quadsitl.param_arrays import VEHICLE_SIZE
 
-    frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
     datagram = np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8)
-    st = np.zeros(wire.DECODED_SIZE)
+    st = np.zeros(codec.DECODED_SIZE)
     v = np.ones(VEHICLE_SIZE)
     c = control_array((0.5,) * 8, 0.001)
     batch = Batch(2)
@@ -390,7 +390,7 @@ def warm_up() -> None:
                 commander.arm()
             io = np.zeros(IO_SIZE, dtype=np.int64)
             io[LAST_USEC], io[CAPACITY] = -1, batch.capacity
-            n = wire.encode_state(frame, 0, 1, 1, 0, st)
+            n = codec.encode_state(frame, 0, 1, 1, 0, st)
             autopilot_tick(frame, n, st.copy(), st, 0.001, kind, commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0,
                            frame, io, batch.records, frames.out)  # fmt: skip
             io[LAST_USEC] = -1

@@ -11,8 +11,8 @@ import timeit
 import numpy as np
 
 from autopilot.tick import ROWS, TX_LEN, autopilot_tick
+from quadsitl.codec import usec_of
 from quadsitl.jit import jit
-from quadsitl.wire import usec_of
 from sitl import tick
 
 
@@ -28,7 +28,7 @@ def measure(number: int) -> dict[str, float]:
     from autopilot.control_params import BACKSTEPPING, MEM_SIZE, control_array
     from autopilot.stream_frames import StreamFrames
     from autopilot.tick import CAPACITY, IO_SIZE, LAST_USEC, Batch
-    from quadsitl import wire
+    from quadsitl import codec
     from quadsitl.config import SensorParams, load_preset
     from quadsitl.jit import specialized
     from quadsitl.param_arrays import actuator_array, vehicle_array
@@ -63,9 +63,9 @@ def measure(number: int) -> dict[str, float]:
             figures["plant step (euler), through numba's dispatch"] = dispatched
 
     # The processes' whole ticks, frame in to frame out (no sockets).
-    state_frame, answer = np.zeros(wire.FRAME_MAX, np.uint8), np.zeros(wire.FRAME_MAX, np.uint8)
-    n_state = wire.encode_state(state_frame, 0, 1, 25, 1000, x)
-    st, scratch = np.zeros(wire.DECODED_SIZE), np.zeros(wire.DECODED_SIZE)
+    state_frame, answer = np.zeros(codec.FRAME_MAX, np.uint8), np.zeros(codec.FRAME_MAX, np.uint8)
+    n_state = codec.encode_state(state_frame, 0, 1, 25, 1000, x)
+    st, scratch = np.zeros(codec.DECODED_SIZE), np.zeros(codec.DECODED_SIZE)
     commander, batch = Commander(), Batch(64)
     frames = StreamFrames(2, (47.0, 8.0, 488.0), 4 * 1e4).out  # no stream due: as on most ticks
     commander.arm()

@@ -320,7 +320,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     from groundstation.fleet import check_vehicle_count, plan_fleet
     from groundstation.launcher import up
     from quadsitl.cli_util import parse_home, parse_vehicle_presets
-    from quadsitl.earth import PX4_HOME
+    from quadsitl.frames import PX4_HOME
     from quadsitl.process_util import parse_address, parse_remote
 
     preset = with_state(with_wind(_load(args.preset), args), args)

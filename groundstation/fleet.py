@@ -28,8 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from quadsitl.cli_util import UsageError
-from quadsitl.earth import PX4_HOME
-from quadsitl.frames import ned_to_geodetic
+from quadsitl.frames import PX4_HOME, ned_to_geodetic
 from quadsitl.process_util import parse_address
 
 MAX_VEHICLES = 64

@@ -42,7 +42,7 @@ from groundstation.launcher import (
 )
 from quadsitl.cli_util import UsageError, parse_floats, state_argv, wind_argv
 from quadsitl.config import SENSOR_GROUND_S, load_preset
-from quadsitl.earth import PX4_HOME
+from quadsitl.frames import PX4_HOME
 from quadsitl.process_util import PLANT_DIVERGED, free_port, stop_status
 
 DEFAULT_ALTITUDE, DEFAULT_DISTANCE = 5.0, 10.0  # [m]

@@ -51,8 +51,7 @@ from groundstation.telemetry_csv import write_csv
 from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.earth import PX4_HOME
-from quadsitl.frames import euler_to_quaternion, geodetic_to_ned
+from quadsitl.frames import PX4_HOME, euler_to_quaternion, geodetic_to_ned
 from quadsitl.process_util import parse_address, start_process, stop_status
 from quadsitl.state import Reference
 

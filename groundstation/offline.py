@@ -25,9 +25,9 @@ from autopilot.factory import make_controller
 from groundstation.figures import write_figures
 from groundstation.metrics import channel_outputs, estimate_rms, run_metrics
 from groundstation.telemetry_csv import rows_from_arrays, write_csv
-from quadsitl import hil, wire
+from quadsitl import codec, hil
 from quadsitl.config import SENSOR_GROUND_S, Preset
-from quadsitl.earth import PX4_HOME
+from quadsitl.frames import PX4_HOME
 from quadsitl.mixer import allocate
 from quadsitl.state import VehicleState
 from sitl import tick as plant_tick
@@ -49,8 +49,8 @@ class SensorObserver:
         self.io = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
         self.io[plant_tick.SENSING] = 1
         self.datagram = np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8)
-        self.truth = np.zeros(wire.DECODED_SIZE)
-        self.frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+        self.truth = np.zeros(codec.DECODED_SIZE)
+        self.frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
 
     def __call__(self, k: int) -> VehicleState:
         """The estimate at tick ``k`` (since the plant started) from the plant's state now."""

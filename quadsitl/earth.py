@@ -12,7 +12,7 @@ the difference from geometric altitude is 0.08 % at 500 m and is not modelled).
 true north, [rad]) and inclination I (below the horizontal, [rad]); in NED:
 B = F·(cos I·cos D, cos I·sin D, sin I). The defaults are jMAVSim's Zürich figures (``Simulator.java``:
 inclination 63.39°, declination 2.75°, and its field vector (0.21506, 0.01021, 0.42974) G, whose magnitude
-is 0.4807 G), for PX4 SITL's default home below.
+is 0.4807 G), for PX4 SITL's default home (:data:`quadsitl.frames.PX4_HOME`).
 
 Compiled (:mod:`quadsitl.jit`).
 """
@@ -22,14 +22,6 @@ from __future__ import annotations
 import math
 
 from quadsitl.jit import jit
-
-# PX4 SITL's default home (Irchel Park, Zürich): where the local NED frame's origin is on the globe.
-HOME_LAT = 47.397742  # [deg]
-HOME_LON = 8.545594  # [deg]
-HOME_ALT = 488.0  # [m] AMSL
-PX4_HOME = (HOME_LAT, HOME_LON, HOME_ALT)
-"""PX4 SITL's default home (Zürich): latitude, longitude [deg], altitude AMSL [m]. The autopilot's default origin
-(``--home``) and a fleet's first vehicle's home."""
 
 # ISA troposphere
 T0 = 288.15  # [K] sea-level temperature

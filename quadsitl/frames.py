@@ -3,19 +3,28 @@
 Conventions: local NED, body FRD, ZYX Euler angles (roll φ, pitch θ, yaw ψ), radians, SI units.
 Quaternions are [w, x, y, z] and rotate FRD vectors into NED, as MAVLink's ``q`` fields do.
 
-The per-tick conversions are compiled (:mod:`quadsitl.jit`); call them with floats.
+Plain Python, importable without the compiler: the ground side's processes (the ground station, the dashboard, the
+command line) call these as they are and start without loading numba (half a second each). Compiled code calls the
+same functions compiled, from :mod:`quadsitl.compiled_frames`. So that one compiled version of each function is
+possible, none of them calls another function of this module (numba looks a function's callees up in its own
+module, where they are plain Python). Call them with floats.
 """
 
 from __future__ import annotations
 
 import math
 
-from quadsitl.jit import jit
-
 TWO_PI = 2.0 * math.pi
 
+# PX4 SITL's default home (Irchel Park, Zürich): where the local NED frame's origin is on the globe.
+HOME_LAT = 47.397742  # [deg]
+HOME_LON = 8.545594  # [deg]
+HOME_ALT = 488.0  # [m] AMSL
+PX4_HOME = (HOME_LAT, HOME_LON, HOME_ALT)
+"""PX4 SITL's default home (Zürich): latitude, longitude [deg], altitude AMSL [m]. The autopilot's default origin
+(``--home``) and a fleet's first vehicle's home."""
 
-@jit(inline=True)
+
 def wrap_pi(angle: float) -> float:
     """Wrap an angle [rad] into [−π, π): the angle itself when it is there already (exactly: the remainder's
     (angle + π) − π would round a small yaw error to a multiple of π's ulp, 4.4e-16 rad, and costs a floating-point
@@ -25,19 +34,16 @@ def wrap_pi(angle: float) -> float:
     return (angle + math.pi) % TWO_PI - math.pi
 
 
-@jit(inline=True)
 def altitude(s: tuple) -> float:
     """Height above the ground plane [m] of a state in VehicleState order: h = −z_NED (the paper's x1)."""
     return -s[2]
 
 
-@jit(inline=True)
 def climb_rate(s: tuple) -> float:
     """Vertical speed upwards [m/s] of a state in VehicleState order: ḣ = −vz_NED (the paper's x2)."""
     return -s[5]
 
 
-@jit
 def euler_rates_to_body_rates(
     roll: float, pitch: float, roll_dot: float, pitch_dot: float, yaw_dot: float
 ) -> tuple[float, float, float]:
@@ -50,7 +56,6 @@ def euler_rates_to_body_rates(
     return p, q, r
 
 
-@jit
 def body_rates_to_euler_rates(roll: float, pitch: float, p: float, q: float, r: float) -> tuple[float, float, float]:
     """Inverse of paper eq (1): body rates (p, q, r) → Euler-angle rates (φ̇, θ̇, ψ̇).
 
@@ -65,7 +70,6 @@ def body_rates_to_euler_rates(roll: float, pitch: float, p: float, q: float, r: 
     return roll_dot, pitch_dot, yaw_dot
 
 
-@jit
 def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
     """ZYX Euler angles → unit quaternion [w, x, y, z] (FRD → NED)."""
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
@@ -79,7 +83,6 @@ def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, f
     )
 
 
-@jit
 def quaternion_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
     """Unit quaternion [w, x, y, z] (FRD → NED) → ZYX Euler angles (roll, pitch, yaw) [rad]."""
     roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
@@ -94,12 +97,11 @@ def quaternion_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, 
 EARTH_RADIUS = 6371000.0  # [m], PX4's CONSTANTS_RADIUS_OF_EARTH
 
 
-@jit
 def ned_to_geodetic(north: float, east: float, lat0: float, lon0: float) -> tuple[float, float]:
     """Local north/east offsets [m] from a home at (lat0, lon0) [deg] → (lat, lon) [deg].
 
-    The azimuthal equidistant projection on a sphere, as PX4's ``MapProjection::reproject``. Compiled: the plant's
-    GPS (:mod:`quadsitl.hil`) and the ground stations use this one function.
+    The azimuthal equidistant projection on a sphere, as PX4's ``MapProjection::reproject``. The plant's GPS
+    (:mod:`quadsitl.hil`, compiled) and the ground stations use this one function.
     """
     lat0_r, lon0_r = math.radians(lat0), math.radians(lon0)
     x, y = north / EARTH_RADIUS, east / EARTH_RADIUS
@@ -113,7 +115,6 @@ def ned_to_geodetic(north: float, east: float, lat0: float, lon0: float) -> tupl
     return math.degrees(lat), math.degrees(lon)
 
 
-@jit
 def geodetic_to_ned(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
     """Inverse of :func:`ned_to_geodetic`: (lat, lon) [deg] → north/east offsets [m] from (lat0, lon0)."""
     lat_r, lat0_r = math.radians(lat), math.radians(lat0)
@@ -129,7 +130,6 @@ def geodetic_to_ned(lat: float, lon: float, lat0: float, lon0: float) -> tuple[f
 # ---- rotating vectors and composing rotations (the sensors and the estimator) ---------------------------
 
 
-@jit
 def body_to_ned(q: tuple, x: float, y: float, z: float) -> tuple[float, float, float]:
     """A vector in FRD body axes → NED, by the unit quaternion q = [w, x, y, z] (FRD → NED): v_n = R(q)·v_b."""
     w, a, b, c = q[0], q[1], q[2], q[3]
@@ -140,7 +140,6 @@ def body_to_ned(q: tuple, x: float, y: float, z: float) -> tuple[float, float, f
     )
 
 
-@jit
 def ned_to_body(q: tuple, n: float, e: float, d: float) -> tuple[float, float, float]:
     """A vector in NED → FRD body axes, by the unit quaternion q (FRD → NED): v_b = R(q)ᵀ·v_n."""
     w, a, b, c = q[0], q[1], q[2], q[3]
@@ -151,7 +150,6 @@ def ned_to_body(q: tuple, n: float, e: float, d: float) -> tuple[float, float, f
     )
 
 
-@jit
 def quaternion_multiply(p: tuple, q: tuple) -> tuple[float, float, float, float]:
     """The Hamilton product p ⊗ q of quaternions [w, x, y, z] (rotate by q, then by p)."""
     return (
@@ -162,7 +160,6 @@ def quaternion_multiply(p: tuple, q: tuple) -> tuple[float, float, float, float]
     )
 
 
-@jit
 def rotation_vector_to_quaternion(x: float, y: float, z: float) -> tuple[float, float, float, float]:
     """The unit quaternion of a rotation by the angle |θ| [rad] about θ/|θ| (θ = (x, y, z)): Exp(θ)."""
     angle = math.sqrt(x * x + y * y + z * z)
@@ -172,7 +169,6 @@ def rotation_vector_to_quaternion(x: float, y: float, z: float) -> tuple[float, 
     return (math.cos(0.5 * angle), s * x, s * y, s * z)
 
 
-@jit
 def normalize_quaternion(q: tuple) -> tuple[float, float, float, float]:
     """q / |q|, with the sign of w made non-negative (the same rotation)."""
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])

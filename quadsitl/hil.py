@@ -26,7 +26,8 @@ import math
 
 import numpy as np
 
-from quadsitl.frames import (
+from quadsitl.codec import BAD_CRC, HEADER_SIZE, MAVLINK2_STX, NOT_THIS_FRAME, _get_f32, _put_f32, crc16, finish_frame
+from quadsitl.compiled_frames import (
     body_rates_to_euler_rates,
     euler_rates_to_body_rates,
     euler_to_quaternion,
@@ -36,18 +37,7 @@ from quadsitl.frames import (
 )
 from quadsitl.jit import jit
 from quadsitl.rawbytes import get, put
-from quadsitl.wire import (
-    BAD_CRC,
-    HEADER_SIZE,
-    MAVLINK2_STX,
-    NOT_THIS_FRAME,
-    UINT16_UNKNOWN,
-    _get_f32,
-    _put_f32,
-    crc16,
-    finish_frame,
-    mavlink,
-)
+from quadsitl.wire import UINT16_UNKNOWN, mavlink
 
 _SENSOR = mavlink.MAVLink_hil_sensor_message
 _GPS = mavlink.MAVLink_hil_gps_message
@@ -70,7 +60,7 @@ ACCEL_UPDATED, GYRO_UPDATED, MAG_UPDATED, BARO_UPDATED = 0b111, 0b111000, 0b1110
 Z_GYRO, Z_ACCEL, Z_MAG, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_SIZE = 0, 3, 6, 9, 10, 13, 16
 MAG_NEW, BARO_NEW, GPS_NEW = 1, 2, 4
 # ... and the ground truth (``truth``): the 12 VehicleState fields (Euler-angle rates by the inverse of eq (1)),
-# then body rates p, q, r [rad/s] (as quadsitl.wire.decode_state's), NaN when the datagram carried none.
+# then body rates p, q, r [rad/s] (as quadsitl.codec.decode_state's), NaN when the datagram carried none.
 TRUTH_DECODED = 15
 # What was dropped (``dropped``, bits): a sample with a NaN or an infinity is never used.
 IMU_DROPPED, MAG_DROPPED, BARO_DROPPED, GPS_DROPPED = 1, 2, 4, 8

@@ -73,7 +73,7 @@ def jit(fn: F | None = None, *, inline: bool = False) -> F | Callable[[F], F]:
     function's body is also inlined into every compiled caller (numba's ``inline="always"``), for the equations
     of one control tick, which the per-tick kernels and the sweeps' batch engine call millions of times; the
     results are the same to the bit, and only callers' compile times grow. Also for the codec's small byte helpers
-    (:mod:`quadsitl.wire`, :mod:`quadsitl.hil`): compiled code calls them with constant offsets and sizes, and numba
+    (:mod:`quadsitl.codec`, :mod:`quadsitl.hil`): compiled code calls them with constant offsets and sizes, and numba
     compiles a function called from compiled code once per combination of constant arguments (13 versions of one
     four-byte read); inlined, they compile with their caller. That took the compile of a fresh checkout's
     autopilot from 64-70 s to 56 s and its tick from 4.2 to 2.8-2.9 us."""

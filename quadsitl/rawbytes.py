@@ -1,6 +1,6 @@
 """Numbers stored in and read from byte buffers at any offset, little-endian, for the compiled codecs.
 
-MAVLink payloads (:mod:`quadsitl.wire`, :mod:`quadsitl.hil`, :mod:`autopilot.stream_frames`) and the telemetry
+MAVLink payloads (:mod:`quadsitl.codec`, :mod:`quadsitl.hil`, :mod:`autopilot.stream_frames`) and the telemetry
 records (:mod:`autopilot.tick`) put floats and integers at byte offsets that are not multiples of their size. The
 obvious numba spelling, ``buf[at : at + 4].view(np.float32)[0] = value``, builds two array objects per field and
 counts references on each (about 30 ns a field on a 2-core KVM guest: 16 fields of an ODOMETRY frame cost more than

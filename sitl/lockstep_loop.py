@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from quadsitl import fastio
+from quadsitl.codec import usec_of
 from quadsitl.jit import jit
-from quadsitl.wire import usec_of
 from sitl import tick
 
 # What run() returns with: at a tick boundary, tick k's datagram not sent yet (DUE, END); or tick k's datagram sent

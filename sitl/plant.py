@@ -17,9 +17,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from quadsitl.compiled_frames import wrap_pi
 from quadsitl.config import Preset, SensorParams
-from quadsitl.earth import PX4_HOME
-from quadsitl.frames import wrap_pi
+from quadsitl.frames import PX4_HOME
 from quadsitl.jit import jit, specialized
 from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
 from quadsitl.param_arrays import D_OVER_B, VEHICLE_SIZE, B, actuator_array, vehicle_array

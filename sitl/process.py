@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from quadsitl import fastio, hil, wire
+from quadsitl import codec, fastio, hil, wire
 from quadsitl.cli_util import (
     UsageError,
     add_preset_arguments,
@@ -57,7 +57,7 @@ from quadsitl.cli_util import (
     with_wind,
 )
 from quadsitl.config import ConfigError, Preset, load_preset
-from quadsitl.earth import PX4_HOME
+from quadsitl.frames import PX4_HOME
 from quadsitl.process_util import (
     HOT_AFTER,
     PATIENCE,
@@ -86,7 +86,7 @@ AUTOPILOT_LOST_AFTER = 0.5  # [s] wall without an actuator message: the autopilo
 
 class PlantLink:
     """The plant's end of the UDP link: send states, receive actuator commands. The two per-tick messages
-    are encoded and decoded in place by the compiled codec (:mod:`quadsitl.wire`, :mod:`sitl.tick`)."""
+    are encoded and decoded in place by the compiled codec (:mod:`quadsitl.codec`, :mod:`sitl.tick`)."""
 
     def __init__(
         self,
@@ -102,7 +102,7 @@ class PlantLink:
         self.who = f"{name}'s autopilot" if name else "autopilot"  # in messages (a fleet's name the vehicle)
         self.rx = bytearray(65535)
         self.rx_array = np.frombuffer(self.rx, dtype=np.uint8)
-        self.tx = np.zeros(max(wire.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
+        self.tx = np.zeros(max(codec.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
         self.tx_view = memoryview(self.tx)  # type: ignore[arg-type]
         self.io = np.zeros(tick.IO_SIZE, dtype=np.int64)  # sequence, frame length, last stamp used, refusals
         self.io[tick.LAST_USEC] = -1
@@ -192,8 +192,8 @@ class PlantLink:
     def decode(self, nbytes: int) -> int:
         """The stamp of the actuator message in rx[:nbytes] (its forces in ``self.received``); −1 when there
         is none (corrupt and non-finite ones counted)."""
-        t = wire.decode_actuators(self.rx_array, nbytes, self.received, self.max_thrust)
-        if t == wire.NOT_THIS_FRAME:
+        t = codec.decode_actuators(self.rx_array, nbytes, self.received, self.max_thrust)
+        if t == codec.NOT_THIS_FRAME:
             return self._decode_slowly(nbytes)
         if t < 0:
             self.io[tick.CORRUPT] += 1
@@ -215,7 +215,7 @@ class PlantLink:
             elif m.time_usec > best:
                 best = m.time_usec
                 self.received[:] = wire.forces_from_message(m, self.max_thrust)
-                self.io[tick.ANSWER_ARMED] = 1 if m.mode & wire.SAFETY_ARMED else 0
+                self.io[tick.ANSWER_ARMED] = 1 if m.mode & codec.SAFETY_ARMED else 0
         return best
 
     def apply(self, plant: Plant, t: int) -> bool:
@@ -272,7 +272,7 @@ class PlantLink:
     def announce(self, severity: int, text: str) -> None:
         """``text`` as STATUSTEXT to the autopilot, all its chunks in one datagram, at once (no impairment: the
         plant is about to end); nobody listening is no error."""
-        frames = b"".join(wire.pack(m, self.mav) for m in wire.statustext(severity, text, 1))
+        frames = b"".join(codec.pack(m, self.mav) for m in wire.statustext(severity, text, 1))
         with contextlib.suppress(OSError):
             self.sock.send(frames)
 
@@ -283,16 +283,16 @@ class PlantLink:
 def warm_up(plant: Plant) -> None:
     """Compile (or load from numba's cache) everything a tick calls, before the first tick, on a copy."""
     twin = copy.deepcopy(plant)
-    link = np.zeros(max(wire.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
+    link = np.zeros(max(codec.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
     io = np.zeros(tick.IO_SIZE, dtype=np.int64)
     args = (twin.x, twin.motors, twin.out, twin.v, twin.a, twin.air, twin.air_rng, twin.period, twin.substeps,
             twin.method, link, io, twin.sensors.arrays)  # fmt: skip
     for sensing in (0, 1):
         io[tick.SENSING] = sensing
-        n = wire.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
+        n = codec.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
         tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, *args, 0)
         tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), *args, 0)
-    wire.decode_actuators(link, n, twin.commanded, 1.0)
+    codec.decode_actuators(link, n, twin.commanded, 1.0)
     twin.step()
     state_inside(twin.x)
     if fastio.AVAILABLE:  # the compiled clock, on a loopback pair: each wait finds an answer to tick 0
@@ -375,7 +375,7 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
         waits.append((v, link, link.receive, link.rx_array, link.max_thrust, link.received, p.commanded, args))
     links = [v.link for v in vehicles]
     winds = [v for v in vehicles if v.wind is not None]
-    monotonic, lockstep_tick, usec_of = time.monotonic, tick.lockstep_tick, wire.usec_of
+    monotonic, lockstep_tick, usec_of = time.monotonic, tick.lockstep_tick, codec.usec_of
     # One vehicle, unpaced: once its autopilot has answered, the ticks run in compiled code (sitl.lockstep_loop)
     # until Python has something to do; the loop below then goes on from where it stopped.
     fast = len(vehicles) == 1 and speed <= 0 and fastio.compiled_loops() and links[0].impairment is None
@@ -533,7 +533,7 @@ def run_realtime(
             # scheduler ran something else) takes the answers that came in time, not the last command
             for v in vehicles:
                 v.link.drain(v.plant)
-        want = wire.usec_of(k, period)
+        want = codec.usec_of(k, period)
         for v in vehicles:
             if v.link.io[tick.LAST_USEC] == want:
                 v.answered += 1

@@ -27,9 +27,10 @@ import math
 
 import numpy as np
 
+from quadsitl.compiled_frames import euler_rates_to_body_rates, euler_to_quaternion, ned_to_body
 from quadsitl.config import GPS_QUEUE, SensorParams
-from quadsitl.earth import PX4_HOME, ZERO_CELSIUS, isa_altitude, isa_pressure, isa_temperature, magnetic_field_ned
-from quadsitl.frames import euler_rates_to_body_rates, euler_to_quaternion, ned_to_body
+from quadsitl.earth import ZERO_CELSIUS, isa_altitude, isa_pressure, isa_temperature, magnetic_field_ned
+from quadsitl.frames import PX4_HOME
 from quadsitl.hil import ACCEL_UPDATED, BARO_UPDATED, GYRO_UPDATED, MAG_UPDATED  # HIL_SENSOR.fields_updated
 from quadsitl.jit import jit
 from sitl.noise import gauss_markov, normal, seed_streams

@@ -21,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from quadsitl.frames import euler_rates_to_body_rates
+from quadsitl.compiled_frames import euler_rates_to_body_rates
 from quadsitl.state import Inputs, Reference, VehicleState
 from sitl.plant import Plant, outside_what, state_inside
 

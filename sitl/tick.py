@@ -12,10 +12,10 @@ import math
 
 import numpy as np
 
-from quadsitl.frames import euler_to_quaternion
+from quadsitl.codec import HEADER_SIZE, HIL_SIZE, NOT_THIS_FRAME, SAFETY_ARMED, decode_actuators, encode_state, usec_of
+from quadsitl.compiled_frames import euler_to_quaternion
 from quadsitl.hil import encode_gps, encode_sensor, encode_truth
 from quadsitl.jit import jit
-from quadsitl.wire import HEADER_SIZE, HIL_SIZE, NOT_THIS_FRAME, SAFETY_ARMED, decode_actuators, encode_state, usec_of
 from sitl import sensors as sn
 from sitl.plant import DEFAULT_LIMITS, OUT_MEAN_ACCEL, OUT_ON_GROUND, inside, step_arrays
 

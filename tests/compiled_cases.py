@@ -19,7 +19,7 @@ from autopilot.pd import pd
 from autopilot.stream_frames import StreamFrames
 from autopilot.tick import autopilot_tick
 from groundstation.offline import run_offline
-from quadsitl import frames, mixer, wire
+from quadsitl import codec, compiled_frames, mixer
 from quadsitl.config import SensorParams, WindParams, load_preset
 from quadsitl.param_arrays import actuator_array, vehicle_array
 from sitl import actuators, dynamics, integrators, tick
@@ -76,10 +76,10 @@ def compute() -> dict[str, np.ndarray]:
             "advance": actuators.advance(f, tuple(inputs[-1 - i]), 0.001, lagged),
             "backstepping": backstepping(s, ref, u, v, c)[0] + backstepping(s, ref, u, v, c)[1],
             "pd": pd(s, ref, v, c),
-            "body_rates": frames.euler_rates_to_body_rates(s[6], s[7], s[9], s[10], s[11]),
-            "euler_rates": frames.body_rates_to_euler_rates(s[6], s[7], s[9], s[10], s[11]),
-            "quaternion": frames.euler_to_quaternion(s[6], s[7], s[8]),
-            "wrap": (frames.wrap_pi(s[8] * 7.0),),
+            "body_rates": compiled_frames.euler_rates_to_body_rates(s[6], s[7], s[9], s[10], s[11]),
+            "euler_rates": compiled_frames.body_rates_to_euler_rates(s[6], s[7], s[9], s[10], s[11]),
+            "quaternion": compiled_frames.euler_to_quaternion(s[6], s[7], s[8]),
+            "wrap": (compiled_frames.wrap_pi(s[8] * 7.0),),
         }
         for key, value in row.items():
             rows.setdefault(key, []).append(np.ravel(np.array(value, dtype=np.float64)))
@@ -93,9 +93,9 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
     preset = load_preset("paper")
     v, a = vehicle_array(preset.vehicle), actuator_array(preset.actuators)
     c = control_array(preset.poles(), preset.sim.period, preset.controller.pd_kp, preset.controller.pd_kd)
-    rx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-    tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-    st, scratch, mem = np.zeros(wire.DECODED_SIZE), np.zeros(wire.DECODED_SIZE), np.zeros(MEM_SIZE)
+    rx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    st, scratch, mem = np.zeros(codec.DECODED_SIZE), np.zeros(codec.DECODED_SIZE), np.zeros(MEM_SIZE)
     io_ap = np.zeros(11, dtype=np.int64)
     io_ap[0], io_ap[4], io_ap[8], io_ap[9] = -1, 4, 1, 1
     records = np.zeros(4 * 512, dtype=np.uint8)
@@ -124,7 +124,7 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
         m = int(io_ap[1])
         bytes_out.append(tx[:m].copy())
         rx[:m] = tx[:m]
-        tick.lockstep_tick(rx, m, wire.usec_of(k, preset.sim.period), 1e4, received, commanded, x, motors, out, v, a,
+        tick.lockstep_tick(rx, m, codec.usec_of(k, preset.sim.period), 1e4, received, commanded, x, motors, out, v, a,
                            *air, preset.sim.period, 1, 0, tx, io_pl, sens, k)  # fmt: skip
         frames_out.append(np.concatenate([x, mem, cm.cm]))
         bytes_out.append(records.copy())

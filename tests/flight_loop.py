@@ -18,7 +18,7 @@ from autopilot.control_params import MEM_FORCES, MEM_SIZE
 from autopilot.factory import make_controller
 from autopilot.params import commander_settings
 from autopilot.tick import EVENT, IO_SIZE, control_tick
-from quadsitl import wire
+from quadsitl import codec
 from quadsitl.config import Preset
 from quadsitl.state import VehicleState
 from sitl.plant import Plant
@@ -39,8 +39,8 @@ class Flight:
         self.commander = Commander(commander_settings((model or preset).position, settings or CommanderSettings()))
         self.cm = self.commander.cm
         self.mem = np.zeros(MEM_SIZE)
-        self.st = np.zeros(wire.DECODED_SIZE)
-        self.tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+        self.st = np.zeros(codec.DECODED_SIZE)
+        self.tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
         self.io = np.zeros(IO_SIZE, dtype=np.int64)
         self.records = np.zeros(0, dtype=np.uint8)
         self.period = preset.sim.period
@@ -61,7 +61,7 @@ class Flight:
             self.st[:12] = self.plant.x
             t = self.tick * self.period
             control_tick(self.kind, self.st, self.cm, self.mem, self.v, self.c, self.f_min, self.f_max, self.tx,
-                         self.io, wire.usec_of(self.tick, self.period), self.tick, t, self.records)  # fmt: skip
+                         self.io, codec.usec_of(self.tick, self.period), self.tick, t, self.records)  # fmt: skip
             self.commander.announce(int(self.io[EVENT]))
             self.plant.step(tuple(self.mem[MEM_FORCES : MEM_FORCES + 4]))
             self.tick += 1

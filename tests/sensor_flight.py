@@ -27,10 +27,10 @@ from autopilot.estimator import (
     EstimatorParams,
 )
 from autopilot.factory import make_controller
+from quadsitl.codec import usec_of
 from quadsitl.config import SensorParams, load_preset
 from quadsitl.mixer import allocate
 from quadsitl.state import Reference
-from quadsitl.wire import usec_of
 from sitl.plant import OUT_MEAN_ACCEL, Plant
 from sitl.sensors import (
     BARO_UPDATED,

@@ -351,8 +351,7 @@ def test_the_map_shows_the_mission_and_its_current_item_as_it_flies(browser, art
     """``quadsitl up --dashboard``; a raw pymavlink ground station uploads three waypoints by the mission protocol
     and starts the mission: the page's map shows the plan where the items are, rings the current item, and
     follows it to the next one when the first is reached; the status panel says which item of how many."""
-    from quadsitl.earth import PX4_HOME
-    from quadsitl.frames import ned_to_geodetic
+    from quadsitl.frames import PX4_HOME, ned_to_geodetic
 
     port = free_port(socket.SOCK_STREAM)
     url = f"http://127.0.0.1:{port}/"

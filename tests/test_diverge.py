@@ -20,7 +20,7 @@ from groundstation.sweep import engine
 from groundstation.sweep.run import fly as fly_batch
 from groundstation.sweep.spec import parse_spec, trial_preset
 from groundstation.telemetry_csv import read_csv
-from quadsitl import wire
+from quadsitl import codec, wire
 from quadsitl.config import load_preset, preset_toml
 from sitl import plant, process, simulate, tick
 from tests.test_fly import alive, children_of, quadsitl
@@ -202,8 +202,8 @@ def test_the_autopilot_never_flies_a_non_finite_state():
     from quadsitl.param_arrays import vehicle_array
 
     p = load_preset("paper")
-    frame, tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8), np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-    st, scratch, mem = np.zeros(wire.DECODED_SIZE), np.zeros(wire.DECODED_SIZE), np.zeros(kernel.MEM_SIZE)
+    frame, tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8), np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    st, scratch, mem = np.zeros(codec.DECODED_SIZE), np.zeros(codec.DECODED_SIZE), np.zeros(kernel.MEM_SIZE)
     v, c = vehicle_array(p.vehicle), control_array(p.poles(), 0.001, p.controller.pd_kp, p.controller.pd_kd)
     io = np.zeros(kernel.IO_SIZE, dtype=np.int64)
     io[kernel.LAST_USEC] = -1
@@ -211,7 +211,7 @@ def test_the_autopilot_never_flies_a_non_finite_state():
     records = np.zeros(1, dtype=np.uint8)
 
     def deliver(k: int, x) -> int:
-        n = wire.encode_state(frame, k & 0xFF, 1, 25, wire.usec_of(k, 0.001), tuple(x))
+        n = codec.encode_state(frame, k & 0xFF, 1, 25, codec.usec_of(k, 0.001), tuple(x))
         return kernel.autopilot_tick(frame, n, scratch, st, 0.001, PD, cm.cm, mem, v, c, 0.0, 10.0, tx, io, records,
                                      StreamFrames(2, (47.0, 8.0, 488.0), 40.0).out)  # fmt: skip
 

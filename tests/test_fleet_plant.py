@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-from quadsitl import wire
+from quadsitl import codec, wire
 from quadsitl.config import load_preset
 from quadsitl.process_util import PLANT_DIVERGED
 
@@ -66,7 +66,7 @@ class FakeAutopilot:
 
     def answer(self, time_usec: int, forces: tuple[float, float, float, float], armed: bool = True) -> None:
         msg = wire.actuator_message(time_usec, forces, MAX_THRUST, armed)
-        self.sock.sendto(wire.pack(msg, self.mav), self.plant)
+        self.sock.sendto(codec.pack(msg, self.mav), self.plant)
 
     def close(self) -> None:
         self.sock.close()
@@ -116,7 +116,7 @@ def test_lockstep_no_vehicle_runs_ahead_and_a_silent_one_holds_the_fleet():
         aps[1].answer(0, (HOVER,) * 4)
         # now the fleet goes on together, tick by tick, for 200 ticks
         for k in range(1, 200):
-            want = wire.usec_of(k, PAPER.sim.period)
+            want = codec.usec_of(k, PAPER.sim.period)
             stamps = [ap.next_tick(5, since=want if k == 1 else 0)[0] for ap in aps]
             assert stamps == [want] * 3, (k, stamps)
             for ap, t in zip(aps, stamps, strict=True):

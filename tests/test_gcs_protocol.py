@@ -13,10 +13,11 @@ from autopilot.factory import make_controller
 from autopilot.params import INDEX, MAX_NAME, SPECS, ParamStore, apply
 from autopilot.pd import PDController
 from autopilot.streams import FAST, MessageStreams, phase_of
+from quadsitl.codec import pack
 from quadsitl.config import load_preset
 from quadsitl.frames import geodetic_to_ned, ned_to_geodetic
 from quadsitl.state import Reference, VehicleState
-from quadsitl.wire import Mode, link, mavlink, pack
+from quadsitl.wire import Mode, link, mavlink
 
 
 @pytest.fixture
@@ -194,7 +195,7 @@ def test_every_stream_message_encodes_and_decodes():
 
 
 def test_wire_pack_is_what_pymavlink_sends():
-    # The ground links frame messages with quadsitl.wire.pack: the same bytes as pymavlink's mav.send(msg),
+    # The ground links frame messages with quadsitl.codec.pack: the same bytes as pymavlink's mav.send(msg),
     # sequence numbers counting, for every streamed message, STATUSTEXT (whose field "id" is not its message
     # id) in chunks, acks and parameters; several frames in one datagram parse as several messages.
     c, home = Commander(), gcs_messages.Home()

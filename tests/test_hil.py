@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from quadsitl import frames, hil, wire
-from quadsitl.earth import PX4_HOME
+from quadsitl import codec, frames, hil, wire
+from quadsitl.frames import PX4_HOME
 
 M = wire.mavlink
 SYDNEY = (-33.9, 151.2, 20.0)
@@ -161,7 +161,7 @@ def datagram(gps=True, truth=True, home=PX4_HOME, gps_pos=GPS_POS, gps_vel=GPS_V
 
 def decode(d, z=None, home=PX4_HOME):
     z = np.zeros(hil.Z_SIZE) if z is None else z
-    truth, frame = np.zeros(hil.TRUTH_DECODED), np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    truth, frame = np.zeros(hil.TRUTH_DECODED), np.zeros(codec.FRAME_MAX, dtype=np.uint8)
     t, flags, dropped = hil.decode_sensors(d, len(d), home, z, truth, frame)
     return t, flags, dropped, z, truth
 
@@ -216,7 +216,7 @@ def test_random_datagrams_round_trip(home):
 
 def test_only_what_fields_updated_says_is_new():
     buf = new_buf()
-    truth, frame = np.zeros(hil.TRUTH_DECODED), np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    truth, frame = np.zeros(hil.TRUTH_DECODED), np.zeros(codec.FRAME_MAX, dtype=np.uint8)
     for fields in range(2**13):
         n = sensor_frame(buf, fields=fields)
         z = np.zeros(hil.Z_SIZE)
@@ -240,7 +240,7 @@ def test_a_datagram_without_the_truth_leaves_it_nan():
     for gps in (False, True):
         truth = np.zeros(hil.TRUTH_DECODED)
         d, _ = datagram(gps=gps, truth=False)
-        t = hil.decode_sensors(d, len(d), PX4_HOME, np.zeros(hil.Z_SIZE), truth, np.zeros(wire.FRAME_MAX, np.uint8))[0]
+        t = hil.decode_sensors(d, len(d), PX4_HOME, np.zeros(hil.Z_SIZE), truth, np.zeros(codec.FRAME_MAX, np.uint8))[0]
         assert t == 1000 and np.isnan(truth).all()
 
 
@@ -248,27 +248,27 @@ def test_a_corrupt_payload_byte_in_any_frame_is_a_bad_crc():
     d, bounds = datagram()
     assert len(bounds) == 3
     for start, end in bounds:
-        for at in range(start + wire.HEADER_SIZE, end):  # every payload byte and the CRC itself
+        for at in range(start + codec.HEADER_SIZE, end):  # every payload byte and the CRC itself
             for flip in (0x01, 0x80):
                 bad = d.copy()
                 bad[at] ^= flip
-                assert decode(bad)[0] == wire.BAD_CRC, (start, at)
+                assert decode(bad)[0] == codec.BAD_CRC, (start, at)
 
 
 def test_an_unrelated_message_in_the_datagram_is_not_this_frame():
     d, bounds = datagram()
     heartbeat = as_array(packed(M.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3), 0))
     for at in (0, bounds[0][1], bounds[1][1], len(d)):
-        assert decode(np.concatenate([d[:at], heartbeat, d[at:]]))[0] == wire.NOT_THIS_FRAME, at
+        assert decode(np.concatenate([d[:at], heartbeat, d[at:]]))[0] == codec.NOT_THIS_FRAME, at
 
 
 def test_a_datagram_without_hil_sensor_is_not_this_frame():
     buf = new_buf()
     n = hil.encode_gps(buf, 0, SYS, COMP, 5, (1.0, 2.0, 3.0), (1.0, 0.0, 0.0), PX4_HOME, 1.0, 1.0, 10)
-    assert decode(buf[:n].copy())[0] == wire.NOT_THIS_FRAME
+    assert decode(buf[:n].copy())[0] == codec.NOT_THIS_FRAME
     n += hil.encode_truth(buf[n:], 1, SYS, COMP, 5, STATE, 1.0, (0.0, 0.0, -9.8), PX4_HOME)
-    assert decode(buf[:n].copy())[0] == wire.NOT_THIS_FRAME
-    assert decode(np.zeros(0, np.uint8))[0] == wire.NOT_THIS_FRAME
+    assert decode(buf[:n].copy())[0] == codec.NOT_THIS_FRAME
+    assert decode(np.zeros(0, np.uint8))[0] == codec.NOT_THIS_FRAME
 
 
 def test_a_truncated_datagram_is_not_this_frame():
@@ -276,7 +276,7 @@ def test_a_truncated_datagram_is_not_this_frame():
     ends = {end for _, end in bounds}
     for cut in range(1, len(d)):
         if cut not in ends:
-            assert decode(d[:cut].copy())[0] == wire.NOT_THIS_FRAME, cut
+            assert decode(d[:cut].copy())[0] == codec.NOT_THIS_FRAME, cut
     assert decode(d[: bounds[0][1]].copy())[0] == 1000  # cut at a frame's end: a shorter datagram, still good
 
 
@@ -285,14 +285,14 @@ def test_a_signed_frame_is_not_this_frame():
     for start, _ in bounds:
         signed = d.copy()
         signed[start + 2] = 1  # incompat flags: MAVLINK_IFLAG_SIGNED
-        assert decode(signed)[0] == wire.NOT_THIS_FRAME, start
+        assert decode(signed)[0] == codec.NOT_THIS_FRAME, start
     mav = wire.link(SYS, COMP)
     wire.enable_signing(mav, bytes(range(32)))
     ref = M.MAVLink_hil_sensor_message(1000, 0.1, -0.2, -9.8, 0.0, 0.0, 0.0, 0.2, 0.0, 0.4, 955.0, 0.0, 488.0, 12.0,
                                        ALL_FIELDS, 0)  # fmt: skip
     frame = as_array(ref.pack(mav))
-    assert frame[2] == 1 and len(frame) == wire.HEADER_SIZE + frame[1] + 2 + 13  # really signed
-    assert decode(frame)[0] == wire.NOT_THIS_FRAME
+    assert frame[2] == 1 and len(frame) == codec.HEADER_SIZE + frame[1] + 2 + 13  # really signed
+    assert decode(frame)[0] == codec.NOT_THIS_FRAME
 
 
 # ---- non-finite samples and fixes without 3D --------------------------------------------------------------------
@@ -362,5 +362,5 @@ def test_datagram_max_holds_the_largest_tick():
     # every field non-zero up to the last, so MAVLink 2 trims nothing but the always-zero ids/yaw
     d, bounds = datagram(fields=0xFFFFFFFF, t=2**40, state=(*STATE[:-1], 0.5))
     assert len(bounds) == 3 and len(d) <= hil.DATAGRAM_MAX
-    full = sum(wire.HEADER_SIZE + size + 2 for size in (hil.SENSOR_SIZE, hil.GPS_SIZE, hil.TRUTH_SIZE))
+    full = sum(codec.HEADER_SIZE + size + 2 for size in (hil.SENSOR_SIZE, hil.GPS_SIZE, hil.TRUTH_SIZE))
     assert full <= hil.DATAGRAM_MAX  # untrimmed frames, as the encoders write them before trimming

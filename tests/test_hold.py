@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from quadsitl import wire
+from quadsitl import codec
 from quadsitl.config import load_preset
 from sitl import tick
 from sitl.plant import OUT_ON_GROUND, Plant
@@ -23,8 +23,8 @@ class Clock:
         self.io = np.zeros(tick.IO_SIZE, dtype=np.int64)
         self.io[tick.LAST_USEC], self.io[tick.HOLD_TICK] = -1, -1
         self.io[tick.HOLD_LANDED] = int(hold_when_landed)
-        self.tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-        self.rx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+        self.tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+        self.rx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
         self.received = np.zeros(4)
         self.k = 0
 
@@ -32,8 +32,8 @@ class Clock:
         """The autopilot's answer to the current tick, each motor at ``thrust`` × F_max: the tick's result (the
         clock moves on when STEPPED)."""
         p = self.plant
-        want = wire.usec_of(self.k, p.period)
-        n = wire.encode_actuators(self.rx, 0, 1, 1, want, (thrust * self.max_thrust,) * 4, self.max_thrust, armed)
+        want = codec.usec_of(self.k, p.period)
+        n = codec.encode_actuators(self.rx, 0, 1, 1, want, (thrust * self.max_thrust,) * 4, self.max_thrust, armed)
         r = tick.lockstep_tick(self.rx, n, want, self.max_thrust, self.received, p.commanded, p.x, p.motors, p.out,
                                p.v, p.a, p.air, p.air_rng, p.period, p.substeps, p.method, self.tx, self.io,
                                p.sensors.arrays, self.k)  # fmt: skip

@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from autopilot import plant_loop
 from autopilot import tick as kernel
 from autopilot.process import Autopilot, build_parser
-from quadsitl import fastio, wire
+from quadsitl import codec, fastio, wire
 from quadsitl.config import load_preset
 from quadsitl.process_util import PACE_WINDOW, PATIENCE, free_port, set_receive_timeout
 
@@ -112,19 +112,19 @@ def vehicle():
 
 
 def state_frame(tick: int) -> bytes:
-    frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-    n = wire.encode_state(frame, tick & 0xFF, wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID, wire.usec_of(tick, PERIOD),
-                          (0.0,) * 12)  # fmt: skip
+    frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    n = codec.encode_state(frame, tick & 0xFF, wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID,
+                           codec.usec_of(tick, PERIOD), (0.0,) * 12)  # fmt: skip
     return frame[:n].tobytes()
 
 
 def answer_of(data: bytes) -> tuple[int, bool]:
     """(stamp, armed) of a HIL_ACTUATOR_CONTROLS datagram."""
-    buf = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+    buf = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
     buf[: len(data)] = np.frombuffer(data, dtype=np.uint8)
-    stamp = wire.decode_actuators(buf, len(data), np.zeros(4), 1.0)
+    stamp = codec.decode_actuators(buf, len(data), np.zeros(4), 1.0)
     assert stamp >= 0
-    return stamp, bool(buf[wire.HEADER_SIZE + wire.HIL_SIZE - 1] & wire.SAFETY_ARMED)
+    return stamp, bool(buf[codec.HEADER_SIZE + codec.HIL_SIZE - 1] & codec.SAFETY_ARMED)
 
 
 def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIMIT, polling: bool = True):
@@ -247,7 +247,7 @@ def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle):
         plant.sendto(state_frame(k), autopilot)
         k += 1
         ap.serve_plant(0.0)  # back to Python after the tick
-        assert answer_of(plant.recv(1000))[0] == wire.usec_of(k - 1, PERIOD)
+        assert answer_of(plant.recv(1000))[0] == codec.usec_of(k - 1, PERIOD)
         time.sleep(0.005)
     assert wait.patience == wait.budget
     began = time.monotonic()

@@ -1,11 +1,11 @@
 """The codecs' byte-level helpers: numbers stored and read at any offset (quadsitl.rawbytes) and MAVLink's CRC eight
-bytes at a time (quadsitl.wire.crc16), against numpy's and pymavlink's own, compiled and as plain Python."""
+bytes at a time (quadsitl.codec.crc16), against numpy's and pymavlink's own, compiled and as plain Python."""
 
 import numpy as np
 import pytest
 from pymavlink.generator.mavcrc import x25crc
 
-from quadsitl import wire
+from quadsitl import codec
 from quadsitl.jit import jit
 from quadsitl.rawbytes import get, put
 from tests.both_runtimes import outputs
@@ -101,15 +101,15 @@ def test_crc16_is_pymavlinks_x25_for_any_length_and_start():
         extra = int(rng.integers(0, 256))
         reference = x25crc(buf[start : start + n].tobytes())
         reference.accumulate(bytes([extra]))
-        assert wire.crc16(buf, start, start + n, extra) == reference.crc, (n, start)
+        assert codec.crc16(buf, start, start + n, extra) == reference.crc, (n, start)
 
 
 def test_crc16_is_the_same_compiled_and_as_plain_python():
     code = """
 import numpy as np
-from quadsitl import wire
+from quadsitl import codec
 rng = np.random.default_rng(5)
-print([wire.crc16(rng.integers(0, 256, n).astype(np.uint8), 0, n, n % 256) for n in range(0, 70)])
+print([codec.crc16(rng.integers(0, 256, n).astype(np.uint8), 0, n, n % 256) for n in range(0, 70)])
 """
     compiled, python = outputs(code)
     assert compiled == python

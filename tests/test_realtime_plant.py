@@ -10,7 +10,7 @@ import socket
 import numpy as np
 import pytest
 
-from quadsitl import wire
+from quadsitl import codec
 from sitl import process
 
 
@@ -18,17 +18,17 @@ def answer_every_state(ap: socket.socket, forces: tuple[float, ...], max_thrust:
     """What an autopilot does: each state datagram waiting on ``ap`` answered with ``forces`` [N], stamped with the
     state's time; the number answered."""
     rx = np.zeros(65535, dtype=np.uint8)
-    tx = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-    decoded = np.zeros(wire.DECODED_SIZE)
+    tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    decoded = np.zeros(codec.DECODED_SIZE)
     answered = 0
     while True:
         try:
             n, sender = ap.recvfrom_into(rx)
         except BlockingIOError:
             return answered
-        stamp = wire.decode_state(rx, n, decoded)
+        stamp = codec.decode_state(rx, n, decoded)
         assert stamp >= 0
-        m = wire.encode_actuators(tx, 0, 1, 1, stamp, forces, max_thrust, True)
+        m = codec.encode_actuators(tx, 0, 1, 1, stamp, forces, max_thrust, True)
         ap.sendto(tx[:m].tobytes(), sender)
         answered += 1
 
@@ -48,11 +48,11 @@ def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late
     max_thrust = fleet[0].link.max_thrust
     forces = (0.3 * max_thrust, 0.31 * max_thrust, 0.32 * max_thrust, 0.33 * max_thrust)
     process.warm_up(fleet[0].plant)  # compiled code loaded before the clock starts, the plant's and ...
-    scratch = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-    wire.decode_state(
-        scratch, wire.encode_state(scratch, 0, 1, 1, 0, np.zeros(wire.DECODED_SIZE)), np.zeros(wire.DECODED_SIZE)
+    scratch = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    codec.decode_state(
+        scratch, codec.encode_state(scratch, 0, 1, 1, 0, np.zeros(codec.DECODED_SIZE)), np.zeros(codec.DECODED_SIZE)
     )
-    wire.encode_actuators(scratch, 0, 1, 1, 0, forces, max_thrust, True)  # ... the answering autopilot's
+    codec.encode_actuators(scratch, 0, 1, 1, 0, forces, max_thrust, True)  # ... the answering autopilot's
     real_sleep_until = process.sleep_until
     overslept = []
 
@@ -75,7 +75,7 @@ def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late
             # tick 0's answer counts from the start (the autopilot is heard from then on); every period answered
             assert (v.answered, v.late) == (ticks, 0), v.name
             assert np.allclose(v.plant.commanded, forces)  # the answer was flown, not the previous command
-            assert v.link.io[process.tick.LAST_USEC] == wire.usec_of(ticks - 1, v.plant.period)
+            assert v.link.io[process.tick.LAST_USEC] == codec.usec_of(ticks - 1, v.plant.period)
     finally:
         for v in fleet:
             v.link.close()

@@ -23,7 +23,7 @@ from autopilot.factory import make_controller
 from autopilot.stream_frames import StreamFrames
 from groundstation.launcher import free_port
 from groundstation.telemetry_csv import read_csv
-from quadsitl import earth, hil, wire
+from quadsitl import codec, earth, frames, hil, wire
 from quadsitl.config import SensorParams, load_preset
 from sitl import tick as plant_tick
 from sitl.plant import Plant
@@ -73,7 +73,7 @@ def test_the_plant_sends_hil_sensor_every_tick_gps_late_and_the_truth_in_px4_uni
         assert m.fields_updated == expected, k
     # GPS: 10 Hz, each fix delivered 120 ms after it was measured (its time_usec)
     assert sorted(gps) == [120, 220, 320]
-    lat0, lon0, alt0 = earth.PX4_HOME
+    lat0, lon0, alt0 = frames.PX4_HOME
     for k, g in gps.items():
         assert g.time_usec == (k - 120) * 1000
         assert (g.fix_type, g.satellites_visible, g.eph, g.epv) == (3, 10, 100, 200)  # eph/epv: cm
@@ -123,9 +123,9 @@ class SensorAutopilot:
         self.est = Estimator.for_field(preset.sim.period, preset.vehicle.gravity, s.mag_strength_gauss,
                                        s.mag_declination_deg, s.mag_inclination_deg)  # fmt: skip
         self.cm = Commander()
-        self.st, self.truth = np.zeros(wire.DECODED_SIZE), np.zeros(wire.DECODED_SIZE)
-        self.mem, self.tx = np.zeros(MEM_SIZE), np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-        self.frame = np.zeros(wire.FRAME_MAX, dtype=np.uint8)
+        self.st, self.truth = np.zeros(codec.DECODED_SIZE), np.zeros(codec.DECODED_SIZE)
+        self.mem, self.tx = np.zeros(MEM_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+        self.frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
         self.io = np.zeros(kernel.IO_SIZE, dtype=np.int64)
         self.io[kernel.LAST_USEC], self.io[kernel.CAPACITY] = -1, 1
         self.batch = kernel.Batch(1)
@@ -143,10 +143,10 @@ class SensorAutopilot:
     def tick(self, datagram: np.ndarray) -> bytes:
         self.io[kernel.ROWS] = 0
         rx = datagram.copy()
-        flags = kernel.sensor_tick(rx, len(rx), self.frame, self.truth, earth.PX4_HOME, self.est.arrays, self.st,
+        flags = kernel.sensor_tick(rx, len(rx), self.frame, self.truth, frames.PX4_HOME, self.est.arrays, self.st,
                                    self.period, self.ctl.kind, self.cm.cm, self.mem, self.ctl.v, self.ctl.c, self.f_min,
                                    self.f_max, self.tx, self.io, self.batch.records,
-                                   StreamFrames(2, earth.PX4_HOME, 40.0).out)  # fmt: skip
+                                   StreamFrames(2, frames.PX4_HOME, 40.0).out)  # fmt: skip
         assert flags & kernel.ANSWER
         return bytes(self.tx[: self.io[kernel.TX_LEN]])
 
@@ -161,7 +161,7 @@ def with_truth(datagram: np.ndarray, state: tuple) -> np.ndarray:
         n += 1
     out = np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8)
     out[:n] = datagram[:n]
-    m = hil.encode_truth(out[n:], 0, 1, wire.PLANT_COMPONENT_ID, 0, state, 0.0, (0.0, 0.0, -9.81), earth.PX4_HOME)
+    m = hil.encode_truth(out[n:], 0, 1, wire.PLANT_COMPONENT_ID, 0, state, 0.0, (0.0, 0.0, -9.81), frames.PX4_HOME)
     return out[: n + m]
 
 

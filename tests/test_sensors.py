@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from quadsitl import earth
+from quadsitl import earth, frames
 from quadsitl.config import IMU_PROFILES, ConfigError, SensorParams, parse_preset
 from quadsitl.frames import body_to_ned, euler_to_quaternion, ned_to_body
 from quadsitl.wire import gps_from_message, hil_gps_message, link
@@ -209,14 +209,14 @@ def test_gps_at_10_hz_delayed_by_exactly_120_ms():
 def test_gps_on_the_wire_in_px4_units():
     """HIL_GPS: lat/lon in 1e-7 deg, altitude AMSL in mm, velocities in cm/s, eph/epv in cm, 3D fix; decoded by
     pymavlink and turned back into the local position within the encoding's resolution."""
-    home = (earth.HOME_LAT, earth.HOME_LON, earth.HOME_ALT)
+    home = (frames.HOME_LAT, frames.HOME_LON, frames.HOME_ALT)
     msg = hil_gps_message(120_000, (100.0, -50.0, -20.0), (3.0, -4.0, 0.5), home, 1.0, 2.0, 10)
     mav = link(1, 1)
     m = mav.parse_buffer(msg.pack(mav))[0]
     assert m.get_type() == "HIL_GPS" and m.fix_type == 3 and m.satellites_visible == 10
     assert (m.vn, m.ve, m.vd, m.vel, m.eph, m.epv) == (300, -400, 50, 500, 100, 200)
     assert m.alt == 508_000 and m.cog == round((math.degrees(math.atan2(-4, 3)) % 360) * 100)
-    assert m.lat == pytest.approx((earth.HOME_LAT + 100.0 / 6371000.0 * 180 / math.pi) * 1e7, abs=1)
+    assert m.lat == pytest.approx((frames.HOME_LAT + 100.0 / 6371000.0 * 180 / math.pi) * 1e7, abs=1)
     position, velocity = gps_from_message(m, home)
     assert position == pytest.approx((100.0, -50.0, -20.0), abs=0.012)  # 1e-7 deg ≈ 1.1 cm
     assert velocity == pytest.approx((3.0, -4.0, 0.5))

@@ -12,7 +12,7 @@ import pytest
 from autopilot import stream_frames as sf
 from autopilot.commander import ARMED, HOLD_YAW, HOME_ALT, REF_ALT, REF_PITCH, REF_ROLL, REF_YAW, TARGET_ALT, Commander
 from autopilot.control_params import MEM_SIZE, MEM_U
-from quadsitl import wire
+from quadsitl import codec, wire
 from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.wire import mavlink
 
@@ -67,7 +67,7 @@ def random_case(rng: np.random.Generator):
 @pytest.mark.parametrize("mid", sf.COMPILED)
 def test_each_frame_is_the_bytes_pymavlink_sends_for_the_messages_definition(mid):
     rng = np.random.default_rng(mid)
-    buf, mav = np.zeros(wire.FRAME_MAX, dtype=np.uint8), wire.link(3, 1)
+    buf, mav = np.zeros(codec.FRAME_MAX, dtype=np.uint8), wire.link(3, 1)
     cases = [random_case(rng) for _ in range(200)]
     cases.append((1234, (0.0,) * 12, (0.0,) * 3, (0.0, 0.0, 0.0, math.nan), 0.0, 0.0))  # at rest; a yaw rate alone
     cases.append((5, (1e9, -1e9, -1e9, 1e5, -1e5, 1e5, 0.0, 0.0, -7.0, 0, 0, 0), (0.0,) * 3, (0,) * 4, 1.0, 0.0))

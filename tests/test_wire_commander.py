@@ -7,7 +7,7 @@ import pytest
 
 from autopilot.commander import FAILSAFE_SETPOINT_LOST, Commander, CommanderSettings
 from groundstation import trajectories
-from quadsitl import telemetry, wire
+from quadsitl import codec, telemetry, wire
 from quadsitl.cli_util import UsageError
 from quadsitl.frames import body_rates_to_euler_rates, quaternion_to_euler
 from quadsitl.state import Reference, VehicleState
@@ -21,8 +21,8 @@ def test_state_survives_the_wire_to_float32_precision():
     buf = wire.state_message(123_000, s).pack(link)
     (m,) = wire.link(1, 1).parse_buffer(buf)
     assert m.time_usec == 123_000 and m.get_type() == "ODOMETRY"
-    out = np.zeros(wire.DECODED_SIZE)
-    assert wire.decode_state(_buffer(buf), len(buf), out) == 123_000  # the autopilot's decoder
+    out = np.zeros(codec.DECODED_SIZE)
+    assert codec.decode_state(_buffer(buf), len(buf), out) == 123_000  # the autopilot's decoder
     back = VehicleState._make(out[:12].tolist())
     assert back == pytest.approx(s, abs=2e-6)
 
@@ -45,7 +45,7 @@ def test_px4_custom_modes():
     assert wire.Mode.from_px4(7 << 16) is None  # stabilized: not ours
     assert {int(m): m.name.lower() for m in wire.Mode} == telemetry.MODES  # telemetry's names are the modes'
     assert wire.Mode.MISSION.px4_custom_mode == 67371008 and wire.Mode.TAKEOFF.px4_custom_mode == 33816576
-    assert wire.tick_of(wire.usec_of(12345, 0.001), 0.001) == 12345
+    assert codec.tick_of(codec.usec_of(12345, 0.001), 0.001) == 12345
 
 
 def test_telemetry_encoding_round_trip_and_bad_payload():
@@ -168,7 +168,7 @@ def _frame(n: int, buf: np.ndarray) -> bytes:
 
 def _buffer(data: bytes) -> np.ndarray:
     """A received datagram as the processes hold it: a byte buffer larger than the frame."""
-    buf = np.zeros(max(len(data), wire.FRAME_MAX), dtype=np.uint8)
+    buf = np.zeros(max(len(data), codec.FRAME_MAX), dtype=np.uint8)
     buf[: len(data)] = np.frombuffer(data, dtype=np.uint8)
     return buf
 
@@ -178,50 +178,50 @@ def test_fast_codec_frames_are_byte_identical_to_pymavlink_and_both_sides_accept
     import random
 
     rng = random.Random(seed)
-    ref, buf = wire.link(1, 25), np.zeros(wire.FRAME_MAX, dtype=np.uint8)
-    out, forces_out = np.zeros(wire.DECODED_SIZE), np.zeros(4)
+    ref, buf = wire.link(1, 25), np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    out, forces_out = np.zeros(codec.DECODED_SIZE), np.zeros(4)
     for i in range(600):  # > 256: the sequence number wraps
         seq = (2 * i) & 0xFF  # two frames an iteration, as pymavlink counts them
         s = VehicleState(*(rng.uniform(-3, 3) for _ in range(12)))
         usec = rng.randrange(0, 2**63) if i % 7 == 0 else i * 1000
         forces = tuple(rng.choice([0.0, rng.uniform(-1e4, 1e4)]) for _ in range(4))  # zeros exercise trimming
         armed = rng.random() < 0.5
-        a = _frame(wire.encode_state(buf, seq, 1, 25, usec, tuple(s)), buf)
+        a = _frame(codec.encode_state(buf, seq, 1, 25, usec, tuple(s)), buf)
         b = _pymavlink_send(wire.state_message(usec, s), ref)
         assert a == b
-        assert wire.decode_state(_buffer(a), len(a), out) == usec
+        assert codec.decode_state(_buffer(a), len(a), out) == usec
         (p,) = wire.link(1, 1).parse_buffer(b)
         assert p.time_usec == usec
         roll, pitch, yaw = quaternion_to_euler(*p.q)
         rates = body_rates_to_euler_rates(roll, pitch, p.rollspeed, p.pitchspeed, p.yawspeed)
         assert tuple(out) == (p.x, p.y, p.z, p.vx, p.vy, p.vz, roll, pitch, yaw, *rates, p.rollspeed, p.pitchspeed,
                               p.yawspeed)  # fmt: skip
-        a = _frame(wire.encode_actuators(buf, (seq + 1) & 0xFF, 1, 25, usec, forces, 1e4, armed), buf)
+        a = _frame(codec.encode_actuators(buf, (seq + 1) & 0xFF, 1, 25, usec, forces, 1e4, armed), buf)
         b = _pymavlink_send(wire.actuator_message(usec, forces, 1e4, armed), ref)
         assert a == b
-        assert wire.decode_actuators(_buffer(a), len(a), forces_out, 1e4) == usec
+        assert codec.decode_actuators(_buffer(a), len(a), forces_out, 1e4) == usec
         (p,) = wire.link(1, 1).parse_buffer(b)
-        assert p.time_usec == usec and p.mode == (wire.SAFETY_ARMED if armed else 0)
+        assert p.time_usec == usec and p.mode == (codec.SAFETY_ARMED if armed else 0)
         assert tuple(forces_out) == wire.forces_from_message(p, 1e4)
 
 
 def test_fast_parser_refuses_corrupt_frames_and_leaves_other_messages_to_pymavlink():
-    buf, out = np.zeros(wire.FRAME_MAX, dtype=np.uint8), np.zeros(wire.DECODED_SIZE)
-    frame = bytearray(_frame(wire.encode_state(buf, 0, 1, 25, 5000, tuple(VehicleState(z=-1.0))), buf))
+    buf, out = np.zeros(codec.FRAME_MAX, dtype=np.uint8), np.zeros(codec.DECODED_SIZE)
+    frame = bytearray(_frame(codec.encode_state(buf, 0, 1, 25, 5000, tuple(VehicleState(z=-1.0))), buf))
     frame[20] ^= 0x01  # a flipped bit in the payload
-    assert wire.decode_state(_buffer(bytes(frame)), len(frame), out) == wire.BAD_CRC
-    actuators = _frame(wire.encode_actuators(buf, 0, 1, 25, 1, (0.0,) * 4, 1.0, False), buf)
-    assert wire.decode_state(_buffer(actuators), len(actuators), out) == wire.NOT_THIS_FRAME  # another message
+    assert codec.decode_state(_buffer(bytes(frame)), len(frame), out) == codec.BAD_CRC
+    actuators = _frame(codec.encode_actuators(buf, 0, 1, 25, 1, (0.0,) * 4, 1.0, False), buf)
+    assert codec.decode_state(_buffer(actuators), len(actuators), out) == codec.NOT_THIS_FRAME  # another message
     hb = wire.mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3).pack(wire.link(1, 25))
-    assert wire.decode_state(_buffer(hb), len(hb), out) == wire.NOT_THIS_FRAME
-    assert wire.decode_actuators(_buffer(hb), len(hb), np.zeros(4), 1.0) == wire.NOT_THIS_FRAME
-    state = _frame(wire.encode_state(buf, 0, 1, 25, 1, (0.0,) * 12), buf)
+    assert codec.decode_state(_buffer(hb), len(hb), out) == codec.NOT_THIS_FRAME
+    assert codec.decode_actuators(_buffer(hb), len(hb), np.zeros(4), 1.0) == codec.NOT_THIS_FRAME
+    state = _frame(codec.encode_state(buf, 0, 1, 25, 1, (0.0,) * 12), buf)
     two = state + state
-    assert wire.decode_state(_buffer(two), len(two), out) == wire.NOT_THIS_FRAME  # two frames: pymavlink's job
-    assert wire.decode_state(_buffer(b""), 0, out) == wire.NOT_THIS_FRAME
-    assert wire.decode_state(_buffer(b"\xfd" * 300), 300, out) == wire.NOT_THIS_FRAME
-    nan = _frame(wire.encode_state(buf, 0, 1, 25, 1, (math.nan,) + (0.0,) * 11), buf)
-    assert wire.decode_state(_buffer(nan), len(nan), out) == wire.NOT_FINITE  # a state never to fly
+    assert codec.decode_state(_buffer(two), len(two), out) == codec.NOT_THIS_FRAME  # two frames: pymavlink's job
+    assert codec.decode_state(_buffer(b""), 0, out) == codec.NOT_THIS_FRAME
+    assert codec.decode_state(_buffer(b"\xfd" * 300), 300, out) == codec.NOT_THIS_FRAME
+    nan = _frame(codec.encode_state(buf, 0, 1, 25, 1, (math.nan,) + (0.0,) * 11), buf)
+    assert codec.decode_state(_buffer(nan), len(nan), out) == codec.NOT_FINITE  # a state never to fly
 
 
 def test_telemetry_samples_carry_one_or_more_records():

@@ -344,7 +344,7 @@ def _csv_cells(col: np.ndarray) -> list[str]:
 def write_kept(out: Path, result: SweepResult) -> list[Path]:
     """Each kept trial's trajectory as ``trajectories/trial_<k>.csv``, the telemetry CSV of ``quadsitl sim``."""
     from groundstation.telemetry_csv import rows_from_arrays, write_csv
-    from quadsitl.frames import euler_rates_to_body_rates
+    from quadsitl.compiled_frames import euler_rates_to_body_rates
 
     files = []
     if result.kept or result.rows:
