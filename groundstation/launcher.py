@@ -503,7 +503,6 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     import numpy as np  # here, not at the top: `quadsitl --help` should not wait for matplotlib
 
     from groundstation import trajectories
-    from groundstation.figures import write_figures, write_mission_figure, write_path_figure
     from groundstation.metrics import (
         estimate_rms,
         format_position_table,
@@ -549,6 +548,8 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
         report["position"] = position
     (out / "metrics.json").write_text(json.dumps(report, indent=2) + "\n")
     if not args.no_figures:
+        from groundstation.figures import write_figures, write_mission_figure, write_path_figure  # matplotlib: 0.6 s
+
         title = f"preset {preset.name}, fly"
         write_figures({kind: {"t": t, "outputs": y, "reference": ref, "inputs": u}}, out, title)
         if mission:
