@@ -82,10 +82,6 @@ SIM_DIVERGED = PLANT_DIVERGED  # `quadsitl sim`'s exit status when a run's state
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    from groundstation.metrics import format_table
-    from groundstation.offline import run_offline, write_outputs
-    from groundstation.progress import FlightProgress
-
     if args.trial is not None and args.from_sweep is None:
         raise UsageError("--trial goes with --from-sweep DIR (the sweep's folder)")
     if args.from_sweep is not None:
@@ -104,6 +100,11 @@ def cmd_sim(args: argparse.Namespace) -> int:
     integrator = args.integrator or preset.sim.integrator
     duration = args.duration or preset.sim.duration
     label = "sim:" if len(kinds) == 1 else f"sim ({' + '.join(kinds)}):"
+    # after the checks: a refusal is answered without loading the compiler (1.9 -> 0.2 s of CPU)
+    from groundstation.metrics import format_table
+    from groundstation.offline import run_offline, write_outputs
+    from groundstation.progress import FlightProgress
+
     try:
         with FlightProgress(duration * len(kinds), enabled=not args.quiet, label=label) as bar:
             results, metrics = run_offline(

@@ -39,7 +39,9 @@ def test_the_ground_sides_modules_load_no_compiler():
     assert compiler_modules("".join(f"import {m}\n" for m in GROUND)) == []
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["up", "--help"], ["fly", "--vehicles", "0"]], ids=" ".join)
+@pytest.mark.parametrize(
+    "argv", [["--help"], ["up", "--help"], ["fly", "--vehicles", "0"], ["sim", "--wind", "5"]], ids=" ".join
+)
 def test_the_command_line_answers_help_and_refusals_without_the_compiler(argv):
     code = f"from groundstation.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass"
     assert compiler_modules(code) == []
