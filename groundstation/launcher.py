@@ -547,17 +547,20 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
         position = {kind: position_metrics(*(data[c] for c in columns))}
         report["position"] = position
     (out / "metrics.json").write_text(json.dumps(report, indent=2) + "\n")
+    figures: list[Path] = []
     if not args.no_figures:
         from groundstation.figures import write_figures, write_mission_figure, write_path_figure  # matplotlib: 0.6 s
 
         title = f"preset {preset.name}, fly"
-        write_figures({kind: {"t": t, "outputs": y, "reference": ref, "inputs": u}}, out, title)
+        figures = write_figures({kind: {"t": t, "outputs": y, "reference": ref, "inputs": u}}, out, title)
         if mission:
-            write_mission_figure(out, data, json.loads((out / "mission.json").read_text()), f"{title}, {mission}")
+            figures.append(write_mission_figure(out, data, json.loads((out / "mission.json").read_text()),
+                                                f"{title}, {mission}"))  # fmt: skip
         elif position is not None:
             planned = np.array([trajectory(float(tk))[:2] for tk in t]).reshape(-1, 2).T
-            write_path_figure(out, data["x"], data["y"], data["x_ref"], data["y_ref"],
-                              f"{title}, {args.trajectory}", planned=(planned[0], planned[1]))  # fmt: skip
+            path = write_path_figure(out, data["x"], data["y"], data["x_ref"], data["y_ref"],
+                                     f"{title}, {args.trajectory}", planned=(planned[0], planned[1]))  # fmt: skip
+            figures.append(path)
     if diverged:  # said even with --quiet: the flight did not fly its duration
         missing = f" ({flown - len(t)} of them missing from the telemetry)" if len(t) < flown else ""
         print(f"quadsitl fly: the plant's state diverged at t = {report['diverged_at']:.3f} s of the flight "
@@ -567,8 +570,9 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
         print(format_table(metrics) if position is None else format_position_table(position))
         if mission:
             print(mission_summary(json.loads((out / "mission.json").read_text())))
-        extra = "mission.json, " if mission else ""
-        print(f"wrote {out}/telemetry.csv, flight.tlog, metrics.json, {extra}and figures")
+        names = ["telemetry.csv", "flight.tlog", "metrics.json", *(["mission.json"] if mission else []),
+                 *(f.name for f in figures)]  # fmt: skip
+        print(f"wrote {out}/" + ", ".join(names))
 
 
 def mission_summary(doc: dict) -> str:

@@ -259,6 +259,8 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     assert np.diff(stamps[1:]).max() <= 1000 * OFFBOARD_LOCKSTEP + 2, stamps  # a tick past the lead, and ms rounding
     assert len(stamps) <= 5000 / gcs.KEEPALIVE_MS  # 2 s flown, and the landing
     assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
+    assert r.stdout.splitlines()[-1] == (f"wrote {out}/telemetry.csv, flight.tlog, metrics.json, fig2_outputs.png, "
+                                         "fig3_errors.png, fig4_inputs.png")  # fmt: skip
     report = json.loads((out / "metrics.json").read_text())
     assert report["diverged"] is False and report["diverged_at"] is None
     # The flight's pace, from the autopilot's publication times of its telemetry: most of the 2 s flight's ticks.
@@ -443,6 +445,8 @@ def test_fly_mission_flies_a_qgroundcontrol_plan(tmp_path):
     assert abs(data["altitude"][-1]) < 0.1 and math.hypot(data["x"][-1], data["y"][-1]) < 0.5  # landed at home
     assert data["t"][-1] >= times[-1]
     assert (tmp_path / "fig_mission_path.png").stat().st_size > 10_000
+    assert r.stdout.splitlines()[-1].endswith("metrics.json, mission.json, fig2_outputs.png, fig3_errors.png, "
+                                              "fig4_inputs.png, fig_mission_path.png")  # fmt: skip
     assert json.loads((tmp_path / "metrics.json").read_text())["mission"] == str(plan)
 
 
