@@ -16,7 +16,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from quadsitl.state import Reference
+from quadsitl.state import Reference, VehicleState
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -224,6 +224,16 @@ class InitialState:
     roll_rate: float = 0.0
     pitch_rate: float = 0.0
     yaw_rate: float = 0.0
+
+
+# Divergence: the bounds a state must stay within (``lim``, LIMITS_SIZE): |x|, |y|, |z| [m]; |vx|, |vy|, |vz|
+# [m/s]; |roll|, |pitch| [rad] (strictly below); |Euler-angle rates| [rad/s]; and the yaw within 1000 turns. The
+# check itself is compiled (:func:`sitl.plant.inside`); a sweep's ``[limits]`` table names them.
+L_POSITION, L_SPEED, L_TILT, L_RATE = range(4)
+LIMITS_SIZE = 4
+LIMIT_NAMES = ("position", "speed", "tilt", "rate")
+DEFAULT_LIMITS = (1e5, 1e4, math.pi / 2, 1e3)
+MAX_YAW = 1e3 * 2.0 * math.pi  # [rad]
 
 
 @dataclass(frozen=True)
@@ -621,6 +631,14 @@ def available_presets() -> list[str]:
     """Names of the presets shipped with the package."""
     folder = resources.files("quadsitl") / "presets"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def initial_state(preset: Preset) -> VehicleState:
+    """The preset's initial state: at the origin, at the given altitude and attitude, climbing at its climb rate
+    and turning at its Euler-angle rates (NED: z = −altitude, vz = −climb rate)."""
+    i = preset.initial
+    return VehicleState(z=-i.altitude, vz=-i.climb_rate, roll=i.roll, pitch=i.pitch, yaw=i.yaw, roll_dot=i.roll_rate,
+                        pitch_dot=i.pitch_rate, yaw_dot=i.yaw_rate)  # fmt: skip
 
 
 def load_preset(name_or_path: str) -> Preset:

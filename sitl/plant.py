@@ -18,7 +18,17 @@ from collections.abc import Sequence
 import numpy as np
 
 from quadsitl.compiled_frames import wrap_pi
-from quadsitl.config import Preset, SensorParams
+from quadsitl.config import (
+    DEFAULT_LIMITS,
+    L_POSITION,
+    L_RATE,
+    L_SPEED,
+    L_TILT,
+    MAX_YAW,
+    Preset,
+    SensorParams,
+    initial_state,
+)
 from quadsitl.frames import PX4_HOME
 from quadsitl.jit import jit, specialized
 from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
@@ -38,14 +48,6 @@ OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_MEAN_ACCEL, OUT_SIZE = 0
 # the air (sitl.wind's layout).
 W_X, W_MOTORS, W_COMMANDED, W_OUT, W_AIR = 0, 12, 16, 20, 20 + OUT_SIZE
 WORK_SIZE = W_AIR + AIR_SIZE
-
-
-def initial_state(preset: Preset) -> VehicleState:
-    """The preset's initial state: at the origin, at the given altitude and attitude, climbing at its climb rate
-    and turning at its Euler-angle rates (NED: z = −altitude, vz = −climb rate)."""
-    i = preset.initial
-    return VehicleState(z=-i.altitude, vz=-i.climb_rate, roll=i.roll, pitch=i.pitch, yaw=i.yaw, roll_dot=i.roll_rate,
-                        pitch_dot=i.pitch_rate, yaw_dot=i.yaw_rate)  # fmt: skip
 
 
 @jit(inline=True)
@@ -117,15 +119,10 @@ def step_work(w: np.ndarray, params: np.ndarray, air_rng: np.ndarray, period: fl
                 omega_r)  # fmt: skip
 
 
-# Divergence: the bounds a state must stay within (``lim``, LIMITS_SIZE): |x|, |y|, |z| [m]; |vx|, |vy|, |vz|
-# [m/s]; |roll|, |pitch| [rad] (strictly below); |Euler-angle rates| [rad/s]; and the yaw within 1000 turns.
-# One check (:func:`inside`) for every runtime: the sweeps' batch engine (with a sweep's own ``[limits]``), the
-# plant process and ``quadsitl sim`` (with DEFAULT_LIMITS), on the state x(k) at the start of tick k.
-L_POSITION, L_SPEED, L_TILT, L_RATE = range(4)
-LIMITS_SIZE = 4
-LIMIT_NAMES = ("position", "speed", "tilt", "rate")
-DEFAULT_LIMITS = (1e5, 1e4, math.pi / 2, 1e3)
-MAX_YAW = 1e3 * 2.0 * math.pi  # [rad]
+# Divergence: the bounds a state must stay within (``lim``, LIMITS_SIZE; the names, indices and defaults are in
+# :mod:`quadsitl.config`). One check (:func:`inside`) for every runtime: the sweeps' batch engine (with a sweep's own
+# ``[limits]``), the plant process and ``quadsitl sim`` (with DEFAULT_LIMITS), on the state x(k) at the start of
+# tick k.
 
 
 @jit(inline=True)

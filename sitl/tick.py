@@ -14,10 +14,11 @@ import numpy as np
 
 from quadsitl.codec import HEADER_SIZE, HIL_SIZE, NOT_THIS_FRAME, SAFETY_ARMED, decode_actuators, encode_state, usec_of
 from quadsitl.compiled_frames import euler_to_quaternion
+from quadsitl.config import DEFAULT_LIMITS
 from quadsitl.hil import encode_gps, encode_sensor, encode_truth
 from quadsitl.jit import jit
 from sitl import sensors as sn
-from sitl.plant import DEFAULT_LIMITS, OUT_MEAN_ACCEL, OUT_ON_GROUND, inside, step_arrays
+from sitl.plant import OUT_MEAN_ACCEL, OUT_ON_GROUND, inside, step_arrays
 
 # The tick's integer bookkeeping (``io``, int64): the link's sequence number, the length of the state frame
 # in tx, the stamp of the newest actuator message used, and what was refused: stale or duplicate answers,

@@ -157,7 +157,7 @@ def test_a_wind_change_is_checked_key_by_key_as_the_preset_section_is():
 
 
 def test_the_initial_state_takes_rates():
-    from sitl.plant import initial_state
+    from quadsitl.config import initial_state
 
     p = parse_preset(PAPER_TEXT + "\n[initial]\naltitude = 1.0\nclimb_rate = 0.5\nroll_rate = 0.1\nyaw_rate = -0.2\n")
     s = initial_state(p)

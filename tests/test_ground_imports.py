@@ -40,7 +40,15 @@ def test_the_ground_sides_modules_load_no_compiler():
 
 
 @pytest.mark.parametrize(
-    "argv", [["--help"], ["up", "--help"], ["fly", "--vehicles", "0"], ["sim", "--wind", "5"]], ids=" ".join
+    "argv",
+    [
+        ["--help"],
+        ["up", "--help"],
+        ["fly", "--vehicles", "0"],
+        ["sim", "--wind", "5"],
+        ["sweep", "paper-mass-mismatch", "--workers", "0"],
+    ],
+    ids=" ".join,
 )
 def test_the_command_line_answers_help_and_refusals_without_the_compiler(argv):
     code = f"from groundstation.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass"

@@ -43,12 +43,14 @@ from autopilot.backstepping import backstepping
 from autopilot.control_params import BACKSTEPPING, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
 from autopilot.pd import pd
+from quadsitl.config import (
+    DEFAULT_LIMITS as DEFAULT_LIMITS,  # divergence bounds: the plant process's (sitl.plant.inside)
+)
+from quadsitl.config import LIMITS_SIZE as LIMITS_SIZE
 from quadsitl.jit import constants, jit
 from quadsitl.mixer import allocate
 from quadsitl.param_arrays import ACTUATOR_SIZE, D_OVER_B, F_MAX, F_MIN, VEHICLE_SIZE
 from sitl.dynamics import CALM
-from sitl.plant import DEFAULT_LIMITS as DEFAULT_LIMITS  # divergence bounds: the plant process's (sitl.plant.inside)
-from sitl.plant import LIMITS_SIZE as LIMITS_SIZE
 from sitl.plant import inside, step
 
 CHANNELS = ("altitude", "roll", "pitch", "yaw")

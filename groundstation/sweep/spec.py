@@ -61,7 +61,18 @@ import numpy as np
 
 from autopilot.control_params import KD, KP, POLES, control_array
 from autopilot.gains import GainError, stability_interval
-from quadsitl.config import ConfigError, InitialState, Preset, Spec, check_value, parse_preset, read_preset
+from quadsitl.config import DEFAULT_LIMITS as PLANT_LIMITS
+from quadsitl.config import (
+    LIMIT_NAMES,
+    ConfigError,
+    InitialState,
+    Preset,
+    Spec,
+    check_value,
+    initial_state,
+    parse_preset,
+    read_preset,
+)
 from quadsitl.param_arrays import (
     ARM,
     D_OVER_B,
@@ -77,8 +88,6 @@ from quadsitl.param_arrays import (
     actuator_array,
     vehicle_array,
 )
-from sitl.plant import DEFAULT_LIMITS as PLANT_LIMITS
-from sitl.plant import LIMIT_NAMES, initial_state
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -293,7 +302,7 @@ def parse_distribution(key: str, raw: Any, where: str) -> Distribution:
 
 TASKS = ("step", "hover")
 INADMISSIBLE = ("refuse", "record")
-DEFAULT_LIMITS = dict(zip(LIMIT_NAMES, PLANT_LIMITS))  # the plant process's (sitl.plant.DEFAULT_LIMITS)
+DEFAULT_LIMITS = dict(zip(LIMIT_NAMES, PLANT_LIMITS))  # the plant process's (quadsitl.config.DEFAULT_LIMITS)
 MAX_TRIALS = 100_000_000
 
 ENGINES = ("batch", "sitl")  # the batch engine (engine.py), or every trial a whole `quadsitl fly` (sitl_engine.py)
