@@ -9,6 +9,10 @@ and ``controls[0..3]`` = F_j / F_max for motors 1..4 (eq (8) numbering): in [0, 
 reversible (ideal) actuators.
 
 Ground station ↔ autopilot: PX4 conventions (custom modes below, COMMAND_LONG/ACK, setpoints).
+
+pymavlink only, so the ground side imports it without the compiler. The processes frame the two per-tick messages,
+and any other message they send, with the compiled codec of :mod:`quadsitl.codec` (the same bytes as the message
+builders here: a test compares them).
 """
 
 from __future__ import annotations
