@@ -187,7 +187,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     quiet = args.quiet or args.json
     total_s = spec.trials * spec.duration
     chunk = args.chunk or (1 if spec.engine == "sitl" else None)  # a SITL trial takes seconds: progress per trial
-    # after the checks: a refusal is answered without loading the compiler (1.5 -> 0.3 s of CPU)
+    # after the checks: a refusal is answered without loading the compiler (1.5 -> 0.4 s of CPU)
     from groundstation.progress import FlightProgress, announce_if_slow
     from groundstation.sweep.run import SweepError, run_sweep, summarize, warm_up, write_outputs
 
