@@ -16,8 +16,11 @@ Python whenever Python has something to do:
   for Python to finish the tick as it always has;
 - a datagram from another sender than the plant the link is locked to: :data:`STRANGER`, the datagram in ``rx``
   and its sender in ``addr``;
-- the wall-clock moment ``deadline_ns`` has passed (the ground links' next poll, the next telemetry batch):
+- the wall-clock moment ``deadline_ns`` has passed (Python's wall-clock work, the next telemetry batch):
   :data:`DUE`;
+- a datagram waits on a ground-station socket (asked every ``ground_every_ns`` between ticks, without waiting):
+  :data:`GROUND`. Python reads those sockets only then, not on a timer: in real time a timer would bring the loop
+  back to Python every other tick, for nothing most of the time;
 - no datagram came within the wait (``spin_ns`` of polling, or the socket's receive timeout when blocking):
   :data:`QUIET`.
 
@@ -35,9 +38,10 @@ from autopilot import tick as kernel
 from quadsitl import fastio
 from quadsitl.jit import jit
 
-TICKED, STRANGER, DUE, QUIET, SENT = 0, 1, 2, 3, 4
-# stats (int64): ticks answered here, the waits (quadsitl.fastio.receive's counts), the last tick's duration [ns].
-ANSWERED, TICK_NS, STATS_SIZE = 0, 5, 6
+TICKED, STRANGER, DUE, QUIET, SENT, GROUND = 0, 1, 2, 3, 4, 5
+# stats (int64): ticks answered here, the waits (quadsitl.fastio.receive's counts), the last tick's duration [ns],
+# and when the ground-station sockets are next asked (CLOCK_MONOTONIC [ns]; the caller sets it, the loop moves it).
+ANSWERED, TICK_NS, NEXT_GROUND, STATS_SIZE = 0, 5, 6, 7
 POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fastio.SHORT
 NO_LIMIT = np.iinfo(np.int64).max
 
@@ -76,7 +80,8 @@ if fastio.AVAILABLE:
     @jit
     def serve(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray, tx: np.ndarray,
               io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, patience_ns: int,
-              hot_after: int, limit_tick: int, stats: np.ndarray, links: tuple) -> tuple:  # fmt: skip
+              hot_after: int, limit_tick: int, stats: np.ndarray, links: tuple, ground: np.ndarray,
+              ground_every_ns: int) -> tuple:  # fmt: skip
         """Serve the plant on socket ``fd`` until Python has something to do (the module's docstring) → (status,
         the datagram's length or −1, the tick's flags: with SENT, the answer among them was sent). Datagrams are
         read into ``rx``, their sender into ``addr`` (``addrlen``: its length, int32[1]); ``peer`` is the locked
@@ -85,7 +90,9 @@ if fastio.AVAILABLE:
 
         ``polling``: each wait polls for up to ``patience_ns`` [ns]; else it blocks in the receive (the socket's
         own timeout ends it: QUIET), and once ``hot_after`` consecutive waits were each shorter than the budget
-        the loop goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns].
+        the loop goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]. ``ground``:
+        the ground-station sockets (:func:`quadsitl.fastio.pollfds`), asked from stats[NEXT_GROUND] on, then every
+        ``ground_every_ns``.
 
         The telemetry frames a tick built (FRAMES) go to the ground-station links' destinations (``links``:
         :attr:`Destinations.out`) after the answer; with no destination list (count −1: one Python cannot give
@@ -113,6 +120,10 @@ if fastio.AVAILABLE:
                 return SENT, n, flags
             if end >= deadline_ns or (not polling and stats[SHORT] == hot_after):
                 return DUE, -1, 0
+            if end >= stats[NEXT_GROUND]:
+                stats[NEXT_GROUND] = end + ground_every_ns
+                if fastio.any_readable(ground):
+                    return GROUND, -1, 0
 
 
 MAX_DESTINATIONS = 16  # ground-station destinations the compiled loop sends the telemetry frames to
@@ -182,4 +193,4 @@ def warm_up(targs: tuple) -> None:
         for polling in (True, False):
             sock.sendto(frame[:n].tobytes(), sock.getsockname())
             serve(sock.fileno(), rx, addr, addrlen, peer, tx, io, targs, 0, polling, 1000, 1000, 8, NO_LIMIT,
-                  np.zeros(STATS_SIZE, dtype=np.int64), Destinations().out)  # fmt: skip
+                  np.zeros(STATS_SIZE, dtype=np.int64), Destinations().out, fastio.pollfds([sock]), 0)  # fmt: skip

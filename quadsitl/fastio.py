@@ -3,8 +3,8 @@ tick and answer without coming back to Python between two ticks (:mod:`autopilot
 :mod:`sitl.lockstep_loop`).
 
 Each is a numba intrinsic that declares the libc function by name in the compiled module (``recvfrom``,
-``sendto``, ``send``, ``clock_gettime``), so the machine code calls it directly, as C would, and numba's on-disk
-cache keeps it (a ctypes function pointer would be a different address in every process, which numba refuses to
+``sendto``, ``send``, ``poll``, ``clock_gettime``), so the machine code calls it directly, as C would, and numba's
+on-disk cache keeps it (a ctypes function pointer would be a different address in every process, which numba refuses to
 cache). Buffers are passed as addresses (``array.ctypes.data``); the caller keeps the arrays alive.
 
 Linux only (the socket address layout below is Linux's ``struct sockaddr_in``); with ``NUMBA_DISABLE_JIT=1`` none
@@ -46,6 +46,17 @@ CLOCK_MONOTONIC = 1
 # ones shorter than the budget (SpinThenBlock's "hot" count: :meth:`quadsitl.process_util.SpinThenBlock.tally`).
 POLLED, LATE, BLOCKED, SHORT = 1, 2, 3, 4
 RAN_OUT = -2  # receive(): polling found no datagram within its patience
+POLLIN = 0x001  # poll(2)'s event: data to read
+
+
+def pollfds(socks: list[socket.socket]) -> np.ndarray:
+    """The ``struct pollfd`` array that :func:`any_readable` asks about ``socks``: int32 pairs (the descriptor; the
+    requested events, POLLIN, in the low 16 bits and the returned ones in the high 16, as Linux's little-endian
+    ``short events, revents`` lay out)."""
+    out = np.zeros((len(socks), 2), dtype=np.int32)
+    for i, sock in enumerate(socks):
+        out[i] = sock.fileno(), POLLIN
+    return out
 
 
 def sockaddr(address: tuple[str, int]) -> np.ndarray:
@@ -114,6 +125,23 @@ if AVAILABLE:
             return builder.call(fn, [builder.trunc(fd_, _I32), _ptr(builder, buf_), size_, builder.trunc(flags_, _I32)])
 
         return sig, codegen
+
+    @intrinsic
+    def poll(typingctx, fds, nfds, timeout_ms):
+        """poll(struct pollfd address, their count, timeout [ms]: 0 returns at once) → how many are ready, or −1."""
+        sig = types.int64(types.intp, types.int64, types.int64)
+
+        def codegen(context, builder, signature, args):
+            fn = _libc(builder, "poll", _I32, [_PTR, _I64, _I32])
+            fds_, nfds_, timeout_ = args
+            return builder.sext(builder.call(fn, [_ptr(builder, fds_), nfds_, builder.trunc(timeout_, _I32)]), _I64)
+
+        return sig, codegen
+
+    @jit
+    def any_readable(fds: np.ndarray) -> bool:
+        """Whether a datagram waits on any of the sockets of ``fds`` (:func:`pollfds`), without waiting."""
+        return fds.shape[0] > 0 and poll(fds.ctypes.data, fds.shape[0], 0) > 0
 
     @intrinsic
     def sched_yield(typingctx):

@@ -127,11 +127,13 @@ def answer_of(data: bytes) -> tuple[int, bool]:
     return stamp, bool(buf[codec.HEADER_SIZE + codec.HIL_SIZE - 1] & codec.SAFETY_ARMED)
 
 
-def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIMIT, polling: bool = True):
+def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIMIT, polling: bool = True,
+          ground_every_s: float = 0.0):  # fmt: skip
     stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
     out = plant_loop.serve(ap.plant_sock.fileno(), ap.rx_array, ap.sender, ap.sender_len, ap.plant_address, ap.tx,
                            ap.io, ap.tick_arguments(), time.monotonic_ns() + int(deadline_s * 1e9), polling,
-                           50_000_000, 50_000_000, 8, limit, stats, ap.destinations.out)  # fmt: skip
+                           50_000_000, 50_000_000, 8, limit, stats, ap.destinations.out, ap.ground_fds,
+                           int(ground_every_s * 1e9))  # fmt: skip
     return out, stats
 
 
@@ -218,6 +220,37 @@ def test_a_stranger_a_deadline_and_a_limit_hand_the_loop_back(vehicle):
     (status, _, flags), stats = serve(ap, limit=2)  # tick 3 is past the limit: its answer is Python's to send
     assert status == plant_loop.TICKED and flags == kernel.ANSWER and stats[plant_loop.ANSWERED] == 0
     assert ap.io[kernel.TICK] == 3
+
+
+def test_a_datagram_on_a_ground_link_hands_the_loop_back_and_nothing_else_does(vehicle):
+    """The ground-station sockets are asked between ticks (every ``ground_every_ns``, here every tick): the loop
+    serves tick after tick while they are empty, and goes back to Python (GROUND) once a datagram waits on one,
+    which Python then reads."""
+    ap, plant, autopilot = vehicle
+    locked_without_streams(ap, plant, autopilot)
+    for k in range(2, 7):
+        plant.sendto(state_frame(k), autopilot)
+    time.sleep(0.02)
+    (status, _, _), stats = serve(ap, deadline_s=0.3)
+    assert status == plant_loop.QUIET and stats[plant_loop.ANSWERED] == 5  # asked five times, nothing waited
+    assert [answer_of(plant.recv(1000))[0] for _ in range(5)] == [1000 * k for k in range(2, 7)]
+    assert stats[plant_loop.NEXT_GROUND] > 0  # and the next time to ask moved on
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs:
+        heartbeat = wire.link(255, 190).heartbeat_encode(6, 8, 0, 0, 0).pack(wire.link(255, 190))
+        gcs.sendto(heartbeat, ap.links[1].sock.getsockname())  # the api link
+        for k in range(7, 10):
+            plant.sendto(state_frame(k), autopilot)
+        time.sleep(0.02)
+        (status, _, _), stats = serve(ap, deadline_s=0.3)
+        assert status == plant_loop.GROUND and stats[plant_loop.ANSWERED] == 1  # back after the next tick
+        assert answer_of(plant.recv(1000))[0] == 7000
+        for link in ap.links:
+            link.sock.setblocking(False)  # as Autopilot.run has them
+        ap.poll_gcs()  # what Python does then: the datagram read, its sender now a peer of the link
+        assert ap.links[1].peers and ap.gcs_heard is not None
+        ap.io[kernel.NEXT_STREAM_TICK] = 10**9  # (a new peer started the streams again: none due here)
+        (status, _, _), stats = serve(ap, deadline_s=0.3)
+        assert status == plant_loop.QUIET and stats[plant_loop.ANSWERED] == 2  # nothing waits any more
 
 
 def test_a_blocking_loop_comes_back_to_poll_once_the_plant_answers_fast(vehicle):
