@@ -58,6 +58,7 @@ from quadsitl.cli_util import (
 )
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import PX4_HOME
+from quadsitl.jit import specialized
 from quadsitl.process_util import (
     HOT_AFTER,
     PATIENCE,
@@ -73,7 +74,7 @@ from quadsitl.process_util import (
 )
 from quadsitl.telemetry import add_zenoh_arguments, config_from_args
 from quadsitl.timing import period_stats
-from sitl import lockstep_loop, tick
+from sitl import lockstep_loop, realtime_loop, tick
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant, outside_what, state_inside
 from sitl.wind_link import WindLink
@@ -116,13 +117,34 @@ class PlantLink:
         self.max_thrust = max_thrust
         self.period = period
         self.timeout = -1.0
-        self.last_heard: float | None = None  # wall time the autopilot was last heard (None: not yet)
-        self.first_heard: float | None = None  # ... and first: the run's pace counts from its first answer
-        self.lost = False
+        # answered and late periods, when the autopilot was first and last heard, whether it is lost: one account
+        # for the Python loops and the compiled real-time one (sitl.realtime_loop)
+        self.rt = np.zeros(realtime_loop.RT_SIZE, dtype=np.int64)
         self.impairment = impairment  # real-time runs only: both directions go through its queues
         self.outbox: list[tuple[float, int, bytes]] = []  # (release time, order, datagram), a heap
         self.inbox: list[tuple[float, int, bytes]] = []
         self.order = 0
+
+    @property
+    def last_heard(self) -> float | None:
+        """When the autopilot was last heard [s, time.monotonic] (None: not yet)."""
+        ns = self.rt[realtime_loop.LAST_NS]
+        return None if ns == 0 else ns * 1e-9
+
+    @last_heard.setter
+    def last_heard(self, wall: float) -> None:
+        self.rt[realtime_loop.LAST_NS] = round(wall * 1e9)
+
+    @property
+    def first_heard(self) -> float | None:
+        """... and first: the run's pace counts from its first answer."""
+        ns = self.rt[realtime_loop.FIRST_NS]
+        return None if ns == 0 else ns * 1e-9
+
+    @property
+    def lost(self) -> bool:
+        """Whether the autopilot is lost: silent for longer than AUTOPILOT_LOST_AFTER."""
+        return bool(self.rt[realtime_loop.LOST])
 
     @property
     def discarded(self) -> int:
@@ -162,22 +184,59 @@ class PlantLink:
 
     def heard(self) -> None:
         """An actuator message was used: the autopilot is there."""
-        self.last_heard = time.monotonic()
-        if self.first_heard is None:
-            self.first_heard = self.last_heard
-        if self.lost:
-            self.lost = False
-            print(f"plant: {self.who} back; following its commands", file=sys.stderr, flush=True)
+        rt = self.rt
+        rt[realtime_loop.LAST_NS] = time.monotonic_ns()
+        if rt[realtime_loop.FIRST_NS] == 0:
+            rt[realtime_loop.FIRST_NS] = rt[realtime_loop.LAST_NS]
+        if rt[realtime_loop.LOST]:
+            rt[realtime_loop.LOST] = 0
+            self.say_back()
+
+    def say_back(self) -> None:
+        print(f"plant: {self.who} back; following its commands", file=sys.stderr, flush=True)
+
+    def say_lost(self, action: str) -> None:
+        print(f"plant: {self.who} lost (no answer for {AUTOPILOT_LOST_AFTER:g} s); {action}", file=sys.stderr,
+              flush=True)  # fmt: skip
 
     def check_lost(self, action: str) -> bool:
         """True while the autopilot has been silent for AUTOPILOT_LOST_AFTER (said once per loss)."""
         if self.last_heard is None or time.monotonic() - self.last_heard <= AUTOPILOT_LOST_AFTER:
             return False
         if not self.lost:
-            self.lost = True
-            print(f"plant: {self.who} lost (no answer for {AUTOPILOT_LOST_AFTER:g} s); {action}", file=sys.stderr,
-                  flush=True)  # fmt: skip
+            self.rt[realtime_loop.LOST] = 1
+            self.say_lost(action)
         return True
+
+    def bind_realtime(self, plant: Plant) -> None:
+        """The compiled real-time period for this link and ``plant`` (:mod:`sitl.realtime_loop`): compiled for these
+        arrays' types, or loaded from numba's cache, now, before the first tick."""
+        fd = self.sock.fileno()
+        self.send_args = (fd, self.tx, self.io, plant.x, plant.out, plant.air, plant.sensors.arrays)
+        self.take_args = (fd, self.rx_array, self.received, self.max_thrust, self.io, self.rt, plant.commanded)
+        self.step_args = (plant.work, plant.params, plant.air_rng, plant.period, plant.substeps, plant.method)
+        self._send_tick = specialized(realtime_loop.send_tick, *self.send_args, 0, self.period)
+        self._take_and_step = specialized(realtime_loop.take_and_step, *self.take_args, 0, 0, True, *self.step_args)
+
+    def send_tick(self, k: int) -> bool:
+        """Real time, compiled (after :meth:`bind_realtime`): tick ``k``'s datagram sent → False (nothing sent) when
+        the state has left its bounds."""
+        return self._send_tick(*self.send_args, k, self.period)
+
+    def take_and_step(self, want: int, plant: Plant, zero_on_loss: bool, action: str) -> None:
+        """Real time, compiled (after :meth:`bind_realtime`): the period's answers taken, counted, and the period
+        integrated (:func:`sitl.realtime_loop.take_and_step`); a datagram for pymavlink decoded here on the way."""
+        lost_after = round(AUTOPILOT_LOST_AFTER * 1e9)
+        while True:
+            flags = self._take_and_step(*self.take_args, want, lost_after, zero_on_loss, *self.step_args)
+            if flags & realtime_loop.BACK_NOW:
+                self.say_back()
+            if flags & realtime_loop.LOST_NOW:
+                self.say_lost(action)
+            if not flags & realtime_loop.ANOTHER:
+                break
+            self.apply(plant, self._decode_slowly(int(self.rt[realtime_loop.LENGTH])))
+        plant.time += plant.period
 
     def receive(self, timeout: float | None) -> int:
         """One datagram into rx: its length, or −1 when none came within ``timeout`` seconds."""
@@ -304,6 +363,16 @@ def warm_up(plant: Plant) -> None:
             a.connect(b.getsockname())
             b.connect(a.getsockname())
             set_receive_timeout(a, 0.1)
+            # the real-time period (sitl.realtime_loop): a state sent, an answer taken, a step
+            rt, rt_io, tx = np.zeros(realtime_loop.RT_SIZE, dtype=np.int64), np.zeros_like(io), np.zeros_like(link)
+            realtime_loop.send_tick(a.fileno(), tx, rt_io, twin.x, twin.out, twin.air, twin.sensors.arrays, 0,
+                                    twin.period)  # fmt: skip
+            b.recv(65535)
+            n = codec.encode_actuators(tx, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
+            b.send(tx[:n].tobytes())
+            realtime_loop.take_and_step(a.fileno(), np.zeros(65535, dtype=np.uint8), twin.commanded.copy(), 1.0,
+                                        rt_io, rt, twin.commanded, 0, 0, True, twin.work, twin.params, twin.air_rng,
+                                        twin.period, twin.substeps, twin.method)  # fmt: skip
             for polling in (True, False):
                 io[tick.LAST_USEC] = -1
                 b.send(link[:n].tobytes())
@@ -323,8 +392,16 @@ class Vehicle:
     plant: Plant
     link: PlantLink
     wind: WindLink | None = None
-    answered: int = 0  # real time: periods whose own answer (stamped with the period's tick) came within it ...
-    late: int = 0  # ... and periods since the autopilot's first answer whose answer did not: it flew a stale command
+
+    @property
+    def answered(self) -> int:
+        """Real time: periods whose own answer (stamped with the period's tick) came within it ..."""
+        return int(self.link.rt[realtime_loop.ANSWERED])
+
+    @property
+    def late(self) -> int:
+        """... and periods since the autopilot's first answer whose answer did not: it flew a stale command."""
+        return int(self.link.rt[realtime_loop.LATE])
 
 
 class DivergedError(Exception):
@@ -498,20 +575,30 @@ def run_realtime(
     on_loss: str = "zero",
 ) -> int:
     """Integrate every vehicle on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each
-    tick's actual start time [s, monotonic]."""
+    tick's actual start time [s, monotonic]. Each vehicle's work of a period is compiled (:mod:`sitl.realtime_loop`)
+    where the compiled loops run (:func:`quadsitl.fastio.compiled_loops`), but with impaired links, whose queues
+    are Python's; the Python loop does the same."""
     period = vehicles[0].plant.period
     named = len(vehicles) > 1
     socks = {v.link.sock: v for v in vehicles}
     impaired = any(v.link.impairment is not None for v in vehicles)  # their queues release datagrams on time
-    action = f"applying {'zero thrust' if on_loss == 'zero' else 'the last command'}"
+    fast = fastio.compiled_loops() and not impaired
+    for v in vehicles if fast else ():
+        v.link.bind_realtime(v.plant)
+    zero = on_loss == "zero"
+    action = f"applying {'zero thrust' if zero else 'the last command'}"
     k = 0
     next_time = time.monotonic()
     while max_ticks is None or k < max_ticks:
         if starts is not None:
             starts.append(time.monotonic())
         for v in vehicles:
-            check_state(v, k, named)
-            v.link.send_state(k, v.plant)
+            if fast:
+                if not v.link.send_tick(k):
+                    raise DivergedError(v, k, named)
+            else:
+                check_state(v, k, named)
+                v.link.send_state(k, v.plant)
         if k == 0:  # the clock starts once the first states are out: a slow first send (page faults, a machine busy
             next_time = time.monotonic()  # starting a dashboard) would otherwise be caught up in a burst of late ticks
             if starts is not None:
@@ -531,18 +618,22 @@ def run_realtime(
             sleep_until(next_time)
             # Everything that came before the period ended, and only then: a plant whose own wake-up came late (the
             # scheduler ran something else) takes the answers that came in time, not the last command
-            for v in vehicles:
+            for v in vehicles if not fast else ():
                 v.link.drain(v.plant)
         want = codec.usec_of(k, period)
         for v in vehicles:
-            if v.link.io[tick.LAST_USEC] == want:
-                v.answered += 1
-            elif v.link.first_heard is not None:
-                v.late += 1
-            if v.link.check_lost(action) and on_loss == "zero":
-                v.plant.commanded[:] = 0.0
             if v.wind is not None and v.wind.inbox:
                 v.wind.take(v.plant)
+            if fast:  # the same as below, and the drain above, compiled
+                v.link.take_and_step(want, v.plant, zero, action)
+                continue
+            rt = v.link.rt
+            if v.link.io[tick.LAST_USEC] == want:
+                rt[realtime_loop.ANSWERED] += 1
+            elif v.link.first_heard is not None:
+                rt[realtime_loop.LATE] += 1
+            if v.link.check_lost(action) and zero:
+                v.plant.commanded[:] = 0.0
             v.plant.step()
         k += 1
     return k

@@ -1,0 +1,123 @@
+"""The real-time plant's compiled period (:mod:`sitl.realtime_loop`) does what the Python loop of
+:func:`sitl.process.run_realtime` does, vehicle by vehicle: the state sent (none once it left its bounds), every
+waiting answer taken (the newest wins, stale and corrupt ones counted), the period counted answered or late, the
+lost-autopilot clock, one step; and a datagram only pymavlink reads is left to Python."""
+
+from __future__ import annotations
+
+import copy
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from quadsitl import codec, fastio, wire
+from sitl import process, realtime_loop, tick
+
+pytestmark = pytest.mark.skipif(not fastio.AVAILABLE, reason="compiled code only (NUMBA_DISABLE_JIT is set)")
+
+
+@pytest.fixture
+def vehicle():
+    """One vehicle of a real-time plant, its autopilot a bare socket; the compiled period bound to it."""
+    ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ap.bind(("127.0.0.1", 0))
+    ap.settimeout(2.0)
+    args = process.build_parser().parse_args(["--preset", "paper", "--autopilot", f"127.0.0.1:{ap.getsockname()[1]}"])
+    (v,) = process.fleet_from_args(args)
+    process.warm_up(v.plant)
+    v.link.bind_realtime(v.plant)
+    yield v, ap
+    v.link.close()
+    ap.close()
+
+
+def answer(ap: socket.socket, plant_address: tuple[str, int], stamp: int, forces: tuple, max_thrust: float,
+           corrupt: bool = False) -> None:  # fmt: skip
+    tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    n = codec.encode_actuators(tx, 0, 1, 1, stamp, forces, max_thrust, True)
+    if corrupt:
+        tx[codec.HEADER_SIZE + 3] ^= 0xFF  # a payload byte: the checksum no longer holds
+    ap.sendto(tx[:n].tobytes(), plant_address)
+
+
+def test_the_state_goes_out_and_none_once_it_left_its_bounds(vehicle):
+    v, ap = vehicle
+    assert v.link.send_tick(7)
+    data = ap.recv(65535)
+    decoded = np.zeros(codec.DECODED_SIZE)
+    assert codec.decode_state(np.frombuffer(data, dtype=np.uint8).copy(), len(data), decoded) == codec.usec_of(
+        7, v.plant.period
+    )
+    assert np.array_equal(decoded[:12], v.plant.x)
+    v.plant.x[2] = -1e6  # far above any bound
+    assert not v.link.send_tick(8)
+    ap.settimeout(0.05)
+    with pytest.raises(TimeoutError):
+        ap.recv(65535)
+
+
+def test_the_period_takes_the_newest_answer_and_steps_as_the_python_loop_does(vehicle):
+    v, ap = vehicle
+    link, plant = v.link, v.plant
+    to_plant = link.sock.getsockname()
+    f = link.max_thrust
+    twin = copy.deepcopy(plant)
+    period = plant.period
+    link.io[tick.LAST_USEC] = codec.usec_of(3, period)
+    answer(ap, to_plant, codec.usec_of(5, period), (0.4 * f, 0.41 * f, 0.42 * f, 0.43 * f), f)
+    answer(ap, to_plant, codec.usec_of(4, period), (0.1 * f,) * 4, f)  # older than the newest: stale
+    answer(ap, to_plant, codec.usec_of(2, period), (0.1 * f,) * 4, f)  # older than the last used: stale
+    answer(ap, to_plant, codec.usec_of(6, period), (0.1 * f,) * 4, f, corrupt=True)  # never flown
+    time.sleep(0.02)
+    link.take_and_step(codec.usec_of(5, period), plant, True, "applying zero thrust")
+    assert link.io[tick.DISCARDED] == 2 and link.io[tick.CORRUPT] == 1
+    assert link.io[tick.LAST_USEC] == codec.usec_of(5, period) and (v.answered, v.late) == (1, 0)
+    assert link.first_heard is not None and not link.lost
+    assert np.allclose(plant.commanded, (0.4 * f, 0.41 * f, 0.42 * f, 0.43 * f))  # the newest answer's forces
+    twin.step(tuple(plant.commanded))  # the Python step, on the same command
+    assert np.array_equal(plant.work, twin.work) and plant.time == twin.time
+    # The next period: nothing came in it, so the vehicle flies the previous command and the period is late.
+    link.take_and_step(codec.usec_of(6, period), plant, True, "applying zero thrust")
+    twin.step()
+    assert (v.answered, v.late) == (1, 1) and np.array_equal(plant.work, twin.work)
+
+
+def test_a_datagram_only_pymavlink_reads_is_left_to_python_and_flown(vehicle):
+    v, ap = vehicle
+    link, plant = v.link, v.plant
+    f = link.max_thrust
+    stamp = codec.usec_of(1, plant.period)
+    mav = wire.link(1, 1)
+    msg = mav.hil_actuator_controls_encode(stamp, [0.5, 0.5, 0.5, 0.5] + [0.0] * 12, 0, 0)
+    statustext = mav.statustext_encode(6, b"hello")
+    ap.sendto(codec.pack(statustext, mav) + codec.pack(msg, mav), link.sock.getsockname())  # two messages
+    time.sleep(0.02)
+    link.take_and_step(stamp, plant, True, "applying zero thrust")
+    assert link.io[tick.LAST_USEC] == stamp and v.answered == 1
+    assert np.allclose(plant.commanded, wire.forces_from_message(msg, f))
+
+
+def test_a_silent_autopilot_is_lost_then_back_and_said_once_each(vehicle, capsys):
+    v, ap = vehicle
+    link, plant = v.link, v.plant
+    f = link.max_thrust
+    period = plant.period
+    answer(ap, link.sock.getsockname(), codec.usec_of(0, period), (0.3 * f,) * 4, f)
+    time.sleep(0.02)
+    link.take_and_step(codec.usec_of(0, period), plant, False, "applying the last command")
+    link.rt[realtime_loop.LAST_NS] -= round((process.AUTOPILOT_LOST_AFTER + 0.1) * 1e9)  # silent since
+    for k in (1, 2):  # lost: said once; on "last", the last command stays
+        link.take_and_step(codec.usec_of(k, period), plant, False, "applying the last command")
+        assert link.lost and np.allclose(plant.commanded, 0.3 * f)
+    link.take_and_step(codec.usec_of(3, period), plant, True, "applying zero thrust")  # on "zero": none
+    assert np.array_equal(plant.commanded, np.zeros(4))
+    answer(ap, link.sock.getsockname(), codec.usec_of(4, period), (0.35 * f,) * 4, f)
+    time.sleep(0.02)
+    link.take_and_step(codec.usec_of(4, period), plant, True, "applying zero thrust")
+    assert not link.lost and np.allclose(plant.commanded, 0.35 * f)
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["plant: autopilot lost (no answer for 0.5 s); applying the last command",
+                   "plant: autopilot back; following its commands"]  # fmt: skip
+    assert (v.answered, v.late) == (2, 3)
