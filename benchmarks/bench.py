@@ -27,8 +27,10 @@ machines drift:
    vehicle misses under 1 % of its periods. The machine's own floor comes first: a bare loop keeping time at
    1 kHz and doing nothing else, and the hypervisor's steal time meanwhile (a virtual machine whose host takes
    its CPU for milliseconds at a time misses periods with nothing running at all);
-   ``fleet_max_realtime_over_floor`` is the largest N that misses under 1 % more than that loop. In lockstep, the
-   fleet's ticks per second (all vehicles) against one vehicle's.
+   ``fleet_max_realtime_over_floor`` is the largest N that misses under 1 % more than that loop. Under SCHED_FIFO
+   (``fleet_max_realtime_fifo``) the floor is the same loop under SCHED_FIFO: there nothing on the machine delays a
+   loop but the host itself, and the default-scheduled floor would excuse misses a FIFO fleet makes. In lockstep,
+   the fleet's ticks per second (all vehicles) against one vehicle's.
 """
 
 from __future__ import annotations
@@ -748,6 +750,12 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
             r.add(f"real time under SCHED_FIFO: not measured: {why_not_fifo}", 0, "")
             out[key] = out[f"{key}_over_floor"] = None
             continue
+        if fifo:  # the floor of a loop that nothing on the machine preempts: only the host delays it
+            with fifo_scheduling(True):
+                floor = bare_loop(ticks, 0.001)["deadline_miss_ratio"]
+            r.add(f"a bare loop keeping time at 1 kHz under SCHED_FIFO {FIFO_PRIORITY}, nothing else running: "
+                  "deadline-miss ratio (the floor under FIFO)", floor, "ratio")  # fmt: skip
+            out["fleet_floor_miss_ratio_fifo"] = floor
         one = fleet_run(1, workdir, ticks, "realtime", browser, fifo)
         largest = largest_over_floor = 0
         kept = True

@@ -69,6 +69,10 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
     for how, key in (("default scheduling", "fleet_max_realtime"), ("SCHED_FIFO 10", "fleet_max_realtime_fifo")):
         if how != "default scheduling" and not fifo:
             continue
+        if how != "default scheduling":  # FIFO's runs against the same loop under FIFO
+            floor = figures["a bare loop keeping time at 1 kHz under SCHED_FIFO 10, nothing else running: "
+                            "deadline-miss ratio (the floor under FIFO)"]  # fmt: skip
+            assert 0.0 <= floor["value"] < 1.0 and report["fleet_floor_miss_ratio_fifo"] == floor["value"]
         one = figures[f"fleet of 1, real time, {how}: worst vehicle's deadline-miss ratio"]
         assert 0.0 <= one["value"] <= 1.0 and one["baseline"] == one["value"]
         assert one["baseline_name"] == "one vehicle"
