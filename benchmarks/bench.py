@@ -23,14 +23,14 @@ machines drift:
 7. fleets: N vehicles at once (N autopilot processes and one plant process on one clock, as ``up --vehicles N``),
    growing N. In real time at 1 kHz, with the dashboard's page open when the machine has a browser: the worst
    vehicle's deadline-miss ratio (its tick started late, or its autopilot's answer missed the period) against one
-   vehicle's, with CPU (% of a core) and memory per vehicle; ``fleet_max_realtime`` is the largest N whose every
-   vehicle misses under 1 % of its periods. The machine's own floor comes first: a bare loop keeping time at
-   1 kHz and doing nothing else, and the hypervisor's steal time meanwhile (a virtual machine whose host takes
-   its CPU for milliseconds at a time misses periods with nothing running at all);
-   ``fleet_max_realtime_over_floor`` is the largest N that misses under 1 % more than that loop. Under SCHED_FIFO
-   (``fleet_max_realtime_fifo``) the floor is the same loop under SCHED_FIFO: there nothing on the machine delays a
-   loop but the host itself, and the default-scheduled floor would excuse misses a FIFO fleet makes. In lockstep,
-   the fleet's ticks per second (all vehicles) against one vehicle's.
+   vehicle's, with CPU (% of a core: per vehicle, each autopilot's, the plant's) and memory per vehicle;
+   ``fleet_max_realtime`` is the largest N whose every vehicle misses under 1 % of its periods. The machine's own
+   floor comes first: a bare loop keeping time at 1 kHz and doing nothing else, and the hypervisor's steal time
+   meanwhile (a virtual machine whose host takes its CPU for milliseconds at a time misses periods with nothing
+   running at all); ``fleet_max_realtime_over_floor`` is the largest N that misses under 1 % more than that loop.
+   Under SCHED_FIFO (``fleet_max_realtime_fifo``) the floor is the same loop under SCHED_FIFO: there nothing on the
+   machine delays a loop but the host itself, and the default-scheduled floor would excuse misses a FIFO fleet
+   makes. In lockstep, the fleet's ticks per second (all vehicles) against one vehicle's.
 """
 
 from __future__ import annotations
@@ -712,6 +712,8 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
         "answer_miss_ratios": res.get("answer_miss_ratios", []),
         "ticks_per_s": n * res["ticks_per_s"],  # the fleet's clock's ticks per second, once per vehicle
         "cpu_per_vehicle_pct": 100.0 * (ap_cpu + res["cpu_s"]) / run_wall / n,
+        "cpu_per_autopilot_pct": 100.0 * ap_cpu / run_wall / n,  # the two parts of it: each autopilot's, ...
+        "cpu_plant_pct": 100.0 * res["cpu_s"] / run_wall,  # ... and the one plant process's, for all n
         "memory_per_vehicle_mb": sum(rss) / n,
     }
 
@@ -766,6 +768,12 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
             r.add(f"fleet of {n}, real time, {how}: the clock's deadline-miss ratio (ticks started a period late)",
                   rt["clock_miss_ratio"], "ratio", one["clock_miss_ratio"], "one vehicle", ratio=None)  # fmt: skip
             r.add(f"fleet of {n}, real time, {how}: CPU per vehicle", rt["cpu_per_vehicle_pct"], "% of a core")
+            r.add(f"fleet of {n}, real time, {how}: CPU of each autopilot (mean)", rt["cpu_per_autopilot_pct"],
+                  "% of a core")  # fmt: skip
+            r.add(f"fleet of {n}, real time, {how}: CPU of the plant process (all vehicles)", rt["cpu_plant_pct"],
+                  "% of a core")  # fmt: skip
+            r.add(f"fleet of {n}, real time, {how}: best vehicle's deadline-miss ratio",
+                  min(rt["answer_miss_ratios"], default=0.0), "ratio")  # fmt: skip
             r.add(f"fleet of {n}, real time, {how}: memory per vehicle", rt["memory_per_vehicle_mb"], "MB")
             r.add(f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio beyond the floor",
                   rt["worst_miss_ratio"] - floor, "ratio")  # fmt: skip

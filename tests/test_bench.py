@@ -81,12 +81,19 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
         measured = (1, 2) if one["value"] - floor["value"] < 0.01 else (1,)
         assert (f"fleet of 2, real time, {how}: CPU per vehicle" in figures) == (measured == (1, 2))
         for n in measured:
-            assert 0 < figures[f"fleet of {n}, real time, {how}: CPU per vehicle"]["value"] < 200  # % of a core
+            per_vehicle = figures[f"fleet of {n}, real time, {how}: CPU per vehicle"]["value"]
+            assert 0 < per_vehicle < 200  # % of a core
+            # its two parts: each autopilot's, and the plant's share
+            autopilot = figures[f"fleet of {n}, real time, {how}: CPU of each autopilot (mean)"]["value"]
+            plant = figures[f"fleet of {n}, real time, {how}: CPU of the plant process (all vehicles)"]["value"]
+            assert 0 < autopilot < per_vehicle and plant > 0 and autopilot + plant / n == pytest.approx(per_vehicle)
+            best = figures[f"fleet of {n}, real time, {how}: best vehicle's deadline-miss ratio"]["value"]
             assert 50 < figures[f"fleet of {n}, real time, {how}: memory per vehicle"]["value"] < 2000  # MB
             clock = figures[f"fleet of {n}, real time, {how}: the clock's deadline-miss ratio (ticks started a "
                             "period late)"]["value"]  # fmt: skip
             worst = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio"]["value"]
             assert 0.0 <= clock <= worst <= 1.0  # a late tick is a late period for every vehicle
+            assert 0.0 <= best <= worst
             beyond = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio beyond the floor"]
             assert beyond["value"] == pytest.approx(worst - floor["value"])
         # the largest fleet that kept its deadlines: a size asked for, or 0 (2 vehicles on a loaded CI machine miss);
