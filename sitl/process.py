@@ -83,6 +83,7 @@ HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
 LOOP_RETURN_NS = 1_000_000  # [ns] wall: the compiled clock comes back to Python at least this often (signals, wind)
 AUTOPILOT_LOST_AFTER = 0.5  # [s] wall without an actuator message: the autopilot is lost
+LOST_AFTER_NS = round(AUTOPILOT_LOST_AFTER * 1e9)
 
 
 class PlantLink:
@@ -214,9 +215,9 @@ class PlantLink:
         fd = self.sock.fileno()
         self.send_args = (fd, self.tx, self.io, plant.x, plant.out, plant.air, plant.sensors.arrays)
         self.take_args = (fd, self.rx_array, self.received, self.max_thrust, self.io, self.rt, plant.commanded)
-        self.step_args = (plant.work, plant.params, plant.air_rng, plant.period, plant.substeps, plant.method)
+        self.plant_args = self.step_args(plant)
         self._send_tick = specialized(realtime_loop.send_tick, *self.send_args, 0, self.period)
-        self._take_and_step = specialized(realtime_loop.take_and_step, *self.take_args, 0, 0, True, *self.step_args)
+        self._take_and_step = specialized(realtime_loop.take_and_step, *self.take_args, 0, 0, True, *self.plant_args)
 
     def send_tick(self, k: int) -> bool:
         """Real time, compiled (after :meth:`bind_realtime`): tick ``k``'s datagram sent → False (nothing sent) when
@@ -226,9 +227,8 @@ class PlantLink:
     def take_and_step(self, want: int, plant: Plant, zero_on_loss: bool, action: str) -> None:
         """Real time, compiled (after :meth:`bind_realtime`): the period's answers taken, counted, and the period
         integrated (:func:`sitl.realtime_loop.take_and_step`); a datagram for pymavlink decoded here on the way."""
-        lost_after = round(AUTOPILOT_LOST_AFTER * 1e9)
         while True:
-            flags = self._take_and_step(*self.take_args, want, lost_after, zero_on_loss, *self.step_args)
+            flags = self._take_and_step(*self.take_args, want, LOST_AFTER_NS, zero_on_loss, *self.plant_args)
             if flags & realtime_loop.BACK_NOW:
                 self.say_back()
             if flags & realtime_loop.LOST_NOW:
@@ -279,16 +279,27 @@ class PlantLink:
 
     def apply(self, plant: Plant, t: int) -> bool:
         """Real time: make the actuator message stamped ``t`` (forces in ``self.received``) the command,
-        unless it is older than the last used."""
+        unless it is older than the last used (:func:`sitl.realtime_loop.apply`)."""
         if t < 0:
             return False
-        if t <= self.io[tick.LAST_USEC]:
-            self.io[tick.DISCARDED] += 1
-            return False
-        self.io[tick.LAST_USEC] = t
-        plant.commanded[:] = self.received
-        self.heard()
-        return True
+        r = realtime_loop.apply(t, self.received, self.io, self.rt, plant.commanded, time.monotonic_ns())
+        if r == realtime_loop.BACK_NOW:
+            self.say_back()
+        return r >= 0
+
+    def end_period(self, want: int, plant: Plant, zero_on_loss: bool, action: str) -> None:
+        """Real time, the period's answers taken (:meth:`apply`): counted, the lost clock, one step
+        (:func:`sitl.realtime_loop.end_period`)."""
+        flags = realtime_loop.end_period(self.io, self.rt, plant.commanded, want, time.monotonic_ns(), LOST_AFTER_NS,
+                                         zero_on_loss, *self.step_args(plant))  # fmt: skip
+        if flags & realtime_loop.LOST_NOW:
+            self.say_lost(action)
+        plant.time += plant.period
+
+    @staticmethod
+    def step_args(plant: Plant) -> tuple:
+        """The arguments of :func:`sitl.plant.step_work` for ``plant``."""
+        return plant.work, plant.params, plant.air_rng, plant.period, plant.substeps, plant.method
 
     def receive_within(self, seconds: float, plant: Plant) -> None:
         """Real time: apply every actuator message that arrives within ``seconds`` (microsecond precision:
@@ -624,17 +635,10 @@ def run_realtime(
         for v in vehicles:
             if v.wind is not None and v.wind.inbox:
                 v.wind.take(v.plant)
-            if fast:  # the same as below, and the drain above, compiled
+            if fast:  # the drain above and the end of the period, in one compiled call
                 v.link.take_and_step(want, v.plant, zero, action)
                 continue
-            rt = v.link.rt
-            if v.link.io[tick.LAST_USEC] == want:
-                rt[realtime_loop.ANSWERED] += 1
-            elif v.link.first_heard is not None:
-                rt[realtime_loop.LATE] += 1
-            if v.link.check_lost(action) and zero:
-                v.plant.commanded[:] = 0.0
-            v.plant.step()
+            v.link.end_period(want, v.plant, zero, action)
         k += 1
     return k
 

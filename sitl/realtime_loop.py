@@ -4,17 +4,16 @@ sleeping, not in Python (:func:`sitl.process.run_realtime`).
 Each period the real-time clock sends every vehicle its state (:func:`send_tick`), sleeps until the period ends,
 and then, vehicle by vehicle, takes what its autopilot answered and integrates (:func:`take_and_step`). In Python
 that was about 25 us of CPU per vehicle and period (a dozen calls, a socket exception per drained socket), and
-about 60 us of the clock's own: a fleet of eight spent a third of a core on its clock. These do the same per
-vehicle, in the same order, through the same compiled codec and step, with the link's bookkeeping in ``rt``:
+about 60 us of the clock's own: a fleet of eight spent a third of a core on its clock. The Python loop (impaired
+links, whose queues release the datagrams; ``QUADSITL_COMPILED_LOOPS=0``) calls the two halves of
+:func:`take_and_step`, :func:`apply` for each answer and :func:`end_period`, so the bookkeeping is written once,
+in ``rt``, the link's (:class:`sitl.process.PlantLink`: its ``last_heard``, ``first_heard`` and ``lost`` read it):
 
 - rt[ANSWERED], rt[LATE]: periods whose own answer (stamped with the period's tick) came within it, and periods
   since the autopilot's first answer whose answer did not (the vehicle flew the previous command);
 - rt[FIRST_NS], rt[LAST_NS]: when an actuator message was first and last used (CLOCK_MONOTONIC [ns]; 0: never);
 - rt[LOST]: 1 while the autopilot is lost (silent for longer than ``lost_after_ns``);
 - rt[LENGTH]: the length of a datagram left in ``rx`` for Python (ANOTHER).
-
-:class:`sitl.process.PlantLink` reads the same array (its ``last_heard``, ``first_heard``, ``lost``), so the Python
-loop (impaired links, ``QUADSITL_COMPILED_LOOPS=0``) and this one keep one account.
 """
 
 from __future__ import annotations
@@ -50,15 +49,55 @@ def send_tick(fd: int, tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.nd
 
 
 @jit
+def apply(t: int, received: np.ndarray, io: np.ndarray, rt: np.ndarray, commanded: np.ndarray, now_ns: int) -> int:
+    """An actuator message stamped ``t`` [us] (its forces in ``received``), heard at ``now_ns``: the command, unless
+    it is older than the last used (counted as discarded: −1) → BACK_NOW when it ends a loss of the autopilot, else
+    0. For every real-time loop, the Python ones (impaired links, the datagrams pymavlink reads) too."""
+    if t <= io[tick.LAST_USEC]:
+        io[tick.DISCARDED] += 1
+        return -1
+    io[tick.LAST_USEC] = t
+    commanded[:] = received
+    rt[LAST_NS] = now_ns
+    if rt[FIRST_NS] == 0:
+        rt[FIRST_NS] = now_ns
+    if rt[LOST] != 0:
+        rt[LOST] = 0
+        return BACK_NOW
+    return 0
+
+
+@jit
+def end_period(io: np.ndarray, rt: np.ndarray, commanded: np.ndarray, want: int, now_ns: int, lost_after_ns: int,
+               zero_on_loss: bool, work: np.ndarray, params: np.ndarray, air_rng: np.ndarray, period: float,
+               substeps: int, method: int) -> int:  # fmt: skip
+    """The end of the period whose tick is stamped ``want`` [us], its answers taken: the period counted answered or
+    late, the lost-autopilot clock at ``now_ns`` (zero thrust while lost with ``zero_on_loss``, else the last
+    command), then one period integrated (:func:`sitl.plant.step_work` on ``work``, of which ``commanded`` is the
+    command) → LOST_NOW when the autopilot is found lost now, else 0. For every real-time loop."""
+    flags = 0
+    if io[tick.LAST_USEC] == want:
+        rt[ANSWERED] += 1
+    elif rt[FIRST_NS] != 0:
+        rt[LATE] += 1
+    if rt[LAST_NS] != 0 and now_ns - rt[LAST_NS] > lost_after_ns:
+        if rt[LOST] == 0:
+            rt[LOST] = 1
+            flags |= LOST_NOW
+        if zero_on_loss:
+            commanded[:] = 0.0
+    step_work(work, params, air_rng, period, substeps, method, math.nan)
+    return flags
+
+
+@jit
 def take_and_step(fd: int, rx: np.ndarray, received: np.ndarray, max_thrust: float, io: np.ndarray, rt: np.ndarray,
                   commanded: np.ndarray, want: int, lost_after_ns: int, zero_on_loss: bool, work: np.ndarray,
                   params: np.ndarray, air_rng: np.ndarray, period: float, substeps: int, method: int
                   ) -> int:  # fmt: skip
-    """The end of the period whose tick is stamped ``want`` [us]: every actuator message waiting on socket ``fd``
-    (the newest stamp wins, older ones discarded as stale, corrupt ones counted), the period counted answered or
-    late, the lost-autopilot clock (zero thrust while lost with ``zero_on_loss``, else the last command), then one
-    period integrated (:func:`sitl.plant.step_work` on ``work``, of which ``commanded`` is the command) → flags
-    (ANOTHER: returned before the step, as soon as such a datagram is read)."""
+    """The end of the period whose tick is stamped ``want`` [us], unimpaired: every actuator message waiting on
+    socket ``fd`` (:func:`apply`: the newest stamp wins, older ones discarded as stale; corrupt ones counted), then
+    :func:`end_period` → flags (ANOTHER: returned before the period ends, as soon as such a datagram is read)."""
     flags = 0
     while True:
         n = fastio.recvfrom(fd, rx.ctypes.data, rx.size, fastio.MSG_DONTWAIT, 0, 0)
@@ -71,26 +110,6 @@ def take_and_step(fd: int, rx: np.ndarray, received: np.ndarray, max_thrust: flo
         if t < 0:
             io[tick.CORRUPT] += 1
             continue
-        if t <= io[tick.LAST_USEC]:
-            io[tick.DISCARDED] += 1
-            continue
-        io[tick.LAST_USEC] = t
-        commanded[:] = received
-        rt[LAST_NS] = fastio.monotonic_ns()
-        if rt[FIRST_NS] == 0:
-            rt[FIRST_NS] = rt[LAST_NS]
-        if rt[LOST] != 0:
-            rt[LOST] = 0
-            flags |= BACK_NOW
-    if io[tick.LAST_USEC] == want:
-        rt[ANSWERED] += 1
-    elif rt[FIRST_NS] != 0:
-        rt[LATE] += 1
-    if rt[LAST_NS] != 0 and fastio.monotonic_ns() - rt[LAST_NS] > lost_after_ns:
-        if rt[LOST] == 0:
-            rt[LOST] = 1
-            flags |= LOST_NOW
-        if zero_on_loss:
-            commanded[:] = 0.0
-    step_work(work, params, air_rng, period, substeps, method, math.nan)
-    return flags
+        flags |= max(apply(t, received, io, rt, commanded, fastio.monotonic_ns()), 0)
+    return flags | end_period(io, rt, commanded, want, fastio.monotonic_ns(), lost_after_ns, zero_on_loss, work,
+                              params, air_rng, period, substeps, method)  # fmt: skip
