@@ -122,14 +122,30 @@ def _warm(parts: tuple, tmp_path_factory, extra: tuple = ()) -> None:
     warm_among_workers(parts, shared, int(worker.removeprefix("gw")), extra=extra)
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile every per-tick function into numba's cache once, before the first test, so that no test's timeout
+    counts it (a fresh checkout has no cache; a module whose tests allow 60 s, run alone, timed out in its first test
+    while the session compiled). Under pytest-xdist the workers share the parts (:func:`warm_among_workers`): on a
+    2-core guest each worker spent about 110 s compiling everything, and both now wait about 70 s (the autopilot's
+    tick alone is about 60 s); the worker that would wait for the autopilot compiles the batch engine meanwhile.
+    Not in pytest-xdist's controller (it runs no test), nor for ``--collect-only``."""
+    config = session.config
+    controller = bool(getattr(config.option, "numprocesses", None)) and not hasattr(config, "workerinput")
+    if controller or config.option.collectonly:
+        return
+    _warm(WARM_PARTS, config._tmp_path_factory, extra=ENGINE_PARTS)
+    _WARMED.append(True)
+
+
+_WARMED: list[bool] = []  # pytest_sessionstart compiled them
+
+
 @pytest.fixture(scope="session", autouse=True)
 def compiled(tmp_path_factory):
-    """Compile every per-tick function into numba's cache once, before the processes the tests start need it
-    (a fresh checkout has no cache: each process would otherwise compile on its own, several at a time). Under
-    pytest-xdist the workers share the parts (:func:`warm_among_workers`): on a 2-core guest each worker spent about 110
-    s compiling everything, and both now wait about 70 s (the autopilot's tick alone is about 60 s); the worker
-    that would wait for the autopilot compiles the batch engine meanwhile."""
-    _warm(WARM_PARTS, tmp_path_factory, extra=ENGINE_PARTS)
+    """Every per-tick function in numba's cache: :func:`pytest_sessionstart` compiled them (or, should it not have
+    run, here)."""
+    if not _WARMED:
+        _warm(WARM_PARTS, tmp_path_factory, extra=ENGINE_PARTS)
 
 
 @pytest.fixture(scope="session")
