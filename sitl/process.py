@@ -184,13 +184,8 @@ class PlantLink:
         return min(self.outbox[0][0] if self.outbox else math.inf, self.inbox[0][0] if self.inbox else math.inf)
 
     def heard(self) -> None:
-        """An actuator message was used: the autopilot is there."""
-        rt = self.rt
-        rt[realtime_loop.LAST_NS] = time.monotonic_ns()
-        if rt[realtime_loop.FIRST_NS] == 0:
-            rt[realtime_loop.FIRST_NS] = rt[realtime_loop.LAST_NS]
-        if rt[realtime_loop.LOST]:
-            rt[realtime_loop.LOST] = 0
+        """An actuator message was used: the autopilot is there (:func:`sitl.realtime_loop.heard`)."""
+        if realtime_loop.heard(self.rt, time.monotonic_ns()) == realtime_loop.BACK_NOW:
             self.say_back()
 
     def say_back(self) -> None:
@@ -384,6 +379,7 @@ def warm_up(plant: Plant) -> None:
             realtime_loop.take_and_step(a.fileno(), np.zeros(65535, dtype=np.uint8), twin.commanded.copy(), 1.0,
                                         rt_io, rt, twin.commanded, 0, 0, True, twin.work, twin.params, twin.air_rng,
                                         twin.period, twin.substeps, twin.method)  # fmt: skip
+            realtime_loop.heard(rt, 1)  # (a held lockstep clock's: PlantLink.heard)
             for polling in (True, False):
                 io[tick.LAST_USEC] = -1
                 b.send(link[:n].tobytes())

@@ -58,6 +58,13 @@ def apply(t: int, received: np.ndarray, io: np.ndarray, rt: np.ndarray, commande
         return -1
     io[tick.LAST_USEC] = t
     commanded[:] = received
+    return heard(rt, now_ns)
+
+
+@jit
+def heard(rt: np.ndarray, now_ns: int) -> int:
+    """An actuator message was used at ``now_ns``: the autopilot is there (last heard then; first heard, if it is the
+    first) → BACK_NOW when that ends a loss of the autopilot, else 0. For every loop, lockstep's too."""
     rt[LAST_NS] = now_ns
     if rt[FIRST_NS] == 0:
         rt[FIRST_NS] = now_ns

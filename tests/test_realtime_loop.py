@@ -121,3 +121,23 @@ def test_a_silent_autopilot_is_lost_then_back_and_said_once_each(vehicle, capsys
     assert err == ["plant: autopilot lost (no answer for 0.5 s); applying the last command",
                    "plant: autopilot back; following its commands"]  # fmt: skip
     assert (v.answered, v.late) == (2, 3)
+
+
+def test_a_held_lockstep_clock_hears_its_autopilot_through_the_same_account(vehicle, capsys):
+    """Lockstep's PlantLink.heard and check_lost keep the account the real-time period keeps (rt): first and last
+    heard, lost, and back said once."""
+    link = vehicle[0].link
+    assert link.first_heard is None and link.last_heard is None
+    before = time.monotonic()
+    link.heard()
+    first = link.first_heard
+    assert first is not None and before <= first <= time.monotonic() and link.last_heard == first
+    link.rt[realtime_loop.LAST_NS] -= round((process.AUTOPILOT_LOST_AFTER + 0.1) * 1e9)  # silent since
+    holding = "holding: simulated time stops until it answers"
+    assert link.check_lost(holding) and link.check_lost(holding) and link.lost  # said once
+    link.heard()
+    assert not link.lost and link.first_heard == first and link.last_heard > first
+    link.heard()  # heard again: nothing to say
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"plant: autopilot lost (no answer for 0.5 s); {holding}",
+                   "plant: autopilot back; following its commands"]  # fmt: skip
