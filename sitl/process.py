@@ -58,7 +58,6 @@ from quadsitl.cli_util import (
 )
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import PX4_HOME
-from quadsitl.jit import specialized
 from quadsitl.process_util import (
     HOT_AFTER,
     PATIENCE,
@@ -77,6 +76,7 @@ from quadsitl.timing import period_stats
 from sitl import lockstep_loop, realtime_loop, tick
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant, outside_what, state_inside
+from sitl.realtime_fleet import RealtimeFleet
 from sitl.wind_link import WindLink
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
@@ -203,35 +203,6 @@ class PlantLink:
             self.rt[realtime_loop.LOST] = 1
             self.say_lost(action)
         return True
-
-    def bind_realtime(self, plant: Plant) -> None:
-        """The compiled real-time period for this link and ``plant`` (:mod:`sitl.realtime_loop`): compiled for these
-        arrays' types, or loaded from numba's cache, now, before the first tick."""
-        fd = self.sock.fileno()
-        self.send_args = (fd, self.tx, self.io, plant.x, plant.out, plant.air, plant.sensors.arrays)
-        self.take_args = (fd, self.rx_array, self.received, self.max_thrust, self.io, self.rt, plant.commanded)
-        self.plant_args = self.step_args(plant)
-        self._send_tick = specialized(realtime_loop.send_tick, *self.send_args, 0, self.period)
-        self._take_and_step = specialized(realtime_loop.take_and_step, *self.take_args, 0, 0, True, *self.plant_args)
-
-    def send_tick(self, k: int) -> bool:
-        """Real time, compiled (after :meth:`bind_realtime`): tick ``k``'s datagram sent → False (nothing sent) when
-        the state has left its bounds."""
-        return self._send_tick(*self.send_args, k, self.period)
-
-    def take_and_step(self, want: int, plant: Plant, zero_on_loss: bool, action: str) -> None:
-        """Real time, compiled (after :meth:`bind_realtime`): the period's answers taken, counted, and the period
-        integrated (:func:`sitl.realtime_loop.take_and_step`); a datagram for pymavlink decoded here on the way."""
-        while True:
-            flags = self._take_and_step(*self.take_args, want, LOST_AFTER_NS, zero_on_loss, *self.plant_args)
-            if flags & realtime_loop.BACK_NOW:
-                self.say_back()
-            if flags & realtime_loop.LOST_NOW:
-                self.say_lost(action)
-            if not flags & realtime_loop.ANOTHER:
-                break
-            self.apply(plant, self._decode_slowly(int(self.rt[realtime_loop.LENGTH])))
-        plant.time += plant.period
 
     def receive(self, timeout: float | None) -> int:
         """One datagram into rx: its length, or −1 when none came within ``timeout`` seconds."""
@@ -369,16 +340,19 @@ def warm_up(plant: Plant) -> None:
             a.connect(b.getsockname())
             b.connect(a.getsockname())
             set_receive_timeout(a, 0.1)
-            # the real-time period (sitl.realtime_loop): a state sent, an answer taken, a step
-            rt, rt_io, tx = np.zeros(realtime_loop.RT_SIZE, dtype=np.int64), np.zeros_like(io), np.zeros_like(link)
-            realtime_loop.send_tick(a.fileno(), tx, rt_io, twin.x, twin.out, twin.air, twin.sensors.arrays, 0,
-                                    twin.period)  # fmt: skip
+            # the real-time period (sitl.realtime_loop): a fleet of one, its state sent, its answer taken, a step
+            one = [x[None].copy() for x in (link, io, twin.work, twin.params, twin.air_rng, twin.commanded)]
+            tx, rt_io, work, params, air_rng, received = one
+            sens = tuple(x[None].copy() for x in twin.sensors.arrays)
+            fds, rt = np.array([a.fileno()], dtype=np.int64), np.zeros((1, realtime_loop.RT_SIZE), dtype=np.int64)
+            realtime_loop.send_ticks(fds, tx, rt_io, work, sens, 0, twin.period)
             b.recv(65535)
-            n = codec.encode_actuators(tx, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
-            b.send(tx[:n].tobytes())
-            realtime_loop.take_and_step(a.fileno(), np.zeros(65535, dtype=np.uint8), twin.commanded.copy(), 1.0,
-                                        rt_io, rt, twin.commanded, 0, 0, True, twin.work, twin.params, twin.air_rng,
-                                        twin.period, twin.substeps, twin.method)  # fmt: skip
+            n = codec.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
+            b.send(link[:n].tobytes())
+            realtime_loop.take_and_step_all(fds, np.zeros(65535, dtype=np.uint8), received, np.ones(1), rt_io, rt,
+                                            work, params, air_rng, np.array([twin.substeps]), np.array([twin.method]),
+                                            0, 0, True, twin.period, 0, np.zeros(1, dtype=np.int64))  # fmt: skip
+            rt = rt[0]
             realtime_loop.heard(rt, 1)  # (a held lockstep clock's: PlantLink.heard)
             for polling in (True, False):
                 io[tick.LAST_USEC] = -1
@@ -589,9 +563,8 @@ def run_realtime(
     named = len(vehicles) > 1
     socks = {v.link.sock: v for v in vehicles}
     impaired = any(v.link.impairment is not None for v in vehicles)  # their queues release datagrams on time
-    fast = fastio.compiled_loops() and not impaired
-    for v in vehicles if fast else ():
-        v.link.bind_realtime(v.plant)
+    fleet = RealtimeFleet(vehicles) if fastio.compiled_loops() and not impaired else None
+    winds = [v for v in vehicles if v.wind is not None]
     zero = on_loss == "zero"
     action = f"applying {'zero thrust' if zero else 'the last command'}"
     k = 0
@@ -599,11 +572,11 @@ def run_realtime(
     while max_ticks is None or k < max_ticks:
         if starts is not None:
             starts.append(time.monotonic())
-        for v in vehicles:
-            if fast:
-                if not v.link.send_tick(k):
-                    raise DivergedError(v, k, named)
-            else:
+        if fleet is not None:
+            if (i := fleet.send(k)) >= 0:
+                raise DivergedError(vehicles[i], k, named)
+        else:
+            for v in vehicles:
                 check_state(v, k, named)
                 v.link.send_state(k, v.plant)
         if k == 0:  # the clock starts once the first states are out: a slow first send (page faults, a machine busy
@@ -625,16 +598,17 @@ def run_realtime(
             sleep_until(next_time)
             # Everything that came before the period ended, and only then: a plant whose own wake-up came late (the
             # scheduler ran something else) takes the answers that came in time, not the last command
-            for v in vehicles if not fast else ():
+            for v in vehicles if fleet is None else ():
                 v.link.drain(v.plant)
         want = codec.usec_of(k, period)
-        for v in vehicles:
-            if v.wind is not None and v.wind.inbox:
+        for v in winds:
+            if v.wind.inbox:
                 v.wind.take(v.plant)
-            if fast:  # the drain above and the end of the period, in one compiled call
-                v.link.take_and_step(want, v.plant, zero, action)
-                continue
-            v.link.end_period(want, v.plant, zero, action)
+        if fleet is not None:  # the drain above and the end of the period, for every vehicle in one compiled call
+            fleet.take_and_step(want, LOST_AFTER_NS, zero, action)
+        else:
+            for v in vehicles:
+                v.link.end_period(want, v.plant, zero, action)
         k += 1
     return k
 

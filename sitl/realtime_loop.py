@@ -26,7 +26,7 @@ from quadsitl import fastio
 from quadsitl.codec import NOT_THIS_FRAME, decode_actuators
 from quadsitl.jit import jit
 from sitl import tick
-from sitl.plant import state_inside, step_work
+from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X, state_inside, step_work
 
 ANSWERED, LATE, FIRST_NS, LAST_NS, LOST, LENGTH, RT_SIZE = range(7)
 # take_and_step's result, flags: a datagram the compiled decoder does not take waits in rx (rt[LENGTH] bytes) for
@@ -120,3 +120,60 @@ def take_and_step(fd: int, rx: np.ndarray, received: np.ndarray, max_thrust: flo
         flags |= max(apply(t, received, io, rt, commanded, fastio.monotonic_ns()), 0)
     return flags | end_period(io, rt, commanded, want, fastio.monotonic_ns(), lost_after_ns, zero_on_loss, work,
                               params, air_rng, period, substeps, method)  # fmt: skip
+
+
+# ---- a fleet's period: the functions above once per vehicle, in one call ---------------------------------------
+# A fleet's arrays, one per field and a row per vehicle (sitl.realtime_fleet.RealtimeFleet stacks them, and each
+# vehicle's objects keep their rows as their own arrays), so that one compiled call does every vehicle's part of the
+# period, for any number of vehicles, where Python called two functions per vehicle (about 6 us each).
+
+
+@jit
+def send_ticks(fds: np.ndarray, tx: np.ndarray, io: np.ndarray, work: np.ndarray, sens: tuple, k: int,
+               period: float) -> int:  # fmt: skip
+    """:func:`send_tick` for every vehicle, in order: ``fds`` their connected sockets, the other arrays their rows
+    (``work``: :class:`sitl.plant.Plant`'s work array; ``sens``: the six arrays of
+    :attr:`sitl.sensors.Sensors.arrays`) → −1, or the first vehicle whose state left its bounds (its tick and
+    the later vehicles' not sent)."""
+    p, rng, bias, clock, queue, out = sens
+    for i in range(fds.size):
+        w = work[i]
+        if not send_tick(fds[i], tx[i], io[i], w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:],
+                         (p[i], rng[i], bias[i], clock[i], queue[i], out[i]), k, period):  # fmt: skip
+            return i
+    return -1
+
+
+@jit
+def take_and_step_all(fds: np.ndarray, rx: np.ndarray, received: np.ndarray, max_thrust: np.ndarray,
+                      io: np.ndarray, rt: np.ndarray, work: np.ndarray, params: np.ndarray, air_rng: np.ndarray,
+                      substeps: np.ndarray, method: np.ndarray, want: int, lost_after_ns: int, zero_on_loss: bool,
+                      period: float, start: int, said: np.ndarray) -> int:  # fmt: skip
+    """:func:`take_and_step` for vehicles ``start`` … N − 1, in order, the arrays their rows (``rx`` one buffer for
+    all) → −1 once all are stepped, or the vehicle whose datagram waits in ``rx`` for Python (ANOTHER: rt[i,
+    LENGTH] bytes), after which the call is made again from that vehicle. Each vehicle's LOST_NOW and BACK_NOW
+    are added to ``said[i]``, for Python to say."""
+    for i in range(start, fds.size):
+        w = work[i]
+        flags = take_and_step(
+            fds[i],
+            rx,
+            received[i],
+            max_thrust[i],
+            io[i],
+            rt[i],
+            w[W_COMMANDED:W_OUT],
+            want,
+            lost_after_ns,
+            zero_on_loss,
+            w,
+            params[i],
+            air_rng[i],
+            period,
+            substeps[i],
+            method[i],
+        )
+        said[i] |= flags & (LOST_NOW | BACK_NOW)
+        if flags & ANOTHER:
+            return i
+    return -1
