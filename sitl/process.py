@@ -556,9 +556,9 @@ def run_realtime(
     on_loss: str = "zero",
 ) -> int:
     """Integrate every vehicle on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each
-    tick's actual start time [s, monotonic]. Each vehicle's work of a period is compiled (:mod:`sitl.realtime_loop`)
-    where the compiled loops run (:func:`quadsitl.fastio.compiled_loops`), but with impaired links, whose queues
-    are Python's; the Python loop does the same."""
+    tick's actual start time [s, monotonic]. Where the compiled loops run (:func:`quadsitl.fastio.compiled_loops`),
+    but with impaired links, whose queues are Python's, the whole fleet's work of a period is two compiled calls
+    (:class:`sitl.realtime_fleet.RealtimeFleet`); the Python loop does the same, vehicle by vehicle."""
     period = vehicles[0].plant.period
     named = len(vehicles) > 1
     socks = {v.link.sock: v for v in vehicles}
