@@ -83,7 +83,7 @@ class RealtimeFleet:
             v = self.vehicles[i]
             n = int(self.rt[i, realtime_loop.LENGTH])
             v.link.rx_array[:n] = self.rx[:n]
-            v.link.apply(v.plant, v.link._decode_slowly(n))
+            v.link.apply(v.plant, v.link.decode(n))  # (pymavlink decodes it)
             start = i  # on with this vehicle's answers, then the next vehicles'
         if self.said.any():
             for v, said in zip(self.vehicles, self.said.tolist(), strict=True):
