@@ -23,7 +23,8 @@ machines drift:
 7. fleets: N vehicles at once (N autopilot processes and one plant process on one clock, as ``up --vehicles N``),
    growing N. In real time at 1 kHz, with the dashboard's page open when the machine has a browser: the worst
    vehicle's deadline-miss ratio (its tick started late, or its autopilot's answer missed the period) against one
-   vehicle's, with CPU (% of a core: per vehicle, each autopilot's, the plant's) and memory per vehicle;
+   vehicle's, with CPU (% of a core: per vehicle, each autopilot's, the plant's), memory per vehicle and the
+   hypervisor's steal time during the run;
    ``fleet_max_realtime`` is the largest N whose every vehicle misses under 1 % of its periods. The machine's own
    floor comes first: a bare loop keeping time at 1 kHz and doing nothing else, and the hypervisor's steal time
    meanwhile (a virtual machine whose host takes its CPU for milliseconds at a time misses periods with nothing
@@ -661,7 +662,8 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
     does, and the law is about 1 µs of a tick's ~100 µs, so every tick costs what a flying one does, without a race
     to arm a short lockstep run before it ends. Returns the deadline-miss ratio of the fleet's clock (real time),
     the fleet's ticks per second (all vehicles' ticks over the wall time from the autopilots' first answers), and
-    CPU [% of a core] and memory [MB] per vehicle (its autopilot and its share of the plant process). With a
+    CPU [% of a core] and memory [MB] per vehicle (its autopilot and its share of the plant process), and the
+    hypervisor's steal time over the run (:func:`benchmarks.machine.steal_ratio`). With a
     ``browser``, the dashboard watches every vehicle, its page open there (the fleet view, for several), as a user
     watching the fleet would have it; its CPU is not counted in the vehicles'. ``fifo``: the autopilots (raised to it
     once started: :func:`raise_to_fifo`) and the plant run under SCHED_FIFO (:func:`fifo_scheduling`); the
@@ -686,11 +688,13 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
                 "--mode", mode]  # fmt: skip
         for plant_port, _, _, _ in aps:
             argv += ["--autopilot", f"127.0.0.1:{plant_port}"]
+        before = machine.cpu_times()
         with fifo_scheduling(fifo):
             plant = subprocess.Popen(argv, stderr=subprocess.DEVNULL)
         try:
             rss = [_rss_mb(pid) for pid in ap_pids]
             _, status, usage = os.wait4(plant.pid, 0)  # reaped here, with its peak memory
+            steal = machine.steal_ratio(before, machine.cpu_times())
             plant.returncode = os.waitstatus_to_exitcode(status)
             if plant.returncode != 0:
                 raise RuntimeError(f"the fleet's plant exited with status {plant.returncode}")
@@ -715,6 +719,9 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
         "cpu_per_autopilot_pct": 100.0 * ap_cpu / run_wall / n,  # the two parts of it: each autopilot's, ...
         "cpu_plant_pct": 100.0 * res["cpu_s"] / run_wall,  # ... and the one plant process's, for all n
         "memory_per_vehicle_mb": sum(rss) / n,
+        # the host's share of the CPU over the run (its start and compiled code load too): a run that missed more
+        # than the floor while the host took more than during the floor says more about the host than the fleet
+        "steal_ratio": steal,
     }
 
 
@@ -775,6 +782,7 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
             r.add(f"fleet of {n}, real time, {how}: best vehicle's deadline-miss ratio",
                   min(rt["answer_miss_ratios"], default=0.0), "ratio")  # fmt: skip
             r.add(f"fleet of {n}, real time, {how}: memory per vehicle", rt["memory_per_vehicle_mb"], "MB")
+            r.add(f"fleet of {n}, real time, {how}: the hypervisor's steal time meanwhile", rt["steal_ratio"], "ratio")
             r.add(f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio beyond the floor",
                   rt["worst_miss_ratio"] - floor, "ratio")  # fmt: skip
             if rt["worst_miss_ratio"] - floor >= 0.01:

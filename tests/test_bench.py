@@ -89,6 +89,8 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
             assert 0 < autopilot < per_vehicle and plant > 0 and autopilot + plant / n == pytest.approx(per_vehicle)
             best = figures[f"fleet of {n}, real time, {how}: best vehicle's deadline-miss ratio"]["value"]
             assert 50 < figures[f"fleet of {n}, real time, {how}: memory per vehicle"]["value"] < 2000  # MB
+            steal = figures[f"fleet of {n}, real time, {how}: the hypervisor's steal time meanwhile"]["value"]
+            assert 0.0 <= steal < 1.0
             clock = figures[f"fleet of {n}, real time, {how}: the clock's deadline-miss ratio (ticks started a "
                             "period late)"]["value"]  # fmt: skip
             worst = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio"]["value"]
