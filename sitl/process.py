@@ -196,13 +196,12 @@ class PlantLink:
               flush=True)  # fmt: skip
 
     def check_lost(self, action: str) -> bool:
-        """True while the autopilot has been silent for AUTOPILOT_LOST_AFTER (said once per loss)."""
-        if self.last_heard is None or time.monotonic() - self.last_heard <= AUTOPILOT_LOST_AFTER:
-            return False
-        if not self.lost:
-            self.rt[realtime_loop.LOST] = 1
+        """True while the autopilot has been silent for AUTOPILOT_LOST_AFTER (said once per loss:
+        :func:`sitl.realtime_loop.lost_clock`)."""
+        lost = realtime_loop.lost_clock(self.rt, time.monotonic_ns(), LOST_AFTER_NS)
+        if lost == realtime_loop.LOST_NOW:
             self.say_lost(action)
-        return True
+        return lost != 0
 
     def receive(self, timeout: float | None) -> int:
         """One datagram into rx: its length, or −1 when none came within ``timeout`` seconds."""
@@ -353,7 +352,8 @@ def warm_up(plant: Plant) -> None:
                                             work, params, air_rng, np.array([twin.substeps]), np.array([twin.method]),
                                             0, 0, True, twin.period, 0, np.zeros(1, dtype=np.int64))  # fmt: skip
             rt = rt[0]
-            realtime_loop.heard(rt, 1)  # (a held lockstep clock's: PlantLink.heard)
+            realtime_loop.heard(rt, 1)  # (a held lockstep clock's: PlantLink.heard and check_lost)
+            realtime_loop.lost_clock(rt, 2, LOST_AFTER_NS)
             for polling in (True, False):
                 io[tick.LAST_USEC] = -1
                 b.send(link[:n].tobytes())

@@ -33,6 +33,7 @@ ANSWERED, LATE, FIRST_NS, LAST_NS, LOST, LENGTH, RT_SIZE = range(7)
 # Python (pymavlink) to decode and apply, after which the call is made again (the period not stepped yet); the
 # autopilot was found lost (silent for lost_after_ns) or is back: Python says so.
 ANOTHER, LOST_NOW, BACK_NOW = 1, 2, 4
+STILL_LOST = 8  # lost_clock's: the autopilot was lost already
 
 
 @jit
@@ -75,6 +76,19 @@ def heard(rt: np.ndarray, now_ns: int) -> int:
 
 
 @jit
+def lost_clock(rt: np.ndarray, now_ns: int, lost_after_ns: int) -> int:
+    """Whether the autopilot is lost at ``now_ns``: silent for longer than ``lost_after_ns`` since it was last heard
+    → LOST_NOW when it is found lost now, STILL_LOST when it was already, 0 when it is not (or was never heard). For
+    every loop, lockstep's too."""
+    if rt[LAST_NS] == 0 or now_ns - rt[LAST_NS] <= lost_after_ns:
+        return 0
+    if rt[LOST] != 0:
+        return STILL_LOST
+    rt[LOST] = 1
+    return LOST_NOW
+
+
+@jit
 def end_period(io: np.ndarray, rt: np.ndarray, commanded: np.ndarray, want: int, now_ns: int, lost_after_ns: int,
                zero_on_loss: bool, work: np.ndarray, params: np.ndarray, air_rng: np.ndarray, period: float,
                substeps: int, method: int) -> int:  # fmt: skip
@@ -87,10 +101,9 @@ def end_period(io: np.ndarray, rt: np.ndarray, commanded: np.ndarray, want: int,
         rt[ANSWERED] += 1
     elif rt[FIRST_NS] != 0:
         rt[LATE] += 1
-    if rt[LAST_NS] != 0 and now_ns - rt[LAST_NS] > lost_after_ns:
-        if rt[LOST] == 0:
-            rt[LOST] = 1
-            flags |= LOST_NOW
+    lost = lost_clock(rt, now_ns, lost_after_ns)
+    if lost != 0:
+        flags |= lost & LOST_NOW
         if zero_on_loss:
             commanded[:] = 0.0
     step_work(work, params, air_rng, period, substeps, method, math.nan)
