@@ -1,0 +1,68 @@
+"""The machine's floor for a fleet (benchmarks.floor): one bare loop per core on one schedule, and the periods missed
+on any of them."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from benchmarks.floor import combine, floor_on_every_core, missed
+
+
+def test_a_period_is_missed_when_it_starts_a_whole_period_late():
+    start, period = 100.0, 0.001
+    starts = [100.0, 100.0019, 100.0031, 100.0045, 100.0040]  # late by 0, 0.9, 1.1, 1.5 and 0 ms
+    assert missed(starts, period, start) == [2, 3]
+
+
+def test_the_floor_of_a_fleet_is_the_periods_missed_on_any_core():
+    got = combine({0: {3, 7, 9}, 1: {7, 20}}, ticks=100)
+    assert got == {"per_core": {0: 0.03, 1: 0.02}, "any": 0.04, "all": 0.01}
+    assert combine({0: set()}, ticks=10) == {"per_core": {0: 0.0}, "any": 0.0, "all": 0.0}
+
+
+def test_one_loop_per_core_reports_each_core_and_their_union():
+    got = floor_on_every_core(300)
+    assert sorted(got["per_core"]) == sorted(os.sched_getaffinity(0))
+    per_core = got["per_core"].values()
+    assert 0.0 <= got["all"] <= min(per_core) <= max(per_core) <= got["any"] <= min(1.0, sum(per_core))
+
+
+def test_a_stalled_loop_misses_the_periods_of_its_stall_and_only_those():
+    """One core's loop stopped (SIGSTOP) for 40 ms, as a host stalling its virtual CPU would: it misses those
+    periods, on its own schedule."""
+    loop = subprocess.Popen([sys.executable, "-m", "benchmarks.floor", "--cpu", str(min(os.sched_getaffinity(0))),
+                             "--ticks", "400"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert loop.stdout.readline() == "ready\n"
+        start = time.monotonic() + 0.05
+        loop.stdin.write(f"{start!r}\n")
+        loop.stdin.flush()
+        time.sleep(max(0.0, start + 0.150 - time.monotonic()))
+        loop.send_signal(signal.SIGSTOP)
+        time.sleep(0.040)
+        loop.send_signal(signal.SIGCONT)
+        out, _ = loop.communicate(timeout=30)
+    finally:
+        loop.kill()
+        loop.wait()
+    assert loop.returncode == 0
+    late = json.loads(out)
+    stall = [k for k in late if 140 <= k <= 200]
+    assert len(stall) >= 30, late  # the 40 ms stopped, less the last period and a scheduler's slack
+    assert all(late.count(k) == 1 for k in late) and late == sorted(late) and max(late) < 400
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or shutil.which("setpriv") is None, reason="needs root and setpriv")
+def test_under_fifo_without_the_right_to_it_the_floor_says_which_core_and_why():
+    code = ("from benchmarks.floor import floor_on_every_core\n"
+            "try:\n    floor_on_every_core(100, fifo=True)\nexcept RuntimeError as e:\n    print(e)\n")  # fmt: skip
+    r = subprocess.run(["setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice", sys.executable, "-c", code],
+                       capture_output=True, text=True, timeout=60)  # fmt: skip
+    cpu = min(os.sched_getaffinity(0))
+    assert r.stdout.strip() == f"the bare loop on CPU {cpu} failed: PermissionError: [Errno 1] Operation not permitted"
