@@ -15,6 +15,12 @@ def percentile(values: Sequence[float], q: float) -> float:
     return ordered[k]
 
 
+def late_periods(starts: Sequence[float], period: float, t0: float) -> list[int]:
+    """The ticks k (ascending) of a loop scheduled at ``t0`` + k·``period`` [s] that started a whole period or more
+    after their scheduled time (``starts``: their actual start times [s]): its deadline misses."""
+    return [k for k, s in enumerate(starts) if s - (t0 + k * period) >= period]
+
+
 def period_stats(starts: Sequence[float], period: float) -> dict[str, float]:
     """Tick start times [s] of a loop scheduled at t0 + k·period → jitter and deadline misses.
 
@@ -26,7 +32,7 @@ def period_stats(starts: Sequence[float], period: float) -> dict[str, float]:
                 "deadline_miss_ratio": 0.0, "mean_period_us": 0.0}  # fmt: skip
     t0 = starts[0]
     jitter = [abs(b - a - period) * 1e6 for a, b in itertools.pairwise(starts)]
-    misses = sum(1 for k, s in enumerate(starts) if s - (t0 + k * period) >= period)
+    misses = len(late_periods(starts, period, t0))
     return {
         "ticks": len(starts),
         "jitter_p50_us": percentile(jitter, 50),

@@ -72,7 +72,7 @@ from quadsitl.process_util import (
     wait_readable,
 )
 from quadsitl.telemetry import add_zenoh_arguments, config_from_args
-from quadsitl.timing import period_stats
+from quadsitl.timing import late_periods, period_stats
 from sitl import lockstep_loop, realtime_loop, tick
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant, outside_what, state_inside
@@ -554,11 +554,14 @@ def run_realtime(
     max_ticks: int | None,
     starts: list[float] | None = None,
     on_loss: str = "zero",
+    late: Sequence[list[int]] | None = None,
 ) -> int:
     """Integrate every vehicle on the wall clock, tick k due at t0 + k·T. ``starts`` (if given) receives each
-    tick's actual start time [s, monotonic]. Where the compiled loops run (:func:`quadsitl.fastio.compiled_loops`),
-    but with impaired links, whose queues are Python's, the whole fleet's work of a period is two compiled calls
-    (:class:`sitl.realtime_fleet.RealtimeFleet`); the Python loop does the same, vehicle by vehicle."""
+    tick's actual start time [s, monotonic]; ``late`` (if given, a list per vehicle) the ticks whose answer did not
+    come within their period, from the autopilot's first answer on (what ``rt[LATE]`` counts). Where the compiled
+    loops run (:func:`quadsitl.fastio.compiled_loops`), but with impaired links, whose queues are Python's, the whole
+    fleet's work of a period is two compiled calls (:class:`sitl.realtime_fleet.RealtimeFleet`); the Python loop does
+    the same, vehicle by vehicle."""
     period = vehicles[0].plant.period
     named = len(vehicles) > 1
     socks = {v.link.sock: v for v in vehicles}
@@ -609,6 +612,10 @@ def run_realtime(
         else:
             for v in vehicles:
                 v.link.end_period(want, v.plant, zero, action)
+        if late is not None:  # a period counts late at most once: the count grew by one for each vehicle late now
+            for v, ticks in zip(vehicles, late, strict=True):
+                if v.late > len(ticks):
+                    ticks.append(k)
         k += 1
     return k
 
@@ -772,11 +779,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         clock_above_its_peers()  # under chrt -f: the clock one priority above the autopilots
     start, cpu_start = time.monotonic(), time.process_time()
     starts: list[float] = []
+    late: list[list[int]] = [[] for _ in vehicles]
     try:
         if args.mode == "lockstep":
             run_lockstep(vehicles, args.speed, args.ticks)
         else:
-            run_realtime(vehicles, args.ticks, starts if args.stats else None, args.on_autopilot_loss)
+            run_realtime(vehicles, args.ticks, starts if args.stats else None, args.on_autopilot_loss,
+                         late if args.stats else None)  # fmt: skip
     except KeyboardInterrupt:  # SIGINT or SIGTERM (process_util.StopRequested): a requested stop; say what the run did
         pass
     except DivergedError as exc:  # one line, always: the run ends with a status of its own
@@ -809,6 +818,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.mode == "realtime":  # the clock's timing, and the autopilots' answers that missed their period
             stats.update(period_stats(starts, period))
             stats["answer_miss_ratios"] = [v.late / max(v.answered + v.late, 1) for v in vehicles]
+            # which periods: tick k due at clock_t0_s + k·period [s, CLOCK_MONOTONIC], to set beside other clocks
+            stats["period_s"] = period
+            stats["clock_t0_s"] = starts[0] if starts else None
+            stats["clock_late_ticks"] = late_periods(starts, period, starts[0]) if starts else []
+            stats["answer_late_ticks"] = late
+            stats["answered_ticks"] = [v.answered + v.late for v in vehicles]  # the answer ratios' denominators
         Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
     if args.quiet:
         return 0

@@ -55,6 +55,16 @@ def test_bench_refuses_bad_options(cli):
     assert r.returncode == 2 and "--fleet-seconds 1: expected 2..600" in r.stderr
 
 
+def _largest_kept(figures: dict, how: str, measured: tuple[int, ...], name: str) -> int:
+    """The largest fleet size measured that, with every smaller one, missed under 1 % of its periods by ``name``."""
+    kept = 0
+    for n in measured:
+        if figures[f"fleet of {n}, real time, {how}: {name}"]["value"] >= 0.01:
+            break
+        kept = n
+    return kept
+
+
 def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
     r = cli("bench", "--only", "fleet", "--fleet-sizes", "1,2", "--fleet-seconds", "2", "--json", timeout=240)
     assert r.returncode == 0, r.stderr
@@ -87,10 +97,14 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
         one = figures[f"fleet of 1, real time, {how}: worst vehicle's deadline-miss ratio"]
         assert 0.0 <= one["value"] <= 1.0 and one["baseline"] == one["value"]
         assert one["baseline_name"] == "one vehicle"
-        # the sizes stop at the first that misses 1 % of its periods more than the floor (one vehicle did on a loaded
-        # 2-core CI machine)
-        measured = (1, 2) if one["value"] - floor < 0.01 else (1,)
-        assert (f"fleet of 2, real time, {how}: CPU per vehicle" in figures) == (measured == (1, 2))
+        # with SCHED_FIFO permitted, loops watching each core above the fleet name the periods the host stalled a
+        # core in, and the sizes stop at the first that misses 1 % of its periods outside them; without, at the first
+        # that misses 1 % more than the floor (one vehicle did on a loaded 2-core CI machine)
+        own_name = "worst vehicle's deadline-miss ratio outside the host's stalls (its own)"
+        beyond_name = "worst vehicle's deadline-miss ratio beyond the floor"
+        assert (f"fleet of 1, real time, {how}: {own_name}" in figures) == fifo
+        stop = figures[f"fleet of 1, real time, {how}: {own_name if fifo else beyond_name}"]["value"]
+        measured = (1, 2) if stop < 0.01 else (1,)
         for n in measured:
             per_vehicle = figures[f"fleet of {n}, real time, {how}: CPU per vehicle"]["value"]
             assert 0 < per_vehicle < 200  # % of a core
@@ -107,17 +121,19 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
             worst = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio"]["value"]
             assert 0.0 <= clock <= worst <= 1.0  # a late tick is a late period for every vehicle
             assert 0.0 <= best <= worst
-            beyond = figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio beyond the floor"]
+            beyond = figures[f"fleet of {n}, real time, {how}: {beyond_name}"]
             assert beyond["value"] == pytest.approx(worst - floor)
+            if fifo:  # the periods the host stalled a core in, and the worst vehicle's misses outside them
+                stalled = figures[f"fleet of {n}, real time, {how}: periods in which the host stalled a core (loops "
+                                  "watching each core above the fleet missed them)"]["value"]  # fmt: skip
+                own = figures[f"fleet of {n}, real time, {how}: {own_name}"]["value"]
+                assert 0.0 <= stalled <= 1.0 and 0.0 <= own <= clock + worst + 1e-9  # a late tick or a late answer
+
         # the largest fleet that kept its deadlines: a size asked for, or 0 (2 vehicles on a loaded CI machine miss);
-        # over the floor, at least as many
-        assert report[key] in (0, 1, 2) and report[f"{key}_over_floor"] in (0, 1, 2)
-        assert report[key] >= 1 or one["value"] >= 0.01
-        assert report[f"{key}_over_floor"] >= report[key]
-        kept = [n for n in measured
-                if figures[f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio beyond the floor"
-                           ]["value"] < 0.01]  # fmt: skip
-        assert report[f"{key}_over_floor"] == max(kept, default=0)
+        # beyond the floor, and outside the host's stalls, the same count by their own ratios
+        assert report[key] == _largest_kept(figures, how, measured, "worst vehicle's deadline-miss ratio")
+        assert report[f"{key}_over_floor"] == _largest_kept(figures, how, measured, beyond_name) >= report[key]
+        assert report[f"{key}_own"] == (_largest_kept(figures, how, measured, own_name) if fifo else None)
     for n in (1, 2):
         lockstep = figures[f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)"]
         assert lockstep["value"] > 1000 and lockstep["unit"] == "1/s" and lockstep["baseline_name"] == "one vehicle"

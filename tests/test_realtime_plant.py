@@ -14,9 +14,10 @@ from quadsitl import codec, fastio
 from sitl import process
 
 
-def answer_every_state(ap: socket.socket, forces: tuple[float, ...], max_thrust: float) -> int:
+def answer_every_state(ap: socket.socket, forces: tuple[float, ...], max_thrust: float,
+                       silent: range = range(0)) -> int:  # fmt: skip
     """What an autopilot does: each state datagram waiting on ``ap`` answered with ``forces`` [N], stamped with the
-    state's time; the number answered."""
+    state's time, but for the ticks in ``silent`` (read, not answered); the number answered."""
     rx = np.zeros(65535, dtype=np.uint8)
     tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
     decoded = np.zeros(codec.DECODED_SIZE)
@@ -28,15 +29,16 @@ def answer_every_state(ap: socket.socket, forces: tuple[float, ...], max_thrust:
             return answered
         stamp = codec.decode_state(rx, n, decoded)
         assert stamp >= 0
+        if round(stamp / 1000) in silent:  # [us] at 1 kHz
+            continue
         m = codec.encode_actuators(tx, 0, 1, 1, stamp, forces, max_thrust, True)
         ap.sendto(tx[:m].tobytes(), sender)
         answered += 1
 
 
-@pytest.mark.parametrize("loops", ["1", "0"])  # the compiled period (sitl.realtime_loop), and the Python one
-@pytest.mark.parametrize("vehicles", [1, 3])
-def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late(monkeypatch, vehicles, loops):
-    monkeypatch.setenv(fastio.LOOPS_ENV, loops)
+def fleet_of(vehicles: int) -> tuple[list, list[socket.socket], tuple[float, ...], float]:
+    """A real-time plant's fleet of ``vehicles`` (the paper preset), their autopilots' sockets, the forces they answer
+    with [N], the maximum thrust [N]; compiled code loaded before any clock starts."""
     aps = []
     for _ in range(vehicles):
         ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -55,6 +57,14 @@ def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late
         scratch, codec.encode_state(scratch, 0, 1, 1, 0, np.zeros(codec.DECODED_SIZE)), np.zeros(codec.DECODED_SIZE)
     )
     codec.encode_actuators(scratch, 0, 1, 1, 0, forces, max_thrust, True)  # ... the answering autopilot's
+    return fleet, aps, forces, max_thrust
+
+
+@pytest.mark.parametrize("loops", ["1", "0"])  # the compiled period (sitl.realtime_loop), and the Python one
+@pytest.mark.parametrize("vehicles", [1, 3])
+def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late(monkeypatch, vehicles, loops):
+    monkeypatch.setenv(fastio.LOOPS_ENV, loops)
+    fleet, aps, forces, max_thrust = fleet_of(vehicles)
     real_sleep_until = process.sleep_until
     overslept = []
 
@@ -78,6 +88,32 @@ def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late
             assert (v.answered, v.late) == (ticks, 0), v.name
             assert np.allclose(v.plant.commanded, forces)  # the answer was flown, not the previous command
             assert v.link.io[process.tick.LAST_USEC] == codec.usec_of(ticks - 1, v.plant.period)
+    finally:
+        for v in fleet:
+            v.link.close()
+        for ap in aps:
+            ap.close()
+
+
+@pytest.mark.parametrize("loops", ["1", "0"])
+def test_each_vehicles_missed_periods_are_named_by_their_tick(monkeypatch, loops):
+    """``run_realtime(..., late=...)``, what the plant's ``--stats`` give the bench to set beside the host's stalls:
+    vehicle 2's autopilot silent for ticks 10-14 (read, not answered), vehicle 1's answering every tick."""
+    monkeypatch.setenv(fastio.LOOPS_ENV, loops)
+    fleet, aps, forces, max_thrust = fleet_of(2)
+    real_sleep_until = process.sleep_until
+
+    def answered_then_asleep(deadline):  # every answer in before the period ends, whatever the machine's load
+        answer_every_state(aps[0], forces, max_thrust)
+        answer_every_state(aps[1], forces, max_thrust, silent=range(10, 15))
+        real_sleep_until(deadline)
+
+    monkeypatch.setattr(process, "sleep_until", answered_then_asleep)
+    late: list[list[int]] = [[], []]
+    try:
+        assert process.run_realtime(fleet, 30, late=late) == 30
+        assert late == [[], [10, 11, 12, 13, 14]]
+        assert [(v.answered, v.late) for v in fleet] == [(30, 0), (25, 5)]
     finally:
         for v in fleet:
             v.link.close()
