@@ -581,6 +581,8 @@ def run_realtime(
         else:
             for v in vehicles:
                 check_state(v, k, named)
+            for j in range(len(vehicles)):  # the vehicles take turns at going first, as the compiled period's do
+                v = vehicles[realtime_loop.send_order(j, k, len(vehicles))]
                 v.link.send_state(k, v.plant)
         if k == 0:  # the clock starts once the first states are out: a slow first send (page faults, a machine busy
             next_time = time.monotonic()  # starting a dashboard) would otherwise be caught up in a burst of late ticks

@@ -67,8 +67,8 @@ class RealtimeFleet:
                                  self.said)  # fmt: skip
 
     def send(self, k: int) -> int:
-        """Tick ``k``'s datagrams sent, vehicle by vehicle → −1, or the first vehicle whose state left its bounds
-        (its tick and the later ones' not sent)."""
+        """Tick ``k``'s datagrams sent, the vehicles taking turns at going first → −1, or the first vehicle whose
+        state left its bounds (then none is sent: :func:`sitl.realtime_loop.send_ticks`)."""
         return self._send(*self.send_args, k, self.period)
 
     def take_and_step(self, want: int, lost_after_ns: int, zero_on_loss: bool, action: str) -> None:

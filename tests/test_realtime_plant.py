@@ -119,3 +119,45 @@ def test_each_vehicles_missed_periods_are_named_by_their_tick(monkeypatch, loops
             v.link.close()
         for ap in aps:
             ap.close()
+
+
+# Linux's, on 64-bit machines (asm-generic/socket.h: SO_TIMESTAMPNS_OLD, a 16-byte timespec); Python names it from 3.14
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+
+
+def received_at(ap: socket.socket) -> int:
+    """When the kernel queued the next datagram waiting on ``ap`` (SO_TIMESTAMPNS) [ns], the datagram read."""
+    _, ancillary, _, _ = ap.recvmsg(65535, socket.CMSG_SPACE(16))
+    ((level, kind, data),) = ancillary
+    assert (level, kind) == (socket.SOL_SOCKET, SO_TIMESTAMPNS)
+    seconds, nanoseconds = np.frombuffer(data[:16], dtype=np.int64)
+    return int(seconds) * 10**9 + int(nanoseconds)
+
+
+@pytest.mark.parametrize("loops", ["1", "0"])
+def test_the_vehicles_take_turns_at_being_sent_their_tick_first(monkeypatch, loops):
+    """Tick k goes to vehicle k mod N first, then on round (:func:`sitl.realtime_loop.send_order`): the vehicle sent
+    to last has the least of the period left to answer in. The order is read from the kernel's receive time stamps of
+    each tick's datagrams."""
+    monkeypatch.setenv(fastio.LOOPS_ENV, loops)
+    fleet, aps, _, _ = fleet_of(3)
+    for ap in aps:
+        ap.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        ap.setblocking(True)
+        ap.settimeout(2.0)
+    orders = []
+
+    def read_the_order(deadline):
+        stamps = [(received_at(ap), i) for i, ap in enumerate(aps)]
+        orders.append([i for _, i in sorted(stamps)])
+        process.time.sleep(max(0.0, deadline - process.time.monotonic()))
+
+    monkeypatch.setattr(process, "sleep_until", read_the_order)
+    try:
+        assert process.run_realtime(fleet, 7) == 7
+    finally:
+        for v in fleet:
+            v.link.close()
+        for ap in aps:
+            ap.close()
+    assert orders == [[k % 3, (k + 1) % 3, (k + 2) % 3] for k in range(7)]
