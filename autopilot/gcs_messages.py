@@ -318,3 +318,10 @@ def warm_up() -> None:
                  u1=0.0, controls=(0.0, 0.0, 0.0, 0.0), reversible=False, max_total_thrust=1.0)  # fmt: skip
     for mid in MessageStreams(0.001, 50.0).defaults:
         build(mid, s, Commander(), Origin())
+    # a message packed from Python (quadsitl.codec.pack: STATUSTEXT, parameters, command answers): its checksum's
+    # entry from Python is compiled apart from the compiled codec's, and an autopilot compiling it at its first such
+    # message was silent for more than the plant's 0.5 s (lost, then back)
+    from quadsitl import codec, wire
+
+    mav = wire.link(1, 1)
+    codec.pack(mav.statustext_encode(mavlink.MAV_SEVERITY_INFO, b"warm"), mav)

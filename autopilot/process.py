@@ -1162,6 +1162,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def warm_up_loops() -> None:
+    """Compile into numba's cache (or load from it) the autopilot's compiled plant loop for both of its modes, whose
+    arguments' types differ (truth and sensors), with what an autopilot process makes on the way (its controllers'
+    own steps): for a launcher to do once before it starts a fleet, whose autopilots then load it instead of each
+    compiling it at once. Call :func:`autopilot.tick.warm_up` first: the loop calls the tick, which it then loads."""
+    for state in ("truth", "sensors"):
+        args = build_parser().parse_args(["--no-zenoh", "--plant-listen", "127.0.0.1:0", "--gcs-listen", "127.0.0.1:0",
+                                          "--api-listen", "127.0.0.1:0", "--state", state])  # fmt: skip
+        args.home, args.signing_key = None, None
+        ap = Autopilot(with_state(load_preset("x500"), args), args)
+        try:
+            plant_loop.warm_up(ap.tick_arguments())
+        finally:
+            ap.close()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     start_process()
     parser = build_parser()

@@ -255,8 +255,9 @@ def compile_once(env: dict[str, str] | None) -> None:
     """Before a fleet starts: compile the equations once, into numba's cache, in a process of its own, so that
     the fleet's 2N processes load them instead of each compiling the same code at once (a cold start)."""
     code = (
-        "from autopilot.tick import warm_up; warm_up(); from quadsitl.config import load_preset; "
-        "from sitl.plant import Plant; from sitl.process import warm_up; warm_up(Plant(load_preset('paper')))"
+        "from autopilot.tick import warm_up; warm_up(); from autopilot.process import warm_up_loops; warm_up_loops(); "
+        "from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process import warm_up; "
+        "warm_up(Plant(load_preset('paper')))"
     )
     if subprocess.run([sys.executable, "-c", code], env=env).returncode != 0:
         raise RuntimeError("compiling the equations failed (above)")

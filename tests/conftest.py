@@ -40,20 +40,9 @@ def _warm_the_plant() -> None:
 
 def _warm_the_autopilots_loop() -> None:
     """The autopilot's compiled plant loop for both of its modes (its arguments' types differ)."""
-    from autopilot import plant_loop
-    from autopilot.process import Autopilot, build_parser
-    from quadsitl.cli_util import with_state
-    from quadsitl.config import load_preset
+    from autopilot.process import warm_up_loops
 
-    for state in ("truth", "sensors"):
-        args = build_parser().parse_args(["--no-zenoh", "--plant-listen", "127.0.0.1:0", "--gcs-listen", "127.0.0.1:0",
-                                          "--api-listen", "127.0.0.1:0", "--state", state])  # fmt: skip
-        args.home, args.signing_key = None, None
-        ap = Autopilot(with_state(load_preset("x500"), args), args)
-        try:
-            plant_loop.warm_up(ap.tick_arguments())
-        finally:
-            ap.close()
+    warm_up_loops()
 
 
 # What the session compiles into numba's cache, in parts: (name, what it needs in the cache first, how). The
