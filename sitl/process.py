@@ -354,6 +354,7 @@ def warm_up(plant: Plant) -> None:
             rt = rt[0]
             realtime_loop.heard(rt, 1)  # (a held lockstep clock's: PlantLink.heard and check_lost)
             realtime_loop.lost_clock(rt, 2, LOST_AFTER_NS)
+            realtime_loop.send_order(0, 0, 1)  # (the Python period's order of sending, impaired links)
             for polling in (True, False):
                 io[tick.LAST_USEC] = -1
                 b.send(link[:n].tobytes())

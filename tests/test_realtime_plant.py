@@ -161,3 +161,33 @@ def test_the_vehicles_take_turns_at_being_sent_their_tick_first(monkeypatch, loo
         for ap in aps:
             ap.close()
     assert orders == [[k % 3, (k + 1) % 3, (k + 2) % 3] for k in range(7)]
+
+
+@pytest.mark.parametrize("loops", ["1", "0"])
+def test_nothing_compiles_in_a_real_time_period_once_warmed_up(monkeypatch, loops):
+    """After the plant's warm-up (:func:`sitl.process.warm_up`, which every plant process runs before its clock
+    starts), a real-time period, compiled or Python, calls no compiled function of :mod:`sitl.realtime_loop` for
+    types it has not compiled: a compile on a fresh checkout would stall the clock."""
+    from sitl import realtime_loop
+
+    monkeypatch.setenv(fastio.LOOPS_ENV, loops)
+    fleet, aps, forces, max_thrust = fleet_of(2)
+    compiled = [f for f in vars(realtime_loop).values() if hasattr(f, "signatures")]
+    before = [len(f.signatures) for f in compiled]
+    real_sleep_until = process.sleep_until
+
+    def answered_then_asleep(deadline):
+        for ap in aps:
+            answer_every_state(ap, forces, max_thrust)
+        real_sleep_until(deadline)
+
+    monkeypatch.setattr(process, "sleep_until", answered_then_asleep)
+    try:
+        assert process.run_realtime(fleet, 5, [], "zero", [[], []]) == 5
+    finally:
+        for v in fleet:
+            v.link.close()
+        for ap in aps:
+            ap.close()
+    assert [v.answered for v in fleet] == [5, 5]
+    assert [len(f.signatures) for f in compiled] == before
