@@ -106,8 +106,12 @@ def _start_loops(ticks: int | None, priority: int | None, period: float) -> dict
     procs = {cpu: subprocess.Popen([sys.executable, "-m", "benchmarks.floor", "--cpu", str(cpu), *argv],
                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for cpu in sorted(os.sched_getaffinity(0))}  # fmt: skip
-    for proc in procs.values():  # each pinned (and under FIFO) and waiting, before the schedule is set
-        proc.stdout.readline()
+    try:
+        for proc in procs.values():  # each pinned (and under FIFO) and waiting, before the schedule is set
+            proc.stdout.readline()
+    except BaseException:  # interrupted: no loop left behind
+        _stop(procs)
+        raise
     return procs
 
 
