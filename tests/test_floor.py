@@ -115,3 +115,15 @@ def _children_running(module: str) -> list[int]:
         if ppid == os.getpid() and module.encode() in cmdline:
             found.append(int(pid))
     return found
+
+
+def test_a_fleets_own_misses_are_those_outside_the_periods_the_host_stalled():
+    from benchmarks.bench import own_misses
+
+    # the fleet's clock 0.4 ms after the watching loops' schedule; a core stalled over their period 10: the fleet's
+    # periods 9 and 10 are the host's
+    res = {"ticks": 100, "clock_t0_s": 100.0004, "period_s": 0.001, "clock_late_ticks": [9, 50],
+           "answer_late_ticks": [[9, 10, 11, 60], [50]]}  # fmt: skip
+    got = own_misses(res, Stalls(100.0, 0.001, 100, {0: {10}, 1: set()}))
+    # vehicle 1: its late 11 and 60 and the clock's 50; vehicle 2: the clock's 50 (a late tick is late for every one)
+    assert got == {"stalled_ratio": 0.02, "worst_own_miss_ratio": 0.03}
