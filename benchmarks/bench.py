@@ -516,7 +516,8 @@ def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
     with autopilot_process(workdir) as (plant_port, api, _ep, _pid):
         real = run_plant(plant_port, workdir, ticks, "--mode", "realtime", arm=api)
     for key, unit in (("jitter_p50_us", "us"), ("jitter_p99_us", "us"), ("jitter_max_us", "us"),
-                      ("deadline_miss_ratio", "ratio"), ("mean_period_us", "us")):  # fmt: skip
+                      ("lateness_p50_us", "us"), ("lateness_p99_us", "us"), ("deadline_miss_ratio", "ratio"),
+                      ("mean_period_us", "us")):  # fmt: skip
         ratio = real[key] / bare[key] if bare[key] else None
         r.add(f"real time: {key}", real[key], unit, bare[key], "bare loop", ratio=ratio)
 

@@ -34,7 +34,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import IO
 
-from quadsitl.process_util import wait_readable
+from quadsitl.process_util import timers_on_time, wait_readable
 from quadsitl.timing import late_periods, period_stats
 
 FIFO_PRIORITY = 10  # SCHED_FIFO's priority for a fleet's processes, as `chrt -f 10 quadsitl up ...` gives them
@@ -45,7 +45,9 @@ def keep_time(ticks: int | None, period: float, start: float, until: IO | None =
     """Start times [s, ``time.monotonic()``] of the periods scheduled at ``start`` + k·``period``, keeping time as the
     plant's real-time loop does (absolute schedule, waiting for a datagram with
     :func:`quadsitl.process_util.wait_readable`) and doing nothing else: ``ticks`` of them, or (``ticks`` None) as
-    many as come before ``until`` (a file, stdin) has something to read."""
+    many as come before ``until`` (a file, stdin) has something to read. Its timers fire on time as the plant's do
+    (:func:`quadsitl.process_util.timers_on_time`)."""
+    timers_on_time()
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))
     waited = until if until is not None else sock

@@ -246,3 +246,35 @@ def test_under_chrt_the_plant_clock_runs_one_priority_above_the_autopilots():
     if fifo.returncode != 0 and "ermission" in fifo.stderr and not os.environ.get("CI"):
         pytest.skip(f"SCHED_FIFO not permitted here (root or CAP_SYS_NICE; CI runs as root): {fifo.stderr.strip()}")
     assert fifo.stdout.split() == ["True", "True", "11"], fifo
+
+
+def _default_timer_slack() -> None:
+    """A child's timer slack as a fresh login's (50 µs), whatever this test process's is (the floor's loops set
+    theirs when they run in it)."""
+    import ctypes
+
+    ctypes.CDLL("libc.so.6").prctl(29, ctypes.c_ulong(50_000), 0, 0, 0)  # PR_SET_TIMERSLACK
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="timer slack is Linux's")
+@pytest.mark.parametrize("mode", ["realtime", "lockstep"])
+def test_the_real_time_plant_asks_for_its_timers_on_time(mode):
+    """The real-time plant's clock sleeps to each tick's due time; the kernel's default slack (50 µs) would let every
+    one of those sleeps end up to that much late. The real-time plant takes 1 µs (TIMER_SLACK_NS); a lockstep plant,
+    which sleeps on no timer, keeps what it was started with."""
+    from quadsitl.process_util import TIMER_SLACK_NS
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as ap:
+        ap.bind(("127.0.0.1", 0))
+        ap.settimeout(30)
+        plant = subprocess.Popen([sys.executable, "-m", "sitl", "--preset", "paper", "--mode", mode, "--quiet",
+                                  "--autopilot", f"127.0.0.1:{ap.getsockname()[1]}"],
+                                 preexec_fn=_default_timer_slack, stderr=subprocess.PIPE)  # fmt: skip
+        try:
+            ap.recvfrom(65535)  # the first tick: the plant's clock has started
+            slack = int(Path(f"/proc/{plant.pid}/timerslack_ns").read_text())
+        finally:
+            plant.kill()
+            plant.wait()
+    assert slack == (TIMER_SLACK_NS if mode == "realtime" else 50_000), (mode, slack)

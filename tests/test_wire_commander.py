@@ -247,4 +247,11 @@ def test_period_stats_jitter_and_deadline_misses():
     late = period_stats(starts, T)
     assert late["deadline_miss_ratio"] == pytest.approx(0.01)
     assert late["jitter_max_us"] == pytest.approx(1500.0) and late["jitter_p50_us"] == pytest.approx(0.0, abs=1e-6)
+    assert late["lateness_p50_us"] == pytest.approx(0.0, abs=1e-6) and late["lateness_p99_us"] == pytest.approx(
+        0.0, abs=1e-6
+    )
+    # every tick after the first 60 µs into its period: no jitter at all, and the lateness says so
+    offset = period_stats([0.0] + [k * T + 60e-6 for k in range(1, 100)], T)
+    assert offset["jitter_p50_us"] == pytest.approx(0.0, abs=1e-6) and offset["deadline_miss_ratio"] == 0.0
+    assert offset["lateness_p50_us"] == pytest.approx(60.0) and offset["lateness_p99_us"] == pytest.approx(60.0)
     assert percentile([3.0, 1.0, 2.0], 50) == 2.0 and percentile([], 99) == 0.0
