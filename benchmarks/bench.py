@@ -32,7 +32,9 @@ machines drift:
    floor is the periods missed on any core (:mod:`benchmarks.floor`); ``fleet_max_realtime_over_floor`` is the
    largest N that misses under 1 % more than that. Under SCHED_FIFO (``fleet_max_realtime_fifo``) the floor is the
    same loops under SCHED_FIFO: there nothing on the machine delays a loop but the host itself, and the
-   default-scheduled floor would excuse misses a FIFO fleet makes. Where SCHED_FIFO is permitted, the same loops
+   default-scheduled floor would excuse misses a FIFO fleet makes. Where the cores can be kept out of slow idle states
+   (``--cores-awake``: root), the FIFO series and its floor run so (``fleet_fifo_cores_awake``): the set-up for real
+   time on a virtual machine. Where SCHED_FIFO is permitted, the same loops
    also run beside each fleet, above it in priority, and name the periods in which the host stalled a core; the
    worst vehicle's misses outside them are its own (``fleet_max_realtime_own``, ``fleet_max_realtime_fifo_own``:
    the largest N that missed under 1 % of its periods outside the host's stalls), and the sizes grow until that
@@ -61,7 +63,8 @@ from pathlib import Path
 from benchmarks import machine, pingpong
 from benchmarks.browser import missing as browser_missing
 from benchmarks.floor import FIFO_PRIORITY, Stalls, bare_loop, floor_on_every_core, watching_every_core
-from quadsitl.process_util import SPIN_ENV, free_port, stop_status
+from quadsitl.cli_util import UsageError
+from quadsitl.process_util import SPIN_ENV, free_port, hold_cores_awake, stop_status
 from quadsitl.timing import percentile
 
 
@@ -643,8 +646,31 @@ def fifo_missing() -> str | None:
         return f"SCHED_FIFO is not permitted here ({exc}): it needs root or CAP_SYS_NICE"
 
 
-def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | None = None, fifo: bool = False
-              ) -> dict:  # fmt: skip
+@contextlib.contextmanager
+def cores_awake(enabled: bool) -> Iterator[None]:
+    """While entered (and ``enabled``), every core is kept out of slow idle states, as ``quadsitl up --cores-awake``
+    keeps them (:func:`quadsitl.process_util.hold_cores_awake`); UsageError where that is refused."""
+    if not enabled:
+        yield
+        return
+    fd = hold_cores_awake()
+    try:
+        yield
+    finally:
+        os.close(fd)
+
+
+def awake_missing() -> str | None:
+    """Why this machine cannot keep its cores awake for a fleet (one line), or None when it can."""
+    try:
+        with cores_awake(True):
+            return None
+    except UsageError as exc:
+        return str(exc)
+
+
+def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | None = None, fifo: bool = False,
+              awake: bool = False) -> dict:  # fmt: skip
     """``n`` vehicles (an autopilot each and one plant process simulating all of them on one clock, as ``quadsitl up
     --vehicles N`` runs them, the paper preset) flying ``ticks`` ticks in ``mode`` (``realtime`` or ``lockstep``).
     The vehicles are not armed: an autopilot armed in hold on the ground idles (no control law) as a disarmed one
@@ -656,8 +682,10 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
     ``browser``, the dashboard watches every vehicle, its page open there (the fleet view, for several), as a user
     watching the fleet would have it; its CPU is not counted in the vehicles'. ``fifo``: the autopilots (raised to it
     once started: :func:`raise_to_fifo`) and the plant run under SCHED_FIFO (:func:`fifo_scheduling`); the
-    dashboard does not (it runs at idle priority)."""
+    dashboard does not (it runs at idle priority). ``awake``: every core is kept out of slow idle states while the
+    fleet runs (:func:`cores_awake`, as ``--cores-awake``)."""
     with contextlib.ExitStack() as stack:
+        stack.enter_context(cores_awake(awake))
         # system ids 1..n, as `quadsitl up --vehicles N` gives them (each streams on ticks of its own), all started at
         # once and then waited for; under the default scheduler, and raised to SCHED_FIFO once started: N start-ups
         # (imports, compiled code loading) at FIFO priority would take both cores from everything else for seconds
@@ -745,11 +773,13 @@ def bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float) 
         return _bench_fleet(r, workdir, sizes, seconds, browser)
 
 
-def _floor(r: Report, ticks: int, fifo: bool) -> dict:
-    """:func:`benchmarks.floor.floor_on_every_core` over ``ticks`` periods, with the steal time meanwhile, reported."""
-    how = f" under SCHED_FIFO {FIFO_PRIORITY}" if fifo else ""
+def _floor(r: Report, ticks: int, fifo: bool, awake: bool = False) -> dict:
+    """:func:`benchmarks.floor.floor_on_every_core` over ``ticks`` periods (``awake``: every core kept out of slow idle
+    states meanwhile), with the steal time meanwhile, reported."""
+    how = (f" under SCHED_FIFO {FIFO_PRIORITY}" if fifo else "") + (", cores awake" if awake else "")
     before = machine.cpu_times()
-    floor = floor_on_every_core(ticks, fifo)
+    with cores_awake(awake):
+        floor = floor_on_every_core(ticks, fifo)
     steal = machine.steal_ratio(before, machine.cpu_times())
     for cpu, ratio in floor["per_core"].items():
         r.add(f"a bare loop keeping time at 1 kHz{how} on CPU {cpu}, one on each core, nothing else running: "
@@ -776,22 +806,27 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
     out["fleet_floor_miss_ratio"] = floors[False]["any"]
     out["fleet_floor_miss_ratios_per_core"] = list(floors[False]["per_core"].values())
     why_not_fifo = fifo_missing()
+    # the real-time set-up for a virtual machine: SCHED_FIFO, and the cores kept out of slow idle states (a halted
+    # virtual CPU is a thread its host must wake and schedule again), as `chrt -f 10 quadsitl up --cores-awake ...`
+    awake = why_not_fifo is None and awake_missing() is None
+    out["fleet_fifo_cores_awake"] = awake
     for fifo, key, how in ((False, "fleet_max_realtime", "default scheduling"),
-                           (True, "fleet_max_realtime_fifo", f"SCHED_FIFO {FIFO_PRIORITY}")):  # fmt: skip
+                           (True, "fleet_max_realtime_fifo",
+                            f"SCHED_FIFO {FIFO_PRIORITY}{', cores awake' if awake else ''}")):  # fmt: skip
         if fifo and why_not_fifo:
             r.add(f"real time under SCHED_FIFO: not measured: {why_not_fifo}", 0, "")
             out[key] = out[f"{key}_over_floor"] = out[f"{key}_own"] = None
             continue
         if fifo:  # the floor of loops that nothing on the machine preempts: only the host delays them
-            floors[True] = _floor(r, ticks, fifo=True)
+            floors[True] = _floor(r, ticks, fifo=True, awake=awake)
             out["fleet_floor_miss_ratio_fifo"] = floors[True]["any"]
             out["fleet_floor_miss_ratios_per_core_fifo"] = list(floors[True]["per_core"].values())
         floor = floors[fifo]["any"]
-        one = fleet_run(1, workdir, ticks, "realtime", browser, fifo)
+        one = fleet_run(1, workdir, ticks, "realtime", browser, fifo, fifo and awake)
         largest = largest_over_floor = largest_own = 0
         kept = kept_over_floor = kept_own = True
         for n in sizes:
-            rt = one if n == 1 else fleet_run(n, workdir, ticks, "realtime", browser, fifo)
+            rt = one if n == 1 else fleet_run(n, workdir, ticks, "realtime", browser, fifo, fifo and awake)
             r.add(f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio", rt["worst_miss_ratio"],
                   "ratio", one["worst_miss_ratio"], "one vehicle", ratio=None)  # fmt: skip
             r.add(f"fleet of {n}, real time, {how}: the clock's deadline-miss ratio (ticks started a period late)",

@@ -520,6 +520,13 @@ the source, or 'mkdocs serve' there.""",
     upp.add_argument(
         "--speed", type=float, default=1.0, metavar="F", help="lockstep pace, × real time (default 1; 0 = no cap)"
     )
+    upp.add_argument(
+        "--cores-awake",
+        action="store_true",
+        help="while the run lasts, keep every core out of slow idle states (Linux's PM QoS, /dev/cpu_dma_latency at "
+        "0 µs: idle cores poll instead of halting), for real-time runs on virtual machines; needs root or write "
+        "access to that file",
+    )
     for name, listen, remote in (("gcs", 18570, 14550), ("api", 14580, 14540)):
         upp.add_argument(
             f"--{name}-listen",

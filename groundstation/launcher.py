@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -33,7 +34,15 @@ from pathlib import Path
 from groundstation.fleet import VehiclePlan, zenoh_argv
 from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
 from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
-from quadsitl.process_util import PLANT_DIVERGED, bind_tcp, bind_udp, free_port, parse_remote, stop_status
+from quadsitl.process_util import (
+    PLANT_DIVERGED,
+    bind_tcp,
+    bind_udp,
+    free_port,
+    hold_cores_awake,
+    parse_remote,
+    stop_status,
+)
 
 # [s] simulated: `fly`'s vehicle clock waits for a ground station whose newest setpoint was made for a moment longer
 # ago than this (autopilot.offboard_lockstep): above the ground station's usual lag at full lockstep speed (0.2-0.3 s
@@ -159,12 +168,14 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
         raise UsageError("--dashboard needs the Zenoh telemetry: drop --no-zenoh")
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
     check_ports_free(args, fleet)
+    if args.cores_awake:  # refused (no root) before anything starts; the plant holds the request for the run
+        os.close(hold_cores_awake())
     info = None  # the vehicles' quadsitl/<vehicle>/info documents, once Zenoh is up
     try:
         if len(fleet) > 1:
             compile_once(children.env)
         # One plant process simulates every vehicle on one clock (sitl.process.run_lockstep); an autopilot each.
-        plant = ["sitl", "--preset", args.preset, "--mode", args.mode]
+        plant = ["sitl", "--preset", args.preset, "--mode", args.mode] + (["--cores-awake"] if args.cores_awake else [])
         taken = planned_ports(fleet)  # an internal port never lands on a later vehicle's, not yet bound
         for v in fleet:
             plant_port = free_port(avoid=taken)

@@ -59,12 +59,14 @@ from quadsitl.cli_util import (
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import PX4_HOME
 from quadsitl.process_util import (
+    CPU_LATENCY,
     HOT_AFTER,
     PATIENCE,
     PLANT_DIVERGED,
     SpinThenBlock,
     bind_udp,
     clock_above_its_peers,
+    hold_cores_awake,
     parse_address,
     readable_of,
     set_receive_timeout,
@@ -667,6 +669,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="in a fleet, vehicle K (1-based) flies PRESET (a name or a TOML file) instead of --preset; "
                    "every preset must have the same control period (repeatable)")  # fmt: skip
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="default: lockstep")
+    p.add_argument("--cores-awake", action="store_true",
+                   help=f"while the plant runs, keep every core out of slow idle states (Linux's PM QoS, {CPU_LATENCY} "
+                   "at 0 µs: idle cores poll instead of halting), for real-time runs on virtual machines; needs root "
+                   "or write access to that file")  # fmt: skip
     p.add_argument(
         "--speed",
         type=float,
@@ -770,6 +776,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     session = None
     try:
         fastio.compiled_loops()  # $QUADSITL_COMPILED_LOOPS checked before anything starts
+        # held (open) until this process ends: the kernel drops the request then, however it ends
+        awake = hold_cores_awake() if args.cores_awake else None  # noqa: F841
         vehicles = fleet_from_args(args)
         warm_up(vehicles[0].plant)
         session = open_wind_links(args, vehicles)

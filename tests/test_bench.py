@@ -5,6 +5,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -76,7 +77,11 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
     # the machine's floor first: a bare loop keeping time on each core at once, the periods missed on any of them
     # (a vehicle spans the cores), and the hypervisor's steal time meanwhile; the same under FIFO
     cores = sorted(os.sched_getaffinity(0))
-    for how in ("", " under SCHED_FIFO 10"):
+    # where it may (root), the FIFO series keeps every core out of slow idle states, as `up --cores-awake` does
+    if fifo and os.geteuid() == 0 and Path("/dev/cpu_dma_latency").exists():
+        assert report["fleet_fifo_cores_awake"] is True
+    awake = ", cores awake" if report["fleet_fifo_cores_awake"] else ""
+    for how in ("", f" under SCHED_FIFO 10{awake}"):
         if how and not fifo:
             continue
         per_core = [figures[f"a bare loop keeping time at 1 kHz{how} on CPU {cpu}, one on each core, nothing else "
@@ -89,7 +94,10 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
         assert report[f"fleet_floor_miss_ratio{'_fifo' if how else ''}"] == any_core
         assert report[f"fleet_floor_miss_ratios_per_core{'_fifo' if how else ''}"] == per_core
         assert 0.0 <= figures[f"the hypervisor's steal time meanwhile{how} (CPU time the host took)"]["value"] < 1.0
-    for how, key in (("default scheduling", "fleet_max_realtime"), ("SCHED_FIFO 10", "fleet_max_realtime_fifo")):
+    for how, key in (
+        ("default scheduling", "fleet_max_realtime"),
+        (f"SCHED_FIFO 10{awake}", "fleet_max_realtime_fifo"),
+    ):
         fifo_runs = how != "default scheduling"
         if fifo_runs and not fifo:
             continue
@@ -176,3 +184,24 @@ def test_a_sections_steal_time_is_the_hosts_share_of_the_cpu_time_since_it_began
     assert 0.02 < value <= 0.03  # a few more ticks may pass before the second reading
     assert r.figures[-1].name.strip() == "the hypervisor's steal time during the section"
     assert r.figures[-1].value == value and r.figures[-1].unit == "ratio"
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not Path("/dev/cpu_dma_latency").exists(), reason="needs root and PM QoS")
+def test_the_benchs_fifo_fleets_hold_the_cores_awake_while_they_run():
+    import struct
+
+    from benchmarks.bench import cores_awake
+
+    def request() -> int:
+        with open("/dev/cpu_dma_latency", "rb") as f:
+            return struct.unpack("=i", f.read(4))[0]
+
+    def held() -> bool:  # this process has the request open
+        return any(os.readlink(f"/proc/self/fd/{fd}") == "/dev/cpu_dma_latency" for fd in os.listdir("/proc/self/fd")
+                   if os.path.islink(f"/proc/self/fd/{fd}"))  # fmt: skip
+
+    with cores_awake(True):
+        assert request() == 0 and held()
+    assert not held()  # released with the run
+    with cores_awake(False):
+        assert not held()

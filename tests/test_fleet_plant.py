@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -278,3 +279,54 @@ def test_the_real_time_plant_asks_for_its_timers_on_time(mode):
             plant.kill()
             plant.wait()
     assert slack == (TIMER_SLACK_NS if mode == "realtime" else 50_000), (mode, slack)
+
+
+def _cpu_latency_request() -> int:
+    """The kernel's current PM QoS target for every core's wake-up latency [µs] (2,000,000,000: none)."""
+    import struct
+
+    with open("/dev/cpu_dma_latency", "rb") as f:
+        return struct.unpack("=i", f.read(4))[0]
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.skipif(not Path("/dev/cpu_dma_latency").exists(), reason="no PM QoS interface (Linux's)")
+@pytest.mark.skipif(os.geteuid() != 0, reason="writing /dev/cpu_dma_latency needs root (CI runs as root)")
+def test_cores_awake_holds_every_core_out_of_idle_states_while_the_plant_runs():
+    """``--cores-awake``: the plant writes 0 µs to /dev/cpu_dma_latency and keeps it open for as long as it runs, so
+    the kernel keeps every core polling when idle; the kernel drops the request when the plant ends."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as ap:
+        ap.bind(("127.0.0.1", 0))
+        ap.settimeout(30)
+        plant = subprocess.Popen([sys.executable, "-m", "sitl", "--preset", "paper", "--mode", "realtime", "--quiet",
+                                  "--cores-awake", "--autopilot", f"127.0.0.1:{ap.getsockname()[1]}"])  # fmt: skip
+        try:
+            ap.recvfrom(65535)  # the clock has started
+            held = [os.readlink(f"/proc/{plant.pid}/fd/{fd}") for fd in os.listdir(f"/proc/{plant.pid}/fd")]
+            during = _cpu_latency_request()
+        finally:
+            plant.kill()  # however it ends, the kernel drops its request
+            plant.wait()
+    assert "/dev/cpu_dma_latency" in held and during == 0
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.skipif(shutil.which("setpriv") is None or os.geteuid() != 0, reason="needs root to drop it (setpriv)")
+@pytest.mark.parametrize("command", ["plant", "up"])
+def test_without_the_right_to_it_cores_awake_is_refused_in_one_line(command):
+    """Run as nobody, ``--cores-awake`` is refused before anything starts: one line naming the option, the file and
+    what it needs, exit 2."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as home:  # nobody's: pytest's own temporary folders are root's alone
+        os.chmod(home, 0o777)
+        env = {**os.environ, "HOME": home, "NUMBA_CACHE_DIR": home}
+        plant = [sys.executable, "-m", "sitl", "--mode", "realtime", "--autopilot", "127.0.0.1:9"]
+        up = [sys.executable, "-m", "groundstation.cli", "up", "--mode", "realtime", "--no-zenoh"]
+        argv = plant if command == "plant" else up
+        r = subprocess.run(["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *argv, "--cores-awake"],
+                           capture_output=True, text=True, timeout=50, env=env)  # fmt: skip
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r
+    assert lines[0] == (f"quadsitl {command}: error: --cores-awake: cannot write /dev/cpu_dma_latency (Permission "
+                        "denied): it needs root, or write access to it")  # fmt: skip
