@@ -16,7 +16,7 @@ from autopilot import tick as kernel
 from autopilot.process import Autopilot, build_parser
 from quadsitl import codec, fastio, wire
 from quadsitl.config import load_preset
-from quadsitl.process_util import PACE_WINDOW, PATIENCE, free_port, set_receive_timeout
+from quadsitl.process_util import PACE_WINDOW, PATIENCE, free_port, set_receive_timeout, wait_readable
 
 pytestmark = pytest.mark.skipif(not fastio.AVAILABLE, reason="compiled loops: Linux, numba on")
 PERIOD = 0.001
@@ -293,6 +293,33 @@ def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle):
         for _ in range(20):
             plant.recv(1000)
     assert wait.patience == PATIENCE
+
+
+def test_the_autopilot_yields_its_core_once_its_answer_is_out_and_before_pythons_work(vehicle, monkeypatch):
+    """A tick that leaves work to Python (a telemetry message Python builds) or a deadline (the telemetry batch, the
+    wall-clock work) hands the loop back; before that work the autopilot yields its core (``sched_yield``), so that
+    fleet-mates waiting for it answer their ticks first, and only once its own answer is out. Ticks that leave
+    Python nothing to do yield nothing."""
+    import autopilot.process as process
+
+    ap, plant, autopilot = vehicle
+    yields: list[bool] = []  # each yield: was this tick's answer already at the plant?
+    monkeypatch.setattr(process.os, "sched_yield", lambda: yields.append(wait_readable(plant, 0.0)))
+    plant.sendto(state_frame(1), autopilot)
+    nbytes, sender = ap.plant_sock.recvfrom_into(ap.rx)
+    ap.on_plant_datagram(nbytes, sender)
+    plant.recv(1000)
+    set_receive_timeout(ap.plant_sock, 0.2)
+    for k in range(2, 42):
+        plant.sendto(state_frame(k), autopilot)
+    returns = []
+    while (status := ap.serve_plant(time.monotonic() + 10.0)) != plant_loop.QUIET:
+        returns.append(status)
+        while wait_readable(plant, 0.0):
+            plant.recv(1000)
+    handed_back = [r for r in returns if r in (plant_loop.SENT, plant_loop.DUE)]
+    assert handed_back and len(yields) == len(handed_back) and all(yields)
+    assert ap.serve_plant(time.monotonic() + 10.0) == plant_loop.QUIET and len(yields) == len(handed_back)
 
 
 def test_arming_answers_a_holding_plant_at_once(vehicle):
