@@ -303,11 +303,18 @@ def check_ports_free(args, fleet: list[VehiclePlan]) -> None:
         bind_tcp("--zenoh-listen", args.zenoh_listen, host, int(port), "tcp/HOST:PORT, or --no-zenoh").close()
 
 
+def pace_of(args) -> str:
+    """How an ``up`` run keeps time, as its banner says it."""
+    if args.mode == "lockstep":
+        pace = "lockstep, as fast as possible" if args.speed == 0 else f"lockstep at {args.speed:g}× real time"
+    else:
+        pace = "real time (free-running plant)"
+    return pace + (", cores kept awake (PM QoS)" if getattr(args, "cores_awake", False) else "")
+
+
 def fleet_banner(fleet: list[VehiclePlan], args, dashboard_url: str | None = None) -> str:
     """What ``up --vehicles N`` prints: every vehicle's ids, ports and the one-line client connection for each."""
-    pace = f"lockstep at {args.speed:g}× real time" if args.mode == "lockstep" else "real time (free-running plant)"
-    if args.mode == "lockstep" and args.speed == 0:
-        pace = "lockstep, as fast as possible"
+    pace = pace_of(args)
     gcs = fleet[0].gcs_remote
     lines = [
         f"quadsitl up: {len(fleet)} vehicles, {args.controller or 'each preset'}'s controller, {pace}",
@@ -373,9 +380,7 @@ def describe_wind(w: WindParams) -> str:
 
 def banner(preset: Preset, args, dashboard_url: str | None = None) -> str:
     kind = args.controller or preset.controller.type
-    pace = f"lockstep at {args.speed:g}× real time" if args.mode == "lockstep" else "real time (free-running plant)"
-    if args.mode == "lockstep" and args.speed == 0:
-        pace = "lockstep, as fast as possible"
+    pace = pace_of(args)
     lines = [f"quadsitl up: preset {preset.name}, {kind} controller, {pace}; system id {args.system_id}"]
     for name, remote, tool in (
         ("ground stations", args.gcs_remote or "127.0.0.1:14550", "mavproxy.py --master=udpin:{}"),

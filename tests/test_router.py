@@ -192,3 +192,8 @@ def test_the_fleet_banner_says_where_each_client_runs_when_it_is_another_host():
     local = fleet_banner(plan_fleet(2, preset="paper"), here)
     assert "mavproxy.py --master=udpin:127.0.0.1:14550" in local and " on 127.0.0.1" not in local
     assert "127.0.0.1:14581 → udpin://0.0.0.0:14541\n" in local and "Zenoh tcp/127.0.0.1:7447, keys" in local
+    assert "quadsitl up: 2 vehicles, each preset's controller, lockstep at 1× real time\n" in local
+    awake = argparse.Namespace(**{**vars(here), "mode": "realtime", "cores_awake": True})
+    assert ", real time (free-running plant), cores kept awake (PM QoS)\n" in fleet_banner(
+        plan_fleet(2, preset="paper"), awake
+    )
