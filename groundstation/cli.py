@@ -39,7 +39,7 @@ from quadsitl.cli_util import (
     with_wind,
 )
 from quadsitl.config import ConfigError, Preset, load_preset, preset_toml
-from quadsitl.process_util import PLANT_DIVERGED, handle_stop_signals, run_stoppable, stop_status
+from quadsitl.process_util import CORES_AWAKE_HELP, PLANT_DIVERGED, handle_stop_signals, run_stoppable, stop_status
 from sitl.cli import add_presets_arguments, run_presets
 from sitl.impair import add_impair_argument, impairment_from
 
@@ -520,13 +520,7 @@ the source, or 'mkdocs serve' there.""",
     upp.add_argument(
         "--speed", type=float, default=1.0, metavar="F", help="lockstep pace, × real time (default 1; 0 = no cap)"
     )
-    upp.add_argument(
-        "--cores-awake",
-        action="store_true",
-        help="while the run lasts, keep every core out of slow idle states (Linux's PM QoS, /dev/cpu_dma_latency at "
-        "0 µs: idle cores poll instead of halting), for real-time runs on virtual machines; needs root or write "
-        "access to that file",
-    )
+    upp.add_argument("--cores-awake", action="store_true", help=CORES_AWAKE_HELP)
     for name, listen, remote in (("gcs", 18570, 14550), ("api", 14580, 14540)):
         upp.add_argument(
             f"--{name}-listen",

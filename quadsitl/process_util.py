@@ -394,6 +394,9 @@ def timers_on_time() -> bool:
 
 
 CPU_LATENCY = "/dev/cpu_dma_latency"  # Linux's PM QoS request for every core's wake-up latency [µs, int32]
+CORES_AWAKE_HELP = (f"while the run lasts, keep every core out of slow idle states (Linux's PM QoS, {CPU_LATENCY} at "
+                    "0 µs: idle cores poll instead of halting), for real-time runs on virtual machines; needs root "
+                    "or write access to that file")  # fmt: skip
 
 
 def hold_cores_awake(path: str = CPU_LATENCY) -> int:

@@ -59,7 +59,7 @@ from quadsitl.cli_util import (
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.frames import PX4_HOME
 from quadsitl.process_util import (
-    CPU_LATENCY,
+    CORES_AWAKE_HELP,
     HOT_AFTER,
     PATIENCE,
     PLANT_DIVERGED,
@@ -669,10 +669,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="in a fleet, vehicle K (1-based) flies PRESET (a name or a TOML file) instead of --preset; "
                    "every preset must have the same control period (repeatable)")  # fmt: skip
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="default: lockstep")
-    p.add_argument("--cores-awake", action="store_true",
-                   help=f"while the plant runs, keep every core out of slow idle states (Linux's PM QoS, {CPU_LATENCY} "
-                   "at 0 µs: idle cores poll instead of halting), for real-time runs on virtual machines; needs root "
-                   "or write access to that file")  # fmt: skip
+    p.add_argument("--cores-awake", action="store_true", help=CORES_AWAKE_HELP)
     p.add_argument(
         "--speed",
         type=float,
