@@ -808,7 +808,8 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
     why_not_fifo = fifo_missing()
     # the real-time set-up for a virtual machine: SCHED_FIFO, and the cores kept out of slow idle states (a halted
     # virtual CPU is a thread its host must wake and schedule again), as `chrt -f 10 quadsitl up --cores-awake ...`
-    awake = why_not_fifo is None and awake_missing() is None
+    why_not_awake = awake_missing() if why_not_fifo is None else None
+    awake = why_not_fifo is None and why_not_awake is None
     out["fleet_fifo_cores_awake"] = awake
     for fifo, key, how in ((False, "fleet_max_realtime", "default scheduling"),
                            (True, "fleet_max_realtime_fifo",
@@ -817,6 +818,8 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
             r.add(f"real time under SCHED_FIFO: not measured: {why_not_fifo}", 0, "")
             out[key] = out[f"{key}_over_floor"] = out[f"{key}_own"] = None
             continue
+        if fifo and why_not_awake:  # FIFO without the cores kept awake (CAP_SYS_NICE, but not root): say why
+            r.add(f"real time under SCHED_FIFO: the cores not kept awake: {why_not_awake}", 0, "")
         if fifo:  # the floor of loops that nothing on the machine preempts: only the host delays them
             floors[True] = _floor(r, ticks, fifo=True, awake=awake)
             out["fleet_floor_miss_ratio_fifo"] = floors[True]["any"]
