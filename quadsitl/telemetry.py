@@ -257,6 +257,11 @@ def zenoh_config(
     if not config_file:
         conf.insert_json5("scouting/multicast/enabled", "false")
         conf.insert_json5("timestamping/enabled", "true")
+        # No shared memory: Zenoh sets it up on the first message over 3 KB to a peer on this host (a 16 MB pool,
+        # mlocked page by page, and two watchdog threads), about 0.2 s of CPU in the middle of a flight, at the
+        # autopilot's priority: under SCHED_FIFO every vehicle on that core missed its deadlines meanwhile.
+        # Telemetry messages are a few KB; copying them through the socket costs less than that once.
+        conf.insert_json5("transport/shared_memory/enabled", "false")
     return conf
 
 
