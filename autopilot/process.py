@@ -43,7 +43,7 @@ from autopilot.offboard_lockstep import OffboardLockstep
 from autopilot.params import ParamStore
 from autopilot.stream_frames import COMPILED as COMPILED_STREAMS
 from autopilot.stream_frames import StreamFrames
-from autopilot.streams import MessageStreams, phase_of
+from autopilot.streams import MessageStreams, phase_of, spread_of
 from autopilot.tick import Batch, autopilot_tick, sensor_tick, warm_up
 from quadsitl import codec, fastio, telemetry, wire
 from quadsitl.cli_util import UsageError, add_preset_arguments, add_state_arguments, check_range, parse_home, with_state
@@ -193,7 +193,7 @@ class Autopilot:
         for name in ("gcs", "api"):
             remote = parse_remote(f"--{name}-remote", getattr(args, f"{name}_remote"))
             sock = bind_udp(f"--{name}-listen", getattr(args, f"{name}_listen"))
-            streams = MessageStreams(self.period, args.telemetry_rate, phase_of(self.sysid))
+            streams = MessageStreams(self.period, args.telemetry_rate, phase_of(self.sysid), spread_of(self.sysid))
             self.links.append(GcsLink(name, sock, remote, streams))
         self.streams = self.links[0].streams  # for what every link's streams share: which ids are streamed
         # The per-tick telemetry messages (autopilot.stream_frames) are built by the compiled tick and sent by the

@@ -12,7 +12,7 @@ from autopilot.commander import Commander, CommanderSettings
 from autopilot.factory import make_controller
 from autopilot.params import INDEX, MAX_NAME, SPECS, ParamStore, apply
 from autopilot.pd import PDController
-from autopilot.streams import FAST, MessageStreams, phase_of
+from autopilot.streams import FAST, SLOTS, MessageStreams, phase_of, spread_of
 from quadsitl.codec import pack
 from quadsitl.config import load_preset
 from quadsitl.frames import geodetic_to_ned, ned_to_geodetic
@@ -164,10 +164,28 @@ def test_streams_are_spread_over_ticks_and_over_a_fleets_vehicles():
     ticks = [[t for t in range(20) if mavlink.MAVLINK_MSG_ID_ATTITUDE in MessageStreams(0.001, 50.0, phase_of(i))
               .due(t)] for i in range(1, 11)]  # fmt: skip
     assert len({tuple(x) for x in ticks}) == 10
-    # a changed interval keeps its phase
-    s = MessageStreams(0.001, 50.0, phase_of(3))
+    # a changed interval keeps its phase: vehicle 3's SYS_STATUS at 2 · 22 + its slot, 9
+    s = MessageStreams(0.001, 50.0, phase_of(3), spread_of(3))
     assert s.set_interval(mavlink.MAVLINK_MSG_ID_SYS_STATUS, 100_000) == ""
-    assert [t for t in range(300) if mavlink.MAVLINK_MSG_ID_SYS_STATUS in s.due(t)] == [13, 113, 213]
+    assert [t for t in range(300) if mavlink.MAVLINK_MSG_ID_SYS_STATUS in s.due(t)] == [53, 153, 253]
+
+
+def test_a_fleets_python_built_messages_are_spread_over_the_ticks():
+    """The messages with a slot of their own (Python builds them: a trip out of the compiled loop) of a fleet of
+    sixteen: at most three on one tick and sixteen in any 20 ticks in a row (sent at each vehicle's fast phase + slot,
+    as before spread_of, sixteen fell on one tick and 112 within 20); the other messages stay where they were, and
+    vehicle 1 streams as before."""
+    slotted = {mid for mid, slot in SLOTS.items() if slot}
+    fleet = [MessageStreams(0.001, 50.0, phase_of(i), spread_of(i)) for i in range(1, 17)]
+    per_tick = [sum(len(slotted.intersection(s.due(t))) for s in fleet) for t in range(2000)]
+    assert sum(per_tick) == 16 * sum(2000 // fleet[0].defaults[mid] for mid in slotted)  # every one, at its rate
+    assert max(per_tick) <= 3
+    assert max(sum(per_tick[t : t + 20]) for t in range(1980)) <= 16
+    for i, s in enumerate(fleet, start=1):
+        alone = MessageStreams(0.001, 50.0, phase_of(i))
+        assert all(s.phases[mid] == alone.phases[mid] for mid in s.phases if mid not in slotted)
+        assert all(s.phases[mid] % 2 == 1 for mid in slotted)  # odd: off the vehicle's own fast ticks
+    assert fleet[0].phases == MessageStreams(0.001, 50.0).phases
 
 
 # ---- telemetry messages --------------------------------------------------------------------------
