@@ -15,24 +15,9 @@ import pytest
 import zenoh
 
 from tests.mavclient import quadsitl_up
+from tests.test_fly import children_of
 
 THRESHOLD = 3072  # [bytes] Zenoh's transport/shared_memory/transport_optimization/message_size_threshold (1.x)
-
-
-def processes_of(session_id: int) -> dict[int, str]:
-    """{pid: command line} of every process in the session ``session_id`` (a ``quadsitl up`` and its children)."""
-    out = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            stat = Path(f"/proc/{entry}/stat").read_text()
-            cmdline = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except OSError:  # ended meanwhile
-            continue
-        if int(stat.rpartition(")")[2].split()[3]) == session_id:  # field 6: the session id
-            out[int(entry)] = cmdline
-    return out
 
 
 def locked_kb(pid: int) -> int:
@@ -70,7 +55,10 @@ def test_large_telemetry_batches_reach_a_shared_memory_subscriber_and_no_process
                     large += sizes.get(timeout=1) > THRESHOLD
                 except queue.Empty:
                     assert v.proc.poll() is None, "quadsitl up ended"
-            procs = processes_of(v.proc.pid)
+            procs = {
+                pid: Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+                for pid in (v.proc.pid, *children_of(v.proc.pid))
+            }  # quadsitl up and its processes
             assert any(" -m autopilot " in cmd for cmd in procs.values()), procs
             assert any(" -m sitl " in cmd for cmd in procs.values()), procs
             for pid, cmd in procs.items():
