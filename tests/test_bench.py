@@ -188,13 +188,8 @@ def test_a_sections_steal_time_is_the_hosts_share_of_the_cpu_time_since_it_began
 
 @pytest.mark.skipif(os.geteuid() != 0 or not Path("/dev/cpu_dma_latency").exists(), reason="needs root and PM QoS")
 def test_the_benchs_fifo_fleets_hold_the_cores_awake_while_they_run():
-    import struct
-
     from benchmarks.bench import cores_awake
-
-    def request() -> int:
-        with open("/dev/cpu_dma_latency", "rb") as f:
-            return struct.unpack("=i", f.read(4))[0]
+    from tests.test_fleet_plant import cpu_latency_request as request
 
     def held() -> bool:  # this process has the request open
         return any(os.readlink(f"/proc/self/fd/{fd}") == "/dev/cpu_dma_latency" for fd in os.listdir("/proc/self/fd")

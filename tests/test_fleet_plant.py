@@ -281,7 +281,7 @@ def test_the_real_time_plant_asks_for_its_timers_on_time(mode):
     assert slack == (TIMER_SLACK_NS if mode == "realtime" else 50_000), (mode, slack)
 
 
-def _cpu_latency_request() -> int:
+def cpu_latency_request() -> int:
     """The kernel's current PM QoS target for every core's wake-up latency [µs] (2,000,000,000: none)."""
     import struct
 
@@ -303,7 +303,7 @@ def test_cores_awake_holds_every_core_out_of_idle_states_while_the_plant_runs():
         try:
             ap.recvfrom(65535)  # the clock has started
             held = [os.readlink(f"/proc/{plant.pid}/fd/{fd}") for fd in os.listdir(f"/proc/{plant.pid}/fd")]
-            during = _cpu_latency_request()
+            during = cpu_latency_request()
         finally:
             plant.kill()  # however it ends, the kernel drops its request
             plant.wait()
