@@ -157,7 +157,9 @@ def fly_fleet(args: argparse.Namespace) -> int:
             if info is not None:
                 info.tick(time.monotonic())
             time.sleep(0.05)
-        for name in list(children.procs):
+        # the plant first, as a lone vehicle's `fly` does: autopilots stopped before it left it waiting, and after
+        # 0.5 s it called the first of them lost
+        for name in ("plant", *children.procs):
             if name != "dashboard":
                 children.stop_one(name)
         write_fleet_report(out, fleet, plan, args)

@@ -213,7 +213,15 @@ class PlantLink:
             self.timeout = timeout
         try:
             return self.wait()
-        except (BlockingIOError, InterruptedError, ConnectionRefusedError):
+        except ConnectionRefusedError:
+            # The ICMP error of a send to a port nobody listens on (the autopilot gone, or not started yet) ends the
+            # receive after it at once: wait on for an answer. Without this, a free-wheeling plant sent its tick again
+            # (to every vehicle of a fleet) about 28,000 times a second on a core of its own, not every
+            # FREEWHEEL_PERIOD.
+            with contextlib.suppress(BlockingIOError, InterruptedError, ConnectionRefusedError):
+                return self.wait()
+            return -1
+        except (BlockingIOError, InterruptedError):
             return -1
 
     def decode(self, nbytes: int) -> int:

@@ -266,9 +266,15 @@ def test_a_blocking_loop_comes_back_to_poll_once_the_plant_answers_fast(vehicle)
     assert ap.plant_wait.polling()
 
 
-def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle):
+def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle, monkeypatch):
     # A paced plant (real time, --speed 1) must not find its autopilot polling through each period with patience
     # (after a real-time plant's catch-up burst made it hot); an unpaced one keeps the patience (lockstep's speed).
+    import autopilot.process as process
+
+    # serve_plant(0.0) hands back after every tick, and yields the core each time: on a machine whose cores are
+    # taken (the suite's other workers; three busy loops do it) each yield gave away a slice, and the "fast" ticks
+    # below never reached PACED_BELOW × real time. The yield is another test's subject; here only the pace counts.
+    monkeypatch.setattr(process.os, "sched_yield", lambda: None)
     ap, plant, autopilot = vehicle
     locked_without_streams(ap, plant, autopilot)
     set_receive_timeout(ap.plant_sock, 0.5)
@@ -284,7 +290,7 @@ def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle):
         time.sleep(0.005)
     assert wait.patience == wait.budget
     began = time.monotonic()
-    while time.monotonic() - began < 3 * PACE_WINDOW and wait.patience != PATIENCE:  # as fast as it answers
+    while time.monotonic() - began < 10 * PACE_WINDOW and wait.patience != PATIENCE:  # as fast as it answers
         for _ in range(20):
             plant.sendto(state_frame(k), autopilot)
             k += 1
