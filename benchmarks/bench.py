@@ -580,12 +580,6 @@ OPTIONAL: dict[str, tuple[Callable[[], str | None], tuple[str, ...]]] = {
 # ---- 7. fleets ---------------------------------------------------------------------------------------------
 
 
-def _cpu_seconds(pid: int) -> float:
-    """User + system CPU time [s] a live process has used (``/proc/PID/stat``)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def _rss_mb(pid: int) -> float:
     """Resident memory [MB] of a live process (``/proc/PID/status``)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -700,7 +694,7 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
         if browser is not None:
             stack.enter_context(dashboard_page(browser, [endpoint for _, _, endpoint, _ in aps]))
         stats = workdir / f"fleet-{n}-{mode}-{time.monotonic_ns()}.json"
-        ap_cpu0 = [_cpu_seconds(pid) for pid in ap_pids]
+        ap_cpu0 = [machine.process_cpu_seconds(pid) for pid in ap_pids]
         argv = [sys.executable, "-m", "sitl", "--preset", "paper", "--ticks", str(ticks), "--stats", str(stats),
                 "--mode", mode]  # fmt: skip
         for plant_port, _, _, _ in aps:
@@ -718,7 +712,7 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
             if plant.returncode != 0:
                 raise RuntimeError(f"the fleet's plant exited with status {plant.returncode}")
             rss.append(usage.ru_maxrss / 1024.0)
-            ap_cpu = sum(_cpu_seconds(pid) - c0 for pid, c0 in zip(ap_pids, ap_cpu0, strict=True))
+            ap_cpu = sum(machine.process_cpu_seconds(pid) - c0 for pid, c0 in zip(ap_pids, ap_cpu0, strict=True))
         finally:
             if plant.poll() is None:
                 plant.kill()

@@ -27,6 +27,7 @@ import urllib.request
 
 import numpy as np
 
+from benchmarks.machine import process_cpu_seconds
 from quadsitl import telemetry
 
 T = 0.001  # [s] the control period
@@ -95,12 +96,6 @@ def publish(endpoint: str, n: int, seconds: float, batch_ms: float) -> None:
     session.close()
 
 
-def cpu_seconds(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as f:
-        fields = f.read().rpartition(")")[2].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def samples(url: str) -> int:
     """Zenoh samples the dashboard has taken in, every vehicle's together."""
     with urllib.request.urlopen(url + "api/vehicles", timeout=5) as r:
@@ -132,9 +127,9 @@ def measure(n: int, seconds: float, batch_ms: float) -> dict:
             page.evaluate(
                 "() => { quadsitl.fleetDrawMs = []; quadsitl.bytesIn = 0; quadsitl.updatesAt = quadsitl.updates; }"
             )
-            c0, p0, w0, s0 = cpu_seconds(dash.pid), cpu_seconds(pub.pid), time.monotonic(), samples(url)
+            c0, p0, w0, s0 = process_cpu_seconds(dash.pid), process_cpu_seconds(pub.pid), time.monotonic(), samples(url)
             time.sleep(seconds)
-            c1, p1, w1, s1 = cpu_seconds(dash.pid), cpu_seconds(pub.pid), time.monotonic(), samples(url)
+            c1, p1, w1, s1 = process_cpu_seconds(dash.pid), process_cpu_seconds(pub.pid), time.monotonic(), samples(url)
             got = page.evaluate(
                 "() => ({ms: quadsitl.fleetDrawMs, bytes: quadsitl.bytesIn, markers: "
                 "quadsitl.fleetMarkers.length, updates: quadsitl.updates - quadsitl.updatesAt})"

@@ -61,6 +61,12 @@ def cpu_times() -> tuple[int, int]:
     return ticks[7], sum(ticks)
 
 
+def process_cpu_seconds(pid: int) -> float:
+    """User + system CPU time [s] that the live process ``pid`` has used (``/proc/PID/stat``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def steal_ratio(before: tuple[int, int], after: tuple[int, int]) -> float:
     """The share of CPU time the hypervisor stole between two :func:`cpu_times` readings (0 on bare metal)."""
     total = after[1] - before[1]

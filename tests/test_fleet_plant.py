@@ -25,6 +25,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.machine import process_cpu_seconds
 from quadsitl import codec, wire
 from quadsitl.config import load_preset
 from quadsitl.process_util import PLANT_DIVERGED
@@ -125,12 +126,6 @@ def test_lockstep_no_vehicle_runs_ahead_and_a_silent_one_holds_the_fleet():
         assert plant.poll() is None
 
 
-def cpu_seconds(pid: int) -> float:
-    """The user + system CPU time process ``pid`` has used [s] (/proc/PID/stat)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 @pytest.mark.timeout(60)
 def test_an_autopilot_gone_is_waited_for_at_the_free_wheel_pace_not_flooded():
     """An autopilot whose port is closed answers each of the plant's sends with an ICMP error, which ends the plant's
@@ -143,11 +138,11 @@ def test_an_autopilot_gone_is_waited_for_at_the_free_wheel_pace_not_flooded():
         t1 = [ap.next_tick(5, since=1)[0] for ap in aps]
         aps[1].close()  # vehicle 2's autopilot goes: its port refuses
         aps[0].answer(t1[0], (HOVER,) * 4)
-        cpu, end, resent = cpu_seconds(plant.pid), time.monotonic() + 1.0, []
+        cpu, end, resent = process_cpu_seconds(plant.pid), time.monotonic() + 1.0, []
         while time.monotonic() < end:
             got = aps[0].receive(max(0.01, end - time.monotonic()))
             resent += [m.time_usec for m in got if hasattr(m, "time_usec")]
-        used = cpu_seconds(plant.pid) - cpu
+        used = process_cpu_seconds(plant.pid) - cpu
         # the fleet holds at tick 1 (vehicle 1 hears it again, to know its plant is there) about every 50 ms
         assert set(resent) == {t1[0]} and 5 <= len(resent) <= 25, (len(resent), set(resent))
         assert used < 0.3, used  # was a whole core
