@@ -21,6 +21,11 @@ from benchmarks.browser import chromium
 from groundstation.launcher import free_port
 from tests.mavclient import Client, M, quadsitl_up
 
+# How long a wait on the page allows for the page to catch up [ms]. The dashboard server runs at idle priority
+# (SCHED_IDLE): while the suite's other workers keep both cores busy it gets almost no CPU. The map test's burst
+# of 8 s of telemetry costs it 0.07 s of CPU, and once in CI that took more than 10 s to get.
+BEHIND_MS = 30_000
+
 
 @pytest.fixture(scope="module")
 def browser():
@@ -175,7 +180,7 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
             c.close()
 
 
-@pytest.mark.timeout(60)
+@pytest.mark.timeout(120)
 def test_api_vehicles_and_any_number_of_tabs(browser):
     port = free_port(socket.SOCK_STREAM)
     url = f"http://127.0.0.1:{port}/"
@@ -186,7 +191,7 @@ def test_api_vehicles_and_any_number_of_tabs(browser):
             for p in pages:
                 p.goto(url)
             for p in pages:
-                p.wait_for_function("() => quadsitl.redraws > 1 && quadsitl.data.t.length > 10", timeout=10000)
+                p.wait_for_function("() => quadsitl.redraws > 1 && quadsitl.data.t.length > 10", timeout=BEHIND_MS)
             # The real-time factor is averaged over 2 s of wall time: at first that holds the start (the plant's
             # clock waits for the autopilot), and on a loaded machine a slow second; `up` paces at 1× real time.
             end = time.monotonic() + 20
@@ -209,7 +214,7 @@ def test_api_vehicles_and_any_number_of_tabs(browser):
             last = [p.evaluate("() => quadsitl.lastT") for p in pages]
             assert all(t is not None and t > 0 for t in last)
             for p in pages:
-                p.wait_for_function(f"() => quadsitl.lastT >= {max(last)}", timeout=10000)
+                p.wait_for_function(f"() => quadsitl.lastT >= {max(last)}", timeout=BEHIND_MS)
         finally:
             for p in pages:
                 p.close()
@@ -286,7 +291,7 @@ def map_state(page) -> dict:
     }""")
 
 
-@pytest.mark.timeout(90)
+@pytest.mark.timeout(120)
 def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
     """The x–y map, against made-up telemetry of a circle: the path of the window drawn, home marked at the
     origin, the setpoint where x_ref, y_ref say, and no setpoint once they are NaN; the new mode names."""
@@ -314,7 +319,7 @@ def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
         # (the map shows the rows of its last redraw: wait until that one has the newest row)
         page.wait_for_function("() => { const m = document.getElementById('plot-map').dataset; "
                                "return Number(m.points) >= 100 && Number(m.tLast) >= 7.9 "
-                               "&& Number(m.tLast) === quadsitl.lastT; }", timeout=10000)  # fmt: skip
+                               "&& Number(m.tLast) === quadsitl.lastT; }", timeout=BEHIND_MS)  # fmt: skip
         m = map_state(page)
         x_ref, y_ref = circle_point(m["t"])[2:]
         assert m["setpoint"] == f"{x_ref:.3f},{y_ref:.3f}"  # the newest row's reference
@@ -332,7 +337,7 @@ def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
             pub.put(range(first, first + 200), lambda t: (*circle_point(t)[:2], nan, nan), mode=4)
             time.sleep(0.01)
         no_setpoint = "document.getElementById('plot-map').dataset.setpoint === ''"
-        page.wait_for_function(f"() => quadsitl.lastT >= 8.9 && {no_setpoint}", timeout=10000)
+        page.wait_for_function(f"() => quadsitl.lastT >= 8.9 && {no_setpoint}", timeout=BEHIND_MS)
         m = map_state(page)
         assert m["setpointColour"] is None and m["home"][:3] == pytest.approx([44, 160, 44], abs=3)
         assert m["mode"] == "rtl"
@@ -367,7 +372,7 @@ def test_the_map_shows_the_mission_and_its_current_item_as_it_flies(browser, art
             page = browser.new_page(viewport={"width": 1400, "height": 1100})
             page.goto(url)
             plan = "document.getElementById('plot-map').dataset"
-            page.wait_for_function(f"() => Number({plan}.planItems) === 3 && {plan}.current === '0'", timeout=15000)
+            page.wait_for_function(f"() => Number({plan}.planItems) === 3 && {plan}.current === '0'", timeout=BEHIND_MS)
             mission = page.evaluate("() => quadsitl.mission")
             assert [(i["x"], i["y"]) for i in mission["items"]] == [pytest.approx(p, abs=0.02) for p in points]
             assert [i["altitude"] for i in mission["items"]] == [pytest.approx(4.0)] * 3
@@ -376,7 +381,7 @@ def test_the_map_shows_the_mission_and_its_current_item_as_it_flies(browser, art
 
             assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
             assert c.command(M.MAV_CMD_MISSION_START, 0, 0).result == M.MAV_RESULT_ACCEPTED
-            page.wait_for_function(f"() => {text}.endsWith('active')", timeout=10000)
+            page.wait_for_function(f"() => {text}.endsWith('active')", timeout=BEHIND_MS)
             # the first waypoint reached (takeoff to 4 m, then 6 m north): the ring moves on to item 1
             page.wait_for_function(f"() => {plan}.current === '1' && {text} === 'item 1 of 3, active'", timeout=40000)
             ring = page.evaluate("""() => {
