@@ -52,7 +52,7 @@ from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, load_preset
 from quadsitl.frames import PX4_HOME, euler_to_quaternion, geodetic_to_ned
-from quadsitl.process_util import parse_address, start_process, stop_status
+from quadsitl.process_util import parse_address, readable_of, start_process, stop_status
 from quadsitl.state import Reference
 
 mavlink = wire.mavlink
@@ -66,13 +66,19 @@ MISSION_STATE_COMPLETE = 5
 UPLOAD_RETRY = 1.0  # [s] wall: MISSION_COUNT again when the vehicle has not asked for an item
 UPLOAD_TIMEOUT = 10.0  # [s] wall: give the upload up
 COMMAND_RETRY = 0.5  # [s] wall: a command is sent again until acknowledged (MAVSDK waits 0.5 s too)
-LOOP = 0.002  # [s] wall: how often the ground station reads its socket and Zenoh channels, and may send
-# While the reference holds still (the paper's step, a hover), nothing it sends changes: it reads and sends every
-# STEADY_SIM of the vehicle's time instead, at most every LOOP_STEADY of wall time. Each wake-up takes one of the two
-# cores from the lockstep pair for a moment: 500 a second cost `fly` 7-12 % of its ticks (docs/performance.md). The
-# keep-alive then goes every STEADY_SIM (not KEEPALIVE_MS), well within the vehicle's --offboard-lockstep lead (0.5 s)
-# and setpoint timeout (1 s); the reference is looked at STEADY_LOOKAHEAD ahead, so a step is sent on LOOP's time.
+LOOP = 0.002  # [s] wall: how often at most the ground station reads its socket and Zenoh channels, and may send
+# Each wake-up takes one of the two cores from the lockstep processes for a moment: 500 a second cost `fly` 7-12 % of
+# its ticks (docs/performance.md). While the reference moves, a read finds something new only once the vehicle's
+# time seen has moved, by the 50 Hz ATTITUDE (or a Zenoh batch): the ground station reads when a datagram comes, at
+# most every LOOP and at least every WAIT_MOVING of wall time (a vehicle that runs below 10x real time wakes it less
+# often than LOOP's 500 times a second, and a changed setpoint goes as soon as the vehicle's time it is for is seen;
+# WAIT_MOVING is longer than ATTITUDE's period down to 0.4x real time, and short against KEEPALIVE_WALL).
+# While the reference holds still (the paper's step, a hover), nothing it sends changes: it reads every STEADY_SIM of
+# the vehicle's time instead, between LOOP and LOOP_STEADY of wall time. The keep-alive then goes every STEADY_SIM
+# (not KEEPALIVE_MS), well within the vehicle's --offboard-lockstep lead (0.5 s) and setpoint timeout (1 s); the
+# reference is looked at STEADY_LOOKAHEAD ahead, so a step is read for as a moving reference is.
 LOOP_STEADY, STEADY_SIM, STEADY_LOOKAHEAD = 0.010, 0.15, 1.0  # [s] wall, simulated, simulated
+WAIT_MOVING = 0.050  # [s] wall
 # Setpoints: a changed one at most every SETPOINT_MS of the vehicle's time (50 Hz), the same one again every
 # KEEPALIVE_MS (10 Hz; the vehicle's setpoint timeout is 1 s, its --offboard-lockstep lead 0.5 s), and at least
 # every KEEPALIVE_WALL of wall time (a vehicle whose clock does not move still hears the stream). A constant
@@ -159,8 +165,9 @@ class GroundStation:
         self.acks: dict[int, int] = {}
         self.flight_rate: tuple[float, float] | None = None
         self.progress: FlightProgress | None = None  # from the switch to offboard until landing
-        self.next_poll = 0.0  # monotonic time of the next socket read (poll)
-        self.interval = LOOP  # [s] wall: from this read to the next
+        self.last_read = 0.0  # monotonic time of the last socket read (poll)
+        self.interval = LOOP  # [s] wall: from the last read to the next
+        self.wait_data = 0.0  # [s] wall: > interval: the next read also waits for a datagram, up to this long
         self._pace_mark = (0.0, 0)  # (monotonic time, vehicle tick) the vehicle's pace is measured from
         self.pace = 0.0  # simulated seconds per wall second, over the last PACE_WINDOW (0: not known)
         # the mission: items requested (seq, legacy), the upload's MISSION_ACK, MISSION_CURRENT, reached items
@@ -181,11 +188,14 @@ class GroundStation:
             self.sock.send(buf)
 
     def poll(self) -> None:
-        """Read everything waiting, at most every ``interval`` seconds (LOOP, or longer while the reference holds
-        still: :func:`read_interval`): between reads the datagrams wait in the socket (a ground station that
-        woke for each one would take a core from the lockstep pair each time)."""
-        time.sleep(max(0.0, self.next_poll - time.monotonic()))
-        self.next_poll = time.monotonic() + self.interval
+        """Read everything waiting, ``interval`` seconds after the last read (LOOP, or longer while the reference
+        holds still: :func:`read_interval`), and when ``wait_data`` is longer, not before a datagram comes either,
+        until ``wait_data`` after the last read: between reads the datagrams wait in the socket (a ground station
+        that woke for each one at 25x real time would take a core from the lockstep processes each time)."""
+        if self.wait_data > self.interval:
+            readable_of([self.sock], self.last_read + self.wait_data - time.monotonic())
+        time.sleep(max(0.0, self.last_read + self.interval - time.monotonic()))
+        self.last_read = time.monotonic()
         self.sock.settimeout(0.0)
         for _ in range(1000):
             try:
@@ -313,13 +323,15 @@ class GroundStation:
                 self.send(hb(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
             # By the 50 Hz ATTITUDE as well as the Zenoh batches (up to 512 ticks each): the end is seen on time.
             flight_t = self.logger.flight_time(self.vehicle_tick())
-            self.interval = LOOP
+            self.interval, self.wait_data = LOOP, 0.0
             if phase in ("prearm", "arming", "offboard", "flying"):
                 t = self.trajectory_time()
                 sp, since = self.trajectory(t), self.stamp_ms() - last_sp_ms
-                ending = t + STEADY_LOOKAHEAD >= self.duration  # the landing is a change too: read on LOOP's time
+                ending = t + STEADY_LOOKAHEAD >= self.duration  # the landing is a change too: read as for a move
                 if phase == "flying" and not ending and holds_still(self.trajectory, t, last_sp):
                     self.interval = read_interval(self.measure_pace(now))
+                elif phase == "flying":
+                    self.wait_data = WAIT_MOVING
                 if (
                     (since >= SETPOINT_MS and sp != last_sp)
                     or since >= KEEPALIVE_MS

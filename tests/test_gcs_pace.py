@@ -1,7 +1,11 @@
-"""How often the ground station of `quadsitl fly` reads its link: every LOOP while the reference moves or a step is
-near, every STEADY_SIM of the vehicle's time (within [LOOP, LOOP_STEADY] of wall time) while it holds still."""
+"""How often the ground station of `quadsitl fly` reads its link: when a datagram comes (at most every LOOP, at least
+every WAIT_MOVING) while the reference moves or a step is near, every STEADY_SIM of the vehicle's time (within [LOOP,
+LOOP_STEADY] of wall time) while it holds still."""
 
 from __future__ import annotations
+
+import threading
+import time
 
 import pytest
 
@@ -52,3 +56,62 @@ def test_the_pace_is_measured_over_a_window_of_batches():
     assert g.measure_pace(100.07) == pytest.approx(25.0)  # kept until the next window ends
     g.sim_ms = 4000  # the ATTITUDE stream (MAVLink) ahead of the Zenoh batches
     assert g.measure_pace(100.16) == pytest.approx(2.5 / 0.1)
+
+
+class _Station:
+    """A GroundStation's read loop alone (poll, _handle): a real UDP socket connected to a real sender, no Zenoh."""
+
+    def __init__(self):
+        import io
+        import socket
+
+        from quadsitl import wire
+
+        self.vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.vehicle.bind(("127.0.0.1", 0))
+        g = gcs.GroundStation.__new__(gcs.GroundStation)
+        g.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        g.sock.bind(("127.0.0.1", 0))
+        g.sock.connect(self.vehicle.getsockname())
+        self.vehicle.connect(g.sock.getsockname())
+        g.mav, g.tlog, g.sim_ms = wire.link(wire.GCS_SYSTEM_ID, wire.GCS_COMPONENT_ID), io.BytesIO(), 0
+        g.last_read, g.interval, g.wait_data = time.monotonic(), LOOP, 0.0
+        self.g, self._mav = g, wire.link(1, wire.AUTOPILOT_COMPONENT_ID)
+
+    def attitude(self, ms: int) -> None:
+        self.vehicle.send(self._mav.attitude_encode(ms, 0, 0, 0, 0, 0, 0).pack(self._mav))
+
+    def poll(self) -> float:
+        """Wall time [s] the read took, from its start."""
+        t0 = time.monotonic()
+        self.g.poll()
+        return time.monotonic() - t0
+
+    def close(self) -> None:
+        self.g.sock.close()
+        self.vehicle.close()
+
+
+def test_a_moving_reference_is_read_when_a_datagram_comes_not_at_a_fixed_pace():
+    s = _Station()
+    try:
+        # Reading for a moving reference: a datagram coming 0.2 s on ends the wait then, long before wait_data.
+        s.g.wait_data = 5.0
+        threading.Timer(0.2, s.attitude, (1234,)).start()
+        took = s.poll()
+        assert 0.19 < took < 3.0 and s.g.sim_ms == 1234
+        # Nothing comes: the read is wait_data after the last one (the keep-alive and the progress go on).
+        s.g.wait_data = 0.15
+        assert s.poll() > 0.14 and s.g.sim_ms == 1234
+        # A datagram already waiting: still not before `interval` after the last read (LOOP's floor: a vehicle at
+        # 25x real time sends its ATTITUDE every 0.8 ms, each read takes them all).
+        s.g.interval, s.g.wait_data = 0.1, 5.0
+        s.attitude(2000)
+        s.g.last_read = time.monotonic()
+        assert 0.09 < s.poll() < 3.0 and s.g.sim_ms == 2000
+        # Holding still (wait_data 0): every `interval`, a datagram or not.
+        s.g.interval, s.g.wait_data = 0.1, 0.0
+        threading.Timer(0.01, s.attitude, (3000,)).start()
+        assert s.poll() > 0.09 and s.g.sim_ms == 3000
+    finally:
+        s.close()
