@@ -33,6 +33,13 @@ STATUS_FIELDS = ("tick", "armed", "mode", "failsafe", "offboard_tick")
 CHANNEL = 1 << 20  # samples per stream that may wait for drain()
 
 
+def joined_records(chunks: list[np.ndarray], dtype: np.dtype) -> np.ndarray:
+    """The records of ``chunks`` (contiguous arrays of ``dtype``, as received) in one array. Their bytes joined:
+    ``np.concatenate`` promotes the structured dtype of each pair of chunks in Python (numpy 2), 60 ms for a
+    flight's 2,000 telemetry samples against 4 ms."""
+    return np.frombuffer(b"".join(chunks), dtype=dtype)
+
+
 class TelemetryLogger:
     """Live: the status stream (armed, offboard start, the newest tick) is followed as it arrives, a sample
     (up to hundreds of ticks) at a time with numpy. The state, setpoint and actuator samples are only kept,
@@ -113,7 +120,7 @@ class TelemetryLogger:
         flown = np.unique(np.concatenate(self._flown)) if self._flown else np.zeros(0, dtype=np.uint64)
         latest = {}
         for stream, chunks in self._raw.items():
-            recs = np.concatenate(chunks) if chunks else np.zeros(0, dtype=DTYPES[stream])
+            recs = joined_records(chunks, DTYPES[stream])
             ticks = recs["tick"][::-1]  # the newest first, so that unique keeps it
             _, first = np.unique(ticks, return_index=True)
             latest[stream] = recs[::-1][first]
@@ -135,7 +142,7 @@ class TelemetryLogger:
                    r["yaw_ref"], r["x_ref"], r["y_ref"], a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"],
                    a["f4"]]  # fmt: skip
         if self._truth:  # sensor mode: the truth's columns (telemetry_csv.TRUTH_COLUMNS), NaN for a tick it missed
-            recs = np.concatenate(self._truth)[::-1]
+            recs = joined_records(self._truth, DTYPES[telemetry.TRUTH])[::-1]
             _, first = np.unique(recs["tick"], return_index=True)
             truth = recs[first]
             at = np.minimum(np.searchsorted(truth["tick"], flown), len(truth) - 1)
