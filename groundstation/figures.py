@@ -119,7 +119,7 @@ def write_formation_figure(out: Path, plan, t: np.ndarray, track: np.ndarray, se
     starts marked."""
     fig = plt.figure(figsize=(12, 6.5))
     ax = fig.add_subplot(1, 2, 1)
-    planned = np.stack([plan.at(float(tk))[0] for tk in t[:: max(1, len(t) // 600)]], axis=1)
+    planned = plan.along(t[:: max(1, len(t) // 600)])[0]
     for i in range(len(track)):
         color = f"C{i % 10}"
         ax.plot(planned[i, :, 1], planned[i, :, 0], color=color, lw=0.9, ls=":")

@@ -44,12 +44,10 @@ MIN_PHASE = 4.0  # [s] the shortest phase
 PEAK = 1.875  # the minimum-jerk profile's peak rate, in units of (distance / duration)
 
 
-def min_jerk(tau: float) -> tuple[float, float]:
-    """The minimum-jerk profile s(τ) = 10τ³ − 15τ⁴ + 6τ⁵ on τ ∈ [0, 1] (clamped outside) and ds/dτ."""
-    if tau <= 0.0:
-        return 0.0, 0.0
-    if tau >= 1.0:
-        return 1.0, 0.0
+def min_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The minimum-jerk profile s(τ) = 10τ³ − 15τ⁴ + 6τ⁵ on τ ∈ [0, 1] (clamped outside: 0 and 1, at rest) and
+    ds/dτ, for each τ of an array."""
+    tau = np.clip(tau, 0.0, 1.0)
     return tau**3 * (10.0 + tau * (-15.0 + 6.0 * tau)), 30.0 * tau**2 * (1.0 - tau) ** 2
 
 
@@ -143,33 +141,41 @@ class Plan:
                 return name
         return "landing"
 
-    def heading(self, t: float) -> tuple[float, float]:
-        """The formation's heading ψ [rad, from north, clockwise] and its rate [rad/s] at t."""
+    def heading(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The formation's heading ψ [rad, from north, clockwise] and its rate [rad/s] at each t [s]."""
         t0, t1 = self.times[3], self.times[4]
         s, ds = min_jerk((t - t0) / (t1 - t0))
         return 0.5 * math.pi * s, 0.5 * math.pi * ds / (t1 - t0)
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray, float, float]:
         """Every vehicle's planned place at t [s]: (n, 3) north, east, altitude [m] in the common frame, (n, 3)
-        their rates [m/s], the heading [rad] and its rate."""
+        their rates [m/s], the heading [rad] and its rate (:meth:`along` at one time)."""
+        pos, vel, psi, psi_dot = self.along(np.array([t], dtype=float))
+        return pos[:, 0], vel[:, 0], float(psi[0]), float(psi_dot[0])
+
+    def along(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every vehicle's planned place at each of the m times ``t`` [s]: (n, m, 3) north, east, altitude [m] in
+        the common frame, (n, m, 3) their rates [m/s], and (m,) the heading [rad] and its rate."""
         _zero, t_climb, t_form, t_move, _t_turn, _end = self.times
+        t = np.asarray(t, dtype=float)
         alt_s, alt_ds = min_jerk((t - 0.0) / t_climb)
         form_s, form_ds = min_jerk((t - t_climb) / (t_form - t_climb))
         move_s, move_ds = min_jerk((t - t_form) / (t_move - t_form))
         psi, psi_dot = self.heading(t)
-        c, s = math.cos(psi), math.sin(psi)
-        centre = np.array([self.centre[0] + self.distance * move_s, self.centre[1]])
-        centre_rate = np.array([self.distance * move_ds / (t_move - t_form), 0.0])
-        fwd, right = self.slot[:, 0], self.slot[:, 1]
-        rotated = np.column_stack([c * fwd - s * right, s * fwd + c * right])
-        rotated_rate = psi_dot * np.column_stack([-rotated[:, 1], rotated[:, 0]])
+        c, s = np.cos(psi), np.sin(psi)  # (m,), and below a vehicle's (n, 1) against them
+        centre = np.stack([self.centre[0] + self.distance * move_s, np.full_like(t, self.centre[1])], axis=-1)
+        centre_rate = np.stack([self.distance * move_ds / (t_move - t_form), np.zeros_like(t)], axis=-1)
+        fwd, right = self.slot[:, :1], self.slot[:, 1:]
+        rotated = np.stack([c * fwd - s * right, s * fwd + c * right], axis=-1)  # (n, m, 2)
+        rotated_rate = psi_dot[:, None] * np.stack([-rotated[..., 1], rotated[..., 0]], axis=-1)
         goal = centre + rotated
         goal_rate = centre_rate + rotated_rate
-        place = self.start + form_s * (goal - self.start)  # before and while forming up, `goal` stands still
-        rate = form_ds / (t_form - t_climb) * (goal - self.start) + form_s * goal_rate
-        pos = np.column_stack([place, np.full(self.n, self.altitude * alt_s)])
-        vel = np.column_stack([rate, np.full(self.n, self.altitude * alt_ds / t_climb)])
-        return pos, vel, psi, psi_dot
+        start = self.start[:, None, :]
+        place = start + form_s[:, None] * (goal - start)  # before and while forming up, `goal` stands still
+        rate = (form_ds / (t_form - t_climb))[:, None] * (goal - start) + form_s[:, None] * goal_rate
+        up = np.broadcast_to(self.altitude * alt_s, place.shape[:2])[..., None]
+        climb = np.broadcast_to(self.altitude * alt_ds / t_climb, place.shape[:2])[..., None]
+        return np.concatenate([place, up], axis=-1), np.concatenate([rate, climb], axis=-1), psi, psi_dot
 
 
 def plan(kind: str, starts: Sequence[tuple[float, float]], spacing: float, altitude: float,
@@ -240,7 +246,7 @@ def common_track(p: Plan, runs: Sequence[Mapping[str, np.ndarray]]) -> tuple[np.
 def fleet_metrics(p: Plan, t: np.ndarray, track: np.ndarray) -> dict:
     """Formation error, tracking error (per phase: RMS and max over vehicles and time [m]) and the minimum
     separation (see the module's docstring) of the flown ``track`` (:func:`common_track`)."""
-    planned = np.stack([p.at(float(tk))[0] for tk in t], axis=1)  # (n, len(t), 3)
+    planned = p.along(t)[0]  # (n, len(t), 3)
     shape = (track - track.mean(axis=0)) - (planned - planned.mean(axis=0))
     formation = np.linalg.norm(shape, axis=2)  # (n, len(t))
     tracking = np.linalg.norm(track - planned, axis=2)

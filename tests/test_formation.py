@@ -49,8 +49,12 @@ def test_the_assignment_is_the_cheapest_one():
 def test_the_plan_flies_each_phase_and_keeps_vehicles_apart(kind, n):
     p = formation.plan(kind, starts(n), 3.0, 5.0, 10.0)
     t = np.arange(0.0, p.duration + 1e-9, 0.01)
-    pos = np.stack([p.at(float(tk))[0] for tk in t], axis=1)  # (n, len(t), 3)
-    vel = np.stack([p.at(float(tk))[1] for tk in t], axis=1)
+    pos, vel, psi, psi_dot = p.along(t)  # (n, len(t), 3) each, and the heading: the plan at every t at once ...
+    for k in range(0, len(t), 97):  # ... is the plan at each t alone
+        one = p.at(float(t[k]))
+        close = dict(rtol=1e-12, atol=1e-12)  # (numpy's sin and cos may take another path for one element)
+        assert np.allclose(one[0], pos[:, k], **close) and np.allclose(one[1], vel[:, k], **close)
+        assert np.allclose((one[2], one[3]), (psi[k], psi_dot[k]), **close)
     t_climb, t_form, t_move, _t_turn, end = p.times[1:]
     # take off where each stands; formed up about the grid's centroid, facing north; moved north; turned 90°
     assert np.allclose(p.at(0.0)[0], np.column_stack([p.start, np.zeros(n)]))
