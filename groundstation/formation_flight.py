@@ -158,10 +158,9 @@ def fly_fleet(args: argparse.Namespace) -> int:
                 info.tick(time.monotonic())
             time.sleep(0.05)
         # the plant first, as a lone vehicle's `fly` does: autopilots stopped before it left it waiting, and after
-        # 0.5 s it called the first of them lost
-        for name in ("plant", *children.procs):
-            if name != "dashboard":
-                children.stop_one(name)
+        # 0.5 s it called the first of them lost; then the others together
+        children.stop_one("plant")
+        children.stop(names=[name for name in children.procs if name not in ("plant", "dashboard")])
         write_fleet_report(out, fleet, plan, args)
         if web_port is not None:
             keep_dashboard(children)

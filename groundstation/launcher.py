@@ -27,7 +27,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Collection
+from collections.abc import Collection, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -101,15 +101,18 @@ class Children:
                 p.kill()
                 p.wait()
 
-    def stop(self, grace: float = 3.0) -> None:
-        for p in self.procs.values():
+    def stop(self, grace: float = 3.0, names: Iterable[str] | None = None) -> None:
+        """Stop the processes ``names`` (default: all) together: SIGTERM to each, then ``grace`` seconds for all of
+        them to end (a fleet's processes each take a few tenths of a second to close their sessions), then SIGKILL."""
+        procs = list(self.procs.values()) if names is None else [self.procs[n] for n in names]
+        for p in procs:
             if p.poll() is None:
                 p.terminate()
         end = time.monotonic() + grace
-        for p in self.procs.values():
+        for p in procs:
             with contextlib.suppress(subprocess.TimeoutExpired):
                 p.wait(max(0.0, end - time.monotonic()))
-        for p in self.procs.values():
+        for p in procs:
             if p.poll() is None:
                 p.kill()
                 p.wait()
