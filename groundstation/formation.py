@@ -204,11 +204,8 @@ def vehicle_table(p: Plan, i: int, step: float = 0.05) -> np.ndarray:
     """Vehicle ``i``'s part of the plan in its own local frame (its home at the origin): rows t, x north, y east
     [m], altitude [m], yaw [rad] every ``step`` seconds over the plan, as a position trajectory's CSV has them."""
     t = np.arange(0.0, p.duration + step / 2.0, step)
-    rows = []
-    for tk in t:
-        pos, _vel, psi, _ = p.at(float(tk))
-        rows.append((tk, pos[i, 0] - p.start[i, 0], pos[i, 1] - p.start[i, 1], pos[i, 2], psi))
-    table = np.array(rows)
+    pos, _vel, psi, _ = p.along(t)
+    table = np.column_stack([t, pos[i, :, 0] - p.start[i, 0], pos[i, :, 1] - p.start[i, 1], pos[i, :, 2], psi])
     climb = float(np.max(np.abs(np.diff(table[:, 3])))) / step
     speed = float(np.max(np.hypot(np.diff(table[:, 1]), np.diff(table[:, 2])))) / step
     if climb > MAX_CLIMB or speed > MAX_HORIZONTAL_SPEED:  # plan() sizes the phases so that this never happens
