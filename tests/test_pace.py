@@ -15,7 +15,7 @@ from quadsitl.process_util import PATIENCE, SPIN_BUDGET, free_port
 def test_a_late_autopilot_does_not_make_the_plant_race_to_catch_up(tmp_path):
     port, stats = free_port(), tmp_path / "stats.json"
     plant = subprocess.Popen([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot", f"127.0.0.1:{port}",
-                              "--speed", "5", "--ticks", "3000", "--stats", str(stats), "--quiet"])  # fmt: skip
+                              "--speed", "1", "--ticks", "3000", "--stats", str(stats), "--quiet"])  # fmt: skip
     autopilot = None
     try:
         time.sleep(1.5)  # the plant holds tick 0 meanwhile
@@ -30,10 +30,12 @@ def test_a_late_autopilot_does_not_make_the_plant_race_to_catch_up(tmp_path):
                 p.wait()
     s = json.loads(stats.read_text())
     assert s["ticks"] == 3000
-    # 5 × real time at 1 kHz; with the 1.5 s of holding caught up it would run at the machine's full speed (10,000+).
-    # Not below 2,500: a loaded CI run held 3,630, its wake-ups on a virtual machine's halted cores (the blocking
-    # ping-pong of `quadsitl bench` reads 3,600-35,000 round trips/s on one guest) slower than 5x real time needs.
-    assert 2500 < s["ticks_per_s"] < 5500, s
+    # Real time (1,000 ticks/s) from the first answer on. Racing to catch up with the hold (1.5 s plus the autopilot's
+    # start, over 2,500 ticks of the 3,000) would run those ticks at the machine's full speed: 1,580 ticks/s over the
+    # run even on the slowest loaded CI run on record (1,800 ticks/s at most), 5,000+ on an idle one. A pace this
+    # slow is one every machine keeps, so the bound does not depend on the machine (at --speed 5 a loaded CI run read
+    # 1,800, below the pace itself). The lower bound only says the run was paced, not stalled.
+    assert 500 < s["ticks_per_s"] < 1150, s
     # Paced: a late answer is polled for one budget only, then the core goes to the processes the pace serves.
     assert s["polling_patience_s"] == s["polling_budget_s"] == SPIN_BUDGET
 
