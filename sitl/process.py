@@ -9,7 +9,8 @@ truth as HIL_STATE_QUATERNION (:mod:`quadsitl.hil`), the GPS's latitude and long
   simulated time, waits for the HIL_ACTUATOR_CONTROLS answering tick k, then integrates one period.
   Until an answer comes (at start, or if the autopilot goes away) it free-wheels: it re-sends the
   state every 50 ms without advancing time. ``--speed F`` caps the pace at F × real time (0 = as fast
-  as possible).
+  as possible): a late tick is made up, but time lost to a stall longer than PACE_SLACK (or to holding) is not
+  caught up in a burst.
 - ``realtime``: integrates on the wall clock at period T and applies the latest actuator command it has.
 
 In both, actuator messages older than the last one used (by ``time_usec``) are discarded.
@@ -84,6 +85,9 @@ from sitl.wind_link import WindLink
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 FREEWHEEL_PERIOD = 0.05  # [s] state re-send pace while no answer comes
+# [s] wall: a paced lockstep plant this far behind its pace (a stall of the machine) resumes the pace from where it
+# is instead of running the lost ticks back to back; a shorter lateness (a late wake-up) is made up, so the pace holds
+PACE_SLACK = 0.02
 LOOP_RETURN_NS = 1_000_000  # [ns] wall: the compiled clock comes back to Python at least this often (signals, wind)
 AUTOPILOT_LOST_AFTER = 0.5  # [s] wall without an actuator message: the autopilot is lost
 LOST_AFTER_NS = round(AUTOPILOT_LOST_AFTER * 1e9)
@@ -535,6 +539,8 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
             delay = start + k * period / speed - monotonic()
             if delay > 0:
                 time.sleep(delay)
+            elif delay < -PACE_SLACK:  # stalled: no burst at the machine's full speed to catch up, as after a hold
+                start -= delay
     return k
 
 

@@ -1,14 +1,20 @@
 """Lockstep pacing: ``--speed F`` holds F × real time from the autopilot's first answer on. Time spent
-holding (waiting for an autopilot that starts late) is not caught up afterwards in a burst."""
+holding (waiting for an autopilot that starts late) or lost to a stall of the machine is not caught up afterwards
+in a burst; a late wake-up is."""
 
 import json
+import socket
 import subprocess
 import sys
+import threading
 import time
 
+import numpy as np
 import pytest
 
+from quadsitl import codec
 from quadsitl.process_util import PATIENCE, SPIN_BUDGET, free_port
+from sitl import process
 
 
 @pytest.mark.timeout(60)
@@ -55,3 +61,75 @@ def test_an_unpaced_plant_polls_for_a_late_answer_with_patience(tmp_path):
         autopilot.wait()
     s = json.loads(stats.read_text())
     assert s["ticks"] == 3000 and s["polling_budget_s"] == SPIN_BUDGET and s["polling_patience_s"] == PATIENCE
+
+
+class StallingClock:
+    """``time`` as the plant's loop sees it: every pace sleep wakes OVERSLEEP late (a loaded machine's wake-up),
+    and the STALL_AT-th sleeps STALL longer (the machine stalled); the deadline each sleep was for is recorded."""
+
+    OVERSLEEP, STALL_AT, STALL = 0.0005, 150, 0.3  # [s], [sleeps], [s]
+
+    def __init__(self) -> None:
+        self.deadlines: list[float] = []
+        self.stalled_at: float | None = None
+
+    def __getattr__(self, name: str):
+        return getattr(time, name)
+
+    def sleep(self, seconds: float) -> None:
+        self.deadlines.append(time.monotonic() + seconds)
+        extra = self.STALL if len(self.deadlines) == self.STALL_AT else 0.0
+        time.sleep(seconds + self.OVERSLEEP + extra)
+        if extra:
+            self.stalled_at = time.monotonic()
+
+
+def test_a_paced_plant_makes_up_late_wake_ups_but_not_a_stall(monkeypatch):
+    """--speed 1: a wake-up 0.5 ms late is made up (the next tick is due on the pace's grid, not 1 ms after the late
+    one); a stall of 0.3 s is not (the ticks after it come at the pace, not back to back). Both are properties of
+    the schedule: a loaded machine only makes the ticks later, so neither assertion depends on its speed."""
+    ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ap.bind(("127.0.0.1", 0))
+    ap.settimeout(5.0)
+    argv = ["--preset", "paper", "--autopilot", f"127.0.0.1:{ap.getsockname()[1]}"]
+    fleet = process.fleet_from_args(process.build_parser().parse_args(argv))
+    process.warm_up(fleet[0].plant)
+    max_thrust = fleet[0].link.max_thrust
+    arrived: list[tuple[int, float]] = []  # (tick, when its state came [s, monotonic])
+
+    def autopilot() -> None:
+        rx, tx = np.zeros(65535, dtype=np.uint8), np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+        decoded = np.zeros(codec.DECODED_SIZE)
+        while True:
+            try:
+                n, sender = ap.recvfrom_into(rx)
+            except OSError:  # closed, or the plant is done
+                return
+            stamp = codec.decode_state(rx, n, decoded)
+            arrived.append((round(stamp / 1000), time.monotonic()))
+            m = codec.encode_actuators(tx, 0, 1, 1, stamp, (0.25 * max_thrust,) * 4, max_thrust, True)
+            ap.sendto(tx[:m].tobytes(), sender)
+
+    clock = StallingClock()
+    monkeypatch.setattr(process, "time", clock)
+    answering = threading.Thread(target=autopilot, daemon=True)
+    answering.start()
+    ticks = 600
+    try:
+        assert process.run_lockstep(fleet, 1.0, ticks) == ticks
+    finally:
+        fleet[0].link.close()
+        ap.close()
+        answering.join(5)
+    period = fleet[0].plant.period
+    # Made up: before the stall, the sleeps' deadlines lie on the pace's grid (whole periods apart; a tick that woke
+    # a period or more late sleeps not at all). A pace that restarted from each late wake-up would put them 1.5 ms
+    # apart. A stall of the test's own process longer than PACE_SLACK moves the grid once: most, not every gap.
+    gaps = np.diff(clock.deadlines[: clock.STALL_AT])
+    on_grid = np.abs(gaps / period - np.round(gaps / period)) < 0.1
+    assert on_grid.mean() > 0.9, gaps
+    # Not caught up: the 200 ticks after the stall take at least 200 periods at 1 × real time; caught up, the 300
+    # periods the stall lost would send them back to back (a few ms).
+    after = [when for k, when in arrived if when > clock.stalled_at]
+    assert len(after) > 200 + 1
+    assert after[200] - after[0] > 0.9 * 200 * period, np.diff(after[:201])
