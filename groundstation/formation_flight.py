@@ -145,7 +145,7 @@ def fly_fleet(args: argparse.Namespace) -> int:
             if failure == ("plant", PLANT_DIVERGED):
                 time.sleep(0.3)
                 for name in gcs_names:  # each writes what it logged
-                    children.stop_one(name)
+                    children.stop(names=[name])
                 print(f"quadsitl fly: a vehicle's state diverged (above); the flown telemetry is in {out}/v*/ (exit "
                       f"status {FLY_DIVERGED})", file=sys.stderr)  # fmt: skip
                 return FLY_DIVERGED
@@ -159,7 +159,7 @@ def fly_fleet(args: argparse.Namespace) -> int:
             time.sleep(0.05)
         # the plant first, as a lone vehicle's `fly` does: autopilots stopped before it left it waiting, and after
         # 0.5 s it called the first of them lost; then the others together
-        children.stop_one("plant")
+        children.stop(names=["plant"])
         children.stop(names=[name for name in children.procs if name not in ("plant", "dashboard")])
         write_fleet_report(out, fleet, plan, args)
         if web_port is not None:

@@ -91,16 +91,6 @@ class Children:
             return name, rc
         return None
 
-    def stop_one(self, name: str, grace: float = 3.0) -> None:
-        p = self.procs[name]
-        if p.poll() is None:
-            p.terminate()
-            try:
-                p.wait(grace)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-
     def stop(self, grace: float = 3.0, names: Iterable[str] | None = None) -> None:
         """Stop the processes ``names`` (default: all) together: SIGTERM to each, then ``grace`` seconds for all of
         them to end (a fleet's processes each take a few tenths of a second to close their sessions), then SIGKILL."""
@@ -471,7 +461,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
                 break
             time.sleep(0.05)
         for name in ("plant", "autopilot", "gcs"):  # the flight is over; a dashboard stays, below
-            children.stop_one(name)
+            children.stop(names=[name])
         write_report(out, preset, args)
         if web_port is not None:
             keep_dashboard(children)
@@ -499,7 +489,7 @@ def end_diverged(children: Children, out: Path, preset: Preset, args) -> int:
     flown, as the sweeps' batch engine counts it."""
     time.sleep(0.3)  # the autopilot flushes a partial telemetry batch within BATCH_WALL of its last tick
     for name in ("gcs", "autopilot"):
-        children.stop_one(name)
+        children.stop(names=[name])
     if not (out / "telemetry.csv").is_file() or len((out / "telemetry.csv").read_text().splitlines()) < 2:
         print("quadsitl fly: the plant's state diverged before the flight began; nothing was flown (exit status "
               f"{FLY_DIVERGED})", file=sys.stderr)  # fmt: skip
