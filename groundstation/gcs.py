@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import os
 import socket
@@ -86,6 +87,9 @@ WAIT_MOVING = 0.050  # [s] wall
 # at 25x real time, 2,500 messages a second built here and parsed by the autopilot's Python.
 SETPOINT_MS, KEEPALIVE_MS, KEEPALIVE_WALL = 20, 100, 0.1
 PACE_WINDOW = 0.05  # [s] wall: the vehicle's pace is measured over this long
+# [s] wall: after the flight, the ground station waits for telemetry still on its way until this long passes without
+# a sample (a fixed 2 s could end while a loaded machine was still delivering a backlog)
+TELEMETRY_QUIET = 2.0
 
 
 UNNEEDED_STREAMS = (
@@ -515,10 +519,7 @@ class GroundStation:
 
     def finish(self, wall: float) -> int:
         n = round(self.duration / self.period)
-        t_end = time.monotonic() + 2.0
-        while time.monotonic() < t_end and not set(range(n)) <= self.logger.complete():
-            time.sleep(0.01)
-            self.logger.drain()
+        self.logger.wait_for(n, TELEMETRY_QUIET)  # what is still on its way, while it keeps coming
         logged = self.logger.rows()
         missing = [k for k in range(n) if k not in logged]
         rows = np.array([logged[k] for k in range(n) if k in logged])
@@ -536,10 +537,10 @@ class GroundStation:
             print(f"gcs: landed and disarmed; {len(rows)} telemetry rows for {n} ticks, "
                   f"{len(missing)} missing; wall time {wall:.1f} s", file=sys.stderr)  # fmt: skip
         if missing:
-            print(
-                f"gcs: error: {len(missing)} telemetry ticks never arrived (first: {missing[0]})",
-                file=sys.stderr,
-            )
+            gaps = 1 + sum(b - a > 1 for a, b in itertools.pairwise(missing))
+            lacks = ", ".join(f"{stream} {count}" for stream, count in self.logger.absent(n).items())
+            print(f"gcs: error: {len(missing)} telemetry ticks never arrived (first: {missing[0]}, last: "
+                  f"{missing[-1]}, in {gaps} gap(s); ticks each stream lacks: {lacks})", file=sys.stderr)  # fmt: skip
             return 1
         return 0
 

@@ -10,6 +10,7 @@ decoding happen in ``rows``.
 from __future__ import annotations
 
 import re
+import time
 
 import numpy as np
 import zenoh
@@ -75,9 +76,10 @@ class TelemetryLogger:
                 out.append((stream, sample.payload.to_bytes(), sample.timestamp))
         return out
 
-    def drain(self) -> None:
-        """File what arrived; follow the status stream."""
-        for stream, data, stamp in self._received():
+    def drain(self) -> int:
+        """File what arrived; follow the status stream. Returns how many samples arrived."""
+        received = self._received()
+        for stream, data, stamp in received:
             size = DTYPES[stream].itemsize
             if not data or len(data) % size:
                 self.malformed += 1
@@ -103,6 +105,7 @@ class TelemetryLogger:
                     self.flight_start_tick = int(start[flying[0]])
             if self.flight_start_tick >= 0:  # a later offboard segment is not part of this flight
                 self._flown.append(recs["tick"][(start == self.flight_start_tick) & armed])
+        return len(received)
 
     def _follow_armed(self, ticks: np.ndarray, armed: np.ndarray) -> None:
         """A mission's flight: every armed tick from the first one on."""
@@ -131,6 +134,26 @@ class TelemetryLogger:
         """Flight ticks (counted from the flight's start) for which all four streams arrived."""
         flown, _ = self._joined()
         return set((flown.astype(np.int64) - self.flight_start_tick).tolist())
+
+    def wait_for(self, ticks: int, quiet: float) -> bool:
+        """Drain until the flight's first ``ticks`` ticks have arrived in every stream, or until ``quiet`` [s, wall]
+        passes without a sample: telemetry that keeps coming (a loaded machine delivering a backlog) is waited for,
+        a stream that has stopped is not. Whether they all came."""
+        wanted, last = set(range(ticks)), time.monotonic()
+        while not wanted <= self.complete():
+            while not self.drain():
+                if time.monotonic() - last >= quiet:
+                    return False
+                time.sleep(0.01)
+            last = time.monotonic()
+        return True
+
+    def absent(self, ticks: int) -> dict[str, int]:
+        """How many of the flight's first ``ticks`` ticks each stream lacks (status: as flown in this flight)."""
+        wanted = np.arange(ticks, dtype=np.int64) + self.flight_start_tick
+        flown = np.concatenate(self._flown) if self._flown else np.zeros(0, dtype=np.uint64)
+        got = {s: joined_records(c, DTYPES[s])["tick"] for s, c in self._raw.items()} | {"status": flown}
+        return {s: int(ticks - np.isin(wanted, t.astype(np.int64)).sum()) for s, t in got.items()}
 
     def rows(self) -> dict[int, list[float]]:
         """Flight tick → row in telemetry_csv.COLUMNS order, t = 0 at the flight's first tick."""
