@@ -141,8 +141,11 @@ class TelemetryLogger:
         a stream that has stopped is not. Whether they all came."""
         wanted, last = set(range(ticks)), time.monotonic()
         while not wanted <= self.complete():
-            while not self.drain():
-                if time.monotonic() - last >= quiet:
+            while True:
+                asked = time.monotonic()  # before the drain: quiet only if a drain that began after it found nothing
+                if self.drain():
+                    break
+                if asked - last >= quiet:
                     return False
                 time.sleep(0.01)
             last = time.monotonic()
