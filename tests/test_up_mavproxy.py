@@ -89,9 +89,14 @@ def test_mavproxy_sees_the_vehicle_sets_parameters_arms_and_flies_offboard(mavpr
     mp.send("param show BS_K1")
     assert float(mp.expect(r"BS_K1\s+([-\d.]+)").group(1)) == 10.0
     mp.send("param set BS_K1 9")
-    time.sleep(0.5)
-    mp.send("param show BS_K1")
-    assert float(mp.expect(r"BS_K1\s+([-\d.]+)").group(1)) == 9.0
+    end = time.monotonic() + 10  # MAVProxy shows the new value once the vehicle's PARAM_VALUE has come back
+    while True:
+        time.sleep(0.25)
+        mp.send("param show BS_K1")
+        shown = float(mp.expect(r"BS_K1\s+([-\d.]+)").group(1))
+        if shown != 10.0 or time.monotonic() > end:
+            break
+    assert shown == 9.0
     mp.send("param set VM_MASS -1")
     mp.expect(r"Param set refused: VM_MASS = -1: expected a number in \(0, 10000\] kg")
     mp.send("param show VM_MASS")
