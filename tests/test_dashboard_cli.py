@@ -156,10 +156,16 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
             time.sleep(1.0)
         finally:
             session.close()
-        vs = {x["name"]: x for x in vehicles(url)}
-        assert len(vs) <= MAX_VEHICLES and "v1" in vs
-        v1 = vs["v1"]
-        assert v1["link"]["telemetry"] == "live" and v1["link"]["malformed"] > 100
+        # The idle-priority server may be a while behind on a loaded machine: its view once it has caught up.
+        end = time.monotonic() + 30
+        while True:
+            vs = {x["name"]: x for x in vehicles(url)}
+            v1 = vs.get("v1")
+            caught_up = v1 is not None and v1["link"]["telemetry"] == "live" and v1["link"]["malformed"] > 100
+            if caught_up or time.monotonic() > end:
+                break
+            time.sleep(0.2)
+        assert len(vs) <= MAX_VEHICLES and caught_up, vs.get("v1")
         assert v1["status"]["mode"] == "hold" and v1["tick_rate"] and 500 < v1["tick_rate"] < 2000
         with urllib.request.urlopen(url, timeout=5) as r:
             assert r.status == 200 and b"quadsitl" in r.read()
@@ -184,11 +190,12 @@ def test_a_dashboard_that_dies_is_reported_and_the_vehicle_flies_on(tmp_path, pr
     wait_http(url)
     (dash,) = [pid for pid in children_of(up.pid) if b"dashboard" in Path(f"/proc/{pid}/cmdline").read_bytes()]
     os.kill(dash, signal.SIGKILL)
-    time.sleep(1.0)
+    said = "quadsitl up: warning: the dashboard process was killed by signal 9 (SIGKILL); the others go on"
+    end = time.monotonic() + 10  # `up` looks at its children every few tenths of a second
+    while said not in err.read_text() and time.monotonic() < end:
+        time.sleep(0.1)
+    assert said in err.read_text()
     assert up.poll() is None  # plant and autopilot go on
-    assert "quadsitl up: warning: the dashboard process was killed by signal 9 (SIGKILL); the others go on" in (
-        err.read_text()
-    )
     c = Client(gcs)
     try:
         c.heartbeat()  # the vehicle still answers
