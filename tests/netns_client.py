@@ -38,9 +38,11 @@ def wait_live(url: str, names: set[str], timeout: float) -> dict[str, dict]:
     raise SystemExit(f"netns_client: the dashboard did not show {sorted(names)} live within {timeout} s: {seen}")
 
 
-def latencies(router: str, seconds: float, out: dict) -> list[float]:
-    """Publication → arrival [s] of state samples through the router (Zenoh timestamps, the publisher's clock);
-    ``out`` gets how many routers and peers this session had (the vehicles, the router's clients, are neither)."""
+def latencies(router: str, seconds: float, out: dict, enough: int) -> list[float]:
+    """Publication → arrival [s] of state samples through the router (Zenoh timestamps, the publisher's clock), until
+    ``enough`` have come or ``seconds`` have passed (about 100 a second: two vehicles, 20 ms batches; a loaded machine
+    may hold them back); ``out`` gets how many routers and peers this session had (the vehicles, the router's
+    clients, are neither)."""
     import zenoh
 
     from quadsitl.telemetry import zenoh_config
@@ -53,7 +55,9 @@ def latencies(router: str, seconds: float, out: dict) -> list[float]:
 
     with zenoh.open(zenoh_config(connect=[router])) as session:
         sub = session.declare_subscriber("quadsitl/*/state", note)
-        time.sleep(seconds)
+        end = time.monotonic() + seconds
+        while len(lat) < enough and time.monotonic() < end:
+            time.sleep(0.05)
         sub.undeclare()
         out["zenoh_routers"] = len(list(session.info.routers_zid()))
         out["zenoh_peers"] = len(list(session.info.peers_zid()))
@@ -109,7 +113,7 @@ def main() -> int:
     out: dict = {}
     wait_live(args.dashboard, {"v1", "v2"}, args.timeout)
     out["live_at"] = time.time()
-    lat = latencies(args.router, 2.0, out)
+    lat = latencies(args.router, 20.0, out, enough=101)
     out["latency_samples"] = len(lat)
     if lat:
         lat.sort()
