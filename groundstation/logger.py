@@ -137,18 +137,19 @@ class TelemetryLogger:
 
     def wait_for(self, ticks: int, quiet: float) -> bool:
         """Drain until the flight's first ``ticks`` ticks have arrived in every stream, or until ``quiet`` [s, wall]
-        passes without a sample: telemetry that keeps coming (a loaded machine delivering a backlog) is waited for,
-        a stream that has stopped is not. Whether they all came."""
-        wanted, last = set(range(ticks)), time.monotonic()
-        while not wanted <= self.complete():
-            while True:
-                asked = time.monotonic()  # before the drain: quiet only if a drain that began after it found nothing
-                if self.drain():
-                    break
-                if asked - last >= quiet:
-                    return False
-                time.sleep(0.01)
-            last = time.monotonic()
+        passes without one more of them: telemetry that keeps filling the flight (a loaded machine delivering a
+        backlog) is waited for; a tick that never comes is not, though the vehicle may go on publishing later ones.
+        Whether they all came."""
+        wanted = set(range(ticks))
+        have, last = len(wanted & self.complete()), time.monotonic()
+        while have < ticks:
+            asked = time.monotonic()  # before the drain: quiet only if a drain that began after it brought nothing
+            if self.drain() and (now := len(wanted & self.complete())) > have:
+                have, last = now, time.monotonic()
+                continue
+            if asked - last >= quiet:
+                return False
+            time.sleep(0.02)
         return True
 
     def absent(self, ticks: int) -> dict[str, int]:
