@@ -69,6 +69,9 @@ FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm
 # lockstep pair needs: 5 ms cost `fly` about a tenth of its ticks (docs/performance.md).
 BATCH_WALL = 0.020
 BATCH_TICKS = 512  # and at the latest after this many ticks
+# --telemetry-congestion: what a full-rate telemetry put does when a subscriber's link has no room (Zenoh's congestion
+# control; DROP waits 1 ms for room first). The overview's slow copies always drop: they are a view, not a record.
+CONGESTION = {"drop": zenoh.CongestionControl.DROP, "block": zenoh.CongestionControl.BLOCK}
 PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lost (failsafe)
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 PLANT_HOLDING = 0.005  # [s] wall: a plant quiet this long may be holding its clock (_answer_armed)
@@ -258,7 +261,7 @@ class Autopilot:
                 self.pubs[stream] = self.session.declare_publisher(
                     telemetry.key(args.vehicle, stream),
                     encoding=telemetry.encoding(stream),
-                    congestion_control=zenoh.CongestionControl.DROP,
+                    congestion_control=CONGESTION[args.telemetry_congestion],
                 )
             self.io[kernel.CAPACITY] = BATCH_TICKS  # records are batched only while there is a session
             self.slow = telemetry.SlowCopies(self.session, args.vehicle)
@@ -1168,6 +1171,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     telemetry.add_zenoh_arguments(p)
     p.add_argument("--no-zenoh", action="store_true", help="do not publish telemetry to Zenoh")
+    p.add_argument(
+        "--telemetry-congestion",
+        choices=tuple(CONGESTION),
+        default="drop",
+        help="when a telemetry subscriber's link is full: drop the record (default: the vehicle never waits for a "
+        "subscriber), or block until there is room, so that every subscriber gets every tick (a lockstep run whose "
+        "logger must have them all, as quadsitl fly's; a subscriber that falls behind then holds the clock)",
+    )
     return p
 
 

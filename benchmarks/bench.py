@@ -263,8 +263,9 @@ class StartedAutopilot:
     """An autopilot process on free ports (:func:`autopilot_process`); unpacks as (plant port, api port, Zenoh
     endpoint, process id)."""
 
-    def __init__(self, env: dict[str, str] | None, system_id: int, taken: set[int]) -> None:
-        self.env, self.system_id, self.taken = env, system_id, taken
+    def __init__(self, env: dict[str, str] | None, system_id: int, taken: set[int],
+                 extra: tuple[str, ...] = ()) -> None:  # fmt: skip
+        self.env, self.system_id, self.taken, self.extra = env, system_id, taken, extra
         self.attempts = 0
         self.start()
 
@@ -278,7 +279,7 @@ class StartedAutopilot:
         self.proc = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{self.plant_port}",
                             "--api-listen", f"127.0.0.1:{self.api_port}", "--api-remote", "none", "--gcs-listen",
                             "127.0.0.1:0", "--gcs-remote", "none", "--zenoh-listen", self.endpoint, "--system-id",
-                            str(self.system_id), env=self.env)  # fmt: skip
+                            str(self.system_id), *self.extra, env=self.env)  # fmt: skip
         self.attempts += 1
 
     def __iter__(self) -> Iterator:
@@ -308,14 +309,16 @@ class AutopilotExitedError(RuntimeError):
 
 @contextlib.contextmanager
 def autopilot_process(workdir: Path, env: dict[str, str] | None = None, system_id: int = 1,
-                      taken: set[int] | None = None, ready: bool = True) -> Iterator[StartedAutopilot]:  # fmt: skip
+                      taken: set[int] | None = None, ready: bool = True,
+                      extra: tuple[str, ...] = ()) -> Iterator[StartedAutopilot]:  # fmt: skip
     """An autopilot on free ports, unpacking as (plant port, api port, Zenoh endpoint, its process id), and with
     ``ready`` started and warmed up (:meth:`StartedAutopilot.wait_ready`; else call it before its ports are used: a
     fleet's start together). :func:`run_plant` with the api port arms it in hold at the start of each run, as a
     ground station would. (On the ground an autopilot armed in hold idles, as PX4's does, so the control law
     itself, about 1 µs of a ~100 µs tick, does not run.) ``taken``: ports picked for processes that may not have
-    bound them yet (a fleet's other autopilots), never picked here; this one's are added to it."""
-    ap = StartedAutopilot(env, system_id, set() if taken is None else taken)
+    bound them yet (a fleet's other autopilots), never picked here; this one's are added to it. ``extra``: more of
+    the autopilot's options."""
+    ap = StartedAutopilot(env, system_id, set() if taken is None else taken, extra)
     try:
         if ready:
             ap.wait_ready()
@@ -480,10 +483,12 @@ def bench_dashboard(r: Report, workdir: Path, rounds: int) -> dict:
     both cores varies by ±15 % from run to run on a shared VM, and pairing and the median keep that drift
     out of the comparison."""
     from benchmarks.browser import chromium
+    from groundstation.launcher import LOGGED
 
     r.section("5. dashboard: lockstep ticks with the page open in headless Chromium, against without")
     out = {}
-    with autopilot_process(workdir) as (plant_port, api, endpoint, _pid), chromium() as browser:
+    # The autopilot as `fly` starts it: its telemetry blocks on a full link (a page that can hold it back)
+    with autopilot_process(workdir, extra=LOGGED) as (plant_port, api, endpoint, _pid), chromium() as browser:
         run_plant(plant_port, workdir, 5000, arm=api)  # warm-up
         for label, key, pairs, ticks, extra in (
             # Runs of a few seconds: a page updates once a second while a run goes faster than 2x real time

@@ -30,6 +30,7 @@ from groundstation import formation
 from groundstation.fleet import VehiclePlan, plan_fleet
 from groundstation.launcher import (
     FLY_DIVERGED,
+    LOGGED,
     Children,
     compile_once,
     dashboard_port,
@@ -113,7 +114,7 @@ def fly_fleet(args: argparse.Namespace) -> int:
             ap = ["autopilot", "--preset", v.preset, "--plant-listen", f"127.0.0.1:{plant_port}",
                   "--system-id", str(v.system_id), "--api-listen", f"127.0.0.1:{api_port}", "--api-remote", "none",
                   "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--home", home, "--vehicle", v.name,
-                  "--zenoh-listen" if v.index == 0 else "--zenoh-connect", zenoh_ep]  # fmt: skip
+                  "--zenoh-listen" if v.index == 0 else "--zenoh-connect", zenoh_ep, *LOGGED]  # fmt: skip
             if args.controller:
                 ap += ["--controller", args.controller]
             children.start(f"autopilot {v.name}", ap + state_argv(args))

@@ -48,6 +48,10 @@ from quadsitl.process_util import (
 # ago than this (autopilot.offboard_lockstep): above the ground station's usual lag at full lockstep speed (0.2-0.3 s
 # at 40x), so a quiet machine never waits, and a busy one never flies a reference older than this.
 OFFBOARD_LOCKSTEP = 0.5
+# `fly`'s autopilots: a full telemetry link holds the vehicle instead of losing ticks. The ground station's logger must
+# get every tick, and a lockstep clock can wait; dropping lost ticks whenever the logger was descheduled for about
+# 0.1 s while the vehicle ran ahead (the links' buffers hold a few hundred ticks, docs/telemetry.md).
+LOGGED = ("--telemetry-congestion", "block")
 
 
 def signing_env(key_text: str | None) -> dict[str, str] | None:
@@ -412,7 +416,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
               "--api-listen", f"127.0.0.1:{gcs_port}", "--api-remote", "none", "--gcs-listen",
               f"127.0.0.1:{gcs_listen}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep,
-              "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP)]  # fmt: skip
+              "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP), *LOGGED]  # fmt: skip
         if args.controller:
             ap += ["--controller", args.controller]
         mission = getattr(args, "mission", None)

@@ -61,8 +61,8 @@ class TelemetryLogger:
         self.malformed = 0
         self._published: list[tuple[int, float]] = []  # (a status batch's last tick, its publication time [s])
         # Each stream's samples wait in a FIFO channel inside Zenoh (no Python runs when one arrives, so the
-        # logger wakes no thread per sample); drain() takes them. A full channel holds Zenoh back, and the
-        # vehicle's publishers drop rather than wait: the capacity covers minutes of samples.
+        # logger wakes no thread per sample); drain() takes them. A full channel holds Zenoh back, and with it a
+        # vehicle whose publishers wait (fly's) or drop (up's): the capacity covers minutes of samples.
         self._truth: list[np.ndarray] = []  # sensor mode: the ground truth beside the estimate
         self._subs = [
             (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(CHANNEL)))
