@@ -269,43 +269,6 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     assert rate["ticks_per_s"] == pytest.approx(rate["simulated_s"] / 0.001 / rate["wall_s"])
 
 
-def test_the_pace_is_measured_between_batches_inside_the_flight():
-    from groundstation.logger import TelemetryLogger
-
-    logger = TelemetryLogger.__new__(TelemetryLogger)  # pace() alone: no Zenoh session needed
-    logger._published = [(90, 0.9), (104, 1.0), (160, 1.5), (208, 1.9), (260, 2.5)]  # (last tick, publication [s])
-    assert logger.pace(100, 250) == (104, pytest.approx(0.9))  # from the batch ending at 104 to the one at 208
-    assert logger.pace(100, 150) is None  # one batch only: no pace
-
-
-def test_the_logger_joins_its_samples_keeping_a_ticks_newest_record_and_only_ticks_every_stream_has():
-    """rows() from samples as drain() files them (arrays on the received bytes): each stream's records joined, a
-    tick sent twice taken from its newest sample, a tick one stream lacks left out (finish() calls it missing)."""
-    from groundstation.logger import DTYPES, TelemetryLogger, joined_records
-    from quadsitl import telemetry
-
-    def sample(stream: str, ticks, x: float = 0.0) -> np.ndarray:
-        r = np.zeros(len(ticks), dtype=DTYPES[stream])
-        r["tick"] = ticks
-        if stream == "state":
-            r["x"] = x
-        return np.frombuffer(r.tobytes(), dtype=DTYPES[stream])  # read-only, as received
-
-    logger = TelemetryLogger.__new__(TelemetryLogger)  # rows() alone: no Zenoh session needed
-    logger.period, logger.flight_start_tick, logger._truth = 0.001, 100, []
-    logger._flown = [np.arange(100, 110, dtype=np.uint64)]
-    streams = [s for s in telemetry.STREAMS if s != "status"]
-    logger._raw = {s: [sample(s, range(100, 105)), sample(s, range(105, 110))] for s in streams}
-    logger._raw["state"].append(sample("state", [104], x=7.0))  # tick 104 again, newer
-    logger._raw["actuators"][1] = sample("actuators", [105, 106, 108, 109])  # tick 107 never came
-    rows = logger.rows()
-    assert sorted(rows) == [0, 1, 2, 3, 4, 5, 6, 8, 9] and logger.complete() == set(rows)
-    assert rows[4][0] == pytest.approx(0.004) and rows[4][1] == 7.0 and rows[3][1] == 0.0  # t, x
-    chunks = logger._raw["setpoint"]
-    assert (joined_records(chunks, DTYPES["setpoint"]) == np.concatenate(chunks)).all()
-    assert joined_records([], DTYPES["state"]).shape == (0,)
-
-
 WINDY = ("--wind", "3,90", "--turbulence", "moderate", "--gust", "2,0,0.5,0.3", "--wind-seed", "4")
 
 

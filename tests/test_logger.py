@@ -1,16 +1,30 @@
-"""The ground station's telemetry logger without Zenoh: what it waits for after a flight, and what it says a
-stream lacks."""
+"""The ground station's telemetry logger without Zenoh: what it waits for after a flight, what it says a stream
+lacks, how it joins its samples and measures the flight's pace."""
 
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
-from groundstation.logger import DTYPES, TelemetryLogger
+from groundstation.logger import DTYPES, TelemetryLogger, joined_records
 from quadsitl import telemetry
 
 STREAMS = [s for s in telemetry.STREAMS if s != "status"]
+
+
+class NoSession:
+    """A Zenoh session stand-in whose subscribers never receive: the logger is made as the ground station makes it,
+    and each test hands it samples itself."""
+
+    def declare_subscriber(self, _key: str, _handler: object) -> SimpleNamespace:
+        return SimpleNamespace(try_recv=lambda: None)
+
+
+def new_logger() -> TelemetryLogger:
+    return TelemetryLogger(NoSession(), "v1", 0.001)
 
 
 def payload(stream: str, ticks: range) -> bytes:
@@ -25,10 +39,7 @@ def payload(stream: str, ticks: range) -> bytes:
 def logger_fed(parts: list[tuple[float, range, tuple[str, ...]]], then: tuple[str, ...] = ()) -> TelemetryLogger:
     """A logger whose samples arrive on a timeline: each part (due [s after now], ticks, streams) arrives when due;
     after the last part, the streams ``then`` go on at every drain, for ever, with ticks after the flight's."""
-    logger = TelemetryLogger.__new__(TelemetryLogger)  # drain() and what it files, without a session
-    logger.period, logger.start, logger.flight_start_tick, logger.last_tick = 0.001, "offboard", -1, -1
-    logger._raw, logger._flown, logger._truth, logger._published = {s: [] for s in STREAMS}, [], [], []
-    logger.malformed, logger.last_status = 0, None
+    logger = new_logger()
     start, pending = time.monotonic(), list(parts)
     next_tick = [10_000]
 
@@ -62,3 +73,35 @@ def test_after_the_flight_the_logger_waits_while_telemetry_keeps_coming_not_for_
     assert time.monotonic() - began > 0.25  # it waited the quiet time
     assert stopped.complete() == set(range(60))
     assert stopped.absent(100) == {"state": 0, "setpoint": 0, "actuators": 40, "status": 0}
+
+
+def test_the_pace_is_measured_between_batches_inside_the_flight():
+    logger = new_logger()
+    logger._published = [(90, 0.9), (104, 1.0), (160, 1.5), (208, 1.9), (260, 2.5)]  # (last tick, publication [s])
+    assert logger.pace(100, 250) == (104, pytest.approx(0.9))  # from the batch ending at 104 to the one at 208
+    assert logger.pace(100, 150) is None  # one batch only: no pace
+
+
+def test_the_logger_joins_its_samples_keeping_a_ticks_newest_record_and_only_ticks_every_stream_has():
+    """rows() from samples as drain() files them (arrays on the received bytes): each stream's records joined, a
+    tick sent twice taken from its newest sample, a tick one stream lacks left out (finish() calls it missing)."""
+
+    def sample(stream: str, ticks, x: float = 0.0) -> np.ndarray:
+        r = np.zeros(len(ticks), dtype=DTYPES[stream])
+        r["tick"] = ticks
+        if stream == "state":
+            r["x"] = x
+        return np.frombuffer(r.tobytes(), dtype=DTYPES[stream])  # read-only, as received
+
+    logger = new_logger()
+    logger.flight_start_tick = 100
+    logger._flown = [np.arange(100, 110, dtype=np.uint64)]
+    logger._raw = {s: [sample(s, range(100, 105)), sample(s, range(105, 110))] for s in STREAMS}
+    logger._raw["state"].append(sample("state", [104], x=7.0))  # tick 104 again, newer
+    logger._raw["actuators"][1] = sample("actuators", [105, 106, 108, 109])  # tick 107 never came
+    rows = logger.rows()
+    assert sorted(rows) == [0, 1, 2, 3, 4, 5, 6, 8, 9] and logger.complete() == set(rows)
+    assert rows[4][0] == pytest.approx(0.004) and rows[4][1] == 7.0 and rows[3][1] == 0.0  # t, x
+    chunks = logger._raw["setpoint"]
+    assert (joined_records(chunks, DTYPES["setpoint"]) == np.concatenate(chunks)).all()
+    assert joined_records([], DTYPES["state"]).shape == (0,)
