@@ -7,7 +7,9 @@ vehicle that flies the vehicle's part of the plan (``DIR/v{i}/trajectory.csv``, 
 local frame) and logs its telemetry (``DIR/v{i}/telemetry.csv``, ``flight.tlog``). The plant holds its clock at
 SENSOR_GROUND_S until every autopilot has armed, and each ground station switches to offboard and arms there
 (``--hold-until-armed``, ``--arm-at``), so every vehicle's flight time counts from the same tick: the plan's t.
-After the plan's last phase each ground station lands its vehicle where it is.
+After the plan's last phase each ground station lands its vehicle where it is. Each autopilot runs as ``fly``'s
+does: ``--offboard-lockstep`` (a ground station that falls behind holds the fleet's clock, so no vehicle flies a
+reference more than OFFBOARD_LOCKSTEP old) and telemetry that waits rather than drops (``LOGGED``).
 
 Written: each vehicle's ``metrics.json`` (its position tracking) next to its telemetry, and for the fleet
 ``DIR/metrics.json`` (formation error and tracking error per phase, the minimum separation, when and between
@@ -31,6 +33,7 @@ from groundstation.fleet import VehiclePlan, plan_fleet
 from groundstation.launcher import (
     FLY_DIVERGED,
     LOGGED,
+    OFFBOARD_LOCKSTEP,
     Children,
     compile_once,
     dashboard_port,
@@ -114,7 +117,8 @@ def fly_fleet(args: argparse.Namespace) -> int:
             ap = ["autopilot", "--preset", v.preset, "--plant-listen", f"127.0.0.1:{plant_port}",
                   "--system-id", str(v.system_id), "--api-listen", f"127.0.0.1:{api_port}", "--api-remote", "none",
                   "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--home", home, "--vehicle", v.name,
-                  "--zenoh-listen" if v.index == 0 else "--zenoh-connect", zenoh_ep, *LOGGED]  # fmt: skip
+                  "--zenoh-listen" if v.index == 0 else "--zenoh-connect", zenoh_ep, *LOGGED,
+                  "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP)]  # fmt: skip
             if args.controller:
                 ap += ["--controller", args.controller]
             children.start(f"autopilot {v.name}", ap + state_argv(args))
