@@ -17,6 +17,15 @@ PX4's lockstep never waits for an offboard API, and a client that stamps ``time_
 (MAVSDK does) would make every setpoint wait :data:`HOLD_MAX`: so the option is off by default, for ground
 stations that stamp with the vehicle's time.
 
+A ground station may also send its setpoints ahead of the vehicle's clock (``quadsitl gcs --setpoints-ahead``, as
+``quadsitl fly`` runs it with a lead of 0): a setpoint made for a later tick than the next is held
+(:meth:`OffboardLockstep.hold`) and flown from exactly that tick (:meth:`OffboardLockstep.due`), and the clock
+answers tick k only once a setpoint made for k + 2 or later has come, so every setpoint for the ticks up to k + 1 is
+in (the datagrams of one ground station arrive in order; an attitude setpoint is a pair of messages made for one
+moment). The reference flown at each tick is then the ground station's for that tick, whatever the machine's
+timing: a run flies to the byte. A setpoint made for a moment more than :data:`HOLD_AHEAD` ahead (a foreign clock's
+stamp) is flown as it comes.
+
 Pure and I/O-free: the autopilot's shell calls :meth:`OffboardLockstep.stamp` for each offboard setpoint and
 :meth:`OffboardLockstep.must_wait` after each tick it would answer, and while it waits.
 """
@@ -24,6 +33,7 @@ Pure and I/O-free: the autopilot's shell calls :meth:`OffboardLockstep.stamp` fo
 from __future__ import annotations
 
 HOLD_MAX = 0.25  # [s] wall: the longest the clock waits for one setpoint
+HOLD_AHEAD = 2.0  # [s] simulated: a setpoint made for at most this far ahead of the vehicle's clock is held until then
 NO_WAIT = 2**63 - 1  # free_until: no tick waits
 
 
@@ -38,6 +48,8 @@ class OffboardLockstep:
         self.lead_ticks = round(lead / period)
         self.hold_max = hold_max
         self.newest = -1  # the tick the newest setpoint was made for (−1: none stamped yet)
+        self.held: list[tuple[int, int, object]] = []  # (tick, arrival order, setpoint) made for a later tick
+        self.order = 0
         self.gave_up = -1  # the newest tick when a wait last ran out: no further wait until a newer setpoint
         self.since: float | None = None  # [s] wall: when the current wait began
         self.waits = 0  # how many times the clock waited
@@ -48,10 +60,37 @@ class OffboardLockstep:
         """A setpoint made for the vehicle's time ``time_boot_ms`` [ms] (its tick × period)."""
         self.newest = max(self.newest, round(time_boot_ms / 1000.0 / self.period))
 
+    def tick_of(self, time_boot_ms: int) -> int:
+        """The tick a setpoint stamped ``time_boot_ms`` [ms] was made for."""
+        return round(time_boot_ms / 1000.0 / self.period)
+
+    def hold(self, tick: int, now_tick: int, setpoint: object) -> bool:
+        """A setpoint made for ``tick``, arrived after ``now_tick`` was flown: True when it is held until then (made
+        for a tick after the next one, and at most HOLD_AHEAD ahead), False when it is to be flown now."""
+        if not now_tick + 1 < tick <= now_tick + round(HOLD_AHEAD / self.period):
+            return False
+        self.held.append((tick, self.order, setpoint))
+        self.order += 1
+        self.held.sort(key=lambda h: h[:2])
+        return True
+
+    def due(self, next_tick: int) -> list:
+        """The held setpoints to fly from ``next_tick`` on (made for it or before), in the order they were made."""
+        n = 0
+        while n < len(self.held) and self.held[n][0] <= next_tick:
+            n += 1
+        out, self.held = [h[2] for h in self.held[:n]], self.held[n:]
+        return out
+
+    def next_due(self) -> int:
+        """The tick the first held setpoint is made for (NO_WAIT: none held)."""
+        return self.held[0][0] if self.held else NO_WAIT
+
     def must_wait(self, tick: int, flying_offboard: bool, wall: float) -> bool:
-        """True while the answer to ``tick`` must wait: flying offboard, the newest setpoint made for more than
-        ``lead`` before ``tick``, and this setpoint not yet waited for ``hold_max`` [s] of ``wall`` time."""
-        behind = flying_offboard and self.newest >= 0 and tick - self.newest > self.lead_ticks
+        """True while the answer to ``tick`` must wait: flying offboard, no setpoint yet made for ``tick`` + 2 −
+        ``lead`` or later (one made for a later tick completes the ones before it), and this setpoint not yet waited
+        for ``hold_max`` [s] of ``wall`` time."""
+        behind = flying_offboard and self.newest >= 0 and tick + 2 - self.newest > self.lead_ticks
         if not behind or self.newest == self.gave_up:
             self._end(wall)
             return False
@@ -74,7 +113,7 @@ class OffboardLockstep:
             return -1
         if not flying_offboard or self.newest < 0 or self.newest == self.gave_up:
             return NO_WAIT
-        return self.newest + self.lead_ticks
+        return self.newest + self.lead_ticks - 2
 
     def _end(self, wall: float) -> None:
         if self.since is not None:

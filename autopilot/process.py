@@ -310,9 +310,11 @@ class Autopilot:
     def _finish_tick(self, flags: int, nbytes: int, sender: tuple[str, int], wall: float) -> None:
         """What follows the compiled tick in Python: the answer (or, with --offboard-lockstep, its wait for a
         setpoint), the mission executor, and what the flags leave to Python."""
+        self._fly_held()
         if flags & kernel.ANSWER:
             if self.pace is not None and self.pace.must_wait(int(self.io[kernel.TICK]), self._offboard(), wall):
                 self.pending = (bytes(self.tx_view[: self.io[kernel.TX_LEN]]), sender)
+                self.flush_telemetry()  # the ground station sees at once the tick the clock waits at
             else:
                 self.plant_sock.sendto(self.tx_view[: self.io[kernel.TX_LEN]], sender)
         if self.missions.flying:  # the mission executor, on simulated time, after the answer went out
@@ -377,7 +379,9 @@ class Autopilot:
         stats[plant_loop.NEXT_GROUND] = int(self.next_poll * 1e9)
         polling = wait.polling()
         deadline = min(next_chores, self.last_flush + BATCH_WALL if self.io[kernel.ROWS] else next_chores)
-        limit = plant_loop.NO_LIMIT if self.pace is None else self.pace.free_until(self._offboard())
+        # With --offboard-lockstep the loop gives the tick before a held setpoint's to Python (_fly_held)
+        limit = plant_loop.NO_LIMIT if self.pace is None else min(self.pace.free_until(self._offboard()),
+                                                                  self.pace.next_due() - 2)  # fmt: skip
         status, nbytes, flags = plant_loop.serve(
             self.plant_sock.fileno(), self.rx_array, self.sender, self.sender_len, self.plant_address, self.tx, self.io,
             self.tick_arguments(), int(deadline * 1e9), polling, int(wait.budget * 1e9),
@@ -642,14 +646,12 @@ class Autopilot:
             return
         if self.pace is not None and mid in OFFBOARD_SETPOINTS:
             self.pace.stamp(m.time_boot_ms)
+            if self.pace.hold(self.pace.tick_of(m.time_boot_ms), int(self.io[kernel.TICK]), m):
+                return  # made for a later tick: flown from it (_fly_held)
         if mid in (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT):
             self._command(m, link)
-        elif mid == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
-            self._attitude_target(m)
-        elif mid == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
-            self._position_target(m, (m.x, m.y, m.z))
-        elif mid == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT:
-            self._position_target(m, (float(m.lat_int), float(m.lon_int), m.alt))
+        elif mid in OFFBOARD_SETPOINTS:
+            self._fly_setpoint(m, mid)
         elif mid == mavlink.MAVLINK_MSG_ID_SET_MODE:  # QGroundControl's way to PX4 modes (no acknowledgement)
             mode = (
                 wire.Mode.from_px4(m.custom_mode) if m.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else None
@@ -676,6 +678,23 @@ class Autopilot:
         else:
             self.unknown += 1
         self._announce_commander()
+
+    def _fly_setpoint(self, m, mid: int) -> None:
+        """An offboard setpoint, to the commander."""
+        if mid == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
+            self._attitude_target(m)
+        elif mid == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
+            self._position_target(m, (m.x, m.y, m.z))
+        else:
+            self._position_target(m, (float(m.lat_int), float(m.lon_int), m.alt))
+
+    def _fly_held(self) -> None:
+        """``--offboard-lockstep``: the setpoints held for the next tick (or before) go to the commander now, between
+        the tick just flown and the next (autopilot.offboard_lockstep)."""
+        if self.pace is not None and self.pace.held:
+            for m in self.pace.due(int(self.io[kernel.TICK]) + 1):
+                self._fly_setpoint(m, m.get_msgId())
+            self._announce_commander()
 
     def _set_mode(self, mode: wire.Mode) -> tuple[bool, str]:
         """A mode change from a ground station: AUTO.MISSION starts (or resumes) the mission; the rest are the
@@ -1206,8 +1225,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         preset = with_state(load_preset(args.preset), args)
         check_range("--telemetry-rate", args.telemetry_rate, 0.0, 1.0 / preset.sim.period)
         check_range("--setpoint-timeout", args.setpoint_timeout, 0.0, 3600.0)
-        if args.offboard_lockstep is not None:
-            check_range("--offboard-lockstep", args.offboard_lockstep, preset.sim.period, 60.0)
+        # 0: a ground station that sends its setpoints ahead (quadsitl gcs --setpoints-ahead); NaN is refused too
+        if args.offboard_lockstep is not None and not 0.0 <= args.offboard_lockstep <= 60.0:
+            raise UsageError(f"--offboard-lockstep {args.offboard_lockstep!r}: expected a number in [0, 60]")
         if not 1 <= args.system_id <= 255:
             raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
         args.home = parse_home(args.home)

@@ -8,8 +8,9 @@ local frame) and logs its telemetry (``DIR/v{i}/telemetry.csv``, ``flight.tlog``
 SENSOR_GROUND_S until every autopilot has armed, and each ground station switches to offboard and arms there
 (``--hold-until-armed``, ``--arm-at``), so every vehicle's flight time counts from the same tick: the plan's t.
 After the plan's last phase each ground station lands its vehicle where it is. Each autopilot runs as ``fly``'s
-does: ``--offboard-lockstep`` (a ground station that falls behind holds the fleet's clock, so no vehicle flies a
-reference more than OFFBOARD_LOCKSTEP old) and telemetry that waits rather than drops (``LOGGED``).
+does: its ground station sends the trajectory ahead (``--setpoints-ahead``) and the autopilot flies each setpoint
+from the tick it is for (``--offboard-lockstep``; a ground station that falls behind holds the fleet's clock), and
+telemetry waits rather than drops (``LOGGED``).
 
 Written: each vehicle's ``metrics.json`` (its position tracking) next to its telemetry, and for the fleet
 ``DIR/metrics.json`` (formation error and tracking error per phase, the minimum separation, when and between
@@ -34,6 +35,7 @@ from groundstation.launcher import (
     FLY_DIVERGED,
     LOGGED,
     OFFBOARD_LOCKSTEP,
+    SETPOINTS_AHEAD,
     Children,
     compile_once,
     dashboard_port,
@@ -138,6 +140,7 @@ def fly_fleet(args: argparse.Namespace) -> int:
                                              "--vehicle", v.name, "--zenoh-connect", zenoh_ep, "--trajectory",
                                              str(folder / "trajectory.csv"), "--duration", repr(plan.duration),
                                              "--arm-at", repr(SENSOR_GROUND_S), "--out", str(folder),
+                                             "--setpoints-ahead", repr(SETPOINTS_AHEAD),
                                              "--quiet"])  # fmt: skip
         if not args.quiet:
             print(

@@ -8,9 +8,11 @@ an 8-byte big-endian microsecond timestamp, as MAVProxy and QGroundControl write
 
 Setpoints are paced in simulated time: one per 20 ms of the vehicle's time seen (its ATTITUDE stream or its
 Zenoh telemetry, whichever is newer), and at least every 100 ms of wall time, so a sped-up lockstep run never
-starves the stream. Each is the trajectory at that moment and is stamped with it (time_boot_ms): ``quadsitl
-fly`` starts the autopilot with ``--offboard-lockstep``, which holds the vehicle's clock when the newest
-setpoint was made for a moment more than 0.5 s of simulated time ago (:mod:`autopilot.offboard_lockstep`). An
+starves the stream. Each is the trajectory at that moment and is stamped with it (time_boot_ms). With
+``--setpoints-ahead S`` (``quadsitl fly``'s 0.5 s, its autopilot on ``--offboard-lockstep 0``) the flight's setpoints
+are instead the trajectory at every SETPOINT_MS of the flight, sent up to S ahead of the vehicle's clock and stamped
+with the tick each is for; the autopilot flies each from that tick and holds its clock until the ground station is
+ahead (:mod:`autopilot.offboard_lockstep`), so a flight is the same to the byte on any machine. An
 attitude trajectory (:mod:`groundstation.trajectories`) sends a pair, SET_ATTITUDE_TARGET and a z-only
 SET_POSITION_TARGET_LOCAL_NED; a position trajectory one SET_POSITION_TARGET_LOCAL_NED in
 MAV_FRAME_LOCAL_NED with type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to
@@ -161,6 +163,9 @@ class GroundStation:
         start = "armed" if self.mission is not None else "offboard"
         self.logger = TelemetryLogger(self.session, args.vehicle, self.period, start)
         self.sim_ms = 0  # the vehicle's time [ms] in its newest ATTITUDE (MAVLink comes before Zenoh's batches)
+        self.ahead = round(args.setpoints_ahead / self.period)  # [ticks] --setpoints-ahead (0: off)
+        self.end_ticks = round(self.duration / self.period)  # the flight's last tick, counted from its first
+        self.next_moment = -1  # --setpoints-ahead: the tick the next setpoint is made for (−1: the flight's start)
         self.target = (args.target_system, wire.AUTOPILOT_COMPONENT_ID)
         self.armed = False
         self.armable = False  # SYS_STATUS says the pre-arm check passes (in sensor mode: once the estimator aligned)
@@ -236,27 +241,48 @@ class GroundStation:
             elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT and not self.args.quiet:
                 print(f"gcs: vehicle says: {m.text}", file=sys.stderr)
 
-    def send_setpoint(self, ref: Reference | trajectories.PositionSetpoint) -> None:
-        """One setpoint of the trajectory: a position setpoint, or an attitude + altitude pair."""
+    def send_setpoint(self, ref: Reference | trajectories.PositionSetpoint, ms: int | None = None) -> None:
+        """One setpoint of the trajectory: a position setpoint, or an attitude + altitude pair; stamped ``ms``
+        (time_boot_ms: the vehicle's time it is made for; default :meth:`stamp_ms`)."""
         if isinstance(ref, trajectories.PositionSetpoint):
-            self.send_position_setpoint(ref)
+            self.send_position_setpoint(ref, ms)
             return
         ts, tc = self.target
         q = euler_to_quaternion(ref.roll, ref.pitch, ref.yaw)
-        ms, frame = self.stamp_ms(), mavlink.MAV_FRAME_LOCAL_NED
+        ms, frame = self.stamp_ms() if ms is None else ms, mavlink.MAV_FRAME_LOCAL_NED
         self.send(mavlink.MAVLink_set_attitude_target_message(ms, ts, tc, MASK_IGNORE_RATES, q, 0, 0, 0, 0.5))
         z = -ref.altitude  # NED: z down
         self.send(mavlink.MAVLink_set_position_target_local_ned_message(
             ms, ts, tc, frame, MASK_Z_ONLY, 0, 0, z, 0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
 
-    def send_position_setpoint(self, sp: trajectories.PositionSetpoint) -> None:
+    def send_position_setpoint(self, sp: trajectories.PositionSetpoint, ms: int | None = None) -> None:
         """SET_POSITION_TARGET_LOCAL_NED, frame LOCAL_NED: x, y [m] and z = −altitude, the velocity
-        feed-forward vx, vy and vz = −climb [m/s], yaw [rad]."""
+        feed-forward vx, vy and vz = −climb [m/s], yaw [rad]; stamped ``ms`` (default :meth:`stamp_ms`)."""
         ts, tc = self.target
-        ms, frame = self.stamp_ms(), mavlink.MAV_FRAME_LOCAL_NED
+        ms, frame = self.stamp_ms() if ms is None else ms, mavlink.MAV_FRAME_LOCAL_NED
         self.send(mavlink.MAVLink_set_position_target_local_ned_message(
             ms, ts, tc, frame, MASK_POSITION_VELOCITY_YAW, sp.x, sp.y, -sp.altitude, sp.vx, sp.vy, -sp.climb,
             0, 0, 0, sp.yaw, 0))  # fmt: skip
+
+    def send_ahead(self, last_sent: object) -> object:
+        """``--setpoints-ahead``: the trajectory at every SETPOINT_MS of the flight, each stamped with the tick it is
+        made for, up to the lead ahead of the vehicle's newest tick seen: the ones that change the reference, and the
+        furthest, which tells the vehicle's clock how far it may go (autopilot.offboard_lockstep holds each until its
+        tick). The flight's last is made for two ticks past its end: the clock then holds at the tick after the end
+        until the landing is asked for. Returns the last setpoint sent."""
+        start = self.logger.flight_start_tick
+        if self.next_moment < 0:
+            self.next_moment = start
+        end, step = start + self.end_ticks, max(1, round(SETPOINT_MS / 1000.0 / self.period))
+        horizon = min(self.vehicle_tick() + self.ahead, end + 2)
+        while self.next_moment <= horizon:
+            g = self.next_moment
+            sp = self.trajectory(min(g - start, self.end_ticks) * self.period)
+            self.next_moment = g + step if g + step <= end else end + 2 if g < end + 2 else 2**62
+            if sp != last_sent or self.next_moment > horizon:
+                self.send_setpoint(sp, round(g * self.period * 1000) & 0xFFFFFFFF)
+                last_sent = sp
+        return last_sent
 
     def measure_pace(self, now: float) -> float:
         """The vehicle's pace [simulated s per wall s] over the last PACE_WINDOW of wall time (its ticks arrive in
@@ -276,6 +302,14 @@ class GroundStation:
         """A setpoint's time_boot_ms [ms]: the vehicle's time of its newest tick seen, which the trajectory is
         sampled at (the autopilot's ``--offboard-lockstep`` holds its clock by it)."""
         return max(0, round(self.vehicle_tick() * self.period * 1000)) & 0xFFFFFFFF
+
+    def flown(self, flight_t: float) -> bool:
+        """The trajectory is flown: ``flight_t`` [s] reached the duration; with ``--setpoints-ahead``, the vehicle's
+        clock stands at the tick after the last (where its clock holds), so the landing comes at the same tick in
+        every run."""
+        if self.ahead and self.logger.flight_start_tick >= 0:
+            return self.vehicle_tick() - self.logger.flight_start_tick >= self.end_ticks + 1
+        return flight_t >= self.duration
 
     def trajectory_time(self) -> float:
         """Flight time [s] of the vehicle's newest tick seen (0 before the flight starts)."""
@@ -336,7 +370,9 @@ class GroundStation:
                     self.interval = read_interval(self.measure_pace(now))
                 elif phase == "flying":
                     self.wait_data = WAIT_MOVING
-                if (
+                if phase == "flying" and self.ahead and self.logger.flight_start_tick >= 0:
+                    last_sp = self.send_ahead(last_sp)
+                elif (
                     (since >= SETPOINT_MS and sp != last_sp)
                     or since >= KEEPALIVE_MS
                     or now - last_sp_wall >= KEEPALIVE_WALL
@@ -369,7 +405,7 @@ class GroundStation:
             if phase == "flying" and self.progress is None:
                 flight_wall_start = now
                 self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: flight")
-            elif phase == "flying" and flight_t >= self.duration:
+            elif phase == "flying" and self.flown(flight_t):
                 phase, last_cmd = "landing", 0.0
                 self.flight_rate = (flight_t, now - flight_wall_start)  # simulated s flown, wall s
                 self.progress.update(flight_t)
@@ -625,6 +661,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="switch to offboard and arm once the vehicle's clock reaches S simulated seconds (its lockstep plant "
         "holding there with --hold-until-armed): the flight starts at the same tick in every run",
     )
+    p.add_argument(
+        "--setpoints-ahead",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="send the trajectory up to S simulated seconds ahead of the vehicle's clock, each setpoint stamped with "
+        "the moment it is for, to an autopilot that flies each from that moment (quadsitl autopilot "
+        "--offboard-lockstep, as quadsitl fly runs both): the flight is the same to the byte on any machine "
+        "(default 0: each setpoint is for the vehicle's newest moment seen, flown as it comes)",
+    )
     p.add_argument("--out", default="runs/gcs", metavar="DIR", help="where telemetry.csv and flight.tlog go")
     p.add_argument("--timeout", type=float, default=600.0, metavar="S", help="give up after S wall seconds")
     p.add_argument("--quiet", "-q", action="store_true")
@@ -639,6 +685,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         check_range("--duration", args.duration, 0.0, 3600.0)
+        if not 0.0 <= args.setpoints_ahead <= 10.0:  # (NaN too)
+            raise UsageError(f"--setpoints-ahead {args.setpoints_ahead!r}: expected a number in [0, 10]")
         args.signing_key = wire.resolve_signing_key(args.signing_key)
         args.home = parse_floats("--home", args.home, 3) if args.home else None
         gcs = GroundStation(args)

@@ -44,10 +44,13 @@ from quadsitl.process_util import (
     stop_status,
 )
 
-# [s] simulated: `fly`'s vehicle clock waits for a ground station whose newest setpoint was made for a moment longer
-# ago than this (autopilot.offboard_lockstep): above the ground station's usual lag at full lockstep speed (0.2-0.3 s
-# at 40x), so a quiet machine never waits, and a busy one never flies a reference older than this.
-OFFBOARD_LOCKSTEP = 0.5
+# [s] simulated: `fly`'s ground station sends the trajectory this far ahead of the vehicle's clock, each setpoint
+# stamped with the tick it is for (gcs --setpoints-ahead), and the autopilot flies each from that tick and answers no
+# tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The lead is above the
+# ground station's usual lag at full lockstep speed (0.2-0.3 s at 40x), so a quiet machine never waits; the reference
+# flown at every tick is the ground station's for that tick on any machine, so every run flies to the byte.
+SETPOINTS_AHEAD = 0.5
+OFFBOARD_LOCKSTEP = 0.0
 # `fly`'s autopilots: a full telemetry link holds the vehicle instead of losing ticks. The ground station's logger must
 # get every tick, and a lockstep clock can wait; dropping lost ticks whenever the logger was descheduled for about
 # 0.1 s while the vehicle ran ahead (the links' buffers hold a few hundred ticks, docs/telemetry.md).
@@ -446,7 +449,8 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         children.start("plant", plant + wind_argv(args) + state_argv(args) + home + hold + ["--hold-when-landed"]
                        + quiet)  # fmt: skip
         gcs = ["groundstation", "--preset", preset_name, "--connect", f"127.0.0.1:{gcs_port}",
-               "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out), *quiet]  # fmt: skip
+               "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out),
+               "--setpoints-ahead", repr(SETPOINTS_AHEAD), *quiet]  # fmt: skip
         if hold:
             gcs += ["--arm-at", repr(SENSOR_GROUND_S)]
         if args.duration:

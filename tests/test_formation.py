@@ -186,9 +186,9 @@ def test_three_vehicles_fly_a_grid_formation_together(tmp_path):
 @pytest.mark.timeout(300)
 def test_a_stalled_ground_station_holds_the_fleets_clock_instead_of_lagging_its_vehicle(tmp_path):
     """v2's ground station stopped for 0.15 s of every 0.3 s of wall time, as a busy machine may deschedule it:
-    v2's autopilot (--offboard-lockstep, as in single flights) holds the fleet's clock for its setpoints, so v2 flies a
-    reference at most 0.5 s old. Without it, on the development machine, v2 strayed 1.43 m from its plan (0.74 m
-    with it; v1 0.30 m)."""
+    v2's autopilot (--offboard-lockstep, as in single flights) holds the fleet's clock for its setpoints, so v2 flies
+    the reference its ground station made for each tick. When formation flights did not hold the clock, on the
+    development machine, v2 strayed 1.43 m from its plan (v1 0.30 m)."""
     from tests.test_fly import stall_child
 
     out = tmp_path / "fleet"
