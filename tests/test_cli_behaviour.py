@@ -249,3 +249,12 @@ def test_a_slow_wait_is_announced_once_with_its_time_and_a_quick_one_not_at_all(
             time.sleep(wait)
         time.sleep(after + 0.1)  # a timer that was not cancelled would have fired by now
         assert quiet.getvalue() == ""
+
+
+@pytest.mark.parametrize("value", ["-0.1", "nan", "11"])
+def test_a_bad_setpoints_ahead_is_refused_in_one_line_before_anything_is_written(value, tmp_path):
+    r = quadsitl("gcs", f"--setpoints-ahead={value}", "--out", str(tmp_path / "o"), timeout=30)
+    assert r.returncode == 2 and r.stdout == ""
+    line = assert_one_line_error(r)
+    assert line == f"quadsitl gcs: error: --setpoints-ahead {float(value)!r}: expected a number in [0, 10]"
+    assert not (tmp_path / "o").exists()
