@@ -380,8 +380,12 @@ class Autopilot:
         polling = wait.polling()
         deadline = min(next_chores, self.last_flush + BATCH_WALL if self.io[kernel.ROWS] else next_chores)
         # With --offboard-lockstep the loop gives the tick before a held setpoint's to Python (_fly_held)
-        limit = plant_loop.NO_LIMIT if self.pace is None else min(self.pace.free_until(self._offboard()),
-                                                                  self.pace.next_due() - 2)  # fmt: skip
+        limit = plant_loop.NO_LIMIT
+        if self.pace is not None:
+            limit = min(self.pace.free_until(self._offboard()), self.pace.next_due() - 2)
+            c = self.commander
+            if c.armed and c.mode == wire.Mode.OFFBOARD and c.offboard_tick < 0:  # the flight's first tick is next:
+                limit = min(limit, int(self.io[kernel.TICK]))  # Python's, which may hold the clock there
         status, nbytes, flags = plant_loop.serve(
             self.plant_sock.fileno(), self.rx_array, self.sender, self.sender_len, self.plant_address, self.tx, self.io,
             self.tick_arguments(), int(deadline * 1e9), polling, int(wait.budget * 1e9),
@@ -1036,7 +1040,9 @@ class Autopilot:
                         self.refresh_streams()
 
     def _offboard(self) -> bool:
-        return self.commander.armed and self.commander.mode == wire.Mode.OFFBOARD
+        """Flying offboard: armed in offboard mode, from the flight's first tick on (the compiled update sets it)."""
+        c = self.commander
+        return c.armed and c.mode == wire.Mode.OFFBOARD and c.offboard_tick >= 0
 
     def wait_for_setpoint(self) -> None:
         """``--offboard-lockstep``: the answer to the plant's tick waits (and with it the simulated clock) until
