@@ -179,6 +179,7 @@ class Autopilot:
         self.origin = (self.home.lat, self.home.lon, self.home.alt)  # where the GPS's positions are taken from
         self.missions = Missions((self.home.lat, self.home.lon, self.home.alt))  # stored, transferred and flown
         self.sysid = args.system_id
+        self.quiet = args.quiet
         self.compid = wire.AUTOPILOT_COMPONENT_ID
         self.mav = wire.link(self.sysid, self.compid)  # the plant link's fallback parser
         self.signing_key: bytes | None = args.signing_key
@@ -1104,7 +1105,7 @@ class Autopilot:
                         print(f"autopilot: error: handling {m.get_type()} from {sender}: {exc!r}", file=sys.stderr)
 
     def close(self) -> None:
-        if self.pace is not None and self.pace.waits:
+        if self.pace is not None and self.pace.waits and (self.pace.gave_up_count or not self.quiet):
             p = self.pace
             print(f"autopilot: --offboard-lockstep: the clock waited for a setpoint {p.waits} times, "
                   f"{p.waited:.3f} s of wall time in all ({p.gave_up_count} ran out of {p.hold_max:g} s)",
@@ -1196,6 +1197,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     telemetry.add_zenoh_arguments(p)
     p.add_argument("--no-zenoh", action="store_true", help="do not publish telemetry to Zenoh")
+    p.add_argument(
+        "--quiet",
+        "-q",
+        action="store_true",
+        help="no note on exit of how often the --offboard-lockstep clock waited, unless a wait ran out",
+    )
     p.add_argument(
         "--telemetry-congestion",
         choices=tuple(CONGESTION),

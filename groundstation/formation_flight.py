@@ -120,7 +120,7 @@ def fly_fleet(args: argparse.Namespace) -> int:
                   "--system-id", str(v.system_id), "--api-listen", f"127.0.0.1:{api_port}", "--api-remote", "none",
                   "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--home", home, "--vehicle", v.name,
                   "--zenoh-listen" if v.index == 0 else "--zenoh-connect", zenoh_ep, *LOGGED,
-                  "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP)]  # fmt: skip
+                  "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP), *quiet]  # fmt: skip
             if args.controller:
                 ap += ["--controller", args.controller]
             children.start(f"autopilot {v.name}", ap + state_argv(args))

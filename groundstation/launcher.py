@@ -419,7 +419,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
               "--api-listen", f"127.0.0.1:{gcs_port}", "--api-remote", "none", "--gcs-listen",
               f"127.0.0.1:{gcs_listen}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep,
-              "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP), *LOGGED]  # fmt: skip
+              "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP), *LOGGED, *quiet]  # fmt: skip
         if args.controller:
             ap += ["--controller", args.controller]
         mission = getattr(args, "mission", None)
