@@ -58,7 +58,7 @@ class OffboardLockstep:
 
     def stamp(self, time_boot_ms: int) -> None:
         """A setpoint made for the vehicle's time ``time_boot_ms`` [ms] (its tick × period)."""
-        self.newest = max(self.newest, round(time_boot_ms / 1000.0 / self.period))
+        self.newest = max(self.newest, self.tick_of(time_boot_ms))
 
     def tick_of(self, time_boot_ms: int) -> int:
         """The tick a setpoint stamped ``time_boot_ms`` [ms] was made for."""

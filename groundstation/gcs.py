@@ -280,7 +280,7 @@ class GroundStation:
             sp = self.trajectory(min(g - start, self.end_ticks) * self.period)
             self.next_moment = g + step if g + step <= end else end + 2 if g < end + 2 else 2**62
             if sp != last_sent or self.next_moment > horizon:
-                self.send_setpoint(sp, round(g * self.period * 1000) & 0xFFFFFFFF)
+                self.send_setpoint(sp, self.ms_of(g))
                 last_sent = sp
         return last_sent
 
@@ -301,7 +301,11 @@ class GroundStation:
     def stamp_ms(self) -> int:
         """A setpoint's time_boot_ms [ms]: the vehicle's time of its newest tick seen, which the trajectory is
         sampled at (the autopilot's ``--offboard-lockstep`` holds its clock by it)."""
-        return max(0, round(self.vehicle_tick() * self.period * 1000)) & 0xFFFFFFFF
+        return self.ms_of(self.vehicle_tick())
+
+    def ms_of(self, tick: int) -> int:
+        """The vehicle's time [ms] at ``tick``, as a time_boot_ms (uint32)."""
+        return max(0, round(tick * self.period * 1000)) & 0xFFFFFFFF
 
     def flown(self, flight_t: float) -> bool:
         """The trajectory is flown: ``flight_t`` [s] reached the duration; with ``--setpoints-ahead``, the vehicle's
