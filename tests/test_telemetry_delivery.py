@@ -31,7 +31,6 @@ def test_a_stopped_subscriber_holds_a_blocking_vehicle_and_gets_every_tick(tmp_p
                                          stdout=subprocess.PIPE, text=True))  # fmt: skip
     assert sub.stdout.readline() == "ready\n"  # its subscription has reached the autopilot
     stats = tmp_path / "stats.json"
-    started = time.monotonic()
     procs.append(plant := subprocess.Popen(
         [sys.executable, "-m", "sitl", "--preset", "x500", "--autopilot", f"127.0.0.1:{plant_port}", "--ticks",
          str(TICKS), "--stats", str(stats)], stderr=subprocess.DEVNULL))  # fmt: skip
@@ -43,7 +42,6 @@ def test_a_stopped_subscriber_holds_a_blocking_vehicle_and_gets_every_tick(tmp_p
     finally:
         os.kill(sub.pid, signal.SIGCONT)
     assert plant.wait(120) == 0
-    took = time.monotonic() - started
     out, _ = sub.communicate("", timeout=60)
     got = json.loads(out)
     assert ap.poll() is None  # the vehicle waited; nothing failed
@@ -51,4 +49,3 @@ def test_a_stopped_subscriber_holds_a_blocking_vehicle_and_gets_every_tick(tmp_p
         ticks = got[stream]
         assert ticks == list(range(ticks[0], ticks[-1] + 1)), f"{stream}: ticks lost"
         assert ticks[-1] - ticks[0] + 1 >= TICKS - 1, f"{stream}: {ticks[0]}..{ticks[-1]}"
-    assert took > STOP
