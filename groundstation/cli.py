@@ -650,7 +650,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         import importlib
 
         module = PROCESSES[argv[0]][0]  # imported inside run_stoppable: a stop may come while it loads
-        return run_stoppable(lambda: importlib.import_module(module).main(argv[1:]),
+        return run_stoppable(lambda: importlib.import_module(module).main(argv[1:]), name=f"quadsitl {argv[0]}",
                              stopped=None if argv[0] in ("gcs", "bench") else 0)  # fmt: skip
     parser = build_parser()
     args = parser.parse_args(attach_negative_values(argv, ("--gains", "--poles")))

@@ -442,22 +442,34 @@ def stop_status(exc: BaseException) -> int:
     return 128 + signal.SIGINT
 
 
-def run_stoppable(main: Callable[[], int], stopped: int | None = 0) -> int:
+def run_stoppable(main: Callable[[], int], stopped: int | None = 0, name: str = "quadsitl") -> int:
     """Run a process's ``main()`` and return its exit status. A stop request that ``main`` did not handle
     itself, because it came during start-up (arguments, presets, sockets, compiling), before ``main``'s own
     ``try``, ends the process quietly, without a traceback: status ``stopped`` (0 for a command that runs until
     stopped), or, when ``stopped`` is None, 128 + the signal. Every process entry point goes through this
-    (``python -m sitl``, ``-m autopilot``, ``-m groundstation``, the dashboard, replay, and ``quadsitl``)."""
+    (``python -m sitl``, ``-m autopilot``, ``-m groundstation``, the dashboard, replay, and ``quadsitl``). An error
+    that escapes ``main`` after a stop request is taken as that stop's (the interrupted code reported it as its own)
+    and printed as one line ``NAME: stopped; while stopping: ...``."""
     try:
         return main()
     except StopRequested as exc:
         return stop_status(exc) if stopped is None else stopped
+    except Exception as exc:
+        if _stop_requested is None:
+            raise
+        # The stop request interrupted code that reported it as an error of its own: CPython's import of ssl,
+        # interrupted at one spot, raised "TypeError: expected a message argument" instead of the StopRequested
+        # (a dashboard stopped as it started, ci on a96fa71). The process was asked to stop and stopped: the stop's
+        # status, and one line instead of a traceback, so that a real error in a clean-up stays visible.
+        print(f"{name}: stopped; while stopping: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 128 + _stop_requested if stopped is None else stopped
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 FORCE_AFTER = 2.0  # [s] a second stop signal later than this after the first interrupts the clean-up too
 LOST_STOP_AGAIN = 0.005  # [s] when a stop request raised where Python drops exceptions is raised again
 _stop_requested_at: float | None = None
+_stop_requested: int | None = None  # the signal of this process's first stop request
 
 
 def handle_stop_signals() -> None:
@@ -470,15 +482,17 @@ def handle_stop_signals() -> None:
     (or ``kill -INT``) would not stop ``quadsitl up &``. A signal that comes while a stop is already under way
     is ignored for FORCE_AFTER seconds (a launcher's SIGTERM to its children right after the terminal's
     SIGINT reached them all must not interrupt their clean-up); a later one interrupts the clean-up too."""
-    global _stop_requested_at
-    _stop_requested_at = None
+    global _stop_requested_at, _stop_requested
+    _stop_requested_at = _stop_requested = None
 
     def handler(signum: int, _frame: object) -> None:
-        global _stop_requested_at
+        global _stop_requested_at, _stop_requested
         now = time.monotonic()
         if _stop_requested_at is not None and now - _stop_requested_at < FORCE_AFTER:
             return
         _stop_requested_at = now
+        if _stop_requested is None:
+            _stop_requested = signum
         raise StopRequested(signum)
 
     for sig in STOP_SIGNALS:

@@ -174,6 +174,43 @@ def test_a_stop_that_main_did_not_catch_ends_the_process_quietly():
     assert run_stoppable(lambda: 7) == 7
 
 
+REPORTED_AS_ANOTHER_ERROR = """
+import os, signal, sys
+from quadsitl.process_util import StopRequested, handle_stop_signals, run_stoppable
+
+def interrupted_library():
+    try:
+        os.kill(os.getpid(), signal.SIGNAL)
+        for _ in range(10_000_000):  # the handler runs here
+            pass
+    except StopRequested:  # as CPython's import of ssl did once, interrupted at one spot
+        raise TypeError("expected a message argument") from None
+    return 3
+
+def main():
+    handle_stop_signals()
+    if sys.argv[1] == "real":
+        raise TypeError("a real error")
+    return interrupted_library()
+
+sys.exit(run_stoppable(main, stopped=None if sys.argv[2] == "job" else 0, name="quadsitl dashboard"))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("kind", ["job", "server"])
+def test_a_stop_that_the_interrupted_code_reports_as_another_error_is_still_a_stop(sig, kind):
+    """A dashboard stopped as it started (ci on a96fa71): the SIGINT interrupted CPython's import of ssl, which
+    raised a TypeError instead, and the process died with a traceback and status 1. Now the stop's status and one
+    line; an error with no stop request behind it still gets its traceback."""
+    code = REPORTED_AS_ANOTHER_ERROR.replace("signal.SIGNAL", f"signal.{sig.name}")
+    r = subprocess.run([sys.executable, "-c", code, "interrupted", kind], capture_output=True, text=True, timeout=30)
+    assert r.returncode == (128 + sig if kind == "job" else 0), (r.returncode, r.stderr)
+    assert r.stderr == "quadsitl dashboard: stopped; while stopping: TypeError: expected a message argument\n"
+    r = subprocess.run([sys.executable, "-c", code, "real", kind], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 1 and "Traceback" in r.stderr and "TypeError: a real error" in r.stderr, r.stderr
+
+
 LOST_STOP = """
 import os, signal, sys, time
 from quadsitl.process_util import handle_stop_signals, run_stoppable
