@@ -118,6 +118,27 @@ def test_waits_made_by_a_compiled_loop_count_as_its_own():
     assert wait.cooled == 1 and wait.hot and not wait.polling()
 
 
+def test_a_compiled_loops_polls_counted_at_once_are_counted_as_one_by_one():
+    """tally counts a loop's thousands of polls window by window: the verdicts (windows judged, polling stopped,
+    its doubling pause) are those of one _verdict per poll, the first ``late`` of each report missing."""
+    import random
+
+    rng = random.Random(7)
+    bulk, single = SpinThenBlock(lambda *a: b"x", budget=0.001), SpinThenBlock(lambda *a: b"x", budget=0.001)
+    pauses = set()
+    for _ in range(400):
+        polled = rng.choice([0, 1, 5, SPIN_WINDOW - 1, SPIN_WINDOW, 3 * SPIN_WINDOW + 17, rng.randrange(2000)])
+        late = rng.choice([0, 0, polled, rng.randrange(polled + 1), SPIN_MISSES + 1])
+        bulk.tally(polled, late, False, 0, 0)
+        single.polled += polled
+        for i in range(polled):
+            single._verdict(miss=i < late)
+        state = lambda w: (w.polled, w._polls, w._misses, w._strikes, w._cool, w.cooled)  # noqa: E731
+        assert state(bulk) == state(single)
+        pauses.add(bulk._cool)
+    assert bulk.cooled > 3 and pauses == {0.25, 0.5, 1.0, 2.0, 4.0}  # polling stopped, its pause doubled, and reset
+
+
 def test_the_pace_gauge_tells_a_paced_peer_from_one_nothing_paces():
     gauge = PaceGauge(period=0.001, window=0.125)  # (times in binary fractions: exact sums)
     assert gauge.update(0, 10.0) is None  # the first window begins
