@@ -268,7 +268,11 @@ class SpinThenBlock:
         return self._short
 
     def _verdict(self, miss: bool) -> None:
-        self._verdicts(1, int(miss))
+        """One poll (a miss: it ran out, or its datagram came late); the Python loops' per-receive path."""
+        self._polls += 1
+        self._misses += miss
+        if self._polls >= SPIN_WINDOW:
+            self._judge()
 
     def _verdicts(self, polls: int, late: int) -> None:
         """``polls`` polls in a row, the first ``late`` of them misses, counted window by window: the same as one
