@@ -47,8 +47,10 @@ from quadsitl.process_util import (
 # [s] simulated: `fly`'s ground station sends the trajectory this far ahead of the vehicle's clock, each setpoint
 # stamped with the tick it is for (gcs --setpoints-ahead), and the autopilot flies each from that tick and answers no
 # tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The lead is above the
-# ground station's usual lag at full lockstep speed (0.2-0.3 s at 40x), so a quiet machine never waits; the reference
-# flown at every tick is the ground station's for that tick on any machine, so every run flies to the byte.
+# ground station's usual lag at full lockstep speed (0.2-0.3 s at 40x); the ground station tops it up once the clock
+# is within half of it, so the clock waits for it a few times a flight (4-23 in a 60 s paper flight on a quiet 2-core
+# machine, 0.06-0.12 s in all). The reference flown at every tick is the ground station's for that tick on any
+# machine, so every run flies to the byte.
 SETPOINTS_AHEAD = 0.5
 OFFBOARD_LOCKSTEP = 0.0
 # `fly`'s autopilots: a full telemetry link holds the vehicle instead of losing ticks. The ground station's logger must
