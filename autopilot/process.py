@@ -13,7 +13,9 @@ Sockets, like PX4 SITL's:
   MAVLink 2, PX4 conventions (:mod:`autopilot.gcs_messages`).
 
 Every control tick it publishes state, reference, actuators and status to Zenoh
-(:mod:`quadsitl.telemetry`); publishing drops rather than blocks, so the loop never waits on a subscriber.
+(:mod:`quadsitl.telemetry`). By default publishing drops rather than blocks, so the loop never waits on a
+subscriber; ``--telemetry-congestion block`` (``quadsitl fly`` and formation flights) makes a full link hold the
+lockstep clock instead, so that no tick is lost to the logger.
 """
 
 from __future__ import annotations
