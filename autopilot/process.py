@@ -121,8 +121,10 @@ class GcsLink:
     """One ground-station socket: a bound local address, an optional fixed remote, learned peers, and
     its own message intervals (SET_MESSAGE_INTERVAL applies to the link it arrives on, as in PX4)."""
 
-    def __init__(self, name: str, sock: socket.socket, remote: tuple[str, int] | None, streams: MessageStreams):
+    def __init__(self, name: str, sock: socket.socket, remote: tuple[str, int] | None, streams: MessageStreams,
+                 label: str = "autopilot") -> None:  # fmt: skip
         self.name, self.sock, self.remote, self.streams = name, sock, remote, streams
+        self.label = label  # who says so on stderr: "autopilot v2"
         self.peers: dict[tuple[str, int], float] = {}  # address → wall time last heard
         self.send_errors = 0  # datagrams the OS refused to send (a peer gone, a remote this socket cannot reach)
         self._told: set[tuple[tuple[str, int], int | None]] = set()  # (destination, errno) already reported
@@ -143,8 +145,8 @@ class GcsLink:
                     self._told.add((peer, exc.errno))
                     host, port = self.sock.getsockname()[:2]
                     why = exc.strerror or exc
-                    print(f"autopilot: {self.name} link: cannot send to {peer[0]}:{peer[1]} from {host}:{port}: {why} "
-                          "(said once for this destination and error)", file=sys.stderr)  # fmt: skip
+                    print(f"{self.label}: {self.name} link: cannot send to {peer[0]}:{peer[1]} from {host}:{port}: "
+                          f"{why} (said once for this destination and error)", file=sys.stderr)  # fmt: skip
         return len(self.peers) == peers
 
     def destinations(self) -> list[tuple[str, int]]:
@@ -182,6 +184,7 @@ class Autopilot:
         self.missions = Missions((self.home.lat, self.home.lon, self.home.alt))  # stored, transferred and flown
         self.sysid = args.system_id
         self.quiet = args.quiet
+        self.label = f"autopilot {getattr(args, 'vehicle', 'v1')}"  # on stderr: a fleet's autopilots told apart
         self.compid = wire.AUTOPILOT_COMPONENT_ID
         self.mav = wire.link(self.sysid, self.compid)  # the plant link's fallback parser
         self.signing_key: bytes | None = args.signing_key
@@ -200,7 +203,7 @@ class Autopilot:
             remote = parse_remote(f"--{name}-remote", getattr(args, f"{name}_remote"))
             sock = bind_udp(f"--{name}-listen", getattr(args, f"{name}_listen"))
             streams = MessageStreams(self.period, args.telemetry_rate, phase_of(self.sysid), spread_of(self.sysid))
-            self.links.append(GcsLink(name, sock, remote, streams))
+            self.links.append(GcsLink(name, sock, remote, streams, self.label))
         self.streams = self.links[0].streams  # for what every link's streams share: which ids are streamed
         # The per-tick telemetry messages (autopilot.stream_frames) are built by the compiled tick and sent by the
         # compiled loop, on unsigned links (a signed link's frames are pymavlink's to sign: Python builds them all).
@@ -1104,12 +1107,12 @@ class Autopilot:
                     try:
                         self.on_gcs(m, link, sender)
                     except Exception as exc:  # a bug must not take the vehicle down: report it, fly on
-                        print(f"autopilot: error: handling {m.get_type()} from {sender}: {exc!r}", file=sys.stderr)
+                        print(f"{self.label}: error: handling {m.get_type()} from {sender}: {exc!r}", file=sys.stderr)
 
     def close(self) -> None:
         if self.pace is not None and self.pace.waits and (self.pace.gave_up_count or not self.quiet):
             p = self.pace
-            print(f"autopilot: --offboard-lockstep: the clock waited for a setpoint {p.waits} times, "
+            print(f"{self.label}: --offboard-lockstep: the clock waited for a setpoint {p.waits} times, "
                   f"{p.waited:.3f} s of wall time in all ({p.gave_up_count} ran out of {p.hold_max:g} s)",
                   file=sys.stderr)  # fmt: skip
         if self.pubs:

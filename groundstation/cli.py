@@ -39,7 +39,14 @@ from quadsitl.cli_util import (
     with_wind,
 )
 from quadsitl.config import ConfigError, Preset, load_preset, preset_toml
-from quadsitl.process_util import CORES_AWAKE_HELP, PLANT_DIVERGED, handle_stop_signals, run_stoppable, stop_status
+from quadsitl.process_util import (
+    CORES_AWAKE_HELP,
+    PLANT_DIVERGED,
+    handle_stop_signals,
+    run_stoppable,
+    stop_status,
+    whole_lines,
+)
 from sitl.cli import add_presets_arguments, run_presets
 from sitl.impair import add_impair_argument, impairment_from
 
@@ -645,6 +652,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """The ``quadsitl`` command: every command stops cleanly on SIGINT and SIGTERM, also when started with SIGINT
     ignored (a script's background job); the process commands install the same handlers themselves."""
     handle_stop_signals()
+    whole_lines()
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in PROCESSES:  # the process commands parse their own options
         import importlib

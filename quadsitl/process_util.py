@@ -7,6 +7,7 @@ import ctypes
 import errno
 import functools
 import gc
+import io
 import os
 import random
 import select
@@ -459,6 +460,17 @@ def stop_status(exc: BaseException) -> int:
     return 128 + signal.SIGINT
 
 
+def whole_lines() -> None:
+    """Make this process write each line of stdout and stderr in one ``write``, flushed at its newline. Unbuffered
+    (``PYTHONUNBUFFERED=1``, common in containers and CI), Python's ``print`` writes its text and its newline in two
+    calls, and the children of ``fly``/``up``, which share the launcher's terminal, interleaved their lines: two
+    autopilots of a fleet ending at once printed ``...0.25 s)autopilot: ...`` and then an empty line. Line buffering
+    keeps what unbuffered output is for: every line out as soon as it ends."""
+    for stream in (sys.stdout, sys.stderr):
+        if isinstance(stream, io.TextIOWrapper) and stream.write_through:
+            stream.reconfigure(line_buffering=True, write_through=False)
+
+
 def run_stoppable(main: Callable[[], int], stopped: int | None = 0, name: str = "quadsitl") -> int:
     """Run a process's ``main()`` and return its exit status. A stop request that ``main`` did not handle
     itself, because it came during start-up (arguments, presets, sockets, compiling), before ``main``'s own
@@ -467,6 +479,7 @@ def run_stoppable(main: Callable[[], int], stopped: int | None = 0, name: str = 
     (``python -m sitl``, ``-m autopilot``, ``-m groundstation``, the dashboard, replay, and ``quadsitl``). An error
     that escapes ``main`` after a stop request is taken as that stop's (the interrupted code reported it as its own)
     and printed as one line ``NAME: stopped; while stopping: ...``."""
+    whole_lines()
     try:
         return main()
     except StopRequested as exc:

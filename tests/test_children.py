@@ -1,11 +1,15 @@
 """The launcher's children stopped together: ``Children.stop(names=...)`` sends each of the named processes its
 SIGTERM first and then waits for all, so a fleet's autopilots and ground stations close their sessions at the
-same time, not one after another; the processes it was not given go on."""
+same time, not one after another; the processes it was not given go on. And children that share the launcher's
+stderr write whole lines, also unbuffered."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+import tempfile
+import time
 
 from groundstation.launcher import Children
 
@@ -41,3 +45,46 @@ def test_the_named_children_are_stopped_together_and_the_others_go_on():
             p.kill()
             p.wait()
             p.stdout.close()
+
+
+LINES = 3000
+WRITER = f"""
+import sys, time
+from quadsitl.process_util import whole_lines
+if sys.argv[2] == "whole":
+    whole_lines()
+while time.time() < float(sys.argv[3]):  # both start writing at once
+    pass
+for i in range({LINES}):
+    print(sys.argv[1] * 40, i, file=sys.stderr)
+"""
+
+
+def interleaved_lines(mode: str) -> tuple[list[str], list[str]]:
+    """Two unbuffered children (PYTHONUNBUFFERED=1, as containers and CI set it) printing to one shared stderr, as a
+    fleet's autopilots share the launcher's → (every line, the lines that are not one child's whole line)."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    start = str(time.time() + 1.0)
+    with tempfile.TemporaryFile("w+") as shared:
+        argv = [sys.executable, "-c", WRITER]
+        procs = [subprocess.Popen([*argv, tag, mode, start], stderr=shared, env=env) for tag in "ab"]
+        for proc in procs:
+            assert proc.wait(timeout=60) == 0
+        shared.seek(0)
+        lines = shared.read().splitlines()
+    whole = {f"{tag * 40} {i}" for tag in "ab" for i in range(LINES)}
+    return lines, [line for line in lines if line not in whole]
+
+
+def test_children_sharing_an_unbuffered_stderr_write_whole_lines():
+    """``run_stoppable`` (every process) and ``quadsitl`` call ``whole_lines()``: each line one write, so lines of two
+    children never mix. Without it, Python writes a line's text and its newline in two calls: the control run shows
+    the lines mixing on the same machine (two autopilots of ``fly --vehicles 2`` printed
+    ``...0.25 s)autopilot: ...`` once)."""
+    lines, broken = interleaved_lines("whole")
+    assert len(lines) == 2 * LINES and not broken, broken[:5]
+    for _ in range(5):  # the control: a race, so tried a few times
+        lines, broken = interleaved_lines("raw")
+        if broken:
+            break
+    assert broken, "unbuffered children never mixed their lines here: the test above proves nothing"

@@ -206,6 +206,6 @@ def test_a_stalled_ground_station_holds_the_fleets_clock_instead_of_lagging_its_
         err.seek(0)
         said = err.read()
     assert stalls > 5, stalls
-    assert "autopilot: --offboard-lockstep: the clock waited for a setpoint" in said, said
+    assert "autopilot v2: --offboard-lockstep: the clock waited for a setpoint" in said, said
     v2 = json.loads((out / "metrics.json").read_text())["per_vehicle"]["v2"]["backstepping"]
     assert v2["horizontal_max"] < 1.2, v2

@@ -13,7 +13,7 @@ def test_refused_sends_are_counted_and_said_once_per_destination_and_error(capsy
         sock.bind(("127.0.0.1", 0))
         listener.bind(("127.0.0.1", 0))
         # A loopback-bound socket cannot reach another host (EINVAL): the mistake `up` once made with --gcs-remote.
-        link = GcsLink("gcs", sock, ("10.255.255.1", 14550), MessageStreams(0.001, 1.0))
+        link = GcsLink("gcs", sock, ("10.255.255.1", 14550), MessageStreams(0.001, 1.0), "autopilot v2")
         link.peers[listener.getsockname()] = 0.0  # a learned peer that works
         for _ in range(3):
             link.send(b"x")
@@ -21,7 +21,7 @@ def test_refused_sends_are_counted_and_said_once_per_destination_and_error(capsy
         assert listener.recv(16) == b"x"  # the reachable peer still gets every datagram
         lines = [line for line in capsys.readouterr().err.splitlines() if "cannot send" in line]
         port = sock.getsockname()[1]
-        assert lines == [f"autopilot: gcs link: cannot send to 10.255.255.1:14550 from 127.0.0.1:{port}: Invalid "
+        assert lines == [f"autopilot v2: gcs link: cannot send to 10.255.255.1:14550 from 127.0.0.1:{port}: Invalid "
                          "argument (said once for this destination and error)"]  # fmt: skip
         link.peers[("127.0.0.1", 0)] = 0.0  # a learned peer the OS refuses (port 0): dropped, said once
         link.send(b"y")
