@@ -44,6 +44,7 @@ from quadsitl.process_util import (
     PLANT_DIVERGED,
     handle_stop_signals,
     run_stoppable,
+    stop_requested,
     stop_status,
     whole_lines,
 )
@@ -670,6 +671,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as exc:  # SIGINT or SIGTERM (StopRequested), when a command did not handle it
         print(f"quadsitl {args.command}: interrupted", file=sys.stderr)
         return stop_status(exc)
+    except Exception as exc:
+        signum = stop_requested()
+        if signum is None:
+            raise
+        # as run_stoppable: the stop came where the interrupted code reported it as an error of its own
+        print(f"quadsitl {args.command}: interrupted; while stopping: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 128 + signum
 
 
 if __name__ == "__main__":

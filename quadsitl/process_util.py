@@ -485,14 +485,20 @@ def run_stoppable(main: Callable[[], int], stopped: int | None = 0, name: str = 
     except StopRequested as exc:
         return stop_status(exc) if stopped is None else stopped
     except Exception as exc:
-        if _stop_requested is None:
+        signum = stop_requested()
+        if signum is None:
             raise
         # The stop request interrupted code that reported it as an error of its own: CPython's import of ssl,
         # interrupted at one spot, raised "TypeError: expected a message argument" instead of the StopRequested
         # (a dashboard stopped as it started, ci on a96fa71). The process was asked to stop and stopped: the stop's
         # status, and one line instead of a traceback, so that a real error in a clean-up stays visible.
         print(f"{name}: stopped; while stopping: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 128 + _stop_requested if stopped is None else stopped
+        return 128 + signum if stopped is None else stopped
+
+
+def stop_requested() -> int | None:
+    """The signal of this process's first stop request (SIGINT or SIGTERM), or None if it was never asked to stop."""
+    return _stop_requested
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)

@@ -242,3 +242,37 @@ def test_a_stop_raised_where_python_drops_exceptions_is_raised_again(sig):
     assert time.monotonic() - started < 8.0, "the stop was lost: the process slept on"
     assert r.returncode == 128 + sig, (r.returncode, r.stderr)
     assert "Exception ignored" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+COMMAND_REPORTED_AS_ANOTHER_ERROR = """
+import os, signal, sys
+import groundstation.cli as cli
+from quadsitl.process_util import StopRequested
+
+def presets(args):
+    if sys.argv[1] == "real":
+        raise TypeError("a real error")
+    try:
+        os.kill(os.getpid(), signal.SIGNAL)
+        for _ in range(10_000_000):  # the handler runs here
+            pass
+    except StopRequested:  # as CPython's import of ssl did once, interrupted at one spot
+        raise TypeError("expected a message argument") from None
+    return 3
+
+cli.run_presets = presets  # `quadsitl presets`, a command that is not a process of its own, is this one
+sys.exit(cli.main(["presets"]))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_command_stopped_where_the_interrupted_code_reports_another_error_says_interrupted(sig):
+    """The commands that are not processes of their own (fly, sim, sweep, ...) take the same rule as run_stoppable:
+    a stop reported as another error is the stop (one line, 128 + the signal), and a real error keeps its
+    traceback."""
+    code = COMMAND_REPORTED_AS_ANOTHER_ERROR.replace("signal.SIGNAL", f"signal.{sig.name}")
+    r = subprocess.run([sys.executable, "-c", code, "interrupted"], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 128 + sig, (r.returncode, r.stderr)
+    assert r.stderr == "quadsitl presets: interrupted; while stopping: TypeError: expected a message argument\n"
+    r = subprocess.run([sys.executable, "-c", code, "real"], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 1 and "Traceback" in r.stderr and "TypeError: a real error" in r.stderr, r.stderr
