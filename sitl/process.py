@@ -78,6 +78,7 @@ from quadsitl.process_util import (
 from quadsitl.telemetry import add_zenoh_arguments, config_from_args
 from quadsitl.timing import late_periods, period_stats
 from sitl import lockstep_loop, realtime_loop, tick
+from sitl.fleet_arrays import FleetArrays
 from sitl.impair import Impairment, add_impair_argument, impairment_from
 from sitl.plant import Plant, outside_what, state_inside
 from sitl.realtime_fleet import RealtimeFleet
@@ -370,12 +371,14 @@ def warm_up(plant: Plant) -> None:
             realtime_loop.heard(rt, 1)  # (a held lockstep clock's: PlantLink.heard and check_lost)
             realtime_loop.lost_clock(rt, 2, LOST_AFTER_NS)
             realtime_loop.send_order(0, 0, 1)  # (the Python period's order of sending, impaired links)
-            for polling in (True, False):
-                io[tick.LAST_USEC] = -1
-                b.send(link[:n].tobytes())
-                lockstep_loop.run(a.fileno(), np.zeros(65535, dtype=np.uint8), 0, 1, 1.0, twin.commanded.copy(),
-                                  twin.commanded, args, 0, polling, 1000, 1000, HOT_AFTER,
-                                  np.zeros(lockstep_loop.STATS_SIZE, dtype=np.int64))  # fmt: skip
+            # the lockstep clock (sitl.lockstep_loop): a fleet of one, its answer to tick 0 waiting
+            rt_io[0, tick.LAST_USEC] = -1
+            b.send(link[:n].tobytes())
+            lockstep_loop.run(fds, np.zeros(65535, dtype=np.uint8), 0, 1, np.ones(1), received, work, params, air_rng,
+                              sens, np.array([twin.substeps]), np.array([twin.method]), twin.period, tx, rt_io,
+                              np.zeros_like(tx), np.zeros(1, dtype=np.int64), 0, np.ones(1, dtype=np.bool_),
+                              np.full(1, 1000), np.full(1, 1000), HOT_AFTER,
+                              np.zeros((1, lockstep_loop.STATS_SIZE), dtype=np.int64))  # fmt: skip
 
 
 @dataclass
@@ -434,6 +437,12 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
     declare its plant lost and land. Wind changes are taken between two ticks."""
     period = vehicles[0].plant.period
     named = len(vehicles) > 1
+    links = [v.link for v in vehicles]
+    # Unpaced, once the autopilots have answered, the ticks run in compiled code (sitl.lockstep_loop) until Python has
+    # something to do; the loop below then goes on from where it stopped. Its arrays are the fleet's (a row per
+    # vehicle, the vehicles' own arrays views of them), stacked before anything below takes the vehicles' arrays.
+    fast = speed <= 0 and fastio.compiled_loops() and all(link.impairment is None for link in links)
+    fleet = FleetArrays(vehicles) if fast else None
     k = 0
     start = time.monotonic()
     waits = []
@@ -447,36 +456,46 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
         args = (p.x, p.motors, p.out, p.v, p.a, p.air, p.air_rng, period, p.substeps, p.method, link.tx, link.io,
                 p.sensors.arrays)  # fmt: skip
         waits.append((v, link, link.receive, link.rx_array, link.max_thrust, link.received, p.commanded, args))
-    links = [v.link for v in vehicles]
     winds = [v for v in vehicles if v.wind is not None]
     monotonic, lockstep_tick, usec_of = time.monotonic, tick.lockstep_tick, codec.usec_of
-    # One vehicle, unpaced: once its autopilot has answered, the ticks run in compiled code (sitl.lockstep_loop)
-    # until Python has something to do; the loop below then goes on from where it stopped.
-    fast = len(vehicles) == 1 and speed <= 0 and fastio.compiled_loops() and links[0].impairment is None
-    stats = np.zeros(lockstep_loop.STATS_SIZE, dtype=np.int64)
+    count = len(vehicles)
+    stats = np.zeros((count, lockstep_loop.STATS_SIZE), dtype=np.int64)
+    polling = np.zeros(count, dtype=np.bool_)
+    budget_ns, patience_ns = np.zeros(count, dtype=np.int64), np.zeros(count, dtype=np.int64)
+    sent_rows = np.zeros_like(fleet.tx) if fleet is not None else None  # tick k's datagrams, kept by the loop
+    sent_len = np.zeros(count, dtype=np.int64)
     end = np.iinfo(np.int64).max if max_ticks is None else max_ticks
     while max_ticks is None or k < max_ticks:
         taken = None  # (length, result) of a datagram the compiled loop took for tick k, its answer not yet found
         sent = False
-        if fast and links[0].first_heard is not None:
-            v, link, _, rx, max_thrust, received, commanded, args = waits[0]
-            wait = link.wait
+        first = 0  # the first vehicle whose answer to tick k is awaited (those before it stepped in compiled code)
+        if fleet is not None and links[0].first_heard is not None:
             stats[:] = 0
-            stats[lockstep_loop.SHORT] = wait.short
-            polling = wait.polling()
+            for i, link in enumerate(links):
+                wait = link.wait
+                if link.timeout != FREEWHEEL_PERIOD:  # the receive's own timeout: the free-wheel's
+                    set_receive_timeout(link.sock, FREEWHEEL_PERIOD)
+                    link.timeout = FREEWHEEL_PERIOD
+                stats[i, lockstep_loop.SHORT] = wait.short
+                polling[i] = wait.polling()
+                budget_ns[i], patience_ns[i] = int(wait.budget * 1e9), int(wait.patience * 1e9)
             k0 = k
-            status, k, nbytes, r = lockstep_loop.run(
-                link.sock.fileno(), rx, k, end, max_thrust, received, commanded, args,
-                time.monotonic_ns() + LOOP_RETURN_NS, polling, int(wait.budget * 1e9),
-                int(wait.patience * 1e9), HOT_AFTER, stats
+            status, k, first, nbytes, r = lockstep_loop.run(
+                fleet.fds, fleet.rx, k, end, fleet.max_thrust, fleet.received, fleet.work, fleet.params,
+                fleet.air_rng, fleet.sens, fleet.substeps, fleet.method, period, fleet.tx, fleet.io, sent_rows,
+                sent_len, time.monotonic_ns() + LOOP_RETURN_NS, polling, budget_ns, patience_ns, HOT_AFTER, stats
             )  # fmt: skip
-            wait.tally(int(stats[lockstep_loop.POLLED]), int(stats[lockstep_loop.LATE]),
-                       status == lockstep_loop.QUIET, int(stats[lockstep_loop.BLOCKED]),
-                       int(stats[lockstep_loop.SHORT]))  # fmt: skip
+            for i, link in enumerate(links):
+                link.wait.tally(int(stats[i, lockstep_loop.POLLED]), int(stats[i, lockstep_loop.LATE]),
+                                status == lockstep_loop.QUIET and i == first, int(stats[i, lockstep_loop.BLOCKED]),
+                                int(stats[i, lockstep_loop.SHORT]))  # fmt: skip
             if k > k0:
-                link.last_heard = monotonic()
-                for _ in range(k - k0):
-                    v.plant.time += period
+                now = monotonic()
+                for link in links:
+                    link.last_heard = now
+                for v in vehicles:
+                    for _ in range(k - k0):
+                        v.plant.time += period
             if status in (lockstep_loop.DUE, lockstep_loop.END):
                 for w in winds:
                     if w.wind.inbox:
@@ -484,6 +503,7 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
                 continue
             sent = True
             if status == lockstep_loop.TAKEN:
+                links[first].rx_array[:nbytes] = fleet.rx[:nbytes]  # (for pymavlink, if it is its to decode)
                 taken = (nbytes, r)
             elif status == lockstep_loop.TIMED_OUT:
                 taken = (-1, None)
@@ -492,9 +512,12 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
             for link in links:
                 link.send()
         if named:  # tick k's datagrams, to send again while any vehicle keeps the fleet waiting
-            sent_frames = [bytes(link.tx_view[: link.io[tick.TX_LEN]]) for link in links]
+            if sent:  # by the compiled loop, which kept them: the vehicles before `first` hold their next already
+                sent_frames = [bytes(row[:n]) for row, n in zip(sent_rows, sent_len.tolist(), strict=True)]
+            else:
+                sent_frames = [bytes(link.tx_view[: link.io[tick.TX_LEN]]) for link in links]
         held = links[0].first_heard is None
-        for v, link, receive, rx, max_thrust, received, commanded, args in waits:
+        for v, link, receive, rx, max_thrust, received, commanded, args in waits[first:]:
             while True:
                 if taken is not None:
                     (nbytes, r), taken = taken, None

@@ -1,13 +1,6 @@
-"""A real-time fleet's arrays, one per field and a row per vehicle, and its period in two compiled calls
-(:func:`sitl.realtime_loop.send_ticks`, :func:`sitl.realtime_loop.take_and_step_all`), whatever the number of
-vehicles.
-
-:class:`RealtimeFleet` stacks each vehicle's arrays (its plant's work, parameters and turbulence stream, its
-sensors', its link's) into one array per field, and gives every vehicle's objects their rows back as their own
-arrays: a row is a view, so the plant, its sensors and its link read and write the fleet's arrays as before
-(``plant.x``, ``link.io``, ``Vehicle.answered``, the run's statistics), and the Python paths (a datagram only
-pymavlink reads, a wind change) work on them unchanged. The vehicles' presets may differ (airframes, integrators,
-substeps); the arrays' sizes do not.
+"""A real-time fleet's period in two compiled calls (:func:`sitl.realtime_loop.send_ticks`,
+:func:`sitl.realtime_loop.take_and_step_all`), whatever the number of vehicles, on the fleet's arrays stacked a row
+per vehicle (:class:`sitl.fleet_arrays.FleetArrays`).
 """
 
 from __future__ import annotations
@@ -19,22 +12,10 @@ import numpy as np
 
 from quadsitl.jit import specialized
 from sitl import realtime_loop
+from sitl.fleet_arrays import FleetArrays
 
 if TYPE_CHECKING:
     from sitl.process import Vehicle
-
-PLANT_FIELDS = ("work", "params", "air_rng")  # sitl.plant.Plant's own arrays (the rest are views of work, params)
-SENSOR_FIELDS = ("p", "rng", "bias", "clock", "queue", "out")  # sitl.sensors.Sensors.arrays, in that order
-LINK_FIELDS = ("tx", "io", "rt", "received")  # sitl.process.PlantLink's
-
-
-def stacked(owners: Sequence[object], field: str) -> np.ndarray:
-    """One array whose row i is ``owners[i]``'s array ``field``, which becomes that row (a view: the owner keeps
-    reading and writing it as its own)."""
-    rows = np.stack([getattr(owner, field) for owner in owners])
-    for i, owner in enumerate(owners):
-        setattr(owner, field, rows[i])
-    return rows
 
 
 class RealtimeFleet:
@@ -43,25 +24,13 @@ class RealtimeFleet:
 
     def __init__(self, vehicles: Sequence[Vehicle]) -> None:
         self.vehicles = list(vehicles)
-        plants = [v.plant for v in self.vehicles]
-        links = [v.link for v in self.vehicles]
-        self.period = plants[0].period
-        work, params, air_rng = (stacked(plants, f) for f in PLANT_FIELDS)
-        for plant in plants:
-            plant._views()  # x, commanded, out, ...: views of the plant's row of work
-        sens = tuple(stacked([p.sensors for p in plants], f) for f in SENSOR_FIELDS)
-        tx, io, rt, received = (stacked(links, f) for f in LINK_FIELDS)
-        for link in links:
-            link.tx_view = memoryview(link.tx)  # type: ignore[arg-type]
-        fds = np.array([link.sock.fileno() for link in links], dtype=np.int64)
-        self.rx = np.zeros(65535, dtype=np.uint8)  # every vehicle's answers, one after the other
-        max_thrust = np.array([link.max_thrust for link in links])
-        substeps = np.array([p.substeps for p in plants], dtype=np.int64)
-        method = np.array([p.method for p in plants], dtype=np.int64)
-        self.said = np.zeros(len(links), dtype=np.int64)  # LOST_NOW | BACK_NOW, by vehicle, for Python to say
-        self.rt = rt
-        self.send_args = (fds, tx, io, work, sens)
-        self.take_args = (fds, self.rx, received, max_thrust, io, rt, work, params, air_rng, substeps, method)
+        a = FleetArrays(self.vehicles)
+        self.period, self.rx = a.period, a.rx
+        self.said = np.zeros(len(self.vehicles), dtype=np.int64)  # LOST_NOW | BACK_NOW, by vehicle, for Python to say
+        self.rt = a.rt
+        self.send_args = (a.fds, a.tx, a.io, a.work, a.sens)
+        self.take_args = (a.fds, a.rx, a.received, a.max_thrust, a.io, a.rt, a.work, a.params, a.air_rng, a.substeps,
+                          a.method)  # fmt: skip
         self._send = specialized(realtime_loop.send_ticks, *self.send_args, 0, self.period)
         self._take = specialized(realtime_loop.take_and_step_all, *self.take_args, 0, 0, True, self.period, 0,
                                  self.said)  # fmt: skip

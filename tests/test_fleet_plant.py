@@ -127,6 +127,40 @@ def test_lockstep_no_vehicle_runs_ahead_and_a_silent_one_holds_the_fleet():
 
 
 @pytest.mark.timeout(60)
+def test_in_flight_a_silent_last_vehicle_holds_the_fleet_and_the_others_get_their_tick_again():
+    """Once every autopilot has answered, the fleet's clock runs in compiled code (sitl.lockstep_loop), and the
+    vehicles before a silent one have already stepped, their next datagram in their own buffers: the re-sends while
+    the fleet waits must be the tick they answered, never the next (the loop keeps each tick's datagrams)."""
+    with fleet_plant(3, "--quiet") as (plant, aps):
+        for k in range(100):  # the clock runs: the first answers were heard
+            want = codec.usec_of(k, PAPER.sim.period)
+            stamps = [ap.next_tick(30 if k == 0 else 5, since=want)[0] for ap in aps]
+            assert stamps == [want] * 3, (k, stamps)
+            for ap in aps:
+                ap.answer(want, (HOVER,) * 4)
+        held = codec.usec_of(100, PAPER.sim.period)
+        assert [ap.next_tick(5, since=held)[0] for ap in aps] == [held] * 3
+        aps[0].answer(held, (HOVER,) * 4)
+        aps[1].answer(held, (HOVER,) * 4)  # vehicle 3 says nothing: vehicles 1 and 2 step, the fleet waits
+        resent = {0: [], 1: []}
+        end = time.monotonic() + 10
+        while time.monotonic() < end and min(len(r) for r in resent.values()) < 3:
+            for i in (0, 1):
+                with contextlib.suppress(AssertionError):
+                    resent[i].append(aps[i].next_tick(0.05)[0])
+        assert resent[0][:3] == [held] * 3 and resent[1][:3] == [held] * 3, resent
+        assert all(t == held for r in resent.values() for t in r), resent  # never tick 101 before vehicle 3 answers
+        aps[2].answer(held, (HOVER,) * 4)
+        for k in range(101, 120):  # and on together
+            want = codec.usec_of(k, PAPER.sim.period)
+            stamps = [ap.next_tick(5, since=want)[0] for ap in aps]
+            assert stamps == [want] * 3, (k, stamps)
+            for ap in aps:
+                ap.answer(want, (HOVER,) * 4)
+        assert plant.poll() is None
+
+
+@pytest.mark.timeout(60)
 def test_an_autopilot_gone_is_waited_for_at_the_free_wheel_pace_not_flooded():
     """An autopilot whose port is closed answers each of the plant's sends with an ICMP error, which ends the plant's
     next receive at once. The plant must still wait FREEWHEEL_PERIOD (50 ms) between its sends of the held tick: it

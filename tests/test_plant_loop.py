@@ -340,19 +340,28 @@ def test_arming_answers_a_holding_plant_at_once(vehicle):
     assert answer_of(plant.recv(1000)) == (1000, True)  # the same tick's answer, armed, without a re-send
 
 
-@pytest.mark.parametrize("preset", ["paper", "sensors"])
+@pytest.mark.parametrize("preset", ["paper", "sensors", "fleet"])
 def test_flights_are_the_same_to_the_bit_with_and_without_the_compiled_loops(tmp_path, cli, preset, monkeypatch):
+    """``fleet``: two vehicles through a formation on one clock, which the plant's compiled loop runs for every
+    vehicle in one call (sitl.lockstep_loop), each tick's answers awaited in the vehicles' order as in Python."""
     argv = ["fly", "--preset", "x500" if preset == "sensors" else "paper", "--duration", "2", "--no-figures", "--quiet"]
     if preset == "sensors":
         argv += ["--state", "sensors"]
+    if preset == "fleet":
+        argv = ["fly", "--vehicles", "2", "--formation", "line", "--no-figures", "--quiet"]
     tables = {}
     for loops in ("0", "1"):
         monkeypatch.setenv(fastio.LOOPS_ENV, loops)
         out = tmp_path / loops
         r = cli(*argv, "--out", str(out))
         assert r.returncode == 0, r.stderr
-        tables[loops] = (out / "telemetry.csv").read_text()
-    assert tables["0"] == tables["1"] and len(tables["1"].splitlines()) == 2001
+        files = ["v1/telemetry.csv", "v2/telemetry.csv"] if preset == "fleet" else ["telemetry.csv"]
+        tables[loops] = [(out / f).read_text() for f in files]
+    assert tables["0"] == tables["1"]
+    if preset == "fleet":  # the whole manoeuvre, each vehicle's own
+        assert len(tables["1"][0].splitlines()) > 20_000 and tables["1"][0] != tables["1"][1]
+    else:
+        assert len(tables["1"][0].splitlines()) == 2001
 
 
 def test_a_bad_loops_setting_is_one_line_from_both_processes(cli, monkeypatch):
