@@ -174,9 +174,9 @@ def test_a_stop_that_main_did_not_catch_ends_the_process_quietly():
     assert run_stoppable(lambda: 7) == 7
 
 
-REPORTED_AS_ANOTHER_ERROR = """
+INTERRUPTED_LIBRARY = """
 import os, signal, sys
-from quadsitl.process_util import StopRequested, handle_stop_signals, run_stoppable
+from quadsitl.process_util import StopRequested
 
 def interrupted_library():
     try:
@@ -186,6 +186,11 @@ def interrupted_library():
     except StopRequested:  # as CPython's import of ssl did once, interrupted at one spot
         raise TypeError("expected a message argument") from None
     return 3
+"""
+REPORTED_AS_ANOTHER_ERROR = (
+    INTERRUPTED_LIBRARY
+    + """
+from quadsitl.process_util import handle_stop_signals, run_stoppable
 
 def main():
     handle_stop_signals()
@@ -195,6 +200,7 @@ def main():
 
 sys.exit(run_stoppable(main, stopped=None if sys.argv[2] == "job" else 0, name="quadsitl dashboard"))
 """
+)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
@@ -244,25 +250,20 @@ def test_a_stop_raised_where_python_drops_exceptions_is_raised_again(sig):
     assert "Exception ignored" not in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
-COMMAND_REPORTED_AS_ANOTHER_ERROR = """
-import os, signal, sys
+COMMAND_REPORTED_AS_ANOTHER_ERROR = (
+    INTERRUPTED_LIBRARY
+    + """
 import groundstation.cli as cli
-from quadsitl.process_util import StopRequested
 
 def presets(args):
     if sys.argv[1] == "real":
         raise TypeError("a real error")
-    try:
-        os.kill(os.getpid(), signal.SIGNAL)
-        for _ in range(10_000_000):  # the handler runs here
-            pass
-    except StopRequested:  # as CPython's import of ssl did once, interrupted at one spot
-        raise TypeError("expected a message argument") from None
-    return 3
+    return interrupted_library()
 
 cli.run_presets = presets  # `quadsitl presets`, a command that is not a process of its own, is this one
 sys.exit(cli.main(["presets"]))
 """
+)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
