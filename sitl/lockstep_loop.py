@@ -41,9 +41,8 @@ POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fasti
 def run(fds: np.ndarray, rx: np.ndarray, k: int, max_k: int, max_thrust: np.ndarray, received: np.ndarray,
         work: np.ndarray, params: np.ndarray, air_rng: np.ndarray, sens: tuple, substeps: np.ndarray,
         method: np.ndarray, period: float, tx: np.ndarray, io: np.ndarray, sent: np.ndarray, sent_len: np.ndarray,
-        deadline_ns: int,
-        polling: np.ndarray, budget_ns: np.ndarray, patience_ns: np.ndarray, hot_after: int, stats: np.ndarray
-        ) -> tuple:  # fmt: skip
+        deadline_ns: int, polling: np.ndarray, budget_ns: np.ndarray, patience_ns: np.ndarray, hot_after: int,
+        stats: np.ndarray) -> tuple:  # fmt: skip
     """Run the clock from tick ``k`` (every vehicle's datagram encoded, none sent) on the connected sockets ``fds``
     until Python has something to do (the module's docstring) → (status, the tick, the vehicle awaited, the
     datagram's length, lockstep_tick's result). The arrays are the fleet's, a row per vehicle
