@@ -272,11 +272,14 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     stamps = sorted({ms for ms, _, _, _ in targets})
     flight = [ms for ms in stamps if ms > 1000 * SENSOR_GROUND_S]
     assert len(flight) >= 4 and np.diff(flight[:-1]).min() >= 1000 * SETPOINTS_AHEAD / 2 - gcs.SETPOINT_MS, stamps
-    # The stream never lapses: the ground station reads the vehicle's clock once per pass of its loop, so under load a
-    # keep-alive may go 100-140 ms of vehicle time apart (17 in 2 s in one CI run), never near the 1 s setpoint timeout
-    # (or the 0.5 s the ground station sends ahead: the clock holds before it runs past the newest setpoint). The first
-    # stamp is the wait on the ground, before the clock runs.
-    assert np.diff(stamps[1:]).max() <= 1000 * SETPOINTS_AHEAD + 2, stamps  # the lead, and ms rounding
+    # From the hold on the ground at SENSOR_GROUND_S, the stream never lapses: the clock holds before it runs past the
+    # newest setpoint, so they are never further apart than the 0.5 s the ground station sends ahead (and far from the
+    # 1 s setpoint timeout). Before the hold the clock runs on its own and the ground station stamps its keep-alive
+    # with the clock it last read, once per pass of its loop: under load 680 ms of vehicle time apart (one CI run),
+    # harmless while the vehicle is not yet in offboard.
+    held = [ms for ms in stamps if ms >= 1000 * SENSOR_GROUND_S]
+    assert held[0] == 1000 * SENSOR_GROUND_S, stamps
+    assert np.diff(held).max() <= 1000 * SETPOINTS_AHEAD + 2, stamps  # the lead, and ms rounding
     assert len(stamps) <= 5000 / gcs.SETPOINT_MS  # 2 s flown, and the landing: each moment of the grid sent once
     assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
     assert r.stdout.splitlines()[-1] == (f"wrote {out}/telemetry.csv, flight.tlog, metrics.json, fig2_outputs.png, "
