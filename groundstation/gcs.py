@@ -72,10 +72,11 @@ COMMAND_RETRY = 0.5  # [s] wall: a command is sent again until acknowledged (MAV
 LOOP = 0.002  # [s] wall: how often at most the ground station reads its socket and Zenoh channels, and may send
 # Each wake-up takes one of the two cores from the lockstep processes for a moment: 500 a second cost `fly` 7-12 % of
 # its ticks (docs/performance.md). While the reference moves, a read finds something new only once the vehicle's
-# time seen has moved, by the 50 Hz ATTITUDE (or a Zenoh batch): the ground station reads when a datagram comes, at
-# most every LOOP and at least every WAIT_MOVING of wall time (a vehicle that runs below 10x real time wakes it less
-# often than LOOP's 500 times a second, and a changed setpoint goes as soon as the vehicle's time it is for is seen;
-# WAIT_MOVING is longer than ATTITUDE's period down to 0.4x real time, and short against KEEPALIVE_WALL).
+# time seen has moved, by the 50 Hz ATTITUDE (10 Hz with fly's --setpoints-ahead, where no setpoint waits for a read)
+# or a Zenoh batch: the ground station reads when a datagram comes, at most every LOOP and at least every WAIT_MOVING
+# of wall time (a vehicle that runs below 10x real time wakes it less often than LOOP's 500 times a second, and a
+# changed setpoint goes as soon as the vehicle's time it is for is seen; WAIT_MOVING is longer than the 50 Hz
+# ATTITUDE's period down to 0.4x real time, and short against KEEPALIVE_WALL).
 # While the reference holds still (the paper's step, a hover), nothing it sends changes: it reads every STEADY_SIM of
 # the vehicle's time instead, between LOOP and LOOP_STEADY of wall time. The keep-alive then goes every STEADY_SIM
 # (not KEEPALIVE_MS), well within the vehicle's --offboard-lockstep lead (0.5 s) and setpoint timeout (1 s); the
@@ -102,7 +103,27 @@ UNNEEDED_STREAMS = (
     mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED,
     mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
     mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS,
+    # The autopilot builds these in Python, each on a tick of its own (autopilot.streams): every one is a trip out of
+    # its compiled loop while the plant waits. Turned off too, `fly` flew 20 % more ticks a second (ten interleaved
+    # pairs, docs/performance.md).
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION,
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
 )
+# SYS_STATUS is read for its pre-arm check until the flight starts, and then not: it goes then.
+UNNEEDED_IN_FLIGHT = (mavlink.MAVLINK_MSG_ID_SYS_STATUS,)
+# With --setpoints-ahead, each setpoint is made for its own tick of the trajectory's grid, so the vehicle's clock is
+# read only to know how far ahead to send: ATTITUDE (which carries it) at AHEAD_CLOCK_READS per lead, at most every
+# ATTITUDE_AHEAD_MAX_MS of the vehicle's time (10 Hz at fly's 0.5 s) and never more often than the 50 Hz default.
+# Parsing and logging it at 50 Hz took most of the ground station's CPU in a lockstep flight, on the cores the two
+# loops share: at 10 Hz `fly` flew 11-18 % more ticks a second (ten interleaved pairs, twice; docs/performance.md).
+AHEAD_CLOCK_READS, ATTITUDE_AHEAD_MAX_MS = 5, 100
+
+
+def attitude_interval_us(lead: float) -> int:
+    """The ATTITUDE interval [µs] a ground station that sends setpoints ``lead`` [s] ahead asks for."""
+    ms = min(ATTITUDE_AHEAD_MAX_MS, max(SETPOINT_MS, round(1000.0 * lead / AHEAD_CLOCK_READS)))
+    return 1000 * ms
 
 
 class GcsError(Exception):
@@ -329,6 +350,11 @@ class GroundStation:
         """Flight time [s] of the vehicle's newest tick seen (0 before the flight starts)."""
         return max(0.0, self.logger.flight_time(self.vehicle_tick()))
 
+    def stop_streams(self, msg_ids: Sequence[int]) -> None:
+        """Ask the vehicle to stop streaming ``msg_ids`` on this link (MAV_CMD_SET_MESSAGE_INTERVAL, −1)."""
+        for msg_id in msg_ids:
+            self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
+
     def command(self, command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))
         self.acks.pop(command, None)
@@ -373,7 +399,7 @@ class GroundStation:
                 last_hb = now
                 hb = mavlink.MAVLink_heartbeat_message
                 self.send(hb(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
-            # By the 50 Hz ATTITUDE as well as the Zenoh batches (up to 512 ticks each): the end is seen on time.
+            # By ATTITUDE as well as the Zenoh batches (up to 512 ticks each): the end is seen on time.
             flight_t = self.logger.flight_time(self.vehicle_tick())
             self.interval, self.wait_data = LOOP, 0.0
             if phase in ("prearm", "arming", "offboard", "flying"):
@@ -398,8 +424,10 @@ class GroundStation:
                 phase = "prearm"
                 # This ground station logs telemetry from Zenoh and paces itself by it; ATTITUDE goes on to the
                 # .tlog, the other MAVLink streams on its link would only cost both ends CPU at 10,000 ticks/s.
-                for msg_id in UNNEEDED_STREAMS:
-                    self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
+                self.stop_streams(UNNEEDED_STREAMS)
+                if self.ahead:
+                    interval = attitude_interval_us(args.setpoints_ahead)
+                    self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, interval)
             elif phase == "prearm" and setpoints_sent >= 5 and self.logger.last_status is not None and self.armable:
                 # Arm only once the Zenoh telemetry reaches the logger (never fly what cannot be recorded) and the
                 # vehicle says it may arm (SYS_STATUS's pre-arm check, as QGroundControl and MAVSDK wait for it).
@@ -417,6 +445,7 @@ class GroundStation:
                 if done:
                     phase, last_cmd = order[order.index(phase) + 1], 0.0
             if phase == "flying" and self.progress is None:
+                self.stop_streams(UNNEEDED_IN_FLIGHT)
                 flight_wall_start = now
                 self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: flight")
             elif phase == "flying" and self.flown(flight_t):
@@ -467,8 +496,7 @@ class GroundStation:
                 hb = mavlink.MAVLink_heartbeat_message
                 self.send(hb(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
             if phase == "connect" and self.heard:
-                for msg_id in UNNEEDED_STREAMS:
-                    self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
+                self.stop_streams(UNNEEDED_STREAMS)
                 phase, upload_start, last_cmd = "upload", now, 0.0
             elif phase == "upload":
                 for seq in self.requested:
@@ -498,6 +526,7 @@ class GroundStation:
                 done, last_cmd = self.until_accepted(mavlink.MAV_CMD_DO_SET_MODE, "mission mode", now, last_cmd,
                                                      mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 4)  # fmt: skip
                 if done:
+                    self.stop_streams(UNNEEDED_IN_FLIGHT)
                     phase, flight_wall_start = "flying", now
                     self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: mission")
             elif phase in ("flying", "landing"):

@@ -248,15 +248,29 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     # The .tlog is standard: pymavlink reads it, both directions are in it.
     tlog = mavutil.mavlink_connection(str(out / "flight.tlog"))
     seen, targets, vehicle_ms, texts = set(), [], 0, []
+    attitude_ms: list[int] = []
+    last_seen_ms: dict[str, int] = {}  # each message type: the vehicle's time (its newest ATTITUDE) when last logged
     while (m := tlog.recv_match()) is not None:
         seen.add(m.get_type())
+        last_seen_ms[m.get_type()] = vehicle_ms
         if m.get_type() == "SET_ATTITUDE_TARGET":
             targets.append((m.time_boot_ms, m._timestamp, tuple(m.q), m.thrust))
         elif m.get_type() == "ATTITUDE":
             vehicle_ms = max(vehicle_ms, m.time_boot_ms)
+            attitude_ms.append(m.time_boot_ms)
         elif m.get_type() == "STATUSTEXT":
             texts.append(m.text)
-    assert {"HEARTBEAT", "ATTITUDE", "COMMAND_ACK", "COMMAND_LONG", "SET_ATTITUDE_TARGET"} <= seen
+    assert {"HEARTBEAT", "ATTITUDE", "COMMAND_ACK", "COMMAND_LONG", "SET_ATTITUDE_TARGET", "SYS_STATUS"} <= seen
+    # The streams the ground station does not read stop (each one the autopilot builds in Python is a trip out of its
+    # compiled loop): those at once, before the flight; SYS_STATUS, read for its pre-arm check, once the flight starts
+    # (the command goes before the setpoints that let the clock run on, within a lead of 0.5 s).
+    for name in ("HOME_POSITION", "ESTIMATOR_STATUS", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED"):
+        assert last_seen_ms.get(name, 0) <= 1000 * SENSOR_GROUND_S, (name, last_seen_ms)
+    assert last_seen_ms["SYS_STATUS"] <= 1000 * (SENSOR_GROUND_S + 1.0), last_seen_ms
+    # ATTITUDE, which tells the ground station the vehicle's clock, at 10 Hz of it: five times per lead.
+    attitude_ms = np.array(attitude_ms)
+    flying = attitude_ms[attitude_ms > 1000 * SENSOR_GROUND_S]
+    assert len(flying) >= 20 and np.diff(flying).min() >= 100 - 1, attitude_ms
     # Landed and disarmed, the flight is over and the plant's clock holds (--hold-when-landed): it ends within the
     # ground station's last read of the vehicle's 50 Hz ATTITUDE, not tens of simulated seconds later.
     assert texts[-1] == "Landed, disarmed", texts
@@ -372,7 +386,9 @@ def test_sigterm_tears_everything_down(tmp_path, procs):
             start_ms = m.time_boot_ms if start_ms is None else start_ms
             last_ms = m.time_boot_ms
     assert start_ms is not None
-    assert abs(len(t) - (last_ms - start_ms)) <= 60, (len(t), last_ms - start_ms)
+    # each end within one ATTITUDE interval (fly's ground station reads the vehicle's clock at 10 Hz), and 40 ms more
+    interval_ms = gcs.attitude_interval_us(SETPOINTS_AHEAD) // 1000
+    assert abs(len(t) - (last_ms - start_ms)) <= 2 * interval_ms + 40, (len(t), last_ms - start_ms)
 
 
 def test_setpoint_loss_failsafe_with_a_raw_pymavlink_client(procs):

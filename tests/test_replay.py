@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 import zenoh
 
-from groundstation import recording
-from groundstation.launcher import free_port
+from groundstation import gcs, recording
+from groundstation.launcher import SETPOINTS_AHEAD, free_port
 from groundstation.logger import TelemetryLogger
 from groundstation.telemetry_csv import COLUMNS, read_csv
 from quadsitl import telemetry, wire
@@ -52,7 +52,7 @@ def sim_csv(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def fly_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fly")
-    argv = ["fly", "--preset", "paper", "--duration", "0.5", "--no-figures", "--quiet", "--out", str(out)]
+    argv = ["fly", "--preset", "paper", "--duration", "2.5", "--no-figures", "--quiet", "--out", str(out)]
     r = subprocess.run([sys.executable, "-m", "groundstation.cli", *argv], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     return out
@@ -391,7 +391,8 @@ def test_real_fly_tlog_matches_the_flights_csv(fly_run):
     roll = {s[0]: s[8] for s in state}
     moving = [k for k in sorted(roll) if roll[k] != 0.0]
     first = moving[0]
-    start = next(s for s in range(first - 25, first + 1) if 0 <= first - s < n
+    interval = gcs.attitude_interval_us(SETPOINTS_AHEAD) // 1000  # [ticks] ATTITUDE's in `fly`'s log (10 Hz)
+    start = next(s for s in range(first - interval - 5, first + 1) if 0 <= first - s < n
                  and abs(csv["roll"][first - s] - roll[first]) < 1e-6)  # fmt: skip
     compared = 0
     for tick, value in roll.items():
@@ -400,7 +401,7 @@ def test_real_fly_tlog_matches_the_flights_csv(fly_run):
             compared += 1
     assert compared >= 20
     offboard = {st[5] for st in status if st[5] >= 0}
-    assert len(offboard) == 1 and abs(offboard.pop() - start) <= 20  # ATTITUDE every 20 ms in `fly`'s log
+    assert len(offboard) == 1 and abs(offboard.pop() - start) <= interval
     # `fly` turns LOCAL_POSITION_NED off once connected: x is NaN, or the x = 0 of one sent before that
     assert math.isnan(state[-1][2]) or state[-1][2] == 0.0
 
