@@ -100,12 +100,12 @@ UNNEEDED_STREAMS = (
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
     mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET,
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
     mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED,
     mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
     mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS,
     # The autopilot builds these in Python, each on a tick of its own (autopilot.streams): every one is a trip out of
-    # its compiled loop while the plant waits. Turned off too, `fly` flew 20 % more ticks a second (ten interleaved
-    # pairs, docs/performance.md).
+    # its compiled loop while the plant waits, 135-177 µs each in a lockstep flight (docs/performance.md).
     mavlink.MAVLINK_MSG_ID_HOME_POSITION,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS,
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,

@@ -264,7 +264,7 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     # The streams the ground station does not read stop (each one the autopilot builds in Python is a trip out of its
     # compiled loop): those at once, before the flight; SYS_STATUS, read for its pre-arm check, once the flight starts
     # (the command goes before the setpoints that let the clock run on, within a lead of 0.5 s).
-    for name in ("HOME_POSITION", "ESTIMATOR_STATUS", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED"):
+    for name in ("HOME_POSITION", "ESTIMATOR_STATUS", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED", "GPS_RAW_INT"):
         assert last_seen_ms.get(name, 0) <= 1000 * SENSOR_GROUND_S, (name, last_seen_ms)
     assert last_seen_ms["SYS_STATUS"] <= 1000 * (SENSOR_GROUND_S + 1.0), last_seen_ms
     # ATTITUDE, which tells the ground station the vehicle's clock, at 10 Hz of it: five times per lead.
