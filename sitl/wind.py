@@ -101,7 +101,7 @@ def gamma_lower(n: int, x: float) -> float:
     return 2.0 - e * (2.0 + 2.0 * x + x * x)
 
 
-@jit
+@jit(inline=True)
 def dryden_second_order(x: np.ndarray, i: int, rng: np.ndarray, a: float, sigma: float, h: float) -> float:
     """One exact step (``h`` s) of the second-order Dryden filter whose states are ``x[i]``, ``x[i + 1]``, with
     a = V/L [1/s] and intensity ``sigma`` [m/s]; returns its output after the step (see the module's
@@ -121,7 +121,7 @@ def dryden_second_order(x: np.ndarray, i: int, rng: np.ndarray, a: float, sigma:
     return sigma * math.sqrt(a) * ((1.0 - SQRT3) * a * x1 + SQRT3 * x2)
 
 
-@jit
+@jit(inline=True)
 def gust(p: np.ndarray, t: float) -> float:
     """The 1 − cos gust's magnitude [m/s] at simulated time ``t`` [s]."""
     s = t - p[GUST_START]
@@ -132,7 +132,7 @@ def gust(p: np.ndarray, t: float) -> float:
     return 0.5 * p[GUST_A] * (1.0 - math.cos(math.pi * s / p[GUST_RISE]))
 
 
-@jit
+@jit(inline=True)
 def dryden_scales(altitude: float, w20: float) -> tuple[float, float, float, float]:
     """(σ_u = σ_v [m/s], σ_w [m/s], L_u = L_v [m], L_w [m]) of MIL-F-8785C's low-altitude Dryden model at
     ``altitude`` [m above ground, held within 10..1000 ft] for the wind speed at 20 ft ``w20`` [m/s]."""
@@ -142,7 +142,7 @@ def dryden_scales(altitude: float, w20: float) -> tuple[float, float, float, flo
     return sigma_w / scale**0.4, sigma_w, h_ft / scale**1.2 * FOOT, h_ft * FOOT
 
 
-@jit
+@jit(inline=True)
 def wind_step(
     out: np.ndarray,
     x: np.ndarray,
@@ -181,7 +181,7 @@ def air_arrays(wind: WindParams) -> tuple[np.ndarray, np.ndarray]:
     return air, rng
 
 
-@jit
+@jit(inline=True)
 def air_tick(air: np.ndarray, rng: np.ndarray, dt: float, state: np.ndarray, on_ground: bool) -> None:
     """The plant's disturbance for a tick of ``dt`` [s] that starts in state ``state`` (12, VehicleState order),
     resting on the ground or not, into ``air[:6]`` (:data:`sitl.dynamics.CALM`'s layout): the wind [m/s, NED],
