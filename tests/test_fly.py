@@ -272,7 +272,7 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     flying = attitude_ms[attitude_ms > 1000 * SENSOR_GROUND_S]
     assert len(flying) >= 20 and np.diff(flying).min() >= 100 - 1, attitude_ms
     # Landed and disarmed, the flight is over and the plant's clock holds (--hold-when-landed): it ends within the
-    # ground station's last read of the vehicle's 50 Hz ATTITUDE, not tens of simulated seconds later.
+    # ground station's last read of the vehicle's ATTITUDE (10 Hz here), not tens of simulated seconds later.
     assert texts[-1] == "Landed, disarmed", texts
     simulated = float(re.search(r"plant: ([0-9.]+) s simulated", r.stderr).group(1))
     assert 0.0 <= simulated - vehicle_ms / 1000.0 < 1.0, (simulated, vehicle_ms)
