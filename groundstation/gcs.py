@@ -9,10 +9,11 @@ an 8-byte big-endian microsecond timestamp, as MAVProxy and QGroundControl write
 Setpoints are paced in simulated time: one per 20 ms of the vehicle's time seen (its ATTITUDE stream or its
 Zenoh telemetry, whichever is newer), and at least every 100 ms of wall time, so a sped-up lockstep run never
 starves the stream. Each is the trajectory at that moment and is stamped with it (time_boot_ms). With
-``--setpoints-ahead S`` (``quadsitl fly``'s 0.5 s, its autopilot on ``--offboard-lockstep 0``) the flight's setpoints
-are instead the trajectory at every SETPOINT_MS of the flight, sent up to S ahead of the vehicle's clock and stamped
-with the tick each is for; the autopilot flies each from that tick and holds its clock until the ground station is
-ahead (:mod:`autopilot.offboard_lockstep`), so a flight is the same to the byte on any machine. An
+``--setpoints-ahead S`` (``quadsitl fly``'s 1.5 s, its autopilot on ``--offboard-lockstep 0``) the flight's setpoints
+are instead the trajectory at every SETPOINT_MS of the flight, sent up to S ahead of the vehicle's clock (on a grid of
+AHEAD_KEEPALIVE) and stamped with the tick each is for; the autopilot flies each from that tick and holds its clock
+until the ground station is ahead (:mod:`autopilot.offboard_lockstep`), so a flight is the same to the byte on any
+machine. An
 attitude trajectory (:mod:`groundstation.trajectories`) sends a pair, SET_ATTITUDE_TARGET and a z-only
 SET_POSITION_TARGET_LOCAL_NED; a position trajectory one SET_POSITION_TARGET_LOCAL_NED in
 MAV_FRAME_LOCAL_NED with type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to
@@ -118,6 +119,14 @@ UNNEEDED_IN_FLIGHT = (mavlink.MAVLINK_MSG_ID_SYS_STATUS,)
 # Parsing and logging it at 50 Hz took most of the ground station's CPU in a lockstep flight, on the cores the two
 # loops share: at 10 Hz `fly` flew 11-18 % more ticks a second (ten interleaved pairs, twice; docs/performance.md).
 AHEAD_CLOCK_READS, ATTITUDE_AHEAD_MAX_MS = 5, 100
+# [s] simulated: with --setpoints-ahead, the horizon (the furthest setpoint sent) moves on a grid of this step, counted
+# from the flight's start, and a constant reference goes again once per step: half the vehicle's 1 s setpoint timeout,
+# on its own clock. The ground station reads once per step of the vehicle's clock (within LOOP and LOOP_STEADY of wall
+# time); the clock stays the lead less one step short of the horizon (fly's 1.5 s lead: 1 s). With a 0.5 s lead and
+# the horizon topped up at each read (every 0.15 s of the vehicle's time), it woke 400-500 times a second at 60-80x
+# real time, each wake about 250 us of a core the lockstep pair needed, and the clock still waited for it 6-13 times
+# in a 10 s flight (docs/performance.md).
+AHEAD_KEEPALIVE = 0.5
 
 
 def attitude_interval_us(lead: float) -> int:
@@ -137,11 +146,18 @@ def holds_still(trajectory: Callable[[float], object], t: float, last_sent: obje
     return sp == last_sent and trajectory(t + STEADY_LOOKAHEAD) == sp
 
 
-def read_interval(pace: float) -> float:
-    """The wall time [s] from one read to the next while the reference holds still, for a vehicle whose clock runs
-    ``pace`` simulated seconds per wall second (0: not known): STEADY_SIM of its time, between LOOP and
-    LOOP_STEADY."""
-    return LOOP if pace <= 0.0 else min(LOOP_STEADY, max(LOOP, STEADY_SIM / pace))
+def read_interval(pace: float, sim: float = STEADY_SIM) -> float:
+    """The wall time [s] from one read to the next while the reference holds still (or, with --setpoints-ahead, in
+    flight: ``sim`` is then the horizon's grid), for a vehicle whose clock runs ``pace`` simulated seconds per wall
+    second (0: not known): ``sim`` [s] of its time, between LOOP and LOOP_STEADY."""
+    return LOOP if pace <= 0.0 else min(LOOP_STEADY, max(LOOP, sim / pace))
+
+
+def horizon_step(ahead: int, period: float) -> int:
+    """With --setpoints-ahead ``ahead`` [ticks of ``period`` s]: the step [ticks] of the grid the horizon moves on,
+    AHEAD_KEEPALIVE or half the lead if shorter, a whole number of SETPOINT_MS's steps."""
+    step = max(1, round(SETPOINT_MS / 1000.0 / period))
+    return max(step, min(round(AHEAD_KEEPALIVE / period), ahead // 2) // step * step)
 
 
 def ack_name(result: int) -> str:
@@ -187,7 +203,7 @@ class GroundStation:
         self.ahead = round(args.setpoints_ahead / self.period)  # [ticks] --setpoints-ahead (0: off)
         self.end_ticks = round(self.duration / self.period)  # the flight's last tick, counted from its first
         self.next_moment = -1  # --setpoints-ahead: the tick the next setpoint is made for (−1: the flight's start)
-        self.sent_until = -1  # --setpoints-ahead: the tick the furthest setpoint sent is made for (−1: none yet)
+        self.keep = horizon_step(self.ahead, self.period)  # --setpoints-ahead: the grid the horizon moves on [ticks]
         self.target = (args.target_system, wire.AUTOPILOT_COMPONENT_ID)
         self.armed = False
         self.armable = False  # SYS_STATUS says the pre-arm check passes (in sensor mode: once the estimator aligned)
@@ -288,31 +304,31 @@ class GroundStation:
 
     def send_ahead(self, last_sent: object) -> object:
         """``--setpoints-ahead``: the trajectory at every SETPOINT_MS of the flight, each stamped with the tick it is
-        made for, up to the lead ahead of the vehicle's newest tick seen: the ones that change the reference, and the
-        furthest, which tells the vehicle's clock how far it may go (autopilot.offboard_lockstep holds each until its
-        tick). The flight's last is made for two ticks past its end: the clock then holds at the tick after the end
-        until the landing is asked for. Returns the last setpoint sent.
+        made for, up to the horizon: the last moment of the AHEAD_KEEPALIVE grid (counted from the flight's start)
+        within the lead of the vehicle's newest tick seen. Of those, the ones that change the reference and each
+        moment of the AHEAD_KEEPALIVE grid go out: a constant reference goes once per AHEAD_KEEPALIVE of the vehicle's
+        time, and the furthest sent tells the vehicle's clock how far it may go (autopilot.offboard_lockstep holds each
+        until its tick). The flight's last is made for two ticks past its end: the clock then holds at the tick after
+        the end until the landing is asked for. Returns the last setpoint sent.
 
-        They go out when the vehicle's clock has come within half the lead of the furthest sent, not at every read:
-        each setpoint costs the autopilot two trips out of its compiled loop (pymavlink parses it when it comes,
-        Python flies it at its tick), and at every read (every LOOP) a lockstep flight spent about 15 % of its
-        time on them. The clock cannot pass the furthest setpoint sent, and every setpoint up to it went out before
-        it, so what the vehicle flies is the same."""
-        v = self.vehicle_tick()
-        if self.sent_until >= 0 and self.sent_until - v > self.ahead // 2:
-            return last_sent
+        The horizon moves once per AHEAD_KEEPALIVE of the vehicle's clock, so the ground station reads that often
+        (:func:`read_interval`), and the clock, which cannot pass the furthest setpoint sent, is then still the
+        lead less AHEAD_KEEPALIVE short of it: it waits only for a ground station that is that late. Each setpoint
+        costs the autopilot two trips out of its compiled loop (pymavlink parses it when it comes, Python flies it
+        at its tick): a constant reference sent at every read (every LOOP) cost a lockstep flight about 15 % of its
+        time. Every setpoint up to the furthest went out before it, so what the vehicle flies is the same."""
         start = self.logger.flight_start_tick
         if self.next_moment < 0:
             self.next_moment = start
-        end, step = start + self.end_ticks, max(1, round(SETPOINT_MS / 1000.0 / self.period))
-        horizon = min(v + self.ahead, end + 2)
+        end, step, keep = start + self.end_ticks, max(1, round(SETPOINT_MS / 1000.0 / self.period)), self.keep
+        horizon = min(start + (self.vehicle_tick() + self.ahead - start) // keep * keep, end + 2)
         while self.next_moment <= horizon:
             g = self.next_moment
             sp = self.trajectory(min(g - start, self.end_ticks) * self.period)
             self.next_moment = g + step if g + step <= end else end + 2 if g < end + 2 else 2**62
-            if sp != last_sent or self.next_moment > horizon:
+            if sp != last_sent or (g - start) % keep == 0 or self.next_moment > horizon:
                 self.send_setpoint(sp, self.ms_of(g))
-                last_sent, self.sent_until = sp, g
+                last_sent = sp
         return last_sent
 
     def measure_pace(self, now: float) -> float:
@@ -406,7 +422,10 @@ class GroundStation:
                 t = self.trajectory_time()
                 sp, since = self.trajectory(t), self.stamp_ms() - last_sp_ms
                 ending = t + STEADY_LOOKAHEAD >= self.duration  # the landing is a change too: read as for a move
-                if phase == "flying" and not ending and holds_still(self.trajectory, t, last_sp):
+                if phase == "flying" and self.ahead and self.logger.flight_start_tick >= 0:
+                    # what goes out does not depend on when it is read: once per move of the horizon (send_ahead)
+                    self.interval = read_interval(self.measure_pace(now), self.keep * self.period)
+                elif phase == "flying" and not ending and holds_still(self.trajectory, t, last_sp):
                     self.interval = read_interval(self.measure_pace(now))
                 elif phase == "flying":
                     self.wait_data = WAIT_MOVING

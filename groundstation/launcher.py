@@ -46,12 +46,13 @@ from quadsitl.process_util import (
 
 # [s] simulated: `fly`'s ground station sends the trajectory this far ahead of the vehicle's clock, each setpoint
 # stamped with the tick it is for (gcs --setpoints-ahead), and the autopilot flies each from that tick and answers no
-# tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The lead is above the
-# ground station's usual lag at full lockstep speed (0.2-0.3 s at 40x); the ground station tops it up once the clock
-# is within half of it, so the clock waits for it a few times a flight (4-23 in a 60 s paper flight on a quiet 2-core
-# machine, 0.06-0.12 s in all). The reference flown at every tick is the ground station's for that tick on any
-# machine, so every run flies to the byte.
-SETPOINTS_AHEAD = 0.5
+# tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The horizon moves on a
+# grid of gcs.AHEAD_KEEPALIVE (0.5 s), so at each read (one per step) it is at least 1 s ahead of the clock: the clock
+# waits only for a read more than 0.5 s of flight late (6-10 ms of wall time at 50-80x). In a 10 s paper flight it
+# waited at the first tick only, where with a lead of 0.5 s topped up within half of it the clock waited 6-13 times.
+# The lead stays within the autopilot's HOLD_AHEAD (2 s). The reference flown at every tick is the ground station's
+# for that tick on any machine, so every run flies to the byte.
+SETPOINTS_AHEAD = 1.5
 OFFBOARD_LOCKSTEP = 0.0
 # `fly`'s autopilots: a full telemetry link holds the vehicle instead of losing ticks. The ground station's logger must
 # get every tick, and a lockstep clock can wait; dropping lost ticks whenever the logger was descheduled for about

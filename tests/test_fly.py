@@ -263,7 +263,7 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     assert {"HEARTBEAT", "ATTITUDE", "COMMAND_ACK", "COMMAND_LONG", "SET_ATTITUDE_TARGET", "SYS_STATUS"} <= seen
     # The streams the ground station does not read stop (each one the autopilot builds in Python is a trip out of its
     # compiled loop): those at once, before the flight; SYS_STATUS, read for its pre-arm check, once the flight starts
-    # (the command goes before the setpoints that let the clock run on, within a lead of 0.5 s).
+    # (the command goes before the setpoints that let the clock run on).
     for name in ("HOME_POSITION", "ESTIMATOR_STATUS", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED", "GPS_RAW_INT"):
         assert last_seen_ms.get(name, 0) <= 1000 * SENSOR_GROUND_S, (name, last_seen_ms)
     assert last_seen_ms["SYS_STATUS"] <= 1000 * (SENSOR_GROUND_S + 1.0), last_seen_ms
@@ -278,22 +278,23 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     assert 0.0 <= simulated - vehicle_ms / 1000.0 < 1.0, (simulated, vehicle_ms)
     # In flight (after the ground wait: the clock holds at SENSOR_GROUND_S until armed; before, the keep-alive is
     # stamped with the vehicle's clock, which may still be running on the ground when the ground station comes up), a
-    # constant reference goes again only as the vehicle's clock comes within half the lead of the furthest moment
-    # sent (each is the furthest moment of its 50 Hz grid the ground station may send for: --setpoints-ahead): the
-    # same setpoint every time, at least half the lead (less one step of the grid) apart but for the last, made for
-    # the tick after the flight's end. Sent at each read instead, they were 150 ms of vehicle time apart or less.
+    # constant reference goes again once per AHEAD_KEEPALIVE of the vehicle's time, on a grid from the flight's first
+    # tick (each is the furthest moment the ground station may send for as it goes out: --setpoints-ahead), the last
+    # made for the tick after the flight's end: the same setpoint every time. Sent at each read instead, they were
+    # 150 ms of vehicle time apart or less; topped up at each read, at uneven moments.
     assert len({(q, thrust) for _, _, q, thrust in targets}) == 1
     stamps = sorted({ms for ms, _, _, _ in targets})
     flight = [ms for ms in stamps if ms > 1000 * SENSOR_GROUND_S]
-    assert len(flight) >= 4 and np.diff(flight[:-1]).min() >= 1000 * SETPOINTS_AHEAD / 2 - gcs.SETPOINT_MS, stamps
+    keep_ms = round(1000 * gcs.AHEAD_KEEPALIVE)
+    assert len(flight) >= 4 and set(np.diff(flight[:-1])) == {keep_ms}, stamps
     # From the hold on the ground at SENSOR_GROUND_S, the stream never lapses: the clock holds before it runs past the
-    # newest setpoint, so they are never further apart than the 0.5 s the ground station sends ahead (and far from the
-    # 1 s setpoint timeout). Before the hold the clock runs on its own and the ground station stamps its keep-alive
-    # with the clock it last read, once per pass of its loop: under load 680 ms of vehicle time apart (one CI run),
-    # harmless while the vehicle is not yet in offboard.
+    # newest setpoint, so they are never further apart than the grid's step (half the 1 s setpoint timeout). Before
+    # the hold the clock runs on its own and the ground station stamps its keep-alive with the clock it last read,
+    # once per pass of its loop: under load 680 ms of vehicle time apart (one CI run), harmless while the vehicle is
+    # not yet in offboard.
     held = [ms for ms in stamps if ms >= 1000 * SENSOR_GROUND_S]
     assert held[0] == 1000 * SENSOR_GROUND_S, stamps
-    assert np.diff(held).max() <= 1000 * SETPOINTS_AHEAD + 2, stamps  # the lead, and ms rounding
+    assert np.diff(held).max() <= keep_ms, stamps
     assert len(stamps) <= 5000 / gcs.SETPOINT_MS  # 2 s flown, and the landing: each moment of the grid sent once
     assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
     assert r.stdout.splitlines()[-1] == (f"wrote {out}/telemetry.csv, flight.tlog, metrics.json, fig2_outputs.png, "

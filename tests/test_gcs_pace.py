@@ -1,12 +1,14 @@
 """How often the ground station of `quadsitl fly` reads its link: when a datagram comes (at most every LOOP, at least
 every WAIT_MOVING) while the reference moves or a step is near, every STEADY_SIM of the vehicle's time (within [LOOP,
-LOOP_STEADY] of wall time) while it holds still."""
+LOOP_STEADY] of wall time) while it holds still; sending ahead (fly's --setpoints-ahead), once per step of the grid the
+horizon moves on, and what it sends then."""
 
 from __future__ import annotations
 
 import threading
 import time
 
+import numpy as np
 import pytest
 
 from groundstation import gcs, trajectories
@@ -27,7 +29,7 @@ def test_a_steady_reference_is_read_every_steady_sim_of_the_vehicles_time():
     assert read_interval(STEADY_SIM / 0.005) == pytest.approx(0.005)  # 30x real time: every 5 ms
     assert read_interval(1000.0) == LOOP  # never more often than a moving reference
     assert read_interval(1.0) == LOOP_STEADY  # real time: never less often than LOOP_STEADY (keep-alive, progress)
-    assert LOOP_STEADY < 0.5 / 10  # 0.5 s: fly's --offboard-lockstep lead, at 10x real time
+    assert LOOP_STEADY < gcs.AHEAD_KEEPALIVE / 10  # sent ahead, the horizon moves once per step: at 10x real time
 
 
 def test_the_step_is_steady_and_a_moving_or_coming_change_is_not():
@@ -130,3 +132,57 @@ def test_a_ground_station_that_sends_ahead_reads_the_vehicle_clock_five_times_a_
     assert attitude_interval_us(0.25) == 50_000
     assert attitude_interval_us(0.05) == 20_000  # never more often than the 50 Hz default
     assert attitude_interval_us(10.0) == 100_000  # never less often than 10 Hz
+
+
+def _sending_ahead(lead: float, duration: float, trajectory) -> tuple[gcs.GroundStation, list]:
+    """send_ahead alone: the flight's first tick 1000 (ticks of 1 ms), the vehicle's clock set by hand, the setpoints
+    recorded as (tick made for, setpoint)."""
+    g = gcs.GroundStation.__new__(gcs.GroundStation)
+    g.period, g.sim_ms, g.logger, g.trajectory = 0.001, 0, _Logger(), trajectory
+    g.logger.flight_start_tick = g.logger.last_tick = 1000
+    g.ahead, g.end_ticks, g.next_moment = round(lead / g.period), round(duration / g.period), -1
+    g.keep = gcs.horizon_step(g.ahead, g.period)
+    sent: list = []
+    g.send_setpoint = lambda sp, ms: sent.append((ms, sp))
+    return g, sent
+
+
+def test_sent_ahead_a_constant_reference_goes_once_per_step_of_the_grid_and_the_horizon_stays_ahead():
+    step = trajectories.make("step", Reference(5.0))
+    g, sent = _sending_ahead(1.5, 10.0, step)
+    keep = round(gcs.AHEAD_KEEPALIVE * 1000)
+    last = g.send_ahead(None)  # the flight's start: its first tick, and the grid up to the lead
+    assert [ms for ms, _ in sent] == [1000, 1000 + keep, 1000 + 2 * keep, 1000 + 3 * keep]
+    for tick in range(1000, 10_900, 37):  # the vehicle's clock as read, 37 ticks apart
+        g.logger.last_tick = tick
+        last = g.send_ahead(last)
+        horizon = sent[-1][0]
+        # the lead less one step (what a late ground station has in hand), or the tick after the flight's end
+        assert horizon - tick >= min(1500 - keep, 11_002 - tick)
+    g.logger.last_tick = 9000
+    g.send_ahead(last)
+    ticks = [ms for ms, _ in sent]
+    assert set(np.diff(ticks[:-1])) == {keep} and ticks[-1] == 1000 + 10_000 + 2  # and the tick after the end
+    assert {sp for _, sp in sent} == {step(0.0)}
+
+
+def test_sent_ahead_a_late_read_sends_every_step_it_missed_and_a_moving_reference_every_setpoint_ms():
+    step = trajectories.make("step", Reference(5.0))
+    g, sent = _sending_ahead(1.5, 10.0, step)
+    last = g.send_ahead(None)
+    g.logger.last_tick = 2400  # read 1.4 s after the start: the clock stood at the horizon less 0.1 s
+    g.send_ahead(last)
+    assert [ms for ms, _ in sent][-2:] == [3000, 3500]  # both steps, none skipped: the stream never lapses
+    ramp = trajectories.make("ramp", Reference(5.0))  # climbing for its first 2 s
+    g, sent = _sending_ahead(1.5, 10.0, ramp)
+    g.send_ahead(None)
+    ticks = [ms for ms, _ in sent]
+    assert ticks == list(range(1000, 2501, gcs.SETPOINT_MS))  # every moment of the 50 Hz grid up to the horizon
+    assert [sp for _, sp in sent] == [ramp((tick - 1000) * 0.001) for tick in ticks]
+
+
+def test_the_horizons_step_is_at_most_half_the_lead_and_a_whole_number_of_setpoint_steps():
+    assert gcs.horizon_step(1500, 0.001) == 500  # fly's lead: AHEAD_KEEPALIVE
+    assert gcs.horizon_step(500, 0.001) == 240  # half of 0.5 s, on the 20 ms grid
+    assert gcs.horizon_step(10, 0.001) == 20  # never less than one step of the grid
+    assert gcs.horizon_step(150, 0.01) == 50  # 10 ms ticks: AHEAD_KEEPALIVE is 50 of them
