@@ -40,7 +40,7 @@ def thread_names(pid: int) -> list[str]:
 
 @pytest.mark.timeout(120)
 def test_large_telemetry_batches_reach_a_shared_memory_subscriber_and_no_process_sets_shared_memory_up():
-    with quadsitl_up("--speed", "0") as v:  # lockstep as fast as it goes: batches of up to 512 ticks
+    with quadsitl_up("--speed", "0") as v:  # lockstep as fast as it goes: batches of up to BATCH_TICKS
         conf = zenoh.Config()  # Zenoh's defaults: shared memory on
         assert json.loads(conf.get_json("transport/shared_memory/enabled")) is True
         conf.insert_json5("connect/endpoints", json.dumps([v.zenoh]))
