@@ -115,7 +115,7 @@ UNNEEDED_STREAMS = (
 UNNEEDED_IN_FLIGHT = (mavlink.MAVLINK_MSG_ID_SYS_STATUS,)
 # With --setpoints-ahead, each setpoint is made for its own tick of the trajectory's grid, so the vehicle's clock is
 # read only to know how far ahead to send: ATTITUDE (which carries it) at AHEAD_CLOCK_READS per lead, at most every
-# ATTITUDE_AHEAD_MAX_MS of the vehicle's time (10 Hz at fly's 0.5 s) and never more often than the 50 Hz default.
+# ATTITUDE_AHEAD_MAX_MS of the vehicle's time (10 Hz at fly's 1.5 s) and never more often than the 50 Hz default.
 # Parsing and logging it at 50 Hz took most of the ground station's CPU in a lockstep flight, on the cores the two
 # loops share: at 10 Hz `fly` flew 11-18 % more ticks a second (ten interleaved pairs, twice; docs/performance.md).
 AHEAD_CLOCK_READS, ATTITUDE_AHEAD_MAX_MS = 5, 100

@@ -267,7 +267,8 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     for name in ("HOME_POSITION", "ESTIMATOR_STATUS", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED", "GPS_RAW_INT"):
         assert last_seen_ms.get(name, 0) <= 1000 * SENSOR_GROUND_S, (name, last_seen_ms)
     assert last_seen_ms["SYS_STATUS"] <= 1000 * (SENSOR_GROUND_S + 1.0), last_seen_ms
-    # ATTITUDE, which tells the ground station the vehicle's clock, at 10 Hz of it: five times per lead.
+    # ATTITUDE, which tells the ground station the vehicle's clock, at 10 Hz of it (the least a ground station sending
+    # ahead asks for).
     attitude_ms = np.array(attitude_ms)
     flying = attitude_ms[attitude_ms > 1000 * SENSOR_GROUND_S]
     assert len(flying) >= 20 and np.diff(flying).min() >= 100 - 1, attitude_ms

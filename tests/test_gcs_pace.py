@@ -128,7 +128,7 @@ def test_a_moving_reference_is_read_when_a_datagram_comes_not_at_a_fixed_pace():
 
 
 def test_a_ground_station_that_sends_ahead_reads_the_vehicle_clock_five_times_a_lead_between_10_and_50_hz():
-    assert attitude_interval_us(0.5) == 100_000  # fly's lead: 10 Hz
+    assert attitude_interval_us(0.5) == 100_000 == attitude_interval_us(1.5)  # fly's lead: 10 Hz
     assert attitude_interval_us(0.25) == 50_000
     assert attitude_interval_us(0.05) == 20_000  # never more often than the 50 Hz default
     assert attitude_interval_us(10.0) == 100_000  # never less often than 10 Hz
