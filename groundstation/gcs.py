@@ -13,10 +13,9 @@ starves the stream. Each is the trajectory at that moment and is stamped with it
 are instead the trajectory at every SETPOINT_MS of the flight, sent up to S ahead of the vehicle's clock (on a grid of
 AHEAD_KEEPALIVE) and stamped with the tick each is for; the autopilot flies each from that tick and holds its clock
 until the ground station is ahead (:mod:`autopilot.offboard_lockstep`), so a flight is the same to the byte on any
-machine. An
-attitude trajectory (:mod:`groundstation.trajectories`) sends a pair, SET_ATTITUDE_TARGET and a z-only
-SET_POSITION_TARGET_LOCAL_NED; a position trajectory one SET_POSITION_TARGET_LOCAL_NED in
-MAV_FRAME_LOCAL_NED with type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to
+machine. An attitude trajectory (:mod:`groundstation.trajectories`) sends a pair, SET_ATTITUDE_TARGET and a z-only
+SET_POSITION_TARGET_LOCAL_NED; a position trajectory one SET_POSITION_TARGET_LOCAL_NED in MAV_FRAME_LOCAL_NED with
+type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to
 offboard both send the trajectory's start (t = 0), so a position trajectory climbs and settles at its start
 point first.
 
