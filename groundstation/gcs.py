@@ -152,10 +152,15 @@ def read_interval(pace: float, sim: float = STEADY_SIM) -> float:
     return LOOP if pace <= 0.0 else min(LOOP_STEADY, max(LOOP, sim / pace))
 
 
+def setpoint_step(period: float) -> int:
+    """SETPOINT_MS in ticks of ``period`` [s] (at least one): the step of the trajectory's grid sent ahead."""
+    return max(1, round(SETPOINT_MS / 1000.0 / period))
+
+
 def horizon_step(ahead: int, period: float) -> int:
     """With --setpoints-ahead ``ahead`` [ticks of ``period`` s]: the step [ticks] of the grid the horizon moves on,
-    AHEAD_KEEPALIVE or half the lead if shorter, a whole number of SETPOINT_MS's steps."""
-    step = max(1, round(SETPOINT_MS / 1000.0 / period))
+    AHEAD_KEEPALIVE or half the lead if shorter, a whole number of :func:`setpoint_step`'s."""
+    step = setpoint_step(period)
     return max(step, min(round(AHEAD_KEEPALIVE / period), ahead // 2) // step * step)
 
 
@@ -319,7 +324,7 @@ class GroundStation:
         start = self.logger.flight_start_tick
         if self.next_moment < 0:
             self.next_moment = start
-        end, step, keep = start + self.end_ticks, max(1, round(SETPOINT_MS / 1000.0 / self.period)), self.keep
+        end, step, keep = start + self.end_ticks, setpoint_step(self.period), self.keep
         horizon = min(start + (self.vehicle_tick() + self.ahead - start) // keep * keep, end + 2)
         while self.next_moment <= horizon:
             g = self.next_moment
