@@ -15,9 +15,8 @@ AHEAD_KEEPALIVE) and stamped with the tick each is for; the autopilot flies each
 until the ground station is ahead (:mod:`autopilot.offboard_lockstep`), so a flight is the same to the byte on any
 machine. An attitude trajectory (:mod:`groundstation.trajectories`) sends a pair, SET_ATTITUDE_TARGET and a z-only
 SET_POSITION_TARGET_LOCAL_NED; a position trajectory one SET_POSITION_TARGET_LOCAL_NED in MAV_FRAME_LOCAL_NED with
-type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to
-offboard both send the trajectory's start (t = 0), so a position trajectory climbs and settles at its start
-point first.
+type_mask 2496 (position, velocity feed-forward and yaw). Before the switch to offboard both send the trajectory's
+start (t = 0), so a position trajectory climbs and settles at its start point first.
 
 With ``--mission FILE`` (:mod:`groundstation.mission_files`) it flies a mission instead, through the mission
 protocol: ``MISSION_COUNT``, each ``MISSION_REQUEST_INT`` (or legacy ``MISSION_REQUEST``, re-requests too)
