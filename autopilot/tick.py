@@ -67,7 +67,7 @@ from quadsitl.codec import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actu
 from quadsitl.compiled_frames import altitude, climb_rate
 from quadsitl.hil import Z_GYRO, decode_sensors
 from quadsitl.jit import jit
-from quadsitl.mixer import allocate
+from quadsitl.mixer import Forces, allocate
 from quadsitl.param_arrays import D_OVER_B
 from quadsitl.rawbytes import put
 from quadsitl.state import Inputs
@@ -157,13 +157,14 @@ ANSWER, STREAM, EVENT_DUE, BATCH_FULL, NOT_MINE, REFUSED, ESTIMATOR_CHANGED, FRA
 
 
 @jit
-def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray,
-                 f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, time_usec: int, tick: int, now: float,
-                 records: np.ndarray) -> None:  # fmt: skip
-    """The tick once the state (``st``) is known: the commander (its event into io[EVENT]), when armed the law
-    and the allocation into ``mem`` (disarmed, or idle on the ground: zero command and forces), the answer into
-    ``tx``, and the four telemetry records into the batch's next row when io[CAPACITY] > 0 (``records``:
-    :class:`Batch`).
+def autopilot_step(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray,
+                   f_min: float, f_max: float, tick: int, now: float) -> tuple[Forces, int]:  # fmt: skip
+    """The autopilot's per-tick work, composed once (every runtime calls it: the autopilot process through
+    :func:`control_tick`, ``quadsitl sim`` and the batch engine through :mod:`groundstation.vehicle`): for the state
+    ``st`` seen at ``tick`` (``now`` = its simulated time [s]), the commander and its auto modes (cm[REF_*]), when armed
+    the law (:func:`fly`: position, altitude and attitude control with their limits) and the allocation into ``mem``;
+    disarmed, or idle on the ground, a zero command and zero forces. Returns (the commanded motor forces [N], the
+    commander's event).
 
     **Idle on the ground**, as PX4's multicopter keeps its thrust at idle while landed: armed in an auto mode
     (hold, takeoff, land, return, mission), resting on the ground (below TOUCHDOWN_ALT, |climb| below
@@ -171,10 +172,9 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
     down), the motors idle and the integrators stay at zero, until a reference asks for a climb. Offboard
     setpoints are always flown (an attitude setpoint on the ground tilts the vehicle there, as on PX4). Without
     the idle, a vehicle whose autopilot believes it heavier than it is (a mass mismatch) would lift off in hold;
-    with it, an offboard flight starts, as ``quadsitl sim``'s, from rest with a previous command of zero (the
-    backstepping's Ωr)."""
+    with it, an offboard flight starts from rest with a previous command of zero (the backstepping's Ωr)."""
     h, climb = altitude(st), climb_rate(st)
-    io[EVENT] = commander.update(cm, tick, now, st[0], st[1], h, st[3], st[4], climb, st[8])
+    event = commander.update(cm, tick, now, st[0], st[1], h, st[3], st[4], climb, st[8])
     armed = cm[ARMED] != 0.0
     idle = (cm[MODE] != OFFBOARD and h < TOUCHDOWN_ALT and abs(climb) < TOUCHDOWN_CLIMB
             and cm[REF_ALT] <= max(h, 0.0) + GROUND_IDLE_MARGIN)  # fmt: skip
@@ -192,6 +192,32 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
         mem[MEM_U : MEM_FORCES + 4] = 0.0
         mem[MEM_ZETA : MEM_ZETA + 3] = 0.0  # the integrators start afresh at each arming
         forces = (0.0, 0.0, 0.0, 0.0)
+    return forces, event
+
+
+@jit
+def reference_shown(cm: np.ndarray, mem: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """The reference the telemetry shows for the last :func:`autopilot_step`: (altitude [m], roll, pitch, yaw [rad],
+    x, y [m, NED]). Armed, the one flown (roll and pitch: the position loop's when it flies; x, y NaN while the
+    horizontal position is not controlled); disarmed, the altitude and heading held, level, x and y NaN."""
+    if cm[ARMED] == 0.0:
+        return cm[TARGET_ALT], 0.0, 0.0, cm[commander.HOLD_YAW], np.nan, np.nan
+    flown = not math.isnan(mem[MEM_ATTITUDE_REF])
+    roll = mem[MEM_ATTITUDE_REF] if flown else cm[REF_ROLL]
+    pitch = mem[MEM_ATTITUDE_REF + 1] if flown else cm[REF_PITCH]
+    return cm[REF_ALT], roll, pitch, cm[REF_YAW], cm[REF_X], cm[REF_X + 1]
+
+
+@jit
+def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray,
+                 f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, time_usec: int, tick: int, now: float,
+                 records: np.ndarray) -> None:  # fmt: skip
+    """The process's tick once the state (``st``) is known: :func:`autopilot_step` (its event into io[EVENT]), the
+    answer into ``tx``, and the four telemetry records into the batch's next row when io[CAPACITY] > 0
+    (``records``: :class:`Batch`)."""
+    forces, event = autopilot_step(kind, st, cm, mem, v, c, f_min, f_max, tick, now)
+    io[EVENT] = event
+    armed = cm[ARMED] != 0.0
     io[SEQ] = (io[SEQ] + 1) & 0xFF
     io[TX_LEN] = encode_actuators(tx, io[SEQ], io[SYSTEM], io[COMPONENT], time_usec, forces, f_max, armed)
     capacity, row = io[CAPACITY], io[ROWS]
@@ -207,22 +233,9 @@ def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: 
     at = capacity * STATE_SIZE + row * SETPOINT_SIZE
     _put_int(records, at, tick)
     _put(records, at + 8, now)
-    # The reference shown: the one flown (roll and pitch: the position loop's when it flies), or, disarmed, the
-    # altitude and heading held, level.
-    if armed:
-        flown = not math.isnan(mem[MEM_ATTITUDE_REF])
-        _put(records, at + 16, cm[REF_ALT])
-        _put(records, at + 24, mem[MEM_ATTITUDE_REF] if flown else cm[REF_ROLL])
-        _put(records, at + 32, mem[MEM_ATTITUDE_REF + 1] if flown else cm[REF_PITCH])
-        _put(records, at + 40, cm[REF_YAW])
-    else:
-        _put(records, at + 16, cm[TARGET_ALT])
-        _put(records, at + 24, 0.0)
-        _put(records, at + 32, 0.0)
-        _put(records, at + 40, cm[commander.HOLD_YAW])
-    # x_ref, y_ref: the horizontal position reference flown (NaN: not controlled, or disarmed)
-    _put(records, at + 48, cm[REF_X] if armed else np.nan)
-    _put(records, at + 56, cm[REF_X + 1] if armed else np.nan)
+    shown = reference_shown(cm, mem)
+    for i in range(6):  # altitude, roll, pitch, yaw, x_ref, y_ref
+        _put(records, at + 16 + 8 * i, shown[i])
     at = capacity * (STATE_SIZE + SETPOINT_SIZE) + row * ACTUATORS_SIZE
     _put_int(records, at, tick)
     _put(records, at + 8, now)
@@ -304,6 +317,20 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
 
 
 @jit
+def estimate(flags: int, period: float, est: tuple, st: np.ndarray) -> int:
+    """Sensor mode: the estimator's tick on the measurements decoded into its ``est`` arrays (``flags``: which came,
+    :func:`quadsitl.hil.decode_sensors`), its estimate into ``st`` (the VehicleState fields, then the body rates the
+    controllers' eq (1) inverse came from: the bias-corrected gyro). Returns the estimator's status (ESTIMATE_*)."""
+    z, x, P, hist, eio, acc, e, ratio, scratch, out = est
+    ekf.estimator_tick(flags, z, period, (0.0, 0.0, 0.0), x, P, hist, eio, acc, e, ratio, scratch, out)
+    for i in range(12):
+        st[i] = out[i]
+    for i in range(3):
+        st[BODY_RATES + i] = z[Z_GYRO + i] - x[ekf.X_BG + i]
+    return (ESTIMATE_ALIGNED if eio[ekf.ALIGNED] else 0) | (ESTIMATE_DIVERGED if eio[ekf.DIVERGED] else 0)
+
+
+@jit
 def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarray, home: tuple, est: tuple,
                 st: np.ndarray, period: float, kind: int, cm: np.ndarray, mem: np.ndarray, v: np.ndarray,
                 c: np.ndarray, f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, records: np.ndarray,
@@ -313,8 +340,7 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
     estimate becomes ``st`` and is flown. The plant's ground truth is decoded into ``truth`` and goes to the
     telemetry records only: the controllers never see it. ``home``: the local origin (lat, lon [deg], alt [m AMSL])
     the GPS positions are taken from."""
-    z, x, P, hist, eio, acc, e, ratio, scratch, out = est
-    t, flags, dropped = decode_sensors(rx, length, home, z, truth, frame)
+    t, flags, dropped = decode_sensors(rx, length, home, est[0], truth, frame)
     if t < 0:
         return NOT_MINE if t == NOT_THIS_FRAME else REFUSED
     new = _new_tick(t, io)
@@ -322,12 +348,7 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
         return answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
     for bit in range(4):
         io[DROPPED] += (dropped >> bit) & 1
-    ekf.estimator_tick(flags, z, period, (0.0, 0.0, 0.0), x, P, hist, eio, acc, e, ratio, scratch, out)
-    for i in range(12):
-        st[i] = out[i]
-    for i in range(3):  # the body rates the controllers' eq (1) inverse came from: the bias-corrected gyro
-        st[BODY_RATES + i] = z[Z_GYRO + i] - x[ekf.X_BG + i]
-    status = (ESTIMATE_ALIGNED if eio[ekf.ALIGNED] else 0) | (ESTIMATE_DIVERGED if eio[ekf.DIVERGED] else 0)
+    status = estimate(flags, period, est, st)
     tick = tick_of(t, period)
     io[TICK] = tick
     row = io[ROWS]

@@ -49,6 +49,7 @@ import zenoh
 from groundstation import mission_files, trajectories
 from groundstation.logger import TelemetryLogger
 from groundstation.progress import FlightProgress
+from groundstation.setpoint_grid import POSITION_VELOCITY_YAW, SETPOINT_MS, next_moment, setpoint_step
 from groundstation.telemetry_csv import write_csv
 from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, check_range, parse_floats
@@ -60,9 +61,7 @@ from quadsitl.state import Reference
 mavlink = wire.mavlink
 MASK_IGNORE_RATES = 1 | 2 | 4  # SET_ATTITUDE_TARGET: attitude and thrust fields used
 MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
-# SET_POSITION_TARGET_LOCAL_NED: x, y, z, vx, vy, vz and yaw used; acceleration (64, 128, 256) and yaw rate
-# (2048) ignored: MAVSDK's position + velocity mask.
-MASK_POSITION_VELOCITY_YAW = 2496
+MASK_POSITION_VELOCITY_YAW = POSITION_VELOCITY_YAW  # a position trajectory's (groundstation.setpoint_grid)
 MISSION_DURATION = 900.0  # [s] simulated: the default bound on a mission's flight (--duration changes it)
 MISSION_STATE_COMPLETE = 5
 UPLOAD_RETRY = 1.0  # [s] wall: MISSION_COUNT again when the vehicle has not asked for an item
@@ -87,7 +86,7 @@ WAIT_MOVING = 0.050  # [s] wall
 # every KEEPALIVE_WALL of wall time (a vehicle whose clock does not move still hears the stream). A constant
 # reference (the paper's step) sent 50 times a simulated second cost both ends a share of their cores for nothing:
 # at 25x real time, 2,500 messages a second built here and parsed by the autopilot's Python.
-SETPOINT_MS, KEEPALIVE_MS, KEEPALIVE_WALL = 20, 100, 0.1
+KEEPALIVE_MS, KEEPALIVE_WALL = 100, 0.1
 PACE_WINDOW = 0.05  # [s] wall: the vehicle's pace is measured over this long
 # [s] wall: after the flight, the ground station waits for telemetry still on its way until this long passes without
 # a sample (a fixed 2 s could end while a loaded machine was still delivering a backlog)
@@ -149,11 +148,6 @@ def read_interval(pace: float, sim: float = STEADY_SIM) -> float:
     flight: ``sim`` is then the horizon's grid), for a vehicle whose clock runs ``pace`` simulated seconds per wall
     second (0: not known): ``sim`` [s] of its time, between LOOP and LOOP_STEADY."""
     return LOOP if pace <= 0.0 else min(LOOP_STEADY, max(LOOP, sim / pace))
-
-
-def setpoint_step(period: float) -> int:
-    """SETPOINT_MS in ticks of ``period`` [s] (at least one): the step of the trajectory's grid sent ahead."""
-    return max(1, round(SETPOINT_MS / 1000.0 / period))
 
 
 def horizon_step(ahead: int, period: float) -> int:
@@ -328,7 +322,7 @@ class GroundStation:
         while self.next_moment <= horizon:
             g = self.next_moment
             sp = self.trajectory(min(g - start, self.end_ticks) * self.period)
-            self.next_moment = g + step if g + step <= end else end + 2 if g < end + 2 else 2**62
+            self.next_moment = start + next_moment(g - start, self.end_ticks, step)
             if sp != last_sent or (g - start) % keep == 0 or self.next_moment > horizon:
                 self.send_setpoint(sp, self.ms_of(g))
                 last_sent = sp

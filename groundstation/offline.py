@@ -1,14 +1,15 @@
 """``quadsitl sim``: the paper's experiment (or any preset) in one process, no network.
 
-Builds the plant (``sitl``) and the controllers (``autopilot``) from a preset, runs the closed loop,
-and writes telemetry CSV(s), ``metrics.json`` and the figures. A run whose state diverges
-(:func:`sitl.simulate.simulate`) ends there: its CSV and metrics hold the ticks flown before it, and
-``metrics.json`` says when (``diverged``, ``diverged_at``), as ``quadsitl fly`` does.
+Builds the vehicle of a preset (:class:`groundstation.vehicle.Vehicle`: the plant of ``sitl`` and the autopilot's
+tick of ``autopilot``, composed once) and flies it as ``quadsitl fly`` does: on the ground first, then armed in
+offboard on the setpoints of the reference, every tick through the same compiled functions as the processes. It
+writes telemetry CSV(s), ``metrics.json`` and the figures. A run whose state diverges (:func:`sitl.plant.inside`)
+ends there: its CSV and metrics hold the ticks flown before it, and ``metrics.json`` says when (``diverged``,
+``diverged_at``), as ``quadsitl fly`` does.
 
-A preset flown on sensors (its ``sensors``: ``--state sensors``) is flown as ``quadsitl fly`` flies it: the
-plant's sensor datagram of each tick (the same compiled encoder), decoded and estimated by the autopilot's own
-compiled functions (:class:`SensorObserver`), the controller on the estimate, after SENSOR_GROUND_S on the
-ground. telemetry.csv then has the estimate in x..r and the truth in x_true..r_true.
+A preset flown on sensors (its ``sensors``: ``--state sensors``) is flown on the autopilot's estimate of the
+plant's sensor datagram of each tick, after SENSOR_GROUND_S on the ground. telemetry.csv then has the estimate in
+x..r and the truth in x_true..r_true.
 """
 
 from __future__ import annotations
@@ -20,53 +21,54 @@ from pathlib import Path
 
 import numpy as np
 
-from autopilot.estimator import Estimator
 from autopilot.factory import make_controller
+from groundstation import trajectories
 from groundstation.figures import write_figures
 from groundstation.metrics import channel_outputs, estimate_rms, run_metrics
+from groundstation.setpoint_grid import grid_setpoints
 from groundstation.telemetry_csv import rows_from_arrays, write_csv
-from quadsitl import codec, hil
-from quadsitl.config import SENSOR_GROUND_S, Preset
-from quadsitl.frames import PX4_HOME
-from quadsitl.mixer import allocate
-from quadsitl.state import VehicleState
-from sitl import tick as plant_tick
-from sitl.plant import Plant
-from sitl.simulate import SimResult, simulate
+from groundstation.vehicle import R_FORCES, R_INPUTS, R_REF, R_SEEN, R_STATE, R_XY_REF, Setpoints, Vehicle, ground_ticks
+from quadsitl.compiled_frames import euler_rates_to_body_rates
+from quadsitl.config import Preset
+from sitl.plant import outside_what
 
 
-class SensorObserver:
-    """What the autopilot flies on in sensor mode, tick by tick, for ``simulate``: the plant's sensor datagram
-    (:func:`sitl.tick.encode_tick`, as the plant process sends it), decoded (:func:`quadsitl.hil.decode_sensors`)
-    and estimated (:class:`autopilot.estimator.Estimator`) as the autopilot process does, with the same compiled
-    functions. ``home``: the local origin, the plant's and the autopilot's."""
+@dataclass
+class SimResult:
+    """Arrays with one row per control tick. Units: SI, radians; NED for positions and velocities."""
 
-    def __init__(self, plant: Plant, preset: Preset, home: tuple[float, float, float] = PX4_HOME) -> None:
-        s = preset.sensors
-        self.plant, self.home = plant, home
-        self.estimator = Estimator.for_field(plant.period, preset.vehicle.gravity, s.mag_strength_gauss,
-                                             s.mag_declination_deg, s.mag_inclination_deg)  # fmt: skip
-        self.io = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
-        self.io[plant_tick.SENSING] = 1
-        self.datagram = np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8)
-        self.truth = np.zeros(codec.DECODED_SIZE)
-        self.frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+    t: np.ndarray  # (N,) [s]
+    state: np.ndarray  # (N, 12) VehicleState fields (Euler-angle rates): the truth x(k) at the start of tick k
+    reference: np.ndarray  # (N, 4) altitude, roll, pitch, yaw flown (autopilot.tick.reference_shown)
+    inputs: np.ndarray  # (N, 4) u1..u4 commanded
+    forces: np.ndarray  # (N, 4) commanded motor forces [N]
+    diverged_at: float | None = None  # [s]: the time of the tick whose state left the bounds (None: it did not)
+    diverged_what: str = ""  # what left its bound (sitl.plant.outside_what)
+    estimate: np.ndarray | None = None  # (N, 12) what the controller flew on (sensor mode); ``state`` is the truth
+    position_reference: np.ndarray | None = None  # (N, 2) x, y flown [m, NED]; NaN while not controlled
 
-    def __call__(self, k: int) -> VehicleState:
-        """The estimate at tick ``k`` (since the plant started) from the plant's state now."""
-        p, est = self.plant, self.estimator
-        plant_tick.encode_tick(self.datagram, self.io, p.x, p.out, p.air, p.sensors.arrays, k, p.period)
-        _, flags, _ = hil.decode_sensors(self.datagram, int(self.io[plant_tick.TX_LEN]), self.home, est.z, self.truth,
-                                         self.frame)  # fmt: skip
-        est.tick(flags)
-        return est.state
+    def body_rates(self, state: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3) body rates p, q, r [rad/s] from the Euler-angle rates of ``state`` (default: the truth), eq (1)."""
+        s = self.state if state is None else state
+        return np.array([euler_rates_to_body_rates(r[6], r[7], r[9], r[10], r[11]) for r in s]).reshape(-1, 3)
 
 
-def ground_ticks(preset: Preset) -> int:
-    """The ticks a flight on sensors spends on the ground first, motors off: ``quadsitl fly``'s plant holds its
-    clock at SENSOR_GROUND_S until the vehicle arms, and that tick is answered disarmed; the flight's first tick
-    is the one after."""
-    return round(SENSOR_GROUND_S / preset.sim.period) + 1 if preset.sensors is not None else 0
+def fly_offline(vehicle: Vehicle, setpoints: Setpoints, duration: float,
+                progress: Callable[[float], None] | None = None) -> SimResult:  # fmt: skip
+    """Fly ``vehicle`` as ``quadsitl fly`` flies it: on the ground first with the motors off (on sensors, while the
+    estimator aligns: :func:`groundstation.vehicle.ground_ticks`), then armed in offboard on ``setpoints`` for
+    ``duration`` seconds, or until the state diverges. ``progress`` is called with the simulated seconds flown."""
+    period = vehicle.period
+    vehicle.fly(ground_ticks(vehicle.preset), record=False)
+    vehicle.start_offboard(setpoints)
+    n = round(duration / period)
+    rows, flown = vehicle.fly(n, progress=None if progress is None else (lambda k: progress(k * period)))
+    diverged = flown < n
+    return SimResult(np.arange(flown) * period, rows[:, R_STATE : R_STATE + 12], rows[:, R_REF : R_REF + 4],
+                     rows[:, R_INPUTS : R_INPUTS + 4], rows[:, R_FORCES : R_FORCES + 4],
+                     flown * period if diverged else None, outside_what(vehicle.plant.x) if diverged else "",
+                     rows[:, R_SEEN : R_SEEN + 12] if vehicle.sensing else None,
+                     rows[:, R_XY_REF : R_XY_REF + 2])  # fmt: skip
 
 
 @dataclass
@@ -87,27 +89,30 @@ def run_offline(
     rates: Sequence[float] | None = None,
     poles: Sequence[float] | None = None,
     progress: Callable[[float], None] | None = None,
+    trajectory: str = "step",
 ) -> tuple[dict[str, SimResult], dict[str, dict]]:
-    """Simulate each controller on a fresh plant. All controllers are built (and their gains checked)
-    before any simulation starts, so inadmissible gains fail fast.
+    """Fly each controller on a fresh vehicle, on the setpoints of ``trajectory`` (:func:`groundstation.trajectories.
+    make`; ``step``: the preset's reference, the paper's experiment) made on ``quadsitl fly``'s grid
+    (:mod:`groundstation.setpoint_grid`), for ``duration`` seconds (default: a position trajectory's own, else the
+    preset's). All controllers are built (and their gains checked: with a position trajectory, the position loop's
+    too) and every setpoint checked by the autopilot's parser before any flight starts, so bad input fails fast.
 
     ``progress``, when given, is called now and then with the simulated seconds done so far over all
     the runs: it reaches ``len(controllers) × duration`` at the end."""
-    built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=False) for kind in controllers}
-    duration = duration or preset.sim.duration
-    act = preset.actuators
-    d_over_b = preset.autopilot_model.d_over_b
-
-    def alloc(u: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
-        return allocate(u, d_over_b, act.min_thrust, act.max_thrust)
-
+    path = trajectories.make(trajectory, preset.reference)
+    position = isinstance(path, trajectories.PositionTrajectory)
+    built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=position)
+             for kind in controllers}  # fmt: skip
+    duration = duration or (path.duration if position else None) or preset.sim.duration
+    period, first = preset.sim.period, ground_ticks(preset)
+    moments = ((first + g, sp) for g, sp in grid_setpoints(path, period, round(duration / period)))
     results, metrics = {}, {}
     for i, (kind, controller) in enumerate(built.items()):
-        plant = Plant(preset, integrator=integrator, substeps=substeps)
+        vehicle = Vehicle(preset, controller.kind, controller.v, controller.c, integrator, substeps)
+        if i == 0:
+            setpoints = Setpoints.of(moments, vehicle.frame())
         done = None if progress is None else (lambda s, before=i * duration: progress(before + s))
-        observe = SensorObserver(plant, preset) if preset.sensors is not None else None
-        res = simulate(plant, controller, preset.reference, duration, alloc, progress=done, observe=observe,
-                       ground_ticks=ground_ticks(preset))  # fmt: skip
+        res = fly_offline(vehicle, setpoints, duration, done)
         results[kind] = res
         flown = len(res.t) > 0  # a run that diverged at its first tick flew nothing: no metrics (None)
         metrics[kind] = run_metrics(res.t, channel_outputs(res.state), res.reference, res.inputs) if flown else None

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from groundstation import vehicle
 from groundstation.offline import run_offline
 from groundstation.sweep import engine
 from groundstation.sweep.run import fly as fly_batch
@@ -22,7 +23,7 @@ from groundstation.sweep.spec import parse_spec, trial_preset
 from groundstation.telemetry_csv import read_csv
 from quadsitl import codec, wire
 from quadsitl.config import load_preset, preset_toml
-from sitl import plant, process, simulate, tick
+from sitl import plant, process, tick
 from tests.test_fly import alive, children_of, quadsitl
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first
@@ -50,8 +51,9 @@ def unstable_preset(tmp_path, **initial):
 
 def test_one_check_for_every_runtime():
     assert engine.inside is plant.inside and tick.inside is plant.inside  # the batch engine, the plant's lockstep
-    assert simulate.state_inside is process.state_inside is plant.state_inside  # sim, the plant's x(0), real time
-    assert engine.DEFAULT_LIMITS is plant.DEFAULT_LIMITS
+    assert vehicle.inside is plant.inside  # sim
+    assert process.state_inside is plant.state_inside  # the plant's x(0), real time
+    assert engine.DEFAULT_LIMITS is plant.DEFAULT_LIMITS is vehicle.DEFAULT_LIMITS
     base = np.zeros(12)
     cases = {  # index, value → inside the default bounds
         (0, 1e5): True, (0, 1.0000001e5): False, (5, -1e4): True, (5, 1.0001e4): False,

@@ -1,7 +1,9 @@
 """The batch engine: every trial of a chunk flown in one compiled call, on the very functions the plant
 process, the autopilot process and ``quadsitl sim`` run.
 
-One control tick of a trial is what :func:`sitl.simulate.simulate` does for ``quadsitl sim``: the controller's
+One control tick of a trial is the paper's experiment on the law alone (``quadsitl sim`` flies the whole vehicle,
+commander and limits included, through :mod:`groundstation.vehicle`; for the paper's reference the two are the same
+to the bit): the controller's
 law on the state (:func:`autopilot.backstepping.backstepping`, eqs (18)–(33), or :func:`autopilot.pd.pd`), the
 allocation of the autopilot (:func:`quadsitl.mixer.allocate`, the inverse of eq (8) with saturation, on the
 autopilot's model), then one control period of the plant (:func:`sitl.plant.step`: actuators, eq (8), eqs

@@ -1,0 +1,254 @@
+"""The vehicle, composed once: one control tick of the closed loop, and the loop that ``quadsitl sim`` runs over it.
+
+A tick k, compiled (:func:`vehicle_tick`), is what the three processes do between them in a lockstep run:
+
+1. what the autopilot sees of the state x(k): the state itself, or in sensor mode the plant's sensor datagram
+   (:func:`sitl.tick.encode_tick`, the plant process's encoder) decoded (:func:`quadsitl.hil.decode_sensors`) and
+   estimated (:func:`autopilot.tick.estimate`), as the autopilot process decodes and estimates it;
+2. the autopilot's tick (:func:`autopilot.tick.autopilot_step`): commander and auto modes, position, altitude and
+   attitude control with their limits and integrators, allocation;
+3. one control period of the plant (:func:`sitl.plant.step_arrays`): air, actuators and dynamics, ground.
+
+The offboard setpoints the ground station would send (:class:`Setpoints`) take effect at the tick they are made
+for, as ``quadsitl fly``'s autopilot flies them (:mod:`autopilot.offboard_lockstep`). :func:`fly_ticks` is the loop:
+the setpoints due, the divergence check (:func:`sitl.plant.inside`), the tick, its row of the result. Nothing of the
+vehicle is written here: the equations, the commander and the plant are the processes' own functions. What
+differs from ``quadsitl fly`` is the wire alone: ``fly``'s processes carry the state, the setpoints and the motor
+commands in MAVLink's float32 fields, so ``fly`` equals ``sim`` to float32.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from autopilot import commander as cmd
+from autopilot import setpoints
+from autopilot.commander import Commander, CommanderSettings
+from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
+from autopilot.estimator import Estimator
+from autopilot.params import commander_settings
+from autopilot.tick import autopilot_step, estimate, reference_shown
+from groundstation.setpoint_grid import POSITION_VELOCITY_YAW
+from quadsitl import codec, hil
+from quadsitl.codec import BODY_RATES
+from quadsitl.compiled_frames import euler_rates_to_body_rates
+from quadsitl.config import DEFAULT_LIMITS, SENSOR_GROUND_S, Preset
+from quadsitl.frames import PX4_HOME
+from quadsitl.jit import jit
+from quadsitl.param_arrays import VEHICLE_SIZE
+from quadsitl.state import Reference, VehicleState
+from quadsitl.wire import Mode
+from sitl import tick as plant_tick
+from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X, Plant, inside, step_arrays
+
+# The commander's offboard setpoint fields, in its state array's order: what a setpoint sets (cmd.SP_X..SP_YAW_RATE).
+SP_FIELDS = cmd.SP_YAW_RATE + 1 - cmd.SP_X
+# A row of the result (fly_ticks): the truth x(k) (12), what the autopilot flew on (12), the reference shown
+# (altitude, roll, pitch, yaw, x, y: autopilot.tick.reference_shown), u1..u4, the commanded forces f1..f4 [N].
+R_STATE, R_SEEN, R_REF, R_XY_REF, R_INPUTS, R_FORCES, ROW_SIZE = 0, 12, 24, 28, 30, 34, 38
+
+
+@jit
+def vehicle_tick(k: int, kind: int, sensing: bool, period: float, substeps: int, method: int, plant: tuple,
+                 sens: tuple, ap: tuple, est: tuple, home: tuple, f_min: float, f_max: float) -> int:  # fmt: skip
+    """Tick ``k`` of the vehicle (the module's steps 1–3): x(k) in the plant's work array → x(k+1). Returns the
+    commander's event. ``plant`` = (work, params, air_rng, io, datagram): :class:`sitl.plant.Plant`'s arrays, the
+    plant tick's bookkeeping (:mod:`sitl.tick`) and the sensor datagram's buffer; ``sens`` the sensors' arrays;
+    ``ap`` = (st, cm, mem, v, c, truth, frame): the state seen (:data:`quadsitl.codec.DECODED_SIZE`), the commander,
+    the controller's memory, the autopilot's vehicle model and control parameters, and the decoder's scratch;
+    ``est`` the estimator's arrays; ``home`` the local origin (lat, lon [deg], alt [m AMSL])."""
+    w, params, air_rng, pio, datagram = plant
+    st, cm, mem, v, c, truth, frame = ap
+    x, out, air = w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:]
+    if sensing:
+        plant_tick.encode_tick(datagram, pio, x, out, air, sens, k, period)
+        _, flags, _ = hil.decode_sensors(datagram, pio[plant_tick.TX_LEN], home, est[0], truth, frame)
+        estimate(flags, period, est, st)
+    else:
+        for i in range(12):
+            st[i] = x[i]
+        p, q, r = euler_rates_to_body_rates(x[6], x[7], x[9], x[10], x[11])
+        st[BODY_RATES], st[BODY_RATES + 1], st[BODY_RATES + 2] = p, q, r
+    forces, event = autopilot_step(kind, st, cm, mem, v, c, f_min, f_max, k, k * period)
+    commanded = w[W_COMMANDED:W_OUT]
+    for i in range(4):
+        commanded[i] = forces[i]
+    step_arrays(x, w[W_MOTORS:W_COMMANDED], commanded, out, params[:VEHICLE_SIZE], params[VEHICLE_SIZE:], air,
+                air_rng, period, substeps, method, math.nan)  # fmt: skip
+    return event
+
+
+@jit
+def fly_ticks(first: int, n: int, record: bool, kind: int, sensing: bool, period: float, substeps: int, method: int,
+              plant: tuple, sens: tuple, ap: tuple, est: tuple, home: tuple, f_min: float, f_max: float,
+              sp_ticks: np.ndarray, sp_values: np.ndarray, sp_next: np.ndarray, rows: np.ndarray) -> int:  # fmt: skip
+    """Ticks ``first`` .. ``first`` + n − 1 of the vehicle: at each, the offboard setpoints made for it or before
+    (``sp_ticks``, ``sp_values``: :class:`Setpoints`; ``sp_next``[0] the first not yet flown) go to the commander, as
+    the autopilot's handlers set them (cmd.SP_X..SP_YAW_RATE, stamped with the commander's time), then the tick
+    (:func:`vehicle_tick`). With ``record``, a state x(k) outside the bounds (:func:`sitl.plant.inside`) ends the
+    loop before its tick, and each tick's row goes to rows[k − first] (R_*). Returns the number of ticks flown (n
+    unless the state diverged)."""
+    w, cm = plant[0], ap[1]
+    st, mem = ap[0], ap[2]
+    for j in range(n):
+        k = first + j
+        x = w[W_X:W_MOTORS]
+        if record and not inside((x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11]),
+                                 DEFAULT_LIMITS):  # fmt: skip
+            return j
+        while sp_next[0] < sp_ticks.shape[0] and sp_ticks[sp_next[0]] <= k:
+            for i in range(SP_FIELDS):
+                cm[cmd.SP_X + i] = sp_values[sp_next[0], i]
+            cm[cmd.LAST_SP_TIME] = cm[cmd.NOW]
+            sp_next[0] += 1
+        if record:
+            for i in range(12):
+                rows[j, R_STATE + i] = x[i]
+        vehicle_tick(k, kind, sensing, period, substeps, method, plant, sens, ap, est, home, f_min, f_max)
+        if record:
+            for i in range(12):
+                rows[j, R_SEEN + i] = st[i]
+            shown = reference_shown(cm, mem)
+            for i in range(4):
+                rows[j, R_REF + i] = shown[i]
+                rows[j, R_INPUTS + i] = mem[MEM_U + i]
+                rows[j, R_FORCES + i] = mem[MEM_FORCES + i]
+            rows[j, R_XY_REF], rows[j, R_XY_REF + 1] = shown[4], shown[5]
+    return n
+
+
+@dataclass
+class Setpoints:
+    """Offboard setpoints as the commander holds them: ticks[i] the tick setpoint i is flown from (ascending),
+    values[i] the commander's fields it sets (cmd.SP_X..SP_YAW_RATE, NaN where not given)."""
+
+    ticks: np.ndarray  # (N,) int64
+    values: np.ndarray  # (N, SP_FIELDS)
+
+    @classmethod
+    def of(cls, moments: Iterable[tuple[int, object]], frame: setpoints.Frame) -> Setpoints:
+        """From (tick, setpoint) pairs in order: a :class:`quadsitl.state.Reference` is an attitude setpoint and an
+        altitude (as ``quadsitl fly``'s ground station sends it: SET_ATTITUDE_TARGET and a z-only position target);
+        a :class:`groundstation.trajectories.PositionSetpoint` a position, velocity and yaw target in LOCAL_NED
+        (type_mask 2496), read by the autopilot's parser (:func:`autopilot.setpoints.position_target`, with the
+        limits of ``frame``). Each goes to a commander through its handlers, as in the autopilot process. A
+        setpoint the autopilot would refuse raises :class:`autopilot.setpoints.SetpointError`, naming its tick."""
+        scratch = Commander()
+        ticks, values = [], []
+        nan = math.nan
+        for tick, sp in moments:
+            if isinstance(sp, Reference):
+                scratch.on_attitude_setpoint(sp.roll, sp.pitch, sp.yaw)
+                scratch.on_altitude_setpoint(sp.altitude)
+            else:
+                try:
+                    groups = setpoints.position_target(setpoints.LOCAL_NED, POSITION_VELOCITY_YAW,
+                                                       (sp.x, sp.y, -sp.altitude), (sp.vx, sp.vy, -sp.climb),
+                                                       (nan, nan, nan), sp.yaw, nan, frame)  # fmt: skip
+                except setpoints.SetpointError as exc:
+                    raise setpoints.SetpointError(f"the setpoint for tick {tick}: {exc}") from None
+                scratch.on_position_setpoint(*groups)
+            ticks.append(tick)
+            values.append(scratch.cm[cmd.SP_X : cmd.SP_YAW_RATE + 1].copy())
+        return cls(np.array(ticks, dtype=np.int64), np.array(values).reshape(-1, SP_FIELDS))
+
+
+PROGRESS_TICKS = 500  # the loop returns to Python (progress, nothing else) every this many ticks
+
+
+class Vehicle:
+    """One vehicle of a preset, composed once: the plant (:class:`sitl.plant.Plant`, with its sensors and air) and
+    the autopilot's arrays (commander, controller memory, model, gains, estimator), for :func:`fly_ticks`.
+
+    ``kind``: the controller's code (:data:`autopilot.control_params.KINDS`); ``v``, ``c``: the autopilot's model
+    and control arrays (a controller's, :func:`autopilot.factory.make_controller`); ``integrator``, ``substeps``:
+    the plant's integration (default: the preset's)."""
+
+    def __init__(self, preset: Preset, kind: int, v: np.ndarray, c: np.ndarray, integrator: str | None = None,
+                 substeps: int | None = None, home: tuple[float, float, float] = PX4_HOME) -> None:  # fmt: skip
+        self.preset, self.kind, self.home = preset, kind, home
+        self.period = preset.sim.period
+        self.plant = Plant(preset, integrator=integrator, substeps=substeps, home=home)
+        self.sensing = preset.sensors is not None
+        p = self.plant
+        pio = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
+        pio[plant_tick.SENSING] = 1 if self.sensing else 0
+        self.plant_arrays = (p.work, p.params, p.air_rng, pio, np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8))
+        self.commander = Commander(commander_settings(preset.position, CommanderSettings()))
+        self.st = np.zeros(codec.DECODED_SIZE)
+        self.mem = np.zeros(MEM_SIZE)
+        self.ap = (self.st, self.commander.cm, self.mem, np.asarray(v, dtype=float), np.asarray(c, dtype=float),
+                   np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8))  # fmt: skip
+        s = preset.sensors
+        g = preset.vehicle.gravity  # in truth mode an estimator's arrays are passed and never touched
+        self.estimator = (Estimator.for_field(self.period, g, s.mag_strength_gauss, s.mag_declination_deg,
+                                              s.mag_inclination_deg)
+                          if s is not None else Estimator(self.period, g, (0.2, 0.0, 0.4)))  # fmt: skip
+        a = preset.actuators
+        self.f_min, self.f_max = a.min_thrust, a.max_thrust
+        self.tick = 0  # the next tick to fly
+        self.sp = Setpoints(np.zeros(0, dtype=np.int64), np.zeros((0, SP_FIELDS)))
+        self.sp_next = np.zeros(1, dtype=np.int64)
+
+    def frame(self) -> setpoints.Frame:
+        """Where the autopilot measures setpoints from, and the limits they must keep, as the autopilot process's
+        (:meth:`autopilot.process.Autopilot.frame`)."""
+        c, st = self.commander, self.commander.settings
+        return setpoints.Frame(self.home, c.home, float(self.st[8]), st.altitude_max, st.max_distance, st.xy_vel_max,
+                               st.z_vel_up, st.z_vel_dn)  # fmt: skip
+
+    @property
+    def state(self) -> VehicleState:
+        """The truth x(k) before the next tick."""
+        return self.plant.state
+
+    def fly(self, n: int, record: bool = True, progress: Callable[[int], None] | None = None) -> tuple[np.ndarray, int]:
+        """Fly the next ``n`` ticks: (their rows, R_*; the ticks flown, fewer than n when the state diverged: then
+        ``state`` is the state that left its bounds). ``progress`` is called with the ticks flown so far every
+        PROGRESS_TICKS; it only observes."""
+        rows = np.empty((n if record else 0, ROW_SIZE))
+        done = 0
+        while done < n:
+            if progress is not None:
+                progress(done)
+            m = min(PROGRESS_TICKS, n - done)
+            chunk = rows[done : done + m] if record else rows
+            flown = fly_ticks(self.tick, m, record, self.kind, self.sensing, self.period, self.plant.substeps,
+                              self.plant.method, self.plant_arrays, self.plant.sensors.arrays, self.ap,
+                              self.estimator.arrays, self.home, self.f_min, self.f_max, self.sp.ticks, self.sp.values,
+                              self.sp_next, chunk)  # fmt: skip
+            self.tick += flown
+            done += flown
+            if flown < m:
+                break
+        if progress is not None:
+            progress(done)
+        return rows[:done], done
+
+    def start_offboard(self, setpoints: Setpoints) -> None:
+        """Arm in offboard on the setpoints given (those for ticks up to now go to the commander at once), as
+        ``quadsitl fly``'s ground station does once the vehicle is on its ground hold: setpoints first, offboard,
+        arm. The commander takes the state it last saw (before any tick, the plant's initial state)."""
+        if self.tick == 0:
+            s = self.plant.x
+            cmd.update(self.commander.cm, 0, 0.0, s[0], s[1], -s[2], s[3], s[4], -s[5], s[8])
+        self.sp, self.sp_next[0] = setpoints, 0
+        cm = self.commander.cm
+        while self.sp_next[0] < len(setpoints.ticks) and setpoints.ticks[self.sp_next[0]] <= self.tick:
+            cm[cmd.SP_X : cmd.SP_YAW_RATE + 1] = setpoints.values[self.sp_next[0]]
+            cm[cmd.LAST_SP_TIME] = cm[cmd.NOW]
+            self.sp_next[0] += 1
+        for ok, why in (self.commander.set_mode(Mode.OFFBOARD), self.commander.arm()):
+            if not ok:
+                raise RuntimeError(f"the vehicle refused to fly offboard: {why}")
+
+
+def ground_ticks(preset: Preset) -> int:
+    """The ticks a flight on sensors spends on the ground first, motors off: ``quadsitl fly``'s plant holds its
+    clock at SENSOR_GROUND_S until the vehicle arms, and that tick is answered disarmed; the flight's first tick
+    is the one after."""
+    return round(SENSOR_GROUND_S / preset.sim.period) + 1 if preset.sensors is not None else 0
