@@ -75,7 +75,7 @@ def _from_sweep(args: argparse.Namespace) -> Preset:
     if args.trial is None:
         raise UsageError("--from-sweep needs --trial K (the trial's number, as in trials.csv)")
     flown = ("preset", "controller", "duration", "integrator", "substeps", "gains", "poles", "compare", "wind",
-             "turbulence", "gust", "wind_seed", "state", "sensor_seed")  # fmt: skip
+             "turbulence", "gust", "wind_seed", "state", "sensor_seed", "trajectory")  # fmt: skip
     given = [f"--{k.replace('_', '-')}" for k in flown if getattr(args, k) not in (None, False)]
     if given:
         raise UsageError(f"{given[0]} does not go with --from-sweep: the trial flies as the sweep flew it (its "
@@ -109,19 +109,27 @@ def cmd_sim(args: argparse.Namespace) -> int:
     duration = args.duration or preset.sim.duration
     label = "sim:" if len(kinds) == 1 else f"sim ({' + '.join(kinds)}):"
     # after the checks: a refusal is answered without loading the compiler (1.9 -> 0.2 s of CPU)
-    from groundstation.metrics import format_table
-    from groundstation.offline import run_offline, write_outputs
+    from autopilot.setpoints import SetpointError
+    from groundstation.metrics import format_position_table, format_table
+    from groundstation.offline import run_offline, tracking, write_outputs
     from groundstation.progress import FlightProgress
+    from groundstation.trajectories import PositionTrajectory, make
 
+    trajectory = args.trajectory or "step"
+    path = make(trajectory, preset.reference)  # a bad name or file: one line, before anything is compiled
+    if args.duration is None and isinstance(path, PositionTrajectory):
+        duration = path.duration
     try:
         with FlightProgress(duration * len(kinds), enabled=not args.quiet, label=label) as bar:
-            results, metrics = run_offline(
-                preset, kinds, duration, integrator, args.substeps, rates=rates, poles=poles, progress=bar.update
-            )
+            results, metrics = run_offline(preset, kinds, duration, integrator, args.substeps, rates=rates,
+                                           poles=poles, progress=bar.update, trajectory=trajectory)  # fmt: skip
     except GainError as exc:
         what = f"trial {args.trial} was not flown by the sweep: " if args.from_sweep is not None else ""
         raise UsageError(f"{what}inadmissible gains: {exc}") from None
+    except SetpointError as exc:
+        raise UsageError(f"--trajectory {trajectory}: {exc}") from None
     settings = {
+        "trajectory": trajectory,
         "integrator": integrator,
         "duration": duration,
         "period": preset.sim.period,
@@ -138,7 +146,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
             f"preset {preset.name}, integrator {integrator}, T = {preset.sim.period:g} s, "
             f"{len(next(iter(results.values())).t)} ticks"
         )
-        print(format_table({k: m for k, m in metrics.items() if m is not None}))
+        flown = {k: r for k, r in results.items() if len(r.t)}
+        print(format_position_table(tracking(flown)) if isinstance(path, PositionTrajectory) else
+              format_table({k: m for k, m in metrics.items() if m is not None}))  # fmt: skip
         print("wrote " + ", ".join(str(f) for f in files))
     diverged = {k: r for k, r in results.items() if r.diverged_at is not None}
     for kind, r in diverged.items():  # said even with --quiet: the run did not fly its duration
@@ -408,6 +418,13 @@ def zenoh_and_addresses(args: argparse.Namespace) -> None:
                 setattr(args, f"{link}_listen", f"{host}:{port}")
 
 
+TRAJECTORY_HELP = (
+    "attitude setpoints: step (default), ramp, sine, or a CSV file t,altitude,roll,pitch,yaw; offboard position "
+    "setpoints: circle[:radius=M,period=S,altitude=M,hold=S,yaw=RAD|travel], figure8[:size=M,period=S,...], or a "
+    "CSV file t,x,y,altitude,yaw (see docs/commands.md)"
+)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="quadsitl",
@@ -434,7 +451,9 @@ the source, or 'mkdocs serve' there.""",
         "and figures reproducing the paper's Figures 2–4.",
     )
     add_preset_arguments(sim)
-    sim.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the preset's)")
+    sim.add_argument("--duration", type=float, metavar="S", help="simulated seconds of flight (default: a position "
+                     "trajectory's own length, else the preset's)")  # fmt: skip
+    sim.add_argument("--trajectory", metavar="NAME|FILE", help=TRAJECTORY_HELP + "; as fly flies it")
     sim.add_argument("--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)")
     sim.add_argument("--substeps", type=int, metavar="N", help="integration sub-steps per control period")
     g = sim.add_mutually_exclusive_group()
@@ -474,14 +493,7 @@ the source, or 'mkdocs serve' there.""",
         help="cap the lockstep pace at F × real time (default 0: as fast as possible)",
     )
     fl.add_argument("--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)")
-    fl.add_argument(
-        "--trajectory",
-        default="step",
-        metavar="NAME|FILE",
-        help="attitude setpoints: step (default), ramp, sine, or a CSV file t,altitude,roll,pitch,yaw; offboard "
-        "position setpoints: circle[:radius=M,period=S,altitude=M,hold=S,yaw=RAD|travel], "
-        "figure8[:size=M,period=S,...], or a CSV file t,x,y,altitude,yaw (see docs/commands.md)",
-    )
+    fl.add_argument("--trajectory", default="step", metavar="NAME|FILE", help=TRAJECTORY_HELP)
     fl.add_argument(
         "--mission",
         metavar="FILE",

@@ -23,8 +23,8 @@ import numpy as np
 
 from autopilot.factory import make_controller
 from groundstation import trajectories
-from groundstation.figures import write_figures
-from groundstation.metrics import channel_outputs, estimate_rms, run_metrics
+from groundstation.figures import write_figures, write_path_figure
+from groundstation.metrics import channel_outputs, estimate_rms, position_metrics, run_metrics
 from groundstation.setpoint_grid import grid_setpoints
 from groundstation.telemetry_csv import rows_from_arrays, write_csv
 from groundstation.vehicle import R_FORCES, R_INPUTS, R_REF, R_SEEN, R_STATE, R_XY_REF, Setpoints, Vehicle, ground_ticks
@@ -119,6 +119,13 @@ def run_offline(
     return results, metrics
 
 
+def tracking(results: dict[str, SimResult]) -> dict[str, dict]:
+    """Each run's position tracking (:func:`groundstation.metrics.position_metrics`): the truth against the
+    horizontal reference flown, as ``quadsitl fly``'s metrics.json has it for a position trajectory."""
+    return {k: position_metrics(r.state[:, 0], r.state[:, 1], r.position_reference[:, 0], r.position_reference[:, 1],
+                                -r.state[:, 2], r.reference[:, 0]) for k, r in results.items()}  # fmt: skip
+
+
 def write_outputs(
     out: Path,
     preset: Preset,
@@ -137,10 +144,11 @@ def write_outputs(
     for i, (kind, res) in enumerate(results.items()):
         path = out / ("telemetry.csv" if i == 0 else f"telemetry_{kind}.csv")
         if res.estimate is None:
-            rows = rows_from_arrays(res.t, res.state, res.body_rates(), res.reference, res.inputs, res.forces)
+            rows = rows_from_arrays(res.t, res.state, res.body_rates(), res.reference, res.inputs, res.forces,
+                                    res.position_reference)  # fmt: skip
         else:  # sensor mode: the estimate flown in x..r, the truth after (telemetry_csv.TRUTH_COLUMNS)
             rows = rows_from_arrays(res.t, res.estimate, res.body_rates(res.estimate), res.reference, res.inputs,
-                                    res.forces)  # fmt: skip
+                                    res.forces, res.position_reference)  # fmt: skip
             rows = np.column_stack([rows, res.state[:, :9], res.body_rates()])
         write_csv(path, rows)
         files.append(path)
@@ -150,6 +158,10 @@ def write_outputs(
     if len(results) > 1:
         diverged["diverged_at_by_controller"] = {k: r.diverged_at for k, r in results.items()}
     report = {"preset": preset.name, **settings, **diverged, "runs": metrics}
+    tracked = {k: r for k, r in results.items() if r.position_reference is not None and
+               np.isfinite(r.position_reference).all(axis=1).any()}  # fmt: skip
+    if tracked:
+        report["position"] = tracking(tracked)
     if first.estimate is not None:  # as fly's: the sensors flown and the estimate's RMS error
         names = ("x", "y", "altitude", "roll", "pitch", "yaw")
 
@@ -167,4 +179,8 @@ def write_outputs(
     }
     if figures and runs:
         files += write_figures(runs, out, f"preset {preset.name}")
+        for kind, r in list(tracked.items())[:1]:
+            files.append(write_path_figure(out, r.state[:, 0], r.state[:, 1], r.position_reference[:, 0],
+                                           r.position_reference[:, 1], f"preset {preset.name}, sim, {kind}, "
+                                           f"{settings.get('trajectory', 'step')}"))  # fmt: skip
     return files
