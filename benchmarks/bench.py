@@ -18,8 +18,8 @@ machines drift:
    without them it is skipped with one line saying what is missing, and the JSON has no dashboard figures
    and says why under ``skipped`` (:data:`OPTIONAL`).
 6. the sweeps' batch engine: vehicle-steps per second of ``quadsitl sweep``'s engine (the paper's controller and
-   plant, 5 s trials), in one process and over one worker process per core, against ``quadsitl sim``'s scalar
-   loop (the same compiled equations, called from Python once per tick).
+   plant, 5 s trials), in one process and over one worker process per core, against ``quadsitl sim``'s compiled
+   loop of the whole vehicle on the same step; and that loop on the x500's circle (``sim_circle_steps_per_s``).
 7. fleets: N vehicles at once (N autopilot processes and one plant process on one clock, as ``up --vehicles N``),
    growing N. In real time at 1 kHz, with the dashboard's page open when the machine has a browser: the worst
    vehicle's deadline-miss ratio (its tick started late, or its autopilot's answer missed the period) against one
@@ -536,21 +536,28 @@ def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
 def bench_batch(r: Report, trials: int) -> dict:
     """Vehicle-steps per second of the sweeps' batch engine on the paper's controller and plant (the
     paper-mass-mismatch spec: the paper's step, ±20 % mass and inertia mismatch, 5 s per trial), in this process
-    and over one worker process per core, against the scalar loop of ``quadsitl sim`` (the same compiled
-    equations, called from Python once per tick) measured in the same run."""
+    and over one worker process per core, against ``quadsitl sim``'s loop of the whole vehicle
+    (:mod:`groundstation.vehicle`: the autopilot's tick and the plant's, compiled) on the same step, measured in
+    the same run; and that loop on the x500's circle (position loop and limits, truth, calm air)."""
     from groundstation.offline import run_offline
     from groundstation.sweep.run import fly, run_sweep, warm_up
     from groundstation.sweep.spec import load_spec
+    from quadsitl.config import load_preset
 
-    r.section("6. sweeps: the batch engine (paper's controller and plant) against quadsitl sim's scalar loop")
+    r.section("6. sweeps: the batch engine (paper's controller and plant) against quadsitl sim's vehicle loop")
     spec = load_spec("paper-mass-mismatch")
     warm_up()
+    x500 = load_preset("x500")
     run_offline(spec.preset, ["backstepping"], 0.01)  # compiled, or loaded from the cache, before timing
-    scalar = []
-    for _ in range(3):
+    run_offline(x500, ["backstepping"], 0.01, trajectory="circle")
+
+    def sim_rate(preset, seconds: float, trajectory: str) -> float:
         start = time.perf_counter()
-        run_offline(spec.preset, ["backstepping"], 2.0)
-        scalar.append(2000 / (time.perf_counter() - start))
+        run_offline(preset, ["backstepping"], seconds, trajectory=trajectory)
+        return round(seconds / preset.sim.period) / (time.perf_counter() - start)
+
+    scalar = [sim_rate(spec.preset, 5.0, "step") for _ in range(3)]
+    circle = [sim_rate(x500, 27.5, "circle") for _ in range(3)]
     one = []
     n = max(trials // 8, 50)
     for _ in range(3):
@@ -563,12 +570,15 @@ def bench_batch(r: Report, trials: int) -> dict:
     result = run_sweep(big, workers=workers)
     wall = time.perf_counter() - start
     many = result.ticks_flown / result.wall_s  # the flights, workers started and warm: what `quadsitl sweep` reports
-    r.add("scalar loop (quadsitl sim), paper step", max(scalar), "steps/s")
-    r.add("batch engine, this process", max(one), "steps/s", max(scalar), "scalar loop")
+    r.add("quadsitl sim's vehicle loop, paper step", max(scalar), "steps/s")
+    r.add("quadsitl sim's vehicle loop, x500 circle (truth, calm)", max(circle), "steps/s", max(scalar),
+          "paper step")  # fmt: skip
+    r.add("batch engine, this process", max(one), "steps/s", max(scalar), "sim's vehicle loop")
     r.add(f"batch engine, {workers} worker processes ({trials} trials)", many, "steps/s", max(one), "one process")
     r.add(f"  {trials} trials of 5 s: the flights / end to end with the workers' start", result.wall_s, "s", wall,
           "end to end")  # fmt: skip
-    return {"batch_steps_per_s": many, "batch_steps_per_s_one_process": max(one), "scalar_steps_per_s": max(scalar)}
+    return {"batch_steps_per_s": many, "batch_steps_per_s_one_process": max(one), "scalar_steps_per_s": max(scalar),
+            "sim_circle_steps_per_s": max(circle)}  # fmt: skip
 
 
 # ---- the command ----------------------------------------------------------------------------------------
