@@ -466,6 +466,12 @@ class MissionProtocol:
             return [self._request(up, now)]
         return self._complete(up)
 
+    def store(self, items: tuple[MissionItem, ...]) -> None:
+        """A whole mission, as a completed upload of new items stores it (``quadsitl sim`` stores its mission file
+        so, each item first through :func:`parse_item`)."""
+        marked = [it.seq for it in items if it.current]
+        self._replace(items, marked[0] if marked else 0)
+
     def _complete(self, up: _Upload) -> list[Out]:
         self._upload = None
         self._last_upload = (up.partner, up.count - 1, up.legacy)
@@ -473,8 +479,7 @@ class MissionProtocol:
         unchanged = len(items) == len(self.items) and all(a.same_plan(b) for a, b in zip(items, self.items))
         out = [self._ack(up.partner, ACCEPTED)]
         if not unchanged:  # as PX4: the same mission again keeps the current item and the state
-            marked = [it.seq for it in items if it.current]
-            self._replace(items, marked[0] if marked else 0)
+            self.store(items)
             out.append(self.mission_current())
         else:
             self.items = items

@@ -111,25 +111,39 @@ def cmd_sim(args: argparse.Namespace) -> int:
     # after the checks: a refusal is answered without loading the compiler (1.9 -> 0.2 s of CPU)
     from autopilot.setpoints import SetpointError
     from groundstation.metrics import format_position_table, format_table
+    from groundstation.mission_files import MISSION_DURATION, load
     from groundstation.offline import run_offline, tracking, write_outputs
     from groundstation.progress import FlightProgress
     from groundstation.trajectories import PositionTrajectory, make
+    from quadsitl.cli_util import parse_home
+    from quadsitl.frames import PX4_HOME
 
     trajectory = args.trajectory or "step"
     path = make(trajectory, preset.reference)  # a bad name or file: one line, before anything is compiled
-    if args.duration is None and isinstance(path, PositionTrajectory):
+    mission = None
+    if args.mission is not None:
+        if args.trajectory is not None:
+            raise UsageError(f"--trajectory {args.trajectory!r} with --mission: a flight flies one or the other")
+        mission = load(args.mission)  # refused as fly refuses it, in one line
+        duration = args.duration or MISSION_DURATION
+    elif args.home is not None:
+        raise UsageError(f"--home {args.home!r}: only with --mission (it places the mission's waypoints)")
+    home = parse_home(args.home) or PX4_HOME
+    if args.duration is None and isinstance(path, PositionTrajectory) and mission is None:
         duration = path.duration
     try:
         with FlightProgress(duration * len(kinds), enabled=not args.quiet, label=label) as bar:
             results, metrics = run_offline(preset, kinds, duration, integrator, args.substeps, rates=rates,
-                                           poles=poles, progress=bar.update, trajectory=trajectory)  # fmt: skip
+                                           poles=poles, progress=bar.update, trajectory=trajectory, mission=mission,
+                                           home=home)  # fmt: skip
     except GainError as exc:
         what = f"trial {args.trial} was not flown by the sweep: " if args.from_sweep is not None else ""
         raise UsageError(f"{what}inadmissible gains: {exc}") from None
     except SetpointError as exc:
         raise UsageError(f"--trajectory {trajectory}: {exc}") from None
     settings = {
-        "trajectory": trajectory,
+        "trajectory": None if mission else trajectory,
+        **({"mission": str(mission.path)} if mission else {}),
         "integrator": integrator,
         "duration": duration,
         "period": preset.sim.period,
@@ -137,7 +151,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
         **wind_settings(preset),
     }
     out = Path(args.out)
-    files = write_outputs(out, preset, results, metrics, settings, figures=not args.no_figures)
+    files = write_outputs(out, preset, results, metrics, settings, figures=not args.no_figures, mission=mission,
+                          home=home)  # fmt: skip
     if args.from_sweep is not None:  # the trial as a preset of its own: `quadsitl fly --preset` takes it
         (out / "preset.toml").write_text(preset_toml(preset), encoding="utf-8")
         files.append(out / "preset.toml")
@@ -147,14 +162,17 @@ def cmd_sim(args: argparse.Namespace) -> int:
             f"{len(next(iter(results.values())).t)} ticks"
         )
         flown = {k: r for k, r in results.items() if len(r.t)}
-        print(format_position_table(tracking(flown)) if isinstance(path, PositionTrajectory) else
+        print(format_position_table(tracking(flown)) if isinstance(path, PositionTrajectory) or mission else
               format_table({k: m for k, m in metrics.items() if m is not None}))  # fmt: skip
         print("wrote " + ", ".join(str(f) for f in files))
     diverged = {k: r for k, r in results.items() if r.diverged_at is not None}
     for kind, r in diverged.items():  # said even with --quiet: the run did not fly its duration
         print(f"quadsitl sim: the state diverged at t = {r.diverged_at:.3f} s ({kind}): {r.diverged_what}; "
               f"{len(r.t)} ticks flown before it are in the telemetry and metrics.json", file=sys.stderr)  # fmt: skip
-    return SIM_DIVERGED if diverged else 0
+    unfinished = {k: r.mission.where for k, r in results.items() if r.mission is not None and r.mission.where}
+    for kind, where in unfinished.items():  # as fly's: the flight so far is kept
+        print(f"quadsitl sim: error: {where} ({kind}); the flight so far is in {out}", file=sys.stderr)
+    return SIM_DIVERGED if diverged else 1 if unfinished else 0
 
 
 EXAMPLES_SWEEP = """examples:
@@ -424,6 +442,13 @@ TRAJECTORY_HELP = (
     "CSV file t,x,y,altitude,yaw (see docs/commands.md)"
 )
 
+MISSION_HELP = (
+    "fly a mission, uploaded through the MAVLink mission protocol: a QGroundControl .plan, a waypoint CSV "
+    "lat,lon,altitude[,hold,radius,yaw] or a QGC WPL 110 file (see docs/missions.md); --duration then bounds it in "
+    "simulated seconds (default 900)"
+)
+HOME_HELP = "with --mission: the vehicle's home (default: PX4 SITL's, in Zürich)"
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -454,6 +479,8 @@ the source, or 'mkdocs serve' there.""",
     sim.add_argument("--duration", type=float, metavar="S", help="simulated seconds of flight (default: a position "
                      "trajectory's own length, else the preset's)")  # fmt: skip
     sim.add_argument("--trajectory", metavar="NAME|FILE", help=TRAJECTORY_HELP + "; as fly flies it")
+    sim.add_argument("--mission", metavar="FILE", help=MISSION_HELP)
+    sim.add_argument("--home", metavar="LAT,LON,ALT", help=HOME_HELP)
     sim.add_argument("--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)")
     sim.add_argument("--substeps", type=int, metavar="N", help="integration sub-steps per control period")
     g = sim.add_mutually_exclusive_group()
@@ -494,16 +521,8 @@ the source, or 'mkdocs serve' there.""",
     )
     fl.add_argument("--integrator", choices=("euler", "rk4"), help="plant integrator (default: the preset's)")
     fl.add_argument("--trajectory", default="step", metavar="NAME|FILE", help=TRAJECTORY_HELP)
-    fl.add_argument(
-        "--mission",
-        metavar="FILE",
-        help="fly a mission, uploaded through the MAVLink mission protocol: a QGroundControl .plan, a waypoint CSV "
-        "lat,lon,altitude[,hold,radius,yaw] or a QGC WPL 110 file (see docs/missions.md); --duration then bounds "
-        "it in simulated seconds (default 900)",
-    )
-    fl.add_argument(
-        "--home", metavar="LAT,LON,ALT", help="with --mission: the vehicle's home (default: PX4 SITL's, in Zürich)"
-    )
+    fl.add_argument("--mission", metavar="FILE", help=MISSION_HELP)
+    fl.add_argument("--home", metavar="LAT,LON,ALT", help=HOME_HELP)
     fl.add_argument("--vehicles", type=int, default=1, metavar="N", help="fly a fleet of N vehicles in formation "
                     "(see --formation; each vehicle's logs in DIR/v1..vN/)")  # fmt: skip
     fl.add_argument("--formation", metavar="KIND[:altitude=M][,distance=M]", help="line (default with --vehicles), "

@@ -48,13 +48,14 @@ import zenoh
 
 from groundstation import mission_files, trajectories
 from groundstation.logger import TelemetryLogger
+from groundstation.mission_files import MISSION_DURATION
 from groundstation.progress import FlightProgress
 from groundstation.setpoint_grid import POSITION_VELOCITY_YAW, SETPOINT_MS, next_moment, setpoint_step
 from groundstation.telemetry_csv import write_csv
 from quadsitl import telemetry, wire
 from quadsitl.cli_util import UsageError, check_range, parse_floats
 from quadsitl.config import ConfigError, load_preset
-from quadsitl.frames import PX4_HOME, euler_to_quaternion, geodetic_to_ned
+from quadsitl.frames import PX4_HOME, euler_to_quaternion
 from quadsitl.process_util import parse_address, readable_of, start_process, stop_status
 from quadsitl.state import Reference
 
@@ -62,7 +63,6 @@ mavlink = wire.mavlink
 MASK_IGNORE_RATES = 1 | 2 | 4  # SET_ATTITUDE_TARGET: attitude and thrust fields used
 MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
 MASK_POSITION_VELOCITY_YAW = POSITION_VELOCITY_YAW  # a position trajectory's (groundstation.setpoint_grid)
-MISSION_DURATION = 900.0  # [s] simulated: the default bound on a mission's flight (--duration changes it)
 MISSION_STATE_COMPLETE = 5
 UPLOAD_RETRY = 1.0  # [s] wall: MISSION_COUNT again when the vehicle has not asked for an item
 UPLOAD_TIMEOUT = 10.0  # [s] wall: give the upload up
@@ -161,11 +161,6 @@ def ack_name(result: int) -> str:
     """A MAV_MISSION_RESULT as its name and number (``MAV_MISSION_UNSUPPORTED (3)``)."""
     entry = mavlink.enums["MAV_MISSION_RESULT"].get(result)
     return f"{entry.name if entry else 'unknown'} ({result})"
-
-
-def nan_none(v: float) -> float | None:
-    """JSON has no NaN: None (null) for it, as QGroundControl writes it."""
-    return None if v != v else v
 
 
 class GroundStation:
@@ -584,32 +579,10 @@ class GroundStation:
                 f"{len({r['seq'] for r in self.reached})} items reached, after {flight_t:.1f} s)")  # fmt: skip
 
     def write_mission_json(self, disarmed: bool = True) -> None:
-        """mission.json: the items (with north, east [m] from the origin for those with a position) and the
-        simulated time t (telemetry.csv's, 0 at arming) at which each MISSION_ITEM_REACHED arrived; ``disarmed``
-        False for a flight cut short (``disarmed_t`` null)."""
-        origin = self.args.home or PX4_HOME
-        reached = {}
-        for r in self.reached:
-            reached.setdefault(r["seq"], r["t"])
-        items = []
-        for it in self.mission.items:
-            d = {"seq": it.seq, "command": it.command, "name": mission_files.COMMAND_NAMES.get(it.command),
-                 "frame": it.frame, "params": [nan_none(v) for v in (it.p1, it.p2, it.p3, it.p4)]}  # fmt: skip
-            if it.command in mission_files.POSITION_COMMANDS and (it.x or it.y or it.command != 21):
-                north, east = geodetic_to_ned(it.lat, it.lon, origin[0], origin[1])
-                d.update(lat=it.lat, lon=it.lon, altitude=it.z, north=round(north, 3), east=round(east, 3))
-            d["reached_t"] = reached.get(it.seq)
-            items.append(d)
-        doc = {
-            "file": str(self.mission.path),
-            "format": self.mission.kind,
-            "origin": list(origin),
-            "ends": "mission lands" if self.mission.lands else "landed where it ended (MAV_CMD_NAV_LAND)",
-            "items": items,
-            "reached": [r for r in self.reached],
-            "all_reached_in_order": [r["seq"] for r in self.reached] == list(range(len(self.mission.items))),
-            "disarmed_t": round(self.duration, 6) if disarmed else None,
-        }
+        """mission.json (:func:`groundstation.mission_files.report`): the reached times are telemetry.csv's t (0 at
+        arming) when each MISSION_ITEM_REACHED arrived; ``disarmed`` False for a flight cut short."""
+        doc = mission_files.report(self.mission, self.args.home or PX4_HOME, self.reached,
+                                   self.duration if disarmed else None)  # fmt: skip
         (self.out / "mission.json").write_text(json.dumps(doc, indent=2) + "\n")
 
     def finish(self, wall: float) -> int:

@@ -31,6 +31,7 @@ from pathlib import Path
 
 from autopilot import mission_protocol as mp
 from quadsitl.cli_util import UsageError
+from quadsitl.frames import geodetic_to_ned
 
 COMMAND_NAMES = {
     mp.NAV_WAYPOINT: "NAV_WAYPOINT",
@@ -58,6 +59,8 @@ _FIELD = {
 }
 POSITION_COMMANDS = mp.POSITION_COMMANDS
 FINISHING_COMMANDS = frozenset({mp.NAV_RETURN_TO_LAUNCH, mp.NAV_LAND})
+
+MISSION_DURATION = 900.0  # [s] simulated: the default bound on a mission's flight (--duration changes it)
 
 
 class MissionFileError(UsageError):
@@ -259,3 +262,38 @@ def _wpl(path: Path, text: str) -> Mission:
             raise MissionFileError(f"{where}, index: {index}; expected {len(items)} (the items in order from 0)")
         items.append(check_item(f"{where} (item {index})", index, command, frame, params, bool(auto)))
     return Mission(path, "wpl", tuple(items))
+
+
+def nan_none(v: float) -> float | None:
+    """JSON has no NaN: None (null) for it, as QGroundControl writes it."""
+    return None if v != v else v
+
+
+def report(mission: Mission, origin: tuple[float, float, float], reached: list[dict],
+           disarmed_t: float | None) -> dict:  # fmt: skip
+    """mission.json's document, as ``quadsitl fly`` and ``quadsitl sim`` write it: the items (with north, east [m]
+    from ``origin`` (lat, lon [deg], alt [m AMSL]) for those with a position), each item's first reached time, the
+    reached items in order (``reached``: {"seq", "t"} [s of the flight, 0 at arming]) and the time of the disarm
+    (None: the flight was cut short)."""
+    first: dict[int, float | None] = {}
+    for r in reached:
+        first.setdefault(r["seq"], r["t"])
+    items = []
+    for it in mission.items:
+        d = {"seq": it.seq, "command": it.command, "name": COMMAND_NAMES.get(it.command), "frame": it.frame,
+             "params": [nan_none(v) for v in (it.p1, it.p2, it.p3, it.p4)]}  # fmt: skip
+        if it.command in POSITION_COMMANDS and (it.x or it.y or it.command != 21):
+            north, east = geodetic_to_ned(it.lat, it.lon, origin[0], origin[1])
+            d.update(lat=it.lat, lon=it.lon, altitude=it.z, north=round(north, 3), east=round(east, 3))
+        d["reached_t"] = first.get(it.seq)
+        items.append(d)
+    return {
+        "file": str(mission.path),
+        "format": mission.kind,
+        "origin": list(origin),
+        "ends": "mission lands" if mission.lands else "landed where it ended (MAV_CMD_NAV_LAND)",
+        "items": items,
+        "reached": list(reached),
+        "all_reached_in_order": [r["seq"] for r in reached] == list(range(len(mission.items))),
+        "disarmed_t": None if disarmed_t is None else round(disarmed_t, 6),
+    }

@@ -21,16 +21,33 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot import mission_protocol as mp
 from autopilot.factory import make_controller
-from groundstation import trajectories
-from groundstation.figures import write_figures, write_path_figure
+from autopilot.missions import Missions
+from groundstation import mission_files, trajectories
+from groundstation.figures import write_figures, write_mission_figure, write_path_figure
 from groundstation.metrics import channel_outputs, estimate_rms, position_metrics, run_metrics
+from groundstation.mission_files import MISSION_DURATION, Mission
 from groundstation.setpoint_grid import grid_setpoints
 from groundstation.telemetry_csv import rows_from_arrays, write_csv
 from groundstation.vehicle import R_FORCES, R_INPUTS, R_REF, R_SEEN, R_STATE, R_XY_REF, Setpoints, Vehicle, ground_ticks
+from quadsitl.cli_util import UsageError
 from quadsitl.compiled_frames import euler_rates_to_body_rates
 from quadsitl.config import Preset
+from quadsitl.frames import PX4_HOME
+from quadsitl.wire import Mode
 from sitl.plant import outside_what
+
+
+@dataclass
+class MissionFlight:
+    """How a mission flown by ``quadsitl sim`` went: the items reached ({"seq", "t"}: t [s] from arming, the tick
+    after which the executor said so), whether it ended landed and disarmed within its duration, and where it
+    was when it did not."""
+
+    reached: list[dict]
+    landed: bool
+    where: str = ""
 
 
 @dataclass
@@ -46,6 +63,7 @@ class SimResult:
     diverged_what: str = ""  # what left its bound (sitl.plant.outside_what)
     estimate: np.ndarray | None = None  # (N, 12) what the controller flew on (sensor mode); ``state`` is the truth
     position_reference: np.ndarray | None = None  # (N, 2) x, y flown [m, NED]; NaN while not controlled
+    mission: MissionFlight | None = None  # a mission's flight: how it went
 
     def body_rates(self, state: np.ndarray | None = None) -> np.ndarray:
         """(N, 3) body rates p, q, r [rad/s] from the Euler-angle rates of ``state`` (default: the truth), eq (1)."""
@@ -63,12 +81,65 @@ def fly_offline(vehicle: Vehicle, setpoints: Setpoints, duration: float,
     vehicle.start_offboard(setpoints)
     n = round(duration / period)
     rows, flown = vehicle.fly(n, progress=None if progress is None else (lambda k: progress(k * period)))
-    diverged = flown < n
-    return SimResult(np.arange(flown) * period, rows[:, R_STATE : R_STATE + 12], rows[:, R_REF : R_REF + 4],
+    return result_of(vehicle, rows, flown < n)
+
+
+def result_of(vehicle: Vehicle, rows: np.ndarray, diverged: bool) -> SimResult:
+    """The rows of a flight (R_*) as a :class:`SimResult`; ``diverged``: the flight ended on a state out of bounds
+    (``vehicle.state``)."""
+    flown = len(rows)
+    return SimResult(np.arange(flown) * vehicle.period, rows[:, R_STATE : R_STATE + 12], rows[:, R_REF : R_REF + 4],
                      rows[:, R_INPUTS : R_INPUTS + 4], rows[:, R_FORCES : R_FORCES + 4],
-                     flown * period if diverged else None, outside_what(vehicle.plant.x) if diverged else "",
+                     flown * vehicle.period if diverged else None, outside_what(vehicle.plant.x) if diverged else "",
                      rows[:, R_SEEN : R_SEEN + 12] if vehicle.sensing else None,
                      rows[:, R_XY_REF : R_XY_REF + 2])  # fmt: skip
+
+
+def fly_mission(vehicle: Vehicle, mission: Mission, duration: float,
+                progress: Callable[[float], None] | None = None) -> SimResult:  # fmt: skip
+    """Fly ``mission`` as ``quadsitl fly --mission`` flies it: stored as an upload stores it (each item through the
+    autopilot's parser), on the ground first (on sensors, while the estimator aligns), armed, AUTO.MISSION; the
+    mission executor (:mod:`autopilot.missions`) after every tick, as the autopilot process runs it; a mission that
+    does not land by itself is landed once complete (``fly``'s ground station sends MAV_CMD_NAV_LAND then). The
+    rows are the armed ticks, up to the disarm, or ``duration`` seconds, or a state out of bounds."""
+    c, period = vehicle.commander, vehicle.period
+    missions = Missions(vehicle.home)
+    try:
+        missions.protocol.store(tuple(mp.parse_item(it.message_fields()) for it in mission.items))
+    except mp.ItemRefusedError as exc:
+        raise UsageError(f"--mission {mission.path}: the vehicle refuses it: {exc}") from None
+    vehicle.fly(ground_ticks(vehicle.preset), record=False)
+    vehicle.seen()
+    first = vehicle.tick
+    for ok, why in (c.arm(), missions.start(c, c.now)[:2]):
+        if not ok:
+            raise UsageError(f"--mission {mission.path}: {why}")
+    reached: list[dict] = []
+
+    def after_tick() -> bool:
+        for out in missions.step(c, c.now):
+            if out.kind == "MISSION_ITEM_REACHED":
+                reached.append({"seq": out.fields["seq"], "t": round((vehicle.tick - 1 - first) * period, 6)})
+        if not mission.lands and missions.executor.mission_state == mp.STATE_COMPLETE and c.mode != Mode.LAND:
+            c.set_mode(Mode.LAND)
+        return c.armed
+
+    n = round(duration / period)
+    rows, flown = vehicle.fly(n, progress=None if progress is None else (lambda k: progress(k * period)),
+                              after_tick=after_tick)  # fmt: skip
+    landed = not c.armed
+    if landed:  # the tick that disarmed is not an armed tick: fly's telemetry ends before it
+        rows = rows[:-1]
+    diverged = not landed and flown < n
+    where = ""
+    if not landed and not diverged:
+        ex = missions.executor
+        where = (f"the mission did not end within --duration {duration:g} simulated s (current item {ex.current} of "
+                 f"{len(mission.items)}, mission_state {ex.mission_state}, "
+                 f"{len({r['seq'] for r in reached})} items reached)")  # fmt: skip
+    res = result_of(vehicle, rows, diverged)
+    res.mission = MissionFlight(reached, landed, where)
+    return res
 
 
 @dataclass
@@ -90,29 +161,41 @@ def run_offline(
     poles: Sequence[float] | None = None,
     progress: Callable[[float], None] | None = None,
     trajectory: str = "step",
+    mission: Mission | None = None,
+    home: tuple[float, float, float] = PX4_HOME,
 ) -> tuple[dict[str, SimResult], dict[str, dict]]:
     """Fly each controller on a fresh vehicle, on the setpoints of ``trajectory`` (:func:`groundstation.trajectories.
     make`; ``step``: the preset's reference, the paper's experiment) made on ``quadsitl fly``'s grid
     (:mod:`groundstation.setpoint_grid`), for ``duration`` seconds (default: a position trajectory's own, else the
-    preset's). All controllers are built (and their gains checked: with a position trajectory, the position loop's
-    too) and every setpoint checked by the autopilot's parser before any flight starts, so bad input fails fast.
+    preset's); or ``mission`` instead (:func:`fly_mission`: ``duration`` bounds it, default MISSION_DURATION), its
+    waypoints placed from ``home`` (lat, lon [deg], alt [m AMSL]). All controllers are built (and their gains
+    checked: with a position trajectory or a mission, the position loop's too) and every setpoint checked by the
+    autopilot's parser before any flight starts, so bad input fails fast.
 
     ``progress``, when given, is called now and then with the simulated seconds done so far over all
     the runs: it reaches ``len(controllers) × duration`` at the end."""
     path = trajectories.make(trajectory, preset.reference)
     position = isinstance(path, trajectories.PositionTrajectory)
-    built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=position)
+    built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=position or bool(mission))
              for kind in controllers}  # fmt: skip
-    duration = duration or (path.duration if position else None) or preset.sim.duration
+    duration = (
+        duration
+        or (MISSION_DURATION if mission else None)
+        or (path.duration if position else None)
+        or preset.sim.duration
+    )
     period, first = preset.sim.period, ground_ticks(preset)
     moments = ((first + g, sp) for g, sp in grid_setpoints(path, period, round(duration / period)))
     results, metrics = {}, {}
     for i, (kind, controller) in enumerate(built.items()):
-        vehicle = Vehicle(preset, controller.kind, controller.v, controller.c, integrator, substeps)
-        if i == 0:
-            setpoints = Setpoints.of(moments, vehicle.frame())
+        vehicle = Vehicle(preset, controller.kind, controller.v, controller.c, integrator, substeps, home)
         done = None if progress is None else (lambda s, before=i * duration: progress(before + s))
-        res = fly_offline(vehicle, setpoints, duration, done)
+        if mission is not None:
+            res = fly_mission(vehicle, mission, duration, done)
+        else:
+            if i == 0:
+                setpoints = Setpoints.of(moments, vehicle.frame())
+            res = fly_offline(vehicle, setpoints, duration, done)
         results[kind] = res
         flown = len(res.t) > 0  # a run that diverged at its first tick flew nothing: no metrics (None)
         metrics[kind] = run_metrics(res.t, channel_outputs(res.state), res.reference, res.inputs) if flown else None
@@ -133,6 +216,8 @@ def write_outputs(
     metrics: dict[str, dict],
     settings: dict,
     figures: bool = True,
+    mission: Mission | None = None,
+    home: tuple[float, float, float] = PX4_HOME,
 ) -> list[Path]:
     """telemetry.csv (first controller), telemetry_<other>.csv, metrics.json and fig2–fig4 PNGs.
 
@@ -172,6 +257,13 @@ def write_outputs(
                       estimate_rms=estimate_rms(columns(first.estimate), columns(first.state)))  # fmt: skip
     mpath.write_text(json.dumps(report, indent=2) + "\n")
     files.append(mpath)
+    flight = first.mission
+    doc = None
+    if mission is not None and flight is not None:  # as fly's: the items, when each was reached, the disarm
+        doc = mission_files.report(mission, home, flight.reached, len(first.t) * preset.sim.period if flight.landed
+                                   else None)  # fmt: skip
+        (out / "mission.json").write_text(json.dumps(doc, indent=2) + "\n")
+        files.append(out / "mission.json")
     runs = {
         k: {"t": r.t, "outputs": channel_outputs(r.state), "reference": r.reference, "inputs": r.inputs}
         for k, r in results.items()
@@ -179,7 +271,10 @@ def write_outputs(
     }
     if figures and runs:
         files += write_figures(runs, out, f"preset {preset.name}")
-        for kind, r in list(tracked.items())[:1]:
+        if doc is not None and len(first.t):
+            data = {"x": first.state[:, 0], "y": first.state[:, 1]}
+            files.append(write_mission_figure(out, data, doc, f"preset {preset.name}, sim, {mission.path}"))
+        for kind, r in list(tracked.items())[: 1 if doc is None else 0]:
             files.append(write_path_figure(out, r.state[:, 0], r.state[:, 1], r.position_reference[:, 0],
                                            r.position_reference[:, 1], f"preset {preset.name}, sim, {kind}, "
                                            f"{settings.get('trajectory', 'step')}"))  # fmt: skip

@@ -206,16 +206,18 @@ class Vehicle:
         """The truth x(k) before the next tick."""
         return self.plant.state
 
-    def fly(self, n: int, record: bool = True, progress: Callable[[int], None] | None = None) -> tuple[np.ndarray, int]:
+    def fly(self, n: int, record: bool = True, progress: Callable[[int], None] | None = None,
+            after_tick: Callable[[], bool] | None = None) -> tuple[np.ndarray, int]:  # fmt: skip
         """Fly the next ``n`` ticks: (their rows, R_*; the ticks flown, fewer than n when the state diverged: then
-        ``state`` is the state that left its bounds). ``progress`` is called with the ticks flown so far every
-        PROGRESS_TICKS; it only observes."""
+        ``state`` is the state that left its bounds, or when ``after_tick`` said stop). ``progress`` is called with
+        the ticks flown so far every PROGRESS_TICKS; it only observes. ``after_tick``, when given, is called after
+        every tick, as the autopilot process runs its mission executor after its compiled tick: False stops."""
         rows = np.empty((n if record else 0, ROW_SIZE))
         done = 0
         while done < n:
-            if progress is not None:
+            if progress is not None and done % PROGRESS_TICKS == 0:
                 progress(done)
-            m = min(PROGRESS_TICKS, n - done)
+            m = 1 if after_tick is not None else min(PROGRESS_TICKS, n - done)
             chunk = rows[done : done + m] if record else rows
             flown = fly_ticks(self.tick, m, record, self.kind, self.sensing, self.period, self.plant.substeps,
                               self.plant.method, self.plant_arrays, self.plant.sensors.arrays, self.ap,
@@ -223,19 +225,24 @@ class Vehicle:
                               self.sp_next, chunk)  # fmt: skip
             self.tick += flown
             done += flown
-            if flown < m:
+            if flown < m or (after_tick is not None and not after_tick()):
                 break
         if progress is not None:
             progress(done)
         return rows[:done], done
 
+    def seen(self) -> None:
+        """Before the first tick, the commander has seen nothing: give it the plant's initial state (as the processes'
+        commander has seen the vehicle on the ground before it is armed)."""
+        if self.tick == 0:
+            s = self.plant.x
+            cmd.update(self.commander.cm, 0, 0.0, s[0], s[1], -s[2], s[3], s[4], -s[5], s[8])
+
     def start_offboard(self, setpoints: Setpoints) -> None:
         """Arm in offboard on the setpoints given (those for ticks up to now go to the commander at once), as
         ``quadsitl fly``'s ground station does once the vehicle is on its ground hold: setpoints first, offboard,
         arm. The commander takes the state it last saw (before any tick, the plant's initial state)."""
-        if self.tick == 0:
-            s = self.plant.x
-            cmd.update(self.commander.cm, 0, 0.0, s[0], s[1], -s[2], s[3], s[4], -s[5], s[8])
+        self.seen()
         self.sp, self.sp_next[0] = setpoints, 0
         cm = self.commander.cm
         while self.sp_next[0] < len(setpoints.ticks) and setpoints.ticks[self.sp_next[0]] <= self.tick:

@@ -132,3 +132,60 @@ def test_sim_refuses_a_bad_trajectory_in_one_line(tmp_path):
     r = subprocess.run(quadsitl("sim", "--preset", "x500", "--trajectory", "circle:radius=200,period=2",
                                 "--out", str(tmp_path)), capture_output=True, text=True, timeout=60)  # fmt: skip
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+HOP = """QGC WPL 110
+0\t1\t3\t22\t0\t0\t0\tnan\t47.397742\t8.545594\t3\t1
+1\t0\t3\t16\t0\t0\t0\tnan\t47.3978139\t8.545594\t3\t1
+2\t0\t3\t21\t0\t0\t0\tnan\t0\t0\t0\t1
+"""
+
+
+def test_fly_equals_sim_on_a_mission(tmp_path):
+    """A mission (takeoff to 3 m, a waypoint 8 m north, land there): sim stores it as an upload does and runs the
+    autopilot's mission executor after every tick, as the autopilot process does. fly's mission starts a few
+    ticks after arming (the ground station's start command, in wall time); from the first thrust on, the two are
+    the same flight to float32, to the landing."""
+    plan = tmp_path / "hop.waypoints"
+    plan.write_text(HOP)
+    fly = run(tmp_path, "fly", "fly", "--preset", "x500", "--mission", str(plan))
+    sim = run(tmp_path, "sim", "sim", "--preset", "x500", "--mission", str(plan))
+    a, b = int(np.argmax(fly["u1"] > 0)), int(np.argmax(sim["u1"] > 0))
+    assert len(fly["t"]) - a == len(sim["t"]) - b  # the same flight from the first thrust to the disarm
+    n = len(sim["t"]) - b
+    for c in ("x", "y", "altitude", "x_ref", "y_ref", "altitude_ref"):
+        assert np.allclose(fly[c][a:], sim[c][b:], rtol=0.0, atol=1e-5, equal_nan=True), c
+    assert n > 5000 and sim["x"].max() == pytest.approx(8.0, abs=0.3) and abs(sim["altitude"][-1]) < 0.1
+    for name in ("fly", "sim"):
+        doc = json.loads((tmp_path / name / "mission.json").read_text())
+        assert doc["all_reached_in_order"] and doc["disarmed_t"] is not None, (name, doc["reached"])
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (("--mission", "{plan}", "--trajectory", "sine"), "--trajectory 'sine' with --mission"),
+        (("--home", "47,8,400"), "--home '47,8,400': only with --mission"),
+        (("--mission", "{missing}"), "missing.plan"),
+    ],
+)
+def test_sim_refuses_bad_mission_options_in_one_line(tmp_path, args, says):
+    plan = tmp_path / "hop.waypoints"
+    plan.write_text(HOP)
+    argv = [a.format(plan=plan, missing=tmp_path / "missing.plan") for a in args]
+    r = subprocess.run(quadsitl("sim", *argv, "--out", str(tmp_path / "out")), capture_output=True, text=True,
+                       timeout=60)  # fmt: skip
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and says in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+def test_sim_mission_that_overruns_duration_fails_and_keeps_what_was_flown(tmp_path):
+    plan = tmp_path / "hop.waypoints"
+    plan.write_text(HOP)
+    out = tmp_path / "out"
+    r = subprocess.run(quadsitl("sim", "--preset", "x500", "--mission", str(plan), "--duration", "2", "-q", "--out",
+                                str(out)), capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 1 and "did not end within --duration 2 simulated s" in r.stderr, r.stderr
+    assert len(read_csv(out / "telemetry.csv")["t"]) == 2000
+    doc = json.loads((out / "mission.json").read_text())
+    assert doc["disarmed_t"] is None and [x["seq"] for x in doc["reached"]] == [0]  # took off, on the way north
