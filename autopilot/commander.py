@@ -155,6 +155,15 @@ def enter(cm: np.ndarray, mode: int) -> None:
 
 
 @jit
+def arm(cm: np.ndarray) -> None:
+    """Arm in the current mode (the checks are :meth:`Commander.arm`'s): home is here, the mode entered afresh."""
+    cm[ARMED] = 1.0
+    cm[FAILSAFE] = FAILSAFE_NONE
+    cm[HOME_X], cm[HOME_Y], cm[HOME_ALT], cm[HOME_YAW] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0), cm[YAW]
+    enter(cm, int(cm[MODE]))
+
+
+@jit
 def advance_reference(cm: np.ndarray, dt: float, speed: float, up: float, down: float) -> bool:
     """Move the auto modes' reference toward its target over ``dt`` [s]: horizontally along the straight line at
     up to ``speed``, vertically at up to ``up``/``down`` [m/s], each with acceleration up to ACC_HOR, slowing
@@ -500,11 +509,7 @@ class Commander:
             return False, "Arming denied: no offboard setpoint stream"
         if self.mode in (Mode.LAND, Mode.RTL):
             return False, f"Arming denied: mode {self.mode.name.lower()}; switch to hold, takeoff or offboard"
-        cm = self.cm
-        cm[ARMED] = 1.0
-        cm[FAILSAFE] = FAILSAFE_NONE
-        cm[HOME_X], cm[HOME_Y], cm[HOME_ALT], cm[HOME_YAW] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0), cm[YAW]
-        enter(cm, int(cm[MODE]))
+        arm(self.cm)
         self.messages.append((6, "Armed"))
         return True, ""
 

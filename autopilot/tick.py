@@ -81,7 +81,7 @@ assert tuple(telemetry.STREAMS) == ("state", "setpoint", "actuators", "status")
 TRUTH_AT = STATE_SIZE + SETPOINT_SIZE + ACTUATORS_SIZE + STATUS_SIZE  # × capacity: the truth's region, after them
 
 
-@jit
+@jit(inline=True)
 def fly(
     kind: int, x: tuple, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray
 ) -> tuple[Inputs, Errors, float]:
@@ -156,7 +156,7 @@ ESTIMATE_ALIGNED, ESTIMATE_DIVERGED = 1, 2
 ANSWER, STREAM, EVENT_DUE, BATCH_FULL, NOT_MINE, REFUSED, ESTIMATOR_CHANGED, FRAMES = 1, 2, 4, 8, 16, 32, 64, 128
 
 
-@jit
+@jit(inline=True)
 def autopilot_step(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray,
                    f_min: float, f_max: float, tick: int, now: float) -> tuple[Forces, int]:  # fmt: skip
     """The autopilot's per-tick work, composed once (every runtime calls it: the autopilot process through

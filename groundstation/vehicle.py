@@ -34,12 +34,9 @@ from autopilot.params import commander_settings
 from autopilot.tick import autopilot_step, estimate, reference_shown
 from groundstation.setpoint_grid import POSITION_VELOCITY_YAW
 from quadsitl import codec, hil
-from quadsitl.codec import BODY_RATES
-from quadsitl.compiled_frames import euler_rates_to_body_rates
 from quadsitl.config import DEFAULT_LIMITS, SENSOR_GROUND_S, Preset
 from quadsitl.frames import PX4_HOME
 from quadsitl.jit import jit
-from quadsitl.param_arrays import VEHICLE_SIZE
 from quadsitl.state import Reference, VehicleState
 from quadsitl.wire import Mode
 from sitl import tick as plant_tick
@@ -52,34 +49,51 @@ SP_FIELDS = cmd.SP_YAW_RATE + 1 - cmd.SP_X
 R_STATE, R_SEEN, R_REF, R_XY_REF, R_INPUTS, R_FORCES, ROW_SIZE = 0, 12, 24, 28, 30, 34, 38
 
 
-@jit
+@jit(inline=True)
 def vehicle_tick(k: int, kind: int, sensing: bool, period: float, substeps: int, method: int, plant: tuple,
                  sens: tuple, ap: tuple, est: tuple, home: tuple, f_min: float, f_max: float) -> int:  # fmt: skip
     """Tick ``k`` of the vehicle (the module's steps 1–3): x(k) in the plant's work array → x(k+1). Returns the
-    commander's event. ``plant`` = (work, params, air_rng, io, datagram): :class:`sitl.plant.Plant`'s arrays, the
-    plant tick's bookkeeping (:mod:`sitl.tick`) and the sensor datagram's buffer; ``sens`` the sensors' arrays;
+    commander's event. ``plant`` = (work, vehicle, actuators, air_rng, io, datagram): :class:`sitl.plant.Plant`'s
+    arrays (the parameters as arrays or, for a compiled loop that reads them every tick, tuples), the plant tick's
+    bookkeeping (:mod:`sitl.tick`) and the sensor datagram's buffer; ``sens`` the sensors' arrays;
     ``ap`` = (st, cm, mem, v, c, truth, frame): the state seen (:data:`quadsitl.codec.DECODED_SIZE`), the commander,
     the controller's memory, the autopilot's vehicle model and control parameters, and the decoder's scratch;
     ``est`` the estimator's arrays; ``home`` the local origin (lat, lon [deg], alt [m AMSL])."""
-    w, params, air_rng, pio, datagram = plant
+    w, pv, pa, air_rng, pio, datagram = plant
     st, cm, mem, v, c, truth, frame = ap
     x, out, air = w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:]
     if sensing:
         plant_tick.encode_tick(datagram, pio, x, out, air, sens, k, period)
         _, flags, _ = hil.decode_sensors(datagram, pio[plant_tick.TX_LEN], home, est[0], truth, frame)
         estimate(flags, period, est, st)
-    else:
+    else:  # the state itself (the body rates, which only telemetry shows, are not computed)
         for i in range(12):
             st[i] = x[i]
-        p, q, r = euler_rates_to_body_rates(x[6], x[7], x[9], x[10], x[11])
-        st[BODY_RATES], st[BODY_RATES + 1], st[BODY_RATES + 2] = p, q, r
     forces, event = autopilot_step(kind, st, cm, mem, v, c, f_min, f_max, k, k * period)
     commanded = w[W_COMMANDED:W_OUT]
     for i in range(4):
         commanded[i] = forces[i]
-    step_arrays(x, w[W_MOTORS:W_COMMANDED], commanded, out, params[:VEHICLE_SIZE], params[VEHICLE_SIZE:], air,
-                air_rng, period, substeps, method, math.nan)  # fmt: skip
+    step_arrays(x, w[W_MOTORS:W_COMMANDED], commanded, out, pv, pa, air, air_rng, period, substeps, method,
+                math.nan)  # fmt: skip
     return event
+
+
+@jit(inline=True)
+def setpoints_due(k: int, cm: np.ndarray, sp_ticks: np.ndarray, sp_values: np.ndarray, sp_next: np.ndarray) -> None:
+    """The offboard setpoints made for tick ``k`` or before and not yet flown (``sp_next``[0] the first) to the
+    commander, as the autopilot's handlers set them (cmd.SP_X..SP_YAW_RATE), stamped with the commander's time."""
+    while sp_next[0] < sp_ticks.shape[0] and sp_ticks[sp_next[0]] <= k:
+        for i in range(SP_FIELDS):
+            cm[cmd.SP_X + i] = sp_values[sp_next[0], i]
+        cm[cmd.LAST_SP_TIME] = cm[cmd.NOW]
+        sp_next[0] += 1
+
+
+@jit(inline=True)
+def see(cm: np.ndarray, x: np.ndarray) -> None:
+    """The commander sees the state ``x`` (12, VehicleState order) at tick 0, before any tick: as the processes'
+    commander has seen the vehicle on the ground before it is armed."""
+    cmd.update(cm, 0, 0.0, x[0], x[1], -x[2], x[3], x[4], -x[5], x[8])
 
 
 @jit
@@ -100,11 +114,7 @@ def fly_ticks(first: int, n: int, record: bool, kind: int, sensing: bool, period
         if record and not inside((x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11]),
                                  DEFAULT_LIMITS):  # fmt: skip
             return j
-        while sp_next[0] < sp_ticks.shape[0] and sp_ticks[sp_next[0]] <= k:
-            for i in range(SP_FIELDS):
-                cm[cmd.SP_X + i] = sp_values[sp_next[0], i]
-            cm[cmd.LAST_SP_TIME] = cm[cmd.NOW]
-            sp_next[0] += 1
+        setpoints_due(k, cm, sp_ticks, sp_values, sp_next)
         if record:
             for i in range(12):
                 rows[j, R_STATE + i] = x[i]
@@ -119,6 +129,18 @@ def fly_ticks(first: int, n: int, record: bool, kind: int, sensing: bool, period
                 rows[j, R_FORCES + i] = mem[MEM_FORCES + i]
             rows[j, R_XY_REF], rows[j, R_XY_REF + 1] = shown[4], shown[5]
     return n
+
+
+@jit
+def see_state(cm: np.ndarray, x: np.ndarray) -> None:
+    """:func:`see`, from Python."""
+    see(cm, x)
+
+
+@jit
+def due_now(k: int, cm: np.ndarray, sp_ticks: np.ndarray, sp_values: np.ndarray, sp_next: np.ndarray) -> None:
+    """:func:`setpoints_due`, from Python."""
+    setpoints_due(k, cm, sp_ticks, sp_values, sp_next)
 
 
 @dataclass
@@ -177,7 +199,7 @@ class Vehicle:
         p = self.plant
         pio = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
         pio[plant_tick.SENSING] = 1 if self.sensing else 0
-        self.plant_arrays = (p.work, p.params, p.air_rng, pio, np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8))
+        self.plant_arrays = (p.work, p.v, p.a, p.air_rng, pio, np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8))
         self.commander = Commander(commander_settings(preset.position, CommanderSettings()))
         self.st = np.zeros(codec.DECODED_SIZE)
         self.mem = np.zeros(MEM_SIZE)
@@ -235,8 +257,7 @@ class Vehicle:
         """Before the first tick, the commander has seen nothing: give it the plant's initial state (as the processes'
         commander has seen the vehicle on the ground before it is armed)."""
         if self.tick == 0:
-            s = self.plant.x
-            cmd.update(self.commander.cm, 0, 0.0, s[0], s[1], -s[2], s[3], s[4], -s[5], s[8])
+            see_state(self.commander.cm, self.plant.x)
 
     def start_offboard(self, setpoints: Setpoints) -> None:
         """Arm in offboard on the setpoints given (those for ticks up to now go to the commander at once), as
@@ -244,11 +265,7 @@ class Vehicle:
         arm. The commander takes the state it last saw (before any tick, the plant's initial state)."""
         self.seen()
         self.sp, self.sp_next[0] = setpoints, 0
-        cm = self.commander.cm
-        while self.sp_next[0] < len(setpoints.ticks) and setpoints.ticks[self.sp_next[0]] <= self.tick:
-            cm[cmd.SP_X : cmd.SP_YAW_RATE + 1] = setpoints.values[self.sp_next[0]]
-            cm[cmd.LAST_SP_TIME] = cm[cmd.NOW]
-            self.sp_next[0] += 1
+        due_now(self.tick, self.commander.cm, setpoints.ticks, setpoints.values, self.sp_next)
         for ok, why in (self.commander.set_mode(Mode.OFFBOARD), self.commander.arm()):
             if not ok:
                 raise RuntimeError(f"the vehicle refused to fly offboard: {why}")

@@ -83,8 +83,8 @@ def test_the_paper_configurations_own_compiled_version_flies_as_the_general_one_
     paper = fly(spec, range(6))
     assert calls, "the paper's configuration did not run its own version"
 
-    def general_only(x0, v, a, vm, c, r, kind, ticks, period, substeps, method, *rest):
-        engine._chunk(x0, v, a, vm, c, r, kind, ticks, period, substeps, method, *rest)
+    def general_only(x0, v, a, vm, c, r, sp, kind, ticks, period, substeps, method, *rest):
+        engine._chunk(x0, v, a, vm, c, r, sp, kind, ticks, period, substeps, method, *rest)
 
     monkeypatch.setattr(engine, "run_chunk", general_only)
     general = fly(spec, range(6))

@@ -1,16 +1,14 @@
-"""The batch engine: every trial of a chunk flown in one compiled call, on the very functions the plant
-process, the autopilot process and ``quadsitl sim`` run.
+"""The batch engine: every trial of a chunk flown in one compiled call, on the vehicle ``quadsitl sim`` and the
+processes fly (:mod:`groundstation.vehicle`).
 
-One control tick of a trial is the paper's experiment on the law alone (``quadsitl sim`` flies the whole vehicle,
-commander and limits included, through :mod:`groundstation.vehicle`; for the paper's reference the two are the same
-to the bit): the controller's
-law on the state (:func:`autopilot.backstepping.backstepping`, eqs (18)–(33), or :func:`autopilot.pd.pd`), the
-allocation of the autopilot (:func:`quadsitl.mixer.allocate`, the inverse of eq (8) with saturation, on the
-autopilot's model), then one control period of the plant (:func:`sitl.plant.step`: actuators, eq (8), eqs
-(2)–(7) integrated, ground plane). No equation is written here: :func:`run_trial` composes those compiled
-functions, keeps a trial's state in registers from its first tick to its last (the ticks fused, no Python
-between them), and folds each tick into the trial's metrics as it goes (:data:`METRICS`), so nothing of a
-trajectory is stored unless it is asked for (``keep``).
+A trial is flown as ``quadsitl sim`` flies it: the commander sees the initial state, takes the offboard setpoint of
+the trial's reference (sent again at every moment of ``quadsitl fly``'s grid), arms in offboard, and each control
+tick is :func:`groundstation.vehicle.vehicle_tick`: the autopilot's tick (commander, position, altitude and attitude
+control with their limits and integrators, allocation on the autopilot's model) and one control period of the plant.
+No equation and no composition of the vehicle is written here: :func:`run_trial` loops that tick with a trial's
+parameters as constants of the compiled loop (the ticks fused, no Python between them), and folds each tick into
+the trial's metrics as it goes (:data:`METRICS`), so nothing of a trajectory is stored unless it is asked for
+(``keep``). Its trials equal ``quadsitl sim``'s flights to the bit.
 
 The metrics are those of :func:`groundstation.metrics.run_metrics` on the rows ``quadsitl sim`` writes (the
 state x(k) at the start of tick k, k = 0..N−1, t = k·T), computed on the fly with the same definitions:
@@ -41,19 +39,25 @@ import math
 
 import numpy as np
 
-from autopilot.backstepping import backstepping
-from autopilot.control_params import BACKSTEPPING, THRUST_MAX, THRUST_MIN
+from autopilot import commander as cmd
+from autopilot.control_params import BACKSTEPPING, MEM_FORCES, MEM_SIZE, MEM_U, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
-from autopilot.pd import pd
+from autopilot.estimator import Estimator
+from autopilot.tick import reference_shown
+from groundstation.vehicle import SP_FIELDS, see, setpoints_due, vehicle_tick
+from quadsitl import codec, hil
 from quadsitl.config import (
     DEFAULT_LIMITS as DEFAULT_LIMITS,  # divergence bounds: the plant process's (sitl.plant.inside)
 )
 from quadsitl.config import LIMITS_SIZE as LIMITS_SIZE
+from quadsitl.config import SensorParams, WindParams
+from quadsitl.frames import PX4_HOME as HOME
 from quadsitl.jit import constants, jit
-from quadsitl.mixer import allocate
-from quadsitl.param_arrays import ACTUATOR_SIZE, D_OVER_B, F_MAX, F_MIN, VEHICLE_SIZE
-from sitl.dynamics import CALM
-from sitl.plant import inside, step
+from quadsitl.param_arrays import ACTUATOR_SIZE, F_MAX, F_MIN, VEHICLE_SIZE
+from sitl import tick as plant_tick
+from sitl.plant import OUT_ON_GROUND, W_AIR, W_MOTORS, W_OUT, W_X, WORK_SIZE, inside
+from sitl.sensors import Sensors
+from sitl.wind import air_arrays
 
 CHANNELS = ("altitude", "roll", "pitch", "yaw")
 STEP_METRICS = ("rise_time", "settling_time", "overshoot_pct", "steady_state_error", "peak_abs_u", "rms_error")
@@ -102,29 +106,47 @@ def _wrapped(d: float) -> float:
 
 @jit(inline=True)
 def _fly(
-    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, kind: int,
-    ticks: int, period: float, substeps: int, method: int, turns: float, lim: np.ndarray, m: np.ndarray,
-    keep: np.ndarray, kept: bool,
+    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
+    kind: int, ticks: int, period: float, substeps: int, method: int, turns: float, lim: np.ndarray, m: np.ndarray,
+    keep: np.ndarray, kept: bool, ctx: tuple,
 ) -> None:  # fmt: skip
     """Fly one trial for ``ticks`` control periods and write its metrics into ``m`` (METRICS_SIZE).
 
     ``x0`` the initial state (12, VehicleState order); ``v``, ``a`` the plant's vehicle and actuator arrays
     (:mod:`quadsitl.param_arrays`); ``vm``, ``c`` the autopilot's model of the vehicle and its control array
-    (:mod:`autopilot.control_params`); ``r`` the reference (altitude [m], roll, pitch, yaw [rad]), constant;
-    ``kind`` BACKSTEPPING or PD; ``period`` T [s]; ``substeps``, ``method`` the plant's integration; ``turns``
-    the yaw reference's branch; ``lim`` the divergence bounds. With ``kept``, tick k's row goes to keep[k]
-    (KEEP_SIZE columns)."""
-    s = (x0[0], x0[1], x0[2], x0[3], x0[4], x0[5], x0[6], x0[7], x0[8], x0[9], x0[10], x0[11])
-    # The trial's parameters as tuples: what depends on them alone is computed once, not on every tick.
-    v, a, vm, c = (constants(v, VEHICLE_SIZE), constants(a, ACTUATOR_SIZE), constants(vm, VEHICLE_SIZE),
-                   constants(c, CONTROL_SIZE))  # fmt: skip
-    lim = constants(lim, LIMITS_SIZE)
-    ref = (r[0], r[1], r[2], r[3])
-    motors = (0.0, 0.0, 0.0, 0.0)
-    last = (0.0, 0.0, 0.0, 0.0)  # the previous command: the backstepping's Ωr is the one it makes
+    (:mod:`autopilot.control_params`); ``r`` the reference the metrics measure against (altitude [m], roll, pitch,
+    yaw [rad]), and ``sp`` the offboard setpoint that flies it (the commander's fields, :class:`groundstation.vehicle.
+    Setpoints`), sent at every moment of ``quadsitl fly``'s grid; ``kind`` BACKSTEPPING or PD; ``period`` T [s];
+    ``substeps``, ``method`` the plant's integration; ``turns`` the yaw reference's branch; ``lim`` the divergence
+    bounds. With ``kept``, tick k's row goes to keep[k] (KEEP_SIZE columns). ``ctx``: the vehicle's arrays, reused
+    from trial to trial (:func:`context`). The trial is flown as ``quadsitl sim`` flies it: the commander sees the
+    initial state, takes the setpoint, arms in offboard, and each tick is :func:`groundstation.vehicle.vehicle_tick`."""
+    w, air_rng, pio, datagram, st, cm, mem, truth, frame, cm0, air0, rng0, sens, est, sp_ticks, table, \
+        sp_next = ctx  # fmt: skip
+    # ---- the vehicle, at rest before its first tick (groundstation.vehicle.Vehicle) -------------------------------
+    w[:] = 0.0
+    for i in range(12):
+        w[W_X + i] = x0[i]
+    w[W_OUT + OUT_ON_GROUND] = 1.0 if x0[2] >= 0.0 else 0.0
+    w[W_AIR:] = air0
+    air_rng[:] = rng0
+    cm[:] = cm0
+    mem[:] = 0.0
+    st[:] = 0.0
+    for j in range(table.shape[0]):
+        table[j, :] = sp
+    sp_next[0] = 0
+    see(cm, x0)
+    setpoints_due(0, cm, sp_ticks, table, sp_next)
+    cmd.enter(cm, cmd.OFFBOARD)
+    cmd.arm(cm)
+    plant = (w, constants(v, VEHICLE_SIZE), constants(a, ACTUATOR_SIZE), air_rng, pio, datagram)
+    # The autopilot's parameters as tuples: what depends on them alone is computed once, not on every tick.
+    ap = (st, cm, mem, constants(vm, VEHICLE_SIZE), constants(c, CONTROL_SIZE), truth, frame)
     f_min, f_max = a[F_MIN], a[F_MAX]
     t_min, t_max = c[THRUST_MIN], c[THRUST_MAX]
-    d_over_b = vm[D_OVER_B]  # the autopilot allocates with its own model (autopilot.tick.control_tick)
+    x = w[W_X:W_MOTORS]
+    s = (x0[0], x0[1], x0[2], x0[3], x0[4], x0[5], x0[6], x0[7], x0[8], x0[9], x0[10], x0[11])
     # The outputs' targets: altitude, roll, pitch as given; yaw on the branch `turns`.
     target = (r[0], r[1], r[2], r[3] + TWO_PI * turns)
     y0 = (-s[2], s[6], s[7], s[8])
@@ -145,21 +167,21 @@ def _fly(
     diverged_at = -1
     err_yaw = 0.0
     for k in range(ticks):
+        s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
         if not inside(s, lim):
             diverged_at = k
             break
-        # ---- the controller on x(k) (the autopilot's model vm), and its allocation ----------------------
-        if kind == BACKSTEPPING:
-            u, _errors, _omega_r = backstepping(s, ref, last, vm, c)
-        else:
-            u = pd(s, ref, vm, c)
-        last = (u[0], u[1], u[2], u[3])
-        forces = allocate(last, d_over_b, f_min, f_max)
+        # ---- the vehicle's tick: the autopilot on x(k), its allocation, the plant's period -----------------------
+        setpoints_due(k, cm, sp_ticks, table, sp_next)
+        vehicle_tick(k, kind, False, period, substeps, method, plant, sens, ap, est, HOME, f_min, f_max)
+        u = (mem[MEM_U], mem[MEM_U + 1], mem[MEM_U + 2], mem[MEM_U + 3])
+        forces = (mem[MEM_FORCES], mem[MEM_FORCES + 1], mem[MEM_FORCES + 2], mem[MEM_FORCES + 3])
         if kept:
             for i in range(12):
                 keep[k, K_STATE + i] = s[i]
+            shown = reference_shown(cm, mem)
             for i in range(4):
-                keep[k, K_REF + i] = ref[i]
+                keep[k, K_REF + i] = shown[i]
                 keep[k, K_INPUTS + i] = u[i]
                 keep[k, K_FORCES + i] = forces[i]
         # ---- the row's metrics ---------------------------------------------------------------------------
@@ -187,9 +209,6 @@ def _fly(
         if (u[0] <= t_min or u[0] >= t_max or min(min(forces[0], forces[1]), min(forces[2], forces[3])) <= f_min
                 or max(max(forces[0], forces[1]), max(forces[2], forces[3])) >= f_max):  # fmt: skip
             saturated += 1
-        # ---- the plant: one control period under the commanded forces ------------------------------------
-        s, motors, _applied, _inputs, _wr, _ground = step(s, motors, forces, v, a, period, substeps, method,
-                                                            math.nan, CALM)  # fmt: skip
     flown = ticks if diverged_at < 0 else diverged_at
     nan = math.nan
     m[M_SATURATED] = saturated * period
@@ -226,61 +245,77 @@ def _fly(
 
 @jit
 def run_trial(
-    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, kind: int,
-    ticks: int, period: float, substeps: int, method: int, turns: float, lim: np.ndarray, m: np.ndarray,
-    keep: np.ndarray, kept: bool,
+    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
+    kind: int, ticks: int, period: float, substeps: int, method: int, turns: float, lim: np.ndarray, m: np.ndarray,
+    keep: np.ndarray, kept: bool, ctx: tuple,
 ) -> None:  # fmt: skip
     """Fly one trial and write its metrics into ``m`` (:func:`_fly`): any controller, integrator and step count."""
-    _fly(x0, v, a, vm, c, r, kind, ticks, period, substeps, method, turns, lim, m, keep, kept)
+    _fly(x0, v, a, vm, c, r, sp, kind, ticks, period, substeps, method, turns, lim, m, keep, kept, ctx)
 
 
 @jit
 def run_trial_paper(
-    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, ticks: int,
-    period: float, method: int, turns: float, lim: np.ndarray, m: np.ndarray, keep: np.ndarray, kept: bool,
+    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
+    ticks: int, period: float, method: int, turns: float, lim: np.ndarray, m: np.ndarray, keep: np.ndarray,
+    kept: bool, ctx: tuple,
 ) -> None:  # fmt: skip
     """:func:`run_trial` with the paper's controller and step count compiled in: the backstepping, one step of the
     plant per tick (see :func:`run_chunk`)."""
-    _fly(x0, v, a, vm, c, r, BACKSTEPPING, ticks, period, 1, method, turns, lim, m, keep, kept)
+    _fly(x0, v, a, vm, c, r, sp, BACKSTEPPING, ticks, period, 1, method, turns, lim, m, keep, kept, ctx)
+
+
+def context(cm0: np.ndarray, sp_ticks: np.ndarray) -> tuple:
+    """The arrays a chunk's trials are flown in, one after the other (:func:`_fly`): the vehicle's
+    (:class:`groundstation.vehicle.Vehicle`'s, in calm air and on the true state), ``cm0`` the commander as it
+    starts (its settings), ``sp_ticks`` the ticks the setpoint is sent at (``quadsitl fly``'s grid)."""
+    air0, rng0 = air_arrays(WindParams())
+    sensors = Sensors(SensorParams(), 0.001, 9.80665, HOME)  # truth: passed, never read
+    estimator = Estimator(0.001, 9.80665, (0.2, 0.0, 0.4))
+    pio = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
+    return (np.zeros(WORK_SIZE), rng0.copy(), pio,
+            np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8), np.zeros(codec.DECODED_SIZE), np.zeros(cmd.SIZE),
+            np.zeros(MEM_SIZE), np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8),
+            np.asarray(cm0, dtype=np.float64), air0, rng0, sensors.arrays, estimator.arrays,
+            np.asarray(sp_ticks, dtype=np.int64), np.zeros((len(sp_ticks), SP_FIELDS)),
+            np.zeros(1, dtype=np.int64))  # fmt: skip
 
 
 def run_chunk(
-    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, kind: int,
-    ticks: int, period: float, substeps: int, method: int, turns: np.ndarray, lim: np.ndarray, m: np.ndarray,
-    slots: np.ndarray, keep: np.ndarray,
+    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
+    kind: int, ticks: int, period: float, substeps: int, method: int, turns: np.ndarray, lim: np.ndarray,
+    m: np.ndarray, slots: np.ndarray, keep: np.ndarray, ctx: tuple,
 ) -> None:  # fmt: skip
     """Fly each trial i of a chunk (row i of every per-trial array), one after the other: metrics into m[i]; a
     trial with slots[i] ≥ 0 writes its trajectory into keep[slots[i]].
 
     The paper's configuration (the backstepping, one step of the plant per tick) runs a version compiled for it
-    (:func:`run_trial_paper`): with the controller and the step count known to the compiler, the plant's step is
-    one straight pass, and the cosines of roll and pitch the law's u1 takes (28) are the plant's own (eqs (2)–(4)),
-    computed once a tick. The results are the same to the bit, in about 12 % less time. (Compiling the integrator
-    in as well made it slower.) Each version is compiled the first time it is used."""
+    (:func:`run_trial_paper`): with the controller and the step count known to the compiler, the tick is one
+    straight pass. Each version is compiled the first time it is used."""
     if kind == BACKSTEPPING and substeps == 1:
-        _chunk_paper(x0, v, a, vm, c, r, ticks, period, method, turns, lim, m, slots, keep)
+        _chunk_paper(x0, v, a, vm, c, r, sp, ticks, period, method, turns, lim, m, slots, keep, ctx)
     else:
-        _chunk(x0, v, a, vm, c, r, kind, ticks, period, substeps, method, turns, lim, m, slots, keep)
+        _chunk(x0, v, a, vm, c, r, sp, kind, ticks, period, substeps, method, turns, lim, m, slots, keep, ctx)
 
 
 @jit
 def _chunk(
-    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, kind: int,
-    ticks: int, period: float, substeps: int, method: int, turns: np.ndarray, lim: np.ndarray, m: np.ndarray,
-    slots: np.ndarray, keep: np.ndarray,
+    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
+    kind: int, ticks: int, period: float, substeps: int, method: int, turns: np.ndarray, lim: np.ndarray,
+    m: np.ndarray, slots: np.ndarray, keep: np.ndarray, ctx: tuple,
 ) -> None:  # fmt: skip
     for i in range(x0.shape[0]):
         slot = slots[i]
-        run_trial(x0[i], v[i], a[i], vm[i], c[i], r[i], kind, ticks, period, substeps, method, turns[i], lim, m[i],
-                  keep[max(slot, 0)], slot >= 0)  # fmt: skip
+        run_trial(x0[i], v[i], a[i], vm[i], c[i], r[i], sp[i], kind, ticks, period, substeps, method, turns[i], lim,
+                  m[i], keep[max(slot, 0)], slot >= 0, ctx)  # fmt: skip
 
 
 @jit
 def _chunk_paper(
-    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, ticks: int,
-    period: float, method: int, turns: np.ndarray, lim: np.ndarray, m: np.ndarray, slots: np.ndarray, keep: np.ndarray,
+    x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
+    ticks: int, period: float, method: int, turns: np.ndarray, lim: np.ndarray, m: np.ndarray, slots: np.ndarray,
+    keep: np.ndarray, ctx: tuple,
 ) -> None:  # fmt: skip
     for i in range(x0.shape[0]):
         slot = slots[i]
-        run_trial_paper(x0[i], v[i], a[i], vm[i], c[i], r[i], ticks, period, method, turns[i], lim, m[i],
-                        keep[max(slot, 0)], slot >= 0)  # fmt: skip
+        run_trial_paper(x0[i], v[i], a[i], vm[i], c[i], r[i], sp[i], ticks, period, method, turns[i], lim, m[i],
+                        keep[max(slot, 0)], slot >= 0, ctx)  # fmt: skip

@@ -21,9 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot import setpoints
+from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import BACKSTEPPING, KINDS, PD
+from autopilot.params import commander_settings
+from groundstation.setpoint_grid import grid_setpoints
 from groundstation.sweep import engine
 from groundstation.sweep.spec import SweepSpec, draw, trial_arrays
+from groundstation.vehicle import Setpoints
+from quadsitl.config import PositionParams
+from quadsitl.frames import PX4_HOME
+from quadsitl.state import Reference
 from sitl.integrators import EULER, INTEGRATORS
 
 FLOWN_METRICS = engine.METRICS[: engine.M_TICKS + 1]
@@ -73,22 +81,43 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
     keep = np.zeros((max(len(keep_rows), 1), spec.ticks if keep_rows else 1, engine.KEEP_SIZE))
     limits = np.array([spec.limits[k] for k in ("position", "speed", "tilt", "rate")], dtype=np.float64)
     sub = [np.ascontiguousarray(x[go]) for x in (arrays.x0, arrays.v, arrays.a, arrays.vm, arrays.c, arrays.r)]
+    sub.append(setpoint_rows(sub[5]))
     turns = np.zeros(len(go))
     out = np.empty((len(go), engine.METRICS_SIZE))
     kind = KINDS[spec.controller]
     ticks, T, substeps = spec.ticks, spec.period, spec.preset.sim.substeps
-    engine.run_chunk(*sub, kind, ticks, T, substeps, _method(spec), turns, limits, out, slots, keep)
+    ctx = context(spec)
+    engine.run_chunk(*sub, kind, ticks, T, substeps, _method(spec), turns, limits, out, slots, keep, ctx)
     # The rare trial that ended with its yaw on another branch than it flew on: again, on its own (module doc).
     again = np.flatnonzero(out[:, engine.M_YAW_TURNS] != turns)
     if again.size:
         turns2 = out[again, engine.M_YAW_TURNS].copy()
         out2 = np.empty((again.size, engine.METRICS_SIZE))
         engine.run_chunk(*(np.ascontiguousarray(x[again]) for x in sub), kind, ticks, T, substeps, _method(spec),
-                         turns2, limits, out2, np.ascontiguousarray(slots[again]), keep)  # fmt: skip
+                         turns2, limits, out2, np.ascontiguousarray(slots[again]), keep, ctx)  # fmt: skip
         out[again] = out2
     metrics[go] = out
     kept = {int(trials[row]): keep[slot].copy() for slot, row in enumerate(keep_rows)}
     return ChunkResult(trials, params, metrics, arrays.admissible, arrays.reason, kept)
+
+
+def setpoint_rows(r: np.ndarray) -> np.ndarray:
+    """Each trial's offboard setpoint (the commander's fields, :class:`groundstation.vehicle.Setpoints`) for its
+    reference r[i] (altitude, roll, pitch, yaw), as ``quadsitl fly``'s ground station sends it and ``quadsitl sim``
+    gives it."""
+    frame = setpoints.Frame(PX4_HOME)
+    return Setpoints.of(((0, Reference(*row)) for row in r.tolist()), frame).values
+
+
+def context(spec: SweepSpec | None, ticks: int = 1, period: float = 0.001) -> tuple:
+    """The engine's arrays for a chunk of ``spec``'s trials (:func:`groundstation.sweep.engine.context`): the
+    commander with the preset's settings, the setpoint sent at every moment of ``quadsitl fly``'s grid."""
+    position = spec.preset.position if spec is not None else PositionParams()
+    if spec is not None:
+        ticks, period = spec.ticks, spec.period
+    cm0 = Commander(commander_settings(position, CommanderSettings())).cm
+    moments = [g for g, _ in grid_setpoints(lambda t: None, period, ticks)]
+    return engine.context(cm0, np.array(moments, dtype=np.int64))
 
 
 VERSIONS = ((BACKSTEPPING, 1, EULER), (PD, 1, EULER))
@@ -116,10 +145,11 @@ def warm_version(kind: int, substeps: int, method: int) -> None:
     from quadsitl.param_arrays import ACTUATOR_SIZE, VEHICLE_SIZE
 
     one = np.ones((1, 12))
+    r = np.array([[1.0, 0.0, 0.0, 0.0]])
     engine.run_chunk(one, np.ones((1, VEHICLE_SIZE)), np.ones((1, ACTUATOR_SIZE)), np.ones((1, VEHICLE_SIZE)),
-                     np.full((1, SIZE), 0.5), np.zeros((1, 4)), kind, 1, 0.001, substeps, method, np.zeros(1),
+                     np.full((1, SIZE), 0.5), r, setpoint_rows(r), kind, 1, 0.001, substeps, method, np.zeros(1),
                      np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
-                     np.zeros((1, 1, engine.KEEP_SIZE)))  # fmt: skip
+                     np.zeros((1, 1, engine.KEEP_SIZE)), context(None))  # fmt: skip
 
 
 def chunks(trials: int, workers: int, chunk: int | None = None) -> list[np.ndarray]:
