@@ -188,9 +188,11 @@ def autopilot_step(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v
         for i in range(8):
             mem[MEM_ERRORS + i] = errors[i]
         mem[MEM_OMEGA_R] = omega_r
-    else:
-        mem[MEM_U : MEM_FORCES + 4] = 0.0
-        mem[MEM_ZETA : MEM_ZETA + 3] = 0.0  # the integrators start afresh at each arming
+    else:  # element by element: a slice assignment here was dropped once inlined (numba 0.6x, inline="always")
+        for i in range(8):
+            mem[MEM_U + i] = 0.0  # the command u1..u4 and the forces f1..f4
+        for i in range(3):
+            mem[MEM_ZETA + i] = 0.0  # the integrators start afresh at each arming
         forces = (0.0, 0.0, 0.0, 0.0)
     return forces, event
 

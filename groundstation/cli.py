@@ -69,19 +69,21 @@ def _load(name: str) -> Preset:
 
 def _from_sweep(args: argparse.Namespace) -> Preset:
     """``sim --from-sweep DIR --trial K``: trial K of the sweep in DIR as a preset (the options that would fly
-    something else are refused)."""
+    something else are refused); the sweep's trajectory or mission goes into ``args``."""
     from groundstation.sweep.spec import load_sweep, trial_preset
 
     if args.trial is None:
         raise UsageError("--from-sweep needs --trial K (the trial's number, as in trials.csv)")
     flown = ("preset", "controller", "duration", "integrator", "substeps", "gains", "poles", "compare", "wind",
-             "turbulence", "gust", "wind_seed", "state", "sensor_seed", "trajectory")  # fmt: skip
+             "turbulence", "gust", "wind_seed", "state", "sensor_seed", "trajectory", "mission", "home")  # fmt: skip
     given = [f"--{k.replace('_', '-')}" for k in flown if getattr(args, k) not in (None, False)]
     if given:
         raise UsageError(f"{given[0]} does not go with --from-sweep: the trial flies as the sweep flew it (its "
-                         "preset, controller, duration, integrator, gains, calm air and true state)")  # fmt: skip
+                         "preset, controller, duration, gains, air, state, trajectory or mission)")  # fmt: skip
     try:
-        return trial_preset(load_sweep(Path(args.from_sweep)), args.trial)
+        spec = load_sweep(Path(args.from_sweep))
+        args.trajectory, args.mission = spec.trajectory, None if spec.mission is None else str(spec.mission.path)
+        return trial_preset(spec, args.trial)
     except ConfigError as exc:
         raise UsageError(f"--from-sweep {args.from_sweep} --trial {args.trial}: {exc}") from None
 
@@ -122,7 +124,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     path = make(trajectory, preset.reference)  # a bad name or file: one line, before anything is compiled
     mission = None
     if args.mission is not None:
-        if args.trajectory is not None:
+        if args.trajectory is not None and args.from_sweep is None:
             raise UsageError(f"--trajectory {args.trajectory!r} with --mission: a flight flies one or the other")
         mission = load(args.mission)  # refused as fly refuses it, in one line
         duration = args.duration or MISSION_DURATION
@@ -266,26 +268,39 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def format_summary(s: dict) -> str:
     """A few lines for the terminal: the sweep, its speed, settling times and overshoot per channel, the worst."""
+    flown = (f"mission {s['mission']}" if s.get("mission") else f"trajectory {s['trajectory']}"
+             if s.get("trajectory") else f"task {s['task']}")  # fmt: skip
+    flown += ", on sensors" if s.get("state") == "sensors" else ""
+    tracked = s["metrics"]["horizontal_rms"].get("p50") is not None  # a position trajectory or a mission
     lines = [
         f"sweep {s['spec']}: {s['trials']} trials of {s['duration']:g} s ({s['controller']}, preset {s['preset']}, "
-        f"task {s['task']}) in {s['wall_s']:.1f} s, {s['vehicle_steps_per_s'] or 0:.3g} vehicle-steps/s"
+        f"{flown}) in {s['wall_s']:.1f} s, {s['vehicle_steps_per_s'] or 0:.3g} vehicle-steps/s"
         + (f" on {s['workers']} Dask worker{'s' * (s['workers'] != 1)} at {s['cluster']}" if s.get("cluster") else ""),
         f"diverged {s['diverged']} of {s['flown']} flown (failure rate {s['failure_rate'] or 0:.3g}); "
         f"inadmissible {s['inadmissible']}",
-        f"{'channel':<10}{'settling p50':>14}{'p95':>10}{'max':>10}{'overshoot p95':>16}{'not settled':>13}",
     ]
 
     def f(m: dict, key: str, fmt: str = ".3f") -> str:
         return "—" if m.get(key) is None else format(m[key], fmt)
 
-    for ch in ("altitude", "roll", "pitch", "yaw"):
-        st, ov = s["metrics"][f"{ch}_settling_time"], s["metrics"][f"{ch}_overshoot_pct"]
-        lines.append(f"{ch:<10}{f(st, 'p50'):>14}{f(st, 'p95'):>10}{f(st, 'max'):>10}"
-                     f"{f(ov, 'p95', '.2f') + ' %':>16}{st['undefined']:>13}")  # fmt: skip
+    if tracked:
+        lines.append(f"{'tracking [m]':<16}{'p50':>10}{'p95':>10}{'max':>10}")
+        for name in ("horizontal_rms", "horizontal_max", "altitude_rms"):
+            m = s["metrics"][name]
+            lines.append(f"{name:<16}{f(m, 'p50'):>10}{f(m, 'p95'):>10}{f(m, 'max'):>10}")
+    else:
+        lines.append(
+            f"{'channel':<10}{'settling p50':>14}{'p95':>10}{'max':>10}{'overshoot p95':>16}{'not settled':>13}"
+        )
+        for ch in ("altitude", "roll", "pitch", "yaw"):
+            st, ov = s["metrics"][f"{ch}_settling_time"], s["metrics"][f"{ch}_overshoot_pct"]
+            lines.append(f"{ch:<10}{f(st, 'p50'):>14}{f(st, 'p95'):>10}{f(st, 'max'):>10}"
+                         f"{f(ov, 'p95', '.2f') + ' %':>16}{st['undefined']:>13}")  # fmt: skip
     if s["worst"]:
         w = s["worst"][0]
         params = ", ".join(f"{k} = {v:.4g}" for k, v in w["parameters"].items())
-        what = f"diverged at {w['diverged_at']:.3f} s" if w["diverged"] else "longest settling"
+        what = (f"diverged at {w['diverged_at']:.3f} s" if w["diverged"] else "largest horizontal error" if tracked
+                else "longest settling")  # fmt: skip
         lines.append(f"worst: trial {w['trial']} ({what}): {params}")
     return "\n".join(lines)
 
@@ -438,7 +453,8 @@ def zenoh_and_addresses(args: argparse.Namespace) -> None:
 
 TRAJECTORY_HELP = (
     "attitude setpoints: step (default), ramp, sine, or a CSV file t,altitude,roll,pitch,yaw; offboard position "
-    "setpoints: circle[:radius=M,period=S,altitude=M,hold=S,yaw=RAD|travel], figure8[:size=M,period=S,...], or a "
+    "setpoints: circle[:radius=M,period=S,altitude=M,hold=S,yaw=RAD|travel], figure8[:size=M,period=S,...], "
+    "hold[:altitude=M,duration=S,yaw=RAD], or a "
     "CSV file t,x,y,altitude,yaw (see docs/commands.md)"
 )
 

@@ -202,6 +202,22 @@ def run_offline(
     return results, metrics
 
 
+def telemetry_rows(res: SimResult, rates: bool = True) -> np.ndarray:
+    """The run's rows of telemetry.csv (telemetry_csv.COLUMNS; in sensor mode the estimate flown in x..r, the truth
+    after, telemetry_csv.TRUTH_COLUMNS), as ``quadsitl fly``'s. Without ``rates`` the body rates p, q, r are NaN
+    (a sweep's metrics do not read them: 20 ms a 20 s trial, one call per row)."""
+
+    def body(state: np.ndarray) -> np.ndarray:
+        return res.body_rates(state) if rates else np.full((len(state), 3), np.nan)
+
+    if res.estimate is None:
+        return rows_from_arrays(res.t, res.state, body(res.state), res.reference, res.inputs, res.forces,
+                                res.position_reference)  # fmt: skip
+    rows = rows_from_arrays(res.t, res.estimate, body(res.estimate), res.reference, res.inputs, res.forces,
+                            res.position_reference)  # fmt: skip
+    return np.column_stack([rows, res.state[:, :9], body(res.state)])
+
+
 def tracking(results: dict[str, SimResult]) -> dict[str, dict]:
     """Each run's position tracking (:func:`groundstation.metrics.position_metrics`): the truth against the
     horizontal reference flown, as ``quadsitl fly``'s metrics.json has it for a position trajectory."""
@@ -228,14 +244,7 @@ def write_outputs(
     files = []
     for i, (kind, res) in enumerate(results.items()):
         path = out / ("telemetry.csv" if i == 0 else f"telemetry_{kind}.csv")
-        if res.estimate is None:
-            rows = rows_from_arrays(res.t, res.state, res.body_rates(), res.reference, res.inputs, res.forces,
-                                    res.position_reference)  # fmt: skip
-        else:  # sensor mode: the estimate flown in x..r, the truth after (telemetry_csv.TRUTH_COLUMNS)
-            rows = rows_from_arrays(res.t, res.estimate, res.body_rates(res.estimate), res.reference, res.inputs,
-                                    res.forces, res.position_reference)  # fmt: skip
-            rows = np.column_stack([rows, res.state[:, :9], res.body_rates()])
-        write_csv(path, rows)
+        write_csv(path, telemetry_rows(res))
         files.append(path)
     mpath = out / "metrics.json"
     first = next(iter(results.values()))

@@ -20,6 +20,8 @@ in MAV_FRAME_LOCAL_NED with type_mask 2496 (position, velocity and yaw; z = −a
 - ``figure8[:size=M][,period=S][,altitude=M][,hold=S][,yaw=RAD|travel]``: the lemniscate of Gerono through
   home, x = size·sin θ, y = (size/2)·sin 2θ (10 m north–south and 5 m east–west at the default size 5 m),
   first to the north-east. Same defaults as the circle.
+- ``hold[:altitude=M][,duration=S][,yaw=RAD]``: climb to ``altitude`` above home (default: the preset's reference
+  altitude) and hold there, heading ``yaw`` (default 0), for ``duration`` (default 20 s).
 - a CSV file with a header ``t, x, y, altitude, yaw``: linearly interpolated, held after its last row (and
   at its first row before it); the velocity feed-forward is each segment's slope.
 
@@ -286,6 +288,32 @@ def parse_shape(spec: str, default_altitude: float) -> PositionTrajectory:
     return PositionTrajectory(setpoint, shape_duration(period, hold), spec)
 
 
+HOLD_USAGE = "hold[:altitude=M][,duration=S][,yaw=RAD]"
+
+
+def parse_hold(spec: str, default_altitude: float) -> PositionTrajectory:
+    """``hold`` with optional ``:altitude=M,duration=S,yaw=RAD``: climb from the ground to ``altitude`` above home
+    (default: the preset's reference altitude) and hold there, heading ``yaw`` [rad] (default 0), for ``duration``
+    [s] (default 20): the position hold a wind or sensor sweep measures. Raises UsageError naming --trajectory."""
+    values = {"altitude": default_altitude, "duration": 20.0, "yaw": 0.0}
+    bounds = {"altitude": (0.0, 10000.0, "m"), "duration": (0.0, 3600.0, "s"), "yaw": (-math.pi, math.pi, "rad")}
+    for item in (i.strip() for i in spec.partition(":")[2].split(",") if i.strip()):
+        key, eq, text = (p.strip() for p in item.partition("="))
+        if not eq or key not in values:
+            raise UsageError(f"--trajectory {spec!r}: unknown parameter {item!r}; expected {HOLD_USAGE}")
+        try:
+            values[key] = float(text)
+        except ValueError:
+            values[key] = math.nan
+    for key, (lo, hi, unit) in bounds.items():
+        v = values[key]
+        if not (lo <= v <= hi if key == "yaw" else lo < v <= hi):
+            what = f"[{lo:g}, {hi:g}]" if key == "yaw" else f"({lo:g}, {hi:g}]"
+            raise UsageError(f"--trajectory {spec!r}: {key} = {v:g}: expected a number in {what} {unit}")
+    point = PositionSetpoint(0.0, 0.0, values["altitude"], values["yaw"])
+    return PositionTrajectory(lambda _t: point, values["duration"], spec)
+
+
 def position_from_csv(path: Path) -> PositionTrajectory:
     """A CSV with the header ``t, x, y, altitude, yaw`` (t [s] ≥ 0 increasing; x north, y east [m, NED];
     altitude [m] ≥ 0; yaw [rad], interpolated as written: 0 → 6.283 is a full turn) → its trajectory:
@@ -342,7 +370,7 @@ def csv_kind(path: Path) -> str:
                      f"columns {', '.join(POSITION_COLUMNS)}")  # fmt: skip
 
 
-EXPECTED = "step, ramp, sine, circle[:...], figure8[:...] or an existing CSV file"
+EXPECTED = "step, ramp, sine, circle[:...], figure8[:...], hold[:...] or an existing CSV file"
 
 
 def make(name: str, ref: Reference) -> Trajectory | PositionTrajectory:
@@ -356,6 +384,8 @@ def make(name: str, ref: Reference) -> Trajectory | PositionTrajectory:
         return sine(ref)
     if name.partition(":")[0] in SHAPES:
         return parse_shape(name, ref.altitude)
+    if name.partition(":")[0] == "hold":
+        return parse_hold(name, ref.altitude)
     path = Path(name)
     if not path.is_file():
         raise UsageError(f"--trajectory {name!r}: expected {EXPECTED}")

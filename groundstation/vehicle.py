@@ -24,6 +24,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
+from numba import types
+from numba.extending import overload
 
 from autopilot import commander as cmd
 from autopilot import setpoints
@@ -36,7 +38,7 @@ from groundstation.setpoint_grid import POSITION_VELOCITY_YAW
 from quadsitl import codec, hil
 from quadsitl.config import DEFAULT_LIMITS, SENSOR_GROUND_S, Preset
 from quadsitl.frames import PX4_HOME
-from quadsitl.jit import jit
+from quadsitl.jit import DISABLED, jit
 from quadsitl.state import Reference, VehicleState
 from quadsitl.wire import Mode
 from sitl import tick as plant_tick
@@ -50,7 +52,47 @@ R_STATE, R_SEEN, R_REF, R_XY_REF, R_INPUTS, R_FORCES, ROW_SIZE = 0, 12, 24, 28, 
 
 
 @jit(inline=True)
-def vehicle_tick(k: int, kind: int, sensing: bool, period: float, substeps: int, method: int, plant: tuple,
+def _look(x: np.ndarray, st: np.ndarray) -> None:
+    for i in range(12):
+        st[i] = x[i]
+
+
+@jit(inline=True)
+def _sense(k: int, period: float, x: np.ndarray, out: np.ndarray, air: np.ndarray, st: np.ndarray, sens: tuple,
+           est: tuple, pio: np.ndarray, datagram: np.ndarray, home: tuple, truth: np.ndarray,
+           frame: np.ndarray) -> None:  # fmt: skip
+    plant_tick.encode_tick(datagram, pio, x, out, air, sens, k, period)
+    _, flags, _ = hil.decode_sensors(datagram, pio[plant_tick.TX_LEN], home, est[0], truth, frame)
+    estimate(flags, period, est, st)
+
+
+def observe(k: int, period: float, x: np.ndarray, out: np.ndarray, air: np.ndarray, st: np.ndarray, sens: tuple,
+            est: tuple, pio: np.ndarray, datagram: np.ndarray, home: tuple, truth: np.ndarray,
+            frame: np.ndarray) -> None:  # fmt: skip
+    """What the autopilot sees of x(k), into ``st``: with the estimator's arrays (``est``), the plant's sensor
+    datagram of tick k (:func:`sitl.tick.encode_tick`, the plant process's encoder) decoded
+    (:func:`quadsitl.hil.decode_sensors`) and estimated (:func:`autopilot.tick.estimate`), as the autopilot process
+    does; with none (``est`` = ()), the state itself (the body rates, which only telemetry shows, are not computed).
+    Compiled, the choice is made by ``est``'s type, so a loop on the true state never compiles the sensors' path."""
+    if len(est) == 0:
+        _look(x, st)
+    else:
+        _sense(k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame)
+
+
+if not DISABLED:
+
+    @overload(observe, inline="always")
+    def _observe(k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame):
+        if isinstance(est, types.BaseTuple) and len(est) == 0:
+            return lambda k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame: _look(x, st)
+        return lambda k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame: _sense(
+            k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame
+        )
+
+
+@jit(inline=True)
+def vehicle_tick(k: int, kind: int, period: float, substeps: int, method: int, plant: tuple,
                  sens: tuple, ap: tuple, est: tuple, home: tuple, f_min: float, f_max: float) -> int:  # fmt: skip
     """Tick ``k`` of the vehicle (the module's steps 1–3): x(k) in the plant's work array → x(k+1). Returns the
     commander's event. ``plant`` = (work, vehicle, actuators, air_rng, io, datagram): :class:`sitl.plant.Plant`'s
@@ -62,13 +104,7 @@ def vehicle_tick(k: int, kind: int, sensing: bool, period: float, substeps: int,
     w, pv, pa, air_rng, pio, datagram = plant
     st, cm, mem, v, c, truth, frame = ap
     x, out, air = w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:]
-    if sensing:
-        plant_tick.encode_tick(datagram, pio, x, out, air, sens, k, period)
-        _, flags, _ = hil.decode_sensors(datagram, pio[plant_tick.TX_LEN], home, est[0], truth, frame)
-        estimate(flags, period, est, st)
-    else:  # the state itself (the body rates, which only telemetry shows, are not computed)
-        for i in range(12):
-            st[i] = x[i]
+    observe(k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame)
     forces, event = autopilot_step(kind, st, cm, mem, v, c, f_min, f_max, k, k * period)
     commanded = w[W_COMMANDED:W_OUT]
     for i in range(4):
@@ -97,7 +133,7 @@ def see(cm: np.ndarray, x: np.ndarray) -> None:
 
 
 @jit
-def fly_ticks(first: int, n: int, record: bool, kind: int, sensing: bool, period: float, substeps: int, method: int,
+def fly_ticks(first: int, n: int, record: bool, kind: int, period: float, substeps: int, method: int,
               plant: tuple, sens: tuple, ap: tuple, est: tuple, home: tuple, f_min: float, f_max: float,
               sp_ticks: np.ndarray, sp_values: np.ndarray, sp_next: np.ndarray, rows: np.ndarray) -> int:  # fmt: skip
     """Ticks ``first`` .. ``first`` + n − 1 of the vehicle: at each, the offboard setpoints made for it or before
@@ -118,7 +154,7 @@ def fly_ticks(first: int, n: int, record: bool, kind: int, sensing: bool, period
         if record:
             for i in range(12):
                 rows[j, R_STATE + i] = x[i]
-        vehicle_tick(k, kind, sensing, period, substeps, method, plant, sens, ap, est, home, f_min, f_max)
+        vehicle_tick(k, kind, period, substeps, method, plant, sens, ap, est, home, f_min, f_max)
         if record:
             for i in range(12):
                 rows[j, R_SEEN + i] = st[i]
@@ -205,11 +241,11 @@ class Vehicle:
         self.mem = np.zeros(MEM_SIZE)
         self.ap = (self.st, self.commander.cm, self.mem, np.asarray(v, dtype=float), np.asarray(c, dtype=float),
                    np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8))  # fmt: skip
-        s = preset.sensors
-        g = preset.vehicle.gravity  # in truth mode an estimator's arrays are passed and never touched
-        self.estimator = (Estimator.for_field(self.period, g, s.mag_strength_gauss, s.mag_declination_deg,
-                                              s.mag_inclination_deg)
-                          if s is not None else Estimator(self.period, g, (0.2, 0.0, 0.4)))  # fmt: skip
+        s = preset.sensors  # in sensor mode the autopilot flies on its estimator's estimate (observe)
+        self.estimator = None if s is None else Estimator.for_field(self.period, preset.vehicle.gravity,
+                                                                    s.mag_strength_gauss, s.mag_declination_deg,
+                                                                    s.mag_inclination_deg)  # fmt: skip
+        self.est = () if self.estimator is None else self.estimator.arrays
         a = preset.actuators
         self.f_min, self.f_max = a.min_thrust, a.max_thrust
         self.tick = 0  # the next tick to fly
@@ -241,9 +277,9 @@ class Vehicle:
                 progress(done)
             m = 1 if after_tick is not None else min(PROGRESS_TICKS, n - done)
             chunk = rows[done : done + m] if record else rows
-            flown = fly_ticks(self.tick, m, record, self.kind, self.sensing, self.period, self.plant.substeps,
+            flown = fly_ticks(self.tick, m, record, self.kind, self.period, self.plant.substeps,
                               self.plant.method, self.plant_arrays, self.plant.sensors.arrays, self.ap,
-                              self.estimator.arrays, self.home, self.f_min, self.f_max, self.sp.ticks, self.sp.values,
+                              self.est, self.home, self.f_min, self.f_max, self.sp.ticks, self.sp.values,
                               self.sp_next, chunk)  # fmt: skip
             self.tick += flown
             done += flown

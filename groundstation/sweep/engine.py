@@ -42,7 +42,6 @@ import numpy as np
 from autopilot import commander as cmd
 from autopilot.control_params import BACKSTEPPING, MEM_FORCES, MEM_SIZE, MEM_U, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
-from autopilot.estimator import Estimator
 from autopilot.tick import reference_shown
 from groundstation.vehicle import SP_FIELDS, see, setpoints_due, vehicle_tick
 from quadsitl import codec, hil
@@ -64,7 +63,12 @@ STEP_METRICS = ("rise_time", "settling_time", "overshoot_pct", "steady_state_err
 """Per channel, in :func:`groundstation.metrics.step_metrics`'s names and units."""
 PER_CHANNEL = len(STEP_METRICS)
 RISE, SETTLE, OVERSHOOT, SSE, PEAK_U, RMS = range(PER_CHANNEL)
-M_SATURATED, M_DIVERGED, M_DIVERGED_AT, M_TICKS, M_YAW_TURNS = range(4 * PER_CHANNEL, 4 * PER_CHANNEL + 5)
+M_SATURATED, M_DIVERGED, M_DIVERGED_AT, M_TICKS, M_YAW_TURNS, M_HORIZONTAL_RMS, M_HORIZONTAL_MAX, M_ALTITUDE_RMS = (
+    range(4 * PER_CHANNEL, 4 * PER_CHANNEL + 8)
+)
+POSITION_METRICS = ("horizontal_rms", "horizontal_max", "altitude_rms")
+"""Position tracking, in :func:`groundstation.metrics.position_metrics`' names and units [m]: NaN while the
+horizontal position is not controlled (the task's attitude reference)."""
 METRICS = (
     *(f"{ch}_{m}" for ch in CHANNELS for m in STEP_METRICS),
     "saturation_time",  # [s]
@@ -72,6 +76,7 @@ METRICS = (
     "diverged_at",  # [s], NaN when it did not
     "ticks",  # control ticks flown
     "yaw_turns",  # the branch of the yaw reference at the end, in turns of 2π (see the module's docstring)
+    *POSITION_METRICS,
 )
 """The columns of the metrics array :func:`run_chunk` fills, one row per trial."""
 METRICS_SIZE = len(METRICS)
@@ -121,7 +126,7 @@ def _fly(
     bounds. With ``kept``, tick k's row goes to keep[k] (KEEP_SIZE columns). ``ctx``: the vehicle's arrays, reused
     from trial to trial (:func:`context`). The trial is flown as ``quadsitl sim`` flies it: the commander sees the
     initial state, takes the setpoint, arms in offboard, and each tick is :func:`groundstation.vehicle.vehicle_tick`."""
-    w, air_rng, pio, datagram, st, cm, mem, truth, frame, cm0, air0, rng0, sens, est, sp_ticks, table, \
+    w, air_rng, pio, datagram, st, cm, mem, truth, frame, cm0, air0, rng0, sens, sp_ticks, table, \
         sp_next = ctx  # fmt: skip
     # ---- the vehicle, at rest before its first tick (groundstation.vehicle.Vehicle) -------------------------------
     w[:] = 0.0
@@ -173,7 +178,7 @@ def _fly(
             break
         # ---- the vehicle's tick: the autopilot on x(k), its allocation, the plant's period -----------------------
         setpoints_due(k, cm, sp_ticks, table, sp_next)
-        vehicle_tick(k, kind, False, period, substeps, method, plant, sens, ap, est, HOME, f_min, f_max)
+        vehicle_tick(k, kind, period, substeps, method, plant, sens, ap, (), HOME, f_min, f_max)
         u = (mem[MEM_U], mem[MEM_U + 1], mem[MEM_U + 2], mem[MEM_U + 3])
         forces = (mem[MEM_FORCES], mem[MEM_FORCES + 1], mem[MEM_FORCES + 2], mem[MEM_FORCES + 3])
         if kept:
@@ -212,6 +217,7 @@ def _fly(
     flown = ticks if diverged_at < 0 else diverged_at
     nan = math.nan
     m[M_SATURATED] = saturated * period
+    m[M_HORIZONTAL_RMS], m[M_HORIZONTAL_MAX], m[M_ALTITUDE_RMS] = nan, nan, nan  # the attitude reference flown
     m[M_TICKS] = flown
     m[M_DIVERGED] = 0.0 if diverged_at < 0 else 1.0
     m[M_DIVERGED_AT] = nan if diverged_at < 0 else diverged_at * period
@@ -270,12 +276,11 @@ def context(cm0: np.ndarray, sp_ticks: np.ndarray) -> tuple:
     starts (its settings), ``sp_ticks`` the ticks the setpoint is sent at (``quadsitl fly``'s grid)."""
     air0, rng0 = air_arrays(WindParams())
     sensors = Sensors(SensorParams(), 0.001, 9.80665, HOME)  # truth: passed, never read
-    estimator = Estimator(0.001, 9.80665, (0.2, 0.0, 0.4))
     pio = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
     return (np.zeros(WORK_SIZE), rng0.copy(), pio,
             np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8), np.zeros(codec.DECODED_SIZE), np.zeros(cmd.SIZE),
             np.zeros(MEM_SIZE), np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8),
-            np.asarray(cm0, dtype=np.float64), air0, rng0, sensors.arrays, estimator.arrays,
+            np.asarray(cm0, dtype=np.float64), air0, rng0, sensors.arrays,
             np.asarray(sp_ticks, dtype=np.int64), np.zeros((len(sp_ticks), SP_FIELDS)),
             np.zeros(1, dtype=np.int64))  # fmt: skip
 

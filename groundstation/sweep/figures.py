@@ -382,10 +382,14 @@ def write_settling_histograms(out: Path, spec: SweepSpec, table: dict[str, np.nd
 
 
 def parameter_metrics(table: dict[str, np.ndarray]) -> list[tuple[str, str]]:
-    """(column, label) of the metrics drawn against the parameters: each channel's settling time (channels with a
+    """(column, label) of the metrics drawn against the parameters: a position trajectory's or a mission's tracking
+    errors (horizontal RMS and largest, altitude RMS); otherwise each channel's settling time (channels with a
     step, when some trial settled), then each steady-state error whose 5–95 % spread over the trials flown to the
     end is above :data:`SPREAD_FLOOR`."""
     ok = flown_ok(table)
+    if "horizontal_rms" in table and np.isfinite(table["horizontal_rms"][ok]).any():
+        return [("horizontal_rms", "horizontal RMS error [m]"), ("horizontal_max", "largest horizontal error [m]"),
+                ("altitude_rms", "altitude RMS error [m]")]  # fmt: skip
     settles = [j for j in step_channels(table) if np.isfinite(table[f"{CHANNELS[j]}_settling_time"][ok]).any()]
     out = [(f"{CHANNELS[j]}_settling_time", f"{CHANNELS[j]} settling time [s]") for j in settles]
     for j, ch in enumerate(CHANNELS):
@@ -397,8 +401,10 @@ def parameter_metrics(table: dict[str, np.ndarray]) -> list[tuple[str, str]]:
 
 
 def varied_parameters(spec: SweepSpec, exclude: tuple[str, ...] = ()) -> list[str]:
-    """The parameters that vary (not fixed), sorted, less ``exclude``."""
-    return sorted(k for k, d in spec.vary.items() if d.kind != "fixed" and k not in exclude)
+    """The parameters that vary (not fixed), sorted, less ``exclude`` and the seeds (a seed draws a noise, it is not
+    a quantity to draw a metric against)."""
+    return sorted(k for k, d in spec.vary.items() if d.kind != "fixed" and k not in exclude
+                  and not k.endswith(".seed"))  # fmt: skip
 
 
 def _binned_median(x: np.ndarray, y: np.ndarray, bins: int = BINS) -> tuple[np.ndarray, np.ndarray]:
@@ -476,6 +482,12 @@ def _parameter_label(name: str) -> str:
     if group in ("initial", "reference"):
         unit = {"altitude": "m", "climb_rate": "m/s"}.get(key, "rad/s" if key.endswith("_rate") else "rad")
         return f"{name} [{unit}]"
+    if group == "wind":
+        unit = {"speed": "m/s", "gust": "m/s", "gust_start": "s", "gust_rise": "s",
+                "turbulence": "0 none … 3 severe"}.get(key, "deg")  # fmt: skip
+        return f"{name} [{unit}]"
+    if group == "sensors":
+        return f"{name} (× the preset's noise) [–]"
     unit = {"mass": "kg", "ixx": "kg·m²", "iyy": "kg·m²", "izz": "kg·m²", "arm_length": "m", "rotor_inertia": "kg·m²",
             "thrust_factor": "N·s²", "drag_factor": "N·m·s²"}.get(key, "SI")  # fmt: skip
     return f"{name} [{unit}]"

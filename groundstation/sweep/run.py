@@ -27,14 +27,15 @@ from autopilot.control_params import BACKSTEPPING, KINDS, PD
 from autopilot.params import commander_settings
 from groundstation.setpoint_grid import grid_setpoints
 from groundstation.sweep import engine
-from groundstation.sweep.spec import SweepSpec, draw, trial_arrays
+from groundstation.sweep.spec import SweepSpec, draw, trial_arrays, trial_preset
+from groundstation.sweep.trial_row import metrics_row
 from groundstation.vehicle import Setpoints
 from quadsitl.config import PositionParams
 from quadsitl.frames import PX4_HOME
 from quadsitl.state import Reference
 from sitl.integrators import EULER, INTEGRATORS
 
-FLOWN_METRICS = engine.METRICS[: engine.M_TICKS + 1]
+FLOWN_METRICS = engine.METRICS[: engine.M_TICKS + 1] + engine.POSITION_METRICS
 """The metrics columns of the table (:data:`groundstation.sweep.engine.METRICS` less the engine's bookkeeping)."""
 PERCENTILES = (5, 25, 50, 75, 95)
 WORST = 10  # trials listed in summary.json's "worst"
@@ -71,6 +72,9 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
         return ChunkResult(trials, params, metrics, arrays.admissible, arrays.reason, rows=rows)
     params = draw(spec, trials)
     arrays = trial_arrays(spec, params, len(trials))
+    if not spec.fused:
+        metrics, kept = fly_as_sim(spec, trials, arrays.admissible)
+        return ChunkResult(trials, params, metrics, arrays.admissible, arrays.reason, kept)
     n = len(trials)
     metrics = np.full((n, engine.METRICS_SIZE), math.nan)
     go = np.flatnonzero(arrays.admissible)
@@ -99,6 +103,32 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
     metrics[go] = out
     kept = {int(trials[row]): keep[slot].copy() for slot, row in enumerate(keep_rows)}
     return ChunkResult(trials, params, metrics, arrays.admissible, arrays.reason, kept)
+
+
+def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Trials the fused loop does not fly (a trajectory, a mission, sensors, wind: :attr:`SweepSpec.fused`), each as
+    ``quadsitl sim`` flies the trial's preset (:func:`groundstation.sweep.spec.trial_preset`), its row from its
+    telemetry by the metrics' one definition (:mod:`groundstation.sweep.trial_row`), as the SITL engine's: (the
+    metrics, engine.METRICS columns; the kept trajectories, engine.KEEP_SIZE columns)."""
+    from groundstation.offline import run_offline, telemetry_rows
+
+    metrics = np.full((len(trials), engine.METRICS_SIZE), math.nan)
+    kept: dict[int, np.ndarray] = {}
+    for i, k in enumerate(trials.tolist()):
+        if not admissible[i]:
+            continue
+        preset = trial_preset(spec, k)
+        results, _ = run_offline(preset, [spec.controller], spec.duration, trajectory=spec.trajectory or "step",
+                                 mission=spec.mission)  # fmt: skip
+        res = results[spec.controller]
+        if res.mission is not None and res.mission.where:
+            raise SweepError(f"sweep {spec.name!r}, trial {k}: {res.mission.where}")
+        metrics[i] = metrics_row(
+            telemetry_rows(res, rates=False), preset, spec.period, res.diverged_at, spec.mission is not None
+        )
+        if k in spec.keep:
+            kept[k] = np.column_stack([res.state, res.reference, res.inputs, res.forces])
+    return metrics, kept
 
 
 def setpoint_rows(r: np.ndarray) -> np.ndarray:
@@ -132,6 +162,12 @@ def warm_up(spec: SweepSpec | None = None) -> None:
         from groundstation.launcher import compile_once
 
         compile_once(None)
+        return
+    if spec is not None and not spec.fused:  # each trial a `quadsitl sim`: its loop, on the first trial's preset
+        from groundstation.offline import run_offline
+
+        run_offline(trial_preset(spec, 0), [spec.controller], spec.period, trajectory=spec.trajectory or "step",
+                    mission=spec.mission)  # fmt: skip
         return
     versions = VERSIONS if spec is None else [(KINDS[spec.controller], spec.preset.sim.substeps, _method(spec))]
     for kind, substeps, method in versions:
@@ -232,8 +268,8 @@ def assemble(
     for name in spec.vary:
         table[name] = np.concatenate([r.params[name] for r in results])[order]
     table["admissible"] = admissible
-    for j, name in enumerate(FLOWN_METRICS):
-        table[name] = metrics[:, j]
+    for name in FLOWN_METRICS:
+        table[name] = metrics[:, engine.METRICS.index(name)]
     table["diverged"] = metrics[:, engine.M_DIVERGED] == 1.0
     kept = {k: v for r in results for k, v in r.kept.items()}
     rows = {k: v for r in results for k, v in r.rows.items()}
@@ -266,11 +302,13 @@ def _num(x: float) -> float | None:
 
 
 def _badness(table: dict[str, np.ndarray], i: int) -> tuple:
-    """Sort key, worst first: diverged (earliest first), then the longest settling time over the channels with a
-    step (one that never settled counts as infinite), then the largest overshoot (settling times are whole ticks:
-    many trials share one)."""
+    """Sort key, worst first: diverged (earliest first), then, for a position trajectory or a mission, the largest
+    horizontal error; else the longest settling time over the channels with a step (one that never settled counts
+    as infinite), then the largest overshoot (settling times are whole ticks: many trials share one)."""
     if table["diverged"][i]:
         return (0, table["diverged_at"][i], 0.0)
+    if math.isfinite(table["horizontal_max"][i]):
+        return (1, -table["horizontal_max"][i], -table["horizontal_rms"][i])
     worst, overshoot = -math.inf, 0.0
     for ch in engine.CHANNELS:
         if math.isfinite(table[f"{ch}_overshoot_pct"][i]):  # the channel had a step
@@ -289,7 +327,7 @@ def summarize(result: SweepResult) -> dict:
     diverged = table["diverged"] & flown
     ok = flown & ~diverged
     metrics = {}
-    for name in (*FLOWN_METRICS[: 4 * engine.PER_CHANNEL], "saturation_time"):
+    for name in (*FLOWN_METRICS[: 4 * engine.PER_CHANNEL], "saturation_time", *engine.POSITION_METRICS):
         col = table[name][ok]
         finite = col[np.isfinite(col)]
         entry: dict[str, float | int | None] = {"undefined": int(col.size - finite.size)}
@@ -309,6 +347,7 @@ def summarize(result: SweepResult) -> dict:
             "settling_time": {ch: _num(table[f"{ch}_settling_time"][i]) for ch in engine.CHANNELS},
             "overshoot_pct": {ch: _num(table[f"{ch}_overshoot_pct"][i]) for ch in engine.CHANNELS},
             "steady_state_error": {ch: _num(table[f"{ch}_steady_state_error"][i]) for ch in engine.CHANNELS},
+            **{name: _num(table[name][i]) for name in engine.POSITION_METRICS},
         })  # fmt: skip
     n_flown = int(flown.sum())
     return {
@@ -318,6 +357,9 @@ def summarize(result: SweepResult) -> dict:
         "controller": spec.controller,
         "engine": spec.engine,
         "task": spec.task,
+        "trajectory": spec.trajectory,
+        "mission": None if spec.mission is None else str(spec.mission.path),
+        "state": spec.state,
         "duration": spec.duration,
         "period": spec.period,
         "seed": spec.seed,

@@ -24,19 +24,25 @@ from pathlib import Path
 import numpy as np
 
 from groundstation.launcher import FLY_DIVERGED
-from groundstation.metrics import outputs_from_columns, run_metrics, saturation_time
 from groundstation.sweep import engine
 from groundstation.sweep.spec import SweepSpec, draw, trial_arrays, trial_preset
+from groundstation.sweep.trial_row import metrics_row
 from groundstation.telemetry_csv import COLUMNS
 from quadsitl.config import preset_toml
 
 COL = {name: i for i, name in enumerate(COLUMNS)}
 
 
-def fly_command(preset: Path, duration: float, out: Path) -> list[str]:
-    """The ``quadsitl fly`` a trial is: lockstep, as fast as possible, no figures, nothing printed on success."""
+def fly_command(preset: Path, duration: float, out: Path, spec: SweepSpec | None = None) -> list[str]:
+    """The ``quadsitl fly`` a trial is: lockstep, as fast as possible, no figures, nothing printed on success; the
+    spec's trajectory or mission."""
+    flown = []
+    if spec is not None and spec.trajectory is not None:
+        flown = ["--trajectory", spec.trajectory]
+    elif spec is not None and spec.mission is not None:
+        flown = ["--mission", str(spec.mission.path)]
     return [sys.executable, "-m", "groundstation.cli", "fly", "--preset", str(preset), "--duration", repr(duration),
-            "--out", str(out), "--no-figures", "--quiet"]  # fmt: skip
+            "--out", str(out), "--no-figures", "--quiet", *flown]  # fmt: skip
 
 
 def fly_trial(spec: SweepSpec, trial: int, folder: Path, timeout: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -48,39 +54,19 @@ def fly_trial(spec: SweepSpec, trial: int, folder: Path, timeout: float | None =
     path.write_text(preset_toml(preset), encoding="utf-8")
     out = folder / "flight"
     wall = timeout if timeout is not None else 120.0 + 60.0 * spec.duration
-    r = subprocess.run(fly_command(path, spec.duration, out), capture_output=True, text=True, timeout=wall)
+    r = subprocess.run(fly_command(path, spec.duration, out, spec), capture_output=True, text=True, timeout=wall)
     if r.returncode not in (0, FLY_DIVERGED):
         tail = " | ".join(r.stderr.strip().splitlines()[-3:])
         raise RuntimeError(f"trial {trial}: quadsitl fly exited with status {r.returncode}: {tail}")
     # The trial's ticks: a flight that diverged while landing, after them, kept its landing's rows too.
-    rows = np.loadtxt(out / "telemetry.csv", delimiter=",", skiprows=1, ndmin=2)[: spec.ticks]
-    m = np.full(engine.METRICS_SIZE, math.nan)
-    c, a = preset.controller, preset.actuators
-    inputs = rows[:, COL["u1"] : COL["u4"] + 1]
-    forces = rows[:, COL["f1"] : COL["f4"] + 1]
-    m[engine.M_SATURATED] = saturation_time(inputs, forces, spec.period, (c.thrust_min, c.thrust_max),
-                                            (a.min_thrust, a.max_thrust))  # fmt: skip
-    for j in range(len(engine.CHANNELS)):
-        m[engine.PER_CHANNEL * j + engine.PEAK_U] = np.max(np.abs(inputs[:, j])) if len(rows) else 0.0
-    m[engine.M_YAW_TURNS] = 0.0
+    rows = np.loadtxt(out / "telemetry.csv", delimiter=",", skiprows=1, ndmin=2)
+    if spec.mission is None:
+        rows = rows[: spec.ticks]
     # A flight that diverged before its end; one whose landing, after it, diverged was flown whole (the batch
     # engine flies the trial's duration only).
-    if r.returncode == FLY_DIVERGED and len(rows) < spec.ticks:
-        diverged_at = json.loads((out / "metrics.json").read_text())["diverged_at"]
-        m[engine.M_DIVERGED], m[engine.M_DIVERGED_AT] = 1.0, diverged_at
-        m[engine.M_TICKS] = len(rows)
-        return m, rows
-    m[engine.M_DIVERGED] = 0.0
-    m[engine.M_TICKS] = len(rows)
-    t = rows[:, COL["t"]]
-    y = outputs_from_columns(*(rows[:, COL[k]] for k in ("altitude", "roll", "pitch", "yaw")))
-    ref = rows[:, COL["altitude_ref"] : COL["yaw_ref"] + 1]
-    metrics = run_metrics(t, y, ref, inputs)
-    for j, ch in enumerate(engine.CHANNELS):
-        for q, name in enumerate(engine.STEP_METRICS):
-            value = metrics[ch][name]
-            m[engine.PER_CHANNEL * j + q] = math.nan if value is None else value
-    return m, rows
+    diverged = r.returncode == FLY_DIVERGED and (spec.mission is not None or len(rows) < spec.ticks)
+    diverged_at = json.loads((out / "metrics.json").read_text())["diverged_at"] if diverged else None
+    return metrics_row(rows, preset, spec.period, diverged_at, spec.mission is not None), rows
 
 
 def fly_trials(spec: SweepSpec, trials: np.ndarray) -> tuple[dict, np.ndarray, object, dict[int, np.ndarray]]:

@@ -59,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from autopilot.control_params import KD, KP, POLES, control_array
+from autopilot.control_params import KD, KI_ALT, KI_XY, KP, POLES, control_array
 from autopilot.gains import GainError, stability_interval
 from quadsitl.config import DEFAULT_LIMITS as PLANT_LIMITS
 from quadsitl.config import (
@@ -67,7 +67,9 @@ from quadsitl.config import (
     ConfigError,
     InitialState,
     Preset,
+    SensorParams,
     Spec,
+    WindParams,
     check_value,
     initial_state,
     parse_preset,
@@ -121,6 +123,28 @@ REFERENCE = {
 }
 RATES = tuple(f"k{i + 1}" for i in range(8))
 PD_GAINS = tuple(f"kp{i + 1}" for i in range(4)) + tuple(f"kd{i + 1}" for i in range(4))
+INTEGRAL = ("ki_alt", "ki_xy")  # the position controller's integral rates k_I [1/s] ([position] integral)
+TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")  # wind.turbulence's values 0..3
+# wind.* (the preset's [wind], WindParams' field) and sensors.*: (the field, a test, what is allowed)
+WIND = {
+    "speed": ("speed_m_s", lambda v: 0.0 <= v <= 100.0, "a number in [0, 100] [m/s]"),
+    "from": ("from_deg", math.isfinite, "a finite number [deg, clockwise from north, where it blows from]"),
+    "turbulence": ("turbulence", lambda v: v in (0.0, 1.0, 2.0, 3.0), "0, 1, 2 or 3 (none, light, moderate, severe)"),
+    "gust": ("gust_m_s", lambda v: 0.0 <= v <= 100.0, "a number in [0, 100] [m/s]"),
+    "gust_from": ("gust_from_deg", math.isfinite, "a finite number [deg]"),
+    "gust_start": ("gust_start_s", lambda v: 0.0 <= v <= 3600.0, "a number in [0, 3600] [s after lift-off]"),
+    "gust_rise": ("gust_rise_s", lambda v: 0.0 < v <= 3600.0, "a number in (0, 3600] [s]"),
+    "seed": ("seed", lambda v: 0 <= v < 2**63, "a number in [0, 2^63) (its integer part seeds the turbulence)"),
+}
+SENSOR_NOISE = ("gyro_noise_density_rad_s_sqrt_hz", "gyro_random_walk_rad_s2_sqrt_hz", "gyro_turn_on_bias_rad_s",
+                "accel_noise_density_m_s2_sqrt_hz", "accel_random_walk_m_s3_sqrt_hz", "accel_turn_on_bias_m_s2",
+                "mag_noise_density_gauss_sqrt_hz", "mag_random_walk_gauss_s_sqrt_hz", "baro_noise_pa", "gps_xy_error_m",
+                "gps_z_error_m", "gps_xy_velocity_noise_m_s", "gps_z_velocity_noise_m_s")  # fmt: skip
+"""The sensor figures ``sensors.noise`` scales (every noise, random walk, turn-on bias and GPS error)."""
+SENSORS = {
+    "noise": (lambda v: 0.0 <= v <= 100.0, "a factor in [0, 100] on every noise figure of the preset's [sensors]"),
+    "seed": (lambda v: 0 <= v < 2**63, "a number in [0, 2^63) (its integer part seeds the sensors' noise)"),
+}
 
 
 def _allowed(name: str) -> tuple[Any, str] | None:
@@ -138,6 +162,12 @@ def _allowed(name: str) -> tuple[Any, str] | None:
         return math.isfinite, "a finite rate k [1/s] (pole λ = 1 − T·k)"
     if group == "gains" and key in PD_GAINS:
         return (lambda v: v >= 0.0), "a number >= 0"
+    if group == "gains" and key in INTEGRAL:
+        return (lambda v: 0.0 <= v <= 100.0), "an integral rate k_I in [0, 100] [1/s]"
+    if group == "wind" and key in WIND:
+        return WIND[key][1], WIND[key][2]
+    if group == "sensors" and key in SENSORS:
+        return SENSORS[key]
     if group == "initial" and key in INITIAL:
         return INITIAL[key][1], INITIAL[key][2]
     if group == "reference" and key in REFERENCE:
@@ -148,9 +178,11 @@ def _allowed(name: str) -> tuple[Any, str] | None:
 PARAMETERS = (
     *(f"{g}.{k}" for g in ("plant", "model", "mismatch") for k in VEHICLE),
     "mismatch.inertia",
-    *(f"gains.{k}" for k in RATES + PD_GAINS),
+    *(f"gains.{k}" for k in RATES + PD_GAINS + INTEGRAL),
     *(f"initial.{k}" for k in INITIAL),
     *(f"reference.{k}" for k in REFERENCE),
+    *(f"wind.{k}" for k in WIND),
+    *(f"sensors.{k}" for k in SENSORS),
 )
 """Every name a spec may vary."""
 
@@ -305,6 +337,7 @@ INADMISSIBLE = ("refuse", "record")
 DEFAULT_LIMITS = dict(zip(LIMIT_NAMES, PLANT_LIMITS))  # the plant process's (quadsitl.config.DEFAULT_LIMITS)
 MAX_TRIALS = 100_000_000
 
+STATES = ("truth", "sensors")  # what the autopilot flies on (sensors: the preset's [sensors], else the defaults)
 ENGINES = ("batch", "sitl")  # the batch engine (engine.py), or every trial a whole `quadsitl fly` (sitl_engine.py)
 TOP: dict[str, Spec] = {
     "preset": Spec("string", "a shipped preset's name or a preset TOML's path"),
@@ -318,6 +351,19 @@ TOP: dict[str, Spec] = {
     ),
     "description": Spec("string", "a string", required=False, default=""),
     "engine": Spec("string", f"one of: {', '.join(ENGINES)}", lambda v: v in ENGINES, required=False, default="batch"),
+    "trajectory": Spec(
+        "string",
+        "a trajectory `quadsitl fly --trajectory` flies (circle[:...], figure8[:...], "
+        "hold[:...], a CSV file: the spec's folder is its base)",
+        required=False,
+    ),
+    "mission": Spec(
+        "string",
+        "a mission file `quadsitl fly --mission` flies (.plan, waypoint CSV, QGC WPL 110; "
+        "the spec's folder is its base)",
+        required=False,
+    ),
+    "state": Spec("string", "one of: truth, sensors", lambda v: v in STATES, required=False),
 }
 LIMIT_SPEC = Spec("number", "a finite number > 0", lambda v: 0 < v < math.inf)
 
@@ -343,6 +389,18 @@ class SweepSpec:
     engine: str = "batch"  # ENGINES
     text: str = field(default="", compare=False, repr=False)  # the spec's TOML, as read
     preset_text: str = field(default="", compare=False, repr=False)  # its preset's TOML, as read
+    trajectory: str | None = None  # what `quadsitl fly --trajectory` would fly (None: the task's reference)
+    mission: Any = None  # the mission file, read and checked (groundstation.mission_files.Mission), or None
+    state: str = "truth"  # STATES
+
+    @property
+    def fused(self) -> bool:
+        """The batch engine flies its trials in one compiled loop (:func:`groundstation.sweep.engine.run_chunk`):
+        the task's constant reference on the true state in calm air. Any other spec (a trajectory, a mission,
+        sensors, wind) has each trial flown as ``quadsitl sim`` flies the trial's preset (:func:`trial_preset`),
+        one after the other (:mod:`groundstation.sweep.run`)."""
+        calm = self.preset.wind == WindParams() and not any(k.startswith(("wind.", "sensors.")) for k in self.vary)
+        return self.trajectory is None and self.mission is None and self.state == "truth" and calm
 
     @property
     def period(self) -> float:
@@ -452,7 +510,14 @@ def parse_spec(
     except ConfigError as exc:
         raise ConfigError(f"{where}: preset = {top['preset']!r}: {exc}") from None
     controller = top["controller"] or preset.controller.type
-    duration = top["duration"] or preset.sim.duration
+    trajectory, mission, natural = _flown(top, base, preset, where)
+    # What the autopilot flies on: the spec's state, else the preset's ([sensors] or not).
+    top["state"] = top["state"] or ("sensors" if preset.sensors is not None else "truth")
+    if top["state"] == "sensors" and preset.sensors is None:
+        preset = replace(preset, sensors=SensorParams())
+    elif top["state"] == "truth":
+        preset = replace(preset, sensors=None)
+    duration = top["duration"] or natural or preset.sim.duration
 
     limits = dict(DEFAULT_LIMITS)
     table = raw.get("limits", {})
@@ -489,8 +554,11 @@ def parse_spec(
         if key in ("mismatch.ixx", "mismatch.iyy", "mismatch.izz") and "mismatch.inertia" in vary:
             raise ConfigError(f"{where}: vary.{key} with vary.mismatch.inertia: give one factor for all three, or "
                               "one per axis")  # fmt: skip
-        if group == "gains" and (param in RATES) != (controller == "backstepping"):
-            has = "k1..k8" if controller == "backstepping" else "kp1..kp4, kd1..kd4"
+        pd_alt = param == "ki_alt" and controller == "pd"  # the PD's altitude channel has no integral
+        if (
+            group == "gains" and param not in INTEGRAL and (param in RATES) != (controller == "backstepping")
+        ) or pd_alt:
+            has = "k1..k8, ki_alt, ki_xy" if controller == "backstepping" else "kp1..kp4, kd1..kd4, ki_xy"
             raise ConfigError(f"{where}: vary.{key}: the {controller} controller has no such gain; its gains: {has}")
 
     keep_raw = raw.get("keep", [])
@@ -498,8 +566,13 @@ def parse_spec(
                                                  for k in keep_raw):  # fmt: skip
         raise ConfigError(f"{where}: keep = {keep_raw!r}: expected a list of trial numbers (integers >= 0)")
     keep = tuple(sorted(set(keep_raw)))
+    for key in vary:
+        if key.startswith("sensors.") and top["state"] != "sensors":
+            raise ConfigError(f"{where}: vary.{key} with state = \"truth\": the autopilot flies on the true state; "
+                              "set state = \"sensors\"")  # fmt: skip
     spec = SweepSpec(name, preset, controller, top["task"], duration, top["seed"], 1, keep, top["inadmissible"],
-                     limits, vary, top["description"], where, top["engine"], text, preset_text)  # fmt: skip
+                     limits, vary, top["description"], where, top["engine"], text, preset_text, trajectory, mission,
+                     top["state"])  # fmt: skip
     trials = top["trials"] or spec.grid_size
     _check_trials(trials, spec.grid_size, keep, f"{where}: trials")
     if round(duration / spec.period) < 1:
@@ -515,6 +588,44 @@ def parse_spec(
                 raise ConfigError(f"{where}: inadmissible gains{which}: {exc}; or set inadmissible = \"record\" "
                                   "to fly the others and record these") from None  # fmt: skip
     return spec
+
+
+def _flown(top: dict[str, Any], base: Path | None, preset: Preset, where: str) -> tuple[str | None, Any, float | None]:
+    """The spec's ``trajectory`` or ``mission``, checked as ``quadsitl fly`` checks them (a file's path relative to
+    the spec's folder): (the trajectory, the mission, the duration they give: a position trajectory's own length, a
+    mission's bound)."""
+    from groundstation import trajectories
+    from groundstation.mission_files import MISSION_DURATION
+    from groundstation.mission_files import load as load_mission
+    from quadsitl.cli_util import UsageError
+
+    trajectory, mission_file = top.get("trajectory"), top.get("mission")
+    if trajectory is not None and mission_file is not None:
+        raise ConfigError(f"{where}: trajectory and mission: a trial flies one or the other")
+    for key, value in (("trajectory", trajectory), ("mission", mission_file)):
+        if value is not None and top["task"] != "step":
+            raise ConfigError(f"{where}: {key} = {value!r} with task = {top['task']!r}: the {key} is what is flown; "
+                              "leave task out")  # fmt: skip
+
+    def located(name: str) -> str:
+        path = Path(name)
+        if base is not None and not path.is_absolute() and (base / path).is_file():
+            return str(base / path)
+        return name
+
+    try:
+        if trajectory is not None:
+            if ":" not in trajectory and Path(located(trajectory)).is_file():
+                trajectory = located(trajectory)
+            path = trajectories.make(trajectory, preset.reference)
+            natural = path.duration if isinstance(path, trajectories.PositionTrajectory) else None
+            return trajectory, None, natural
+        if mission_file is not None:
+            return None, load_mission(located(mission_file)), MISSION_DURATION
+    except UsageError as exc:
+        key = "trajectory" if trajectory is not None else "mission"
+        raise ConfigError(f"{where}: {key} = {top[key]!r}: {exc}") from None
+    return None, None, None
 
 
 def check_engine(spec: SweepSpec) -> SweepSpec:
@@ -651,6 +762,9 @@ def trial_arrays(spec: SweepSpec, params: dict[str, np.ndarray], n: int) -> Tria
     for i, k in enumerate(RATES):
         if f"gains.{k}" in params:
             c[:, POLES + i] = 1.0 - T * params[f"gains.{k}"]
+    for k, index in zip(INTEGRAL, (KI_ALT, KI_XY)):
+        if f"gains.{k}" in params:
+            c[:, index] = params[f"gains.{k}"]
     for j in range(4):
         if f"gains.kp{j + 1}" in params:
             c[:, KP + j] = params[f"gains.kp{j + 1}"]
@@ -707,7 +821,7 @@ def trial_preset(spec: SweepSpec, trial: int) -> Preset:
         return out
 
     group = {g: {k.partition(".")[2]: v for k, v in params.items() if k.partition(".")[0] == g}
-             for g in ("plant", "model", "mismatch", "gains", "initial", "reference")}  # fmt: skip
+             for g in ("plant", "model", "mismatch", "gains", "initial", "reference", "wind", "sensors")}  # fmt: skip
     vehicle = replace(p.vehicle, **vehicle_fields(group["plant"], p.vehicle))
     # The model: the preset's [model] keys over the plant, then the spec's model.* and mismatch.* (× the plant's).
     model = replace(vehicle, **{k: getattr(p.autopilot_model, k) for k, _ in p.model})
@@ -739,6 +853,19 @@ def trial_preset(spec: SweepSpec, trial: int) -> Preset:
     kp = tuple(group["gains"].get(f"kp{j + 1}", x) for j, x in enumerate(c.pd_kp))
     kd = tuple(group["gains"].get(f"kd{j + 1}", x) for j, x in enumerate(c.pd_kd))
     c = replace(c, pd_kp=kp, pd_kd=kd)
+    integral = tuple(group["gains"].get(k, x) for k, x in zip(INTEGRAL, p.position.integral))
+    # The air and the sensors: the preset's, with the drawn values over them (a seed: the draw's integer part).
+    wind = {WIND[k][0]: v for k, v in group["wind"].items()}
+    if "turbulence" in wind:
+        wind["turbulence"] = TURBULENCE_LEVELS[int(wind["turbulence"])]
+    if "seed" in wind:
+        wind["seed"] = int(wind["seed"])
+    sensors = p.sensors
+    if sensors is not None and group["sensors"]:
+        scale = group["sensors"].get("noise", 1.0)
+        sensors = replace(sensors, **{f: getattr(sensors, f) * scale for f in SENSOR_NOISE})
+        if "seed" in group["sensors"]:
+            sensors = replace(sensors, seed=int(group["sensors"]["seed"]))
     drawn = ", ".join(f"{k} = {v!r}" for k, v in params.items())
     return replace(
         p,
@@ -750,6 +877,9 @@ def trial_preset(spec: SweepSpec, trial: int) -> Preset:
         controller=c,
         reference=reference,
         initial=initial,
+        position=replace(p.position, integral=integral),
+        wind=replace(p.wind, **wind),
+        sensors=sensors,
     )
 
 
