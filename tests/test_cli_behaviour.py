@@ -93,7 +93,8 @@ def test_a_bad_wind_option_is_one_line_naming_the_option_the_key_and_what_is_all
     [
         ("circle:radius=-2", "--trajectory 'circle:radius=-2': radius = -2: expected a number in (0, 1000] m"),
         ("figure8:period=x", "--trajectory 'figure8:period=x': period='x' is not a number; expected figure8[:size=M]"),
-        ("helix", "--trajectory 'helix': expected step, ramp, sine, circle[:...], figure8[:...] or an existing CSV"),
+        ("helix", "--trajectory 'helix': expected step, ramp, sine, circle[:...], figure8[:...], hold[:...] or an "
+                  "existing CSV"),
         ("BAD_CSV", "bad.csv, line 3, column altitude: 'high' is not a number"),
     ],
 )  # fmt: skip

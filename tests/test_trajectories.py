@@ -108,13 +108,30 @@ def test_the_attitude_trajectories_are_unchanged():
         ("circle:altitude=nan", "altitude='nan' is not a number"),
         ("circle:radius=50,period=10", "a peak speed of 31.4 m/s exceeds 12 m/s (PX4's MPC_XY_VEL_MAX default)"),
         ("figure8:size=20,period=14", "a peak speed of 12.7 m/s exceeds 12 m/s"),
-        ("spiral", "--trajectory 'spiral': expected step, ramp, sine, circle[:...], figure8[:...] or an existing"),
+        (
+            "spiral",
+            "--trajectory 'spiral': expected step, ramp, sine, circle[:...], figure8[:...], hold[:...] or an existing",
+        ),
+        ("hold:altitude=-1", "--trajectory 'hold:altitude=-1': altitude = -1: expected a number in (0, 10000] m"),
+        ("hold:duration=0", "duration = 0: expected a number in (0, 3600] s"),
+        ("hold:yaw=4", "yaw = 4: expected a number in [-3.14159, 3.14159] rad"),
+        ("hold:yaw=west", "yaw = nan: expected a number"),
+        ("hold:speed=1", "unknown parameter 'speed=1'; expected hold[:altitude=M][,duration=S][,yaw=RAD]"),
     ],
 )
 def test_bad_shapes_are_refused_naming_the_option_the_value_and_what_is_allowed(spec, message):
     with pytest.raises(UsageError) as err:
         tr.make(spec, PAPER)
     assert message in str(err.value)
+
+
+def test_hold_is_a_fixed_position_setpoint_above_home_for_its_duration():
+    hold = tr.make("hold:altitude=3,duration=7,yaw=0.5", PAPER)
+    assert isinstance(hold, tr.PositionTrajectory) and hold.duration == 7.0
+    for t in (0.0, 3.3, 100.0):
+        assert hold(t) == tr.PositionSetpoint(0.0, 0.0, 3.0, 0.5, 0.0, 0.0, 0.0)
+    plain = tr.make("hold", PAPER)
+    assert plain(1.0).altitude == PAPER.altitude and plain(1.0).yaw == 0.0 and plain.duration == 20.0
 
 
 def test_a_shape_at_altitude_zero_asks_for_an_altitude():
