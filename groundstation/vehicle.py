@@ -126,20 +126,36 @@ def setpoints_due(k: int, cm: np.ndarray, sp_ticks: np.ndarray, sp_values: np.nd
 
 
 @jit(inline=True)
-def see(cm: np.ndarray, x: np.ndarray) -> None:
-    """The commander sees the state ``x`` (12, VehicleState order) at tick 0, before any tick: as the processes'
-    commander has seen the vehicle on the ground before it is armed."""
-    cmd.update(cm, 0, 0.0, x[0], x[1], -x[2], x[3], x[4], -x[5], x[8])
+def see(cm: np.ndarray, x: np.ndarray, period: float) -> None:
+    """The commander sees the state ``x`` (12, VehicleState order) at tick −1, before the first: as the processes'
+    commander has seen the vehicle on the ground, the tick before it is armed, so the first tick flown is a period
+    after it (an auto mode's reference moves from the first tick on, as in ``quadsitl fly``)."""
+    cmd.update(cm, -1, -period, x[0], x[1], -x[2], x[3], x[4], -x[5], x[8])
+
+
+@jit(inline=True)
+def record(rows: np.ndarray, j: int, s: tuple, st: np.ndarray, cm: np.ndarray, mem: np.ndarray) -> None:
+    """Row ``j`` of ``rows`` (R_*) for the tick just flown: the truth ``s`` = x(k) (12) it started from, what the
+    autopilot flew on, the reference shown (:func:`autopilot.tick.reference_shown`), u1..u4 and the forces."""
+    for i in range(12):
+        rows[j, R_STATE + i] = s[i]
+        rows[j, R_SEEN + i] = st[i]
+    shown = reference_shown(cm, mem)
+    for i in range(4):
+        rows[j, R_REF + i] = shown[i]
+        rows[j, R_INPUTS + i] = mem[MEM_U + i]
+        rows[j, R_FORCES + i] = mem[MEM_FORCES + i]
+    rows[j, R_XY_REF], rows[j, R_XY_REF + 1] = shown[4], shown[5]
 
 
 @jit
-def fly_ticks(first: int, n: int, record: bool, kind: int, period: float, substeps: int, method: int,
+def fly_ticks(first: int, n: int, recording: bool, kind: int, period: float, substeps: int, method: int,
               plant: tuple, sens: tuple, ap: tuple, est: tuple, home: tuple, f_min: float, f_max: float,
               sp_ticks: np.ndarray, sp_values: np.ndarray, sp_next: np.ndarray, rows: np.ndarray) -> int:  # fmt: skip
     """Ticks ``first`` .. ``first`` + n − 1 of the vehicle: at each, the offboard setpoints made for it or before
     (``sp_ticks``, ``sp_values``: :class:`Setpoints`; ``sp_next``[0] the first not yet flown) go to the commander, as
     the autopilot's handlers set them (cmd.SP_X..SP_YAW_RATE, stamped with the commander's time), then the tick
-    (:func:`vehicle_tick`). With ``record``, a state x(k) outside the bounds (:func:`sitl.plant.inside`) ends the
+    (:func:`vehicle_tick`). With ``recording``, a state x(k) outside the bounds (:func:`sitl.plant.inside`) ends the
     loop before its tick, and each tick's row goes to rows[k − first] (R_*). Returns the number of ticks flown (n
     unless the state diverged)."""
     w, cm = plant[0], ap[1]
@@ -147,30 +163,20 @@ def fly_ticks(first: int, n: int, record: bool, kind: int, period: float, subste
     for j in range(n):
         k = first + j
         x = w[W_X:W_MOTORS]
-        if record and not inside((x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11]),
-                                 DEFAULT_LIMITS):  # fmt: skip
+        s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
+        if recording and not inside(s, DEFAULT_LIMITS):
             return j
         setpoints_due(k, cm, sp_ticks, sp_values, sp_next)
-        if record:
-            for i in range(12):
-                rows[j, R_STATE + i] = x[i]
         vehicle_tick(k, kind, period, substeps, method, plant, sens, ap, est, home, f_min, f_max)
-        if record:
-            for i in range(12):
-                rows[j, R_SEEN + i] = st[i]
-            shown = reference_shown(cm, mem)
-            for i in range(4):
-                rows[j, R_REF + i] = shown[i]
-                rows[j, R_INPUTS + i] = mem[MEM_U + i]
-                rows[j, R_FORCES + i] = mem[MEM_FORCES + i]
-            rows[j, R_XY_REF], rows[j, R_XY_REF + 1] = shown[4], shown[5]
+        if recording:
+            record(rows, j, s, st, cm, mem)
     return n
 
 
 @jit
-def see_state(cm: np.ndarray, x: np.ndarray) -> None:
+def see_state(cm: np.ndarray, x: np.ndarray, period: float) -> None:
     """:func:`see`, from Python."""
-    see(cm, x)
+    see(cm, x, period)
 
 
 @jit
@@ -293,7 +299,7 @@ class Vehicle:
         """Before the first tick, the commander has seen nothing: give it the plant's initial state (as the processes'
         commander has seen the vehicle on the ground before it is armed)."""
         if self.tick == 0:
-            see_state(self.commander.cm, self.plant.x)
+            see_state(self.commander.cm, self.plant.x, self.period)
 
     def start_offboard(self, setpoints: Setpoints) -> None:
         """Arm in offboard on the setpoints given (those for ticks up to now go to the commander at once), as

@@ -42,8 +42,18 @@ import numpy as np
 from autopilot import commander as cmd
 from autopilot.control_params import BACKSTEPPING, MEM_FORCES, MEM_SIZE, MEM_U, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
-from autopilot.tick import reference_shown
-from groundstation.vehicle import SP_FIELDS, see, setpoints_due, vehicle_tick
+from groundstation.vehicle import (
+    R_FORCES,
+    R_INPUTS,
+    R_REF,
+    R_STATE,
+    ROW_SIZE,
+    SP_FIELDS,
+    record,
+    see,
+    setpoints_due,
+    vehicle_tick,
+)
 from quadsitl import codec, hil
 from quadsitl.config import (
     DEFAULT_LIMITS as DEFAULT_LIMITS,  # divergence bounds: the plant process's (sitl.plant.inside)
@@ -82,8 +92,9 @@ METRICS = (
 METRICS_SIZE = len(METRICS)
 
 
-# A kept trajectory's columns per tick: the state (12), the reference (4), u1..u4, the commanded forces (4).
-K_STATE, K_REF, K_INPUTS, K_FORCES, KEEP_SIZE = 0, 12, 16, 20, 24
+# A kept trajectory's columns per tick: sim's rows (groundstation.vehicle.record): the state (12), what the
+# autopilot saw (12), the reference (4), x and y flown (2), u1..u4, the commanded forces (4).
+K_STATE, K_REF, K_INPUTS, K_FORCES, KEEP_SIZE = R_STATE, R_REF, R_INPUTS, R_FORCES, ROW_SIZE
 
 TWO_PI = 2.0 * math.pi
 
@@ -141,7 +152,7 @@ def _fly(
     for j in range(table.shape[0]):
         table[j, :] = sp
     sp_next[0] = 0
-    see(cm, x0)
+    see(cm, x0, period)
     setpoints_due(0, cm, sp_ticks, table, sp_next)
     cmd.enter(cm, cmd.OFFBOARD)
     cmd.arm(cm)
@@ -182,13 +193,7 @@ def _fly(
         u = (mem[MEM_U], mem[MEM_U + 1], mem[MEM_U + 2], mem[MEM_U + 3])
         forces = (mem[MEM_FORCES], mem[MEM_FORCES + 1], mem[MEM_FORCES + 2], mem[MEM_FORCES + 3])
         if kept:
-            for i in range(12):
-                keep[k, K_STATE + i] = s[i]
-            shown = reference_shown(cm, mem)
-            for i in range(4):
-                keep[k, K_REF + i] = shown[i]
-                keep[k, K_INPUTS + i] = u[i]
-                keep[k, K_FORCES + i] = forces[i]
+            record(keep, k, s, st, cm, mem)
         # ---- the row's metrics ---------------------------------------------------------------------------
         yaw_fix += _unwrap_step(yaw_raw, s[8])
         yaw_raw = s[8]

@@ -126,8 +126,9 @@ def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> t
         metrics[i] = metrics_row(
             telemetry_rows(res, rates=False), preset, spec.period, res.diverged_at, spec.mission is not None
         )
-        if k in spec.keep:
-            kept[k] = np.column_stack([res.state, res.reference, res.inputs, res.forces])
+        if k in spec.keep:  # engine.KEEP_SIZE columns: sim's rows (groundstation.vehicle.record)
+            seen = res.state if res.estimate is None else res.estimate
+            kept[k] = np.column_stack([res.state, seen, res.reference, res.position_reference, res.inputs, res.forces])
     return metrics, kept
 
 
