@@ -189,3 +189,18 @@ def test_sim_mission_that_overruns_duration_fails_and_keeps_what_was_flown(tmp_p
     assert len(read_csv(out / "telemetry.csv")["t"]) == 2000
     doc = json.loads((out / "mission.json").read_text())
     assert doc["disarmed_t"] is None and [x["seq"] for x in doc["reached"]] == [0]  # took off, on the way north
+
+
+def test_a_disarmed_vehicle_records_no_command_and_starts_its_integrators_afresh():
+    """Disarmed, the autopilot's tick zeroes its command, forces and integrators, and the rows say so (a numba
+    inlining bug once dropped that assignment in sim's loop, and the last command stayed in the record)."""
+    from autopilot.control_params import MEM_FORCES, MEM_U, MEM_ZETA
+    from groundstation.vehicle import R_FORCES, R_INPUTS, Vehicle
+
+    preset = load_preset("x500")
+    ctl = make_controller(preset, "backstepping")
+    v = Vehicle(preset, ctl.kind, ctl.v, ctl.c)
+    v.mem[:] = 7.0  # what an earlier flight might have left
+    rows, flown = v.fly(3)
+    assert flown == 3 and not rows[:, R_INPUTS : R_FORCES + 4].any()
+    assert not v.mem[MEM_U : MEM_FORCES + 4].any() and not v.mem[MEM_ZETA : MEM_ZETA + 3].any()
