@@ -37,7 +37,7 @@ def make_controller(
         lam = preset.poles()
     T = preset.sim.period
     p = preset.position
-    if position_loop:  # the flight controller flies the horizontal loop; `sim`'s attitude experiments do not
+    if position_loop:  # the horizontal loop is flown: not by an attitude experiment (the paper's)
         check_position_gains(p.gains, p.integral, rates_from_poles(lam[2:6], T), T)
     if kind == "pd":  # the backstepping's poles ride along: the autopilot switches controllers (CTL_TYPE)
         return PDController(preset.autopilot_model, c.pd_kp, c.pd_kd, c.max_tilt, c.thrust_min, c.thrust_max, T, lam, p)
