@@ -30,7 +30,18 @@ from groundstation.metrics import channel_outputs, estimate_rms, position_metric
 from groundstation.mission_files import MISSION_DURATION, Mission
 from groundstation.setpoint_grid import grid_setpoints
 from groundstation.telemetry_csv import rows_from_arrays, write_csv
-from groundstation.vehicle import R_FORCES, R_INPUTS, R_REF, R_SEEN, R_STATE, R_XY_REF, Setpoints, Vehicle, ground_ticks
+from groundstation.vehicle import (
+    R_FORCES,
+    R_INPUTS,
+    R_REF,
+    R_SEEN,
+    R_STATE,
+    R_XY_REF,
+    ROW_SIZE,
+    Setpoints,
+    Vehicle,
+    ground_ticks,
+)
 from quadsitl.cli_util import UsageError
 from quadsitl.compiled_frames import euler_rates_to_body_rates
 from quadsitl.config import Preset
@@ -95,6 +106,15 @@ def result_of(vehicle: Vehicle, rows: np.ndarray, diverged: bool) -> SimResult:
                      rows[:, R_XY_REF : R_XY_REF + 2])  # fmt: skip
 
 
+def rows_of(res: SimResult) -> np.ndarray:
+    """The flight's rows as :func:`groundstation.vehicle.record` lays them out (R_*; :func:`result_of`'s inverse):
+    the sweeps' kept trajectories."""
+    seen = res.state if res.estimate is None else res.estimate
+    rows = np.column_stack([res.state, seen, res.reference, res.position_reference, res.inputs, res.forces])
+    assert rows.shape[1] == ROW_SIZE
+    return rows
+
+
 def fly_mission(vehicle: Vehicle, mission: Mission, duration: float,
                 progress: Callable[[float], None] | None = None) -> SimResult:  # fmt: skip
     """Fly ``mission`` as ``quadsitl fly --mission`` flies it: stored as an upload stores it (each item through the
@@ -111,9 +131,11 @@ def fly_mission(vehicle: Vehicle, mission: Mission, duration: float,
     vehicle.fly(ground_ticks(vehicle.preset), record=False)
     vehicle.seen()
     first = vehicle.tick
-    for ok, why in (c.arm(), missions.start(c, c.now)[:2]):
-        if not ok:
-            raise UsageError(f"--mission {mission.path}: {why}")
+    ok, why = c.arm()
+    if ok:
+        ok, why, _ = missions.start(c, c.now)
+    if not ok:
+        raise UsageError(f"--mission {mission.path}: {why}")
     reached: list[dict] = []
 
     def after_tick() -> bool:

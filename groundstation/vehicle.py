@@ -36,11 +36,10 @@ from autopilot.params import commander_settings
 from autopilot.tick import autopilot_step, estimate, reference_shown
 from groundstation.setpoint_grid import POSITION_VELOCITY_YAW
 from quadsitl import codec, hil
-from quadsitl.config import DEFAULT_LIMITS, SENSOR_GROUND_S, Preset
+from quadsitl.config import DEFAULT_LIMITS, SENSOR_GROUND_S, PositionParams, Preset
 from quadsitl.frames import PX4_HOME
 from quadsitl.jit import DISABLED, jit
 from quadsitl.state import Reference, VehicleState
-from quadsitl.wire import Mode
 from sitl import tick as plant_tick
 from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X, Plant, inside, step_arrays
 
@@ -134,6 +133,21 @@ def see(cm: np.ndarray, x: np.ndarray, period: float) -> None:
 
 
 @jit(inline=True)
+def arm_offboard(k: int, cm: np.ndarray, x: np.ndarray, period: float, sp_ticks: np.ndarray, sp_values: np.ndarray,
+                 sp_next: np.ndarray) -> None:  # fmt: skip
+    """Armed in offboard at tick ``k`` as ``quadsitl fly``'s ground station arms the vehicle on its ground hold:
+    the setpoints due first (the stream is then fresh, so neither the switch nor the arming can be refused), then
+    offboard, then armed (:meth:`autopilot.commander.Commander.set_mode` and :meth:`~.Commander.arm` change the
+    state so, after their checks). Before the first tick (k = 0) the commander first sees the state ``x``
+    (:func:`see`)."""
+    if k == 0:
+        see(cm, x, period)
+    setpoints_due(k, cm, sp_ticks, sp_values, sp_next)
+    cmd.enter(cm, cmd.OFFBOARD)
+    cmd.arm(cm)
+
+
+@jit(inline=True)
 def record(rows: np.ndarray, j: int, s: tuple, st: np.ndarray, cm: np.ndarray, mem: np.ndarray) -> None:
     """Row ``j`` of ``rows`` (R_*) for the tick just flown: the truth ``s`` = x(k) (12) it started from, what the
     autopilot flew on, the reference shown (:func:`autopilot.tick.reference_shown`), u1..u4 and the forces."""
@@ -173,16 +187,10 @@ def fly_ticks(first: int, n: int, recording: bool, kind: int, period: float, sub
     return n
 
 
-@jit
-def see_state(cm: np.ndarray, x: np.ndarray, period: float) -> None:
-    """:func:`see`, from Python."""
-    see(cm, x, period)
-
-
-@jit
-def due_now(k: int, cm: np.ndarray, sp_ticks: np.ndarray, sp_values: np.ndarray, sp_next: np.ndarray) -> None:
-    """:func:`setpoints_due`, from Python."""
-    setpoints_due(k, cm, sp_ticks, sp_values, sp_next)
+def commander_for(position: PositionParams) -> Commander:
+    """The autopilot's commander, with the limits its auto modes share with the position loop (``position``), as
+    the autopilot process starts it."""
+    return Commander(commander_settings(position, CommanderSettings()))
 
 
 @dataclass
@@ -242,7 +250,7 @@ class Vehicle:
         pio = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
         pio[plant_tick.SENSING] = 1 if self.sensing else 0
         self.plant_arrays = (p.work, p.v, p.a, p.air_rng, pio, np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8))
-        self.commander = Commander(commander_settings(preset.position, CommanderSettings()))
+        self.commander = commander_for(preset.position)
         self.st = np.zeros(codec.DECODED_SIZE)
         self.mem = np.zeros(MEM_SIZE)
         self.ap = (self.st, self.commander.cm, self.mem, np.asarray(v, dtype=float), np.asarray(c, dtype=float),
@@ -299,18 +307,13 @@ class Vehicle:
         """Before the first tick, the commander has seen nothing: give it the plant's initial state (as the processes'
         commander has seen the vehicle on the ground before it is armed)."""
         if self.tick == 0:
-            see_state(self.commander.cm, self.plant.x, self.period)
+            see(self.commander.cm, self.plant.x, self.period)
 
-    def start_offboard(self, setpoints: Setpoints) -> None:
-        """Arm in offboard on the setpoints given (those for ticks up to now go to the commander at once), as
-        ``quadsitl fly``'s ground station does once the vehicle is on its ground hold: setpoints first, offboard,
-        arm. The commander takes the state it last saw (before any tick, the plant's initial state)."""
-        self.seen()
-        self.sp, self.sp_next[0] = setpoints, 0
-        due_now(self.tick, self.commander.cm, setpoints.ticks, setpoints.values, self.sp_next)
-        for ok, why in (self.commander.set_mode(Mode.OFFBOARD), self.commander.arm()):
-            if not ok:
-                raise RuntimeError(f"the vehicle refused to fly offboard: {why}")
+    def start_offboard(self, sp: Setpoints) -> None:
+        """Arm in offboard on the setpoints ``sp`` (those for ticks up to now go to the commander at once), as
+        ``quadsitl fly``'s ground station does once the vehicle is on its ground hold (:func:`arm_offboard`)."""
+        self.sp, self.sp_next[0] = sp, 0
+        arm_offboard(self.tick, self.commander.cm, self.plant.x, self.period, sp.ticks, sp.values, self.sp_next)
 
 
 def ground_ticks(preset: Preset) -> int:

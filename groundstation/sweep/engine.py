@@ -49,8 +49,8 @@ from groundstation.vehicle import (
     R_STATE,
     ROW_SIZE,
     SP_FIELDS,
+    arm_offboard,
     record,
-    see,
     setpoints_due,
     vehicle_tick,
 )
@@ -59,13 +59,12 @@ from quadsitl.config import (
     DEFAULT_LIMITS as DEFAULT_LIMITS,  # divergence bounds: the plant process's (sitl.plant.inside)
 )
 from quadsitl.config import LIMITS_SIZE as LIMITS_SIZE
-from quadsitl.config import SensorParams, WindParams
+from quadsitl.config import WindParams
 from quadsitl.frames import PX4_HOME as HOME
 from quadsitl.jit import constants, jit
 from quadsitl.param_arrays import ACTUATOR_SIZE, F_MAX, F_MIN, VEHICLE_SIZE
 from sitl import tick as plant_tick
 from sitl.plant import OUT_ON_GROUND, W_AIR, W_MOTORS, W_OUT, W_X, WORK_SIZE, inside
-from sitl.sensors import Sensors
 from sitl.wind import air_arrays
 
 CHANNELS = ("altitude", "roll", "pitch", "yaw")
@@ -152,10 +151,7 @@ def _fly(
     for j in range(table.shape[0]):
         table[j, :] = sp
     sp_next[0] = 0
-    see(cm, x0, period)
-    setpoints_due(0, cm, sp_ticks, table, sp_next)
-    cmd.enter(cm, cmd.OFFBOARD)
-    cmd.arm(cm)
+    arm_offboard(0, cm, x0, period, sp_ticks, table, sp_next)
     plant = (w, constants(v, VEHICLE_SIZE), constants(a, ACTUATOR_SIZE), air_rng, pio, datagram)
     # The autopilot's parameters as tuples: what depends on them alone is computed once, not on every tick.
     ap = (st, cm, mem, constants(vm, VEHICLE_SIZE), constants(c, CONTROL_SIZE), truth, frame)
@@ -280,12 +276,11 @@ def context(cm0: np.ndarray, sp_ticks: np.ndarray) -> tuple:
     (:class:`groundstation.vehicle.Vehicle`'s, in calm air and on the true state), ``cm0`` the commander as it
     starts (its settings), ``sp_ticks`` the ticks the setpoint is sent at (``quadsitl fly``'s grid)."""
     air0, rng0 = air_arrays(WindParams())
-    sensors = Sensors(SensorParams(), 0.001, 9.80665, HOME)  # truth: passed, never read
     pio = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
     return (np.zeros(WORK_SIZE), rng0.copy(), pio,
             np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8), np.zeros(codec.DECODED_SIZE), np.zeros(cmd.SIZE),
             np.zeros(MEM_SIZE), np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8),
-            np.asarray(cm0, dtype=np.float64), air0, rng0, sensors.arrays,
+            np.asarray(cm0, dtype=np.float64), air0, rng0, (),
             np.asarray(sp_ticks, dtype=np.int64), np.zeros((len(sp_ticks), SP_FIELDS)),
             np.zeros(1, dtype=np.int64))  # fmt: skip
 

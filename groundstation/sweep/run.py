@@ -22,14 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from autopilot import setpoints
-from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import BACKSTEPPING, KINDS, PD
-from autopilot.params import commander_settings
 from groundstation.setpoint_grid import grid_setpoints
 from groundstation.sweep import engine
 from groundstation.sweep.spec import SweepSpec, draw, trial_arrays, trial_preset
 from groundstation.sweep.trial_row import metrics_row
-from groundstation.vehicle import Setpoints
+from groundstation.vehicle import Setpoints, commander_for
 from quadsitl.config import PositionParams
 from quadsitl.frames import PX4_HOME
 from quadsitl.state import Reference
@@ -90,7 +88,7 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
     out = np.empty((len(go), engine.METRICS_SIZE))
     kind = KINDS[spec.controller]
     ticks, T, substeps = spec.ticks, spec.period, spec.preset.sim.substeps
-    ctx = context(spec)
+    ctx = context(spec.preset.position, spec.ticks, spec.period)
     engine.run_chunk(*sub, kind, ticks, T, substeps, _method(spec), turns, limits, out, slots, keep, ctx)
     # The rare trial that ended with its yaw on another branch than it flew on: again, on its own (module doc).
     again = np.flatnonzero(out[:, engine.M_YAW_TURNS] != turns)
@@ -110,7 +108,7 @@ def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> t
     ``quadsitl sim`` flies the trial's preset (:func:`groundstation.sweep.spec.trial_preset`), its row from its
     telemetry by the metrics' one definition (:mod:`groundstation.sweep.trial_row`), as the SITL engine's: (the
     metrics, engine.METRICS columns; the kept trajectories, engine.KEEP_SIZE columns)."""
-    from groundstation.offline import run_offline, telemetry_rows
+    from groundstation.offline import rows_of, run_offline, telemetry_rows
 
     metrics = np.full((len(trials), engine.METRICS_SIZE), math.nan)
     kept: dict[int, np.ndarray] = {}
@@ -126,9 +124,8 @@ def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> t
         metrics[i] = metrics_row(
             telemetry_rows(res, rates=False), preset, spec.period, res.diverged_at, spec.mission is not None
         )
-        if k in spec.keep:  # engine.KEEP_SIZE columns: sim's rows (groundstation.vehicle.record)
-            seen = res.state if res.estimate is None else res.estimate
-            kept[k] = np.column_stack([res.state, seen, res.reference, res.position_reference, res.inputs, res.forces])
+        if k in spec.keep:
+            kept[k] = rows_of(res)
     return metrics, kept
 
 
@@ -140,15 +137,12 @@ def setpoint_rows(r: np.ndarray) -> np.ndarray:
     return Setpoints.of(((0, Reference(*row)) for row in r.tolist()), frame).values
 
 
-def context(spec: SweepSpec | None, ticks: int = 1, period: float = 0.001) -> tuple:
-    """The engine's arrays for a chunk of ``spec``'s trials (:func:`groundstation.sweep.engine.context`): the
-    commander with the preset's settings, the setpoint sent at every moment of ``quadsitl fly``'s grid."""
-    position = spec.preset.position if spec is not None else PositionParams()
-    if spec is not None:
-        ticks, period = spec.ticks, spec.period
-    cm0 = Commander(commander_settings(position, CommanderSettings())).cm
+def context(position: PositionParams, ticks: int, period: float) -> tuple:
+    """The engine's arrays for a chunk of trials of ``ticks`` ticks of ``period`` [s]
+    (:func:`groundstation.sweep.engine.context`): the commander as the preset's ``position`` settings start it,
+    the setpoint sent at every moment of ``quadsitl fly``'s grid."""
     moments = [g for g, _ in grid_setpoints(lambda t: None, period, ticks)]
-    return engine.context(cm0, np.array(moments, dtype=np.int64))
+    return engine.context(commander_for(position).cm, np.array(moments, dtype=np.int64))
 
 
 VERSIONS = ((BACKSTEPPING, 1, EULER), (PD, 1, EULER))
@@ -186,7 +180,7 @@ def warm_version(kind: int, substeps: int, method: int) -> None:
     engine.run_chunk(one, np.ones((1, VEHICLE_SIZE)), np.ones((1, ACTUATOR_SIZE)), np.ones((1, VEHICLE_SIZE)),
                      np.full((1, SIZE), 0.5), r, setpoint_rows(r), kind, 1, 0.001, substeps, method, np.zeros(1),
                      np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
-                     np.zeros((1, 1, engine.KEEP_SIZE)), context(None))  # fmt: skip
+                     np.zeros((1, 1, engine.KEEP_SIZE)), context(PositionParams(), 1, 0.001))  # fmt: skip
 
 
 def chunks(trials: int, workers: int, chunk: int | None = None) -> list[np.ndarray]:
