@@ -114,6 +114,10 @@ def test_the_fused_loop_flies_integral_gains_as_sim_does():
         ('controller = "pd"\nvary.gains.ki_alt = 0.5', "vary.gains.ki_alt: the pd controller has no such gain"),
         ("vary.wind.turbulence = 4", "vary.wind.turbulence = 4: its values include 4; expected 0, 1, 2 or 3"),
         ('state = "estimate"', "state = 'estimate'"),
+        (
+            'trajectory = "circle"\n[limits]\ntilt = 1.0',
+            "limits.tilt = 1.0 with trajectory: each trial is a `quadsitl sim`",
+        ),
     ],
 )
 def test_the_spec_refuses_what_the_vehicle_would_not_fly_in_one_line(body, says):

@@ -629,9 +629,18 @@ def _flown(top: dict[str, Any], base: Path | None, preset: Preset, where: str) -
 
 
 def check_engine(spec: SweepSpec) -> SweepSpec:
-    """The spec, or a ConfigError when the SITL engine cannot fly it as the batch engine does: a ``quadsitl fly``
-    starts on the ground at rest (its plant runs while the autopilot arms, before the flight begins, so an initial
-    state elsewhere is not where the flight starts), and its plant checks the default bounds."""
+    """The spec, or a ConfigError when its engine cannot fly it as asked: a trial the fused loop does not fly (a
+    trajectory, a mission, sensors, wind) is a ``quadsitl sim`` of its preset, and the SITL engine's a ``quadsitl
+    fly``; both check the default bounds. A ``quadsitl fly`` also starts on the ground at rest (its plant runs while
+    the autopilot arms, before the flight begins, so an initial state elsewhere is not where the flight starts)."""
+    if not spec.fused:
+        for key, value in spec.limits.items():
+            if value != DEFAULT_LIMITS[key]:
+                what = ("trajectory" if spec.trajectory else "mission" if spec.mission else
+                        "state = \"sensors\"" if spec.state == "sensors" else "wind")  # fmt: skip
+                default = DEFAULT_LIMITS[key]
+                raise ConfigError(f"{spec.where}: limits.{key} = {value!r} with {what}: each trial is a `quadsitl sim` "
+                                  f"of its preset, which checks the default bounds ({key} = {default!r})")  # fmt: skip
     if spec.engine != "sitl":
         return spec
     p = spec.preset
