@@ -55,7 +55,7 @@ import sys
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -90,6 +90,9 @@ from quadsitl.param_arrays import (
     actuator_array,
     vehicle_array,
 )
+
+if TYPE_CHECKING:
+    from groundstation.mission_files import Mission
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -390,7 +393,7 @@ class SweepSpec:
     text: str = field(default="", compare=False, repr=False)  # the spec's TOML, as read
     preset_text: str = field(default="", compare=False, repr=False)  # its preset's TOML, as read
     trajectory: str | None = None  # what `quadsitl fly --trajectory` would fly (None: the task's reference)
-    mission: Any = None  # the mission file, read and checked (groundstation.mission_files.Mission), or None
+    mission: Mission | None = None  # the mission file, read and checked
     state: str = "truth"  # STATES
 
     @property
