@@ -14,9 +14,10 @@ arXiv:1711.02508, 2017, §5–§7; the same structure as PX4's EKF2, reduced to 
 - the GPS delay: every tick's estimated position and velocity are kept for ``HISTORY`` ticks; a fix that arrives
   ``gps_delay`` seconds after it was measured is compared with the estimate of *that* time, and the correction
   is applied now and to the kept history (so the next fix, measured before this one was applied, does not count
-  it twice). PX4's EKF2 instead runs the whole filter on a delayed time horizon and predicts forward to now;
-  the innovation here is the same, the covariance used is the current one (an approximation, good while the
-  delay is short against the filter's time constants);
+  it twice; the history is kept net of the corrections, their running sum beside it). PX4's EKF2 instead runs
+  the whole filter on a delayed time horizon and predicts forward to now; the innovation here is the same, the
+  covariance used is the current one (an approximation, good while the delay is short against the filter's time
+  constants);
 - innovation gates: a measurement whose normalised innovation y²/S exceeds ``gate``² is not fused; when one
   sensor's measurements have all been refused for ``divergence_time`` seconds (or the state is not finite),
   the filter reports itself diverged (:data:`DIVERGED`), for the autopilot's STATUSTEXT and failsafe.
@@ -57,6 +58,8 @@ ESTIMATOR_POS_HORIZ_ABS, ESTIMATOR_POS_VERT_ABS, ESTIMATOR_GPS_GLITCH = 16, 32, 
 X_P, X_V, X_Q, X_BG, X_BA, X_SIZE = 0, 3, 6, 10, 13, 16
 DTH, DV, DP, DBG, DBA, N = 0, 3, 6, 9, 12, 15
 HISTORY = 1024  # ticks of estimated position and velocity kept for delayed fixes
+CORRECTION = HISTORY  # hist's last row: the corrections applied since alignment, which the history is kept net of
+
 
 # ---- the parameters (e) -----------------------------------------------------------------------------------
 (GYRO_NOISE, ACC_NOISE, GYRO_BIAS_NOISE, ACC_BIAS_NOISE, GPS_POS_NOISE, GPS_VEL_NOISE, GPS_VZ_NOISE, BARO_NOISE,
@@ -158,11 +161,26 @@ def align(x: np.ndarray, P: np.ndarray, acc: np.ndarray, e: np.ndarray, p0: tupl
     P[DTH + 1, DBA] = P[DBA, DTH + 1] = -var_b / g
 
 
+@jit(inline=True)
+def _f_times(tt: tuple, vt: tuple, vb: tuple, dt: float, u: np.ndarray, out: np.ndarray) -> None:
+    """out = F·u for F = I + A·dt given by its blocks that are not I or 0: ``tt`` = F[δθ, δθ], ``vt`` = F[δv, δθ],
+    ``vb`` = F[δv, δb_a] (row-major, 9 each); F[δθ, δb_g] = −I·dt, F[δp, δv] = I·dt. Each sum runs over the row's
+    nonzero entries in column order from 0.0, so it equals the dense product's to the bit."""
+    for i in range(3):
+        out[DTH + i] = (0.0 + tt[3 * i] * u[DTH] + tt[3 * i + 1] * u[DTH + 1] + tt[3 * i + 2] * u[DTH + 2]
+                        - dt * u[DBG + i])  # fmt: skip
+        out[DV + i] = (0.0 + vt[3 * i] * u[DTH] + vt[3 * i + 1] * u[DTH + 1] + vt[3 * i + 2] * u[DTH + 2] + u[DV + i]
+                       + vb[3 * i] * u[DBA] + vb[3 * i + 1] * u[DBA + 1] + vb[3 * i + 2] * u[DBA + 2])  # fmt: skip
+        out[DP + i] = 0.0 + dt * u[DV + i] + u[DP + i]
+        out[DBG + i] = 0.0 + u[DBG + i]
+        out[DBA + i] = 0.0 + u[DBA + i]
+
+
 @jit
-def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, FP: np.ndarray, gyro: tuple, accel: tuple, dt: float,
+def predict(x: np.ndarray, P: np.ndarray, FP: np.ndarray, gyro: tuple, accel: tuple, dt: float,
             e: np.ndarray) -> None:  # fmt: skip
     """The strapdown prediction over ``dt`` [s] by the IMU sample (``gyro`` [rad/s], ``accel`` [m/s²], FRD), and the
-    covariance's (``F``, ``FP``: N×N scratch)."""
+    covariance's (``FP``: (N + 2)×N scratch: F·P, then two rows of work)."""
     q = _quaternion(x)
     w = (gyro[0] - x[X_BG], gyro[1] - x[X_BG + 1], gyro[2] - x[X_BG + 2])
     f = (accel[0] - x[X_BA], accel[1] - x[X_BA + 1], accel[2] - x[X_BA + 2])
@@ -174,40 +192,30 @@ def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, FP: np.ndarray, gyro: t
     q = normalize_quaternion(quaternion_multiply(q, rotation_vector_to_quaternion(w[0] * dt, w[1] * dt, w[2] * dt)))
     for i in range(4):
         x[X_Q + i] = q[i]
-    # F = I + A·dt (the rotation R is the one before the step: first order)
-    F[:, :] = 0.0
+    # F = I + A·dt (R the rotation after the attitude step: the same to first order), by its blocks:
+    tt = (1.0, w[2] * dt, -w[1] * dt, -w[2] * dt, 1.0, w[0] * dt, w[1] * dt, -w[0] * dt, 1.0)  # I − [ω]×·dt
+    c0 = body_to_ned(q, 0.0, f[2], -f[1])  # −R·[f]×·dt: column j of [f]× is f × e_j
+    c1 = body_to_ned(q, -f[2], 0.0, f[0])
+    c2 = body_to_ned(q, f[1], -f[0], 0.0)
+    vt = (-c0[0] * dt, -c1[0] * dt, -c2[0] * dt, -c0[1] * dt, -c1[1] * dt, -c2[1] * dt, -c0[2] * dt, -c1[2] * dt,
+          -c2[2] * dt)  # fmt: skip
+    r0 = body_to_ned(q, 1.0, 0.0, 0.0)  # −R·dt
+    r1 = body_to_ned(q, 0.0, 1.0, 0.0)
+    r2 = body_to_ned(q, 0.0, 0.0, 1.0)
+    vb = (-r0[0] * dt, -r1[0] * dt, -r2[0] * dt, -r0[1] * dt, -r1[1] * dt, -r2[1] * dt, -r0[2] * dt, -r1[2] * dt,
+          -r2[2] * dt)  # fmt: skip
+    # P = F·P·Fᵀ + Q: (F·P)'s column j is F times P's row j (P is symmetric); then row i of F·P·Fᵀ is F times
+    # row i of F·P (the upper triangle kept, mirrored)
+    col, row = FP[N], FP[N + 1]
+    for j in range(N):
+        _f_times(tt, vt, vb, dt, P[j], col)
+        for i in range(N):
+            FP[i, j] = col[i]
     for i in range(N):
-        F[i, i] = 1.0
-    F[DTH, DTH + 1], F[DTH, DTH + 2] = w[2] * dt, -w[1] * dt  # −[ω]×·dt
-    F[DTH + 1, DTH], F[DTH + 1, DTH + 2] = -w[2] * dt, w[0] * dt
-    F[DTH + 2, DTH], F[DTH + 2, DTH + 1] = w[1] * dt, -w[0] * dt
-    for i in range(3):
-        F[DTH + i, DBG + i] = -dt
-        F[DP + i, DV + i] = dt
-    # −R·[f]×: column j of [f]× is f × e_j
-    fx = ((0.0, f[2], -f[1]), (-f[2], 0.0, f[0]), (f[1], -f[0], 0.0))  # columns of [f]×
-    for j in range(3):
-        c = body_to_ned(q, fx[j][0], fx[j][1], fx[j][2])
-        for i in range(3):
-            F[DV + i, DTH + j] = -c[i] * dt
-    for j in range(3):
-        c = body_to_ned(q, 1.0 if j == 0 else 0.0, 1.0 if j == 1 else 0.0, 1.0 if j == 2 else 0.0)
-        for i in range(3):
-            F[DV + i, DBA + j] = -c[i] * dt
-    # P = F·P·Fᵀ + Q
-    for i in range(N):
-        for j in range(N):
-            s = 0.0
-            for k in range(N):
-                s += F[i, k] * P[k, j]
-            FP[i, j] = s
-    for i in range(N):
+        _f_times(tt, vt, vb, dt, FP[i], row)
         for j in range(i, N):
-            s = 0.0
-            for k in range(N):
-                s += FP[i, k] * F[j, k]
-            P[i, j] = s
-            P[j, i] = s
+            P[i, j] = row[j]
+            P[j, i] = row[j]
     for i in range(3):
         P[DTH + i, DTH + i] += e[GYRO_NOISE] * e[GYRO_NOISE] * dt
         P[DV + i, DV + i] += e[ACC_NOISE] * e[ACC_NOISE] * dt
@@ -235,11 +243,32 @@ def fuse(x: np.ndarray, P: np.ndarray, h: np.ndarray, y: float, r: float, gate: 
     """One scalar measurement: innovation ``y``, Jacobian row ``h`` (N), noise variance ``r``. Fused unless its
     normalised innovation y²/S exceeds gate²; returns that test ratio y²/(S·gate²) (fused when ≤ 1). ``dx``
     holds the correction applied (zero when refused)."""
+    # P·hᵀ over h's nonzero entries (at most three: every measurement here has one or two), in the dense
+    # product's order from 0.0, so to the bit the dense product; a wider h takes the dense product.
+    j0, j1, j2, wide = -1, -1, -1, False
+    for j in range(N):
+        if h[j] != 0.0:
+            if j0 < 0:
+                j0 = j
+            elif j1 < 0:
+                j1 = j
+            elif j2 < 0:
+                j2 = j
+            else:
+                wide = True
     s = r
     for i in range(N):
         acc = 0.0
-        for j in range(N):
-            acc += P[i, j] * h[j]
+        if wide:
+            for j in range(N):
+                acc += P[i, j] * h[j]
+        else:
+            if j0 >= 0:
+                acc += P[i, j0] * h[j0]
+            if j1 >= 0:
+                acc += P[i, j1] * h[j1]
+            if j2 >= 0:
+                acc += P[i, j2] * h[j2]
         pht[i] = acc
         s += h[i] * acc
     ratio = y * y / (s * gate * gate)
@@ -293,18 +322,20 @@ def estimator_tick(flags: int, z: np.ndarray, dt: float, p0: tuple, x: np.ndarra
         if tick + 1 >= io[ALIGN_TICKS]:
             align(x, P, acc, e, p0)
             io[ALIGNED] = 1
+            hist[:, :] = 0.0
             for k in range(HISTORY):
                 for i in range(3):
                     hist[k, i] = x[X_P + i]
-                    hist[k, 3 + i] = 0.0
         return
-    F, FP = scratch[:N, :], scratch[N : 2 * N, :]
-    h, pht, dx = scratch[2 * N, :], scratch[2 * N + 1, :], scratch[2 * N + 2, :]
-    predict(x, P, F, FP, gyro, (z[Z_ACCEL], z[Z_ACCEL + 1], z[Z_ACCEL + 2]), dt, e)
-    now = tick % HISTORY  # this tick's estimate joins the history now: the updates below shift it with the rest
+    FP = scratch[: N + 2, :]
+    h, pht, dx = scratch[N + 2, :], scratch[N + 3, :], scratch[N + 4, :]
+    predict(x, P, FP, gyro, (z[Z_ACCEL], z[Z_ACCEL + 1], z[Z_ACCEL + 2]), dt, e)
+    # This tick's estimate joins the history net of the corrections so far (hist[CORRECTION]): an estimate of the
+    # history read back plus the corrections then is the estimate shifted by every correction applied since.
+    now = tick % HISTORY
     for i in range(3):
-        hist[now, i] = x[X_P + i]
-        hist[now, 3 + i] = x[X_V + i]
+        hist[now, i] = x[X_P + i] - hist[CORRECTION, i]
+        hist[now, 3 + i] = x[X_V + i] - hist[CORRECTION, 3 + i]
     gate = e[GATE]
     for g in range(GROUPS):
         io[SINCE_GPS_POS + g] += 1
@@ -331,18 +362,17 @@ def estimator_tick(flags: int, z: np.ndarray, dt: float, p0: tuple, x: np.ndarra
             h[:] = 0.0
             if i < 2:
                 h[DP + i] = 1.0
-                y = z[Z_GPS_POS + i] - hist[then, i]
+                y = z[Z_GPS_POS + i] - (hist[then, i] + hist[CORRECTION, i])
                 r = e[GPS_POS_NOISE] ** 2
             else:
                 h[DV + i - 2] = 1.0
-                y = z[Z_GPS_VEL + i - 2] - hist[then, 3 + i - 2]
+                y = z[Z_GPS_VEL + i - 2] - (hist[then, 1 + i] + hist[CORRECTION, 1 + i])
                 r = (e[GPS_VZ_NOISE] if i == 4 else e[GPS_VEL_NOISE]) ** 2
             ratio[i] = fuse(x, P, h, y, r, gate, pht, dx)
             if ratio[i] <= 1.0:
-                for k in range(HISTORY):
-                    for j in range(3):
-                        hist[k, j] += dx[DP + j]
-                        hist[k, 3 + j] += dx[DV + j]
+                for j in range(3):
+                    hist[CORRECTION, j] += dx[DP + j]
+                    hist[CORRECTION, 3 + j] += dx[DV + j]
         _fused(io, 0, max(ratio[0], ratio[1]))
         _fused(io, 1, max(ratio[2], ratio[3], ratio[4]))
     diverged = False
@@ -384,14 +414,14 @@ class Estimator:
         self.e = parameter_array(p, field_ned, gravity)
         self.x = np.zeros(X_SIZE)
         self.P = np.zeros((N, N))
-        self.hist = np.zeros((HISTORY, 6))
+        self.hist = np.zeros((HISTORY + 1, 6))
         self.io = np.zeros(IO_SIZE, dtype=np.int64)
         self.io[ALIGN_TICKS] = max(1, round(p.align_time_s / period))
         self.io[DELAY_TICKS] = delay
         self.io[DIVERGE_TICKS] = round(p.divergence_time_s / period)
         self.acc = np.zeros(ACC_SIZE)
         self.ratio = np.zeros(9)
-        self.scratch = np.zeros((2 * N + 3, N))
+        self.scratch = np.zeros((N + 5, N))
         self.z = np.zeros(Z_SIZE)
         self.out = np.zeros(12)
 

@@ -75,10 +75,18 @@ def normal(s: np.ndarray, i: int) -> float:
 
 
 @jit
+def gauss_markov_coefficients(dt: float, tau: float, sigma: float) -> tuple[float, float]:
+    """(φ, k) of :func:`gauss_markov`'s step over ``dt``: x⁺ = φ·x + k·w, for a process whose steps are all ``dt``
+    long (computed once, the step is the same to the bit)."""
+    phi = math.exp(-dt / tau)
+    return phi, sigma * math.sqrt(1.0 - phi * phi)
+
+
+@jit
 def gauss_markov(x: float, dt: float, tau: float, sigma: float, w: float) -> float:
     """One exact step of the first-order Gauss–Markov process ẋ = −x/τ + σ·√(2/τ)·n(t) (stationary standard
     deviation ``sigma``) over ``dt``, with ``w`` a standard normal deviate:
     x⁺ = e^(−dt/τ)·x + σ·√(1 − e^(−2dt/τ))·w (Maybeck, Stochastic Models, Estimation and Control, vol. 1,
     eq. 4-114)."""
-    phi = math.exp(-dt / tau)
-    return phi * x + sigma * math.sqrt(1.0 - phi * phi) * w
+    phi, k = gauss_markov_coefficients(dt, tau, sigma)
+    return phi * x + k * w

@@ -33,12 +33,15 @@ from quadsitl.earth import ZERO_CELSIUS, isa_altitude, isa_pressure, isa_tempera
 from quadsitl.frames import PX4_HOME
 from quadsitl.hil import ACCEL_UPDATED, BARO_UPDATED, GYRO_UPDATED, MAG_UPDATED  # HIL_SENSOR.fields_updated
 from quadsitl.jit import jit
-from sitl.noise import gauss_markov, normal, seed_streams
+from sitl.noise import gauss_markov_coefficients, normal, seed_streams
 
 # ---- the parameter array (sensor_array) -----------------------------------------------------------------
+# The noise processes' steps (φ, k: sitl.noise.gauss_markov_coefficients) come last: each sensor's samples are a
+# fixed interval apart (the IMU's the control period), so they are computed once.
 (GYRO_ND, GYRO_RW, GYRO_TAU, GYRO_BIAS0, ACC_ND, ACC_RW, ACC_TAU, ACC_BIAS0, MAG_ND, MAG_RW, MAG_TAU, MAG_N, MAG_E,
  MAG_D, BARO_NOISE, HOME_ALT_M, GPS_XY, GPS_Z, GPS_TAU, GPS_VXY, GPS_VZ, GRAVITY, HOME_LAT_DEG, HOME_LON_DEG,
- SATELLITES, PARAM_SIZE) = range(26)  # fmt: skip
+ SATELLITES, GYRO_STEP, ACC_STEP, MAG_STEP, GPS_XY_STEP, GPS_Z_STEP, PARAM_SIZE) = (*range(25), 25, 27, 29, 31, 33,
+                                                                                   35)  # fmt: skip
 # ---- the integer schedule (``clock``, int64, µs) --------------------------------------------------------
 (MAG_INTERVAL, BARO_INTERVAL, GPS_INTERVAL, GPS_DELAY, NEXT_MAG, NEXT_BARO, NEXT_GPS, QUEUE_HEAD, QUEUE_COUNT,
  CLOCK_SIZE) = range(10)  # fmt: skip
@@ -53,20 +56,29 @@ Q_RELEASE, Q_TIME, Q_POS, Q_VEL, Q_SIZE = 0, 1, 2, 5, 8
  OUT_GPS_POS, OUT_GPS_VEL, OUT_SIZE) = 0, 3, 6, 9, 10, 11, 12, 13, 14, 17, 20  # fmt: skip
 
 
-def sensor_array(s: SensorParams, gravity: float, home: tuple[float, float, float] = PX4_HOME) -> np.ndarray:
-    """The sensors' figures as the compiled functions read them (SI units, gauss; the field in NED).
-    ``gravity`` [m/s²] is the plant's g (the accelerometer measures a − g); ``home`` = (lat [deg], lon [deg], alt
-    [m AMSL]) is the local origin on the globe (the barometer's altitude, the GPS's latitude and longitude)."""
+def sensor_array(s: SensorParams, period: float, gravity: float,
+                 home: tuple[float, float, float] = PX4_HOME) -> np.ndarray:  # fmt: skip
+    """The sensors' figures as the compiled functions read them (SI units, gauss; the field in NED). ``period``
+    [s] is the IMU's sample interval (the control period); ``gravity`` [m/s²] is the plant's g (the accelerometer
+    measures a − g); ``home`` = (lat [deg], lon [deg], alt [m AMSL]) is the local origin on the globe (the
+    barometer's altitude, the GPS's latitude and longitude)."""
     field = magnetic_field_ned(
         s.mag_strength_gauss, math.radians(s.mag_declination_deg), math.radians(s.mag_inclination_deg)
     )
+    clock = clock_array(s)
+    mag_dt, gps_dt = clock[MAG_INTERVAL] * 1e-6, clock[GPS_INTERVAL] * 1e-6
+    steps = (*bias_coefficients(period, s.gyro_bias_correlation_time_s, s.gyro_random_walk_rad_s2_sqrt_hz),
+             *bias_coefficients(period, s.accel_bias_correlation_time_s, s.accel_random_walk_m_s3_sqrt_hz),
+             *bias_coefficients(mag_dt, s.mag_bias_correlation_time_s, s.mag_random_walk_gauss_s_sqrt_hz),
+             *gauss_markov_coefficients(gps_dt, s.gps_error_correlation_time_s, s.gps_xy_error_m),
+             *gauss_markov_coefficients(gps_dt, s.gps_error_correlation_time_s, s.gps_z_error_m))  # fmt: skip
     return np.array(
         [s.gyro_noise_density_rad_s_sqrt_hz, s.gyro_random_walk_rad_s2_sqrt_hz, s.gyro_bias_correlation_time_s,
          s.gyro_turn_on_bias_rad_s, s.accel_noise_density_m_s2_sqrt_hz, s.accel_random_walk_m_s3_sqrt_hz,
          s.accel_bias_correlation_time_s, s.accel_turn_on_bias_m_s2, s.mag_noise_density_gauss_sqrt_hz,
          s.mag_random_walk_gauss_s_sqrt_hz, s.mag_bias_correlation_time_s, *field, s.baro_noise_pa, home[2],
          s.gps_xy_error_m, s.gps_z_error_m, s.gps_error_correlation_time_s, s.gps_xy_velocity_noise_m_s,
-         s.gps_z_velocity_noise_m_s, gravity, home[0], home[1], s.gps_satellites],
+         s.gps_z_velocity_noise_m_s, gravity, home[0], home[1], s.gps_satellites, *steps],
         dtype=np.float64,
     )  # fmt: skip
 
@@ -80,11 +92,17 @@ def clock_array(s: SensorParams) -> np.ndarray:
     return c
 
 
+def bias_coefficients(dt: float, tau: float, random_walk: float) -> tuple[float, float]:
+    """(φ, k) of a sensor bias's step over ``dt`` [s] (b⁺ = φ·b + k·w, :func:`sitl.noise.gauss_markov`): the
+    Gauss–Markov process of PX4's Gazebo IMU plugin, dḃ = −b/τ·dt + σ_b·dW with σ_b the random walk (units of the
+    bias per √s), whose stationary deviation is σ_b·√(τ/2)."""
+    return gauss_markov_coefficients(dt, tau, random_walk * math.sqrt(0.5 * tau))
+
+
 @jit
-def bias_process(b: float, dt: float, tau: float, random_walk: float, w: float) -> float:
-    """A sensor bias after ``dt`` [s]: the Gauss–Markov process of PX4's Gazebo IMU plugin, dḃ = −b/τ·dt + σ_b·dW
-    with σ_b the random walk (units of the bias per √s), whose stationary deviation is σ_b·√(τ/2)."""
-    return gauss_markov(b, dt, tau, random_walk * math.sqrt(0.5 * tau), w)
+def _step(x: float, p: np.ndarray, at: int, w: float) -> float:
+    """A noise process's step by its coefficients p[at], p[at + 1] (φ, k), ``w`` a standard normal deviate."""
+    return p[at] * x + p[at + 1] * w
 
 
 @jit
@@ -117,10 +135,10 @@ def imu(s: tuple, accel: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray
     w = euler_rates_to_body_rates(s[6], s[7], s[9], s[10], s[11])  # eq (1)
     root = 1.0 / math.sqrt(dt)
     for i in range(3):
-        bias[B_GYRO + i] = bias_process(bias[B_GYRO + i], dt, p[GYRO_TAU], p[GYRO_RW], normal(rng, IMU))
+        bias[B_GYRO + i] = _step(bias[B_GYRO + i], p, GYRO_STEP, normal(rng, IMU))
         out[OUT_GYRO + i] = w[i] + bias[B_GYRO + i] + p[GYRO_ND] * root * normal(rng, IMU)
     for i in range(3):
-        bias[B_ACC + i] = bias_process(bias[B_ACC + i], dt, p[ACC_TAU], p[ACC_RW], normal(rng, IMU))
+        bias[B_ACC + i] = _step(bias[B_ACC + i], p, ACC_STEP, normal(rng, IMU))
         out[OUT_ACCEL + i] = f[i] + bias[B_ACC + i] + p[ACC_ND] * root * normal(rng, IMU)
 
 
@@ -130,7 +148,7 @@ def magnetometer(s: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, dt:
     m = ned_to_body(euler_to_quaternion(s[6], s[7], s[8]), p[MAG_N], p[MAG_E], p[MAG_D])
     root = 1.0 / math.sqrt(dt)
     for i in range(3):
-        bias[B_MAG + i] = bias_process(bias[B_MAG + i], dt, p[MAG_TAU], p[MAG_RW], normal(rng, MAG))
+        bias[B_MAG + i] = _step(bias[B_MAG + i], p, MAG_STEP, normal(rng, MAG))
         out[OUT_MAG + i] = m[i] + bias[B_MAG + i] + p[MAG_ND] * root * normal(rng, MAG)
 
 
@@ -146,12 +164,12 @@ def barometer(s: tuple, p: np.ndarray, rng: np.ndarray, out: np.ndarray) -> None
 
 
 @jit
-def gps_measure(s: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, dt: float, row: np.ndarray) -> None:
-    """A GPS fix of state ``s`` into a queue row: the position error advanced by ``dt`` [s] (Gauss–Markov), the
-    velocity with white noise."""
-    bias[E_GPS] = gauss_markov(bias[E_GPS], dt, p[GPS_TAU], p[GPS_XY], normal(rng, GPS))
-    bias[E_GPS + 1] = gauss_markov(bias[E_GPS + 1], dt, p[GPS_TAU], p[GPS_XY], normal(rng, GPS))
-    bias[E_GPS + 2] = gauss_markov(bias[E_GPS + 2], dt, p[GPS_TAU], p[GPS_Z], normal(rng, GPS))
+def gps_measure(s: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, row: np.ndarray) -> None:
+    """A GPS fix of state ``s`` into a queue row: the position error advanced by one GPS interval (Gauss–Markov),
+    the velocity with white noise."""
+    bias[E_GPS] = _step(bias[E_GPS], p, GPS_XY_STEP, normal(rng, GPS))
+    bias[E_GPS + 1] = _step(bias[E_GPS + 1], p, GPS_XY_STEP, normal(rng, GPS))
+    bias[E_GPS + 2] = _step(bias[E_GPS + 2], p, GPS_Z_STEP, normal(rng, GPS))
     for i in range(3):
         row[Q_POS + i] = s[i] + bias[E_GPS + i]
     row[Q_VEL] = s[3] + p[GPS_VXY] * normal(rng, GPS)
@@ -178,7 +196,7 @@ def sensors_tick(t_us: int, s: tuple, accel: tuple, dt: float, p: np.ndarray, rn
         fields |= BARO_UPDATED
     if t_us >= clock[NEXT_GPS]:  # a fix is taken now and joins the queue
         row = queue[(clock[QUEUE_HEAD] + clock[QUEUE_COUNT]) % GPS_QUEUE]
-        gps_measure(s, p, rng, bias, clock[GPS_INTERVAL] * 1e-6, row)
+        gps_measure(s, p, rng, bias, row)
         row[Q_TIME] = t_us
         row[Q_RELEASE] = t_us + clock[GPS_DELAY]
         clock[QUEUE_COUNT] += 1
@@ -203,7 +221,7 @@ class Sensors:
                  home: tuple[float, float, float] = PX4_HOME) -> None:  # fmt: skip
         self.params = params
         self.period = period
-        self.p = sensor_array(params, gravity, home)
+        self.p = sensor_array(params, period, gravity, home)
         self.rng = seed_streams(params.seed, STREAMS)
         self.bias = np.zeros(BIAS_SIZE)
         self.clock = clock_array(params)

@@ -135,3 +135,45 @@ def test_estimator_status_says_what_is_valid_and_how_well(px4):
     got = wire.link(1, 1).parse_buffer(msg.pack(wire.link(1, 1)))[0]
     assert (got.time_usec, got.flags) == (5_000_000, valid)
     assert got.pos_horiz_accuracy == pytest.approx(acc_h, rel=1e-6) and got.vel_ratio == pytest.approx(vel, rel=1e-6)
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def _rotation(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])  # fmt: skip
+
+
+def test_the_covariance_prediction_is_the_dense_f_p_ft_plus_q():
+    """predict's covariance, worked over F's nonzero blocks only, is F·P·Fᵀ + Q·dt with F = I + A·dt as the module
+    docstring writes A (dense, by numpy), on random states, covariances and IMU samples."""
+    from autopilot import estimator as ekf
+
+    rng = np.random.default_rng(46)
+    e = ekf.parameter_array(EstimatorParams(), (0.2, 0.0, 0.4), 9.81)
+    for _ in range(50):
+        a = rng.normal(size=(15, 15))
+        P = a @ a.T
+        x = np.zeros(ekf.X_SIZE)
+        x[:6], x[ekf.X_BG :] = rng.normal(size=6), rng.normal(0, 0.05, size=6)
+        q = rng.normal(size=4)
+        x[ekf.X_Q : ekf.X_Q + 4] = q / np.linalg.norm(q)
+        gyro, accel, dt = rng.normal(0, 1, 3), rng.normal(0, 5, 3), rng.uniform(1e-3, 1e-2)
+        w, f = gyro - x[ekf.X_BG : ekf.X_BG + 3], accel - x[ekf.X_BA : ekf.X_BA + 3]
+        P0 = P.copy()
+        ekf.predict(x, P, np.zeros((ekf.N + 2, ekf.N)), tuple(gyro), tuple(accel), dt, e)
+        R = _rotation(x[ekf.X_Q : ekf.X_Q + 4])  # the rotation after the step, as predict takes it
+        A = np.zeros((15, 15))
+        A[0:3, 0:3], A[0:3, 9:12] = -_skew(w), -np.eye(3)
+        A[3:6, 0:3], A[3:6, 12:15] = -R @ _skew(f), -R
+        A[6:9, 3:6] = np.eye(3)
+        F = np.eye(15) + A * dt
+        Q = np.diag(np.repeat([e[ekf.GYRO_NOISE], e[ekf.ACC_NOISE], 0.0, e[ekf.GYRO_BIAS_NOISE],
+                               e[ekf.ACC_BIAS_NOISE]], 3) ** 2 * dt)  # fmt: skip
+        expected = F @ P0 @ F.T + Q
+        assert np.allclose(P, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+        assert np.array_equal(P, P.T)
