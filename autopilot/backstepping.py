@@ -217,6 +217,7 @@ class BacksteppingController:
     """
 
     kind = BACKSTEPPING
+    plug = None  # a built-in: nothing plugged (autopilot.plugin)
 
     def __init__(
         self,

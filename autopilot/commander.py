@@ -52,6 +52,7 @@ FAILSAFE_SETPOINT_LOST = 1
 FAILSAFE_PLANT_LOST = 2
 FAILSAFE_GCS_LOST = 3
 FAILSAFE_ESTIMATOR = 4
+FAILSAFE_CONTROLLER = 5  # a plugged controller commanded a non-finite value (autopilot.tick.autopilot_step)
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
 HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION = (int(m) for m in Mode)
 # The phases of RTL and of LAND.
@@ -85,6 +86,7 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
  SIZE) = range(75)  # fmt: skip
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
+EVENT_CONTROLLER_FAILED = 5  # reported by the autopilot's tick, not update()
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
 TAKEOFF_TOLERANCE = 0.1  # [m]: takeoff is done when the vehicle is this close to the takeoff altitude
 LAND_ALT1, LAND_ALT2 = 10.0, 5.0  # [m] a landing slows from MPC_Z_VEL_MAX_DN above ALT1 to land_speed below ALT2
@@ -630,6 +632,9 @@ class Commander:
             self.messages.append((6, "Takeoff complete, holding"))
         elif event == EVENT_HOME_REACHED:
             self.messages.append((6, "Home reached, landing"))
+        elif event == EVENT_CONTROLLER_FAILED:
+            self.messages.append((2, "Failsafe: the controller commanded a non-finite value; flying the "
+                                     "backstepping, landing"))  # fmt: skip
 
     def update(self, tick: int, now: float, state: VehicleState) -> Reference | None:
         """Advance to tick ``tick`` at simulated time ``now`` [s] with the measured state. Returns the

@@ -24,17 +24,21 @@ SIZE = 32
 # A controller's memory and outputs (``mem``): the command u1..u4 (the previous one on entry: its Ωr is the one
 # the backstepping assumes), the motor forces [N], the errors e1..e8 and the Ωr of the last step; then the
 # integrator states ζ (altitude, x, y) [m·s], the horizontal errors e9..e12, and the roll and pitch references
-# the position loop made (NaN when the horizontal position is not controlled).
-MEM_U, MEM_FORCES, MEM_ERRORS, MEM_OMEGA_R, MEM_ZETA, MEM_ERRORS_XY, MEM_ATTITUDE_REF = 0, 4, 8, 16, 17, 20, 24
-MEM_SIZE = 26
+# the position loop made (NaN when the horizontal position is not controlled); 1.0 once a plugged controller
+# commanded a non-finite value (it is not flown again until the next arming), and the last tick one did + 1 (0:
+# none; kept after disarming, for the shell to say).
+(MEM_U, MEM_FORCES, MEM_ERRORS, MEM_OMEGA_R, MEM_ZETA, MEM_ERRORS_XY, MEM_ATTITUDE_REF, MEM_PLUG_FAILED,
+ MEM_PLUG_FAILED_TICK) = 0, 4, 8, 16, 17, 20, 24, 26, 27  # fmt: skip
+MEM_SIZE = 28
 
 # What a channel's reference controls (docs/position.md): its position (with optional velocity and acceleration
 # feed-forward), its velocity only (the position is free), or its acceleration only.
 POSITION, VELOCITY, ACCELERATION = 0, 1, 2
 
-BACKSTEPPING, PD = 0, 1
+BACKSTEPPING, PD, PLUGGED = 0, 1, 2
 KINDS = {"backstepping": BACKSTEPPING, "pd": PD}
-"""Controller names (presets, ``--controller``, ``CTL_TYPE`` order) → the code the compiled step takes."""
+"""Controller names (presets, ``--controller``, ``CTL_TYPE`` order) → the code the compiled step takes; PLUGGED: a
+controller loaded from a file or module (:mod:`autopilot.plugin`), flown through the tick's ``plug``."""
 
 
 def control_array(

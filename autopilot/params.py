@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from autopilot.commander import CommanderSettings
-from autopilot.factory import make_controller
+from autopilot.factory import PluggedController, make_controller
 from autopilot.gains import GainError, rates_from_poles
+from autopilot.plugin import Plugged
 from quadsitl.config import PositionParams, Preset
 
 MAX_NAME = 16  # MAVLink param_id length
@@ -143,16 +144,28 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
 @dataclass(frozen=True)
 class Applied:
     """What a set of parameter values means for the autopilot: the model and gains (as a preset),
-    the controller kind, and the commander's settings."""
+    the controller kind (a plugged controller's spec, ``path.py:Name``, when CTL_TYPE is 2), the commander's
+    settings, and a plugged controller's parameter values by name."""
 
     preset: Preset
     controller: str
     settings: CommanderSettings
+    plugged: dict[str, float] = field(default_factory=dict)
 
 
-def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, float]) -> Applied:
-    """Values → the preset, controller kind and commander settings they describe. The preset's
-    actuators (the wire's scale) and simulation settings are not parameters and stay ``base``'s."""
+PLUGGED_TYPE = len(CONTROLLER_TYPES)  # CTL_TYPE of a plugged controller
+
+
+def plugged_specs(plugged: Plugged) -> tuple[ParamSpec, ...]:
+    """A plugged controller's parameters as MAVLink parameters (quadsitl.controller.Parameter: its name in capitals
+    or its own MAVLink name, its range and unit), after the autopilot's own."""
+    return tuple(ParamSpec(p.param_id, p.low, p.high, p.unit, p.doc) for p in plugged.parameters)
+
+
+def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, float],
+          plugged: Plugged | None = None) -> Applied:  # fmt: skip
+    """Values → the preset, controller kind and commander settings they describe (and ``plugged``'s parameters). The
+    preset's actuators (the wire's scale) and simulation settings are not parameters and stay ``base``'s."""
     vehicle = replace(
         base.autopilot_model,
         mass=values["VM_MASS"],
@@ -200,8 +213,11 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
         rtl_alt=values["RTL_RETURN_ALT"],
         max_distance=values["GF_MAX_HOR_DIST"],
     )
-    kind = CONTROLLER_TYPES[int(values["CTL_TYPE"])]
-    return Applied(replace(base, vehicle=vehicle, model=(), controller=controller, position=position), kind, settings)
+    kind = int(values["CTL_TYPE"])
+    named = {} if plugged is None else {p.name: values[p.param_id] for p in plugged.parameters}
+    return Applied(replace(base, vehicle=vehicle, model=(), controller=controller, position=position),
+                   plugged.spec if kind == PLUGGED_TYPE and plugged else CONTROLLER_TYPES[kind], settings,
+                   named)  # fmt: skip
 
 
 def commander_settings(position: PositionParams, settings: CommanderSettings) -> CommanderSettings:
@@ -214,56 +230,75 @@ def commander_settings(position: PositionParams, settings: CommanderSettings) ->
 
 
 class ParamStore:
-    """The parameter values of one autopilot, changed only through :meth:`set`."""
+    """The parameter values of one autopilot, changed only through :meth:`set`. With a ``plugged`` controller
+    (:mod:`autopilot.plugin`), CTL_TYPE 2 flies it and its parameters follow the autopilot's own."""
 
-    def __init__(self, preset: Preset, controller: str, settings: CommanderSettings) -> None:
+    def __init__(self, preset: Preset, controller: str, settings: CommanderSettings,
+                 plugged: Plugged | None = None) -> None:  # fmt: skip
         settings = commander_settings(preset.position, settings)
-        self.base, self.base_settings = preset, settings
-        self.values = values_from(preset, controller, settings)
+        self.base, self.base_settings, self.plugged = preset, settings, plugged
+        self.specs = SPECS
+        if plugged is not None:
+            ctl = ParamSpec("CTL_TYPE", 0, PLUGGED_TYPE, "", f"controller: 0 = backstepping, 1 = PD, 2 = "
+                            f"{plugged.cls.__name__}", integer=True)  # fmt: skip
+            own = plugged_specs(plugged)
+            clash = sorted({s.name for s in own} & set(INDEX))
+            if clash:
+                raise ValueError(f"controller {plugged.spec}: parameter {clash[0]} is one of the autopilot's own")
+            self.specs = (ctl, *SPECS[1:], *own)
+        self.index = {spec.name: i for i, spec in enumerate(self.specs)}
+        plug = plugged is not None and controller == plugged.spec
+        self.values = values_from(preset, "backstepping" if plug else controller, settings)
+        if plugged is not None:
+            self.values["CTL_TYPE"] = float(PLUGGED_TYPE) if plug else self.values["CTL_TYPE"]
+            self.values.update({p.param_id: float(p.default) for p in plugged.parameters})
 
     def __len__(self) -> int:
-        return len(SPECS)
+        return len(self.specs)
 
     def __iter__(self) -> Iterator[tuple[int, str, float]]:
         """(index, name, value) in index order."""
-        for i, spec in enumerate(SPECS):
+        for i, spec in enumerate(self.specs):
             yield i, spec.name, self.values[spec.name]
 
     def lookup(self, name: str | None = None, index: int = -1) -> tuple[int, str, float] | None:
         """By name, or by index when ``index`` ≥ 0 (MAVLink's PARAM_REQUEST_READ rule). None if unknown."""
         if index >= 0:
-            if index >= len(SPECS):
+            if index >= len(self.specs):
                 return None
-            name = SPECS[index].name
-        if name not in INDEX:
+            name = self.specs[index].name
+        if name not in self.index:
             return None
-        return INDEX[name], name, self.values[name]
+        return self.index[name], name, self.values[name]
 
     def set(self, name: str, value: float, build: Callable[[Applied], object] | None = None) -> str:
         """Set ``name`` to ``value``. Returns "" when accepted, else the reason it was refused (the
         values are then unchanged). ``build`` (default: make the controller) is called with the
         candidate; a :class:`GainError` or ``ValueError`` it raises refuses the change."""
-        if name not in INDEX:
+        if name not in self.index:
             return f"{name}: no such parameter"
-        spec = SPECS[INDEX[name]]
+        spec = self.specs[self.index[name]]
         if not spec.accepts(value):
             return f"{name} = {value:g}: expected {spec.allowed()}"
         candidate = {**self.values, name: float(value)}
         if candidate["THR_MIN"] >= candidate["THR_MAX"]:
             return f"{name} = {value:g}: THR_MIN must be below THR_MAX"
-        applied = apply(self.base, self.base_settings, candidate)
+        applied = apply(self.base, self.base_settings, candidate, self.plugged)
         try:
-            (build or _build_controller)(applied)
+            (build or self.build)(applied)
         except (GainError, ValueError) as exc:
             return f"{name} = {value:g}: {exc}"
         self.values = candidate
         return ""
 
     def applied(self) -> Applied:
-        return apply(self.base, self.base_settings, self.values)
+        return apply(self.base, self.base_settings, self.values, self.plugged)
 
-
-def _build_controller(applied: Applied) -> object:
-    # The backstepping gains are checked against (41)–(44) whichever controller flies.
-    make_controller(applied.preset, "backstepping")
-    return make_controller(applied.preset, applied.controller)
+    def build(self, applied: Applied) -> object:
+        """The controller ``applied`` describes (the backstepping's gains are checked against (41)–(44) whichever
+        controller flies: its the failsafe's), a plugged one on the model with its parameters, checked and probed
+        (:meth:`autopilot.plugin.Plugged.plug`; a refusal is a ValueError)."""
+        base = make_controller(applied.preset, "backstepping")
+        if self.plugged is not None and applied.controller == self.plugged.spec:
+            return PluggedController(self.plugged, base, applied.plugged)
+        return make_controller(applied.preset, applied.controller)

@@ -104,6 +104,7 @@ class PDController:
     """PD baseline. ``kp`` [1/s²] and ``kd`` [1/s] per channel (altitude, roll, pitch, yaw)."""
 
     kind = PD
+    plug = None  # a built-in: nothing plugged (autopilot.plugin)
 
     def __init__(
         self,

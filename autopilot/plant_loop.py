@@ -55,7 +55,7 @@ if fastio.AVAILABLE:
 
     @overload(fly_datagram, jit_options={"cache": True})
     def _fly_datagram(rx, length, targs):
-        if len(targs) == 14:  # the state mode's arguments (autopilot_tick), else the sensor mode's
+        if len(targs) == 15:  # the state mode's arguments (autopilot_tick), else the sensor mode's
             return lambda rx, length, targs: kernel.autopilot_tick(rx, length, *targs)
         return lambda rx, length, targs: kernel.sensor_tick(rx, length, *targs)
 

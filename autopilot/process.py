@@ -32,12 +32,11 @@ from collections.abc import Sequence
 import numpy as np
 import zenoh
 
-from autopilot import gcs_messages, mission_protocol, plant_loop, setpoints
+from autopilot import gcs_messages, mission_protocol, plant_loop, plugin, setpoints
 from autopilot import tick as kernel
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
 from autopilot.estimator import Estimator
-from autopilot.factory import make_controller
 from autopilot.gains import GainError
 from autopilot.gcs_messages import Home, Snapshot
 from autopilot.missions import Missions
@@ -171,8 +170,10 @@ class Autopilot:
         self.period = preset.sim.period
         kind = args.controller or preset.controller.type
         settings = CommanderSettings(setpoint_timeout=args.setpoint_timeout)
-        self.params = ParamStore(preset, kind, settings)
-        self.controller = make_controller(preset, kind)
+        plugged = plugin.load(kind) if plugin.is_plugin(kind) else None  # its parameters are MAVLink parameters
+        self.params = ParamStore(preset, kind, settings, plugged)
+        self.controller = self.params.build(self.params.applied())
+        self.plug = self.controller.plug or plugin.no_plug()
         self.commander = Commander(self.params.base_settings)
         self.home = Home(*args.home) if args.home else Home()
         self.sensing = preset.sensors is not None  # fly on the estimate of the plant's sensors
@@ -310,8 +311,8 @@ class Autopilot:
         """The compiled tick's arguments after the datagram (autopilot.tick: autopilot_tick's, or in sensor mode
         sensor_tick's)."""
         ctl = self.controller
-        common = (self.st, self.period, ctl.kind, self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min, self.f_max,
-                  self.tx, self.io, self.batch.records, self.frames.out)  # fmt: skip
+        common = (self.st, self.period, ctl.kind, self.plug, self.commander.cm, self.mem, ctl.v, ctl.c, self.f_min,
+                  self.f_max, self.tx, self.io, self.batch.records, self.frames.out)  # fmt: skip
         if self.estimator is not None:
             return (self.hil_frame, self.truth, self.origin, self.estimator.arrays, *common)
         return (self.scratch, *common)
@@ -831,7 +832,8 @@ class Autopilot:
     def _apply_params(self) -> None:
         """Make the accepted parameter values the ones the next tick uses."""
         applied = self.params.applied()
-        self.controller = make_controller(applied.preset, applied.controller)  # Ωr: the command in self.mem
+        self.controller = self.params.build(applied)  # Ωr: the command in self.mem
+        self.plug = self.controller.plug or plugin.no_plug()
         self.commander.settings = applied.settings
 
     # ---- commands ------------------------------------------------------------------------------
@@ -1257,7 +1259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap = Autopilot(preset, args)
         if ap.fast:
             plant_loop.warm_up(ap.tick_arguments())
-    except (UsageError, ConfigError, GainError) as exc:
+    except (UsageError, ConfigError, GainError, plugin.ControllerError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
     except zenoh.ZError as exc:

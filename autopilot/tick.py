@@ -18,11 +18,12 @@ import math
 
 import numpy as np
 
-from autopilot import commander, stream_frames
+from autopilot import commander, plugin, stream_frames
 from autopilot import estimator as ekf
 from autopilot.backstepping import Errors, altitude_law, attitude_law, thrust
 from autopilot.commander import (
     ARMED,
+    EVENT_CONTROLLER_FAILED,
     EVENT_NONE,
     FAILSAFE,
     MODE,
@@ -43,16 +44,20 @@ from autopilot.commander import (
     TOUCHDOWN_CLIMB,
 )
 from autopilot.control_params import (
+    BACKSTEPPING,
     MEM_ATTITUDE_REF,
     MEM_ERRORS,
     MEM_ERRORS_XY,
     MEM_FORCES,
     MEM_OMEGA_R,
+    MEM_PLUG_FAILED,
+    MEM_PLUG_FAILED_TICK,
     MEM_SIZE,
     MEM_U,
     MEM_ZETA,
     PD,
     PERIOD,
+    PLUGGED,
     POSITION,
     THRUST_MAX,
     THRUST_MIN,
@@ -64,11 +69,11 @@ from autopilot.pd import pd_attitude, pd_thrust, pd_vertical
 from autopilot.position import channel_mode, controls_horizontal, horizontal, or_zero
 from quadsitl import telemetry
 from quadsitl.codec import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actuators, tick_of
-from quadsitl.compiled_frames import altitude, climb_rate
+from quadsitl.compiled_frames import altitude, climb_rate, euler_rates_to_body_rates
 from quadsitl.hil import Z_GYRO, decode_sensors
 from quadsitl.jit import jit
 from quadsitl.mixer import Forces, allocate
-from quadsitl.param_arrays import D_OVER_B
+from quadsitl.param_arrays import ARM, D_OVER_B, VEHICLE_SIZE
 from quadsitl.rawbytes import put
 from quadsitl.state import Inputs
 
@@ -157,8 +162,31 @@ ANSWER, STREAM, EVENT_DUE, BATCH_FULL, NOT_MINE, REFUSED, ESTIMATOR_CHANGED, FRA
 
 
 @jit(inline=True)
-def autopilot_step(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray,
-                   f_min: float, f_max: float, tick: int, now: float) -> tuple[Forces, int]:  # fmt: skip
+def plugged(plug: tuple, x: tuple, cm: np.ndarray, v: np.ndarray, now: float, period: float) -> Inputs:
+    """A plugged controller's command (:mod:`quadsitl.controller`) for the state ``x`` and the commander's reference,
+    as the paper's inputs (u2, u3 = the roll and pitch torques / l). ``plug`` = (the compiled law, its buffer, where
+    its memory starts: :meth:`autopilot.plugin.Plugged.plug`); the command starts NaN, so one not written is not
+    finite."""
+    entry, buf, _ = plug
+    for i in range(12):
+        buf[plugin.B_STATE + i] = x[i]
+    p, q, r = euler_rates_to_body_rates(x[6], x[7], x[9], x[10], x[11])  # eq (1)
+    buf[plugin.B_STATE + 12], buf[plugin.B_STATE + 13], buf[plugin.B_STATE + 14] = p, q, r
+    for i in range(plugin.B_COMMAND - plugin.B_SETPOINT):
+        buf[plugin.B_SETPOINT + i] = cm[REF_X + i]
+    for i in range(4):
+        buf[plugin.B_COMMAND + i] = math.nan
+    for i in range(VEHICLE_SIZE):
+        buf[plugin.B_MODEL + i] = v[i]
+    plugin.call_law(entry, buf, now, period)
+    arm = v[ARM]
+    c0 = plugin.B_COMMAND
+    return Inputs(buf[c0], buf[c0 + 1] / arm, buf[c0 + 2] / arm, buf[c0 + 3])
+
+
+@jit(inline=True)
+def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray,
+                   c: np.ndarray, f_min: float, f_max: float, tick: int, now: float) -> tuple[Forces, int]:  # fmt: skip
     """The autopilot's per-tick work, composed once (every runtime calls it: the autopilot process through
     :func:`control_tick`, ``quadsitl sim`` and the batch engine through :mod:`groundstation.vehicle`): for the state
     ``st`` seen at ``tick`` (``now`` = its simulated time [s]), the commander and its auto modes (cm[REF_*]), when armed
@@ -172,7 +200,12 @@ def autopilot_step(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v
     down), the motors idle and the integrators stay at zero, until a reference asks for a climb. Offboard
     setpoints are always flown (an attitude setpoint on the ground tilts the vehicle there, as on PX4). Without
     the idle, a vehicle whose autopilot believes it heavier than it is (a mass mismatch) would lift off in hold;
-    with it, an offboard flight starts from rest with a previous command of zero (the backstepping's Ωr)."""
+    with it, an offboard flight starts from rest with a previous command of zero (the backstepping's Ωr).
+
+    **A plugged controller** (``kind`` PLUGGED, its law in ``plug``) is flown instead of :func:`fly`. A command of
+    it that is not finite never reaches the motors: that tick and every one until the next arming fly the
+    backstepping on the preset's gains, the commander lands (FAILSAFE_CONTROLLER), and the event is
+    EVENT_CONTROLLER_FAILED."""
     h, climb = altitude(st), climb_rate(st)
     event = commander.update(cm, tick, now, st[0], st[1], h, st[3], st[4], climb, st[8])
     armed = cm[ARMED] != 0.0
@@ -180,7 +213,23 @@ def autopilot_step(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v
             and cm[REF_ALT] <= max(h, 0.0) + GROUND_IDLE_MARGIN)  # fmt: skip
     if armed and not idle:
         x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])
-        u, errors, omega_r = fly(kind, x, cm, mem, v, c)
+        law = kind
+        if kind == PLUGGED:
+            law = BACKSTEPPING
+            if mem[MEM_PLUG_FAILED] == 0.0:
+                u = plugged(plug, x, cm, v, now, c[PERIOD])
+                if math.isfinite(u[0]) and math.isfinite(u[1]) and math.isfinite(u[2]) and math.isfinite(u[3]):
+                    law = PLUGGED
+                    errors, omega_r = _ZERO_ERRORS, 0.0
+                    mem[MEM_ATTITUDE_REF], mem[MEM_ATTITUDE_REF + 1] = math.nan, math.nan
+                else:
+                    mem[MEM_PLUG_FAILED], mem[MEM_PLUG_FAILED_TICK] = 1.0, tick + 1.0
+                    event = EVENT_CONTROLLER_FAILED
+                    cm[FAILSAFE] = commander.FAILSAFE_CONTROLLER
+                    if cm[MODE] != commander.LAND:
+                        commander.enter(cm, commander.LAND)
+        if law != PLUGGED:
+            u, errors, omega_r = fly(law, x, cm, mem, v, c)
         forces = allocate(u, v[D_OVER_B], f_min, f_max)
         for i in range(4):
             mem[MEM_U + i] = u[i]
@@ -193,6 +242,10 @@ def autopilot_step(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v
             mem[MEM_U + i] = 0.0  # the command u1..u4 and the forces f1..f4
         for i in range(3):
             mem[MEM_ZETA + i] = 0.0  # the integrators start afresh at each arming
+        mem[MEM_PLUG_FAILED] = 0.0  # a plugged controller is flown again, its memory zero
+        buf, start = plug[1], plug[2]
+        for i in range(start, buf.shape[0]):
+            buf[i] = 0.0
         forces = (0.0, 0.0, 0.0, 0.0)
     return forces, event
 
@@ -211,13 +264,13 @@ def reference_shown(cm: np.ndarray, mem: np.ndarray) -> tuple[float, float, floa
 
 
 @jit
-def control_tick(kind: int, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray,
-                 f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, time_usec: int, tick: int, now: float,
-                 records: np.ndarray) -> None:  # fmt: skip
+def control_tick(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray,
+                 c: np.ndarray, f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, time_usec: int, tick: int,
+                 now: float, records: np.ndarray) -> None:  # fmt: skip
     """The process's tick once the state (``st``) is known: :func:`autopilot_step` (its event into io[EVENT]), the
     answer into ``tx``, and the four telemetry records into the batch's next row when io[CAPACITY] > 0
     (``records``: :class:`Batch`)."""
-    forces, event = autopilot_step(kind, st, cm, mem, v, c, f_min, f_max, tick, now)
+    forces, event = autopilot_step(kind, plug, st, cm, mem, v, c, f_min, f_max, tick, now)
     io[EVENT] = event
     armed = cm[ARMED] != 0.0
     io[SEQ] = (io[SEQ] + 1) & 0xFF
@@ -299,8 +352,9 @@ def _frames(tick: int, period: float, st: np.ndarray, cm: np.ndarray, mem: np.nd
 
 @jit
 def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndarray, period: float, kind: int,
-                   cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray, f_min: float, f_max: float,
-                   tx: np.ndarray, io: np.ndarray, records: np.ndarray, frames: tuple) -> int:  # fmt: skip
+                   plug: tuple, cm: np.ndarray, mem: np.ndarray, v: np.ndarray, c: np.ndarray, f_min: float,
+                   f_max: float, tx: np.ndarray, io: np.ndarray, records: np.ndarray,
+                   frames: tuple) -> int:  # fmt: skip
     """A datagram from the plant (rx[:length]) → what to do (ANSWER | STREAM | ...). A new state becomes
     ``st`` and is flown (:func:`control_tick`), and its telemetry frames due are built (``frames``:
     :attr:`autopilot.stream_frames.StreamFrames.out`); a re-sent one gets the same answer again; a stale one (older
@@ -314,7 +368,7 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
     st[:] = scratch
     tick = tick_of(t, period)
     io[TICK] = tick
-    control_tick(kind, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
+    control_tick(kind, plug, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
     return _flags(io, tick) | _frames(tick, period, st, cm, mem, io, frames)
 
 
@@ -334,9 +388,9 @@ def estimate(flags: int, period: float, est: tuple, st: np.ndarray) -> int:
 
 @jit
 def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarray, home: tuple, est: tuple,
-                st: np.ndarray, period: float, kind: int, cm: np.ndarray, mem: np.ndarray, v: np.ndarray,
-                c: np.ndarray, f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, records: np.ndarray,
-                frames: tuple) -> int:  # fmt: skip
+                st: np.ndarray, period: float, kind: int, plug: tuple, cm: np.ndarray, mem: np.ndarray,
+                v: np.ndarray, c: np.ndarray, f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray,
+                records: np.ndarray, frames: tuple) -> int:  # fmt: skip
     """Sensor mode: a sensor datagram from the plant (:mod:`quadsitl.hil`) → what to do, as :func:`autopilot_tick`.
     A new tick's measurements go to the estimator (``est``: :attr:`autopilot.estimator.Estimator.arrays`); its
     estimate becomes ``st`` and is flown. The plant's ground truth is decoded into ``truth`` and goes to the
@@ -362,7 +416,7 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
             _put(records, at + 16 + 8 * i, truth[i])
         for i in range(3):
             _put(records, at + 88 + 8 * i, truth[BODY_RATES + i])
-    control_tick(kind, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
+    control_tick(kind, plug, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
     flags = _flags(io, tick) | _frames(tick, period, st, cm, mem, io, frames)
     if status != io[ESTIMATE]:
         io[ESTIMATE] = status
@@ -414,8 +468,8 @@ def warm_up() -> None:
             io = np.zeros(IO_SIZE, dtype=np.int64)
             io[LAST_USEC], io[CAPACITY] = -1, batch.capacity
             n = codec.encode_state(frame, 0, 1, 1, 0, st)
-            autopilot_tick(frame, n, st.copy(), st, 0.001, kind, commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0,
-                           frame, io, batch.records, frames.out)  # fmt: skip
+            autopilot_tick(frame, n, st.copy(), st, 0.001, kind, plugin.no_plug(), commander.cm, np.zeros(MEM_SIZE),
+                           v, c, -1.0, 1.0, frame, io, batch.records, frames.out)  # fmt: skip
             io[LAST_USEC] = -1
             est = Estimator(0.001, 9.8, (0.2, 0.0, 0.4))
             n = hil.encode_sensor(datagram, 0, 1, 1, 0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), (0.2, 0.0, 0.4), 1000.0,
@@ -423,5 +477,5 @@ def warm_up() -> None:
             n += hil.encode_gps(datagram[n:], 1, 1, 1, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (47.0, 8.0, 488.0), 1.0,
                                 1.0, 10)  # fmt: skip
             sensor_tick(datagram, n, frame.copy(), st.copy(), (47.0, 8.0, 488.0), est.arrays, st, 0.001, kind,
-                        commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0, frame, io, batch.records,
+                        plugin.no_plug(), commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0, frame, io, batch.records,
                         frames.out)  # fmt: skip

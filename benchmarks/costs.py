@@ -26,6 +26,7 @@ def measure(number: int) -> dict[str, float]:
     from autopilot import backstepping, pd
     from autopilot.commander import Commander
     from autopilot.control_params import BACKSTEPPING, MEM_SIZE, control_array
+    from autopilot.plugin import no_plug
     from autopilot.stream_frames import StreamFrames
     from autopilot.tick import CAPACITY, IO_SIZE, LAST_USEC, Batch
     from quadsitl import codec
@@ -74,8 +75,8 @@ def measure(number: int) -> dict[str, float]:
 
     def autopilot_side() -> None:
         io[LAST_USEC] = -1  # every call a new state
-        autopilot_tick(state_frame, n_state, scratch, st, T, BACKSTEPPING, commander.cm, mem, v, c, -1e4, 1e4,
-                       answer, io, batch.records, frames)  # fmt: skip
+        autopilot_tick(state_frame, n_state, scratch, st, T, BACKSTEPPING, no_plug(), commander.cm, mem, v, c, -1e4,
+                       1e4, answer, io, batch.records, frames)  # fmt: skip
 
     autopilot_side()
     n_answer = int(io[1])
@@ -105,7 +106,8 @@ def measure(number: int) -> dict[str, float]:
         pio[:], io[:] = 0, 0
         pio[tick.LAST_USEC] = io[LAST_USEC] = -1
         io[CAPACITY] = batch.capacity  # the telemetry records written on every tick, as in the process
-        targs = (scratch, st, T, BACKSTEPPING, commander.cm, mem, v, c, -1e4, 1e4, answer, io, batch.records, frames)
+        targs = (scratch, st, T, BACKSTEPPING, no_plug(), commander.cm, mem, v, c, -1e4, 1e4, answer, io,
+                 batch.records, frames)  # fmt: skip
         pargs = (xs, motors, out, v, a, *air, T, 1, 0, state_frame, pio, sens)
         start = time.perf_counter()
         pair_ticks(ticks, targs, pargs, received, commanded)
@@ -118,7 +120,7 @@ def measure(number: int) -> dict[str, float]:
 def pair_ticks(n: int, targs: tuple, pargs: tuple, received: np.ndarray, commanded: np.ndarray) -> int:
     """``n`` lockstep ticks with no sockets: the plant's state frame to the autopilot's tick, its answer to the
     plant's tick, and again → the ticks stepped."""
-    answer, io = targs[10], targs[11]
+    answer, io = targs[11], targs[12]
     state_frame, pio, period = pargs[10], pargs[11], pargs[7]
     tick.encode_tick(state_frame, pio, pargs[0], pargs[2], pargs[5], pargs[12], 0, period)
     stepped = 0

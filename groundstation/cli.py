@@ -111,6 +111,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     duration = args.duration or preset.sim.duration
     label = "sim:" if len(kinds) == 1 else f"sim ({' + '.join(kinds)}):"
     # after the checks: a refusal is answered without loading the compiler (1.9 -> 0.2 s of CPU)
+    from autopilot.plugin import ControllerError
     from autopilot.setpoints import SetpointError
     from groundstation.metrics import format_position_table, format_table
     from groundstation.mission_files import MISSION_DURATION, load
@@ -141,6 +142,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
     except GainError as exc:
         what = f"trial {args.trial} was not flown by the sweep: " if args.from_sweep is not None else ""
         raise UsageError(f"{what}inadmissible gains: {exc}") from None
+    except ControllerError as exc:
+        raise UsageError(str(exc)) from None
     except SetpointError as exc:
         raise UsageError(f"--trajectory {trajectory}: {exc}") from None
     settings = {
@@ -171,10 +174,15 @@ def cmd_sim(args: argparse.Namespace) -> int:
     for kind, r in diverged.items():  # said even with --quiet: the run did not fly its duration
         print(f"quadsitl sim: the state diverged at t = {r.diverged_at:.3f} s ({kind}): {r.diverged_what}; "
               f"{len(r.t)} ticks flown before it are in the telemetry and metrics.json", file=sys.stderr)  # fmt: skip
+    for kind, r in results.items():  # the failsafe flew the rest: said even with --quiet
+        if r.controller_failed_at is not None:
+            print(f"quadsitl sim: {kind} commanded a non-finite value at t = {r.controller_failed_at:.3f} s: the "
+                  "failsafe flew the backstepping from then on and landed", file=sys.stderr)  # fmt: skip
     unfinished = {k: r.mission.where for k, r in results.items() if r.mission is not None and r.mission.where}
     for kind, where in unfinished.items():  # as fly's: the flight so far is kept
         print(f"quadsitl sim: error: {where} ({kind}); the flight so far is in {out}", file=sys.stderr)
-    return SIM_DIVERGED if diverged else 1 if unfinished else 0
+    failed = any(r.controller_failed_at is not None for r in results.values())
+    return SIM_DIVERGED if diverged else 1 if unfinished or failed else 0
 
 
 EXAMPLES_SWEEP = """examples:
@@ -327,10 +335,30 @@ PROCESSES = {
 }
 
 
+def check_controller(args: argparse.Namespace, preset: Preset) -> None:
+    """A controller to load (``--controller file.py:Name``) loaded, checked and probed on ``preset``'s model here,
+    before any process starts (one line when it cannot fly), and named by its absolute path for the processes."""
+    from quadsitl.controller_names import is_plugin
+
+    if args.controller is None or not is_plugin(args.controller):
+        return
+    from autopilot.factory import make_controller
+    from autopilot.plugin import ControllerError
+
+    try:
+        make_controller(preset, args.controller)
+    except ControllerError as exc:
+        raise UsageError(str(exc)) from None
+    where, _, name = args.controller.rpartition(":")
+    if where.endswith(".py") or "/" in where:
+        args.controller = f"{Path(where).expanduser().resolve()}:{name}"
+
+
 def cmd_fly(args: argparse.Namespace) -> int:
     from groundstation.launcher import fly
 
     preset = with_state(with_wind(_load(args.preset), args), args)
+    check_controller(args, preset)
     if args.vehicles != 1 or args.formation:
         from groundstation.formation_flight import check_fleet_flight, fly_fleet
 
@@ -378,6 +406,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     from quadsitl.process_util import parse_address, parse_remote
 
     preset = with_state(with_wind(_load(args.preset), args), args)
+    check_controller(args, preset)
     if args.speed < 0 or args.speed > 1000:
         raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
     if not 1 <= args.system_id <= 255:

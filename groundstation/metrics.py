@@ -80,21 +80,27 @@ def run_metrics(t: np.ndarray, y: np.ndarray, reference: np.ndarray, inputs: np.
     return {ch: step_metrics(t, y[:, i], ref[:, i], inputs[:, i]) for i, ch in enumerate(CHANNELS)}
 
 
+def _name_width(metrics: dict) -> int:
+    """The controller column's width: 13, or a loaded controller's name (path:Name) and two spaces."""
+    return max([13] + [len(name) + 2 for name in metrics])
+
+
 def format_table(metrics: dict[str, dict]) -> str:
     """A fixed-width table of {controller: {channel: metrics}} for the terminal and the docs (docs/results.md)."""
 
     def f(v: float | None, scale: float = 1.0, fmt: str = ".3f") -> str:
         return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v * scale, fmt)
 
+    w = _name_width(metrics)
     header = (
-        f"{'controller':<13}{'channel':<10}{'rise [s]':>10}{'settle [s]':>12}{'overshoot':>11}"
+        f"{'controller':<{w}}{'channel':<10}{'rise [s]':>10}{'settle [s]':>12}{'overshoot':>11}"
         f"{'ss error':>12}{'peak |u|':>11}"
     )
     lines = [header, "-" * len(header)]
     for ctrl, chans in metrics.items():
         for ch, m in chans.items():
             lines.append(
-                f"{ctrl:<13}{ch:<10}{f(m['rise_time']):>10}{f(m['settling_time']):>12}"
+                f"{ctrl:<{w}}{ch:<10}{f(m['rise_time']):>10}{f(m['settling_time']):>12}"
                 f"{f(m['overshoot_pct'], fmt='.2f') + ' %':>11}{f(m['steady_state_error'], fmt='.2e'):>12}"
                 f"{f(m['peak_abs_u'], fmt='.1f'):>11}"
             )
@@ -128,13 +134,14 @@ def format_position_table(metrics: dict[str, dict]) -> str:
     def f(v: float | None) -> str:
         return "—" if v is None else f"{v:.3f}"
 
+    w = _name_width(metrics)
     header = (
-        f"{'controller':<13}{'samples':>9}{'horizontal RMS [m]':>20}{'horizontal max [m]':>20}{'altitude RMS [m]':>18}"
+        f"{'controller':<{w}}{'samples':>9}{'horizontal RMS [m]':>20}{'horizontal max [m]':>20}{'altitude RMS [m]':>18}"
     )
     lines = [header, "-" * len(header)]
     for ctrl, m in metrics.items():
         lines.append(
-            f"{ctrl:<13}{m['samples']:>9}{f(m['horizontal_rms']):>20}{f(m['horizontal_max']):>20}"
+            f"{ctrl:<{w}}{m['samples']:>9}{f(m['horizontal_rms']):>20}{f(m['horizontal_max']):>20}"
             f"{f(m['altitude_rms']):>18}"
         )
     return "\n".join(lines)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from autopilot import mission_protocol as mp
+from autopilot.control_params import MEM_PLUG_FAILED_TICK
 from autopilot.factory import make_controller
 from autopilot.missions import Missions
 from groundstation import mission_files, trajectories
@@ -75,6 +76,7 @@ class SimResult:
     estimate: np.ndarray | None = None  # (N, 12) what the controller flew on (sensor mode); ``state`` is the truth
     position_reference: np.ndarray | None = None  # (N, 2) x, y flown [m, NED]; NaN while not controlled
     mission: MissionFlight | None = None  # a mission's flight: how it went
+    controller_failed_at: float | None = None  # [s]: when a plugged controller commanded a non-finite value
 
     def body_rates(self, state: np.ndarray | None = None) -> np.ndarray:
         """(N, 3) body rates p, q, r [rad/s] from the Euler-angle rates of ``state`` (default: the truth), eq (1)."""
@@ -99,11 +101,14 @@ def result_of(vehicle: Vehicle, rows: np.ndarray, diverged: bool) -> SimResult:
     """The rows of a flight (R_*) as a :class:`SimResult`; ``diverged``: the flight ended on a state out of bounds
     (``vehicle.state``)."""
     flown = len(rows)
+    failed = vehicle.mem[MEM_PLUG_FAILED_TICK]  # the tick + 1 (0: none), counted from the vehicle's first
+    first = vehicle.tick - flown  # the rows' first tick: their t = 0
     return SimResult(np.arange(flown) * vehicle.period, rows[:, R_STATE : R_STATE + 12], rows[:, R_REF : R_REF + 4],
                      rows[:, R_INPUTS : R_INPUTS + 4], rows[:, R_FORCES : R_FORCES + 4],
                      flown * vehicle.period if diverged else None, outside_what(vehicle.plant.x) if diverged else "",
                      rows[:, R_SEEN : R_SEEN + 12] if vehicle.sensing else None,
-                     rows[:, R_XY_REF : R_XY_REF + 2])  # fmt: skip
+                     rows[:, R_XY_REF : R_XY_REF + 2],
+                     controller_failed_at=(failed - 1 - first) * vehicle.period if failed else None)  # fmt: skip
 
 
 def rows_of(res: SimResult) -> np.ndarray:
@@ -210,7 +215,8 @@ def run_offline(
     moments = ((first + g, sp) for g, sp in grid_setpoints(path, period, round(duration / period)))
     results, metrics = {}, {}
     for i, (kind, controller) in enumerate(built.items()):
-        vehicle = Vehicle(preset, controller.kind, controller.v, controller.c, integrator, substeps, home)
+        vehicle = Vehicle(preset, controller.kind, controller.v, controller.c, integrator, substeps, home,
+                          controller.plug)  # fmt: skip
         done = None if progress is None else (lambda s, before=i * duration: progress(before + s))
         if mission is not None:
             res = fly_mission(vehicle, mission, duration, done)

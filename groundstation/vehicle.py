@@ -28,7 +28,7 @@ from numba import types
 from numba.extending import overload
 
 from autopilot import commander as cmd
-from autopilot import setpoints
+from autopilot import plugin, setpoints
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
 from autopilot.estimator import Estimator
@@ -97,14 +97,15 @@ def vehicle_tick(k: int, kind: int, period: float, substeps: int, method: int, p
     commander's event. ``plant`` = (work, vehicle, actuators, air_rng, io, datagram): :class:`sitl.plant.Plant`'s
     arrays (the parameters as arrays or, for a compiled loop that reads them every tick, tuples), the plant tick's
     bookkeeping (:mod:`sitl.tick`) and the sensor datagram's buffer; ``sens`` the sensors' arrays;
-    ``ap`` = (st, cm, mem, v, c, truth, frame): the state seen (:data:`quadsitl.codec.DECODED_SIZE`), the commander,
-    the controller's memory, the autopilot's vehicle model and control parameters, and the decoder's scratch;
+    ``ap`` = (st, cm, mem, v, c, truth, frame, plug): the state seen (:data:`quadsitl.codec.DECODED_SIZE`), the
+    commander, the controller's memory, the autopilot's vehicle model and control parameters, the decoder's scratch,
+    and a plugged controller (:meth:`autopilot.plugin.Plugged.plug`; a built-in's :func:`autopilot.plugin.no_plug`);
     ``est`` the estimator's arrays; ``home`` the local origin (lat, lon [deg], alt [m AMSL])."""
     w, pv, pa, air_rng, pio, datagram = plant
-    st, cm, mem, v, c, truth, frame = ap
+    st, cm, mem, v, c, truth, frame, plug = ap
     x, out, air = w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:]
     observe(k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame)
-    forces, event = autopilot_step(kind, st, cm, mem, v, c, f_min, f_max, k, k * period)
+    forces, event = autopilot_step(kind, plug, st, cm, mem, v, c, f_min, f_max, k, k * period)
     commanded = w[W_COMMANDED:W_OUT]
     for i in range(4):
         commanded[i] = forces[i]
@@ -236,12 +237,14 @@ class Vehicle:
     """One vehicle of a preset, composed once: the plant (:class:`sitl.plant.Plant`, with its sensors and air) and
     the autopilot's arrays (commander, controller memory, model, gains, estimator), for :func:`fly_ticks`.
 
-    ``kind``: the controller's code (:data:`autopilot.control_params.KINDS`); ``v``, ``c``: the autopilot's model
-    and control arrays (a controller's, :func:`autopilot.factory.make_controller`); ``integrator``, ``substeps``:
-    the plant's integration (default: the preset's)."""
+    ``kind``: the controller's code (:data:`autopilot.control_params.KINDS`, or PLUGGED with its ``plug``:
+    :meth:`autopilot.plugin.Plugged.plug`); ``v``, ``c``: the autopilot's model and control arrays (a controller's,
+    :func:`autopilot.factory.make_controller`); ``integrator``, ``substeps``: the plant's integration (default: the
+    preset's)."""
 
     def __init__(self, preset: Preset, kind: int, v: np.ndarray, c: np.ndarray, integrator: str | None = None,
-                 substeps: int | None = None, home: tuple[float, float, float] = PX4_HOME) -> None:  # fmt: skip
+                 substeps: int | None = None, home: tuple[float, float, float] = PX4_HOME,
+                 plug: tuple | None = None) -> None:  # fmt: skip
         self.preset, self.kind, self.home = preset, kind, home
         self.period = preset.sim.period
         self.plant = Plant(preset, integrator=integrator, substeps=substeps, home=home)
@@ -254,7 +257,8 @@ class Vehicle:
         self.st = np.zeros(codec.DECODED_SIZE)
         self.mem = np.zeros(MEM_SIZE)
         self.ap = (self.st, self.commander.cm, self.mem, np.asarray(v, dtype=float), np.asarray(c, dtype=float),
-                   np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8))  # fmt: skip
+                   np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8),
+                   plug if plug is not None else plugin.no_plug())  # fmt: skip
         s = preset.sensors  # in sensor mode the autopilot flies on its estimator's estimate (observe)
         self.estimator = None if s is None else Estimator.for_field(self.period, preset.vehicle.gravity,
                                                                     s.mag_strength_gauss, s.mag_declination_deg,

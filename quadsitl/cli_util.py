@@ -19,6 +19,7 @@ from quadsitl.config import (
     check_value,
     default_sensors,
 )
+from quadsitl.controller_names import ALLOWED, is_controller_name
 
 
 class UsageError(Exception):
@@ -114,11 +115,23 @@ def attach_negative_values(argv: list[str], options: tuple[str, ...]) -> list[st
     return out
 
 
+CONTROLLER_HELP = f"{ALLOWED} (docs/controllers.md)"
+
+
+def controller_name(value: str) -> str:
+    """``--controller``'s value: a built-in's name, or a controller to load (``file.py:Name``, ``module:Name``), which
+    is loaded, checked and compiled when the command flies it."""
+    if is_controller_name(value):
+        return value
+    raise argparse.ArgumentTypeError(f"{value!r}: expected {CONTROLLER_HELP}")
+
+
 def add_preset_arguments(p: argparse.ArgumentParser, controller: bool = True) -> None:
     """``--preset`` (a shipped name or a TOML path) and, optionally, ``--controller``."""
     p.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
     if controller:
-        p.add_argument("--controller", choices=("backstepping", "pd"), help="default: the preset's")
+        p.add_argument("--controller", type=controller_name, metavar="NAME",
+                       help=f"{CONTROLLER_HELP} (default: the preset's)")  # fmt: skip
 
 
 WIND_OPTIONS = ("--wind", "--turbulence", "--gust", "--wind-seed")

@@ -16,6 +16,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from quadsitl.controller_names import ALLOWED, is_controller_name
 from quadsitl.state import Reference, VehicleState
 
 if sys.version_info >= (3, 11):
@@ -321,7 +322,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "substeps": Spec("int", "an integer in [1, 1000]", lambda v: 1 <= v <= 1000, required=False, default=1),
     },
     "controller": {
-        "type": Spec("string", "one of: backstepping, pd", lambda v: v in ("backstepping", "pd")),
+        "type": Spec("string", ALLOWED + " (a relative path: from the working directory)", is_controller_name),
         "gains": Spec("numbers", "8 finite numbers (rates k_i, 1/s)", math.isfinite, 8, required=False),
         "poles": Spec("numbers", "8 finite numbers (poles λ_i)", math.isfinite, 8, required=False),
         "max_tilt": _num("a number in (0, 1.5533] rad (< 89°)", lambda v: 0 < v <= 1.5533),

@@ -16,6 +16,7 @@ from autopilot import commander
 from autopilot.backstepping import backstepping
 from autopilot.control_params import BACKSTEPPING, MEM_SIZE, PD, control_array
 from autopilot.pd import pd
+from autopilot.plugin import no_plug
 from autopilot.stream_frames import StreamFrames
 from autopilot.tick import autopilot_tick
 from groundstation.offline import run_offline
@@ -119,8 +120,8 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
         rx[:n] = tx[:n]
         kind = BACKSTEPPING if k < 150 else PD
         io_ap[3] = k % 4  # the batch's row
-        autopilot_tick(rx, n, scratch, st, preset.sim.period, kind, cm.cm, mem, v, c, -1e4, 1e4, tx, io_ap, records,
-                       no_frames)  # fmt: skip
+        autopilot_tick(rx, n, scratch, st, preset.sim.period, kind, no_plug(), cm.cm, mem, v, c, -1e4, 1e4, tx,
+                       io_ap, records, no_frames)  # fmt: skip
         m = int(io_ap[1])
         bytes_out.append(tx[:m].copy())
         rx[:m] = tx[:m]

@@ -17,6 +17,7 @@ from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE
 from autopilot.factory import make_controller
 from autopilot.params import commander_settings
+from autopilot.plugin import no_plug
 from autopilot.tick import EVENT, IO_SIZE, control_tick
 from quadsitl import codec
 from quadsitl.config import Preset
@@ -60,8 +61,9 @@ class Flight:
         for _ in range(n):
             self.st[:12] = self.plant.x
             t = self.tick * self.period
-            control_tick(self.kind, self.st, self.cm, self.mem, self.v, self.c, self.f_min, self.f_max, self.tx,
-                         self.io, codec.usec_of(self.tick, self.period), self.tick, t, self.records)  # fmt: skip
+            control_tick(self.kind, no_plug(), self.st, self.cm, self.mem, self.v, self.c, self.f_min, self.f_max,
+                         self.tx, self.io, codec.usec_of(self.tick, self.period), self.tick, t,
+                         self.records)  # fmt: skip
             self.commander.announce(int(self.io[EVENT]))
             self.plant.step(tuple(self.mem[MEM_FORCES : MEM_FORCES + 4]))
             self.tick += 1

@@ -20,6 +20,7 @@ from autopilot.commander import Commander, Mode
 from autopilot.control_params import MEM_SIZE
 from autopilot.estimator import Estimator
 from autopilot.factory import make_controller
+from autopilot.plugin import no_plug
 from autopilot.stream_frames import StreamFrames
 from groundstation.launcher import free_port
 from groundstation.telemetry_csv import read_csv
@@ -144,8 +145,8 @@ class SensorAutopilot:
         self.io[kernel.ROWS] = 0
         rx = datagram.copy()
         flags = kernel.sensor_tick(rx, len(rx), self.frame, self.truth, frames.PX4_HOME, self.est.arrays, self.st,
-                                   self.period, self.ctl.kind, self.cm.cm, self.mem, self.ctl.v, self.ctl.c, self.f_min,
-                                   self.f_max, self.tx, self.io, self.batch.records,
+                                   self.period, self.ctl.kind, no_plug(), self.cm.cm, self.mem, self.ctl.v,
+                                   self.ctl.c, self.f_min, self.f_max, self.tx, self.io, self.batch.records,
                                    StreamFrames(2, frames.PX4_HOME, 40.0).out)  # fmt: skip
         assert flags & kernel.ANSWER
         return bytes(self.tx[: self.io[kernel.TX_LEN]])

@@ -40,6 +40,7 @@ import math
 import numpy as np
 
 from autopilot import commander as cmd
+from autopilot import plugin
 from autopilot.control_params import BACKSTEPPING, MEM_FORCES, MEM_SIZE, MEM_U, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
 from groundstation.vehicle import (
@@ -137,7 +138,7 @@ def _fly(
     from trial to trial (:func:`context`). The trial is flown as ``quadsitl sim`` flies it: the commander sees the
     initial state, takes the setpoint, arms in offboard, and each tick is :func:`groundstation.vehicle.vehicle_tick`."""
     w, air_rng, pio, datagram, st, cm, mem, truth, frame, cm0, air0, rng0, sens, sp_ticks, table, \
-        sp_next = ctx  # fmt: skip
+        sp_next, plug = ctx  # fmt: skip
     # ---- the vehicle, at rest before its first tick (groundstation.vehicle.Vehicle) -------------------------------
     w[:] = 0.0
     for i in range(12):
@@ -154,7 +155,7 @@ def _fly(
     arm_offboard(0, cm, x0, period, sp_ticks, table, sp_next)
     plant = (w, constants(v, VEHICLE_SIZE), constants(a, ACTUATOR_SIZE), air_rng, pio, datagram)
     # The autopilot's parameters as tuples: what depends on them alone is computed once, not on every tick.
-    ap = (st, cm, mem, constants(vm, VEHICLE_SIZE), constants(c, CONTROL_SIZE), truth, frame)
+    ap = (st, cm, mem, constants(vm, VEHICLE_SIZE), constants(c, CONTROL_SIZE), truth, frame, plug)
     f_min, f_max = a[F_MIN], a[F_MAX]
     t_min, t_max = c[THRUST_MIN], c[THRUST_MAX]
     x = w[W_X:W_MOTORS]
@@ -282,7 +283,7 @@ def context(cm0: np.ndarray, sp_ticks: np.ndarray) -> tuple:
             np.zeros(MEM_SIZE), np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8),
             np.asarray(cm0, dtype=np.float64), air0, rng0, (),
             np.asarray(sp_ticks, dtype=np.int64), np.zeros((len(sp_ticks), SP_FIELDS)),
-            np.zeros(1, dtype=np.int64))  # fmt: skip
+            np.zeros(1, dtype=np.int64), plugin.no_plug())  # fmt: skip
 
 
 def run_chunk(

@@ -75,6 +75,7 @@ from quadsitl.config import (
     parse_preset,
     read_preset,
 )
+from quadsitl.controller_names import ALLOWED, is_controller_name, is_plugin
 from quadsitl.param_arrays import (
     ARM,
     D_OVER_B,
@@ -344,7 +345,9 @@ STATES = ("truth", "sensors")  # what the autopilot flies on (sensors: the prese
 ENGINES = ("batch", "sitl")  # the batch engine (engine.py), or every trial a whole `quadsitl fly` (sitl_engine.py)
 TOP: dict[str, Spec] = {
     "preset": Spec("string", "a shipped preset's name or a preset TOML's path"),
-    "controller": Spec("string", "one of: backstepping, pd", lambda v: v in ("backstepping", "pd"), required=False),
+    "controller": Spec(
+        "string", f"{ALLOWED} (a file: the spec's folder is its base)", is_controller_name, required=False
+    ),
     "task": Spec("string", f"one of: {', '.join(TASKS)}", lambda v: v in TASKS, required=False, default="step"),
     "duration": Spec("number", "a number in (0, 3600] s", lambda v: 0 < v <= 3600, required=False),
     "seed": Spec("int", "an integer >= 0", lambda v: v >= 0, required=False, default=0),
@@ -401,9 +404,10 @@ class SweepSpec:
         """The batch engine flies its trials in one compiled loop (:func:`groundstation.sweep.engine.run_chunk`):
         the task's constant reference on the true state in calm air. Any other spec (a trajectory, a mission,
         sensors, wind) has each trial flown as ``quadsitl sim`` flies the trial's preset (:func:`trial_preset`),
-        one after the other (:mod:`groundstation.sweep.run`)."""
+        one after the other (:mod:`groundstation.sweep.run`); so is a controller of your own (``file.py:Name``)."""
         calm = self.preset.wind == WindParams() and not any(k.startswith(("wind.", "sensors.")) for k in self.vary)
-        return self.trajectory is None and self.mission is None and self.state == "truth" and calm
+        built_in = not is_plugin(self.controller)
+        return self.trajectory is None and self.mission is None and self.state == "truth" and calm and built_in
 
     @property
     def period(self) -> float:
@@ -513,6 +517,8 @@ def parse_spec(
     except ConfigError as exc:
         raise ConfigError(f"{where}: preset = {top['preset']!r}: {exc}") from None
     controller = top["controller"] or preset.controller.type
+    if is_plugin(controller):
+        controller = _plugged(controller, base, preset, where)
     trajectory, mission, natural = _flown(top, base, preset, where)
     # What the autopilot flies on: the spec's state, else the preset's ([sensors] or not).
     top["state"] = top["state"] or ("sensors" if preset.sensors is not None else "truth")
@@ -557,6 +563,9 @@ def parse_spec(
         if key in ("mismatch.ixx", "mismatch.iyy", "mismatch.izz") and "mismatch.inertia" in vary:
             raise ConfigError(f"{where}: vary.{key} with vary.mismatch.inertia: give one factor for all three, or "
                               "one per axis")  # fmt: skip
+        if group == "gains" and is_plugin(controller):
+            raise ConfigError(f"{where}: vary.{key}: gains.* are the built-in controllers'; {controller} is flown "
+                              "with its parameters' defaults")  # fmt: skip
         pd_alt = param == "ki_alt" and controller == "pd"  # the PD's altitude channel has no integral
         if (
             group == "gains" and param not in INTEGRAL and (param in RATES) != (controller == "backstepping")
@@ -591,6 +600,25 @@ def parse_spec(
                 raise ConfigError(f"{where}: inadmissible gains{which}: {exc}; or set inadmissible = \"record\" "
                                   "to fly the others and record these") from None  # fmt: skip
     return spec
+
+
+def _plugged(controller: str, base: Path | None, preset: Preset, where: str) -> str:
+    """A controller of your own (``file.py:Name``: the spec's folder is its base; ``module:Name``), loaded, checked
+    and probed on the preset's model as every trial would fly it; named by its absolute path."""
+    from autopilot.factory import make_controller
+    from autopilot.plugin import ControllerError
+
+    file, _, name = controller.rpartition(":")
+    if file.endswith(".py") or "/" in file:
+        path = Path(file).expanduser()
+        if base is not None and not path.is_absolute():
+            path = base / path
+        controller = f"{path.resolve()}:{name}"
+    try:
+        make_controller(preset, controller, position_loop=False)
+    except ControllerError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    return controller
 
 
 def _flown(top: dict[str, Any], base: Path | None, preset: Preset, where: str) -> tuple[str | None, Any, float | None]:
