@@ -27,7 +27,7 @@ import numpy as np
 from numba import types
 
 from quadsitl import controller as api
-from quadsitl.controller_names import BUILT_IN, is_plugin  # noqa: F401 (is_plugin: this module's callers')
+from quadsitl.controller_names import BUILT_IN, SHIPPED, is_plugin  # noqa: F401 (is_plugin: this module's callers')
 from quadsitl.jit import DISABLED
 from quadsitl.param_arrays import VEHICLE_SIZE
 
@@ -166,8 +166,9 @@ class Plugged:
         buf = self.buffer(model, values)
         probe = buf.copy()
         probe[B_STATE + api.Z] = -5.0
+        inf = math.inf
         probe[B_SETPOINT : B_SETPOINT + api.SETPOINT_SIZE] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0, 0.0,
-                                                              0.0, 0.0)  # fmt: skip
+                                                              0.0, 0.0, inf, inf, inf, 0.6)  # fmt: skip
         probe[B_COMMAND : B_COMMAND + 4] = math.nan
         try:
             _call(self.entry, probe, 0.0, 0.001)
@@ -313,9 +314,18 @@ def _numba_reason(exc: BaseException) -> str:
     return (reason or type(exc).__name__) + place
 
 
+_LOADED: dict[tuple[str, float], Plugged] = {}  # this process's loaded controllers, by name and file time
+
+
 def load(spec: str) -> Plugged:
-    """The controller ``spec`` names (``path/to/file.py:Name`` or ``package.module:Name``), its law compiled. Raises
+    """The controller ``spec`` names (a shipped one's name, ``path/to/file.py:Name`` or ``package.module:Name``), its
+    law compiled, once per process while its file is unchanged (a sweep flies it trial after trial). Raises
     :class:`ControllerError` (one line) when it cannot be."""
-    cls = _import(spec)
-    parameters, memory, law = _declared(spec, cls)
-    return Plugged(spec, cls, parameters, memory, _entry(spec, law, len(parameters), memory))
+    where = SHIPPED.get(spec, spec).rpartition(":")[0]
+    path = Path(where).expanduser()
+    key = (spec, path.stat().st_mtime if where.endswith(".py") and path.is_file() else 0.0)
+    if key not in _LOADED:
+        cls = _import(SHIPPED.get(spec, spec))
+        parameters, memory, law = _declared(spec, cls)
+        _LOADED[key] = Plugged(spec, cls, parameters, memory, _entry(spec, law, len(parameters), memory))
+    return _LOADED[key]

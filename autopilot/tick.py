@@ -59,9 +59,11 @@ from autopilot.control_params import (
     PERIOD,
     PLUGGED,
     POSITION,
+    TAN_TILT_AIR,
     THRUST_MAX,
     THRUST_MIN,
     VELOCITY,
+    XY_VEL_MAX,
     Z_VEL_DN,
     Z_VEL_UP,
 )
@@ -162,7 +164,7 @@ ANSWER, STREAM, EVENT_DUE, BATCH_FULL, NOT_MINE, REFUSED, ESTIMATOR_CHANGED, FRA
 
 
 @jit(inline=True)
-def plugged(plug: tuple, x: tuple, cm: np.ndarray, v: np.ndarray, now: float, period: float) -> Inputs:
+def plugged(plug: tuple, x: tuple, cm: np.ndarray, v: np.ndarray, c: np.ndarray, now: float) -> Inputs:
     """A plugged controller's command (:mod:`quadsitl.controller`) for the state ``x`` and the commander's reference,
     as the paper's inputs (u2, u3 = the roll and pitch torques / l). ``plug`` = (the compiled law, its buffer, where
     its memory starts: :meth:`autopilot.plugin.Plugged.plug`); the command starts NaN, so one not written is not
@@ -172,13 +174,19 @@ def plugged(plug: tuple, x: tuple, cm: np.ndarray, v: np.ndarray, now: float, pe
         buf[plugin.B_STATE + i] = x[i]
     p, q, r = euler_rates_to_body_rates(x[6], x[7], x[9], x[10], x[11])  # eq (1)
     buf[plugin.B_STATE + 12], buf[plugin.B_STATE + 13], buf[plugin.B_STATE + 14] = p, q, r
-    for i in range(plugin.B_COMMAND - plugin.B_SETPOINT):
+    for i in range(REF_YAW_RATE + 1 - REF_X):
         buf[plugin.B_SETPOINT + i] = cm[REF_X + i]
+    limited = cm[REF_LIMITED] != 0.0
+    limits = plugin.B_SETPOINT + REF_YAW_RATE + 1 - REF_X  # SP_SPEED_MAX..SP_TILT_MAX
+    buf[limits] = c[XY_VEL_MAX] if limited else math.inf
+    buf[limits + 1] = c[Z_VEL_UP] if limited else math.inf
+    buf[limits + 2] = c[Z_VEL_DN] if limited else math.inf
+    buf[limits + 3] = math.atan(c[TAN_TILT_AIR])
     for i in range(4):
         buf[plugin.B_COMMAND + i] = math.nan
     for i in range(VEHICLE_SIZE):
         buf[plugin.B_MODEL + i] = v[i]
-    plugin.call_law(entry, buf, now, period)
+    plugin.call_law(entry, buf, now, c[PERIOD])
     arm = v[ARM]
     c0 = plugin.B_COMMAND
     return Inputs(buf[c0], buf[c0 + 1] / arm, buf[c0 + 2] / arm, buf[c0 + 3])
@@ -217,7 +225,7 @@ def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: 
         if kind == PLUGGED:
             law = BACKSTEPPING
             if mem[MEM_PLUG_FAILED] == 0.0:
-                u = plugged(plug, x, cm, v, now, c[PERIOD])
+                u = plugged(plug, x, cm, v, c, now)
                 if math.isfinite(u[0]) and math.isfinite(u[1]) and math.isfinite(u[2]) and math.isfinite(u[3]):
                     law = PLUGGED
                     errors, omega_r = _ZERO_ERRORS, 0.0

@@ -104,7 +104,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     rates = parse_floats("--gains", args.gains, 8) if args.gains else None
     poles = parse_floats("--poles", args.poles, 8) if args.poles else None
     primary = args.controller or preset.controller.type
-    kinds = [primary] + ([k for k in ("backstepping", "pd") if k != primary] if args.compare else [])
+    kinds = [primary] + ([k for k in ("backstepping", "pd", "px4") if k != primary] if args.compare else [])
     if (rates or poles) and "backstepping" not in kinds:
         raise UsageError("--gains/--poles set the backstepping gains; add --compare or --controller backstepping")
     integrator = args.integrator or preset.sim.integrator

@@ -43,9 +43,12 @@ STATE_SIZE = 15
 # Horizontal position [m, NED], velocity [m/s] and acceleration [m/s²] (x and y NaN: the horizontal position is free,
 # fly SP_ROLL and SP_PITCH, the attitude setpoint); altitude [m, up] (NaN: fly the climb rate alone), climb rate
 # [m/s, up] and its rate [m/s²]; roll and pitch [rad]; yaw [rad] (NaN: fly the yaw rate alone) and yaw rate [rad/s].
+# Then the limits the autopilot's parameters set on it: the horizontal speed, the climb and descent rates [m/s]
+# (MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN; inf where the setpoint is not limited: offboard), and the tilt
+# [rad] (MPC_TILTMAX_AIR).
 (SP_X, SP_Y, SP_VX, SP_VY, SP_AX, SP_AY, SP_ALTITUDE, SP_CLIMB, SP_CLIMB_ACC, SP_ROLL, SP_PITCH, SP_YAW,
- SP_YAW_RATE) = range(13)  # fmt: skip
-SETPOINT_SIZE = 13
+ SP_YAW_RATE, SP_SPEED_MAX, SP_CLIMB_MAX, SP_DESCENT_MAX, SP_TILT_MAX) = range(17)  # fmt: skip
+SETPOINT_SIZE = 17
 
 # ---- u: the command -----------------------------------------------------------------------------------------------
 U_THRUST, U_ROLL, U_PITCH, U_YAW = range(4)

@@ -4,14 +4,16 @@ name without loading the compiler."""
 
 from __future__ import annotations
 
-BUILT_IN = ("backstepping", "pd")
-ALLOWED = "backstepping, pd, or a controller of your own: path/to/file.py:Name or package.module:Name"
+BUILT_IN = ("backstepping", "pd")  # compiled into the autopilot's tick
+SHIPPED = {"px4": "autopilot.px4:PX4Cascade"}  # shipped controllers that plug in as yours do: name → module:Name
+ALLOWED = "backstepping, pd, px4, or a controller of your own: path/to/file.py:Name or package.module:Name"
 
 
 def is_plugin(name: str) -> bool:
-    """``name`` is a controller to load: ``path/to/file.py:Name`` or ``package.module:Name``."""
+    """``name`` is a controller to load: a shipped one's name (px4), ``path/to/file.py:Name`` or
+    ``package.module:Name``."""
     where, _, cls = name.rpartition(":")
-    return name not in BUILT_IN and bool(where) and cls.isidentifier()
+    return name in SHIPPED or (name not in BUILT_IN and bool(where) and cls.isidentifier())
 
 
 def is_controller_name(name: str) -> bool:

@@ -83,3 +83,30 @@ def test_up_flies_the_template_for_mavsdk():
     assert seen["arrived"][:2] == pytest.approx((20.0, 0.0), abs=0.5)
     assert seen["held"] == pytest.approx((20.0, 0.0, 5.0), abs=0.3)
     assert seen["disarmed"] is False and seen["landed_at"][2] < 0.1
+
+
+async def px4_params_then_fly(port: int) -> dict:
+    seen: dict = {}
+    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as m:
+        system = await autopilot(m, port)
+        param = ParamAsync(system)
+        seen["MPC_XY_P"] = await param.get_param_float("MPC_XY_P")
+        seen["MC_ROLLRATE_P"] = await param.get_param_float("MC_ROLLRATE_P")
+        try:
+            await param.set_param_float("MPC_THR_HOVER", 0.05)  # outside PX4's range, [0.1, 0.8]
+            seen["refused"] = False
+        except ParamError:
+            seen["refused"] = True
+    seen.update(await takeoff_goto_return(port))
+    return seen
+
+
+def test_up_flies_px4s_cascade_for_mavsdk_with_px4s_parameter_names():
+    with quadsitl_up("--preset", "x500", "--controller", "px4", "--speed", SPEED) as v:
+        seen = asyncio.run(asyncio.wait_for(px4_params_then_fly(v.api_port), 200))
+        assert v.proc.poll() is None
+    assert seen["MPC_XY_P"] == pytest.approx(0.95) and seen["MC_ROLLRATE_P"] == pytest.approx(0.15)
+    assert seen["refused"]
+    assert seen["altitude"] == pytest.approx(5.0, abs=0.3)
+    assert seen["arrived"][:2] == pytest.approx((20.0, 0.0), abs=0.5)
+    assert seen["disarmed"] is False and seen["landed_at"][2] < 0.1
