@@ -40,17 +40,18 @@ def make_controller(
     rates: Sequence[float] | None = None,
     poles: Sequence[float] | None = None,
     position_loop: bool = True,
+    values: Mapping[str, float] | None = None,
 ) -> BacksteppingController | PDController | PluggedController:
     """The preset's controller (or ``kind``: a built-in's name, or a controller to load, ``path/to/file.py:Name`` or
     ``package.module:Name``: :class:`autopilot.plugin.ControllerError` when it cannot be). ``rates`` (k_i, 1/s) or
     ``poles`` (λ_i) override the preset's backstepping gains. Raises :class:`autopilot.gains.GainError` for
     inadmissible gains (the paper's (41)–(44), and with ``position_loop`` the position loop's (53), (56) and
-    (58))."""
+    (58)). ``values``: a plugged controller's parameters by name (default: its defaults)."""
     kind = kind or preset.controller.type
     c = preset.controller
     if plugin.is_plugin(kind):
         base = make_controller(preset, "backstepping", rates, poles, position_loop)
-        return PluggedController(plugin.load(kind), base)
+        return PluggedController(plugin.load(kind), base, values)
     if kind not in CONTROLLERS:
         raise ValueError(f"controller {kind!r}: expected one of {', '.join(CONTROLLERS)}, path/to/file.py:Name or "
                          "package.module:Name")  # fmt: skip

@@ -120,17 +120,19 @@ class Plugged:
         return {p.name: float(p.default) for p in self.parameters}
 
     def values(self, overrides: Mapping[str, float] | None = None) -> dict[str, float]:
-        """The parameters' values: the defaults, ``overrides`` by name, each checked against its range."""
+        """The parameters' values: the defaults, ``overrides`` by name or MAVLink name, each checked against its
+        range."""
         values = self.defaults()
         by_name = {p.name: p for p in self.parameters}
+        by_id = {p.param_id: p for p in self.parameters}
         for name, value in (overrides or {}).items():
-            p = by_name.get(name)
+            p = by_name.get(name) or by_id.get(name.upper())
             if p is None:
                 raise ControllerError(f"controller {self.spec}: no parameter {name!r} (it has: "
                                       f"{', '.join(by_name) or 'none'})")  # fmt: skip
             if not p.accepts(float(value)):
                 raise ControllerError(f"controller {self.spec}: {name} = {value!r}: expected {p.allowed()}")
-            values[name] = float(value)
+            values[p.name] = float(value)
         return values
 
     def check(self, values: Mapping[str, float], model: np.ndarray) -> str | None:

@@ -47,7 +47,15 @@ from autopilot.stream_frames import StreamFrames
 from autopilot.streams import MessageStreams, phase_of, spread_of
 from autopilot.tick import Batch, autopilot_tick, sensor_tick, warm_up
 from quadsitl import codec, fastio, telemetry, wire
-from quadsitl.cli_util import UsageError, add_preset_arguments, add_state_arguments, check_range, parse_home, with_state
+from quadsitl.cli_util import (
+    UsageError,
+    add_preset_arguments,
+    add_state_arguments,
+    check_range,
+    parse_controller_params,
+    parse_home,
+    with_state,
+)
 from quadsitl.compiled_frames import quaternion_to_euler
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.process_util import (
@@ -172,6 +180,12 @@ class Autopilot:
         settings = CommanderSettings(setpoint_timeout=args.setpoint_timeout)
         plugged = plugin.load(kind) if plugin.is_plugin(kind) else None  # its parameters are MAVLink parameters
         self.params = ParamStore(preset, kind, settings, plugged)
+        for name, value in parse_controller_params(args.controller_param, kind).items():  # before the first tick
+            param_id = next((p.param_id for p in plugged.parameters if name == p.name or name.upper() == p.param_id),
+                            name.upper())  # fmt: skip
+            reason = self.params.set(param_id, value)
+            if reason:
+                raise UsageError(f"--controller-param {name}={value:g}: {reason}")
         self.controller = self.params.build(self.params.applied())
         self.plug = self.controller.plug or plugin.no_plug()
         self.commander = Commander(self.params.base_settings)

@@ -42,6 +42,8 @@ def _argv(command: str, positional: list[str], options: dict[str, object]) -> li
         flag = "--" + name.replace("_", "-")
         if value is True:
             argv.append(flag)
+        elif isinstance(value, dict):  # repeated NAME=VALUE options
+            argv += [f"{flag}={k}={v!r}" for k, v in value.items()]
         elif isinstance(value, (tuple, list)):
             argv.append(f"{flag}={','.join(repr(v) if isinstance(v, float) else str(v) for v in value)}")
         else:
@@ -76,14 +78,16 @@ def sim(preset: str = "paper", controller: str | None = None, *, trajectory: str
         compare: bool = False, state: str | None = None, sensor_seed: int | None = None,
         wind: tuple[float, float] | None = None, turbulence: str | None = None, gust: tuple[float, ...] | None = None,
         wind_seed: int | None = None, integrator: str | None = None, substeps: int | None = None,
-        gains: tuple[float, ...] | None = None, poles: tuple[float, ...] | None = None) -> Flight:  # fmt: skip
+        gains: tuple[float, ...] | None = None, poles: tuple[float, ...] | None = None,
+        controller_params: dict[str, float] | None = None) -> Flight:  # fmt: skip
     """``quadsitl sim``: fly ``preset`` (a shipped name or a TOML file) with ``controller`` (default: the preset's;
-    backstepping, pd, px4, or yours: ``path/to/file.py:Name``) on ``trajectory`` or ``mission``; the options are the
-    command's (docs/commands.md). Raises ValueError with the command's one-line refusal."""
+    backstepping, pd, px4, or yours: ``path/to/file.py:Name``; ``controller_params`` its parameters by name) on
+    ``trajectory`` or ``mission``; the options are the command's (docs/commands.md). Raises ValueError with the
+    command's one-line refusal."""
     options = dict(preset=preset, controller=controller, trajectory=trajectory, mission=mission, home=home,
                    duration=duration, compare=compare, state=state, sensor_seed=sensor_seed, wind=wind,
                    turbulence=turbulence, gust=gust, wind_seed=wind_seed, integrator=integrator, substeps=substeps,
-                   gains=gains, poles=poles)  # fmt: skip
+                   gains=gains, poles=poles, controller_param=controller_params)  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="quadsitl-sim-") as tmp:
         _run(_argv("sim", [], {**options, "out": tmp, "no_figures": True, "quiet": True}))
         out = Path(tmp)

@@ -33,6 +33,7 @@ from quadsitl.cli_util import (
     add_wind_arguments,
     attach_negative_values,
     check_range,
+    parse_controller_params,
     parse_floats,
     wind_settings,
     with_state,
@@ -75,8 +76,9 @@ def _from_sweep(args: argparse.Namespace) -> Preset:
     if args.trial is None:
         raise UsageError("--from-sweep needs --trial K (the trial's number, as in trials.csv)")
     flown = ("preset", "controller", "duration", "integrator", "substeps", "gains", "poles", "compare", "wind",
-             "turbulence", "gust", "wind_seed", "state", "sensor_seed", "trajectory", "mission", "home")  # fmt: skip
-    given = [f"--{k.replace('_', '-')}" for k in flown if getattr(args, k) not in (None, False)]
+             "turbulence", "gust", "wind_seed", "state", "sensor_seed", "trajectory", "mission", "home",
+             "controller_param")  # fmt: skip
+    given = [f"--{k.replace('_', '-')}" for k in flown if getattr(args, k) not in (None, False, [])]
     if given:
         raise UsageError(f"{given[0]} does not go with --from-sweep: the trial flies as the sweep flew it (its "
                          "preset, controller, duration, gains, air, state, trajectory or mission)")  # fmt: skip
@@ -105,6 +107,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     poles = parse_floats("--poles", args.poles, 8) if args.poles else None
     primary = args.controller or preset.controller.type
     kinds = [primary] + ([k for k in ("backstepping", "pd", "px4") if k != primary] if args.compare else [])
+    values = parse_controller_params(args.controller_param, primary)
     if (rates or poles) and "backstepping" not in kinds:
         raise UsageError("--gains/--poles set the backstepping gains; add --compare or --controller backstepping")
     integrator = args.integrator or preset.sim.integrator
@@ -138,7 +141,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         with FlightProgress(duration * len(kinds), enabled=not args.quiet, label=label) as bar:
             results, metrics = run_offline(preset, kinds, duration, integrator, args.substeps, rates=rates,
                                            poles=poles, progress=bar.update, trajectory=trajectory, mission=mission,
-                                           home=home)  # fmt: skip
+                                           home=home, controller_values=values)  # fmt: skip
     except GainError as exc:
         what = f"trial {args.trial} was not flown by the sweep: " if args.from_sweep is not None else ""
         raise UsageError(f"{what}inadmissible gains: {exc}") from None
@@ -153,6 +156,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         "duration": duration,
         "period": preset.sim.period,
         "poles": list(poles_from_rates(rates, preset.sim.period) if rates else poles or preset.poles()),
+        **({"controller_params": values} if values else {}),
         **wind_settings(preset),
     }
     out = Path(args.out)
@@ -336,17 +340,19 @@ PROCESSES = {
 
 
 def check_controller(args: argparse.Namespace, preset: Preset) -> None:
-    """A controller to load (``--controller file.py:Name``) loaded, checked and probed on ``preset``'s model here,
-    before any process starts (one line when it cannot fly), and named by its absolute path for the processes."""
+    """A controller to load (``--controller file.py:Name``, its ``--controller-param``s) loaded, checked and probed on
+    ``preset``'s model here, before any process starts (one line when it cannot fly), and named by its absolute path
+    for the processes."""
     from quadsitl.controller_names import is_plugin
 
+    values = parse_controller_params(args.controller_param, args.controller or preset.controller.type)
     if args.controller is None or not is_plugin(args.controller):
         return
     from autopilot.factory import make_controller
     from autopilot.plugin import ControllerError
 
     try:
-        make_controller(preset, args.controller)
+        make_controller(preset, args.controller, values=values)
     except ControllerError as exc:
         raise UsageError(str(exc)) from None
     where, _, name = args.controller.rpartition(":")

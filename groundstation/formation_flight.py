@@ -123,6 +123,8 @@ def fly_fleet(args: argparse.Namespace) -> int:
                   "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP), *quiet]  # fmt: skip
             if args.controller:
                 ap += ["--controller", args.controller]
+            for item in args.controller_param:
+                ap += ["--controller-param", item]
             children.start(f"autopilot {v.name}", ap + state_argv(args))
             plant += ["--autopilot", f"127.0.0.1:{plant_port}", "--vehicle", v.name, "--home", home]
             if v.preset != args.preset:

@@ -189,6 +189,8 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
                   "--api-listen", v.api_listen, "--api-remote", v.api_remote]  # fmt: skip
             if args.controller is not None:
                 ap += ["--controller", args.controller]
+            for item in args.controller_param:
+                ap += ["--controller-param", item]
             home = ["--home", ",".join(repr(x) for x in v.home)] if args.home is not None or len(fleet) > 1 else []
             ap += home + state_argv(args)
             if args.no_zenoh:
@@ -425,6 +427,8 @@ def fly(preset_name: str, preset: Preset, args) -> int:
               "--offboard-lockstep", repr(OFFBOARD_LOCKSTEP), *LOGGED, *quiet]  # fmt: skip
         if args.controller:
             ap += ["--controller", args.controller]
+        for item in args.controller_param:
+            ap += ["--controller-param", item]
         mission = getattr(args, "mission", None)
         home = ["--home", args.home] if mission and args.home else []
         children.start("autopilot", ap + home + state_argv(args))

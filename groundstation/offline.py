@@ -190,6 +190,7 @@ def run_offline(
     trajectory: str = "step",
     mission: Mission | None = None,
     home: tuple[float, float, float] = PX4_HOME,
+    controller_values: dict[str, float] | None = None,
 ) -> tuple[dict[str, SimResult], dict[str, dict]]:
     """Fly each controller on a fresh vehicle, on the setpoints of ``trajectory`` (:func:`groundstation.trajectories.
     make`; ``step``: the preset's reference, the paper's experiment) made on ``quadsitl fly``'s grid
@@ -199,12 +200,15 @@ def run_offline(
     checked: with a position trajectory or a mission, the position loop's too) and every setpoint checked by the
     autopilot's parser before any flight starts, so bad input fails fast.
 
+    ``controller_values``: the first controller's parameters, when it plugs in (:mod:`autopilot.plugin`).
+
     ``progress``, when given, is called now and then with the simulated seconds done so far over all
     the runs: it reaches ``len(controllers) × duration`` at the end."""
     path = trajectories.make(trajectory, preset.reference)
     position = isinstance(path, trajectories.PositionTrajectory)
-    built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=position or bool(mission))
-             for kind in controllers}  # fmt: skip
+    built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=position or bool(mission),
+                                   values=controller_values if i == 0 else None)
+             for i, kind in enumerate(controllers)}  # fmt: skip
     duration = (
         duration
         or (MISSION_DURATION if mission else None)

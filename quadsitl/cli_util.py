@@ -19,7 +19,7 @@ from quadsitl.config import (
     check_value,
     default_sensors,
 )
-from quadsitl.controller_names import ALLOWED, is_controller_name
+from quadsitl.controller_names import ALLOWED, is_controller_name, is_plugin
 
 
 class UsageError(Exception):
@@ -126,12 +126,36 @@ def controller_name(value: str) -> str:
     raise argparse.ArgumentTypeError(f"{value!r}: expected {CONTROLLER_HELP}")
 
 
+def parse_controller_params(values: Sequence[str], controller: str | None) -> dict[str, float]:
+    """``--controller-param NAME=VALUE`` (repeated) → {NAME: value}; only with a controller that plugs in (its names
+    are checked when it is loaded)."""
+    out: dict[str, float] = {}
+    for item in values:
+        name, sep, text = item.partition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not sep or not name.strip() or not math.isfinite(value):
+            raise UsageError(f"--controller-param {item!r}: expected NAME=VALUE, VALUE a finite number")
+        out[name.strip()] = value
+    if out and (controller is None or not is_plugin(controller)):
+        raise UsageError(
+            f"--controller-param {values[0]!r}: only a controller that plugs in (px4, file.py:Name) "
+            "has parameters of its own; the built-ins' gains are --gains, --poles, the preset's"
+        )
+    return out
+
+
 def add_preset_arguments(p: argparse.ArgumentParser, controller: bool = True) -> None:
     """``--preset`` (a shipped name or a TOML path) and, optionally, ``--controller``."""
     p.add_argument("--preset", default="paper", help="preset name or path to a TOML file (default: paper)")
     if controller:
         p.add_argument("--controller", type=controller_name, metavar="NAME",
                        help=f"{CONTROLLER_HELP} (default: the preset's)")  # fmt: skip
+        p.add_argument("--controller-param", action="append", default=[], metavar="NAME=VALUE",
+                       help="a parameter of a controller that plugs in (px4 or yours), by its name or MAVLink name "
+                            "(repeat for more); checked against its range and the controller's check")  # fmt: skip
 
 
 WIND_OPTIONS = ("--wind", "--turbulence", "--gust", "--wind-seed")

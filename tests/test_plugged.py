@@ -149,11 +149,11 @@ def test_a_controller_that_fails_in_flight_trips_the_failsafe_and_never_reaches_
     assert altitude[t < 3.0].max() > 3.0 and altitude[-1] < 0.05  # it flew up on the plugged law, then landed
 
 
-def plugged_spec(tmp_path: Path, extra: str = "") -> Path:
+def plugged_spec(tmp_path: Path, extra: str = "", controller: str = TEMPLATE) -> Path:
     path = tmp_path / "plugged.toml"
     path.write_text(textwrap.dedent(f"""\
         preset = "x500"
-        controller = "{TEMPLATE}"
+        controller = "{controller}"
         trajectory = "hold:altitude=3,duration=4"
         trials = 2
         seed = 46
@@ -163,19 +163,20 @@ def plugged_spec(tmp_path: Path, extra: str = "") -> Path:
     return path
 
 
-def test_a_sweep_flies_a_plugged_controller_trial_by_trial_as_sim_does(tmp_path):
+@pytest.mark.parametrize("controller", [TEMPLATE, "px4"], ids=["template", "px4"])
+def test_a_sweep_flies_a_plugged_controller_trial_by_trial_as_sim_does(tmp_path, controller):
     from groundstation.offline import telemetry_rows
     from groundstation.sweep import engine
     from groundstation.sweep.run import fly
     from groundstation.sweep.spec import load_spec, trial_preset
     from groundstation.sweep.trial_row import metrics_row
 
-    spec = load_spec(str(plugged_spec(tmp_path)))
-    assert not spec.fused and spec.controller == TEMPLATE
+    spec = load_spec(str(plugged_spec(tmp_path, controller=controller)))
+    assert not spec.fused and spec.controller == controller
     res = fly(spec, [0, 1])
     for k in (0, 1):
         preset = trial_preset(spec, k)
-        assert preset.controller.type == TEMPLATE  # `sim --from-sweep` flies the same controller
+        assert preset.controller.type == controller  # `sim --from-sweep` flies the same controller
         sims, _ = run_offline(preset, [spec.controller], spec.duration, trajectory=spec.trajectory)
         sim = sims[spec.controller]
         want = metrics_row(telemetry_rows(sim, rates=False), preset, spec.period, sim.diverged_at, False)
@@ -200,3 +201,32 @@ def test_a_sweep_refuses_gains_of_a_plugged_controller_and_a_broken_one_in_one_l
     with pytest.raises(ConfigError, match=r"controller .*nowhere.py:C: no such file") as err:
         load_spec(str(broken))
     assert "\n" not in str(err.value)
+
+
+def test_controller_params_reach_the_flight_and_are_checked_in_one_line(tmp_path):
+    """``--controller-param NAME=VALUE`` (by name or MAVLink name) flies the value, says so in metrics.json, and is
+    refused in one line when malformed, out of range, unknown, or given to a built-in controller."""
+    import json
+
+    def sim(*args: str, out: str = "run") -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "groundstation.cli", "sim", "--preset", "x500", "--trajectory",
+                               "circle:radius=3,period=8,hold=1", "--no-figures", "-q", "--out", str(tmp_path / out),
+                               *args], capture_output=True, text=True, timeout=300)  # fmt: skip
+
+    assert sim("--controller", "px4", out="default").returncode == 0
+    r = sim("--controller", "px4", "--controller-param", "MPC_XY_P=1.5", "--controller-param", "mc_yaw_p=2")
+    assert r.returncode == 0, r.stderr
+    report = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert report["controller_params"] == {"MPC_XY_P": 1.5, "mc_yaw_p": 2.0}
+    stiffer, default = (json.loads((tmp_path / d / "metrics.json").read_text())["position"]["px4"]["horizontal_rms"]
+                        for d in ("run", "default"))  # fmt: skip
+    assert stiffer < default  # a stiffer position loop tracks the circle closer
+    for args, says in ((("--controller", "px4", "--controller-param", "MPC_XY_P=9"), "MPC_XY_P = 9.0: expected a "
+                        "number in [0, 2] 1/s"),
+                       (("--controller", "px4", "--controller-param", "NOPE=1"), "no parameter 'NOPE'"),
+                       (("--controller", "px4", "--controller-param", "MPC_XY_P"), "expected NAME=VALUE"),
+                       (("--controller-param", "kp=1",), "only a controller that plugs in")):  # fmt: skip
+        r = sim(*args, out="refused")
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and says in lines[0], r.stderr
+        assert not (tmp_path / "refused").exists()

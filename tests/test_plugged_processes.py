@@ -23,13 +23,15 @@ from tests.test_position_mavsdk import SPEED, takeoff_goto_return
 from tests.test_vehicle import assert_float32_equal, run
 
 
-def test_fly_equals_sim_with_the_template(tmp_path):
-    circle = ("--preset", "x500", "--controller", TEMPLATE, "--trajectory", "circle:radius=3,period=8,hold=1")
+@pytest.mark.parametrize("controller", [TEMPLATE, "px4"], ids=["template", "px4"])
+def test_fly_equals_sim_with_a_plugged_controller(tmp_path, controller):
+    circle = ("--preset", "x500", "--controller", controller, "--trajectory", "circle:radius=3,period=8,hold=1")
     fly, sim = run(tmp_path, "fly", "fly", *circle), run(tmp_path, "sim", "sim", *circle)
     assert_float32_equal(fly, sim, ("x", "y", "altitude", "yaw", "x_ref", "y_ref", "altitude_ref"), 1e-5)
     assert_float32_equal(fly, sim, ("u1", "f1", "f2", "f3", "f4"), 1e-3)
     report = json.loads((tmp_path / "fly" / "metrics.json").read_text())
-    assert report["position"][next(iter(report["position"]))]["horizontal_rms"] < 1.0
+    # flown, not only equal: this circle is fast (2.4 m/s on 3 m), which PX4's soft defaults trail by about a metre
+    assert report["position"][next(iter(report["position"]))]["horizontal_rms"] < 1.5
 
 
 def test_fly_refuses_a_broken_controller_before_starting_anything(tmp_path):
@@ -102,10 +104,11 @@ async def px4_params_then_fly(port: int) -> dict:
 
 
 def test_up_flies_px4s_cascade_for_mavsdk_with_px4s_parameter_names():
-    with quadsitl_up("--preset", "x500", "--controller", "px4", "--speed", SPEED) as v:
+    with quadsitl_up("--preset", "x500", "--controller", "px4", "--controller-param", "mpc_xy_p=1.2", "--speed",
+                     SPEED) as v:  # fmt: skip
         seen = asyncio.run(asyncio.wait_for(px4_params_then_fly(v.api_port), 200))
         assert v.proc.poll() is None
-    assert seen["MPC_XY_P"] == pytest.approx(0.95) and seen["MC_ROLLRATE_P"] == pytest.approx(0.15)
+    assert seen["MPC_XY_P"] == pytest.approx(1.2) and seen["MC_ROLLRATE_P"] == pytest.approx(0.15)
     assert seen["refused"]
     assert seen["altitude"] == pytest.approx(5.0, abs=0.3)
     assert seen["arrived"][:2] == pytest.approx((20.0, 0.0), abs=0.5)
