@@ -101,13 +101,14 @@ def sim(preset: str = "paper", controller: str | None = None, *, trajectory: str
     return Flight(next(iter(runs.values())), runs, metrics)
 
 
-def sweep(spec: str, *, trials: int | None = None, workers: int | None = None, engine: str | None = None,
-          keep: int | None = None) -> pd.DataFrame:  # fmt: skip
+def sweep(spec: str, *, controller: str | None = None, trials: int | None = None, workers: int | None = None,
+          engine: str | None = None, keep: int | None = None) -> pd.DataFrame:  # fmt: skip
     """``quadsitl sweep``: the trials of ``spec`` (a shipped spec's name or a TOML file), one row each (trials.parquet:
-    the drawn parameters and the metrics, docs/sweeps.md). Raises ValueError with the command's one-line refusal."""
+    the drawn parameters and the metrics, docs/sweeps.md), flown with ``controller`` instead of the spec's when given.
+    Raises ValueError with the command's one-line refusal."""
     with tempfile.TemporaryDirectory(prefix="quadsitl-sweep-") as tmp:
-        _run(_argv("sweep", [spec], dict(trials=trials, workers=workers, engine=engine, keep=keep, out=tmp,
-                                         no_figures=True, quiet=True)))  # fmt: skip
+        _run(_argv("sweep", [spec], dict(controller=controller, trials=trials, workers=workers, engine=engine,
+                                         keep=keep, out=tmp, no_figures=True, quiet=True)))  # fmt: skip
         return pd.read_parquet(Path(tmp) / "trials.parquet")
 
 

@@ -27,12 +27,14 @@ from autopilot.cli import GAINS_EPILOG, add_gains_arguments, run_gains
 from autopilot.gains import GainError, poles_from_rates
 from groundstation.launcher import add_dashboard_arguments
 from quadsitl.cli_util import (
+    CONTROLLER_HELP,
     UsageError,
     add_preset_arguments,
     add_state_arguments,
     add_wind_arguments,
     attach_negative_values,
     check_range,
+    controller_name,
     parse_controller_params,
     parse_floats,
     wind_settings,
@@ -199,9 +201,10 @@ EXAMPLES_SWEEP = """examples:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from groundstation.sweep.spec import check_engine, load_spec
+    from quadsitl.controller_names import absolute
 
     try:
-        spec = load_spec(args.spec)
+        spec = load_spec(args.spec, None if args.controller is None else absolute(args.controller))
         if args.trials is not None:
             spec = spec.with_trials(args.trials)
     except ConfigError as exc:
@@ -343,7 +346,7 @@ def check_controller(args: argparse.Namespace, preset: Preset) -> None:
     """A controller to load (``--controller file.py:Name``, its ``--controller-param``s) loaded, checked and probed on
     ``preset``'s model here, before any process starts (one line when it cannot fly), and named by its absolute path
     for the processes."""
-    from quadsitl.controller_names import is_plugin
+    from quadsitl.controller_names import absolute, is_plugin
 
     values = parse_controller_params(args.controller_param, args.controller or preset.controller.type)
     if args.controller is None or not is_plugin(args.controller):
@@ -355,9 +358,7 @@ def check_controller(args: argparse.Namespace, preset: Preset) -> None:
         make_controller(preset, args.controller, values=values)
     except ControllerError as exc:
         raise UsageError(str(exc)) from None
-    where, _, name = args.controller.rpartition(":")
-    if where.endswith(".py") or "/" in where:
-        args.controller = f"{Path(where).expanduser().resolve()}:{name}"
+    args.controller = absolute(args.controller)
 
 
 def cmd_fly(args: argparse.Namespace) -> int:
@@ -687,6 +688,8 @@ the source, or 'mkdocs serve' there.""",
     sw.add_argument("spec", metavar="SPEC", help="a shipped spec's name (paper-mass-mismatch, ...) or a TOML file")
     sw.add_argument("--out", default="runs/sweep", metavar="DIR", help="output folder (default: runs/sweep)")
     sw.add_argument("--trials", type=int, metavar="N", help="number of trials (default: the spec's)")
+    sw.add_argument("--controller", type=controller_name, metavar="NAME",
+                    help=f"fly this controller instead of the spec's: {CONTROLLER_HELP}")  # fmt: skip
     sw.add_argument(
         "--workers", type=int, metavar="W",
         help="worker processes (default: one per core, or one per two cores with --engine sitl; 1: in this process)",

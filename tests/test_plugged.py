@@ -230,3 +230,25 @@ def test_controller_params_reach_the_flight_and_are_checked_in_one_line(tmp_path
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1 and says in lines[0], r.stderr
         assert not (tmp_path / "refused").exists()
+
+
+def test_sweep_controller_flies_the_spec_with_another_controller_and_writes_what_it_flew(tmp_path):
+    """``quadsitl sweep SPEC --controller examples/...:Template`` (a path from the working directory): the spec it
+    writes names the controller by its absolute path, and ``sim --from-sweep`` flies a trial again with it, to the
+    row."""
+    import json
+
+    out = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "groundstation.cli"]
+    relative = "examples/controllers/template.py:Template"
+    r = subprocess.run([*cmd, "sweep", "paper-mass-mismatch", "--controller", relative, "--trials", "4",
+                        "--no-figures", "-q", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
+                       timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert f'controller = "{TEMPLATE}"' in (out / "spec.toml").read_text()
+    again = tmp_path / "again"
+    r = subprocess.run([*cmd, "sim", "--from-sweep", str(out), "--trial", "2", "--no-figures", "-q", "--out",
+                        str(again)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    report = json.loads((again / "metrics.json").read_text())
+    assert list(report["runs"]) == [TEMPLATE]

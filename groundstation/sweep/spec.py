@@ -50,7 +50,9 @@ conditions only get harder as |λ| grows, so the spec is checked at the largest 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import re
 import sys
 from dataclasses import dataclass, field, replace
 from importlib import resources
@@ -75,7 +77,7 @@ from quadsitl.config import (
     parse_preset,
     read_preset,
 )
-from quadsitl.controller_names import ALLOWED, is_controller_name, is_plugin
+from quadsitl.controller_names import ALLOWED, absolute, is_controller_name, is_plugin
 from quadsitl.param_arrays import (
     ARM,
     D_OVER_B,
@@ -457,8 +459,18 @@ def available_specs() -> list[str]:
     return sorted(p.stem for p in specs_folder().glob("*.toml"))
 
 
-def load_spec(name_or_path: str) -> SweepSpec:
-    """A shipped spec by name (``paper-mass-mismatch``) or any TOML file by path, validated."""
+def with_controller(text: str, controller: str) -> str:
+    """The spec's TOML ``text`` with its top-level ``controller`` set to ``controller`` (``quadsitl sweep
+    --controller``), so the spec a sweep writes says what it flew."""
+    lines = text.splitlines()
+    first_table = next((i for i, line in enumerate(lines) if line.lstrip().startswith("[")), len(lines))
+    kept = [line for i, line in enumerate(lines) if i >= first_table or not re.match(r"\s*controller\s*=", line)]
+    return f"controller = {json.dumps(controller)}  # quadsitl sweep --controller\n" + "\n".join(kept) + "\n"
+
+
+def load_spec(name_or_path: str, controller: str | None = None) -> SweepSpec:
+    """A shipped spec by name (``paper-mass-mismatch``) or any TOML file by path, validated; ``controller`` (the
+    command's ``--controller``) in place of the spec's own."""
     path = Path(name_or_path)
     if name_or_path.endswith(".toml") or "/" in name_or_path or "\\" in name_or_path:
         if not path.is_file():
@@ -469,7 +481,8 @@ def load_spec(name_or_path: str) -> SweepSpec:
             raise ConfigError(f"unknown sweep spec {name_or_path!r}; shipped specs: {', '.join(names)} (or a "
                               "path to a TOML file)")  # fmt: skip
         path = specs_folder() / f"{name_or_path}.toml"
-    return parse_spec(path.read_text(encoding="utf-8"), path.stem, base=path.parent)
+    text = path.read_text(encoding="utf-8")
+    return parse_spec(text if controller is None else with_controller(text, controller), path.stem, base=path.parent)
 
 
 def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -608,12 +621,7 @@ def _plugged(controller: str, base: Path | None, preset: Preset, where: str) -> 
     from autopilot.factory import make_controller
     from autopilot.plugin import ControllerError
 
-    file, _, name = controller.rpartition(":")
-    if file.endswith(".py") or "/" in file:
-        path = Path(file).expanduser()
-        if base is not None and not path.is_absolute():
-            path = base / path
-        controller = f"{path.resolve()}:{name}"
+    controller = absolute(controller, base)
     try:
         make_controller(preset, controller, position_loop=False)
     except ControllerError as exc:
