@@ -112,10 +112,6 @@ class Plugged:
     memory: int
     entry: Callable
 
-    @property
-    def name(self) -> str:
-        return self.spec
-
     def defaults(self) -> dict[str, float]:
         return {p.name: float(p.default) for p in self.parameters}
 
@@ -151,7 +147,8 @@ class Plugged:
         return None if why is None else str(why)
 
     def buffer(self, model: np.ndarray, values: Mapping[str, float]) -> np.ndarray:
-        """The law's buffer for ``values`` on ``model``; the memory zero."""
+        """The law's buffer for ``values`` on ``model``; the memory zero. The tick does not copy the model again: a
+        new model (a VM_* parameter) builds a new controller and buffer."""
         buf = np.zeros(B_PARAMS + len(self.parameters) + self.memory)
         buf[B_MODEL : B_MODEL + VEHICLE_SIZE] = model
         for i, p in enumerate(self.parameters):

@@ -75,7 +75,7 @@ from quadsitl.compiled_frames import altitude, climb_rate, euler_rates_to_body_r
 from quadsitl.hil import Z_GYRO, decode_sensors
 from quadsitl.jit import jit
 from quadsitl.mixer import Forces, allocate
-from quadsitl.param_arrays import ARM, D_OVER_B, VEHICLE_SIZE
+from quadsitl.param_arrays import ARM, D_OVER_B
 from quadsitl.rawbytes import put
 from quadsitl.state import Inputs
 
@@ -184,9 +184,7 @@ def plugged(plug: tuple, x: tuple, cm: np.ndarray, v: np.ndarray, c: np.ndarray,
     buf[limits + 3] = math.atan(c[TAN_TILT_AIR])
     for i in range(4):
         buf[plugin.B_COMMAND + i] = math.nan
-    for i in range(VEHICLE_SIZE):
-        buf[plugin.B_MODEL + i] = v[i]
-    plugin.call_law(entry, buf, now, c[PERIOD])
+    plugin.call_law(entry, buf, now, c[PERIOD])  # the model ``v`` is in the buffer since it was built
     arm = v[ARM]
     c0 = plugin.B_COMMAND
     return Inputs(buf[c0], buf[c0 + 1] / arm, buf[c0 + 2] / arm, buf[c0 + 3])
