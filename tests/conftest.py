@@ -45,11 +45,21 @@ def _warm_the_autopilots_loop() -> None:
     warm_up_loops()
 
 
+def _warm_the_sim() -> None:
+    """``sim``'s compiled loop over the whole vehicle, on the true state (its own compile: a test that runs ``sim``
+    with a short timeout must not pay it)."""
+    from groundstation.api import sim
+
+    sim("paper", duration=0.01)
+
+
 # What the session compiles into numba's cache, in parts: (name, what it needs in the cache first, how). The
 # autopilot's loop calls its tick: compiled after it, it takes the tick from the cache instead of compiling it again.
+# A worker starts on the part of its own index, so with three workers the first three parts start at once.
 WARM_PARTS = (
     ("autopilot", (), _warm_the_autopilot),
     ("plant", (), _warm_the_plant),
+    ("sim", (), _warm_the_sim),
     ("autopilot-loop", ("autopilot",), _warm_the_autopilots_loop),
 )
 

@@ -44,7 +44,7 @@ def f32(x: float) -> float:
 def sim_csv(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("sim")
     argv = ["sim", "--preset", "paper", "--duration", "0.5", "--no-figures", "--quiet", "--out", str(out)]
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", *argv], capture_output=True, text=True, timeout=60)
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", *argv], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     return out / "telemetry.csv"
 
