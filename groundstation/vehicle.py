@@ -226,7 +226,7 @@ class Setpoints:
                     raise setpoints.SetpointError(f"the setpoint for tick {tick}: {exc}") from None
                 scratch.on_position_setpoint(*groups)
             ticks.append(tick)
-            values.append(scratch.cm[cmd.SP_X : cmd.SP_YAW_RATE + 1].copy())
+            values.append(scratch.cm[cmd.SETPOINT_FIRST : cmd.SETPOINT_END].copy())
         return cls(np.array(ticks, dtype=np.int64), np.array(values).reshape(-1, SP_FIELDS))
 
 
