@@ -29,7 +29,20 @@ from autopilot.mission_executor import (
     Takeoff,
     VehicleNow,
 )
-from quadsitl.wire import Mode
+from quadsitl.wire import Mode, mavlink
+
+
+class ID:
+    """The mission protocol's message ids."""
+
+    MISSION_COUNT = mavlink.MAVLINK_MSG_ID_MISSION_COUNT
+    MISSION_ITEM = mavlink.MAVLINK_MSG_ID_MISSION_ITEM
+    MISSION_ITEM_INT = mavlink.MAVLINK_MSG_ID_MISSION_ITEM_INT
+    MISSION_REQUEST_LIST = mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_LIST
+    MISSION_REQUEST = mavlink.MAVLINK_MSG_ID_MISSION_REQUEST
+    MISSION_REQUEST_INT = mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT
+    MISSION_ACK = mavlink.MAVLINK_MSG_ID_MISSION_ACK
+    MISSION_CLEAR_ALL = mavlink.MAVLINK_MSG_ID_MISSION_CLEAR_ALL
 
 
 class Missions:
@@ -106,6 +119,24 @@ class Missions:
         self.protocol.busy_flying = self.flying and ex.mission_state == mp.STATE_ACTIVE
         self.protocol.mission_mode = 1 if c.mode == Mode.MISSION else 2 if self.flying else 0
         return self._events(ex)
+
+    def on_message(self, msg_id: int, sender: tuple[int, int], f: dict, now: float) -> list[mp.Out]:
+        """A mission-protocol message (its id, its sender ``(system, component)``, its fields by pymavlink's names) to
+        the protocol's state machine at wall time ``now`` [s] → its answers."""
+        p, legacy = self.protocol, msg_id in (ID.MISSION_ITEM, ID.MISSION_REQUEST)
+        if msg_id == ID.MISSION_COUNT:
+            return p.on_count(sender, f["count"], f["mission_type"], now)
+        if msg_id in (ID.MISSION_ITEM_INT, ID.MISSION_ITEM):
+            return p.on_item(sender, f, now, legacy=legacy)
+        if msg_id == ID.MISSION_REQUEST_LIST:
+            return p.on_request_list(sender, f["mission_type"], now)
+        if msg_id in (ID.MISSION_REQUEST_INT, ID.MISSION_REQUEST):
+            return p.on_request(sender, f["seq"], f["mission_type"], now, legacy=legacy)
+        if msg_id == ID.MISSION_ACK:
+            return p.on_ack(sender, f["type"], f["mission_type"], now)
+        if msg_id == ID.MISSION_CLEAR_ALL:
+            return p.on_clear_all(sender, f["mission_type"], now)
+        return p.on_set_current(sender, f["seq"], now)  # MISSION_SET_CURRENT
 
     def plan(self, c: Commander) -> list[dict]:
         """Where each stored item flies, for maps (the ``quadsitl/<vehicle>/mission`` document of

@@ -3,7 +3,7 @@ never raised (a flight controller does not stop because a ground station is unre
 
 import socket
 
-from autopilot.process import GcsLink
+from autopilot.ground_link import GcsLink
 from autopilot.streams import MessageStreams
 
 

@@ -130,7 +130,7 @@ def answer_of(data: bytes) -> tuple[int, bool]:
 def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIMIT, polling: bool = True,
           ground_every_s: float = 0.0):  # fmt: skip
     stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
-    out = plant_loop.serve(ap.plant_sock.fileno(), ap.rx_array, ap.sender, ap.sender_len, ap.plant_address, ap.tx,
+    out = plant_loop.serve(ap.plant.sock.fileno(), ap.plant.rx_array, ap.plant.sender, ap.plant.sender_len, ap.plant.address, ap.plant.tx,
                            ap.io, ap.tick_arguments(), time.monotonic_ns() + int(deadline_s * 1e9), polling,
                            50_000_000, 50_000_000, 8, limit, stats, ap.destinations.out, ap.ground_fds,
                            int(ground_every_s * 1e9))  # fmt: skip
@@ -140,9 +140,9 @@ def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIM
 def test_the_compiled_loop_answers_each_tick_and_gives_python_what_it_must_do(vehicle):
     ap, plant, autopilot = vehicle
     plant.sendto(state_frame(1), autopilot)
-    nbytes, sender = ap.plant_sock.recvfrom_into(ap.rx)  # the first datagram: Python's loop locks to the plant
+    nbytes, sender = ap.plant.sock.recvfrom_into(ap.plant.rx)  # the first datagram: Python's loop locks to the plant
     ap.on_plant_datagram(nbytes, sender)
-    assert answer_of(plant.recv(1000)) == (1000, False) and ap.plant_address is not None
+    assert answer_of(plant.recv(1000)) == (1000, False) and ap.plant.address is not None
     for k in range(2, 12):
         plant.sendto(state_frame(k), autopilot)
     time.sleep(0.05)
@@ -156,7 +156,7 @@ def test_the_compiled_loop_answers_each_tick_and_gives_python_what_it_must_do(ve
         if status != plant_loop.SENT:
             break
         assert flags & kernel.STREAM and flags & kernel.ANSWER
-        ap._finish_tick(flags & ~kernel.ANSWER, nbytes, ap.plant_peer, time.monotonic())  # the telemetry goes
+        ap._finish_tick(flags & ~kernel.ANSWER, nbytes, ap.plant.peer, time.monotonic())  # the telemetry goes
     # Each tick answered once, in order, the SENT ones too, and nothing more.
     assert stamps == [1000 * k for k in range(2, 12)] and ap.io[kernel.TICK] == 11
     assert plant_loop.SENT in returns
@@ -177,7 +177,7 @@ def test_the_loop_sends_the_ticks_telemetry_frames_itself(vehicle):
     ap.links[1].remote = ground.getsockname()  # the api link streams to it
     ap.refresh_streams()
     plant.sendto(state_frame(199), autopilot)
-    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
+    ap.on_plant_datagram(*ap.plant.sock.recvfrom_into(ap.plant.rx))
     plant.recv(1000)
     assert ap.destinations.count[0] == 1
     for k in (200, 201, 202):  # 200: all six due (phase 0; GPS_RAW_INT at 5 Hz), the others nothing
@@ -197,7 +197,7 @@ def test_the_loop_sends_the_ticks_telemetry_frames_itself(vehicle):
 def locked_without_streams(ap: Autopilot, plant: socket.socket, autopilot: tuple[str, int]) -> None:
     """The autopilot locked to ``plant`` by its first datagram (tick 1, answered), with no telemetry message due."""
     plant.sendto(state_frame(1), autopilot)
-    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
+    ap.on_plant_datagram(*ap.plant.sock.recvfrom_into(ap.plant.rx))
     plant.recv(1000)
     ap.io[kernel.NEXT_STREAM_TICK] = 10**9
 
@@ -210,7 +210,7 @@ def test_a_stranger_a_deadline_and_a_limit_hand_the_loop_back(vehicle):
         other.sendto(state_frame(2), autopilot)
         time.sleep(0.02)
         (status, nbytes, _), _ = serve(ap)
-        assert status == plant_loop.STRANGER and fastio.address_of(ap.sender) == other.getsockname()
+        assert status == plant_loop.STRANGER and fastio.address_of(ap.plant.sender) == other.getsockname()
         assert nbytes == len(state_frame(2)) and ap.io[kernel.TICK] == 1  # not flown: the plant's own tick only
     plant.sendto(state_frame(2), autopilot)
     plant.sendto(state_frame(3), autopilot)
@@ -256,20 +256,20 @@ def test_a_datagram_on_a_ground_link_hands_the_loop_back_and_nothing_else_does(v
 def test_a_blocking_loop_comes_back_to_poll_once_the_plant_answers_fast(vehicle):
     ap, plant, autopilot = vehicle
     locked_without_streams(ap, plant, autopilot)
-    set_receive_timeout(ap.plant_sock, 0.5)
+    set_receive_timeout(ap.plant.sock, 0.5)
     for k in range(2, 14):
         plant.sendto(state_frame(k), autopilot)
     time.sleep(0.02)
     (status, _, _), stats = serve(ap, polling=False)  # each wait short (the datagrams wait): hot after 8
     assert status == plant_loop.DUE and stats[plant_loop.BLOCKED] == 8 and stats[plant_loop.SHORT] == 8
-    ap.plant_wait.tally(0, 0, False, int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))
-    assert ap.plant_wait.polling()
+    ap.plant.wait.tally(0, 0, False, int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))
+    assert ap.plant.wait.polling()
 
 
 def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle, monkeypatch):
     # A paced plant (real time, --speed 1) must not find its autopilot polling through each period with patience
     # (after a real-time plant's catch-up burst made it hot); an unpaced one keeps the patience (lockstep's speed).
-    import autopilot.process as process
+    import autopilot.plant_link as process
 
     # serve_plant(0.0) hands back after every tick, and yields the core each time: on a machine whose cores are
     # taken (the suite's other workers; three busy loops do it) each yield gave away a slice, and the "fast" ticks
@@ -277,8 +277,8 @@ def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle, monke
     monkeypatch.setattr(process.os, "sched_yield", lambda: None)
     ap, plant, autopilot = vehicle
     locked_without_streams(ap, plant, autopilot)
-    set_receive_timeout(ap.plant_sock, 0.5)
-    wait = ap.plant_wait
+    set_receive_timeout(ap.plant.sock, 0.5)
+    wait = ap.plant.wait
     assert wait.patience == PATIENCE
     k = 2
     began = time.monotonic()
@@ -306,16 +306,16 @@ def test_the_autopilot_yields_its_core_once_its_answer_is_out_and_before_pythons
     wall-clock work) hands the loop back; before that work the autopilot yields its core (``sched_yield``), so that
     fleet-mates waiting for it answer their ticks first, and only once its own answer is out. Ticks that leave
     Python nothing to do yield nothing."""
-    import autopilot.process as process
+    import autopilot.plant_link as process
 
     ap, plant, autopilot = vehicle
     yields: list[bool] = []  # each yield: was this tick's answer already at the plant?
     monkeypatch.setattr(process.os, "sched_yield", lambda: yields.append(wait_readable(plant, 0.0)))
     plant.sendto(state_frame(1), autopilot)
-    nbytes, sender = ap.plant_sock.recvfrom_into(ap.rx)
+    nbytes, sender = ap.plant.sock.recvfrom_into(ap.plant.rx)
     ap.on_plant_datagram(nbytes, sender)
     plant.recv(1000)
-    set_receive_timeout(ap.plant_sock, 0.2)
+    set_receive_timeout(ap.plant.sock, 0.2)
     for k in range(2, 42):
         plant.sendto(state_frame(k), autopilot)
     returns = []
@@ -331,11 +331,11 @@ def test_the_autopilot_yields_its_core_once_its_answer_is_out_and_before_pythons
 def test_arming_answers_a_holding_plant_at_once(vehicle):
     ap, plant, autopilot = vehicle
     plant.sendto(state_frame(1), autopilot)
-    ap.on_plant_datagram(*ap.plant_sock.recvfrom_into(ap.rx))
+    ap.on_plant_datagram(*ap.plant.sock.recvfrom_into(ap.plant.rx))
     assert answer_of(plant.recv(1000)) == (1000, False)
     time.sleep(0.01)  # the plant holds tick 1 (quadsitl plant --hold-until-armed): it says nothing
     arm = mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-    ap._command(arm, ap.links[1])
+    ap.receiver.on_message(arm, ap.links[1])
     assert ap.commander.armed
     assert answer_of(plant.recv(1000)) == (1000, True)  # the same tick's answer, armed, without a re-send
 

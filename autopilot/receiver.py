@@ -1,0 +1,181 @@
+"""The ground-station receiver, as PX4's ``mavlink_receiver``: each MAVLink message has one handler, which checks who
+it is for and turns it into a typed record (:mod:`autopilot.records`) delivered to the record's route; a message it
+cannot fly is refused with a reason (:class:`autopilot.outbox.Outbox`). It never calls control code.
+
+Offboard setpoints of a ground station that paces them by the vehicle's clock (``--offboard-lockstep``,
+:mod:`autopilot.offboard_lockstep`) are held here until the tick they were made for, then delivered.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from autopilot import mission_protocol, setpoints
+from autopilot import tick as kernel
+from autopilot.offboard_lockstep import OffboardLockstep
+from autopilot.outbox import Outbox
+from autopilot.records import (
+    AttitudeSetpoint,
+    Command,
+    Counters,
+    FileTransfer,
+    GroundHeartbeat,
+    MissionMessage,
+    ModeRequest,
+    ParamRequest,
+    ParamSet,
+    Routes,
+    TrajectorySetpoint,
+)
+from quadsitl import wire
+from quadsitl.compiled_frames import quaternion_to_euler
+
+mavlink = wire.mavlink
+QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
+RATES_ONLY = 128  # SET_ATTITUDE_TARGET type_mask bit: the attitude is ignored (body rates alone)
+FTP_HEADER = 12  # bytes of a FILE_TRANSFER_PROTOCOL payload's header: shorter is not a request
+MISSION_NAMES = ("COUNT", "ITEM", "ITEM_INT", "REQUEST_LIST", "REQUEST", "REQUEST_INT", "ACK", "CLEAR_ALL",
+                 "SET_CURRENT")  # fmt: skip
+MISSION_MESSAGES = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_MISSION_{name}") for name in MISSION_NAMES)
+OFFBOARD_SETPOINTS = frozenset((mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
+                                mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
+                                mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT))  # fmt: skip
+
+
+class Receiver:
+    """Messages from the ground links → records to ``routes``. ``frame()`` is where setpoints are measured from and
+    the limits they keep (:class:`autopilot.setpoints.Frame`), ``max_tilt()`` the attitude setpoints' limit [rad];
+    ``io`` the tick's bookkeeping (the tick flown, for held setpoints)."""
+
+    def __init__(self, system: int, component: int, routes: Routes, outbox: Outbox, counters: Counters,
+                 frame: Callable[[], setpoints.Frame], max_tilt: Callable[[], float], io: np.ndarray,
+                 pace: OffboardLockstep | None = None) -> None:  # fmt: skip
+        self.system, self.component, self.routes, self.outbox = system, component, routes, outbox
+        self.counters, self.frame, self.max_tilt, self.io, self.pace = counters, frame, max_tilt, io, pace
+        self.handlers: dict[int, Callable] = {
+            mavlink.MAVLINK_MSG_ID_COMMAND_LONG: self._command,
+            mavlink.MAVLINK_MSG_ID_COMMAND_INT: self._command,
+            mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET: self._attitude_target,
+            mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED: self._position_target_local,
+            mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT: self._position_target_global,
+            mavlink.MAVLINK_MSG_ID_SET_MODE: self._set_mode,
+            mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST: self._param_request_list,
+            mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_READ: self._param_request_read,
+            mavlink.MAVLINK_MSG_ID_PARAM_SET: self._param_set,
+            mavlink.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self._file_transfer,
+        }
+
+    def on_message(self, m, link) -> None:
+        """One message from ``link``: to its handler, when it is for this vehicle and one we take."""
+        mid = m.get_msgId()
+        if not hasattr(m, "target_system"):  # broadcasts: a ground station's heartbeat is a sign of the datalink
+            if mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                self.counters.unknown += 1
+            elif m.type == mavlink.MAV_TYPE_GCS:
+                self.routes.deliver(GroundHeartbeat(time.monotonic()))
+            return
+        if mid in MISSION_MESSAGES:
+            if mission_protocol.addressed_to(m.target_system, m.target_component, self.system, self.component):
+                self.routes.deliver(MissionMessage(mid, (m.get_srcSystem(), m.get_srcComponent()), m.to_dict()))
+            else:
+                self.counters.not_for_us += 1
+            return
+        if not self._for_me(m.target_system, getattr(m, "target_component", 0)):  # SET_MODE has no component
+            self.counters.not_for_us += 1
+            return
+        if self.pace is not None and mid in OFFBOARD_SETPOINTS:
+            self.pace.stamp(m.time_boot_ms)
+            if self.pace.hold(self.pace.tick_of(m.time_boot_ms), int(self.io[kernel.TICK]), m):
+                return  # made for a later tick: delivered from it (release)
+        handler = self.handlers.get(mid)
+        if handler is None:
+            self.counters.unknown += 1
+        else:
+            handler(m, link)
+
+    def release(self) -> bool:
+        """``--offboard-lockstep``: the setpoints held for the next tick (or before) delivered now, between the tick
+        just flown and the next → whether any was held."""
+        if self.pace is None or not self.pace.held:
+            return False
+        for m in self.pace.due(int(self.io[kernel.TICK]) + 1):
+            self.handlers[m.get_msgId()](m, None)
+        return True
+
+    def _for_me(self, system: int, component: int) -> bool:
+        return system in (0, self.system) and component in (0, self.component)
+
+    # ---- one handler per message -------------------------------------------------------------------
+
+    def _command(self, m, link) -> None:
+        is_int = m.get_msgId() == mavlink.MAVLINK_MSG_ID_COMMAND_INT
+        if is_int:
+            params = (m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z)
+            frame = m.frame
+        else:
+            params = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
+            frame = setpoints.GLOBAL
+        self.routes.deliver(Command(m.command, params, frame, is_int, (m.get_srcSystem(), m.get_srcComponent()),
+                                    link))  # fmt: skip
+
+    def _position_target_local(self, m, link) -> None:
+        self._position_target(m, (m.x, m.y, m.z))
+
+    def _position_target_global(self, m, link) -> None:
+        self._position_target(m, (float(m.lat_int), float(m.lon_int), m.alt))
+
+    def _position_target(self, m, pos: tuple[float, float, float]) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED or _GLOBAL_INT: refused with a reason, or a trajectory setpoint."""
+        try:
+            groups = setpoints.position_target(m.coordinate_frame, m.type_mask, pos, (m.vx, m.vy, m.vz),
+                                               (m.afx, m.afy, m.afz), m.yaw, m.yaw_rate, self.frame())  # fmt: skip
+        except setpoints.SetpointError as exc:
+            self.outbox.refuse(f"position {exc.kind}", str(exc))
+            return
+        self.routes.deliver(TrajectorySetpoint(*groups, wall=time.monotonic()))
+
+    def _attitude_target(self, m, link) -> None:
+        """SET_ATTITUDE_TARGET: the attitude reference. type_mask 128 (attitude ignored) carries no attitude we can
+        fly (no body-rate control here), so it is not a setpoint. The thrust field is always ignored: in offboard an
+        altitude reference always exists and the altitude loop makes u1."""
+        if m.type_mask & RATES_ONLY:
+            self.outbox.say_once("rates", "Attitude setpoint ignored: body-rate setpoints (type_mask 128) not "
+                                          "supported")  # fmt: skip
+            return
+        q = m.q
+        n2 = sum(x * x for x in q) if all(map(math.isfinite, q)) else math.nan
+        if not abs(n2 - 1.0) < QUATERNION_TOLERANCE:  # False for NaN too
+            self.outbox.refuse("quat", f"Attitude setpoint refused: |q|^2 = {n2:.3g}, not a unit quaternion")
+            return
+        n = math.sqrt(n2)
+        roll, pitch, yaw = quaternion_to_euler(*(x / n for x in q))
+        tilt = self.max_tilt()
+        if abs(roll) > tilt or abs(pitch) > tilt:
+            self.outbox.refuse("tilt", f"Attitude setpoint refused: roll {roll:.3f}, pitch {pitch:.3f} rad beyond "
+                                       f"ATT_TILT_MAX {tilt:.3f} rad")  # fmt: skip
+            return
+        self.routes.deliver(AttitudeSetpoint(roll, pitch, yaw, wall=time.monotonic()))
+
+    def _set_mode(self, m, link) -> None:
+        """SET_MODE, QGroundControl's way to PX4 modes (no acknowledgement)."""
+        custom = m.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        self.routes.deliver(ModeRequest(wire.Mode.from_px4(m.custom_mode) if custom else None, m.custom_mode))
+
+    def _param_request_list(self, m, link) -> None:
+        self.routes.deliver(ParamRequest(None))
+
+    def _param_request_read(self, m, link) -> None:
+        self.routes.deliver(ParamRequest(m.param_id, m.param_index))
+
+    def _param_set(self, m, link) -> None:
+        self.routes.deliver(ParamSet(m.param_id, m.param_value))
+
+    def _file_transfer(self, m, link) -> None:
+        if len(m.payload) >= FTP_HEADER:
+            self.routes.deliver(FileTransfer(bytes(m.payload), (m.get_srcSystem(), m.get_srcComponent())))
+        else:
+            self.counters.unknown += 1
