@@ -29,6 +29,7 @@ import numpy as np
 
 from benchmarks.machine import process_cpu_seconds
 from quadsitl import telemetry
+from quadsitl.children import stop
 
 T = 0.001  # [s] the control period
 
@@ -162,11 +163,7 @@ def measure(n: int, seconds: float, batch_ms: float) -> dict:
         }
     finally:
         for p in (pub, dash):
-            p.terminate()
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+            stop(p, grace=10.0)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -2,9 +2,9 @@
 
 A virtual machine's host takes a virtual CPU away for milliseconds at a time (its steal time), and a loop keeping
 time at 1 kHz misses the periods that fall in those stalls, with nothing else running at all. The host stalls each
-virtual CPU on its own: on a 2-core Firecracker guest, two bare loops pinned one to each core missed 0.27 % and
-0.49 % of their periods, and 0.70 % missed on either (0.06 % on both). A vehicle of a fleet spans the cores (its
-plant ticks on one, its autopilot answers on either), so it misses a period when either of them stalls:
+virtual CPU on its own: bare loops pinned one to each core miss different periods, and few at once on both
+(docs/fleets.md). A vehicle of a fleet spans the cores (its plant ticks on one, its autopilot answers on either),
+so it misses a period when either of them stalls:
 
 - its floor is the periods missed on *any* core, about the sum of the cores' and twice one loop's
   (:func:`floor_on_every_core`, before a fleet runs);
@@ -34,6 +34,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import IO
 
+from quadsitl.children import stop_all
 from quadsitl.process_util import timers_on_time, wait_readable
 from quadsitl.timing import late_periods, period_stats
 
@@ -112,7 +113,7 @@ def _start_loops(ticks: int | None, priority: int | None, period: float) -> dict
         for proc in procs.values():  # each pinned (and under FIFO) and waiting, before the schedule is set
             proc.stdout.readline()
     except BaseException:  # interrupted: no loop left behind
-        _stop(procs)
+        stop_all(procs.values(), grace=0)
         raise
     return procs
 
@@ -137,13 +138,6 @@ def _collect(procs: dict[int, subprocess.Popen], stalls: Stalls, timeout: float)
     stalls.late = {cpu: {j for j in r["late"] if j < stalls.ticks} for cpu, r in results.items()}
 
 
-def _stop(procs: dict[int, subprocess.Popen]) -> None:
-    for proc in procs.values():
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-
-
 def floor_on_every_core(ticks: int, fifo: bool = False, period: float = 0.001) -> dict:
     """One bare loop per CPU this process may use, each pinned to its CPU, all on one schedule, at once (a process
     each, under SCHED_FIFO at :data:`FIFO_PRIORITY` when ``fifo``), nothing else running → :meth:`Stalls.ratios`.
@@ -156,7 +150,7 @@ def floor_on_every_core(ticks: int, fifo: bool = False, period: float = 0.001) -
             _write(proc, f"{stalls.start!r}\n")
         _collect(procs, stalls, timeout=60 + 3 * ticks * period)
     finally:
-        _stop(procs)
+        stop_all(procs.values(), grace=0)
     return stalls.ratios()
 
 
@@ -164,7 +158,7 @@ def floor_on_every_core(ticks: int, fifo: bool = False, period: float = 0.001) -
 def watching_every_core(period: float = 0.001) -> Iterator[Stalls]:
     """While entered, one loop per core keeps time under SCHED_FIFO at :data:`WATCH_PRIORITY`, above any fleet's
     processes; on leaving, the :class:`Stalls` yielded holds what they missed (RuntimeError naming the core whose
-    loop failed: SCHED_FIFO needs root or CAP_SYS_NICE). Each costs its core a wake-up per period (about 1 % of it)."""
+    loop failed: SCHED_FIFO needs root or CAP_SYS_NICE). Each costs its core a wake-up per period."""
     procs = _start_loops(None, WATCH_PRIORITY, period)
     try:
         stalls = Stalls(time.monotonic() + 0.05, period, 0)
@@ -175,7 +169,7 @@ def watching_every_core(period: float = 0.001) -> Iterator[Stalls]:
             _write(proc, "stop\n")
         _collect(procs, stalls, timeout=30)
     finally:
-        _stop(procs)
+        stop_all(procs.values(), grace=0)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 
+from quadsitl.children import stop
 from quadsitl.process_util import SpinThenBlock, set_receive_timeout
 
 STATE_BYTES = 245  # a MAVLink 2 ODOMETRY frame
@@ -66,9 +67,7 @@ def measure(round_trips: int = 20000, warmup: int = 500, spin: bool = False, cpu
         proc.wait(10)
         return round_trips / elapsed
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop(proc, grace=0)
 
 
 if __name__ == "__main__":

@@ -21,6 +21,8 @@ which vehicles; :func:`groundstation.formation.fleet_metrics`), ``DIR/formation.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import json
 import socket
 import sys
@@ -36,20 +38,20 @@ from groundstation.launcher import (
     LOGGED,
     OFFBOARD_LOCKSTEP,
     SETPOINTS_AHEAD,
-    Children,
     compile_once,
     dashboard_port,
-    describe,
+    flight_interrupted,
     keep_dashboard,
     publish_info,
     signing_env,
     start_dashboard,
     write_report,
 )
+from quadsitl.children import Children, run_supervised, supervise
 from quadsitl.cli_util import UsageError, parse_floats, state_argv, wind_argv
 from quadsitl.config import SENSOR_GROUND_S, load_preset
 from quadsitl.frames import PX4_HOME
-from quadsitl.process_util import PLANT_DIVERGED, free_port, stop_status
+from quadsitl.process_util import free_port
 
 DEFAULT_ALTITUDE, DEFAULT_DISTANCE = 5.0, 10.0  # [m]
 
@@ -101,8 +103,8 @@ def fly_fleet(args: argparse.Namespace) -> int:
     quiet = ["--quiet"] if args.quiet else []
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
     gcs_names = [f"gcs {v.name}" for v in fleet]
-    info = None
-    try:
+
+    def flight(stack: contextlib.ExitStack) -> int:
         compile_once(children.env)
         plant = ["sitl", "--preset", args.preset, "--speed", str(args.speed), "--hold-until-armed",
                  repr(SENSOR_GROUND_S)]  # fmt: skip
@@ -133,6 +135,8 @@ def fly_fleet(args: argparse.Namespace) -> int:
             plant += ["--integrator", args.integrator]
         children.start("plant", plant + wind_argv(args) + state_argv(args) + quiet)
         info = publish_info(fleet, zenoh_ep)  # system ids and homes, for the dashboard's fleet view
+        if info is not None:
+            stack.callback(info.close)
         if web_port is not None:
             print(f"quadsitl fly: dashboard at {start_dashboard(children, web_port, zenoh_ep)}", flush=True)
         for v, api_port in zip(fleet, gcs_ports, strict=True):
@@ -150,23 +154,12 @@ def fly_fleet(args: argparse.Namespace) -> int:
                 f"{plan.distance:g} m north, rotate 90°, hold, land ({plan.duration:.1f} s of plan)",
                 flush=True,
             )
-        while True:
-            failure = children.first_failure(done=gcs_names, prog="quadsitl fly")
-            if failure == ("plant", PLANT_DIVERGED):
-                time.sleep(0.3)
-                for name in gcs_names:  # each writes what it logged
-                    children.stop(names=[name])
-                print(f"quadsitl fly: a vehicle's state diverged (above); the flown telemetry is in {out}/v*/ (exit "
-                      f"status {FLY_DIVERGED})", file=sys.stderr)  # fmt: skip
-                return FLY_DIVERGED
-            if failure:
-                print(f"quadsitl fly: error: {describe(*failure)}; stopping the others", file=sys.stderr)
-                return 1
-            if all(children.procs[name].poll() == 0 for name in gcs_names):
-                break
-            if info is not None:
-                info.tick(time.monotonic())
-            time.sleep(0.05)
+        status = supervise(children, "quadsitl fly", done=gcs_names,
+                           finished=lambda: all(children.procs[name].poll() == 0 for name in gcs_names),
+                           diverged=lambda _plant: fleet_diverged(children, gcs_names, out),
+                           tick=None if info is None else lambda: info.tick(time.monotonic()))  # fmt: skip
+        if status is not None:
+            return status
         # the plant first, as a lone vehicle's `fly` does: autopilots stopped before it left it waiting, and after
         # 0.5 s it called the first of them lost; then the others together
         children.stop(names=["plant"])
@@ -174,19 +167,20 @@ def fly_fleet(args: argparse.Namespace) -> int:
         write_fleet_report(out, fleet, plan, args)
         if web_port is not None:
             keep_dashboard(children)
-    except KeyboardInterrupt as exc:
-        if "dashboard" in children.procs and all(children.procs[n].poll() == 0 for n in gcs_names):
-            return 0
-        print("quadsitl fly: interrupted; stopping " + ", ".join(children.procs), file=sys.stderr)
-        return stop_status(exc)
-    except RuntimeError as exc:
-        print(f"quadsitl fly: error: {exc}; stopping the others", file=sys.stderr)
-        return 1
-    finally:
-        if info is not None:
-            info.close()
-        children.stop()
-    return 0
+        return 0
+
+    return run_supervised(children, "quadsitl fly", flight, functools.partial(flight_interrupted, children, gcs_names))
+
+
+def fleet_diverged(children: Children, gcs_names: list[str], out: Path) -> int:
+    """A vehicle's state diverged (the plant ended with PLANT_DIVERGED, having said why): each ground station
+    ``gcs_names`` stopped, so that it writes what it logged in ``out``/v*/; ``fly``'s exit status, said."""
+    time.sleep(0.3)
+    for name in gcs_names:  # each writes what it logged
+        children.stop(names=[name])
+    print(f"quadsitl fly: a vehicle's state diverged (above); the flown telemetry is in {out}/v*/ (exit status "
+          f"{FLY_DIVERGED})", file=sys.stderr)  # fmt: skip
+    return FLY_DIVERGED
 
 
 def write_fleet_report(out: Path, fleet: list[VehiclePlan], plan: formation.Plan, args: argparse.Namespace) -> dict:

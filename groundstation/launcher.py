@@ -20,18 +20,19 @@ with status 3 (:data:`FLY_DIVERGED`, :data:`UP_DIVERGED`; docs/failures.md).
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
 import time
-from collections.abc import Collection, Iterable
-from dataclasses import asdict, dataclass, field
+from collections.abc import Collection
+from dataclasses import asdict
 from pathlib import Path
 
 from groundstation.fleet import VehiclePlan, zenoh_argv
+from quadsitl.children import Children, describe, run_supervised, supervise
 from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
 from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
 from quadsitl.process_util import (
@@ -71,57 +72,6 @@ def signing_env(key_text: str | None) -> dict[str, str] | None:
 
     wire.resolve_signing_key(key_text)  # refuse a bad key here, with the option's name
     return {**os.environ, wire.SIGNING_ENV: key_text}
-
-
-@dataclass
-class Children:
-    procs: dict[str, subprocess.Popen] = field(default_factory=dict)
-
-    env: dict[str, str] | None = None  # the children's environment (None: this process's)
-
-    def start(self, name: str, args: list[str]) -> None:
-        self.procs[name] = subprocess.Popen([sys.executable, "-m", *args], env=self.env)
-
-    optional: tuple[str, ...] = ("dashboard",)  # a viewer: its end is reported, and the vehicle flies on
-    reported: set[str] = field(default_factory=set)
-
-    def first_failure(self, done: str | Collection[str], prog: str = "quadsitl") -> tuple[str, int] | None:
-        """(name, status) of a child that exited when it should not have; ``done`` (a name or several) may exit
-        with 0. An optional child that ends is reported once on stderr (as ``prog``) and is not a failure."""
-        done = (done,) if isinstance(done, str) else done
-        for name, p in self.procs.items():
-            rc = p.poll()
-            if rc is None or (name in done and rc == 0):
-                continue
-            if name in self.optional:
-                if name not in self.reported:
-                    self.reported.add(name)
-                    print(f"{prog}: warning: {describe(name, rc)}; the others go on", file=sys.stderr, flush=True)
-                continue
-            return name, rc
-        return None
-
-    def stop(self, grace: float = 3.0, names: Iterable[str] | None = None) -> None:
-        """Stop the processes ``names`` (default: all) together: SIGTERM to each, then ``grace`` seconds for all of
-        them to end (a fleet's processes each take a few tenths of a second to close their sessions), then SIGKILL."""
-        procs = list(self.procs.values()) if names is None else [self.procs[n] for n in names]
-        for p in procs:
-            if p.poll() is None:
-                p.terminate()
-        end = time.monotonic() + grace
-        for p in procs:
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                p.wait(max(0.0, end - time.monotonic()))
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-                p.wait()
-
-
-def describe(name: str, status: int) -> str:
-    if status < 0:
-        return f"the {name} process was killed by signal {-status} ({signal.Signals(-status).name})"
-    return f"the {name} process exited with status {status}"
 
 
 def add_dashboard_arguments(p) -> None:
@@ -173,74 +123,74 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
     check_ports_free(args, fleet)
     if args.cores_awake:  # refused (no root) before anything starts; the plant holds the request for the run
         os.close(hold_cores_awake())
-    info = None  # the vehicles' quadsitl/<vehicle>/info documents, once Zenoh is up
-    try:
-        if len(fleet) > 1:
-            compile_once(children.env)
-        # One plant process simulates every vehicle on one clock (sitl.process.run_lockstep); an autopilot each.
-        plant = ["sitl", "--preset", args.preset, "--mode", args.mode] + (["--cores-awake"] if args.cores_awake else [])
-        taken = planned_ports(fleet)  # an internal port never lands on a later vehicle's, not yet bound
-        for v in fleet:
-            plant_port = free_port(avoid=taken)
-            taken.add(plant_port)
-            named = "" if len(fleet) == 1 else f" {v.name}"
-            ap = ["autopilot", "--preset", v.preset, "--plant-listen", f"127.0.0.1:{plant_port}",
-                  "--system-id", str(v.system_id), "--gcs-listen", v.gcs_listen, "--gcs-remote", v.gcs_remote,
-                  "--api-listen", v.api_listen, "--api-remote", v.api_remote]  # fmt: skip
-            if args.controller is not None:
-                ap += ["--controller", args.controller]
-            for item in args.controller_param:
-                ap += ["--controller-param", item]
-            home = ["--home", ",".join(repr(x) for x in v.home)] if args.home is not None or len(fleet) > 1 else []
-            ap += home + state_argv(args)
-            if args.no_zenoh:
-                ap.append("--no-zenoh")
-            else:  # the first vehicle's session listens, the others connect to it (and find each other), or a router
-                ap += ["--vehicle", v.name, *zenoh_argv(v.index, args.zenoh_listen, args.zenoh_connect, True,
-                                                        args.zenoh_config)]  # fmt: skip
-            children.start("autopilot" + named, ap)
-            plant += ["--autopilot", f"127.0.0.1:{plant_port}", "--vehicle", v.name, *home]
-            if v.preset != args.preset:
-                plant += ["--vehicle-preset", f"{v.number}={v.preset}"]
-        if args.mode == "lockstep":
-            plant += ["--speed", str(args.speed)]
-        if args.impair:
-            plant += ["--impair", args.impair]
-        plant += wind_argv(args) + state_argv(args)
-        if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
-            plant += zenoh_argv(0, args.zenoh_listen, args.zenoh_connect, False, args.zenoh_config)
-        children.start("plant", plant + (["--quiet"] if args.quiet else []))
-        info = None if args.no_zenoh else publish_info(fleet, zenoh_endpoint(args), bool(args.zenoh_connect),
-                                                       args.zenoh_config)  # fmt: skip
-        url = None
-        if web_port is not None:
-            url = start_dashboard(children, web_port, zenoh_endpoint(args), zenoh_config=args.zenoh_config)
-        if not args.quiet:
-            print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
-        while True:
-            if info is not None:
-                info.tick(time.monotonic())
-            failure = children.first_failure(done="", prog="quadsitl up")
-            if failure and failure[0].startswith("plant") and failure[1] == PLANT_DIVERGED:
-                time.sleep(0.2)  # the autopilot relays the plant's STATUSTEXT to the ground stations as it comes
-                print(f"quadsitl up: the {failure[0]}'s state diverged (above; the ground stations were told in a "
-                      f"STATUSTEXT); stopping the others (exit status {UP_DIVERGED})", file=sys.stderr)  # fmt: skip
-                return UP_DIVERGED
-            if failure:
-                print(f"quadsitl up: error: {describe(*failure)}; stopping the others", file=sys.stderr)
-                return 1
-            time.sleep(0.1)
-    except KeyboardInterrupt:
+
+    def interrupted(exc: KeyboardInterrupt) -> int:  # Ctrl-C or SIGTERM: how `up` is meant to end
         if not args.quiet:
             print("quadsitl up: stopping " + ", ".join(children.procs), file=sys.stderr)
         return 0
-    except RuntimeError as exc:
-        print(f"quadsitl up: error: {exc}; stopping the others", file=sys.stderr)
-        return 1
-    finally:
-        if info is not None:
-            info.close()
-        children.stop()
+
+    return run_supervised(children, "quadsitl up", lambda stack: run_up(children, stack, preset, args, fleet, web_port),
+                          interrupted)  # fmt: skip
+
+
+def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args, fleet: list[VehiclePlan],
+           web_port: int | None) -> int:  # fmt: skip
+    """``up``'s processes started (the dashboard's on ``web_port``, if any) and its banner printed, then watched until
+    one fails: the exit status. The vehicles' info publisher, when Zenoh is on, closes with ``stack``."""
+    if len(fleet) > 1:
+        compile_once(children.env)
+    # One plant process simulates every vehicle on one clock (sitl.process.run_lockstep); an autopilot each.
+    plant = ["sitl", "--preset", args.preset, "--mode", args.mode] + (["--cores-awake"] if args.cores_awake else [])
+    taken = planned_ports(fleet)  # an internal port never lands on a later vehicle's, not yet bound
+    for v in fleet:
+        plant_port = free_port(avoid=taken)
+        taken.add(plant_port)
+        named = "" if len(fleet) == 1 else f" {v.name}"
+        ap = ["autopilot", "--preset", v.preset, "--plant-listen", f"127.0.0.1:{plant_port}",
+              "--system-id", str(v.system_id), "--gcs-listen", v.gcs_listen, "--gcs-remote", v.gcs_remote,
+              "--api-listen", v.api_listen, "--api-remote", v.api_remote]  # fmt: skip
+        if args.controller is not None:
+            ap += ["--controller", args.controller]
+        for item in args.controller_param:
+            ap += ["--controller-param", item]
+        home = ["--home", ",".join(repr(x) for x in v.home)] if args.home is not None or len(fleet) > 1 else []
+        ap += home + state_argv(args)
+        if args.no_zenoh:
+            ap.append("--no-zenoh")
+        else:  # the first vehicle's session listens, the others connect to it (and find each other), or a router
+            ap += ["--vehicle", v.name, *zenoh_argv(v.index, args.zenoh_listen, args.zenoh_connect, True,
+                                                    args.zenoh_config)]  # fmt: skip
+        children.start("autopilot" + named, ap)
+        plant += ["--autopilot", f"127.0.0.1:{plant_port}", "--vehicle", v.name, *home]
+        if v.preset != args.preset:
+            plant += ["--vehicle-preset", f"{v.number}={v.preset}"]
+    if args.mode == "lockstep":
+        plant += ["--speed", str(args.speed)]
+    if args.impair:
+        plant += ["--impair", args.impair]
+    plant += wind_argv(args) + state_argv(args)
+    if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
+        plant += zenoh_argv(0, args.zenoh_listen, args.zenoh_connect, False, args.zenoh_config)
+    children.start("plant", plant + (["--quiet"] if args.quiet else []))
+    info = None if args.no_zenoh else publish_info(fleet, zenoh_endpoint(args), bool(args.zenoh_connect),
+                                                   args.zenoh_config)  # fmt: skip
+    if info is not None:  # the vehicles' quadsitl/<vehicle>/info documents
+        stack.callback(info.close)
+    url = None
+    if web_port is not None:
+        url = start_dashboard(children, web_port, zenoh_endpoint(args), zenoh_config=args.zenoh_config)
+    if not args.quiet:
+        print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
+    tick = None if info is None else lambda: info.tick(time.monotonic())
+    return supervise(children, "quadsitl up", diverged=up_diverged, tick=tick, period=0.1)
+
+
+def up_diverged(name: str) -> int:
+    """The plant ``name`` of ``up`` ended because its state diverged (it said why): ``up``'s exit status, said."""
+    time.sleep(0.2)  # the autopilot relays the plant's STATUSTEXT to the ground stations as it comes
+    print(f"quadsitl up: the {name}'s state diverged (above; the ground stations were told in a STATUSTEXT); stopping "
+          f"the others (exit status {UP_DIVERGED})", file=sys.stderr)  # fmt: skip
+    return UP_DIVERGED
 
 
 def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False, config_file: str | None = None):
@@ -420,7 +370,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     children = Children(env=signing_env(args.signing_key))
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
 
-    try:
+    def flight(_stack: contextlib.ExitStack) -> int:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",
               "--api-listen", f"127.0.0.1:{gcs_port}", "--api-remote", "none", "--gcs-listen",
               f"127.0.0.1:{gcs_listen}", "--gcs-remote", "none", "--zenoh-listen", zenoh_ep,
@@ -465,32 +415,27 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         if mission:
             gcs += ["--mission", str(mission)] + (["--home", args.home] if args.home else [])
         children.start("gcs", gcs)
-        while True:
-            failure = children.first_failure(done="gcs", prog="quadsitl fly")
-            if failure == ("plant", PLANT_DIVERGED):  # the plant said why on stderr; keep what was flown
-                return end_diverged(children, out, preset, args)
-            if failure:
-                print(f"quadsitl fly: error: {describe(*failure)}; stopping the others", file=sys.stderr)
-                return 1
-            if children.procs["gcs"].poll() == 0:
-                break
-            time.sleep(0.05)
+        status = supervise(children, "quadsitl fly", done="gcs", finished=lambda: children.procs["gcs"].poll() == 0,
+                           diverged=lambda _plant: end_diverged(children, out, preset, args))  # fmt: skip
+        if status is not None:
+            return status
         for name in ("plant", "autopilot", "gcs"):  # the flight is over; a dashboard stays, below
             children.stop(names=[name])
         write_report(out, preset, args)
         if web_port is not None:
             keep_dashboard(children)
-    except KeyboardInterrupt as exc:  # SIGINT or SIGTERM (StopRequested)
-        if "dashboard" in children.procs and children.procs["gcs"].poll() == 0:
-            return 0  # Ctrl-C after the flight: that is how the dashboard is closed
-        print("quadsitl fly: interrupted; stopping " + ", ".join(children.procs), file=sys.stderr)
-        return stop_status(exc)
-    except RuntimeError as exc:
-        print(f"quadsitl fly: error: {exc}; stopping the others", file=sys.stderr)
-        return 1
-    finally:
-        children.stop()
-    return 0
+        return 0
+
+    return run_supervised(children, "quadsitl fly", flight, functools.partial(flight_interrupted, children, ["gcs"]))
+
+
+def flight_interrupted(children: Children, gcs: Collection[str], exc: KeyboardInterrupt) -> int:
+    """``fly``'s exit status on a stop request (SIGINT or SIGTERM: ``exc``): 0 after the flight, its ground stations
+    ``gcs`` done and the dashboard kept showing it (that is how it is closed); else the signal's status, said."""
+    if "dashboard" in children.procs and all(children.procs[name].poll() == 0 for name in gcs):
+        return 0
+    print("quadsitl fly: interrupted; stopping " + ", ".join(children.procs), file=sys.stderr)
+    return stop_status(exc)
 
 
 FLY_DIVERGED = PLANT_DIVERGED  # `quadsitl fly`'s exit status when the plant's state diverged (docs/failures.md)

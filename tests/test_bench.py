@@ -177,7 +177,8 @@ def test_missing_names_what_the_browser_needs_and_how_to_get_it(monkeypatch):
 
 
 def test_a_sections_steal_time_is_the_hosts_share_of_the_cpu_time_since_it_began():
-    from benchmarks import bench, machine
+    from benchmarks import machine
+    from benchmarks import report as bench
 
     steal, total = machine.cpu_times()
     r = bench.Report(quiet=True)
@@ -189,7 +190,7 @@ def test_a_sections_steal_time_is_the_hosts_share_of_the_cpu_time_since_it_began
 
 @pytest.mark.skipif(os.geteuid() != 0 or not Path("/dev/cpu_dma_latency").exists(), reason="needs root and PM QoS")
 def test_the_benchs_fifo_fleets_hold_the_cores_awake_while_they_run():
-    from benchmarks.bench import cores_awake
+    from benchmarks.scheduling import cores_awake
     from tests.test_fleet_plant import cpu_latency_request as request
 
     def held() -> bool:  # this process has the request open

@@ -11,7 +11,7 @@ import sys
 import tempfile
 import time
 
-from groundstation.launcher import Children
+from quadsitl.children import Children
 
 SLOW_TO_STOP = 1.5  # [s]: how long each child takes to end after its SIGTERM
 CHILD = f"""

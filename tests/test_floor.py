@@ -124,7 +124,7 @@ def _children_running(module: str) -> list[int]:
 
 
 def test_a_fleets_own_misses_are_those_outside_the_periods_the_host_stalled():
-    from benchmarks.bench import own_misses
+    from benchmarks.sections.fleet import own_misses
 
     # the fleet's clock 0.4 ms after the watching loops' schedule; a core stalled over their period 10: the fleet's
     # periods 9 and 10 are the host's

@@ -127,7 +127,7 @@ def test_a_benchs_fleet_gives_every_autopilot_ports_of_its_own(monkeypatch, tmp_
     """``quadsitl bench --only fleet`` starts N autopilots before any binds its ports: each one's picks keep out of
     the others' (a fleet of 12 once got a Zenoh port another autopilot was about to bind, "Address already in
     use"). The pickable range here is exactly the six ports two autopilots need, so any repeat would show."""
-    from benchmarks import bench
+    from benchmarks import autopilots as bench
 
     base = free_ports(6)
     monkeypatch.setattr(process_util, "ephemeral_range", lambda: (60000, 60999))
@@ -146,7 +146,7 @@ def test_a_benchs_fleet_gives_every_autopilot_ports_of_its_own(monkeypatch, tmp_
 def test_a_benchs_autopilot_whose_port_was_bound_meanwhile_starts_again_on_others(monkeypatch, tmp_path):
     """Another process (a test beside the bench) may bind a port between the bench's pick and the autopilot's bind:
     the autopilot exits ("Address already in use"), and the bench starts it again on other ports."""
-    from benchmarks import bench
+    from benchmarks import autopilots as bench
 
     with socket.socket() as other:
         other.bind(("127.0.0.1", 0))

@@ -1,0 +1,90 @@
+"""3. telemetry fan-out: 1, 3 and 10 subscriber processes (:mod:`benchmarks.subscriber`) on the autopilot's Zenoh
+session; delivered samples per second, loss and latency at 1 kHz, and the lockstep tick rate with each, against
+none."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from benchmarks.autopilots import autopilot_process, run_plant
+from benchmarks.report import Report
+from benchmarks.sections.base import Context, Section
+from quadsitl.children import start_module, stop
+from quadsitl.timing import percentile
+
+
+@contextlib.contextmanager
+def subscribers(endpoint: str, count: int, nice: int, workdir: Path) -> Iterator[list[dict]]:
+    """``count`` subscriber processes (:mod:`benchmarks.subscriber`) on ``endpoint``; yields the list their results
+    fill once they are stopped. Each one's stderr goes to a file in ``workdir``, quoted when it gives no result."""
+    logs = [workdir / f"subscriber-{time.monotonic_ns()}-{i}.log" for i in range(count)]
+    procs = []
+    for log in logs:
+        with log.open("w") as err:
+            procs.append(start_module("benchmarks.subscriber", endpoint, "v1", str(nice), stdout=subprocess.PIPE,
+                                      stderr=err, text=True))  # fmt: skip
+    results: list[dict] = []
+    failures: list[str] = []
+    try:
+        for p in procs:
+            if p.stdout.readline().strip() != "ready":
+                raise RuntimeError("a fan-out subscriber process did not start")
+        time.sleep(0.5)  # let the sessions finish declaring
+        yield results
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p, log in zip(procs, logs, strict=True):
+            try:
+                out, _ = p.communicate(timeout=20)
+                results.append(json.loads(out.strip().splitlines()[-1]))
+            except (subprocess.TimeoutExpired, ValueError, IndexError) as exc:
+                stop(p, grace=0)
+                why = "no result within 20 s of SIGTERM" if isinstance(exc, subprocess.TimeoutExpired) else \
+                    f"exit status {p.returncode} and no result"  # fmt: skip
+                tail = log.read_text(errors="replace").strip().splitlines()[-3:]
+                failures.append(why + (f" ({' / '.join(tail)})" if tail else ""))
+    if failures:  # never report loss and latency over the subscribers that happened to answer
+        raise RuntimeError(f"{len(failures)} of {count} fan-out subscriber processes gave no result: {failures[0]}")
+
+
+def bench_fanout(r: Report, workdir: Path, nice: int) -> None:
+    """The lockstep's tick rate with 1, 3 and 10 subscriber processes at niceness ``nice``, as fast as possible and
+    paced at 1 kHz (delivered samples, loss, latency)."""
+    r.section(f"3. telemetry fan-out: subscriber processes (nice {nice}) on the autopilot's Zenoh session")
+    ticks_fast, ticks_paced = 10000, 3000
+    with autopilot_process(workdir) as (plant_port, api, endpoint, _pid):
+        run_plant(plant_port, workdir, 5000, arm=api)  # warm-up
+        alone = run_plant(plant_port, workdir, ticks_fast, arm=api)["ticks_per_s"]
+        r.add("lockstep ticks, no subscriber", alone, "1/s")
+        for n in (1, 3, 10):
+            with subscribers(endpoint, n, nice, workdir):
+                rate = run_plant(plant_port, workdir, ticks_fast, arm=api)["ticks_per_s"]
+            r.add(f"lockstep ticks, {n} subscriber(s)", rate, "1/s", alone, "no subscriber")
+            with subscribers(endpoint, n, nice, workdir) as res:
+                paced = run_plant(plant_port, workdir, ticks_paced, "--speed", "1", arm=api)
+                time.sleep(0.5)
+            expected = 4 * ticks_paced
+            got = [sum(x["counts"].values()) for x in res]
+            lat = sorted(v * 1e3 for x in res for v in x["latencies"])
+            delivered = sum(got) / paced["answered_wall_s"]  # from the first answer: before it, nothing flows
+            r.add(f"  {n} sub: delivered samples at 1 kHz, all subs", delivered, "1/s", n * 4000.0, "4 streams x 1 kHz")
+            r.add(f"  {n} sub: loss", 100.0 * (1 - min(got, default=0) / expected), "% (worst)")
+            r.add(f"  {n} sub: latency p50", percentile(lat, 50), "ms")
+            r.add(f"  {n} sub: latency p99", percentile(lat, 99), "ms")
+
+
+def run(ctx: Context) -> dict[str, object]:
+    """The fan-out with subscribers at ``--subscriber-nice``; no keys of its own."""
+    bench_fanout(ctx.report, ctx.work, ctx.args.subscriber_nice)
+    return {}
+
+
+SECTION = Section("fanout", run)
