@@ -177,7 +177,7 @@ def up(preset: Preset, args, fleet: list[VehiclePlan]) -> int:
     try:
         if len(fleet) > 1:
             compile_once(children.env)
-        # One plant process simulates every vehicle on one clock (sitl.process.run_lockstep); an autopilot each.
+        # One plant process simulates every vehicle on one clock (sitl.lockstep.run_lockstep); an autopilot each.
         plant = ["sitl", "--preset", args.preset, "--mode", args.mode] + (["--cores-awake"] if args.cores_awake else [])
         taken = planned_ports(fleet)  # an internal port never lands on a later vehicle's, not yet bound
         for v in fleet:
