@@ -16,9 +16,6 @@ Errors are one line on stderr and a non-zero exit (2 for bad input), never a tra
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,15 +23,15 @@ from pathlib import Path
 from autopilot.cli import GAINS_EPILOG, add_gains_arguments, run_gains
 from autopilot.gains import GainError, poles_from_rates
 from groundstation.launcher import add_dashboard_arguments
+from groundstation.sweep.command import add_sweep_parser
+from groundstation.up_network import zenoh_and_addresses
 from quadsitl.cli_util import (
-    CONTROLLER_HELP,
     UsageError,
     add_preset_arguments,
     add_state_arguments,
     add_wind_arguments,
     attach_negative_values,
     check_range,
-    controller_name,
     parse_controller_params,
     parse_floats,
     wind_settings,
@@ -191,135 +188,6 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return SIM_DIVERGED if diverged else 1 if unfinished or failed else 0
 
 
-EXAMPLES_SWEEP = """examples:
-  quadsitl sweep paper-mass-mismatch --out runs/mass          # a shipped spec, by name
-  quadsitl sweep paper-mass-mismatch --trials 100000 --workers 2 --out runs/mass-100k
-  quadsitl sweep my-sweep.toml --keep 5 --json --out runs/mine  # trajectories of trials 0..4; summary on stdout
-  quadsitl sweep paper-mass-mismatch --trials 100000 --cluster tcp://10.0.0.5:8786  # on a Dask scheduler's workers
-"""
-
-
-def cmd_sweep(args: argparse.Namespace) -> int:
-    from groundstation.sweep.spec import check_engine, load_spec
-    from quadsitl.controller_names import absolute
-
-    try:
-        spec = load_spec(args.spec, None if args.controller is None else absolute(args.controller))
-        if args.trials is not None:
-            spec = spec.with_trials(args.trials)
-    except ConfigError as exc:
-        raise UsageError(str(exc)) from None
-    if args.engine is not None:
-        try:
-            spec = check_engine(dataclasses.replace(spec, engine=args.engine))
-        except ConfigError as exc:
-            raise UsageError(f"--engine {args.engine}: {exc}") from None
-    if args.cluster is not None and args.workers is not None:
-        raise UsageError(f"--workers {args.workers} with --cluster {args.cluster}: expected one of them (--cluster: "
-                         "the cluster's workers fly the trials)")  # fmt: skip
-    if args.cluster is not None:
-        from groundstation.sweep.cluster import parse_address
-
-        address = parse_address("--cluster", args.cluster)
-    cores = os.cpu_count() or 1  # a `fly` keeps two cores busy (plant and autopilot in lockstep)
-    default_workers = max(1, cores // 2) if spec.engine == "sitl" else cores
-    workers = default_workers if args.workers is None else args.workers
-    if not 1 <= workers <= 256:
-        raise UsageError(f"--workers {workers}: expected an integer in [1, 256]")
-    if args.chunk is not None and not 1 <= args.chunk <= 1_000_000:
-        raise UsageError(f"--chunk {args.chunk}: expected an integer in [1, 1000000]")
-    keep = set(spec.keep) | set(args.keep_trial or ())
-    if args.keep is not None:
-        if not 0 <= args.keep <= 1000:
-            raise UsageError(f"--keep {args.keep}: expected an integer in [0, 1000] (the first N trials)")
-        keep |= set(range(min(args.keep, spec.trials)))
-    bad = [k for k in keep if not 0 <= k < spec.trials]
-    if bad:
-        raise UsageError(f"--keep-trial {bad[0]}: expected a trial number in [0, {spec.trials - 1}]")
-    spec = dataclasses.replace(spec, keep=tuple(sorted(keep)))
-    quiet = args.quiet or args.json
-    total_s = spec.trials * spec.duration
-    chunk = args.chunk or (1 if spec.engine == "sitl" else None)  # a SITL trial takes seconds: progress per trial
-    # after the checks: a refusal is answered without loading the compiler (1.5 -> 0.4 s of CPU)
-    from groundstation.progress import FlightProgress, announce_if_slow
-    from groundstation.sweep.run import SweepError, run_sweep, summarize, warm_up, write_outputs
-
-    if args.cluster is None:  # compiled (first use) or loaded from numba's cache before the progress clock starts
-        with announce_if_slow("quadsitl sweep: compiling the engine for this configuration (first use only: numba's "
-                              "cache keeps it)", enabled=not args.quiet):  # fmt: skip
-            warm_up(spec)
-    try:
-        with FlightProgress(total_s, enabled=not args.quiet, label="sweep (vehicle-seconds):") as bar:
-            if args.cluster is None:
-                result = run_sweep(spec, workers, chunk, progress=bar.update)
-            else:
-                from groundstation.sweep.cluster import run_on_cluster
-
-                def warn(line: str) -> None:
-                    if not args.quiet:
-                        print(f"quadsitl sweep: warning: {line}", file=sys.stderr)
-
-                result = run_on_cluster(spec, address, chunk, progress=bar.update, warn=warn)
-    except SweepError as exc:  # a trial lost or twice; with --cluster, also the cluster's failures (ClusterError)
-        print(f"quadsitl sweep: error: {exc}", file=sys.stderr)
-        return 1
-    summary = summarize(result)
-    files = write_outputs(Path(args.out), result, summary)
-    figures = []
-    if not args.no_figures:
-        from groundstation.sweep.figures import write_sweep_figures  # matplotlib: only when drawing
-
-        figures = write_sweep_figures(Path(args.out), result)
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    if not quiet:
-        print(format_summary(summary))
-        kept = sum(f.parent.name == "trajectories" for f in files)
-        names = [f.name for f in files if f.parent.name != "trajectories"] + [f.name for f in figures]
-        print(f"wrote {args.out}/" + ", ".join(names)
-              + (f" and {kept} trajector{'y' if kept == 1 else 'ies'}" if kept else ""))  # fmt: skip
-    return 0
-
-
-def format_summary(s: dict) -> str:
-    """A few lines for the terminal: the sweep, its speed, settling times and overshoot per channel, the worst."""
-    flown = (f"mission {s['mission']}" if s.get("mission") else f"trajectory {s['trajectory']}"
-             if s.get("trajectory") else f"task {s['task']}")  # fmt: skip
-    flown += ", on sensors" if s.get("state") == "sensors" else ""
-    tracked = s["metrics"]["horizontal_rms"].get("p50") is not None  # a position trajectory or a mission
-    lines = [
-        f"sweep {s['spec']}: {s['trials']} trials of {s['duration']:g} s ({s['controller']}, preset {s['preset']}, "
-        f"{flown}) in {s['wall_s']:.1f} s, {s['vehicle_steps_per_s'] or 0:.3g} vehicle-steps/s"
-        + (f" on {s['workers']} Dask worker{'s' * (s['workers'] != 1)} at {s['cluster']}" if s.get("cluster") else ""),
-        f"diverged {s['diverged']} of {s['flown']} flown (failure rate {s['failure_rate'] or 0:.3g}); "
-        f"inadmissible {s['inadmissible']}",
-    ]
-
-    def f(m: dict, key: str, fmt: str = ".3f") -> str:
-        return "—" if m.get(key) is None else format(m[key], fmt)
-
-    if tracked:
-        lines.append(f"{'tracking [m]':<16}{'p50':>10}{'p95':>10}{'max':>10}")
-        for name in ("horizontal_rms", "horizontal_max", "altitude_rms"):
-            m = s["metrics"][name]
-            lines.append(f"{name:<16}{f(m, 'p50'):>10}{f(m, 'p95'):>10}{f(m, 'max'):>10}")
-    else:
-        lines.append(
-            f"{'channel':<10}{'settling p50':>14}{'p95':>10}{'max':>10}{'overshoot p95':>16}{'not settled':>13}"
-        )
-        for ch in ("altitude", "roll", "pitch", "yaw"):
-            st, ov = s["metrics"][f"{ch}_settling_time"], s["metrics"][f"{ch}_overshoot_pct"]
-            lines.append(f"{ch:<10}{f(st, 'p50'):>14}{f(st, 'p95'):>10}{f(st, 'max'):>10}"
-                         f"{f(ov, 'p95', '.2f') + ' %':>16}{st['undefined']:>13}")  # fmt: skip
-    if s["worst"]:
-        w = s["worst"][0]
-        params = ", ".join(f"{k} = {v:.4g}" for k, v in w["parameters"].items())
-        what = (f"diverged at {w['diverged_at']:.3f} s" if w["diverged"] else "largest horizontal error" if tracked
-                else "longest settling")  # fmt: skip
-        lines.append(f"worst: trial {w['trial']} ({what}): {params}")
-    return "\n".join(lines)
-
-
 EXAMPLES_FLY = """examples:
   quadsitl fly --preset paper --out runs/fly
   quadsitl fly --preset paper --speed 1 --duration 10 --out runs/realtime-pace
@@ -441,50 +309,6 @@ def cmd_up(args: argparse.Namespace) -> int:
                        spacing=args.spacing, gcs_listen=args.gcs_listen, gcs_remote=args.gcs_remote,
                        api_listen=args.api_listen, api_remote=args.api_remote, vehicle_presets=presets)  # fmt: skip
     return up(preset, args, fleet)
-
-
-def check_zenoh_config(option: str, path: str) -> str:
-    """A Zenoh JSON5 configuration file that Zenoh reads → its absolute path (the processes that open it may run
-    elsewhere); a UsageError naming the option, the file and Zenoh's complaint otherwise."""
-    import zenoh
-
-    file = Path(path)
-    if not file.is_file():
-        raise UsageError(f"{option} {path}: no such file (a Zenoh JSON5 configuration: see docs/security.md)")
-    try:
-        zenoh.Config.from_file(str(file))
-    except zenoh.ZError as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "not a Zenoh configuration"
-        raise UsageError(f"{option} {path}: Zenoh cannot read it: {first}") from None
-    return str(file.resolve())
-
-
-def zenoh_and_addresses(args: argparse.Namespace) -> None:
-    """``up`` across machines: the Zenoh endpoints checked and resolved (the first autopilot listens on
-    tcp/127.0.0.1:7447 unless the vehicles connect to a router instead), and a MAVLink link that streams to
-    another host binds, unless told where, the address this host reaches that host from (a loopback-bound
-    socket cannot send there), on its PX4 port."""
-    from groundstation.fleet import API_LISTEN, GCS_LISTEN, address_toward
-    from groundstation.router import router_reachable
-
-    if args.zenoh_config is not None:
-        if args.no_zenoh:
-            raise UsageError(f"--zenoh-config {args.zenoh_config} with --no-zenoh: expected one or the other")
-        args.zenoh_config = check_zenoh_config("--zenoh-config", args.zenoh_config)
-    for text in args.zenoh_connect:
-        if args.no_zenoh or args.zenoh_listen:
-            other = "--no-zenoh" if args.no_zenoh else f"--zenoh-listen {args.zenoh_listen}"
-            raise UsageError(f"--zenoh-connect {text} with {other}: expected one or the other (with a router, "
-                             "subscribers connect to the router; run one here too for a local one)")  # fmt: skip
-        router_reachable("--zenoh-connect", text)
-    if args.zenoh_listen is None and not args.zenoh_connect:
-        args.zenoh_listen = "tcp/127.0.0.1:7447"
-    for link, port in (("gcs", GCS_LISTEN), ("api", API_LISTEN)):
-        remote = getattr(args, f"{link}_remote")
-        if getattr(args, f"{link}_listen") is None and remote is not None and remote.lower() != "none":
-            host = address_toward(f"--{link}-remote", remote)
-            if not host.startswith("127."):
-                setattr(args, f"{link}_listen", f"{host}:{port}")
 
 
 TRAJECTORY_HELP = (
@@ -676,40 +500,7 @@ the source, or 'mkdocs serve' there.""",
     )
     upp.set_defaults(func=cmd_up)
 
-    sw = sub.add_parser(
-        "sweep",
-        help="Monte-Carlo sweep: many trials of the closed loop, batched on the compiled equations",
-        epilog=EXAMPLES_SWEEP,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Fly every trial of a sweep spec (what varies: plant, model mismatch, gains, initial state, "
-        "references) on the batch engine and write trials.csv, trials.parquet, summary.json and figures (see "
-        "docs/sweeps.md).",
-    )
-    sw.add_argument("spec", metavar="SPEC", help="a shipped spec's name (paper-mass-mismatch, ...) or a TOML file")
-    sw.add_argument("--out", default="runs/sweep", metavar="DIR", help="output folder (default: runs/sweep)")
-    sw.add_argument("--trials", type=int, metavar="N", help="number of trials (default: the spec's)")
-    sw.add_argument("--controller", type=controller_name, metavar="NAME",
-                    help=f"fly this controller instead of the spec's: {CONTROLLER_HELP}")  # fmt: skip
-    sw.add_argument(
-        "--workers", type=int, metavar="W",
-        help="worker processes (default: one per core, or one per two cores with --engine sitl; 1: in this process)",
-    )  # fmt: skip
-    sw.add_argument(
-        "--engine",
-        choices=("batch", "sitl"),
-        help="batch: the compiled batch engine (default: the "
-        "spec's, else batch); sitl: every trial a whole `quadsitl fly` (plant, autopilot, ground station)",
-    )
-    sw.add_argument("--cluster", metavar="tcp://HOST:PORT", help="fly the chunks on the workers of a running Dask "
-                    "scheduler instead (dask scheduler, dask worker: see docs/sweeps.md)")  # fmt: skip
-    sw.add_argument("--chunk", type=int, metavar="N", help="trials per chunk (default: about four chunks per worker)")
-    sw.add_argument("--keep", type=int, metavar="N", help="write the trajectories of the first N trials")
-    sw.add_argument("--keep-trial", type=int, action="append", metavar="K", help="write trial K's trajectory "
-                    "(repeatable)")  # fmt: skip
-    sw.add_argument("--json", action="store_true", help="print summary.json on stdout (and nothing else)")
-    sw.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    sw.add_argument("--quiet", "-q", action="store_true", help="print only errors")
-    sw.set_defaults(func=cmd_sweep)
+    add_sweep_parser(sub)
 
     for name, (_module, help_text) in PROCESSES.items():
         sub.add_parser(name, help=help_text, add_help=False)

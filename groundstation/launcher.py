@@ -48,7 +48,7 @@ from quadsitl.process_util import (
 # [s] simulated: `fly`'s ground station sends the trajectory this far ahead of the vehicle's clock, each setpoint
 # stamped with the tick it is for (gcs --setpoints-ahead), and the autopilot flies each from that tick and answers no
 # tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The horizon moves on a
-# grid of gcs.AHEAD_KEEPALIVE (0.5 s), so at each read (one per step) it is at least 1 s ahead of the clock: the clock
+# grid of pacing.AHEAD_KEEPALIVE (0.5 s), so at each read (one per step) it is at least 1 s ahead of the clock: the clock
 # waits only for a read more than 0.5 s of flight late (6-10 ms of wall time at 50-80x). In a 10 s paper flight it
 # waited at the first tick only, where with a lead of 0.5 s topped up within half of it the clock waited 6-13 times.
 # The lead stays within the autopilot's HOLD_AHEAD (2 s). The reference flown at every tick is the ground station's
@@ -139,7 +139,7 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
     one fails: the exit status. The vehicles' info publisher, when Zenoh is on, closes with ``stack``."""
     if len(fleet) > 1:
         compile_once(children.env)
-    # One plant process simulates every vehicle on one clock (sitl.process.run_lockstep); an autopilot each.
+    # One plant process simulates every vehicle on one clock (sitl.lockstep.run_lockstep); an autopilot each.
     plant = ["sitl", "--preset", args.preset, "--mode", args.mode] + (["--cores-awake"] if args.cores_awake else [])
     taken = planned_ports(fleet)  # an internal port never lands on a later vehicle's, not yet bound
     for v in fleet:

@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from sitl.process import Vehicle
+    from sitl.vehicle import Vehicle
 
 PLANT_FIELDS = ("work", "params", "air_rng")  # sitl.plant.Plant's own arrays (the rest are views of work, params)
 SENSOR_FIELDS = ("p", "rng", "bias", "clock", "queue", "out")  # sitl.sensors.Sensors.arrays, in that order
-LINK_FIELDS = ("tx", "io", "rt", "received")  # sitl.process.PlantLink's
+LINK_FIELDS = ("tx", "io", "rt", "received")  # sitl.plant_link.PlantLink's
 
 
 def stacked(owners: Sequence[object], field: str) -> np.ndarray:

@@ -1,7 +1,7 @@
 """The plant's lockstep clock run by compiled code: send tick k's datagram to every vehicle, take each answer,
 integrate, and on to tick k + 1, without coming back to Python between two ticks (:func:`run`).
 
-:func:`sitl.process.run_lockstep` is the clock; once the autopilots have answered, it hands the ticks to :func:`run`
+:func:`sitl.lockstep.run_lockstep` is the clock; once the autopilots have answered, it hands the ticks to :func:`run`
 and takes over again whenever something is not the plain case: a datagram whose answer is not the one awaited
 (:func:`sitl.tick.lockstep_tick` says other than STEPPED: stale, from the future, for pymavlink, the hold tick, a
 diverged state), a wait that finds nothing, the wall-clock moment ``deadline_ns`` (signals, wind changes, the

@@ -15,7 +15,7 @@ from sitl import realtime_loop
 from sitl.fleet_arrays import FleetArrays
 
 if TYPE_CHECKING:
-    from sitl.process import Vehicle
+    from sitl.vehicle import Vehicle
 
 
 class RealtimeFleet:

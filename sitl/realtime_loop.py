@@ -1,5 +1,5 @@
 """A real-time plant's work for one vehicle and one period, compiled: so that a fleet's clock spends its period
-sleeping, not in Python (:func:`sitl.process.run_realtime`).
+sleeping, not in Python (:func:`sitl.realtime.run_realtime`).
 
 Each period the real-time clock sends every vehicle its state (:func:`send_tick`), sleeps until the period ends,
 and then, vehicle by vehicle, takes what its autopilot answered and integrates (:func:`take_and_step`). In Python
@@ -7,7 +7,7 @@ that was about 25 us of CPU per vehicle and period (a dozen calls, a socket exce
 about 60 us of the clock's own: a fleet of eight spent a third of a core on its clock. The Python loop (impaired
 links, whose queues release the datagrams; ``QUADSITL_COMPILED_LOOPS=0``) calls the two halves of
 :func:`take_and_step`, :func:`apply` for each answer and :func:`end_period`, so the bookkeeping is written once,
-in ``rt``, the link's (:class:`sitl.process.PlantLink`: its ``last_heard``, ``first_heard`` and ``lost`` read it):
+in ``rt``, the link's (:class:`sitl.plant_link.PlantLink`: its ``last_heard``, ``first_heard`` and ``lost`` read it):
 
 - rt[ANSWERED], rt[LATE]: periods whose own answer (stamped with the period's tick) came within it, and periods
   since the autopilot's first answer whose answer did not (the vehicle flew the previous command);

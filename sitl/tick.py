@@ -1,6 +1,6 @@
 """The plant's work for one lockstep tick, compiled (:mod:`quadsitl.jit`): take the autopilot's answer,
 integrate one period, and encode the next tick's datagram, in one call from the process's loop
-(:func:`sitl.process.run_lockstep`).
+(:func:`sitl.lockstep.run_lockstep`).
 
 The datagram is the state as ODOMETRY, or in sensor mode (io[SENSING]) what the vehicle's sensors measure of it
 (:mod:`quadsitl.hil`: HIL_SENSOR, HIL_GPS when a fix is delivered, and HIL_STATE_QUATERNION, the truth).

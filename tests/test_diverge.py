@@ -23,7 +23,8 @@ from groundstation.sweep.spec import parse_spec, trial_preset
 from groundstation.telemetry_csv import read_csv
 from quadsitl import codec, wire
 from quadsitl.config import load_preset, preset_toml
-from sitl import plant, process, tick
+from sitl import plant, tick
+from sitl import vehicle as plant_vehicle
 from tests.test_fly import alive, children_of, quadsitl
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first
@@ -52,7 +53,7 @@ def unstable_preset(tmp_path, **initial):
 def test_one_check_for_every_runtime():
     assert engine.inside is plant.inside and tick.inside is plant.inside  # the batch engine, the plant's lockstep
     assert vehicle.inside is plant.inside  # sim
-    assert process.state_inside is plant.state_inside  # the plant's x(0), real time
+    assert plant_vehicle.state_inside is plant.state_inside  # the plant's x(0), real time
     assert engine.DEFAULT_LIMITS is plant.DEFAULT_LIMITS is vehicle.DEFAULT_LIMITS
     base = np.zeros(12)
     cases = {  # index, value → inside the default bounds

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from groundstation import gcs, trajectories
+from groundstation import pacing, trajectories
 from groundstation.launcher import SETPOINTS_AHEAD, free_port
+from groundstation.setpoint_grid import SETPOINT_MS
 from groundstation.telemetry_csv import read_csv
 from quadsitl.config import SENSOR_GROUND_S
 from quadsitl.state import Reference
@@ -138,7 +139,7 @@ def test_fly_sends_a_position_trajectory_as_offboard_position_setpoints(circle_f
     # a changing reference: one per SETPOINT_MS (50 Hz) of the vehicle's time, as a rule (the 10 Hz wall-time
     # keep-alive also goes while the clock waits for this stalled ground station)
     stamps = sorted({m.time_boot_ms for m in sent})
-    assert np.median(np.diff(stamps)) >= gcs.SETPOINT_MS
+    assert np.median(np.diff(stamps)) >= SETPOINT_MS
     moving = 0
     for m in sent:
         assert (m.coordinate_frame, m.type_mask) == (mavutil.mavlink.MAV_FRAME_LOCAL_NED, 2496)
@@ -286,7 +287,7 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     assert len({(q, thrust) for _, _, q, thrust in targets}) == 1
     stamps = sorted({ms for ms, _, _, _ in targets})
     flight = [ms for ms in stamps if ms > 1000 * SENSOR_GROUND_S]
-    keep_ms = round(1000 * gcs.AHEAD_KEEPALIVE)
+    keep_ms = round(1000 * pacing.AHEAD_KEEPALIVE)
     assert len(flight) >= 4 and set(np.diff(flight[:-1])) == {keep_ms}, stamps
     # From the hold on the ground at SENSOR_GROUND_S, the stream never lapses: the clock holds before it runs past the
     # newest setpoint, so they are never further apart than the grid's step (half the 1 s setpoint timeout). Before
@@ -296,7 +297,7 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     held = [ms for ms in stamps if ms >= 1000 * SENSOR_GROUND_S]
     assert held[0] == 1000 * SENSOR_GROUND_S, stamps
     assert np.diff(held).max() <= keep_ms, stamps
-    assert len(stamps) <= 5000 / gcs.SETPOINT_MS  # 2 s flown, and the landing: each moment of the grid sent once
+    assert len(stamps) <= 5000 / SETPOINT_MS  # 2 s flown, and the landing: each moment of the grid sent once
     assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
     assert r.stdout.splitlines()[-1] == (f"wrote {out}/telemetry.csv, flight.tlog, metrics.json, fig2_outputs.png, "
                                          "fig3_errors.png, fig4_inputs.png")  # fmt: skip
@@ -389,7 +390,7 @@ def test_sigterm_tears_everything_down(tmp_path, procs):
             last_ms = m.time_boot_ms
     assert start_ms is not None
     # each end within one ATTITUDE interval (fly's ground station reads the vehicle's clock at 10 Hz), and 40 ms more
-    interval_ms = gcs.attitude_interval_us(SETPOINTS_AHEAD) // 1000
+    interval_ms = pacing.attitude_interval_us(SETPOINTS_AHEAD) // 1000
     assert abs(len(t) - (last_ms - start_ms)) <= 2 * interval_ms + 40, (len(t), last_ms - start_ms)
 
 

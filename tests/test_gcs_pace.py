@@ -11,8 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from groundstation import gcs, trajectories
-from groundstation.gcs import (
+from groundstation import pacing, station, trajectories
+from groundstation.pacing import (
     LOOP,
     LOOP_STEADY,
     STEADY_LOOKAHEAD,
@@ -21,6 +21,7 @@ from groundstation.gcs import (
     holds_still,
     read_interval,
 )
+from groundstation.setpoint_grid import SETPOINT_MS
 from quadsitl.state import Reference
 
 
@@ -29,7 +30,7 @@ def test_a_steady_reference_is_read_every_steady_sim_of_the_vehicles_time():
     assert read_interval(STEADY_SIM / 0.005) == pytest.approx(0.005)  # 30x real time: every 5 ms
     assert read_interval(1000.0) == LOOP  # never more often than a moving reference
     assert read_interval(1.0) == LOOP_STEADY  # real time: never less often than LOOP_STEADY (keep-alive, progress)
-    assert LOOP_STEADY < gcs.AHEAD_KEEPALIVE / 10  # sent ahead, the horizon moves once per step: at 10x real time
+    assert LOOP_STEADY < pacing.AHEAD_KEEPALIVE / 10  # sent ahead, the horizon moves once per step: at 10x real time
 
 
 def test_the_step_is_steady_and_a_moving_or_coming_change_is_not():
@@ -54,7 +55,7 @@ class _Logger:
 
 
 def test_the_pace_is_measured_over_a_window_of_batches():
-    g = gcs.GroundStation.__new__(gcs.GroundStation)  # measure_pace alone: no link, no Zenoh session
+    g = station.GroundStation.__new__(station.GroundStation)  # measure_pace alone: no link, no Zenoh session
     g.period, g.sim_ms, g.logger = 0.001, 0, _Logger()
     g._pace_mark, g.pace = (0.0, 0), 0.0
     assert g.measure_pace(100.0) == 0.0  # the first mark
@@ -79,7 +80,7 @@ class _Station:
 
         self.vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.vehicle.bind(("127.0.0.1", 0))
-        g = gcs.GroundStation.__new__(gcs.GroundStation)
+        g = station.GroundStation.__new__(station.GroundStation)
         g.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         g.sock.bind(("127.0.0.1", 0))
         g.sock.connect(self.vehicle.getsockname())
@@ -134,14 +135,14 @@ def test_a_ground_station_that_sends_ahead_reads_the_vehicle_clock_five_times_a_
     assert attitude_interval_us(10.0) == 100_000  # never less often than 10 Hz
 
 
-def _sending_ahead(lead: float, duration: float, trajectory) -> tuple[gcs.GroundStation, list]:
+def _sending_ahead(lead: float, duration: float, trajectory) -> tuple[station.GroundStation, list]:
     """send_ahead alone: the flight's first tick 1000 (ticks of 1 ms), the vehicle's clock set by hand, the setpoints
     recorded as (tick made for, setpoint)."""
-    g = gcs.GroundStation.__new__(gcs.GroundStation)
+    g = station.GroundStation.__new__(station.GroundStation)
     g.period, g.sim_ms, g.logger, g.trajectory = 0.001, 0, _Logger(), trajectory
     g.logger.flight_start_tick = g.logger.last_tick = 1000
     g.ahead, g.end_ticks, g.next_moment = round(lead / g.period), round(duration / g.period), -1
-    g.keep = gcs.horizon_step(g.ahead, g.period)
+    g.keep = pacing.horizon_step(g.ahead, g.period)
     sent: list = []
     g.send_setpoint = lambda sp, ms: sent.append((ms, sp))
     return g, sent
@@ -150,7 +151,7 @@ def _sending_ahead(lead: float, duration: float, trajectory) -> tuple[gcs.Ground
 def test_sent_ahead_a_constant_reference_goes_once_per_step_of_the_grid_and_the_horizon_stays_ahead():
     step = trajectories.make("step", Reference(5.0))
     g, sent = _sending_ahead(1.5, 10.0, step)
-    keep = round(gcs.AHEAD_KEEPALIVE * 1000)
+    keep = round(pacing.AHEAD_KEEPALIVE * 1000)
     last = g.send_ahead(None)  # the flight's start: its first tick, and the grid up to the lead
     assert [ms for ms, _ in sent] == [1000, 1000 + keep, 1000 + 2 * keep, 1000 + 3 * keep]
     for tick in range(1000, 10_900, 37):  # the vehicle's clock as read, 37 ticks apart
@@ -177,12 +178,12 @@ def test_sent_ahead_a_late_read_sends_every_step_it_missed_and_a_moving_referenc
     g, sent = _sending_ahead(1.5, 10.0, ramp)
     g.send_ahead(None)
     ticks = [ms for ms, _ in sent]
-    assert ticks == list(range(1000, 2501, gcs.SETPOINT_MS))  # every moment of the 50 Hz grid up to the horizon
+    assert ticks == list(range(1000, 2501, SETPOINT_MS))  # every moment of the 50 Hz grid up to the horizon
     assert [sp for _, sp in sent] == [ramp((tick - 1000) * 0.001) for tick in ticks]
 
 
 def test_the_horizons_step_is_at_most_half_the_lead_and_a_whole_number_of_setpoint_steps():
-    assert gcs.horizon_step(1500, 0.001) == 500  # fly's lead: AHEAD_KEEPALIVE
-    assert gcs.horizon_step(500, 0.001) == 240  # half of 0.5 s, on the 20 ms grid
-    assert gcs.horizon_step(10, 0.001) == 20  # never less than one step of the grid
-    assert gcs.horizon_step(150, 0.01) == 50  # 10 ms ticks: AHEAD_KEEPALIVE is 50 of them
+    assert pacing.horizon_step(1500, 0.001) == 500  # fly's lead: AHEAD_KEEPALIVE
+    assert pacing.horizon_step(500, 0.001) == 240  # half of 0.5 s, on the 20 ms grid
+    assert pacing.horizon_step(10, 0.001) == 20  # never less than one step of the grid
+    assert pacing.horizon_step(150, 0.01) == 50  # 10 ms ticks: AHEAD_KEEPALIVE is 50 of them

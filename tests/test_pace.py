@@ -14,7 +14,7 @@ import pytest
 
 from quadsitl import codec
 from quadsitl.process_util import PATIENCE, SPIN_BUDGET, free_port
-from sitl import process
+from sitl import lockstep, process
 
 
 @pytest.mark.timeout(60)
@@ -111,12 +111,12 @@ def test_a_paced_plant_makes_up_late_wake_ups_but_not_a_stall(monkeypatch):
             ap.sendto(tx[:m].tobytes(), sender)
 
     clock = StallingClock()
-    monkeypatch.setattr(process, "time", clock)
+    monkeypatch.setattr(lockstep, "time", clock)
     answering = threading.Thread(target=autopilot, daemon=True)
     answering.start()
     ticks = 600
     try:
-        assert process.run_lockstep(fleet, 1.0, ticks) == ticks
+        assert lockstep.run_lockstep(fleet, 1.0, ticks) == ticks
     finally:
         fleet[0].link.close()
         ap.close()

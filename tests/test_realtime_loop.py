@@ -1,5 +1,5 @@
 """The real-time plant's compiled period (:mod:`sitl.realtime_loop`, through :class:`sitl.realtime_fleet.RealtimeFleet`)
-does what the Python loop of :func:`sitl.process.run_realtime` does, vehicle by vehicle: the state sent (none once it
+does what the Python loop of :func:`sitl.realtime.run_realtime` does, vehicle by vehicle: the state sent (none once it
 left its bounds), every waiting answer taken (the newest wins, stale and corrupt ones counted), the period counted
 answered or late, the lost-autopilot clock, one step; and a datagram only pymavlink reads is left to Python. A fleet's
 vehicles keep their own accounts, airframes and integrators in the fleet's rows."""
@@ -15,6 +15,7 @@ import pytest
 
 from quadsitl import codec, fastio, wire
 from sitl import process, realtime_loop, tick
+from sitl.plant_link import AUTOPILOT_LOST_AFTER, LOST_AFTER_NS
 from sitl.realtime_fleet import RealtimeFleet
 
 pytestmark = pytest.mark.skipif(not fastio.AVAILABLE, reason="compiled code only (NUMBA_DISABLE_JIT is set)")
@@ -72,7 +73,7 @@ def test_the_period_takes_the_newest_answer_and_steps_as_the_python_loop_does(ve
     answer(ap, to_plant, codec.usec_of(2, period), (0.1 * f,) * 4, f)  # older than the last used: stale
     answer(ap, to_plant, codec.usec_of(6, period), (0.1 * f,) * 4, f, corrupt=True)  # never flown
     time.sleep(0.02)
-    fleet.take_and_step(codec.usec_of(5, period), process.LOST_AFTER_NS, True, "applying zero thrust")
+    fleet.take_and_step(codec.usec_of(5, period), LOST_AFTER_NS, True, "applying zero thrust")
     assert link.io[tick.DISCARDED] == 2 and link.io[tick.CORRUPT] == 1
     assert link.io[tick.LAST_USEC] == codec.usec_of(5, period) and (v.answered, v.late) == (1, 0)
     assert link.first_heard is not None and not link.lost
@@ -80,7 +81,7 @@ def test_the_period_takes_the_newest_answer_and_steps_as_the_python_loop_does(ve
     twin.step(tuple(plant.commanded))  # the Python step, on the same command
     assert np.array_equal(plant.work, twin.work) and plant.time == twin.time
     # The next period: nothing came in it, so the vehicle flies the previous command and the period is late.
-    fleet.take_and_step(codec.usec_of(6, period), process.LOST_AFTER_NS, True, "applying zero thrust")
+    fleet.take_and_step(codec.usec_of(6, period), LOST_AFTER_NS, True, "applying zero thrust")
     twin.step()
     assert (v.answered, v.late) == (1, 1) and np.array_equal(plant.work, twin.work)
 
@@ -95,7 +96,7 @@ def test_a_datagram_only_pymavlink_reads_is_left_to_python_and_flown(vehicle):
     statustext = mav.statustext_encode(6, b"hello")
     ap.sendto(codec.pack(statustext, mav) + codec.pack(msg, mav), link.sock.getsockname())  # two messages
     time.sleep(0.02)
-    fleet.take_and_step(stamp, process.LOST_AFTER_NS, True, "applying zero thrust")
+    fleet.take_and_step(stamp, LOST_AFTER_NS, True, "applying zero thrust")
     assert link.io[tick.LAST_USEC] == stamp and v.answered == 1
     assert np.allclose(plant.commanded, wire.forces_from_message(msg, f))
 
@@ -107,18 +108,16 @@ def test_a_silent_autopilot_is_lost_then_back_and_said_once_each(vehicle, capsys
     period = plant.period
     answer(ap, link.sock.getsockname(), codec.usec_of(0, period), (0.3 * f,) * 4, f)
     time.sleep(0.02)
-    fleet.take_and_step(codec.usec_of(0, period), process.LOST_AFTER_NS, False, "applying the last command")
-    link.rt[realtime_loop.LAST_NS] -= round((process.AUTOPILOT_LOST_AFTER + 0.1) * 1e9)  # silent since
+    fleet.take_and_step(codec.usec_of(0, period), LOST_AFTER_NS, False, "applying the last command")
+    link.rt[realtime_loop.LAST_NS] -= round((AUTOPILOT_LOST_AFTER + 0.1) * 1e9)  # silent since
     for k in (1, 2):  # lost: said once; on "last", the last command stays
-        fleet.take_and_step(codec.usec_of(k, period), process.LOST_AFTER_NS, False, "applying the last command")
+        fleet.take_and_step(codec.usec_of(k, period), LOST_AFTER_NS, False, "applying the last command")
         assert link.lost and np.allclose(plant.commanded, 0.3 * f)
-    fleet.take_and_step(
-        codec.usec_of(3, period), process.LOST_AFTER_NS, True, "applying zero thrust"
-    )  # on "zero": none
+    fleet.take_and_step(codec.usec_of(3, period), LOST_AFTER_NS, True, "applying zero thrust")  # on "zero": none
     assert np.array_equal(plant.commanded, np.zeros(4))
     answer(ap, link.sock.getsockname(), codec.usec_of(4, period), (0.35 * f,) * 4, f)
     time.sleep(0.02)
-    fleet.take_and_step(codec.usec_of(4, period), process.LOST_AFTER_NS, True, "applying zero thrust")
+    fleet.take_and_step(codec.usec_of(4, period), LOST_AFTER_NS, True, "applying zero thrust")
     assert not link.lost and np.allclose(plant.commanded, 0.35 * f)
     err = capsys.readouterr().err.splitlines()
     assert err == ["plant: autopilot lost (no answer for 0.5 s); applying the last command",
@@ -135,7 +134,7 @@ def test_a_held_lockstep_clock_hears_its_autopilot_through_the_same_account(vehi
     link.heard()
     first = link.first_heard
     assert first is not None and before <= first <= time.monotonic() and link.last_heard == first
-    link.rt[realtime_loop.LAST_NS] -= round((process.AUTOPILOT_LOST_AFTER + 0.1) * 1e9)  # silent since
+    link.rt[realtime_loop.LAST_NS] -= round((AUTOPILOT_LOST_AFTER + 0.1) * 1e9)  # silent since
     holding = "holding: simulated time stops until it answers"
     assert link.check_lost(holding) and link.check_lost(holding) and link.lost  # said once
     link.heard()
@@ -188,7 +187,7 @@ def test_a_fleet_steps_each_vehicle_in_its_own_rows_as_the_python_loop_does(thre
     two = codec.pack(mav.statustext_encode(6, b"hello"), mav) + codec.pack(msg, mav)
     aps[1].sendto(two, vehicles[1].link.sock.getsockname())
     time.sleep(0.02)
-    fleet.take_and_step(stamp, process.LOST_AFTER_NS, True, "applying zero thrust")
+    fleet.take_and_step(stamp, LOST_AFTER_NS, True, "applying zero thrust")
     assert [(v.answered, v.late) for v in vehicles] == [(1, 0), (1, 0), (0, 0)]  # the third: never heard, not late
     commands = [(0.4 * f0, 0.41 * f0, 0.42 * f0, 0.43 * f0), tuple(wire.forces_from_message(msg, f1)), (0.0,) * 4]
     for v, twin, command in zip(vehicles, twins, commands, strict=True):
@@ -196,8 +195,8 @@ def test_a_fleet_steps_each_vehicle_in_its_own_rows_as_the_python_loop_does(thre
         twin.step(tuple(v.plant.commanded))  # the Python step of that vehicle, on the same command
         assert np.array_equal(v.plant.work, twin.work) and v.plant.time == twin.time == period
     # the first autopilot falls silent: lost, said once and named; the others' accounts are untouched
-    vehicles[0].link.rt[realtime_loop.LAST_NS] -= round((process.AUTOPILOT_LOST_AFTER + 0.1) * 1e9)
-    fleet.take_and_step(codec.usec_of(1, period), process.LOST_AFTER_NS, True, "applying zero thrust")
+    vehicles[0].link.rt[realtime_loop.LAST_NS] -= round((AUTOPILOT_LOST_AFTER + 0.1) * 1e9)
+    fleet.take_and_step(codec.usec_of(1, period), LOST_AFTER_NS, True, "applying zero thrust")
     assert [v.link.lost for v in vehicles] == [True, False, False]
     assert np.array_equal(vehicles[0].plant.commanded, np.zeros(4))
     assert np.allclose(vehicles[1].plant.commanded, commands[1])  # still its last command

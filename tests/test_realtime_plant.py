@@ -1,4 +1,4 @@
-"""The real-time plant's clock (:func:`sitl.process.run_realtime`) counts an autopilot's answer by when it came, not
+"""The real-time plant's clock (:func:`sitl.realtime.run_realtime`) counts an autopilot's answer by when it came, not
 by when the plant got round to reading it: the plant sleeps through each period and takes every answer waiting in
 its sockets when the period ends, before the step, even when its own wake-up came late (the scheduler ran something
 else)."""
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from quadsitl import codec, fastio
-from sitl import process
+from sitl import process, realtime
 
 
 def answer_every_state(ap: socket.socket, forces: tuple[float, ...], max_thrust: float,
@@ -65,7 +65,7 @@ def fleet_of(vehicles: int) -> tuple[list, list[socket.socket], tuple[float, ...
 def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late(monkeypatch, vehicles, loops):
     monkeypatch.setenv(fastio.LOOPS_ENV, loops)
     fleet, aps, forces, max_thrust = fleet_of(vehicles)
-    real_sleep_until = process.sleep_until
+    real_sleep_until = realtime.sleep_until
     overslept = []
 
     def late_wake(deadline):
@@ -74,16 +74,16 @@ def test_an_answer_that_came_within_its_period_counts_though_the_plant_woke_late
         period ends: only the plant's reading after it.)"""
         for ap in aps:
             answer_every_state(ap, forces, max_thrust)
-        if deadline > process.time.monotonic():
+        if deadline > realtime.time.monotonic():
             overslept.append(deadline)
         real_sleep_until(deadline + 2e-5)
 
-    monkeypatch.setattr(process, "sleep_until", late_wake)
+    monkeypatch.setattr(realtime, "sleep_until", late_wake)
     try:
         # 0.2 s: after a stall of the machine the plant catches up tick after tick, and a catch-up tick's wait has
         # nothing to oversleep; 20 ticks were all catch-up once in CI (three busy workers)
         ticks = 200
-        assert process.run_realtime(fleet, ticks) == ticks
+        assert realtime.run_realtime(fleet, ticks) == ticks
         assert overslept  # periods whose wait overslept (each makes the next tick late: on a quiet machine most)
         for v in fleet:
             # tick 0's answer counts from the start (the autopilot is heard from then on); every period answered
@@ -103,17 +103,17 @@ def test_each_vehicles_missed_periods_are_named_by_their_tick(monkeypatch, loops
     vehicle 2's autopilot silent for ticks 10-14 (read, not answered), vehicle 1's answering every tick."""
     monkeypatch.setenv(fastio.LOOPS_ENV, loops)
     fleet, aps, forces, max_thrust = fleet_of(2)
-    real_sleep_until = process.sleep_until
+    real_sleep_until = realtime.sleep_until
 
     def answered_then_asleep(deadline):  # every answer in before the period ends, whatever the machine's load
         answer_every_state(aps[0], forces, max_thrust)
         answer_every_state(aps[1], forces, max_thrust, silent=range(10, 15))
         real_sleep_until(deadline)
 
-    monkeypatch.setattr(process, "sleep_until", answered_then_asleep)
+    monkeypatch.setattr(realtime, "sleep_until", answered_then_asleep)
     late: list[list[int]] = [[], []]
     try:
-        assert process.run_realtime(fleet, 30, late=late) == 30
+        assert realtime.run_realtime(fleet, 30, late=late) == 30
         assert late == [[], [10, 11, 12, 13, 14]]
         assert [(v.answered, v.late) for v in fleet] == [(30, 0), (25, 5)]
     finally:
@@ -152,11 +152,11 @@ def test_the_vehicles_take_turns_at_being_sent_their_tick_first(monkeypatch, loo
     def read_the_order(deadline):
         stamps = [(received_at(ap), i) for i, ap in enumerate(aps)]
         orders.append([i for _, i in sorted(stamps)])
-        process.time.sleep(max(0.0, deadline - process.time.monotonic()))
+        realtime.time.sleep(max(0.0, deadline - realtime.time.monotonic()))
 
-    monkeypatch.setattr(process, "sleep_until", read_the_order)
+    monkeypatch.setattr(realtime, "sleep_until", read_the_order)
     try:
-        assert process.run_realtime(fleet, 7) == 7
+        assert realtime.run_realtime(fleet, 7) == 7
     finally:
         for v in fleet:
             v.link.close()
@@ -176,16 +176,16 @@ def test_nothing_compiles_in_a_real_time_period_once_warmed_up(monkeypatch, loop
     fleet, aps, forces, max_thrust = fleet_of(2)
     compiled = [f for f in vars(realtime_loop).values() if hasattr(f, "signatures")]
     before = [len(f.signatures) for f in compiled]
-    real_sleep_until = process.sleep_until
+    real_sleep_until = realtime.sleep_until
 
     def answered_then_asleep(deadline):
         for ap in aps:
             answer_every_state(ap, forces, max_thrust)
         real_sleep_until(deadline)
 
-    monkeypatch.setattr(process, "sleep_until", answered_then_asleep)
+    monkeypatch.setattr(realtime, "sleep_until", answered_then_asleep)
     try:
-        assert process.run_realtime(fleet, 5, [], "zero", [[], []]) == 5
+        assert realtime.run_realtime(fleet, 5, [], "zero", [[], []]) == 5
     finally:
         for v in fleet:
             v.link.close()

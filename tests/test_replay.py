@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from groundstation import gcs, recording
+from groundstation import pacing, recording
 from groundstation.launcher import SETPOINTS_AHEAD, free_port
 from groundstation.logger import TelemetryLogger
 from groundstation.telemetry_csv import COLUMNS, read_csv
@@ -391,7 +391,7 @@ def test_real_fly_tlog_matches_the_flights_csv(fly_run):
     roll = {s[0]: s[8] for s in state}
     moving = [k for k in sorted(roll) if roll[k] != 0.0]
     first = moving[0]
-    interval = gcs.attitude_interval_us(SETPOINTS_AHEAD) // 1000  # [ticks] ATTITUDE's in `fly`'s log (10 Hz)
+    interval = pacing.attitude_interval_us(SETPOINTS_AHEAD) // 1000  # [ticks] ATTITUDE's in `fly`'s log (10 Hz)
     start = next(s for s in range(first - interval - 5, first + 1) if 0 <= first - s < n
                  and abs(csv["roll"][first - s] - roll[first]) < 1e-6)  # fmt: skip
     compared = 0
