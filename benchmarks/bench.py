@@ -1,8 +1,8 @@
 """``quadsitl bench [--json]``: the speed of the SITL against this machine's own limits.
 
 Every figure is printed next to a baseline measured in the same run, because absolute times on shared machines
-drift. The sections, one module each under :mod:`benchmarks.sections` and run in this order (``--only NAME``, the
-default all of them):
+drift. The sections, one module each under :mod:`benchmarks.sections` (registered in :mod:`benchmarks.registry`),
+run in this order (``--only NAME``, the default all of them):
 
 0. ``coldstart``: ``quadsitl fly`` with numba's cache empty, then filled;
 1. ``lockstep``: ``fly``'s tick rate against a bare UDP ping-pong of the same datagrams (``lockstep_ratio``);
@@ -29,8 +29,8 @@ from pathlib import Path
 
 from benchmarks import machine
 from benchmarks.autopilots import compile_first
+from benchmarks.registry import PARTS, selected, unavailable
 from benchmarks.report import Report, summary
-from benchmarks.sections import PARTS, selected, unavailable
 from benchmarks.sections.base import Context
 from quadsitl.process_util import stop_status
 

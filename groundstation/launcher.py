@@ -47,17 +47,16 @@ from quadsitl.process_util import (
 
 # [s] simulated: `fly`'s ground station sends the trajectory this far ahead of the vehicle's clock, each setpoint
 # stamped with the tick it is for (gcs --setpoints-ahead), and the autopilot flies each from that tick and answers no
-# tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The horizon moves on a
-# grid of pacing.AHEAD_KEEPALIVE (0.5 s), so at each read (one per step) it is at least 1 s ahead of the clock: the clock
-# waits only for a read more than 0.5 s of flight late (6-10 ms of wall time at 50-80x). In a 10 s paper flight it
-# waited at the first tick only, where with a lead of 0.5 s topped up within half of it the clock waited 6-13 times.
-# The lead stays within the autopilot's HOLD_AHEAD (2 s). The reference flown at every tick is the ground station's
-# for that tick on any machine, so every run flies to the byte.
+# tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The horizon moves on
+# a grid of pacing.AHEAD_KEEPALIVE, so at each read it is a second ahead of the clock, which waits only for a read
+# more than half a second of flight late (docs/performance.md). The lead stays within the autopilot's HOLD_AHEAD
+# (2 s). The reference flown at every tick is the ground station's for that tick on any machine, so every run flies to
+# the byte.
 SETPOINTS_AHEAD = 1.5
 OFFBOARD_LOCKSTEP = 0.0
 # `fly`'s autopilots: a full telemetry link holds the vehicle instead of losing ticks. The ground station's logger must
-# get every tick, and a lockstep clock can wait; dropping lost ticks whenever the logger was descheduled for about
-# 0.1 s while the vehicle ran ahead (the links' buffers hold a few hundred ticks, docs/telemetry.md).
+# get every tick, and a lockstep clock can wait; dropping lost ticks whenever the logger was descheduled while the
+# vehicle ran ahead (the links' buffers hold a few hundred ticks, docs/telemetry.md).
 LOGGED = ("--telemetry-congestion", "block")
 
 

@@ -130,10 +130,11 @@ def answer_of(data: bytes) -> tuple[int, bool]:
 def serve(ap: Autopilot, deadline_s: float = 5.0, limit: int = plant_loop.NO_LIMIT, polling: bool = True,
           ground_every_s: float = 0.0):  # fmt: skip
     stats = np.zeros(plant_loop.STATS_SIZE, dtype=np.int64)
-    out = plant_loop.serve(ap.plant.sock.fileno(), ap.plant.rx_array, ap.plant.sender, ap.plant.sender_len, ap.plant.address, ap.plant.tx,
-                           ap.io, ap.tick_arguments(), time.monotonic_ns() + int(deadline_s * 1e9), polling,
-                           50_000_000, 50_000_000, 8, limit, stats, ap.destinations.out, ap.ground_fds,
-                           int(ground_every_s * 1e9))  # fmt: skip
+    p = ap.plant
+    deadline = time.monotonic_ns() + int(deadline_s * 1e9)
+    out = plant_loop.serve(p.sock.fileno(), p.rx_array, p.sender, p.sender_len, p.address, p.tx, ap.io,
+                           ap.tick_arguments(), deadline, polling, 50_000_000, 50_000_000, 8, limit, stats,
+                           ap.destinations.out, ap.ground_fds, int(ground_every_s * 1e9))  # fmt: skip
     return out, stats
 
 
