@@ -11,7 +11,7 @@ Rules (PX4's, DESIGN.md §8–§9):
 - Setpoint stream: SET_ATTITUDE_TARGET and SET_POSITION_TARGET_* feed it; it is fresh while the newest
   arrived within ``setpoint_timeout`` seconds of *simulated* time, or of wall time (the shell tells,
   :meth:`Commander.wall_clock`): a ground station lives on the wall clock and cannot keep pace with a lockstep
-  run sped up 40×, where PX4's 1 s is 25 ms of its time. The stream is lost when it is stale on both clocks.
+  run sped up N×, where PX4's 1 s is 1/N s of its time. The stream is lost when it is stale on both clocks.
 - OFFBOARD: each axis group flies its last setpoint: horizontal (x, y: position, velocity or acceleration;
   none given: the last attitude setpoint's roll and pitch, level before one), vertical (altitude or climb
   rate; the altitude on entering offboard until one arrives), heading (yaw, yaw rate, or the heading on

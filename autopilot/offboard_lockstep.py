@@ -1,9 +1,10 @@
 """Offboard lockstep: in a lockstep run the vehicle's clock waits for a ground station that falls behind it.
 
-A lockstep run goes as fast as the plant and the autopilot answer each other: 20–60× real time. A ground station
-that streams a trajectory follows the vehicle's time through its telemetry, so each setpoint is made for a moment
-already past, by the ground station's latency times that speed: 5 ms of wall time is 0.2 s of flight at 40×, and
-one stall of a busy machine can be seconds. The reference flown then depends on the machine's load.
+A lockstep run goes as fast as the plant and the autopilot answer each other, many times real time
+(docs/performance.md#latest-figures). A ground station that streams a trajectory follows the vehicle's time through its
+telemetry, so each setpoint is made for a moment already past, by the ground station's latency times that speed:
+milliseconds of wall time are tenths of a second of flight, and one stall of a busy machine can be seconds. The
+reference flown then depends on the machine's load.
 
 With ``quadsitl autopilot --offboard-lockstep S`` (``quadsitl fly`` uses it) the autopilot answers no plant tick
 more than S simulated seconds after the moment its newest offboard setpoint was made for: the setpoint's

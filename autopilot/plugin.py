@@ -63,7 +63,7 @@ def call_law(entry: Callable | int, buf: np.ndarray, t: float, dt: float) -> Non
     """The law ``entry`` on its buffer at time ``t`` [s], period ``dt`` [s]: compiled, ``entry`` is the address of the
     law's C function (:data:`SIGNATURE`), called with the buffer's; with NUMBA_DISABLE_JIT, the Python law on the
     buffer itself. (An address, not numba's first-class function type: an int costs the dispatch of a compiled tick
-    called from Python nothing, where a function value costs it about 100 us.)"""
+    called from Python nothing, where a function value costs it more than the tick: docs/performance.md#per-call.)"""
     entry(buf, t, dt)
 
 

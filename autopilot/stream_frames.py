@@ -2,9 +2,9 @@
 ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, GLOBAL_POSITION_INT and ATTITUDE_TARGET (:data:`COMPILED`).
 
 These are the messages a ground station asks for at tens of Hz, on the ticks their stream is due
-(:mod:`autopilot.streams`). Built in Python, each cost the autopilot's loop a return from compiled code and
-100–200 µs of Python (a snapshot, pymavlink's message, the frame), while the plant waited: in an unpaced lockstep run
-at 20,000 ticks/s the 50 Hz ATTITUDE stream alone took a fifth of the run. Here the tick builds them
+(:mod:`autopilot.streams`). Built in Python, each cost the autopilot's loop a return from compiled code and a
+snapshot, pymavlink's message and the frame in Python, while the plant waited: in an unpaced lockstep run the 50 Hz
+ATTITUDE stream alone took a large share of the run (docs/performance.md#in-lockstep). Here the tick builds them
 (:func:`stream_tick`, called by :func:`autopilot.tick.autopilot_tick`) into one datagram per link, from the arrays
 the tick already has, and the compiled plant loop sends them (:func:`autopilot.plant_loop.serve`).
 

@@ -5,17 +5,16 @@ deterministic), and in real time it is tied to the wall clock. ``MAV_CMD_SET_MES
 one message's interval (µs; −1 stops it, 0 restores the default); ``MAV_CMD_GET_MESSAGE_INTERVAL``
 reads it back. HEARTBEAT is not scheduled here: it goes out at 1 Hz of wall time, like PX4's.
 
-Every stream has a phase, as each of PX4's streams keeps its own schedule: the --telemetry-rate messages go out
-together (one snapshot, one datagram) at ticks ≡ ``phase`` modulo their interval, with GLOBAL_POSITION_INT and
-GPS_RAW_INT on the same ticks (a map and a local plot agree tick for tick), and each of the other slower ones on
-a tick of its own between them. So no tick builds more than six messages, where at 1 kHz every 100th tick once
-built eleven (about 0.3 ms of Python): in a real-time fleet all of its autopilots did it in the same
-millisecond, and the last of them missed its deadline. An autopilot's ``phase`` follows from its system id
-(:func:`phase_of`), so a fleet's vehicles stream on different ticks too, and a lockstep run stays deterministic.
-The messages with a slot of their own are the ones Python builds (a trip out of the compiled loop, 0.1-0.3 ms of
-a real-time autopilot's CPU); a vehicle sends them ``spread`` ticks after vehicle 1 does (:func:`spread_of`), so a
-fleet's autopilots make those trips on ticks spread over each 100, where sixteen made all of theirs within the same
-25 ticks.
+Every stream has a phase, as each of PX4's streams keeps its own schedule: the --telemetry-rate messages go out together
+(one snapshot, one datagram) at ticks ≡ ``phase`` modulo their interval, with GLOBAL_POSITION_INT and GPS_RAW_INT on the
+same ticks (a map and a local plot agree tick for tick), and each of the other slower ones on a tick of its own between
+them. So no tick builds more than six messages, where at 1 kHz every 100th tick once built eleven: in a real-time fleet
+all of its autopilots did that Python in the same millisecond, and the last of them missed its deadline
+(docs/performance.md#spreading-a-fleets-work-over-the-ticks). An autopilot's ``phase`` follows from its system id
+(:func:`phase_of`), so a fleet's vehicles stream on different ticks too, and a lockstep run stays deterministic. The
+messages with a slot of their own are the ones Python builds (each a trip out of the compiled loop); a vehicle sends
+them ``spread`` ticks after vehicle 1 does (:func:`spread_of`), so a fleet's autopilots make those trips on ticks spread
+over each 100, where sixteen made all of theirs within the same 25 ticks.
 """
 
 from __future__ import annotations
@@ -74,9 +73,8 @@ def spread_of(system_id: int) -> int:
     """How many ticks after vehicle 1's the autopilot with MAVLink ``system_id`` sends the messages with a slot of
     their own (:data:`SLOTS` > 0, the ones Python builds): 22 per vehicle, so that twenty vehicles fall on twenty
     different ticks of each 100 (0, 22, 44, 66, 88, 10, 32, …) and on ticks spread over the slower intervals too.
-    Even: an odd slot stays off the vehicle's own fast ticks. Sixteen vehicles in real time under SCHED_FIFO,
-    interleaved, missed 1.8 and 5.0 % of their periods with it, 5.6 and 8.0 % without; twelve 0.70 and 0.58 %
-    against 1.46 and 2.50 % (docs/fleets.md)."""
+    Even: an odd slot stays off the vehicle's own fast ticks. Large real-time fleets miss fewer periods with it
+    (docs/performance.md#spreading-a-fleets-work-over-the-ticks)."""
     return 22 * (system_id - 1)
 
 

@@ -28,10 +28,12 @@ from autopilot.tick import Batch
 from quadsitl import fastio, telemetry
 
 # [s] wall: Zenoh telemetry goes out at least this often (every 20 ticks at 1 kHz real time, more samples than a
-# dashboard draws); each batch wakes Zenoh's threads on the cores a lockstep pair needs (docs/performance.md).
+# dashboard draws); each batch wakes Zenoh's threads on the cores a lockstep pair needs
+# (docs/performance.md#telemetry-batches).
 BATCH_WALL = 0.020
 # And at the latest after this many ticks: each batch is a trip out of the compiled loop here and a few samples the
-# ground station's Python takes, so fewer, larger batches make a lockstep run faster (docs/performance.md).
+# ground station's Python takes, so fewer, larger batches make a lockstep run faster
+# (docs/performance.md#telemetry-batches).
 BATCH_TICKS = 2048
 # --telemetry-congestion: what a full-rate telemetry put does when a subscriber's link has no room (Zenoh's congestion
 # control; DROP waits 1 ms for room first). The overview's slow copies always drop: they are a view, not a record.

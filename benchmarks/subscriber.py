@@ -20,7 +20,8 @@ def main(endpoint: str, vehicle: str, nice: int) -> None:
         os.nice(nice)
     # SIGTERM blocked before Zenoh starts its threads (they inherit the mask) and taken by sigwait below, which needs
     # no Python handler and takes it whichever thread the kernel would have picked: a subscriber waiting on an Event
-    # for its handler gave no result within 20 s in 2 of about 20 fan-out runs (never caught in the act)
+    # for its handler now and then gave no result within 20 s (docs/performance.md#when-a-process-goes; never caught in
+    # the act)
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
     conf = telemetry.zenoh_config("peer", connect=[endpoint])
     session = zenoh.open(conf)

@@ -47,11 +47,11 @@ from quadsitl.process_util import (
 
 # [s] simulated: `fly`'s ground station sends the trajectory this far ahead of the vehicle's clock, each setpoint
 # stamped with the tick it is for (gcs --setpoints-ahead), and the autopilot flies each from that tick and answers no
-# tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The horizon moves on
-# a grid of pacing.AHEAD_KEEPALIVE, so at each read it is a second ahead of the clock, which waits only for a read
-# more than half a second of flight late (docs/performance.md). The lead stays within the autopilot's HOLD_AHEAD
-# (2 s). The reference flown at every tick is the ground station's for that tick on any machine, so every run flies to
-# the byte.
+# tick the ground station has not sent for (--offboard-lockstep 0: autopilot.offboard_lockstep). The horizon moves on a
+# grid of pacing.AHEAD_KEEPALIVE, so at each read it is a second ahead of the clock, which waits only for a read more
+# than half a second of flight late (docs/performance.md#the-ground-station-in-lockstep). The lead stays within the
+# autopilot's HOLD_AHEAD (2 s). The reference flown at every tick is the ground station's for that tick on any machine,
+# so every run flies to the byte.
 SETPOINTS_AHEAD = 1.5
 OFFBOARD_LOCKSTEP = 0.0
 # `fly`'s autopilots: a full telemetry link holds the vehicle instead of losing ticks. The ground station's logger must
@@ -518,7 +518,7 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     (out / "metrics.json").write_text(json.dumps(report, indent=2) + "\n")
     figures: list[Path] = []
     if not args.no_figures:
-        from groundstation.figures import write_figures, write_mission_figure, write_path_figure  # matplotlib: 0.6 s
+        from groundstation.figures import write_figures, write_mission_figure, write_path_figure  # matplotlib: slow
 
         title = f"preset {preset.name}, fly"
         figures = write_figures({kind: {"t": t, "outputs": y, "reference": ref, "inputs": u}}, out, title)

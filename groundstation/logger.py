@@ -36,8 +36,8 @@ CHANNEL = 1 << 20  # samples per stream that may wait for drain()
 
 def joined_records(chunks: list[np.ndarray], dtype: np.dtype) -> np.ndarray:
     """The records of ``chunks`` (contiguous arrays of ``dtype``, as received) in one array. Their bytes joined:
-    ``np.concatenate`` promotes the structured dtype of each pair of chunks in Python (numpy 2), 60 ms for a
-    flight's 2,000 telemetry samples against 4 ms."""
+    ``np.concatenate`` promotes the structured dtype of each pair of chunks in Python (numpy 2), many times slower
+    for a flight's samples (docs/performance.md#a-flights-files)."""
     return np.frombuffer(b"".join(chunks), dtype=dtype)
 
 

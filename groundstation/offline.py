@@ -237,7 +237,7 @@ def run_offline(
 def telemetry_rows(res: SimResult, rates: bool = True) -> np.ndarray:
     """The run's rows of telemetry.csv (telemetry_csv.COLUMNS; in sensor mode the estimate flown in x..r, the truth
     after, telemetry_csv.TRUTH_COLUMNS), as ``quadsitl fly``'s. Without ``rates`` the body rates p, q, r are NaN
-    (a sweep's metrics do not read them: 20 ms a 20 s trial, one call per row)."""
+    (a sweep's metrics do not read them, and they cost one call per row: docs/performance.md#a-flights-files)."""
 
     def body(state: np.ndarray) -> np.ndarray:
         return res.body_rates(state) if rates else np.full((len(state), 3), np.nan)

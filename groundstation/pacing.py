@@ -24,13 +24,13 @@ from collections.abc import Callable
 from groundstation.setpoint_grid import SETPOINT_MS, next_moment, setpoint_step
 
 LOOP = 0.002  # [s] wall: how often at most the ground station reads its socket and Zenoh channels, and may send
-# Each wake-up takes one of the two cores from the lockstep processes for a moment (docs/performance.md). While the
-# reference moves, a read finds something new only once the vehicle's time seen has moved, by the 50 Hz ATTITUDE
-# (10 Hz with fly's --setpoints-ahead, where no setpoint waits for a read) or a Zenoh batch: the ground station reads
-# when a datagram comes, at most every LOOP and at least every WAIT_MOVING of wall time (a vehicle that runs below 10x
-# real time wakes it less often than LOOP's 500 times a second, and a changed setpoint goes as soon as the vehicle's
-# time it is for is seen; WAIT_MOVING is longer than the 50 Hz ATTITUDE's period down to 0.4x real time, and short
-# against KEEPALIVE_WALL).
+# Each wake-up takes one of the two cores from the lockstep processes for a moment
+# (docs/performance.md#the-ground-station-in-lockstep). While the reference moves, a read finds something new only once
+# the vehicle's time seen has moved, by the 50 Hz ATTITUDE (10 Hz with fly's --setpoints-ahead, where no setpoint waits
+# for a read) or a Zenoh batch: the ground station reads when a datagram comes, at most every LOOP and at least every
+# WAIT_MOVING of wall time (a vehicle that runs below 10x real time wakes it less often than LOOP's 500 times a second,
+# and a changed setpoint goes as soon as the vehicle's time it is for is seen; WAIT_MOVING is longer than the 50 Hz
+# ATTITUDE's period down to 0.4x real time, and short against KEEPALIVE_WALL).
 # While the reference holds still (the paper's step, a hover), nothing it sends changes: it reads every STEADY_SIM of
 # the vehicle's time instead, between LOOP and LOOP_STEADY of wall time. The keep-alive then goes every STEADY_SIM
 # (not KEEPALIVE_MS), well within the vehicle's --offboard-lockstep lead (0.5 s) and setpoint timeout (1 s); the
@@ -47,14 +47,14 @@ PACE_WINDOW = 0.05  # [s] wall: the vehicle's pace is measured over this long
 # read only to know how far ahead to send: ATTITUDE (which carries it) at AHEAD_CLOCK_READS per lead, at most every
 # ATTITUDE_AHEAD_MAX_MS of the vehicle's time (10 Hz at fly's 1.5 s) and never more often than the 50 Hz default.
 # Parsing and logging it at 50 Hz took most of the ground station's CPU in a lockstep flight, on the cores the two
-# loops share (docs/performance.md).
+# loops share (docs/performance.md#the-ground-station-in-lockstep).
 AHEAD_CLOCK_READS, ATTITUDE_AHEAD_MAX_MS = 5, 100
 # [s] simulated: with --setpoints-ahead, the horizon (the furthest setpoint sent) moves on a grid of this step, counted
 # from the flight's start, and a constant reference goes again once per step: half the vehicle's 1 s setpoint timeout,
 # on its own clock. The ground station reads once per step of the vehicle's clock (within LOOP and LOOP_STEADY of wall
 # time); the clock stays the lead less one step short of the horizon (fly's 1.5 s lead: 1 s). A shorter lead with the
 # horizon topped up at each read woke the ground station far more often, each time on a core the lockstep pair
-# needed, and the clock still waited for it (docs/performance.md).
+# needed, and the clock still waited for it (docs/performance.md#the-ground-station-in-lockstep).
 AHEAD_KEEPALIVE = 0.5
 
 

@@ -83,7 +83,7 @@ UNNEEDED_STREAMS = (
     mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
     mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS,
     # The autopilot builds these in Python, each on a tick of its own (autopilot.streams): every one is a trip out of
-    # its compiled loop while the plant waits (docs/performance.md).
+    # its compiled loop while the plant waits (docs/performance.md#in-lockstep).
     mavlink.MAVLINK_MSG_ID_HOME_POSITION,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS,
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
@@ -185,8 +185,8 @@ class GroundStation:
         """Read everything waiting, ``interval`` seconds after the last read (LOOP, or longer while the reference
         holds still: :func:`groundstation.pacing.read_interval`), and when ``wait_data`` is longer, not before a
         datagram comes either, until ``wait_data`` after the last read: between reads the datagrams wait in the socket
-        (a ground station that woke for each one at 25x real time would take a core from the lockstep processes each
-        time)."""
+        (a ground station that woke for each one in a fast lockstep run would take a core from the lockstep processes
+        each time: docs/performance.md#the-ground-station-in-lockstep)."""
         if self.wait_data > self.interval:
             readable_of([self.sock], self.last_read + self.wait_data - time.monotonic())
         time.sleep(max(0.0, self.last_read + self.interval - time.monotonic()))
@@ -378,7 +378,7 @@ class GroundStation:
             if phase is Phase.CONNECT and self.heard:
                 phase = Phase.PREARM
                 # This ground station logs telemetry from Zenoh and paces itself by it; ATTITUDE goes on to the
-                # .tlog, the other MAVLink streams on its link would only cost both ends CPU at 10,000 ticks/s.
+                # .tlog, the other MAVLink streams on its link would only cost both ends CPU at a lockstep run's rate.
                 self.stop_streams(UNNEEDED_STREAMS)
                 if self.ahead:
                     interval = attitude_interval_us(args.setpoints_ahead)

@@ -52,8 +52,8 @@ def write_csv(path: Path, rows: np.ndarray) -> None:
 
 def read_csv(path: Path) -> dict[str, np.ndarray]:
     """Read a telemetry CSV (as :func:`write_csv` writes it: a header line, then a row of numbers per tick) into
-    {column: array}. ``np.loadtxt``: five times faster than ``np.genfromtxt`` (0.1 against 0.46 s for a 30 s
-    flight), and a fleet's report reads each vehicle's twice."""
+    {column: array}. ``np.loadtxt``: several times faster than ``np.genfromtxt`` (docs/performance.md#a-flights-files),
+    and a fleet's report reads each vehicle's twice."""
     with open(path) as f:
         names = f.readline().strip().split(",")
         with warnings.catch_warnings():

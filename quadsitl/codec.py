@@ -1,12 +1,12 @@
 """The per-tick MAVLink codec, compiled (:mod:`quadsitl.jit`): the two messages the plant and the autopilot exchange
 every tick, and the framing of any other message the processes send.
 
-pymavlink builds a message object, then packs it (≈ 6 µs) and parses a frame through a generic state machine (≈ 12
-µs for ODOMETRY). At tens of thousands of ticks per second those microseconds are the budget, so the two messages
-exchanged every tick (:mod:`quadsitl.wire` says what they hold) are framed here by compiled functions that write into
-and read from byte buffers (numpy uint8 arrays) in place. The layouts come from pymavlink's own generated metadata
-(checked at import), and a test shows the frames are byte-identical to pymavlink's and that each side accepts the
-other's. Anything else on the link (signed frames, several messages in one datagram, other messages) goes through
+pymavlink builds a message object, then packs it and parses a frame through a generic state machine, each costing more
+than a whole compiled tick (docs/performance.md#per-call). In a lockstep run that time is the budget, so the two
+messages exchanged every tick (:mod:`quadsitl.wire` says what they hold) are framed here by compiled functions that
+write into and read from byte buffers (numpy uint8 arrays) in place. The layouts come from pymavlink's own generated
+metadata (checked at import), and a test shows the frames are byte-identical to pymavlink's and that each side accepts
+the other's. Anything else on the link (signed frames, several messages in one datagram, other messages) goes through
 pymavlink; :func:`pack` frames such a message with the same compiled CRC.
 
 Only the processes that run compiled code import this module; :mod:`quadsitl.wire` (pymavlink only) is what the
@@ -90,8 +90,8 @@ CRC_TABLES = _crc_tables()
 @jit(inline=True)
 def crc16(buf: np.ndarray, start: int, end: int, crc_extra: int) -> int:
     """MAVLink's CRC of buf[start:end] followed by the message's CRC_EXTRA byte: eight bytes per step, whose
-    table lookups do not wait on each other (a byte at a time, each waits on the last: 3.5 times as long for an
-    ODOMETRY frame), then the rest a byte at a time."""
+    table lookups do not wait on each other (a byte at a time, each waits on the last: several times as long,
+    docs/performance.md#per-call), then the rest a byte at a time."""
     t = CRC_TABLES
     crc = 0xFFFF
     i = start
@@ -239,9 +239,9 @@ def _payload_only(mav: object, crc_extra: int, payload: bytes, force_mavlink1: b
 
 def pack(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
     """= what ``mav.send(msg)`` puts on the wire (the frame, then ``mav.seq`` advances), without pymavlink's
-    per-message framing machinery (≈ 10 µs a message, a third of it) on an unsigned link: pymavlink makes
-    the payload (its generated ``pack`` with the framing step replaced), and the frame is put together here
-    with the same compiled CRC as the per-tick frames.
+    per-message framing machinery (a good part of a send's cost: docs/performance.md#per-call) on an unsigned link:
+    pymavlink makes the payload (its generated ``pack`` with the framing step replaced), and the frame is put
+    together here with the same compiled CRC as the per-tick frames.
     A signed link goes through pymavlink whole."""
     if mav.signing.sign_outgoing:
         frame = msg.pack(mav)

@@ -75,8 +75,8 @@ def jit(fn: F | None = None, *, inline: bool = False) -> F | Callable[[F], F]:
     results are the same to the bit, and only callers' compile times grow. Also for the codec's small byte helpers
     (:mod:`quadsitl.codec`, :mod:`quadsitl.hil`): compiled code calls them with constant offsets and sizes, and numba
     compiles a function called from compiled code once per combination of constant arguments (13 versions of one
-    four-byte read); inlined, they compile with their caller. That took the compile of a fresh checkout's
-    autopilot from 64-70 s to 56 s and its tick from 4.2 to 2.8-2.9 us."""
+    four-byte read); inlined, they compile with their caller, which shortened both the autopilot's compile and its
+    tick (docs/performance.md#compiling-on-first-run)."""
 
     def compile_(f: F) -> F:
         return numba.njit(cache=True, error_model="numpy", inline="always" if inline else "never")(f)  # type: ignore[return-value]
@@ -86,14 +86,14 @@ def jit(fn: F | None = None, *, inline: bool = False) -> F | Callable[[F], F]:
 
 def specialized(fn: F, *args: object) -> F:
     """The machine code of the :func:`jit` function ``fn`` for the types of ``args`` (compiled, or loaded from the
-    cache, now), callable without numba's dispatch: a call from Python then skips working out the type of every
-    argument and choosing among the compiled versions, which for the plant's step (12 arguments) took about 1 µs
-    of its 1.2 (what remains is mostly unpacking the arrays: :func:`sitl.plant.step_work` takes three). For the
-    objects that call one function on the same arrays every tick (:class:`sitl.plant.Plant`, the controllers);
-    they must pass arguments of exactly these types (the same arrays, or arrays of the same dtype, dimensions and
-    layout): an array of another dtype is refused with a TypeError, but one of other dimensions is not checked, and
-    a number is converted to the type it had here (an int where a float was given becomes a float; a float where
-    an int was, an int). With ``NUMBA_DISABLE_JIT=1``, ``fn`` itself."""
+    cache, now), callable without numba's dispatch: a call from Python then skips working out the type of every argument
+    and choosing among the compiled versions, which for the plant's step (12 arguments) was most of the call
+    (docs/performance.md#per-call; what remains is mostly unpacking the arrays: :func:`sitl.plant.step_work` takes
+    three). For the objects that call one function on the same arrays every tick (:class:`sitl.plant.Plant`, the
+    controllers); they must pass arguments of exactly these types (the same arrays, or arrays of the same dtype,
+    dimensions and layout): an array of another dtype is refused with a TypeError, but one of other dimensions is not
+    checked, and a number is converted to the type it had here (an int where a float was given becomes a float; a float
+    where an int was, an int). With ``NUMBA_DISABLE_JIT=1``, ``fn`` itself."""
     if DISABLED:
         return fn
     return fn.compile(tuple(numba.typeof(a) for a in args))  # type: ignore[attr-defined]

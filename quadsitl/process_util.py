@@ -123,7 +123,8 @@ def bind_udp(option: str, text: str) -> socket.socket:
 def set_receive_timeout(sock: socket.socket, seconds: float | None) -> None:
     """Make ``recv`` on a blocking socket give up after ``seconds`` (None: never; raising BlockingIOError), with the
     kernel's SO_RCVTIMEO instead of Python's socket timeout: Python implements its timeout with a poll()
-    before every receive, a system call the lockstep loop cannot afford at 10,000 ticks/s."""
+    before every receive, a system call more per tick, which the lockstep loop cannot afford
+    (docs/performance.md#in-lockstep)."""
     sock.settimeout(None)
     usec = 0 if seconds is None else max(1, round(seconds * 1e6))  # 0 = no timeout
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", usec // 1_000_000, usec % 1_000_000))
@@ -159,26 +160,26 @@ class SpinThenBlock:
     """Receive for a lockstep loop: poll without blocking for up to ``budget`` seconds (``patience``, if longer),
     then block.
 
-    A process that blocks in ``recv`` pays a wake-up when the datagram comes, and on a virtual machine the
-    wake-up of a halted core: tens of µs, more than the per-tick work of either side. A loop that is hot
-    (its last HOT_AFTER waits were each shorter than the budget: the other side answers within microseconds)
-    polls instead and does not sleep. A loop that is paced (``--speed 1``, real time: a millisecond between
-    datagrams) or whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to
-    blocking, so it spends no CPU on polling. A paced loop that finds one datagram already waiting (it was
-    late, behind a busy core) does not turn hot: it would poll the whole budget for the next one, a millisecond
-    away, and in a real-time fleet under SCHED_FIFO hold a core its fleet-mates need.
+    A process that blocks in ``recv`` pays a wake-up when the datagram comes, and on a virtual machine the wake-up of a
+    halted core, which costs more than the per-tick work of either side (docs/performance.md#in-lockstep). A loop that
+    is hot (its last HOT_AFTER waits were each shorter than the budget: the other side answers within microseconds)
+    polls instead and does not sleep. A loop that is paced (``--speed 1``, real time: a millisecond between datagrams)
+    or whose peer has gone (free-wheeling) finds its wait longer than the budget and goes back to blocking, so it spends
+    no CPU on polling. A paced loop that finds one datagram already waiting (it was late, behind a busy core) does not
+    turn hot: it would poll the whole budget for the next one, a millisecond away, and in a real-time fleet under
+    SCHED_FIFO hold a core its fleet-mates need.
 
-    A loop whose peer answers within microseconds but now and then takes longer (a moment of Python there: a
-    telemetry batch, a ground-station message, the scheduler giving its core to another process for a while) turns
-    cold at each such moment with a budget of 200 µs. Turning hot again takes HOT_AFTER blocking waits, and where
-    waking a process costs 100–200 µs (a Firecracker guest) each of them is slow, so an unpaced lockstep run spends
-    most of its time there. Such a loop is given ``patience`` (PATIENCE, 2 ms): it polls that long before it
-    blocks. Only a loop that nothing paces gets it, as it costs CPU when the peer is late: the plant in an unpaced
-    run (it knows its pace), and the autopilot while its plant's ticks come at PACED_BELOW × real time or faster (it
-    measures their pace: :class:`PaceGauge`; a real-time plant catching up after a stall sends ticks back to back,
-    and an autopilot made hot by them would otherwise poll through every millisecond after). A paced plant's wait
-    for each answer is short too, so it turns hot; without patience it keeps polling at most a budget when an
-    answer is late, and leaves the core to the processes a paced run serves (an idle-priority dashboard).
+    A loop whose peer answers within microseconds but now and then takes longer (a moment of Python there: a telemetry
+    batch, a ground-station message, the scheduler giving its core to another process for a while) turns cold at each
+    such moment with a budget of 200 µs. Turning hot again takes HOT_AFTER blocking waits, and where waking a process is
+    slow (a Firecracker guest: docs/performance.md#in-lockstep) each of those waits is, so an unpaced lockstep run
+    spends most of its time there. Such a loop is given ``patience`` (PATIENCE, 2 ms): it polls that long before it
+    blocks. Only a loop that nothing paces gets it, as it costs CPU when the peer is late: the plant in an unpaced run
+    (it knows its pace), and the autopilot while its plant's ticks come at PACED_BELOW × real time or faster (it
+    measures their pace: :class:`PaceGauge`; a real-time plant catching up after a stall sends ticks back to back, and
+    an autopilot made hot by them would otherwise poll through every millisecond after). A paced plant's wait for each
+    answer is short too, so it turns hot; without patience it keeps polling at most a budget when an answer is late, and
+    leaves the core to the processes a paced run serves (an idle-priority dashboard).
 
     Polling only pays while both processes have a core each. On a machine whose cores are taken by
     something else, a poller holds a core its peer needs, and the loop slows down instead: the polls
@@ -277,8 +278,8 @@ class SpinThenBlock:
 
     def _verdicts(self, polls: int, late: int) -> None:
         """``polls`` polls in a row, the first ``late`` of them misses, counted window by window: the same as one
-        :meth:`_verdict` each (a compiled loop reports tens of thousands at a time; one call each cost Python about
-        0.5 µs a tick on each side of a lockstep run)."""
+        :meth:`_verdict` each (a compiled loop reports tens of thousands at a time; one call each was a measurable
+        share of a lockstep tick on each side: docs/performance.md#per-call)."""
         while polls > 0:
             n = min(polls, SPIN_WINDOW - self._polls)
             missed = min(max(late, 0), n)
@@ -396,12 +397,12 @@ TIMER_SLACK_NS = 1_000  # [ns] how late Linux may fire a real-time clock's timer
 
 
 def timers_on_time() -> bool:
-    """Linux: let this thread's timers fire at most TIMER_SLACK_NS late (``prctl(PR_SET_TIMERSLACK)``; threads it
-    starts afterwards inherit it). The kernel's default slack for a task under the default policy is 50 µs: it may
-    fire a sleep's timer that much late to group wake-ups and save power, so a real-time clock's every tick would start
-    about 50 µs into its 1 ms period, a twentieth of the time its vehicles have to answer (a loop of 1 ms sleeps on a
-    Firecracker guest: median lateness 135 µs with the default, 82 µs with 1 µs). Under SCHED_FIFO the kernel already
-    gives no slack. True when it was set; False elsewhere or when refused."""
+    """Linux: let this thread's timers fire at most TIMER_SLACK_NS late (``prctl(PR_SET_TIMERSLACK)``; threads it starts
+    afterwards inherit it). The kernel's default slack for a task under the default policy is 50 µs: it may fire a
+    sleep's timer that much late to group wake-ups and save power, so a real-time clock's every tick would start about
+    50 µs into its 1 ms period, a twentieth of the time its vehicles have to answer (measured:
+    docs/performance.md#in-real-time). Under SCHED_FIFO the kernel already gives no slack. True when it was set; False
+    elsewhere or when refused."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -419,12 +420,12 @@ CORES_AWAKE_HELP = (f"while the run lasts, keep every core out of slow idle stat
 
 def hold_cores_awake(path: str = CPU_LATENCY) -> int:
     """``--cores-awake``: keep every core out of the idle states it is slow to wake from (Linux's PM QoS: a wake-up
-    latency of 0 µs written to ``path``, as ``cyclictest`` does) for as long as the returned file descriptor stays
-    open; the kernel drops the request when it is closed or the process ends, however it ends. An idle core then polls
-    instead of halting. On a virtual machine a halted virtual CPU is a thread its host must wake and schedule again,
-    which took 100 µs to several ms on a Firecracker guest (a 1 ms loop's 99th percentile of lateness: 0.6-1.8 ms
-    halting, 61-80 µs polling); the price is that every idle core spins while the request is held. UsageError naming
-    the option, the file and the reason when the request is refused (it needs root, or write access to the file)."""
+    latency of 0 µs written to ``path``, as ``cyclictest`` does) for as long as the returned file descriptor stays open;
+    the kernel drops the request when it is closed or the process ends, however it ends. An idle core then polls instead
+    of halting. On a virtual machine a halted virtual CPU is a thread its host must wake and schedule again, which can
+    take longer than a 1 ms period (docs/performance.md#in-real-time); the price is that every idle core spins while the
+    request is held. UsageError naming the option, the file and the reason when the request is refused (it needs root,
+    or write access to the file)."""
     try:
         fd = os.open(path, os.O_WRONLY)
     except OSError as exc:

@@ -1,11 +1,11 @@
 """Numbers stored in and read from byte buffers at any offset, little-endian, for the compiled codecs.
 
-MAVLink payloads (:mod:`quadsitl.codec`, :mod:`quadsitl.hil`, :mod:`autopilot.stream_frames`) and the telemetry
-records (:mod:`autopilot.tick`) put floats and integers at byte offsets that are not multiples of their size. The
-obvious numba spelling, ``buf[at : at + 4].view(np.float32)[0] = value``, builds two array objects per field and
-counts references on each (about 30 ns a field on a 2-core KVM guest: 16 fields of an ODOMETRY frame cost more than
-its CRC). :func:`put` and :func:`get` instead compile to one unaligned store or load (x86-64 and AArch64 allow
-them), after a bounds check that raises IndexError for a field that does not fit in ``buf``.
+MAVLink payloads (:mod:`quadsitl.codec`, :mod:`quadsitl.hil`, :mod:`autopilot.stream_frames`) and the telemetry records
+(:mod:`autopilot.tick`) put floats and integers at byte offsets that are not multiples of their size. The obvious numba
+spelling, ``buf[at : at + 4].view(np.float32)[0] = value``, builds two array objects per field and counts references on
+each (an ODOMETRY frame's fields then cost more than its CRC: docs/performance.md#per-call). :func:`put` and :func:`get`
+instead compile to one unaligned store or load (x86-64 and AArch64 allow them), after a bounds check that raises
+IndexError for a field that does not fit in ``buf``.
 
 With ``NUMBA_DISABLE_JIT=1`` both are the same operations in numpy (the reference the tests compare with).
 """

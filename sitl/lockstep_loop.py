@@ -12,9 +12,8 @@ the answers awaited in the vehicles' order), through the same compiled tick, so 
 are a fleet's, a row per vehicle (:class:`sitl.fleet_arrays.FleetArrays`). Each wait is
 :class:`quadsitl.process_util.SpinThenBlock`'s, the vehicle's own, as in :mod:`autopilot.plant_loop`.
 
-A fleet's clock in Python cost about 25 µs a tick per vehicle (a receive, a compiled tick and their bookkeeping, each
-a call from Python): a fleet of two flew 20,900 ticks/s of its clock, one vehicle alone 64,900 (``bench --only
-fleet`` on a 2-core Intel Xeon guest, 2026-11-28).
+In Python, a fleet's clock made a call for each vehicle's receive, compiled tick and bookkeeping every tick: a fleet
+of two flew far fewer ticks a second than one vehicle alone (docs/performance.md#the-fleets-period-in-one-call).
 """
 
 from __future__ import annotations

@@ -90,9 +90,8 @@ def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: n
     (:func:`sitl.wind.air_arrays`), whose :func:`sitl.wind.air_tick` makes the tick's wind and force first.
 
     Inlined into its callers, as are the wind's functions it calls: called out of line, numba counts a reference to
-    every array passed and every slice made (an atomic operation each), which was about 0.3 µs of the step's 0.75 µs
-    from Python on a 2-core Intel Xeon guest; inlined, the compiler drops the counts that cancel (0.53-0.81 µs
-    against 1.08-1.22 µs, three interleaved pairs in a slow phase of that host). The same code, so the same bits."""
+    every array passed and every slice made (an atomic operation each), a large share of the step; inlined, the
+    compiler drops the counts that cancel (docs/performance.md#per-call). The same code, so the same bits."""
     air_tick(air, air_rng, period, x, out[OUT_ON_GROUND] > 0.0)
     d = air[:6]
     s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
@@ -118,7 +117,7 @@ def step_work(w: np.ndarray, params: np.ndarray, air_rng: np.ndarray, period: fl
               omega_r: float) -> None:  # fmt: skip
     """:func:`step_arrays` on :class:`Plant`'s arrays: ``w`` its work array (WORK_SIZE: W_*), ``params`` its
     vehicle array then its actuator array. Three arrays to unpack instead of eight when Python calls it: numba
-    wraps each array it is given in an object of its own on every call (about 40 ns each on a 2-core KVM guest)."""
+    wraps each array it is given in an object of its own on every call (docs/performance.md#per-call)."""
     step_arrays(w[W_X:W_MOTORS], w[W_MOTORS:W_COMMANDED], w[W_COMMANDED:W_OUT], w[W_OUT:W_AIR],
                 params[:VEHICLE_SIZE], params[VEHICLE_SIZE:], w[W_AIR:], air_rng, period, substeps, method,
                 omega_r)  # fmt: skip

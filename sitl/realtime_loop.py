@@ -1,13 +1,13 @@
 """A real-time plant's work for one vehicle and one period, compiled: so that a fleet's clock spends its period
 sleeping, not in Python (:func:`sitl.realtime.run_realtime`).
 
-Each period the real-time clock sends every vehicle its state (:func:`send_tick`), sleeps until the period ends,
-and then, vehicle by vehicle, takes what its autopilot answered and integrates (:func:`take_and_step`). In Python
-that was about 25 us of CPU per vehicle and period (a dozen calls, a socket exception per drained socket), and
-about 60 us of the clock's own: a fleet of eight spent a third of a core on its clock. The Python loop (impaired
-links, whose queues release the datagrams; ``QUADSITL_COMPILED_LOOPS=0``) calls the two halves of
-:func:`take_and_step`, :func:`apply` for each answer and :func:`end_period`, so the bookkeeping is written once,
-in ``rt``, the link's (:class:`sitl.plant_link.PlantLink`: its ``last_heard``, ``first_heard`` and ``lost`` read it):
+Each period the real-time clock sends every vehicle its state (:func:`send_tick`), sleeps until the period ends, and
+then, vehicle by vehicle, takes what its autopilot answered and integrates (:func:`take_and_step`). In Python that was a
+dozen calls and a socket exception per drained socket for each vehicle and period, besides the clock's own work: a large
+fleet spent a good share of a core on its clock (docs/performance.md#the-fleets-period-in-one-call). The Python loop
+(impaired links, whose queues release the datagrams; ``QUADSITL_COMPILED_LOOPS=0``) calls the two halves of
+:func:`take_and_step`, :func:`apply` for each answer and :func:`end_period`, so the bookkeeping is written once, in
+``rt``, the link's (:class:`sitl.plant_link.PlantLink`: its ``last_heard``, ``first_heard`` and ``lost`` read it):
 
 - rt[ANSWERED], rt[LATE]: periods whose own answer (stamped with the period's tick) came within it, and periods
   since the autopilot's first answer whose answer did not (the vehicle flew the previous command);
@@ -138,7 +138,8 @@ def take_and_step(fd: int, rx: np.ndarray, received: np.ndarray, max_thrust: flo
 # ---- a fleet's period: the functions above once per vehicle, in one call ---------------------------------------
 # A fleet's arrays, one per field and a row per vehicle (sitl.realtime_fleet.RealtimeFleet stacks them, and each
 # vehicle's objects keep their rows as their own arrays), so that one compiled call does every vehicle's part of the
-# period, for any number of vehicles, where Python called two functions per vehicle (about 6 us each).
+# period, for any number of vehicles, where Python called two functions per vehicle
+# (docs/performance.md#the-fleets-period-in-one-call).
 
 
 @jit
@@ -164,8 +165,8 @@ def send_ticks(fds: np.ndarray, tx: np.ndarray, io: np.ndarray, work: np.ndarray
 def send_order(j: int, k: int, n: int) -> int:
     """The vehicle that tick ``k`` of a real-time fleet of ``n`` is sent to ``j``-th: each tick begins one vehicle
     further on (tick k with vehicle k mod n). The vehicle sent to last has the least of the period left to answer in,
-    and its autopilot wakes behind the others on the cores: in a fixed order, the last vehicle of eight under
-    SCHED_FIFO missed 1.3–2 times the periods the first did (docs/fleets.md). In turn, every vehicle gets the same."""
+    and its autopilot wakes behind the others on the cores: in a fixed order, the last vehicle missed more periods than
+    the first (docs/performance.md#spreading-a-fleets-work-over-the-ticks). In turn, every vehicle gets the same."""
     return (k + j) % n
 
 
