@@ -66,6 +66,7 @@ from autopilot.gains import GainError, stability_interval
 from quadsitl.config import DEFAULT_LIMITS as PLANT_LIMITS
 from quadsitl.config import (
     LIMIT_NAMES,
+    SCHEMA,
     ConfigError,
     InitialState,
     Preset,
@@ -78,6 +79,7 @@ from quadsitl.config import (
     read_preset,
 )
 from quadsitl.controller_names import ALLOWED, absolute, is_controller_name, is_plugin
+from quadsitl.keys import spec
 from quadsitl.param_arrays import (
     ARM,
     D_OVER_B,
@@ -346,34 +348,23 @@ MAX_TRIALS = 100_000_000
 STATES = ("truth", "sensors")  # what the autopilot flies on (sensors: the preset's [sensors], else the defaults)
 ENGINES = ("batch", "sitl")  # the batch engine (engine.py), or every trial a whole `quadsitl fly` (sitl_engine.py)
 TOP: dict[str, Spec] = {
-    "preset": Spec("string", "a shipped preset's name or a preset TOML's path"),
-    "controller": Spec(
-        "string", f"{ALLOWED} (a file: the spec's folder is its base)", is_controller_name, required=False
-    ),
-    "task": Spec("string", f"one of: {', '.join(TASKS)}", lambda v: v in TASKS, required=False, default="step"),
-    "duration": Spec("number", "a number in (0, 3600] s", lambda v: 0 < v <= 3600, required=False),
-    "seed": Spec("int", "an integer >= 0", lambda v: v >= 0, required=False, default=0),
-    "trials": Spec("int", f"an integer in [1, {MAX_TRIALS}]", lambda v: 1 <= v <= MAX_TRIALS, required=False),
-    "inadmissible": Spec(
-        "string", "one of: refuse, record", INADMISSIBLE.__contains__, required=False, default="refuse"
-    ),
-    "description": Spec("string", "a string", required=False, default=""),
-    "engine": Spec("string", f"one of: {', '.join(ENGINES)}", lambda v: v in ENGINES, required=False, default="batch"),
-    "trajectory": Spec(
-        "string",
-        "a trajectory `quadsitl fly --trajectory` flies (circle[:...], figure8[:...], "
-        "hold[:...], a CSV file: the spec's folder is its base)",
-        required=False,
-    ),
-    "mission": Spec(
-        "string",
-        "a mission file `quadsitl fly --mission` flies (.plan, waypoint CSV, QGC WPL 110; "
-        "the spec's folder is its base)",
-        required=False,
-    ),
-    "state": Spec("string", "one of: truth, sensors", lambda v: v in STATES, required=False),
-}
-LIMIT_SPEC = Spec("number", "a finite number > 0", lambda v: 0 < v < math.inf)
+    "preset": spec(kind="string", says="a shipped preset's name or a preset TOML's path"),
+    "controller": spec(None, kind="string", check=is_controller_name,
+                       says=f"{ALLOWED} (a file: the spec's folder is its base)"),
+    "task": spec("step", choices=TASKS),
+    "duration": SCHEMA["sim"]["duration"].with_default(None),  # default: the preset's
+    "seed": spec(0, low=0),
+    "trials": spec(None, integer=True, low=1, high=MAX_TRIALS),
+    "inadmissible": spec("refuse", choices=INADMISSIBLE),
+    "description": spec("", kind="string", says="a string"),
+    "engine": spec("batch", choices=ENGINES),
+    "trajectory": spec(None, kind="string", says="a trajectory `quadsitl fly --trajectory` flies (circle[:...], "
+                       "figure8[:...], hold[:...], a CSV file: the spec's folder is its base)"),
+    "mission": spec(None, kind="string", says="a mission file `quadsitl fly --mission` flies (.plan, waypoint CSV, "
+                    "QGC WPL 110; the spec's folder is its base)"),
+    "state": spec(None, choices=STATES),
+}  # fmt: skip
+LIMIT_SPEC = spec(low=0, low_open=True)
 
 
 @dataclass(frozen=True)
@@ -513,13 +504,13 @@ def parse_spec(
         if key not in allowed:
             raise ConfigError(f"{where}: unknown key {key!r}; allowed: {', '.join(allowed)}")
     top: dict[str, Any] = {}
-    for key, spec in TOP.items():
+    for key, rule in TOP.items():
         if key in raw:
-            top[key] = check_value(key, raw[key], spec, where)
-        elif spec.required:
-            raise ConfigError(f"{where}: missing key {key} ({spec.allowed})")
+            top[key] = check_value(key, raw[key], rule, where)
+        elif rule.required:
+            raise ConfigError(f"{where}: missing key {key} ({rule.allowed})")
         else:
-            top[key] = spec.default
+            top[key] = rule.default
     try:
         if preset_text is None:
             source = top["preset"]
