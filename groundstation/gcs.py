@@ -53,7 +53,7 @@ from groundstation.progress import FlightProgress
 from groundstation.setpoint_grid import POSITION_VELOCITY_YAW, SETPOINT_MS, next_moment, setpoint_step
 from groundstation.telemetry_csv import write_csv
 from quadsitl import telemetry, wire
-from quadsitl.cli_util import UsageError, check_range, parse_floats
+from quadsitl.cli_util import UsageError, check_duration, parse_floats
 from quadsitl.config import ConfigError, load_preset
 from quadsitl.frames import PX4_HOME, euler_to_quaternion
 from quadsitl.process_util import parse_address, readable_of, start_process, stop_status
@@ -716,7 +716,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        check_range("--duration", args.duration, 0.0, 3600.0)
+        check_duration(args.duration)
         if not 0.0 <= args.setpoints_ahead <= 10.0:  # (NaN too)
             raise UsageError(f"--setpoints-ahead {args.setpoints_ahead!r}: expected a number in [0, 10]")
         args.signing_key = wire.resolve_signing_key(args.signing_key)
