@@ -59,7 +59,9 @@ ROW_FIELDS = (
     "x_ref", "y_ref",
 )  # fmt: skip
 _TICK = struct.Struct("<Q")
-_XY = struct.Struct("<2d")  # x, y of a state record, at byte 16
+_XY = struct.Struct("<2d")  # x, y of a state record, at byte _STATE_AT_X
+_STATE_AT_X = telemetry.STATE_AT_X
+assert telemetry.OFFSETS["state"]["y"] == _STATE_AT_X + telemetry.FLOAT64
 _STATE_SIZE = telemetry.STREAMS["state"].size
 
 
@@ -175,7 +177,7 @@ class Vehicle:
         d = self.decimation * max(1, round(self.plot_rate / TRAIL_RATE))
         k = -(-first_tick // d) * d
         while k < first_tick + n:
-            x, y = _XY.unpack_from(payload, (k - first_tick) * _STATE_SIZE + 16)
+            x, y = _XY.unpack_from(payload, (k - first_tick) * _STATE_SIZE + _STATE_AT_X)
             self.trail_seq += 1
             self.trail.append((self.trail_seq, k * self.period, x, y))
             k += d
