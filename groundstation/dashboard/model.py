@@ -129,7 +129,7 @@ class Vehicle:
         if not math.isfinite(last[1]):  # a record without a time; NaN fields are "not known" (a replayed tlog)
             self.malformed += 1
             return
-        first_tick = _TICK.unpack_from(payload, 0)[0]
+        first_tick = _TICK.unpack_from(payload, telemetry.AT_TICK)[0]
         if slow and n != 1:
             self.malformed += 1
             return
