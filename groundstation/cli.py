@@ -75,7 +75,8 @@ def _load(name: str) -> Preset:
 def _from_sweep(args: argparse.Namespace) -> Preset:
     """``sim --from-sweep DIR --trial K``: trial K of the sweep in DIR as a preset (the options that would fly
     something else are refused); the sweep's trajectory or mission goes into ``args``."""
-    from groundstation.sweep.spec import load_sweep, trial_preset
+    from groundstation.sweep.spec import load_sweep
+    from groundstation.sweep.trials import trial_preset
 
     if args.trial is None:
         raise UsageError("--from-sweep needs --trial K (the trial's number, as in trials.csv)")
