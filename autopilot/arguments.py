@@ -6,7 +6,14 @@ import argparse
 
 from autopilot.telemetry_out import CONGESTION
 from quadsitl import telemetry, wire
-from quadsitl.cli_util import UsageError, add_preset_arguments, add_state_arguments, check_range, parse_home
+from quadsitl.cli_util import (
+    UsageError,
+    add_preset_arguments,
+    add_state_arguments,
+    check_range,
+    check_system_id,
+    parse_home,
+)
 from quadsitl.config import Preset
 
 
@@ -108,7 +115,6 @@ def check(args: argparse.Namespace, preset: Preset) -> None:
     # 0: a ground station that sends its setpoints ahead (quadsitl gcs --setpoints-ahead); NaN is refused too
     if args.offboard_lockstep is not None and not 0.0 <= args.offboard_lockstep <= 60.0:
         raise UsageError(f"--offboard-lockstep {args.offboard_lockstep!r}: expected a number in [0, 60]")
-    if not 1 <= args.system_id <= 255:
-        raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
+    check_system_id(args.system_id)
     args.home = parse_home(args.home)
     args.signing_key = wire.resolve_signing_key(args.signing_key)

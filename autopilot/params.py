@@ -21,11 +21,12 @@ from autopilot.commander import CommanderSettings
 from autopilot.factory import PluggedController, make_controller
 from autopilot.gains import GainError, rates_from_poles
 from autopilot.plugin import Plugged
-from quadsitl.config import PositionParams, Preset
+from quadsitl.config import PD_CHANNELS, ControllerParams, PositionParams, Preset, VehicleParams
+from quadsitl.keys import ParamEntry, fields_from_params, param_values, params_of
 
 MAX_NAME = 16  # MAVLink param_id length
 CONTROLLER_TYPES = ("backstepping", "pd")
-CHANNELS = ("ALT", "ROLL", "PITCH", "YAW")
+CHANNELS = PD_CHANNELS
 
 
 @dataclass(frozen=True)
@@ -56,31 +57,23 @@ class ParamSpec:
         return above and value <= self.hi
 
 
+# The preset's keys that are parameters, as quadsitl.config declares them (name, range, unit, doc), in index order.
+GAINS = params_of(ControllerParams, ("gains", "pd_kp", "pd_kd"))  # BS_K1..BS_K8, PD_*_P, PD_*_D
+MODEL = params_of(VehicleParams, doc_prefix="model ")  # VM_*: the autopilot's model of the vehicle
+LIMITS = params_of(ControllerParams, ("max_tilt", "thrust_min", "thrust_max"))  # ATT_TILT_MAX, THR_MIN, THR_MAX
+POSITION = params_of(PositionParams)  # BS_K9..BS_K12, BS_KI_*, BS_I_LIM, MPC_*
+
+
+def _declared(entries: tuple[ParamEntry, ...]) -> list[ParamSpec]:
+    return [ParamSpec(e.name, e.lo, e.hi, e.unit, e.doc, lo_open=e.lo_open) for e in entries]
+
+
 def _specs() -> tuple[ParamSpec, ...]:
+    """The table: the controller kind, the declared keys' parameters, and the commander's settings (CommanderSettings,
+    not preset keys: declared here)."""
     s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
-    for i in range(1, 9):
-        s.append(ParamSpec(f"BS_K{i}", 0, 1e6, "1/s", f"backstepping rate k{i} (pole λ{i} = 1 − T·k{i})", lo_open=True))
-    for kind, unit in (("P", "1/s²"), ("D", "1/s")):
-        for ch in CHANNELS:
-            s.append(ParamSpec(f"PD_{ch}_{kind}", 0, 1e6, unit, f"PD {'kp' if kind == 'P' else 'kd'}, {ch.lower()}"))
+    s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS)
     s += [
-        ParamSpec("VM_MASS", 0, 1e4, "kg", "model mass m", lo_open=True),
-        ParamSpec("VM_IXX", 0, 1e4, "kg·m²", "model inertia Ix", lo_open=True),
-        ParamSpec("VM_IYY", 0, 1e4, "kg·m²", "model inertia Iy", lo_open=True),
-        ParamSpec("VM_IZZ", 0, 1e4, "kg·m²", "model inertia Iz", lo_open=True),
-    ]
-    for i in range(1, 7):
-        unit = "N·s/m" if i <= 3 else "N·s"
-        s.append(ParamSpec(f"VM_K{i}", 0, 1e4, unit, f"model drag coefficient K{i}"))
-    s += [
-        ParamSpec("VM_ARM_LEN", 0, 100, "m", "model arm length l", lo_open=True),
-        ParamSpec("VM_JR", 0, 1e4, "kg·m²", "model rotor inertia Jr"),
-        ParamSpec("VM_THRUST_B", 0, 1e4, "N·s²", "model thrust factor b", lo_open=True),
-        ParamSpec("VM_DRAG_D", 0, 1e4, "N·m·s²", "model rotor drag factor d", lo_open=True),
-        ParamSpec("VM_GRAVITY", 0, 100, "m/s²", "model gravity g"),
-        ParamSpec("ATT_TILT_MAX", 0, 1.5533, "rad", "bound on |roll|, |pitch| references", lo_open=True),
-        ParamSpec("THR_MIN", -1e7, 1e7, "N", "lower bound on u1 (total thrust)"),
-        ParamSpec("THR_MAX", -1e7, 1e7, "N", "upper bound on u1 (total thrust)"),
         ParamSpec("COM_OF_LOSS_T", 0, 3600, "s", "offboard setpoint loss timeout (simulated time)", lo_open=True),
         ParamSpec("MPC_LAND_SPEED", 0, 100, "m/s", "descent speed in LAND", lo_open=True),
         ParamSpec("COM_DISARM_LAND", 0, 60, "s", "time on the ground before LAND disarms", lo_open=True),
@@ -88,19 +81,8 @@ def _specs() -> tuple[ParamSpec, ...]:
         ParamSpec("COM_DL_LOSS_T", 0, 3600, "s", "ground-station heartbeat loss timeout (wall time)", lo_open=True),
         ParamSpec("NAV_DLL_ACT", 0, 2, "", "on ground-station loss: 0 = nothing, 1 = hold, 2 = land", integer=True),
     ]
-    for i, what in zip(range(9, 13), ("x position", "x velocity", "y position", "y velocity")):
-        s.append(ParamSpec(f"BS_K{i}", 0, 1e6, "1/s", f"horizontal backstepping rate k{i}, {what}", lo_open=True))
+    s += _declared(POSITION)
     s += [
-        ParamSpec("BS_KI_ALT", 0, 1e6, "1/s", "altitude integral rate k_I (0 = off, the paper's law)"),
-        ParamSpec("BS_KI_XY", 0, 1e6, "1/s", "horizontal integral rate k_I (0 = off)"),
-        ParamSpec("BS_I_LIM", 0, 100, "m/s", "bound on an integrator's share of a virtual velocity", lo_open=True),
-        ParamSpec("MPC_XY_VEL_MAX", 0, 100, "m/s", "horizontal speed limit", lo_open=True),
-        ParamSpec("MPC_Z_VEL_MAX_UP", 0, 100, "m/s", "climb rate limit", lo_open=True),
-        ParamSpec("MPC_Z_VEL_MAX_DN", 0, 100, "m/s", "descent rate limit", lo_open=True),
-        ParamSpec("MPC_TILTMAX_AIR", 0, 89, "deg", "tilt limit of the position loop's thrust", lo_open=True),
-        ParamSpec("MPC_ACC_HOR", 0, 100, "m/s²", "acceleration of the auto modes' references", lo_open=True),
-        ParamSpec("MPC_XY_CRUISE", 0, 100, "m/s", "speed of goto and return", lo_open=True),
-        ParamSpec("MPC_TKO_SPEED", 0, 100, "m/s", "takeoff climb rate", lo_open=True),
         ParamSpec("MIS_TAKEOFF_ALT", 0, 10000, "m", "takeoff altitude above the ground", lo_open=True),
         ParamSpec("RTL_RETURN_ALT", 0, 10000, "m", "return altitude above home"),
         ParamSpec("GF_MAX_HOR_DIST", 0, 1e7, "m", "setpoints farther from home are refused (0 = no limit)"),
@@ -119,23 +101,14 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     v, c = preset.autopilot_model, preset.controller
     rates = c.gains if c.gains is not None else rates_from_poles(preset.poles(), preset.sim.period)
     out: dict[str, float] = {"CTL_TYPE": float(CONTROLLER_TYPES.index(controller))}
-    out.update({f"BS_K{i + 1}": float(k) for i, k in enumerate(rates)})
-    out.update({f"PD_{ch}_P": kp for ch, kp in zip(CHANNELS, c.pd_kp)})
-    out.update({f"PD_{ch}_D": kd for ch, kd in zip(CHANNELS, c.pd_kd)})
-    out.update(VM_MASS=v.mass, VM_IXX=v.ixx, VM_IYY=v.iyy, VM_IZZ=v.izz)
-    out.update({f"VM_K{i + 1}": k for i, k in enumerate(v.drag)})
-    out.update(VM_ARM_LEN=v.arm_length, VM_JR=v.rotor_inertia, VM_THRUST_B=v.thrust_factor)
-    out.update(VM_DRAG_D=v.drag_factor, VM_GRAVITY=v.gravity, ATT_TILT_MAX=c.max_tilt)
-    out.update(THR_MIN=c.thrust_min, THR_MAX=c.thrust_max, COM_OF_LOSS_T=settings.setpoint_timeout)
-    out.update(MPC_LAND_SPEED=settings.land_speed, COM_DISARM_LAND=settings.landed_time)
-    out.update(SP_ALT_MAX=settings.altitude_max, COM_DL_LOSS_T=settings.datalink_timeout)
-    out.update(NAV_DLL_ACT=float(settings.datalink_action))
-    p = preset.position
-    out.update({f"BS_K{i + 9}": k for i, k in enumerate(p.gains)})
-    out.update(BS_KI_ALT=p.integral[0], BS_KI_XY=p.integral[1], BS_I_LIM=p.integral_limit)
-    out.update(MPC_XY_VEL_MAX=p.xy_vel_max, MPC_Z_VEL_MAX_UP=p.z_vel_max_up, MPC_Z_VEL_MAX_DN=p.z_vel_max_dn)
-    out.update(MPC_TILTMAX_AIR=math.degrees(p.tilt_max_air), MPC_ACC_HOR=p.acc_hor, MPC_XY_CRUISE=p.xy_cruise)
-    out.update(MPC_TKO_SPEED=p.takeoff_speed, MIS_TAKEOFF_ALT=settings.takeoff_alt, RTL_RETURN_ALT=settings.rtl_alt)
+    out.update(param_values(replace(c, gains=tuple(float(k) for k in rates)), GAINS))
+    out.update(param_values(v, MODEL))
+    out.update(param_values(c, LIMITS))
+    out.update(COM_OF_LOSS_T=settings.setpoint_timeout, MPC_LAND_SPEED=settings.land_speed)
+    out.update(COM_DISARM_LAND=settings.landed_time, SP_ALT_MAX=settings.altitude_max)
+    out.update(COM_DL_LOSS_T=settings.datalink_timeout, NAV_DLL_ACT=float(settings.datalink_action))
+    out.update(param_values(preset.position, POSITION))
+    out.update(MIS_TAKEOFF_ALT=settings.takeoff_alt, RTL_RETURN_ALT=settings.rtl_alt)
     out.update(GF_MAX_HOR_DIST=settings.max_distance)
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
@@ -166,41 +139,10 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
           plugged: Plugged | None = None) -> Applied:  # fmt: skip
     """Values → the preset, controller kind and commander settings they describe (and ``plugged``'s parameters). The
     preset's actuators (the wire's scale) and simulation settings are not parameters and stay ``base``'s."""
-    vehicle = replace(
-        base.autopilot_model,
-        mass=values["VM_MASS"],
-        ixx=values["VM_IXX"],
-        iyy=values["VM_IYY"],
-        izz=values["VM_IZZ"],
-        drag=tuple(values[f"VM_K{i}"] for i in range(1, 7)),
-        arm_length=values["VM_ARM_LEN"],
-        rotor_inertia=values["VM_JR"],
-        thrust_factor=values["VM_THRUST_B"],
-        drag_factor=values["VM_DRAG_D"],
-        gravity=values["VM_GRAVITY"],
-    )
-    controller = replace(
-        base.controller,
-        gains=tuple(values[f"BS_K{i}"] for i in range(1, 9)),
-        poles=None,
-        max_tilt=values["ATT_TILT_MAX"],
-        thrust_min=values["THR_MIN"],
-        thrust_max=values["THR_MAX"],
-        pd_kp=tuple(values[f"PD_{ch}_P"] for ch in CHANNELS),
-        pd_kd=tuple(values[f"PD_{ch}_D"] for ch in CHANNELS),
-    )
-    position = PositionParams(
-        gains=tuple(values[f"BS_K{i}"] for i in range(9, 13)),
-        integral=(values["BS_KI_ALT"], values["BS_KI_XY"]),
-        integral_limit=values["BS_I_LIM"],
-        xy_vel_max=values["MPC_XY_VEL_MAX"],
-        z_vel_max_up=values["MPC_Z_VEL_MAX_UP"],
-        z_vel_max_dn=values["MPC_Z_VEL_MAX_DN"],
-        tilt_max_air=math.radians(values["MPC_TILTMAX_AIR"]),
-        acc_hor=values["MPC_ACC_HOR"],
-        xy_cruise=values["MPC_XY_CRUISE"],
-        takeoff_speed=values["MPC_TKO_SPEED"],
-    )
+    vehicle = replace(base.autopilot_model, **fields_from_params(values, MODEL))
+    controller = replace(base.controller, poles=None, **fields_from_params(values, GAINS),
+                         **fields_from_params(values, LIMITS))  # fmt: skip
+    position = PositionParams(**fields_from_params(values, POSITION))
     settings = replace(
         commander_settings(position, base_settings),
         setpoint_timeout=values["COM_OF_LOSS_T"],

@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 from quadsitl.compiled_frames import geodetic_to_ned
+from quadsitl.config import PositionParams
 
 LOCAL_NED, GLOBAL, GLOBAL_INT, GLOBAL_RELATIVE_ALT_INT, BODY_NED, GLOBAL_TERRAIN_ALT_INT = 1, 0, 5, 6, 8, 11
 GLOBAL_RELATIVE_ALT, MISSION = 3, 2
@@ -51,9 +52,9 @@ class Frame:
     yaw: float = 0.0
     altitude_max: float = 1000.0
     max_distance: float = 0.0
-    xy_vel_max: float = 12.0
-    z_vel_up: float = 3.0
-    z_vel_dn: float = 1.5
+    xy_vel_max: float = PositionParams.xy_vel_max  # [m/s] the preset keys' defaults (quadsitl.config)
+    z_vel_up: float = PositionParams.z_vel_max_up  # [m/s]
+    z_vel_dn: float = PositionParams.z_vel_max_dn  # [m/s]
 
 
 class SetpointError(ValueError):

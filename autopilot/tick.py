@@ -78,6 +78,19 @@ from quadsitl.mixer import Forces, allocate
 from quadsitl.param_arrays import ARM, D_OVER_B
 from quadsitl.rawbytes import put
 from quadsitl.state import Inputs
+from quadsitl.telemetry import (  # where a record's fields are [bytes]: globals, constants to the compiler
+    ACTUATORS_AT_U,
+    AT_T,
+    AT_TICK,
+    FLOAT64,
+    SETPOINT_AT_REF,
+    STATE_AT_P,
+    STATE_AT_X,
+    STATUS_AT_ARMED,
+    STATUS_AT_FAILSAFE,
+    STATUS_AT_MODE,
+    STATUS_AT_OFFBOARD_TICK,
+)
 
 _ZERO_ERRORS = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 GROUND_IDLE_MARGIN = 1e-6  # [m]: a reference this little above the vehicle resting on the ground asks for no climb
@@ -86,6 +99,7 @@ GROUND_IDLE_MARGIN = 1e-6  # [m]: a reference this little above the vehicle rest
 STATE_SIZE, SETPOINT_SIZE, ACTUATORS_SIZE, STATUS_SIZE = (telemetry.STREAMS[s].size for s in telemetry.STREAMS)
 assert tuple(telemetry.STREAMS) == ("state", "setpoint", "actuators", "status")
 TRUTH_AT = STATE_SIZE + SETPOINT_SIZE + ACTUATORS_SIZE + STATUS_SIZE  # × capacity: the truth's region, after them
+assert telemetry.TRUTH_RECORD is telemetry.STREAMS["state"]  # the truth's record: the state's offsets (STATE_AT_*)
 
 
 @jit(inline=True)
@@ -285,28 +299,29 @@ def control_tick(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: np
     if row >= capacity:  # no session (capacity 0), or a full batch not yet published: never past the end
         return
     at = row * STATE_SIZE
-    _put_int(records, at, tick)
-    _put(records, at + 8, now)
+    _put_int(records, at + AT_TICK, tick)
+    _put(records, at + AT_T, now)
     for i in range(9):  # x, y, z, vx, vy, vz, roll, pitch, yaw
-        _put(records, at + 16 + 8 * i, st[i])
+        _put(records, at + STATE_AT_X + FLOAT64 * i, st[i])
     for i in range(3):  # body rates p, q, r
-        _put(records, at + 88 + 8 * i, st[BODY_RATES + i])
+        _put(records, at + STATE_AT_P + FLOAT64 * i, st[BODY_RATES + i])
     at = capacity * STATE_SIZE + row * SETPOINT_SIZE
-    _put_int(records, at, tick)
-    _put(records, at + 8, now)
+    _put_int(records, at + AT_TICK, tick)
+    _put(records, at + AT_T, now)
     shown = reference_shown(cm, mem)
     for i in range(6):  # altitude, roll, pitch, yaw, x_ref, y_ref
-        _put(records, at + 16 + 8 * i, shown[i])
+        _put(records, at + SETPOINT_AT_REF + FLOAT64 * i, shown[i])
     at = capacity * (STATE_SIZE + SETPOINT_SIZE) + row * ACTUATORS_SIZE
-    _put_int(records, at, tick)
-    _put(records, at + 8, now)
+    _put_int(records, at + AT_TICK, tick)
+    _put(records, at + AT_T, now)
     for i in range(8):  # u1..u4, f1..f4
-        _put(records, at + 16 + 8 * i, mem[MEM_U + i])
+        _put(records, at + ACTUATORS_AT_U + FLOAT64 * i, mem[MEM_U + i])
     at = capacity * (STATE_SIZE + SETPOINT_SIZE + ACTUATORS_SIZE) + row * STATUS_SIZE
-    _put_int(records, at, tick)
-    _put(records, at + 8, now)
-    records[at + 16], records[at + 17], records[at + 18] = armed, int(cm[MODE]), int(cm[FAILSAFE])
-    _put_int(records, at + 19, int(cm[OFFBOARD_TICK]))
+    _put_int(records, at + AT_TICK, tick)
+    _put(records, at + AT_T, now)
+    records[at + STATUS_AT_ARMED], records[at + STATUS_AT_MODE] = armed, int(cm[MODE])
+    records[at + STATUS_AT_FAILSAFE] = int(cm[FAILSAFE])
+    _put_int(records, at + STATUS_AT_OFFBOARD_TICK, int(cm[OFFBOARD_TICK]))
     io[ROWS] = row + 1
 
 
@@ -416,12 +431,12 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
     row = io[ROWS]
     if row < io[CAPACITY]:  # the truth's record, in the row control_tick fills next
         at = io[CAPACITY] * TRUTH_AT + row * STATE_SIZE
-        _put_int(records, at, tick)
-        _put(records, at + 8, tick * period)
+        _put_int(records, at + AT_TICK, tick)
+        _put(records, at + AT_T, tick * period)
         for i in range(9):
-            _put(records, at + 16 + 8 * i, truth[i])
+            _put(records, at + STATE_AT_X + FLOAT64 * i, truth[i])
         for i in range(3):
-            _put(records, at + 88 + 8 * i, truth[BODY_RATES + i])
+            _put(records, at + STATE_AT_P + FLOAT64 * i, truth[BODY_RATES + i])
     control_tick(kind, plug, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
     flags = _flags(io, tick) | _frames(tick, period, st, cm, mem, io, frames)
     if status != io[ESTIMATE]:

@@ -36,18 +36,7 @@ T = 0.001  # [s] the control period
 
 def dtype(stream: str) -> np.dtype:
     """The numpy layout of a stream's record (the same bytes as telemetry.STREAMS[stream])."""
-    fields = telemetry.FIELDS[stream]
-    types = ["<u8", "<f8", "u1", "u1", "u1", "<i8"] if stream == "status" else ["<u8"] + ["<f8"] * (len(fields) - 1)
-    dt = np.dtype({"names": list(fields), "formats": types, "itemsize": telemetry.STREAMS[stream].size,
-                   "offsets": _offsets(stream)})  # fmt: skip
-    assert dt.itemsize == telemetry.STREAMS[stream].size
-    return dt
-
-
-def _offsets(stream: str) -> list[int]:
-    if stream == "status":  # <QdBBBq: packed, no padding
-        return [0, 8, 16, 17, 18, 19]
-    return [8 * i for i in range(len(telemetry.FIELDS[stream]))]
+    return telemetry.record_dtype(stream)
 
 
 def publish(endpoint: str, n: int, seconds: float, batch_ms: float) -> None:

@@ -31,7 +31,9 @@ from quadsitl.cli_util import (
     add_state_arguments,
     add_wind_arguments,
     attach_negative_values,
-    check_range,
+    check_duration,
+    check_speed,
+    check_system_id,
     parse_controller_params,
     parse_floats,
     wind_settings,
@@ -70,7 +72,8 @@ def _load(name: str) -> Preset:
 def _from_sweep(args: argparse.Namespace) -> Preset:
     """``sim --from-sweep DIR --trial K``: trial K of the sweep in DIR as a preset (the options that would fly
     something else are refused); the sweep's trajectory or mission goes into ``args``."""
-    from groundstation.sweep.spec import load_sweep, trial_preset
+    from groundstation.sweep.spec import load_sweep
+    from groundstation.sweep.trials import trial_preset
 
     if args.trial is None:
         raise UsageError("--from-sweep needs --trial K (the trial's number, as in trials.csv)")
@@ -99,7 +102,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         preset = _from_sweep(args)
     else:
         preset = with_state(with_wind(_load(args.preset or "paper"), args), args)
-    check_range("--duration", args.duration, 0.0, 3600.0)
+    check_duration(args.duration)
     if args.substeps is not None and not 1 <= args.substeps <= 1000:
         raise UsageError(f"--substeps {args.substeps}: expected an integer in [1, 1000]")
     rates = parse_floats("--gains", args.gains, 8) if args.gains else None
@@ -237,13 +240,11 @@ def cmd_fly(args: argparse.Namespace) -> int:
     if args.vehicles != 1 or args.formation:
         from groundstation.formation_flight import check_fleet_flight, fly_fleet
 
-        if args.speed < 0 or args.speed > 1000:
-            raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
+        check_speed(args.speed)
         check_fleet_flight(args)  # refuse a bad fleet or formation (one line) before anything starts
         return fly_fleet(args)
-    check_range("--duration", args.duration, 0.0, 3600.0)
-    if args.speed < 0 or args.speed > 1000:
-        raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
+    check_duration(args.duration)
+    check_speed(args.speed)
     from groundstation.trajectories import make
 
     if args.mission:
@@ -282,10 +283,8 @@ def cmd_up(args: argparse.Namespace) -> int:
 
     preset = with_state(with_wind(_load(args.preset), args), args)
     check_controller(args, preset)
-    if args.speed < 0 or args.speed > 1000:
-        raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
-    if not 1 <= args.system_id <= 255:
-        raise UsageError(f"--system-id {args.system_id}: expected an integer in 1..255")
+    check_speed(args.speed)
+    check_system_id(args.system_id)
     for option in ("gcs_listen", "api_listen"):
         if getattr(args, option) is not None:
             parse_address("--" + option.replace("_", "-"), getattr(args, option))

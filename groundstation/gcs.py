@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from groundstation.mission_flight import MissionFlight
 from groundstation.station import GcsError, GroundStation
 from quadsitl import telemetry, wire
-from quadsitl.cli_util import UsageError, check_range, parse_floats
+from quadsitl.cli_util import UsageError, check_duration, parse_floats
 from quadsitl.config import ConfigError
 from quadsitl.process_util import start_process, stop_status
 
@@ -90,7 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        check_range("--duration", args.duration, 0.0, 3600.0)
+        check_duration(args.duration)
         if not 0.0 <= args.setpoints_ahead <= 10.0:  # (NaN too)
             raise UsageError(f"--setpoints-ahead {args.setpoints_ahead!r}: expected a number in [0, 10]")
         args.signing_key = wire.resolve_signing_key(args.signing_key)

@@ -9,7 +9,6 @@ decoding happen in ``rows``.
 
 from __future__ import annotations
 
-import re
 import time
 
 import numpy as np
@@ -17,19 +16,9 @@ import zenoh
 
 from quadsitl import telemetry
 
-
-def _dtype(stream: str) -> np.dtype:
-    """A record of ``stream`` as a numpy structured type: the telemetry struct's layout, packed."""
-    kinds = {"Q": "<u8", "d": "<f8", "B": "u1", "q": "<i8"}
-    codes = re.findall(r"(\d*)([QdBq])", telemetry.STREAMS[stream].format)
-    types = [kinds[code] for count, code in codes for _ in range(int(count or 1))]
-    dtype = np.dtype(list(zip(telemetry.FIELDS[stream], types)))
-    assert dtype.itemsize == telemetry.STREAMS[stream].size
-    return dtype
-
-
-DTYPES = {stream: _dtype(stream) for stream in telemetry.STREAMS}
-DTYPES[telemetry.TRUTH] = _dtype("state")  # the plant's ground truth, in sensor mode: laid out as the state
+DTYPES = {stream: telemetry.record_dtype(stream) for stream in telemetry.STREAMS}
+# the plant's ground truth, in sensor mode: laid out as the state
+DTYPES[telemetry.TRUTH] = telemetry.record_dtype("state")
 STATUS_FIELDS = ("tick", "armed", "mode", "failsafe", "offboard_tick")
 CHANNEL = 1 << 20  # samples per stream that may wait for drain()
 

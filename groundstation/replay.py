@@ -40,7 +40,7 @@ import zenoh
 
 from groundstation.recording import DEFAULT_PERIOD, Recording, ReplayError, load
 from quadsitl import telemetry
-from quadsitl.cli_util import UsageError, check_range
+from quadsitl.cli_util import UsageError, check_range, check_speed
 from quadsitl.process_util import run_stoppable, start_process, stop_status
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # where `quadsitl up` has the autopilot listen; subscribers connect
@@ -229,8 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def check_args(args: argparse.Namespace) -> None:
     """Refuse out-of-range options (UsageError naming the option, the value and what is allowed)."""
-    if not 0.0 <= args.speed <= 1000.0:
-        raise UsageError(f"--speed {args.speed!r}: expected a number in [0, 1000] (0 = as fast as possible)")
+    check_speed(args.speed)
     check_range("--period", args.period, 0.0, 1.0)
     if not 0.0 <= args.wait <= 3600.0:
         raise UsageError(f"--wait {args.wait!r}: expected a number of seconds in [0, 3600]")

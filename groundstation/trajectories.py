@@ -44,13 +44,14 @@ from typing import NamedTuple
 import numpy as np
 
 from quadsitl.cli_util import UsageError
+from quadsitl.config import PositionParams
 from quadsitl.state import Reference
 
 Trajectory = Callable[[float], Reference]
 COLUMNS = ("t", "altitude", "roll", "pitch", "yaw")  # an attitude CSV's header
 POSITION_COLUMNS = ("t", "x", "y", "altitude", "yaw")  # a position CSV's header
-MAX_HORIZONTAL_SPEED = 12.0  # [m/s] PX4's MPC_XY_VEL_MAX default
-MAX_CLIMB, MAX_DESCENT = 3.0, 1.5  # [m/s] PX4's MPC_Z_VEL_MAX_UP and _DN defaults
+MAX_HORIZONTAL_SPEED = PositionParams.xy_vel_max  # [m/s] PX4's MPC_XY_VEL_MAX default, the preset key's
+MAX_CLIMB, MAX_DESCENT = PositionParams.z_vel_max_up, PositionParams.z_vel_max_dn  # [m/s] MPC_Z_VEL_MAX_UP, _DN's
 
 
 def step(ref: Reference) -> Trajectory:

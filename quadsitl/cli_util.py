@@ -100,6 +100,32 @@ def check_range(option: str, value: float | None, lo: float, hi: float) -> None:
         raise UsageError(f"{option} {value!r}: expected a number in ({lo:g}, {hi:g}]")
 
 
+# The options several commands take, each checked by one function wherever it is given.
+SPEED_MAX = 1000.0  # --speed: the fastest pace asked for, × real time
+SYSTEM_IDS = (1, 255)  # MAVLink's system ids a vehicle may take
+
+
+def check_speed(speed: float) -> None:
+    """``--speed F``: a lockstep pace of F × real time, in [0, SPEED_MAX] (0: as fast as possible); anything else
+    (NaN too) refused naming the option."""
+    if not 0.0 <= speed <= SPEED_MAX:
+        raise UsageError(f"--speed {speed!r}: expected a number in [0, {SPEED_MAX:g}] (0 = as fast as possible)")
+
+
+def check_system_id(system_id: int) -> None:
+    """``--system-id N``: a MAVLink system id in SYSTEM_IDS (1..255), else refused naming the option."""
+    lo, hi = SYSTEM_IDS
+    if not lo <= system_id <= hi:
+        raise UsageError(f"--system-id {system_id}: expected an integer in {lo}..{hi}")
+
+
+def check_duration(duration: float | None) -> None:
+    """``--duration S`` [s, simulated]: a flight's length, in the range of a preset's ``sim.duration``; None: not
+    given."""
+    limit = SCHEMA["sim"]["duration"]
+    check_range("--duration", duration, limit.low, limit.high)
+
+
 def attach_negative_values(argv: list[str], options: tuple[str, ...]) -> list[str]:
     """argparse reads '--poles -10,-10,...' as two options; rewrite it as '--poles=-10,...'."""
     out: list[str] = []

@@ -7,16 +7,17 @@ Loading validates every key: unknown keys, wrong types and out-of-range values r
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from quadsitl.controller_names import ALLOWED, is_controller_name
+from quadsitl.keys import REQUIRED, SEED_MAX, Spec, declared, grouped, key, mavlink, section_of, spec
 from quadsitl.state import Reference, VehicleState
 
 if sys.version_info >= (3, 11):
@@ -30,23 +31,46 @@ class ConfigError(ValueError):
 
 
 # --------------------------------------------------------------------------------------------
-# The parameter groups
+# The parameter groups: every key declared once, as the field that holds it (quadsitl.keys: its default, unit,
+# range, doc and MAVLink parameter); the schema, the refusals and the parameter table are made from these.
+
+PD_CHANNELS = ("ALT", "ROLL", "PITCH", "YAW")  # the PD's channels, as its MAVLink parameters name them
+# Ranges two sections share: [initial] and [reference] hold the same angles and altitude.
+ALTITUDE = spec(unit="m", low=0, high=10000)
+TILT = spec(unit="rad", low=-math.pi / 2, high=math.pi / 2, low_open=True, high_open=True)
+HEADING = spec(unit="rad", low=-math.pi, high=math.pi)
+# A tilt bound: below 89° (the 1/(cφcθ) factor stays finite).
+TILT_BOUND = spec(unit="rad", low=0, low_open=True, high=1.5533, note="< 89°")
+SPEED_LIMIT = spec(unit="m/s", low=0, low_open=True, high=100)  # [position]'s speeds and rates
+INERTIA = spec(unit="kg·m²", low=0, low_open=True, unit_in_text=False)  # Ix, Iy, Iz
 
 
 @dataclass(frozen=True)
 class VehicleParams:
-    """Paper Table 1 symbols. Units: SI; inertias [kg·m²]."""
+    """Paper Table 1 symbols. Units: SI; inertias [kg·m²]. Each key is also the autopilot's model parameter VM_*
+    (its model of the vehicle, :mod:`autopilot.params`)."""
 
-    mass: float  # m [kg]
-    ixx: float  # Ix
-    iyy: float  # Iy
-    izz: float  # Iz
-    drag: tuple[float, float, float, float, float, float]  # K1..K6 (K1–K3 [N·s/m], K4–K6 [N·s])
-    arm_length: float  # l [m]
-    rotor_inertia: float  # Jr [kg·m²]
-    thrust_factor: float  # b [N·s²]: F = b·Ω²
-    drag_factor: float  # d [N·m·s²]: rotor drag torque = d·Ω²
-    gravity: float  # g [m/s²]
+    mass: float = key(unit="kg", low=0, low_open=True, unit_in_text=False, doc="mass m",
+                      mavlink=mavlink("VM_MASS", high=1e4))  # fmt: skip
+    ixx: float = INERTIA.field(doc="inertia Ix", mavlink=mavlink("VM_IXX", high=1e4))
+    iyy: float = INERTIA.field(doc="inertia Iy", mavlink=mavlink("VM_IYY", high=1e4))
+    izz: float = INERTIA.field(doc="inertia Iz", mavlink=mavlink("VM_IZZ", high=1e4))
+    drag: tuple[float, float, float, float, float, float] = key(
+        length=6, low=0, note="K1..K6", doc="drag coefficients K1..K6 (K1–K3 [N·s/m], K4–K6 [N·s])",
+        mavlink=mavlink([f"VM_K{i}" for i in range(1, 7)], [f"drag coefficient K{i}" for i in range(1, 7)],
+                        high=1e4, unit=["N·s/m"] * 3 + ["N·s"] * 3),
+    )  # fmt: skip
+    arm_length: float = key(unit="m", low=0, low_open=True, unit_in_text=False, doc="arm length l",
+                            mavlink=mavlink("VM_ARM_LEN", high=100))  # fmt: skip
+    rotor_inertia: float = key(unit="kg·m²", low=0, unit_in_text=False, doc="rotor inertia Jr",
+                               mavlink=mavlink("VM_JR", high=1e4))  # fmt: skip
+    thrust_factor: float = key(unit="N·s²", low=0, low_open=True, unit_in_text=False, doc="thrust factor b: F = b·Ω²",
+                               mavlink=mavlink("VM_THRUST_B", "thrust factor b", high=1e4))  # fmt: skip
+    drag_factor: float = key(unit="N·m·s²", low=0, low_open=True, unit_in_text=False,
+                             doc="rotor drag factor d: rotor drag torque = d·Ω²",
+                             mavlink=mavlink("VM_DRAG_D", "rotor drag factor d", high=1e4))  # fmt: skip
+    gravity: float = key(9.81, unit="m/s²", low=0, high=100, unit_in_text=False, doc="gravity g",
+                         mavlink=mavlink("VM_GRAVITY"))  # fmt: skip
 
     @property
     def d_over_b(self) -> float:
@@ -59,10 +83,10 @@ class ActuatorParams:
     """Motor model. ``ideal``: reversible, F ∈ [−F_max, F_max], no lag (the paper's assumption).
     ``realistic``: F ∈ [0, F_max] with first-order lag (time constants up/down, 0 = none)."""
 
-    model: str
-    max_thrust: float  # F_max per motor [N]
-    time_constant_up: float = 0.0  # [s]
-    time_constant_down: float = 0.0  # [s]
+    model: str = key(choices=("ideal", "realistic"), doc="ideal: reversible, no lag; realistic: F ≥ 0, with lag")
+    max_thrust: float = key(unit="N", low=0, low_open=True, unit_in_text=False, doc="F_max per motor")
+    time_constant_up: float = key(0.0, unit="s", low=0, high=1, doc="motor time constant, speeding up (0: none)")
+    time_constant_down: float = key(0.0, unit="s", low=0, high=1, doc="motor time constant, slowing (0: none)")
 
     @property
     def reversible(self) -> bool:
@@ -70,34 +94,52 @@ class ActuatorParams:
 
     @property
     def min_thrust(self) -> float:
+        """The least force a motor gives [N]: −F_max when reversible, else 0."""
         return -self.max_thrust if self.reversible else 0.0
 
 
 @dataclass(frozen=True)
 class SimParams:
-    period: float  # control period T [s]
-    duration: float  # [s]
-    integrator: str  # "euler" | "rk4"
-    substeps: int  # integration sub-steps per control period
+    """The simulation: the control period T [s], the simulated duration [s], the integrator and its sub-steps."""
+
+    period: float = key(unit="s", low=1e-5, high=0.1, doc="control period T")
+    duration: float = key(unit="s", low=0, low_open=True, high=3600, doc="simulated duration")
+    integrator: str = key(choices=("euler", "rk4"), doc="the plant's integrator")
+    substeps: int = key(1, low=1, high=1000, doc="integration sub-steps per control period")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ControllerParams:
     """Controller choice, gains and limits.
 
     Backstepping gains: either ``gains`` (rates k_i [1/s], pole λ_i = 1 − T·k_i) or ``poles`` (λ_i
     directly); exactly one is set. PD gains per channel (altitude, roll, pitch, yaw): the closed loop
-    of the linearised channel is ë + kd·ė + kp·e = 0.
+    of the linearised channel is ë + kd·ė + kp·e = 0 (the [pd] section's kp, kd).
     """
 
-    type: str  # "backstepping" | "pd"
-    gains: tuple[float, ...] | None
-    poles: tuple[float, ...] | None
-    max_tilt: float  # [rad], bound on |roll|, |pitch| references and on the 1/(cφcθ) factor
-    thrust_min: float  # u1 bounds [N]
-    thrust_max: float
-    pd_kp: tuple[float, float, float, float]  # [1/s²]
-    pd_kd: tuple[float, float, float, float]  # [1/s]
+    type: str = key(kind="string", check=is_controller_name, says=ALLOWED + " (a relative path: from the working "
+                    "directory)", doc="the controller", mavlink=None)  # fmt: skip
+    gains: tuple[float, ...] | None = key(
+        None, length=8, unit="1/s", note="rates k_i, {unit}", doc="backstepping rates k1..k8 (pole λ = 1 − T·k)",
+        mavlink=mavlink([f"BS_K{i}" for i in range(1, 9)],
+                        [f"backstepping rate k{i} (pole λ{i} = 1 − T·k{i})" for i in range(1, 9)],
+                        low=0, low_open=True, high=1e6),
+    )  # fmt: skip
+    poles: tuple[float, ...] | None = key(None, length=8, note="poles λ_i", doc="backstepping poles λ1..λ8")
+    max_tilt: float = TILT_BOUND.field(doc="bound on |roll|, |pitch| references",
+                                       mavlink=mavlink("ATT_TILT_MAX"))  # fmt: skip
+    thrust_min: float = key(unit="N", unit_in_text=False, doc="lower bound on u1 (total thrust)",
+                            mavlink=mavlink("THR_MIN", low=-1e7, high=1e7))  # fmt: skip
+    thrust_max: float = key(unit="N", unit_in_text=False, doc="upper bound on u1 (total thrust)",
+                            mavlink=mavlink("THR_MAX", low=-1e7, high=1e7))  # fmt: skip
+    pd_kp: tuple[float, float, float, float] = key(
+        length=4, low=0, unit="1/s²", note="altitude, roll, pitch, yaw", doc="PD kp per channel",
+        mavlink=mavlink([f"PD_{ch}_P" for ch in PD_CHANNELS], [f"PD kp, {ch.lower()}" for ch in PD_CHANNELS], high=1e6),
+    )  # fmt: skip
+    pd_kd: tuple[float, float, float, float] = key(
+        length=4, low=0, unit="1/s", note="altitude, roll, pitch, yaw", doc="PD kd per channel",
+        mavlink=mavlink([f"PD_{ch}_D" for ch in PD_CHANNELS], [f"PD kd, {ch.lower()}" for ch in PD_CHANNELS], high=1e6),
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -105,18 +147,34 @@ class PositionParams:
     """The flight controller around the paper's loops (docs/position.md): the horizontal backstepping loop's
     rates k9..k12 [1/s] (x position, x velocity, y position, y velocity: pole λ = 1 − T·k), the integral
     rates [1/s] of the altitude and horizontal loops (0: off, as the paper's law), the bound on the integral's
-    share of a virtual velocity [m/s], and PX4's limits (names in brackets)."""
+    share of a virtual velocity [m/s], and PX4's limits (their MAVLink names)."""
 
-    gains: tuple[float, float, float, float] = (1.0, 2.0, 1.0, 2.0)
-    integral: tuple[float, float] = (0.0, 0.0)  # altitude, horizontal [1/s]
-    integral_limit: float = 1.0  # [m/s]
-    xy_vel_max: float = 12.0  # [m/s] MPC_XY_VEL_MAX
-    z_vel_max_up: float = 3.0  # [m/s] MPC_Z_VEL_MAX_UP
-    z_vel_max_dn: float = 1.5  # [m/s] MPC_Z_VEL_MAX_DN
-    tilt_max_air: float = math.radians(45.0)  # [rad] MPC_TILTMAX_AIR (a MAVLink parameter in degrees, as PX4's)
-    acc_hor: float = 3.0  # [m/s²] MPC_ACC_HOR: acceleration of the auto modes' references
-    xy_cruise: float = 5.0  # [m/s] MPC_XY_CRUISE: speed of goto and return
-    takeoff_speed: float = 1.5  # [m/s] MPC_TKO_SPEED
+    gains: tuple[float, float, float, float] = key(
+        (1.0, 2.0, 1.0, 2.0), length=4, low=0, low_open=True, unit="1/s", note="k9..k12: x, vx, y, vy rates, {unit}",
+        doc="horizontal backstepping rates k9..k12",
+        mavlink=mavlink([f"BS_K{i}" for i in range(9, 13)],
+                        [f"horizontal backstepping rate k{i}, {what}" for i, what in
+                         zip(range(9, 13), ("x position", "x velocity", "y position", "y velocity"))], high=1e6),
+    )  # fmt: skip
+    integral: tuple[float, float] = key(
+        (0.0, 0.0), length=2, low=0, unit="1/s", note="altitude, horizontal integral rates, {unit}; 0 = off",
+        doc="integral rates k_I, altitude and horizontal",
+        mavlink=mavlink(["BS_KI_ALT", "BS_KI_XY"], ["altitude integral rate k_I (0 = off, the paper's law)",
+                                                    "horizontal integral rate k_I (0 = off)"], high=1e6),
+    )  # fmt: skip
+    integral_limit: float = SPEED_LIMIT.field(1.0, doc="bound on an integrator's share of a virtual velocity",
+                                              mavlink=mavlink("BS_I_LIM"))  # fmt: skip
+    xy_vel_max: float = SPEED_LIMIT.field(12.0, doc="horizontal speed limit", mavlink=mavlink("MPC_XY_VEL_MAX"))
+    z_vel_max_up: float = SPEED_LIMIT.field(3.0, doc="climb rate limit", mavlink=mavlink("MPC_Z_VEL_MAX_UP"))
+    z_vel_max_dn: float = SPEED_LIMIT.field(1.5, doc="descent rate limit", mavlink=mavlink("MPC_Z_VEL_MAX_DN"))
+    tilt_max_air: float = TILT_BOUND.field(
+        math.radians(45.0), doc="tilt limit of the position loop's thrust",
+        mavlink=mavlink("MPC_TILTMAX_AIR", high=89, unit="deg", to_param=math.degrees, from_param=math.radians),
+    )  # fmt: skip
+    acc_hor: float = SPEED_LIMIT.field(3.0, unit="m/s²", doc="acceleration of the auto modes' references",
+                                       mavlink=mavlink("MPC_ACC_HOR"))  # fmt: skip
+    xy_cruise: float = SPEED_LIMIT.field(5.0, doc="speed of goto and return", mavlink=mavlink("MPC_XY_CRUISE"))
+    takeoff_speed: float = SPEED_LIMIT.field(1.5, doc="takeoff climb rate", mavlink=mavlink("MPC_TKO_SPEED"))
 
 
 # The IMU figures of the two profiles (PX4's Gazebo IMU plugin, PX4-SITL_gazebo-classic
@@ -144,6 +202,7 @@ IMU_PROFILES: dict[str, dict[str, float]] = {
         "accel_turn_on_bias_m_s2": 0.196,
     },
 }
+_PX4 = IMU_PROFILES["px4"]  # the [sensors] defaults of the IMU figures
 GPS_QUEUE = 32  # GPS samples in flight at most (gps_delay_s · gps_rate_hz < GPS_QUEUE)
 
 
@@ -152,35 +211,52 @@ class SensorParams:
     """The simulated sensors (docs/sensors.md): noise figures, rates, the Earth's field, the seed. Units are in
     the names. IMU noise as PX4's Gazebo IMU plugin models it (white noise by density, σ = density/√dt, and a
     Gauss–Markov bias driven by the random walk, starting at a random turn-on bias); defaults: the ``px4``
-    profile (:data:`IMU_PROFILES`)."""
+    profile (:data:`IMU_PROFILES`), a [sensors] section without them takes its ``profile``'s."""
 
-    profile: str = "px4"
-    seed: int = 0
-    gyro_noise_density_rad_s_sqrt_hz: float = 8.7266e-4
-    gyro_random_walk_rad_s2_sqrt_hz: float = 0.0
-    gyro_bias_correlation_time_s: float = 1000.0
-    gyro_turn_on_bias_rad_s: float = 0.0
-    accel_noise_density_m_s2_sqrt_hz: float = 6.37e-3
-    accel_random_walk_m_s3_sqrt_hz: float = 0.0
-    accel_bias_correlation_time_s: float = 300.0
-    accel_turn_on_bias_m_s2: float = 0.0
-    mag_rate_hz: float = 100.0  # PX4 Gazebo magnetometer plugin
-    mag_noise_density_gauss_sqrt_hz: float = 4e-4
-    mag_random_walk_gauss_s_sqrt_hz: float = 6.4e-6
-    mag_bias_correlation_time_s: float = 600.0
-    mag_strength_gauss: float = 0.4807  # jMAVSim's Zürich field (quadsitl.earth)
-    mag_declination_deg: float = 2.75
-    mag_inclination_deg: float = 63.39
-    baro_rate_hz: float = 50.0  # PX4 Gazebo barometer plugin
-    baro_noise_pa: float = 1.0
-    gps_rate_hz: float = 10.0
-    gps_delay_s: float = 0.12  # PX4 Gazebo GPS plugin
-    gps_xy_error_m: float = 1.0  # the slowly wandering position error (σ), see docs/sensors.md
-    gps_z_error_m: float = 2.0
-    gps_error_correlation_time_s: float = 60.0
-    gps_xy_velocity_noise_m_s: float = 0.05
-    gps_z_velocity_noise_m_s: float = 0.1
-    gps_satellites: int = 10
+    profile: str = key("px4", choices=tuple(IMU_PROFILES), doc="the IMU figures not given")
+    seed: int = key(0, low=0, high=SEED_MAX, doc="the sensors' noise seed")
+    gyro_noise_density_rad_s_sqrt_hz: float = key(_PX4["gyro_noise_density_rad_s_sqrt_hz"], unit="rad/s/√Hz", low=0,
+                                                  high=0.1, doc="gyro white noise density")  # fmt: skip
+    gyro_random_walk_rad_s2_sqrt_hz: float = key(_PX4["gyro_random_walk_rad_s2_sqrt_hz"], unit="rad/s²/√Hz", low=0,
+                                                 high=0.01, doc="gyro bias random walk")  # fmt: skip
+    gyro_bias_correlation_time_s: float = key(_PX4["gyro_bias_correlation_time_s"], unit="s", low=0, low_open=True,
+                                              high=1e6, doc="gyro bias correlation time")  # fmt: skip
+    gyro_turn_on_bias_rad_s: float = key(_PX4["gyro_turn_on_bias_rad_s"], unit="rad/s", low=0, high=0.5,
+                                         doc="gyro turn-on bias (σ)")  # fmt: skip
+    accel_noise_density_m_s2_sqrt_hz: float = key(_PX4["accel_noise_density_m_s2_sqrt_hz"], unit="m/s²/√Hz", low=0,
+                                                  high=1, doc="accelerometer white noise density")  # fmt: skip
+    accel_random_walk_m_s3_sqrt_hz: float = key(_PX4["accel_random_walk_m_s3_sqrt_hz"], unit="m/s³/√Hz", low=0,
+                                                high=0.1, doc="accelerometer bias random walk")  # fmt: skip
+    accel_bias_correlation_time_s: float = key(_PX4["accel_bias_correlation_time_s"], unit="s", low=0, low_open=True,
+                                               high=1e6, doc="accelerometer bias correlation time")  # fmt: skip
+    accel_turn_on_bias_m_s2: float = key(_PX4["accel_turn_on_bias_m_s2"], unit="m/s²", low=0, high=2,
+                                         doc="accelerometer turn-on bias (σ)")  # fmt: skip
+    mag_rate_hz: float = key(100.0, unit="Hz", low=1, high=1000,
+                             doc="magnetometer rate (PX4's Gazebo plugin), at most the control rate")  # fmt: skip
+    mag_noise_density_gauss_sqrt_hz: float = key(4e-4, unit="gauss/√Hz", low=0, high=0.01,
+                                                 doc="magnetometer white noise density")  # fmt: skip
+    mag_random_walk_gauss_s_sqrt_hz: float = key(6.4e-6, unit="gauss/s/√Hz", low=0, high=0.001,
+                                                 doc="magnetometer bias random walk")  # fmt: skip
+    mag_bias_correlation_time_s: float = key(600.0, unit="s", low=0, low_open=True, high=1e6,
+                                             doc="magnetometer bias correlation time")  # fmt: skip
+    mag_strength_gauss: float = key(0.4807, unit="gauss", low=0.2, high=0.7, note="the Earth's field",
+                                    doc="the field's strength (jMAVSim's Zürich field, quadsitl.earth)")  # fmt: skip
+    mag_declination_deg: float = key(2.75, unit="deg", low=-180, high=180, doc="the field's declination")
+    mag_inclination_deg: float = key(63.39, unit="deg", low=-90, high=90, doc="the field's inclination")
+    baro_rate_hz: float = key(50.0, unit="Hz", low=1, high=1000,
+                              doc="barometer rate (PX4's Gazebo plugin), at most the control rate")  # fmt: skip
+    baro_noise_pa: float = key(1.0, unit="Pa", low=0, high=100, doc="barometer noise (σ)")
+    gps_rate_hz: float = key(10.0, unit="Hz", low=1, high=100, doc="GPS rate, at most the control rate")
+    gps_delay_s: float = key(0.12, unit="s", low=0, high=1, doc="GPS delay (PX4's Gazebo plugin); "
+                             f"gps_delay_s · gps_rate_hz < {GPS_QUEUE - 1}")  # fmt: skip
+    gps_xy_error_m: float = key(1.0, unit="m", low=0, high=100, doc="σ of the slowly wandering horizontal position "
+                                "error (docs/sensors.md)")  # fmt: skip
+    gps_z_error_m: float = key(2.0, unit="m", low=0, high=100, doc="σ of the wandering vertical position error")
+    gps_error_correlation_time_s: float = key(60.0, unit="s", low=0, low_open=True, high=1e5,
+                                              doc="correlation time of the position error")  # fmt: skip
+    gps_xy_velocity_noise_m_s: float = key(0.05, unit="m/s", low=0, high=10, doc="horizontal velocity noise (σ)")
+    gps_z_velocity_noise_m_s: float = key(0.1, unit="m/s", low=0, high=10, doc="vertical velocity noise (σ)")
+    gps_satellites: int = key(10, low=4, high=64, doc="satellites the GPS reports")
 
 
 # A flight on sensors (`fly` and `sim` with --state sensors) waits on the ground this long first, motors off: the
@@ -201,15 +277,19 @@ class WindParams:
     constant external force ``force_n`` [N, NED] on the vehicle (for tests: a payload, a tether). ``seed`` seeds
     the turbulence. The default is calm: the plant flies exactly as with no [wind] section."""
 
-    speed_m_s: float = 0.0
-    from_deg: float = 0.0
-    turbulence: str = "none"
-    gust_m_s: float = 0.0
-    gust_rise_s: float = 1.0
-    gust_start_s: float = 0.0
-    gust_from_deg: float = 0.0
-    seed: int = 0
-    force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    speed_m_s: float = key(0.0, unit="m/s", low=0, high=50, doc="the mean wind")
+    from_deg: float = key(0.0, unit="deg", low=0, high=360, note="clockwise from north",
+                          doc="where the mean wind blows from (270: from the west, the air moving east)")  # fmt: skip
+    turbulence: str = key("none", choices=tuple(TURBULENCE_W20_KNOTS),
+                          doc="Dryden turbulence, MIL-F-8785C's levels (W20 = 15, 30, 45 kt)")  # fmt: skip
+    gust_m_s: float = key(0.0, unit="m/s", low=0, high=50, doc="a 1 − cos gust's speed")
+    gust_rise_s: float = key(1.0, unit="s", low=0, low_open=True, high=100, doc="the gust's rise time; then it holds")
+    gust_start_s: float = key(0.0, unit="s", low=0, high=3600, doc="when the gust starts [s after lift-off]")
+    gust_from_deg: float = key(0.0, unit="deg", low=0, high=360, doc="where the gust blows from")
+    seed: int = key(0, low=0, high=SEED_MAX, doc="the turbulence's seed; same seed, same air")
+    force_n: tuple[float, float, float] = key((0.0, 0.0, 0.0), length=3, unit="N", low=-1000, high=1000,
+                                              note="north, east, down",
+                                              doc="a constant external force on the vehicle, NED")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -217,14 +297,23 @@ class InitialState:
     """Where the vehicle starts: altitude [m], ZYX Euler angles [rad], climb rate [m/s] (up) and Euler-angle
     rates φ̇, θ̇, ψ̇ [rad/s] (not body rates); at the origin, otherwise at rest."""
 
-    altitude: float = 0.0
-    roll: float = 0.0
-    pitch: float = 0.0
-    yaw: float = 0.0
-    climb_rate: float = 0.0
-    roll_rate: float = 0.0
-    pitch_rate: float = 0.0
-    yaw_rate: float = 0.0
+    altitude: float = ALTITUDE.field(0.0, doc="altitude above the ground")
+    roll: float = TILT.field(0.0, doc="roll φ")
+    pitch: float = TILT.field(0.0, doc="pitch θ")
+    yaw: float = HEADING.field(0.0, doc="yaw ψ")
+    climb_rate: float = key(0.0, unit="m/s", doc="climb rate (up)")
+    roll_rate: float = key(0.0, unit="rad/s", doc="Euler-angle rate φ̇")
+    pitch_rate: float = key(0.0, unit="rad/s", doc="Euler-angle rate θ̇")
+    yaw_rate: float = key(0.0, unit="rad/s", doc="Euler-angle rate ψ̇")
+
+
+# [reference]: the set-points of the paper's experiment (quadsitl.state.Reference), every key required.
+REFERENCE_KEYS: dict[str, Spec] = {
+    "altitude": ALTITUDE.with_default(REQUIRED),
+    "roll": dataclasses.replace(TILT, doc="roll φ"),
+    "pitch": dataclasses.replace(TILT, doc="pitch θ"),
+    "yaw": dataclasses.replace(HEADING, doc="yaw ψ"),
+}
 
 
 # Divergence: the bounds a state must stay within (``lim``, LIMITS_SIZE): |x|, |y|, |z| [m]; |vx|, |vy|, |vz|
@@ -269,206 +358,27 @@ class Preset:
 
 
 # --------------------------------------------------------------------------------------------
-# Validation: one small spec per key
+# Validation: the schema, made from the declared keys (quadsitl.keys)
 
-
-@dataclass(frozen=True)
-class Spec:
-    """What a key accepts. ``check`` returns an error phrase or None."""
-
-    kind: str  # "number" | "int" | "string" | "numbers"
-    allowed: str  # human description of what is allowed
-    check: Callable[[Any], bool] = lambda v: True
-    length: int | None = None
-    required: bool = True
-    default: Any = None
-
-
-def _num(allowed: str, ok: Callable[[float], bool], **kw: Any) -> Spec:
-    return Spec("number", allowed, ok, **kw)
-
-
-POSITIVE = _num("a finite number > 0", lambda v: 0 < v < math.inf)
-NONNEG = _num("a finite number >= 0", lambda v: 0 <= v < math.inf)
-FINITE = _num("a finite number", math.isfinite)
-
-
-def _sensor(key: str, allowed: str, ok: Callable[[float], bool]) -> Spec:
-    """An optional key of [sensors], defaulting to :class:`SensorParams`' value."""
-    return _num(allowed, ok, required=False, default=getattr(SensorParams, key))
-
-
+_VEHICLE = declared(VehicleParams)
+_INERTIA = ("ixx", "iyy", "izz")  # one key in the TOML: inertia = [Ix, Iy, Iz]
+_VEHICLE_KEYS = {("inertia" if name == "ixx" else name): grouped([_VEHICLE[i] for i in _INERTIA], "Ix, Iy, Iz")
+                 if name == "ixx" else s for name, s in _VEHICLE.items() if name not in _INERTIA[1:]}  # fmt: skip
 SCHEMA: dict[str, dict[str, Spec]] = {
-    "vehicle": {
-        "mass": POSITIVE,
-        "inertia": Spec("numbers", "3 finite numbers > 0 (Ix, Iy, Iz)", lambda v: 0 < v < math.inf, 3),
-        "drag": Spec("numbers", "6 finite numbers >= 0 (K1..K6)", lambda v: 0 <= v < math.inf, 6),
-        "arm_length": POSITIVE,
-        "rotor_inertia": NONNEG,
-        "thrust_factor": POSITIVE,
-        "drag_factor": POSITIVE,
-        "gravity": _num("a number in [0, 100]", lambda v: 0 <= v <= 100, required=False, default=9.81),
-    },
-    "actuators": {
-        "model": Spec("string", "one of: ideal, realistic", lambda v: v in ("ideal", "realistic")),
-        "max_thrust": POSITIVE,
-        "time_constant_up": _num("a number in [0, 1] s", lambda v: 0 <= v <= 1, required=False, default=0.0),
-        "time_constant_down": _num("a number in [0, 1] s", lambda v: 0 <= v <= 1, required=False, default=0.0),
-    },
-    "sim": {
-        "period": _num("a number in [1e-5, 0.1] s", lambda v: 1e-5 <= v <= 0.1),
-        "duration": _num("a number in (0, 3600] s", lambda v: 0 < v <= 3600),
-        "integrator": Spec("string", "one of: euler, rk4", lambda v: v in ("euler", "rk4")),
-        "substeps": Spec("int", "an integer in [1, 1000]", lambda v: 1 <= v <= 1000, required=False, default=1),
-    },
-    "controller": {
-        "type": Spec("string", ALLOWED + " (a relative path: from the working directory)", is_controller_name),
-        "gains": Spec("numbers", "8 finite numbers (rates k_i, 1/s)", math.isfinite, 8, required=False),
-        "poles": Spec("numbers", "8 finite numbers (poles λ_i)", math.isfinite, 8, required=False),
-        "max_tilt": _num("a number in (0, 1.5533] rad (< 89°)", lambda v: 0 < v <= 1.5533),
-        "thrust_min": FINITE,
-        "thrust_max": FINITE,
-    },
-    "pd": {
-        "kp": Spec(
-            "numbers",
-            "4 finite numbers >= 0 (altitude, roll, pitch, yaw) [1/s²]",
-            lambda v: 0 <= v < math.inf,
-            4,
-        ),
-        "kd": Spec(
-            "numbers",
-            "4 finite numbers >= 0 (altitude, roll, pitch, yaw) [1/s]",
-            lambda v: 0 <= v < math.inf,
-            4,
-        ),
-    },
-    "reference": {
-        "altitude": _num("a number in [0, 10000] m", lambda v: 0 <= v <= 10000),
-        "roll": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2),
-        "pitch": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2),
-        "yaw": _num("a number in [−π, π] rad", lambda v: abs(v) <= math.pi),
-    },
-    "position": {
-        "gains": Spec(
-            "numbers",
-            "4 finite numbers > 0 (k9..k12: x, vx, y, vy rates, 1/s)",
-            lambda v: 0 < v < math.inf,
-            4,
-            required=False,
-            default=PositionParams.gains,
-        ),
-        "integral": Spec(
-            "numbers",
-            "2 finite numbers >= 0 (altitude, horizontal integral rates, 1/s; 0 = off)",
-            lambda v: 0 <= v < math.inf,
-            2,
-            required=False,
-            default=PositionParams.integral,
-        ),
-        "integral_limit": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=1.0),
-        "xy_vel_max": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=12.0),
-        "z_vel_max_up": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=3.0),
-        "z_vel_max_dn": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=1.5),
-        "tilt_max_air": _num(
-            "a number in (0, 1.5533] rad (< 89°)",
-            lambda v: 0 < v <= 1.5533,
-            required=False,
-            default=PositionParams.tilt_max_air,
-        ),
-        "acc_hor": _num("a number in (0, 100] m/s²", lambda v: 0 < v <= 100, required=False, default=3.0),
-        "xy_cruise": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=5.0),
-        "takeoff_speed": _num("a number in (0, 100] m/s", lambda v: 0 < v <= 100, required=False, default=1.5),
-    },
-    "sensors": {
-        "profile": Spec("string", "one of: px4, adis16448", lambda v: v in IMU_PROFILES, required=False, default="px4"),
-        "seed": Spec("int", "an integer in [0, 2**63 - 1]", lambda v: 0 <= v < 2**63, required=False, default=0),
-        # the IMU's defaults come from the profile
-        "gyro_noise_density_rad_s_sqrt_hz": _num(
-            "a number in [0, 0.1] rad/s/√Hz", lambda v: 0 <= v <= 0.1, required=False
-        ),
-        "gyro_random_walk_rad_s2_sqrt_hz": _num(
-            "a number in [0, 0.01] rad/s²/√Hz", lambda v: 0 <= v <= 0.01, required=False
-        ),
-        "gyro_bias_correlation_time_s": _num("a number in (0, 1e6] s", lambda v: 0 < v <= 1e6, required=False),
-        "gyro_turn_on_bias_rad_s": _num("a number in [0, 0.5] rad/s", lambda v: 0 <= v <= 0.5, required=False),
-        "accel_noise_density_m_s2_sqrt_hz": _num("a number in [0, 1] m/s²/√Hz", lambda v: 0 <= v <= 1, required=False),
-        "accel_random_walk_m_s3_sqrt_hz": _num(
-            "a number in [0, 0.1] m/s³/√Hz", lambda v: 0 <= v <= 0.1, required=False
-        ),
-        "accel_bias_correlation_time_s": _num("a number in (0, 1e6] s", lambda v: 0 < v <= 1e6, required=False),
-        "accel_turn_on_bias_m_s2": _num("a number in [0, 2] m/s²", lambda v: 0 <= v <= 2, required=False),
-        "mag_rate_hz": _sensor("mag_rate_hz", "a number in [1, 1000] Hz", lambda v: 1 <= v <= 1000),
-        "mag_noise_density_gauss_sqrt_hz": _sensor(
-            "mag_noise_density_gauss_sqrt_hz", "a number in [0, 0.01] gauss/√Hz", lambda v: 0 <= v <= 0.01
-        ),
-        "mag_random_walk_gauss_s_sqrt_hz": _sensor(
-            "mag_random_walk_gauss_s_sqrt_hz", "a number in [0, 0.001] gauss/s/√Hz", lambda v: 0 <= v <= 0.001
-        ),
-        "mag_bias_correlation_time_s": _sensor(
-            "mag_bias_correlation_time_s", "a number in (0, 1e6] s", lambda v: 0 < v <= 1e6
-        ),
-        "mag_strength_gauss": _sensor(
-            "mag_strength_gauss", "a number in [0.2, 0.7] gauss (the Earth's field)", lambda v: 0.2 <= v <= 0.7
-        ),
-        "mag_declination_deg": _sensor("mag_declination_deg", "a number in [-180, 180] deg", lambda v: abs(v) <= 180),
-        "mag_inclination_deg": _sensor("mag_inclination_deg", "a number in [-90, 90] deg", lambda v: abs(v) <= 90),
-        "baro_rate_hz": _sensor("baro_rate_hz", "a number in [1, 1000] Hz", lambda v: 1 <= v <= 1000),
-        "baro_noise_pa": _sensor("baro_noise_pa", "a number in [0, 100] Pa", lambda v: 0 <= v <= 100),
-        "gps_rate_hz": _sensor("gps_rate_hz", "a number in [1, 100] Hz", lambda v: 1 <= v <= 100),
-        "gps_delay_s": _sensor("gps_delay_s", "a number in [0, 1] s", lambda v: 0 <= v <= 1),
-        "gps_xy_error_m": _sensor("gps_xy_error_m", "a number in [0, 100] m", lambda v: 0 <= v <= 100),
-        "gps_z_error_m": _sensor("gps_z_error_m", "a number in [0, 100] m", lambda v: 0 <= v <= 100),
-        "gps_error_correlation_time_s": _sensor(
-            "gps_error_correlation_time_s", "a number in (0, 1e5] s", lambda v: 0 < v <= 1e5
-        ),
-        "gps_xy_velocity_noise_m_s": _sensor(
-            "gps_xy_velocity_noise_m_s", "a number in [0, 10] m/s", lambda v: 0 <= v <= 10
-        ),
-        "gps_z_velocity_noise_m_s": _sensor(
-            "gps_z_velocity_noise_m_s", "a number in [0, 10] m/s", lambda v: 0 <= v <= 10
-        ),
-        "gps_satellites": Spec("int", "an integer in [4, 64]", lambda v: 4 <= v <= 64, required=False, default=10),
-    },
-    "wind": {
-        "speed_m_s": _num("a number in [0, 50] m/s", lambda v: 0 <= v <= 50, required=False, default=0.0),
-        "from_deg": _num(
-            "a number in [0, 360] deg (clockwise from north)", lambda v: 0 <= v <= 360, required=False, default=0.0
-        ),
-        "turbulence": Spec(
-            "string",
-            f"one of: {', '.join(TURBULENCE_W20_KNOTS)}",
-            lambda v: v in TURBULENCE_W20_KNOTS,
-            required=False,
-            default="none",
-        ),
-        "gust_m_s": _num("a number in [0, 50] m/s", lambda v: 0 <= v <= 50, required=False, default=0.0),
-        "gust_rise_s": _num("a number in (0, 100] s", lambda v: 0 < v <= 100, required=False, default=1.0),
-        "gust_start_s": _num("a number in [0, 3600] s", lambda v: 0 <= v <= 3600, required=False, default=0.0),
-        "gust_from_deg": _num("a number in [0, 360] deg", lambda v: 0 <= v <= 360, required=False, default=0.0),
-        "seed": Spec("int", "an integer in [0, 2**63 - 1]", lambda v: 0 <= v < 2**63, required=False, default=0),
-        "force_n": Spec(
-            "numbers",
-            "3 numbers in [-1000, 1000] N (north, east, down)",
-            lambda v: abs(v) <= 1000,
-            3,
-            required=False,
-            default=(0.0, 0.0, 0.0),
-        ),
-    },
-    "initial": {
-        "altitude": _num("a number in [0, 10000] m", lambda v: 0 <= v <= 10000, required=False, default=0.0),
-        "roll": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
-        "pitch": _num("a number in (−π/2, π/2) rad", lambda v: abs(v) < math.pi / 2, required=False, default=0.0),
-        "yaw": _num("a number in [−π, π] rad", lambda v: abs(v) <= math.pi, required=False, default=0.0),
-        "climb_rate": _num("a finite number [m/s]", math.isfinite, required=False, default=0.0),
-        "roll_rate": _num("a finite number [rad/s]", math.isfinite, required=False, default=0.0),
-        "pitch_rate": _num("a finite number [rad/s]", math.isfinite, required=False, default=0.0),
-        "yaw_rate": _num("a finite number [rad/s]", math.isfinite, required=False, default=0.0),
-    },
+    "vehicle": _VEHICLE_KEYS,
+    "actuators": section_of(ActuatorParams),
+    "sim": section_of(SimParams),
+    "controller": section_of(ControllerParams, only=("type", "gains", "poles", "max_tilt", "thrust_min", "thrust_max")),
+    "pd": section_of(ControllerParams, rename={"pd_kp": "kp", "pd_kd": "kd"}, only=("pd_kp", "pd_kd")),
+    "reference": REFERENCE_KEYS,
+    "position": section_of(PositionParams),
+    # the IMU's figures default to the profile's (None here: filled in by _sensors)
+    "sensors": {k: s.with_default(None) if k in _PX4 else s for k, s in section_of(SensorParams).items()},
+    "wind": section_of(WindParams),
+    "initial": section_of(InitialState),
 }
 # [model]: the autopilot's model of the vehicle, key by key over [vehicle]'s values (each key optional).
-SCHEMA["model"] = {key: replace(spec, required=False, default=None) for key, spec in SCHEMA["vehicle"].items()}
+SCHEMA["model"] = {name: s.with_default(None) for name, s in SCHEMA["vehicle"].items()}
 TOP_LEVEL_KEYS = {"description"}
 OPTIONAL_SECTIONS = {"initial", "position", "sensors", "model", "wind"}
 
@@ -507,31 +417,31 @@ def check_value(key: str, value: Any, spec: Spec, where: str = "") -> Any:
 
 def _validate(raw: dict[str, Any], where: str) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
-    for key in raw:
-        if key not in SCHEMA and key not in TOP_LEVEL_KEYS:
+    for name in raw:
+        if name not in SCHEMA and name not in TOP_LEVEL_KEYS:
             allowed = ", ".join(sorted([*SCHEMA, *TOP_LEVEL_KEYS]))
-            raise ConfigError(f"{where}: unknown key {key!r}; allowed top-level keys: {allowed}")
-    for section, specs in SCHEMA.items():
-        table = raw.get(section)
+            raise ConfigError(f"{where}: unknown key {name!r}; allowed top-level keys: {allowed}")
+    for part, specs in SCHEMA.items():
+        table = raw.get(part)
         if table is None:
-            if section in OPTIONAL_SECTIONS:
+            if part in OPTIONAL_SECTIONS:
                 table = {}
             else:
-                raise ConfigError(f"{where}: missing section [{section}]")
+                raise ConfigError(f"{where}: missing section [{part}]")
         if not isinstance(table, dict):
-            raise ConfigError(f"{where}: {section} = {table!r}: expected a table [{section}]")
-        for key in table:
-            if key not in specs:
-                raise ConfigError(f"{where}: unknown key {section}.{key}; allowed in [{section}]: {', '.join(specs)}")
+            raise ConfigError(f"{where}: {part} = {table!r}: expected a table [{part}]")
+        for name in table:
+            if name not in specs:
+                raise ConfigError(f"{where}: unknown key {part}.{name}; allowed in [{part}]: {', '.join(specs)}")
         values: dict[str, Any] = {}
-        for key, spec in specs.items():
-            if key in table:
-                values[key] = check_value(f"{section}.{key}", table[key], spec, where)
-            elif spec.required:
-                raise ConfigError(f"{where}: missing key {section}.{key} ({spec.allowed})")
+        for name, s in specs.items():
+            if name in table:
+                values[name] = check_value(f"{part}.{name}", table[name], s, where)
+            elif s.required:
+                raise ConfigError(f"{where}: missing key {part}.{name} ({s.allowed})")
             else:
-                values[key] = spec.default
-        out[section] = values
+                values[name] = s.default
+        out[part] = values
     return out
 
 
@@ -544,9 +454,9 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
     ix, iy, iz = veh.pop("inertia")
     vehicle = VehicleParams(ixx=ix, iyy=iy, izz=iz, **veh)
     model: list[tuple[str, Any]] = []
-    for key, value in v["model"].items():
+    for k, value in v["model"].items():
         if value is not None:
-            model += zip(("ixx", "iyy", "izz"), value) if key == "inertia" else [(key, value)]
+            model += zip(("ixx", "iyy", "izz"), value) if k == "inertia" else [(k, value)]
     c = v["controller"]
     if (c["gains"] is None) == (c["poles"] is None):
         raise ConfigError(
@@ -587,12 +497,12 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
 def _sensors(values: dict[str, Any], sim: SimParams, where: str) -> SensorParams:
     """The [sensors] section: the profile's IMU figures where no key gives them, and the checks across keys (no
     sensor faster than the control tick, the GPS samples in flight within the queue)."""
-    values = {key: IMU_PROFILES[values["profile"]][key] if value is None else value for key, value in values.items()}
+    values = {k: IMU_PROFILES[values["profile"]][k] if value is None else value for k, value in values.items()}
     tick_rate = 1.0 / sim.period
-    for key in ("mag_rate_hz", "baro_rate_hz", "gps_rate_hz"):
-        if values[key] > tick_rate * (1 + 1e-9):
+    for name in ("mag_rate_hz", "baro_rate_hz", "gps_rate_hz"):
+        if values[name] > tick_rate * (1 + 1e-9):
             raise ConfigError(
-                f"{where}: sensors.{key} = {values[key]!r}: must not exceed the control rate 1/sim.period = "
+                f"{where}: sensors.{name} = {values[name]!r}: must not exceed the control rate 1/sim.period = "
                 f"{tick_rate:g} Hz"
             )
     if values["gps_delay_s"] * values["gps_rate_hz"] >= GPS_QUEUE - 1:
@@ -622,10 +532,10 @@ def wind_change(payload: bytes | str) -> dict[str, Any]:
     if not isinstance(values, dict) or not values:
         raise ConfigError(f"wind: {values!r}: expected a JSON object with any of: {', '.join(SCHEMA['wind'])}")
     specs = SCHEMA["wind"]
-    for key in values:
-        if key not in specs:
-            raise ConfigError(f"wind: unknown key {key!r}; allowed: {', '.join(specs)}")
-    return {key: check_value(f"wind.{key}", value, specs[key]) for key, value in values.items()}
+    for name in values:
+        if name not in specs:
+            raise ConfigError(f"wind: unknown key {name!r}; allowed: {', '.join(specs)}")
+    return {name: check_value(f"wind.{name}", value, specs[name]) for name, value in values.items()}
 
 
 def available_presets() -> list[str]:
@@ -708,8 +618,8 @@ def preset_toml(preset: Preset) -> str:
     if preset.wind != WindParams():
         sections["wind"] = asdict(preset.wind)
     lines = [f"description = {_toml_value(preset.description)}"]
-    for section, values in sections.items():
-        lines += ["", f"[{section}]", *(f"{k} = {_toml_value(x)}" for k, x in values.items())]
+    for part, values in sections.items():
+        lines += ["", f"[{part}]", *(f"{k} = {_toml_value(x)}" for k, x in values.items())]
     return "\n".join(lines) + "\n"
 
 

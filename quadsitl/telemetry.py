@@ -35,11 +35,10 @@ are as in v2, and carry v3 too, so that one version names the whole set. v2 batc
 exactly one per sample.
 
 A sample carries one or more records of consecutive ticks, concatenated (since v2).
-The autopilot sends what it has every 5 ms of wall time (or after 512 ticks): at 1 kHz in real time that
-is five records per sample, in a lockstep run at 20,000 ticks/s about a hundred. Every tick's record is
-published; batching only spares the transport a message (and a wake-up of its thread, and of every
-subscriber's) per tick, which at that rate cost more than the control loop itself. Split a payload with
-:func:`records`.
+The autopilot sends what it has every ``BATCH_WALL`` of wall time, or once ``BATCH_TICKS`` ticks are waiting
+(:mod:`autopilot.process`): in real time a few records per sample, in a fast lockstep run many. Every tick's
+record is published; batching only spares the transport a message (and a wake-up of its thread, and of every
+subscriber's) per tick. Split a payload with :func:`records`.
 """
 
 from __future__ import annotations
@@ -47,12 +46,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import struct
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the schema needs no Zenoh: pure modules (dashboard model, recordings) import it
+    import numpy as np
     import zenoh
 
 PREFIX = "quadsitl"
@@ -69,6 +70,46 @@ FIELDS: dict[str, tuple[str, ...]] = {
     "actuators": ("tick", "t", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4"),
     "status": ("tick", "t", "armed", "mode", "failsafe", "offboard_tick"),
 }
+# Where each field of a record is [bytes from the record's start], from the layouts above (little-endian, packed: no
+# padding). Every writer takes its offsets from here: the compiled tick's (autopilot.tick) read these as globals.
+FIELD_CODES = {"Q": "<u8", "d": "<f8", "B": "u1", "q": "<i8"}  # struct's code → numpy's type
+
+
+def _codes(stream: str) -> list[str]:
+    """The struct codes of a record's fields, one per field ("<Qd12d" → Q, d, d, ... d)."""
+    codes = re.findall(r"(\d*)([QdBq])", STREAMS[stream].format)
+    return [code for count, code in codes for _ in range(int(count or 1))]
+
+
+def _offsets(stream: str) -> dict[str, int]:
+    codes = _codes(stream)
+    assert len(codes) == len(FIELDS[stream]), stream
+    return {f: struct.calcsize("<" + "".join(codes[:i])) for i, f in enumerate(FIELDS[stream])}
+
+
+OFFSETS: dict[str, dict[str, int]] = {stream: _offsets(stream) for stream in STREAMS}
+FLOAT64 = struct.calcsize("<d")  # [bytes] a float64 field: consecutive ones are this far apart
+AT_TICK, AT_T = OFFSETS["state"]["tick"], OFFSETS["state"]["t"]  # the same in every record
+assert all((o["tick"], o["t"]) == (AT_TICK, AT_T) for o in OFFSETS.values())
+assert all(set(_codes(s)[2:]) == {"d"} for s in ("state", "setpoint", "actuators"))  # after t: float64s in a row
+STATE_AT_X, STATE_AT_P = OFFSETS["state"]["x"], OFFSETS["state"]["p"]  # x..yaw, then p, q, r
+SETPOINT_AT_REF = OFFSETS["setpoint"]["altitude_ref"]  # altitude_ref..y_ref
+ACTUATORS_AT_U = OFFSETS["actuators"]["u1"]  # u1..u4, f1..f4
+STATUS_AT_ARMED, STATUS_AT_MODE, STATUS_AT_FAILSAFE, STATUS_AT_OFFBOARD_TICK = (
+    OFFSETS["status"][f] for f in ("armed", "mode", "failsafe", "offboard_tick"))  # fmt: skip
+
+
+def record_dtype(stream: str) -> np.dtype:
+    """A record of ``stream`` as a numpy structured type: its fields at their offsets (the same bytes)."""
+    import numpy as np
+
+    size = STREAMS[stream].size
+    dtype = np.dtype({"names": list(FIELDS[stream]), "formats": [FIELD_CODES[c] for c in _codes(stream)],
+                      "offsets": list(OFFSETS[stream].values()), "itemsize": size})  # fmt: skip
+    assert dtype.itemsize == size
+    return dtype
+
+
 # The status record's ``mode``: the autopilot's flight modes (PX4's, DESIGN.md §8), as quadsitl.wire.Mode numbers them.
 MODES: dict[int, str] = {0: "hold", 1: "offboard", 2: "land", 3: "takeoff", 4: "rtl", 5: "mission"}
 
@@ -81,7 +122,7 @@ TRUTH_RECORD = STREAMS["state"]
 
 MISSION = "mission"  # the key quadsitl/<vehicle>/mission: the stored mission, JSON (not a per-tick stream)
 MISSION_SCHEMA = 1
-MAX_MISSION_BYTES = 256 * 1024  # a mission document longer than this is refused (500 items take about 40 KB)
+MAX_MISSION_BYTES = 256 * 1024  # [bytes] a mission document longer than this is refused
 MISSION_STATES: dict[int, str] = {0: "unknown", 1: "none", 2: "not started", 3: "active", 4: "paused", 5: "complete"}
 
 
@@ -258,9 +299,9 @@ def zenoh_config(
         conf.insert_json5("scouting/multicast/enabled", "false")
         conf.insert_json5("timestamping/enabled", "true")
         # No shared memory: Zenoh sets it up on the first message over 3 KB to a peer on this host (a 16 MB pool,
-        # mlocked page by page, and two watchdog threads), about 0.2 s of CPU in the middle of a flight, at the
-        # autopilot's priority: under SCHED_FIFO every vehicle on that core missed its deadlines meanwhile.
-        # Telemetry messages are a few KB; copying them through the socket costs less than that once.
+        # mlocked page by page, and two watchdog threads) in the middle of a flight, at the autopilot's priority:
+        # under SCHED_FIFO every vehicle on that core missed its deadlines meanwhile. Copying the telemetry through
+        # the socket costs less than that once.
         conf.insert_json5("transport/shared_memory/enabled", "false")
     return conf
 

@@ -52,7 +52,7 @@ from quadsitl.cli_util import (
     add_preset_arguments,
     add_state_arguments,
     add_wind_arguments,
-    check_range,
+    check_speed,
     parse_home,
     parse_vehicle_presets,
     per_vehicle,
@@ -233,7 +233,7 @@ def fleet_from_args(args: argparse.Namespace) -> list[Vehicle]:
         raise UsageError(f"--vehicle {' '.join(names)}: two vehicles named alike; each needs a name of its own")
     homes = [parse_home(h) for h in per_vehicle("--home", args.home, n, fleet) or [None] * n]
     presets = parse_vehicle_presets(args.vehicle_preset, n, fleet)
-    check_range("--speed", args.speed if args.speed != 0 else None, 0.0, 1000.0)
+    check_speed(args.speed)
     host, port = parse_address("--bind", args.bind)
     if port and port + n - 1 > 65535:
         raise UsageError(f"--bind {args.bind}: vehicle {n} would need port {port + n - 1}, beyond 65535")

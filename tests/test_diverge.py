@@ -19,7 +19,8 @@ from groundstation import vehicle
 from groundstation.offline import run_offline
 from groundstation.sweep import engine
 from groundstation.sweep.run import fly as fly_batch
-from groundstation.sweep.spec import parse_spec, trial_preset
+from groundstation.sweep.spec import parse_spec
+from groundstation.sweep.trials import trial_preset
 from groundstation.telemetry_csv import read_csv
 from quadsitl import codec, wire
 from quadsitl.config import load_preset, preset_toml

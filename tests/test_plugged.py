@@ -168,8 +168,9 @@ def test_a_sweep_flies_a_plugged_controller_trial_by_trial_as_sim_does(tmp_path,
     from groundstation.offline import telemetry_rows
     from groundstation.sweep import engine
     from groundstation.sweep.run import fly
-    from groundstation.sweep.spec import load_spec, trial_preset
+    from groundstation.sweep.spec import load_spec
     from groundstation.sweep.trial_row import metrics_row
+    from groundstation.sweep.trials import trial_preset
 
     spec = load_spec(str(plugged_spec(tmp_path, controller=controller)))
     assert not spec.fused and spec.controller == controller

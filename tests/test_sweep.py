@@ -12,7 +12,8 @@ from groundstation.metrics import channel_outputs, run_metrics, saturation_time
 from groundstation.offline import run_offline
 from groundstation.sweep import engine
 from groundstation.sweep.run import fly, run_sweep
-from groundstation.sweep.spec import draw, load_spec, parse_spec
+from groundstation.sweep.spec import load_spec, parse_spec
+from groundstation.sweep.trials import draw
 from quadsitl.config import ConfigError
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first

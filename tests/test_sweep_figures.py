@@ -13,7 +13,8 @@ from autopilot.gains import GainError, stability_interval
 from groundstation.sweep import engine
 from groundstation.sweep import figures as figs
 from groundstation.sweep.run import run_sweep
-from groundstation.sweep.spec import draw, load_spec, nominal_poles, parse_spec, trial_arrays
+from groundstation.sweep.spec import load_spec, parse_spec
+from groundstation.sweep.trials import draw, nominal_poles, trial_arrays
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first
 

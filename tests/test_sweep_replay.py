@@ -9,7 +9,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from groundstation.sweep.spec import draw, load_spec, nominal, parse_spec, trial_arrays, trial_preset
+from groundstation.sweep.spec import load_spec, parse_spec
+from groundstation.sweep.trials import draw, nominal, trial_arrays, trial_preset
 from quadsitl.config import ConfigError, parse_preset, preset_toml
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.usefixtures("batch_engine")]  # the engine compiled first

@@ -12,8 +12,9 @@ import pytest
 from groundstation.offline import run_offline
 from groundstation.sweep import engine
 from groundstation.sweep.run import fly
-from groundstation.sweep.spec import load_spec, parse_spec, trial_preset
+from groundstation.sweep.spec import load_spec, parse_spec
 from groundstation.sweep.trial_row import metrics_row
+from groundstation.sweep.trials import trial_preset
 from groundstation.telemetry_csv import read_csv
 from quadsitl.config import ConfigError
 

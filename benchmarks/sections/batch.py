@@ -21,7 +21,8 @@ def bench_batch(r: Report, trials: int) -> dict:
     (the x500-wind-hold spec's hold, through the estimator), beside that spec's sweep."""
     from groundstation.offline import run_offline
     from groundstation.sweep.run import fly, run_sweep, warm_up
-    from groundstation.sweep.spec import load_spec, trial_preset
+    from groundstation.sweep.spec import load_spec
+    from groundstation.sweep.trials import trial_preset
     from quadsitl.config import load_preset
 
     r.section("6. sweeps: the batch engine (paper's controller and plant) against quadsitl sim's vehicle loop")

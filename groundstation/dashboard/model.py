@@ -59,7 +59,9 @@ ROW_FIELDS = (
     "x_ref", "y_ref",
 )  # fmt: skip
 _TICK = struct.Struct("<Q")
-_XY = struct.Struct("<2d")  # x, y of a state record, at byte 16
+_XY = struct.Struct("<2d")  # x, y of a state record, at byte _STATE_AT_X
+_STATE_AT_X = telemetry.STATE_AT_X
+assert telemetry.OFFSETS["state"]["y"] == _STATE_AT_X + telemetry.FLOAT64
 _STATE_SIZE = telemetry.STREAMS["state"].size
 
 
@@ -127,7 +129,7 @@ class Vehicle:
         if not math.isfinite(last[1]):  # a record without a time; NaN fields are "not known" (a replayed tlog)
             self.malformed += 1
             return
-        first_tick = _TICK.unpack_from(payload, 0)[0]
+        first_tick = _TICK.unpack_from(payload, telemetry.AT_TICK)[0]
         if slow and n != 1:
             self.malformed += 1
             return
@@ -175,7 +177,7 @@ class Vehicle:
         d = self.decimation * max(1, round(self.plot_rate / TRAIL_RATE))
         k = -(-first_tick // d) * d
         while k < first_tick + n:
-            x, y = _XY.unpack_from(payload, (k - first_tick) * _STATE_SIZE + 16)
+            x, y = _XY.unpack_from(payload, (k - first_tick) * _STATE_SIZE + _STATE_AT_X)
             self.trail_seq += 1
             self.trail.append((self.trail_seq, k * self.period, x, y))
             k += d

@@ -11,7 +11,7 @@ them). Each is drawn only when the sweep has what it shows:
   the altitude's steady-state error against ``mismatch.mass`` when it applies.
 - ``fig_sweep_gain_map.png``: for a grid of two backstepping gains, the settling time and the overshoot over the
   grid, with the region where the paper's conditions (41)–(44) hold (computed on a finer grid of the same two
-  gains by :func:`groundstation.sweep.spec.admissibility`, the check the trials are flown or refused by).
+  gains by :func:`groundstation.sweep.trials.admissibility`, the check the trials are flown or refused by).
 
 The data behind them are prepared by pure functions (:func:`choose_sample`, :func:`reflown`,
 :func:`sample_outputs`, :func:`envelope`, :func:`tick_bins`, :func:`gain_map`, :func:`admissible_mask`),
@@ -35,8 +35,10 @@ from autopilot.gains import poles_from_rates
 from groundstation.figures import LABELS, plt
 from groundstation.metrics import channel_outputs
 from groundstation.sweep import engine
+from groundstation.sweep.parameters import RATES
 from groundstation.sweep.run import SweepResult, fly
-from groundstation.sweep.spec import RATES, SweepSpec, admissibility, nominal_poles
+from groundstation.sweep.spec import SweepSpec
+from groundstation.sweep.trials import admissibility, nominal_poles
 
 CHANNELS = engine.CHANNELS
 UNITS = ("m", "rad", "rad", "rad")
@@ -243,7 +245,7 @@ def gain_map(spec: SweepSpec, table: dict[str, np.ndarray], names: tuple[str, st
 
 
 def admissible_mask(spec: SweepSpec, names: tuple[str, str], x: np.ndarray, y: np.ndarray) -> np.ndarray | None:
-    """Whether conditions (41)–(44) hold (:func:`groundstation.sweep.spec.admissibility`, the trials' own check) at
+    """Whether conditions (41)–(44) hold (:func:`groundstation.sweep.trials.admissibility`, the trials' own check) at
     each point (x_j, y_i) of the gains ``names`` [1/s]: (len(y), len(x)). The other gains at the spec's values (the
     preset's, or a fixed value under [vary]); None when another gain varies (the region then depends on it)."""
     poles = np.array(nominal_poles(spec), dtype=np.float64)

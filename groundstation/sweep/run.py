@@ -2,7 +2,7 @@
 (``trials.csv``, ``trials.parquet``), ``summary.json`` and the trajectories of the trials kept.
 
 A chunk is a list of trial numbers. The worker that gets it draws their parameters
-(:func:`groundstation.sweep.spec.draw`: each trial from its own seed), builds the engine's arrays and flies them
+(:func:`groundstation.sweep.trials.draw`: each trial from its own seed), builds the engine's arrays and flies them
 all in one compiled call (:func:`groundstation.sweep.engine.run_chunk`). A trial's row depends on the spec and
 its number only, so the table is the same however the trials are split into chunks and over workers.
 """
@@ -25,8 +25,9 @@ from autopilot import setpoints
 from autopilot.control_params import BACKSTEPPING, KINDS, PD
 from groundstation.setpoint_grid import grid_setpoints
 from groundstation.sweep import engine
-from groundstation.sweep.spec import SweepSpec, draw, trial_arrays, trial_preset
+from groundstation.sweep.spec import SweepSpec
 from groundstation.sweep.trial_row import metrics_row
+from groundstation.sweep.trials import draw, trial_arrays, trial_preset
 from groundstation.vehicle import Setpoints, commander_for
 from quadsitl.config import PositionParams
 from quadsitl.frames import PX4_HOME
@@ -105,7 +106,7 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
 
 def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> tuple[np.ndarray, dict]:
     """Trials the fused loop does not fly (a trajectory, a mission, sensors, wind: :attr:`SweepSpec.fused`), each as
-    ``quadsitl sim`` flies the trial's preset (:func:`groundstation.sweep.spec.trial_preset`), its row from its
+    ``quadsitl sim`` flies the trial's preset (:func:`groundstation.sweep.trials.trial_preset`), its row from its
     telemetry by the metrics' one definition (:mod:`groundstation.sweep.trial_row`), as the SITL engine's: (the
     metrics, engine.METRICS columns; the kept trajectories, engine.KEEP_SIZE columns)."""
     from groundstation.offline import rows_of, run_offline, telemetry_rows

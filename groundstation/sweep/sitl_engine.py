@@ -1,6 +1,6 @@
 """The SITL engine of the sweeps (``quadsitl sweep --engine sitl``): every trial a whole ``quadsitl fly``.
 
-A trial is written as a preset of its own (:func:`groundstation.sweep.spec.trial_preset`: the plant's vehicle, the
+A trial is written as a preset of its own (:func:`groundstation.sweep.trials.trial_preset`: the plant's vehicle, the
 autopilot's model, the gains, initial state and reference) and flown by ``quadsitl fly`` in a process of its own:
 the plant and autopilot processes in lockstep over MAVLink/UDP, the ground station sending the reference as
 MAVLink setpoints and logging the telemetry from Zenoh. The trial's row comes from that flight's telemetry, with the
@@ -25,8 +25,9 @@ import numpy as np
 
 from groundstation.launcher import FLY_DIVERGED
 from groundstation.sweep import engine
-from groundstation.sweep.spec import SweepSpec, draw, trial_arrays, trial_preset
+from groundstation.sweep.spec import SweepSpec
 from groundstation.sweep.trial_row import metrics_row
+from groundstation.sweep.trials import draw, trial_arrays, trial_preset
 from groundstation.telemetry_csv import COLUMNS
 from quadsitl.config import preset_toml
 
