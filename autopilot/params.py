@@ -64,29 +64,24 @@ LIMITS = params_of(ControllerParams, ("max_tilt", "thrust_min", "thrust_max"))  
 POSITION = params_of(PositionParams)  # BS_K9..BS_K12, BS_KI_*, BS_I_LIM, MPC_*
 
 
+SETPOINTS = params_of(
+    CommanderSettings,
+    ("setpoint_timeout", "land_speed", "landed_time", "altitude_max", "datalink_timeout", "datalink_action"),
+)  # COM_*, MPC_LAND_SPEED, SP_ALT_MAX
+MISSIONS = params_of(CommanderSettings, ("takeoff_alt", "rtl_alt", "max_distance"))  # MIS_, RTL_, GF_
+SETTINGS = SETPOINTS + MISSIONS  # the commander's settings that are parameters
+
+
 def _declared(entries: tuple[ParamEntry, ...]) -> list[ParamSpec]:
-    return [ParamSpec(e.name, e.lo, e.hi, e.unit, e.doc, lo_open=e.lo_open) for e in entries]
+    return [ParamSpec(e.name, e.lo, e.hi, e.unit, e.doc, lo_open=e.lo_open, integer=e.integer) for e in entries]
 
 
 def _specs() -> tuple[ParamSpec, ...]:
-    """The table: the controller kind, the declared keys' parameters, and the commander's settings (CommanderSettings,
-    not preset keys: declared here)."""
+    """The table: the controller kind, then the declared keys' parameters (the preset's and the commander's settings),
+    in the order clients have always seen them."""
     s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
-    s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS)
-    s += [
-        ParamSpec("COM_OF_LOSS_T", 0, 3600, "s", "offboard setpoint loss timeout (simulated time)", lo_open=True),
-        ParamSpec("MPC_LAND_SPEED", 0, 100, "m/s", "descent speed in LAND", lo_open=True),
-        ParamSpec("COM_DISARM_LAND", 0, 60, "s", "time on the ground before LAND disarms", lo_open=True),
-        ParamSpec("SP_ALT_MAX", 0, 100000, "m", "altitude setpoints above this are refused", lo_open=True),
-        ParamSpec("COM_DL_LOSS_T", 0, 3600, "s", "ground-station heartbeat loss timeout (wall time)", lo_open=True),
-        ParamSpec("NAV_DLL_ACT", 0, 2, "", "on ground-station loss: 0 = nothing, 1 = hold, 2 = land", integer=True),
-    ]
-    s += _declared(POSITION)
-    s += [
-        ParamSpec("MIS_TAKEOFF_ALT", 0, 10000, "m", "takeoff altitude above the ground", lo_open=True),
-        ParamSpec("RTL_RETURN_ALT", 0, 10000, "m", "return altitude above home"),
-        ParamSpec("GF_MAX_HOR_DIST", 0, 1e7, "m", "setpoints farther from home are refused (0 = no limit)"),
-    ]
+    s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS) + _declared(SETPOINTS) + _declared(POSITION)
+    s += _declared(MISSIONS)
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
     return tuple(s)
@@ -104,12 +99,9 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(param_values(replace(c, gains=tuple(float(k) for k in rates)), GAINS))
     out.update(param_values(v, MODEL))
     out.update(param_values(c, LIMITS))
-    out.update(COM_OF_LOSS_T=settings.setpoint_timeout, MPC_LAND_SPEED=settings.land_speed)
-    out.update(COM_DISARM_LAND=settings.landed_time, SP_ALT_MAX=settings.altitude_max)
-    out.update(COM_DL_LOSS_T=settings.datalink_timeout, NAV_DLL_ACT=float(settings.datalink_action))
+    out.update(param_values(settings, SETPOINTS))
     out.update(param_values(preset.position, POSITION))
-    out.update(MIS_TAKEOFF_ALT=settings.takeoff_alt, RTL_RETURN_ALT=settings.rtl_alt)
-    out.update(GF_MAX_HOR_DIST=settings.max_distance)
+    out.update(param_values(settings, MISSIONS))
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 
@@ -143,18 +135,7 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
     controller = replace(base.controller, poles=None, **fields_from_params(values, GAINS),
                          **fields_from_params(values, LIMITS))  # fmt: skip
     position = PositionParams(**fields_from_params(values, POSITION))
-    settings = replace(
-        commander_settings(position, base_settings),
-        setpoint_timeout=values["COM_OF_LOSS_T"],
-        land_speed=values["MPC_LAND_SPEED"],
-        landed_time=values["COM_DISARM_LAND"],
-        altitude_max=values["SP_ALT_MAX"],
-        datalink_timeout=values["COM_DL_LOSS_T"],
-        datalink_action=int(values["NAV_DLL_ACT"]),
-        takeoff_alt=values["MIS_TAKEOFF_ALT"],
-        rtl_alt=values["RTL_RETURN_ALT"],
-        max_distance=values["GF_MAX_HOR_DIST"],
-    )
+    settings = replace(commander_settings(position, base_settings), **fields_from_params(values, SETTINGS))
     kind = int(values["CTL_TYPE"])
     named = {} if plugged is None else {p.name: values[p.param_id] for p in plugged.parameters}
     return Applied(replace(base, vehicle=vehicle, model=(), controller=controller, position=position),

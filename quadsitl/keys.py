@@ -239,6 +239,7 @@ class ParamEntry:
     lo_open: bool
     to_param: Callable[[float], float] | None = None
     from_param: Callable[[float], float] | None = None
+    integer: bool = False  # the key is an int: the parameter's values must be whole
 
 
 def params_of(cls: type, only: Sequence[str] | None = None, doc_prefix: str = "") -> tuple[ParamEntry, ...]:
@@ -260,7 +261,8 @@ def params_of(cls: type, only: Sequence[str] | None = None, doc_prefix: str = ""
             unit = p.units[i] if len(p.units) > 1 else p.units[0] if p.units else spec.unit
             doc = doc_prefix + (p.docs[i] if len(p.docs) > 1 else p.docs[0] if p.docs else spec.doc)
             element = i if spec.kind == "numbers" else None
-            out.append(ParamEntry(name, element, param_name, low, high, unit, doc, lo_open, p.to_param, p.from_param))
+            out.append(ParamEntry(name, element, param_name, low, high, unit, doc, lo_open, p.to_param, p.from_param,
+                                  spec.kind == "int"))  # fmt: skip
     return tuple(out)
 
 
@@ -270,7 +272,7 @@ def param_values(obj: Any, entries: Sequence[ParamEntry]) -> dict[str, float]:
     for e in entries:
         value = getattr(obj, e.field)
         value = value[e.element] if e.element is not None else value
-        out[e.name] = e.to_param(value) if e.to_param else value
+        out[e.name] = e.to_param(value) if e.to_param else float(value) if e.integer else value
     return out
 
 
@@ -280,7 +282,7 @@ def fields_from_params(values: dict[str, float], entries: Sequence[ParamEntry]) 
     out: dict[str, Any] = {}
     for e in entries:
         value = values[e.name]
-        value = e.from_param(value) if e.from_param else value
+        value = e.from_param(value) if e.from_param else int(value) if e.integer else value
         if e.element is None:
             out[e.field] = value
         else:

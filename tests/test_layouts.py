@@ -7,7 +7,7 @@ import pytest
 
 from quadsitl import layout
 
-MODULES = ["autopilot.commander"]
+MODULES = ["autopilot.commander_state"]
 
 
 @pytest.mark.parametrize("module_name", MODULES)
