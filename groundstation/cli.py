@@ -115,7 +115,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     integrator = args.integrator or preset.sim.integrator
     duration = args.duration or preset.sim.duration
     label = "sim:" if len(kinds) == 1 else f"sim ({' + '.join(kinds)}):"
-    # after the checks: a refusal is answered without loading the compiler (1.9 -> 0.2 s of CPU)
+    # after the checks: a refusal is answered without loading the compiler (docs/performance.md#cold-start)
     from autopilot.plugin import ControllerError
     from autopilot.setpoints import SetpointError
     from groundstation.metrics import format_position_table, format_table

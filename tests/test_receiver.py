@@ -40,7 +40,7 @@ def rx():
     return receiver, got, counters, outbox
 
 
-def local_ned(x, y, z, mask=0b0000_1111_1111_1000, system=1):
+def local_ned(x, y, z, mask=0b1001_1111_1000, system=1):  # position and yaw
     return M.MAVLink_set_position_target_local_ned_message(0, system, 1, M.MAV_FRAME_LOCAL_NED, mask, x, y, z,
                                                            0, 0, 0, 0, 0, 0, 0.5, 0)  # fmt: skip
 
