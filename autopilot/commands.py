@@ -104,14 +104,22 @@ def nav_return_to_launch(v: Vehicle, c: Command) -> Result:
 
 
 def nav_takeoff(v: Vehicle, c: Command) -> Result:
-    """MAV_CMD_NAV_TAKEOFF: param7 (COMMAND_INT: z) the altitude AMSL, NaN: MIS_TAKEOFF_ALT above here."""
+    """MAV_CMD_NAV_TAKEOFF: param7 (COMMAND_INT: z) the altitude AMSL, NaN: MIS_TAKEOFF_ALT above here. An altitude
+    below MIS_TAKEOFF_ALT above home (MAVProxy's ``takeoff 5`` means 5 m above the ground, PX4 reads 5 m AMSL) takes
+    off to that minimum instead, and says so, as PX4's navigator does."""
     _, _, alt, frame = c.location()
-    altitude = None
+    altitude, raised = None, False
     if math.isfinite(alt):
         altitude = setpoints.altitude_of(frame, alt, v.frame())
+        lowest = v.commander.home[2] + v.commander.settings.takeoff_alt
+        altitude, raised = max(altitude, lowest), altitude < lowest
     elif not math.isnan(alt):
         return DENIED, f"Takeoff: altitude {alt:g}; expected a finite number or NaN", None
-    return _result(*v.commander.takeoff(altitude))
+    ok, reason = v.commander.takeoff(altitude)
+    if ok and raised:
+        v.outbox.say(mavlink.MAV_SEVERITY_WARNING,
+                     f"Using minimum takeoff altitude: {v.commander.settings.takeoff_alt:.2f} m")  # fmt: skip
+    return _result(ok, reason)
 
 
 def do_reposition(v: Vehicle, c: Command) -> Result:
@@ -181,6 +189,8 @@ def request_message(v: Vehicle, c: Command) -> Result:
         return ACCEPTED, "", v.home_position()
     if mid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
         return ACCEPTED, "", gcs_messages.heartbeat(v.commander)
+    if mid == mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
+        return ACCEPTED, "", gcs_messages.gps_global_origin(v.home)
     if v.streams.supported(mid):
         snap = v.snapshot()
         if snap is None:

@@ -270,6 +270,14 @@ def home_position(
     )
 
 
+def gps_global_origin(origin: Origin, time_usec: int = 0) -> mavlink.MAVLink_gps_global_origin_message:
+    """``GPS_GLOBAL_ORIGIN``: where the local NED frame's origin is (latitude, longitude [1e-7 deg], altitude AMSL
+    [mm]), as PX4 answers MAVSDK's ``get_gps_global_origin``. ``time_usec``: simulated time since start [µs]."""
+    lat, lon = _lat_lon_e7(origin, 0.0, 0.0)
+    return mavlink.MAVLink_gps_global_origin_message(lat, lon, stream_frames.amsl_mm(float(origin.alt), 0.0),
+                                                     max(int(time_usec), 0))  # fmt: skip
+
+
 CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
