@@ -67,6 +67,7 @@ from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.process_util import (
     bind_udp,
     parse_remote,
+    say_ready,
     set_receive_timeout,
     start_process,
 )
@@ -458,7 +459,10 @@ class Autopilot:
         set_receive_timeout(self.plant.sock, 0.02)
         for link in self.links:
             link.sock.setblocking(False)
-        next_chores = 0.0
+        wall = time.monotonic()
+        self.chores(wall)  # the first heartbeat: ground stations see the vehicle from now on
+        say_ready()  # and a launcher that waits for it (quadsitl up) says so
+        next_chores = wall + HOUSEKEEPING
         receive = self.plant.wait
         while True:
             if self.pending is not None:

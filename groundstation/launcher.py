@@ -34,6 +34,7 @@ from pathlib import Path
 from groundstation.fleet import VehiclePlan, zenoh_argv
 from quadsitl.children import Children, describe, run_supervised, supervise
 from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
+from quadsitl.compile_cache import cached
 from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
 from quadsitl.process_util import (
     PLANT_DIVERGED,
@@ -58,6 +59,11 @@ OFFBOARD_LOCKSTEP = 0.0
 # get every tick, and a lockstep clock can wait; dropping lost ticks whenever the logger was descheduled while the
 # vehicle ran ahead (the links' buffers hold a few hundred ticks, docs/telemetry.md).
 LOGGED = ("--telemetry-congestion", "block")
+# `up` says it is ready once every autopilot has sent its first heartbeat; before that, when the compiled loop the
+# autopilot serves the plant with is not in numba's cache, that the first run compiles.
+READY_FUNCTION = "plant_loop.serve"
+READY_TIMEOUT = 600.0  # [s] wall: the longest `up` waits to say it is ready (a cold compile on a slow machine)
+COMPILING = "quadsitl up: compiling the vehicle's equations (once, after an install or a change; a minute or so)..."
 
 
 def signing_env(key_text: str | None) -> dict[str, str] | None:
@@ -159,7 +165,7 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
         else:  # the first vehicle's session listens, the others connect to it (and find each other), or a router
             ap += ["--vehicle", v.name, *zenoh_argv(v.index, args.zenoh_listen, args.zenoh_connect, True,
                                                     args.zenoh_config)]  # fmt: skip
-        children.start("autopilot" + named, ap)
+        children.start("autopilot" + named, ap, ready=True)
         plant += ["--autopilot", f"127.0.0.1:{plant_port}", "--vehicle", v.name, *home]
         if v.preset != args.preset:
             plant += ["--vehicle-preset", f"{v.number}={v.preset}"]
@@ -179,6 +185,9 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
     if web_port is not None:
         url = start_dashboard(children, web_port, zenoh_endpoint(args), zenoh_config=args.zenoh_config)
     if not args.quiet:
+        if not cached(READY_FUNCTION):
+            print(COMPILING, flush=True)
+        children.wait_ready(READY_TIMEOUT)  # the banner after the first heartbeat (a child that ended: said below)
         print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
     tick = None if info is None else lambda: info.tick(time.monotonic())
     return supervise(children, "quadsitl up", diverged=up_diverged, tick=tick, period=0.1)

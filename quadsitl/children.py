@@ -9,6 +9,8 @@
 from __future__ import annotations
 
 import contextlib
+import os
+import select
 import signal
 import subprocess
 import sys
@@ -16,7 +18,7 @@ import time
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass, field
 
-from quadsitl.process_util import PLANT_DIVERGED
+from quadsitl.process_util import PLANT_DIVERGED, READY_ENV
 
 GRACE = 3.0  # [s] a launcher's children's time to end after SIGTERM (they close their Zenoh sessions) before SIGKILL
 
@@ -69,10 +71,38 @@ class Children:
     env: dict[str, str] | None = None
     optional: tuple[str, ...] = ("dashboard",)  # a viewer: its end is reported, and the vehicle flies on
     reported: set[str] = field(default_factory=set)
+    readiness: dict[str, int] = field(default_factory=dict)  # name → the read end of its ready pipe
 
-    def start(self, name: str, args: list[str]) -> None:
-        """Start ``python -m ARGS`` as the child ``name``."""
-        self.procs[name] = start_module(*args, env=self.env)
+    def start(self, name: str, args: list[str], ready: bool = False) -> None:
+        """Start ``python -m ARGS`` as the child ``name``; with ``ready``, one that says when it is ready
+        (:func:`quadsitl.process_util.say_ready`), for :meth:`wait_ready`."""
+        if not ready:
+            self.procs[name] = start_module(*args, env=self.env)
+            return
+        read, write = os.pipe()
+        env = {**(os.environ if self.env is None else self.env), READY_ENV: str(write)}
+        try:
+            self.procs[name] = start_module(*args, env=env, pass_fds=(write,))
+        finally:
+            os.close(write)
+        self.readiness[name] = read
+
+    def wait_ready(self, timeout: float) -> bool:
+        """Wait until every child started with ``ready`` has said so → True; False when one ended first (or closed
+        its pipe without a word), or after ``timeout`` seconds."""
+        waiting, end = dict(self.readiness), time.monotonic() + timeout
+        try:
+            while waiting and time.monotonic() < end:
+                readable, _, _ = select.select(list(waiting.values()), [], [], 0.1)
+                for name in [n for n, fd in waiting.items() if fd in readable]:
+                    if not os.read(waiting.pop(name), 1):
+                        return False  # the pipe closed without a word: the child ended
+            return not waiting
+        finally:
+            for fd in self.readiness.values():
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            self.readiness.clear()
 
     def first_failure(self, done: str | Collection[str], prog: str = "quadsitl") -> tuple[str, int] | None:
         """(name, status) of a child that exited when it should not have; ``done`` (a name or several) may exit

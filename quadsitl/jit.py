@@ -23,46 +23,19 @@ instead of raising; inputs are validated before they get here, see :mod:`quadsit
 
 from __future__ import annotations
 
-import hashlib
 import os
-import shutil
-import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import TypeVar
 
 import numba
 import numpy as np
 
+from quadsitl.compile_cache import cache_dir
+
 F = TypeVar("F", bound=Callable)
 
 DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 """True when ``NUMBA_DISABLE_JIT=1``: every :func:`jit` function runs as ordinary Python."""
-
-
-PACKAGES = ("quadsitl", "sitl", "autopilot")  # where compiled functions live (and what they call)
-STALE_DAYS = 7
-
-
-def cache_dir() -> Path:
-    """Where numba keeps the compiled functions: ``$NUMBA_CACHE_DIR`` (default ``~/.cache/quadsitl``), in a
-    folder named by a hash of the packages' sources. A folder is marked each time it is used; folders of
-    other sources (other versions, other checkouts) unused for STALE_DAYS are removed."""
-    root = Path(__file__).resolve().parent.parent
-    digest = hashlib.sha256()
-    for package in PACKAGES:
-        for path in sorted((root / package).rglob("*.py")):
-            digest.update(path.relative_to(root).as_posix().encode())
-            digest.update(path.read_bytes())
-    base = Path(os.environ.get("NUMBA_CACHE_DIR") or Path.home() / ".cache" / "quadsitl") / "numba"
-    folder = base / digest.hexdigest()[:16]
-    folder.mkdir(parents=True, exist_ok=True)
-    now = time.time()
-    os.utime(folder, (now, now))
-    for other in base.iterdir():
-        if other != folder and now - other.stat().st_mtime > STALE_DAYS * 86400:
-            shutil.rmtree(other, ignore_errors=True)
-    return folder
 
 
 numba.config.CACHE_DIR = str(cache_dir())

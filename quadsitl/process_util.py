@@ -3,6 +3,7 @@ SIGINT ignored), dying with the parent."""
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import errno
 import functools
@@ -568,3 +569,17 @@ def die_with_parent() -> None:
             libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
         except OSError:
             pass
+
+
+READY_ENV = "QUADSITL_READY_FD"  # a pipe's write end, inherited from a launcher that waits for this process
+
+
+def say_ready() -> None:
+    """Tell the launcher that started this process (``$QUADSITL_READY_FD``, :meth:`quadsitl.children.Children.start`)
+    that it is ready: one byte on the pipe, which is then closed. Nothing without a launcher waiting."""
+    fd = os.environ.pop(READY_ENV, None)
+    if fd is None:
+        return
+    with contextlib.suppress(OSError, ValueError):
+        os.write(int(fd), b"r")
+        os.close(int(fd))
