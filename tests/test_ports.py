@@ -65,8 +65,11 @@ class _Recorder:
     def __init__(self, env=None):
         self.env, self.procs = env, {}
 
-    def start(self, name, args):
+    def start(self, name, args, ready=False):
         _Recorder.started.append(args)
+
+    def wait_ready(self, timeout):
+        return False  # nothing was started: nothing is ready
 
     def first_failure(self, done, prog="quadsitl"):
         return ("plant", 1)
