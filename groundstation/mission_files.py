@@ -13,8 +13,9 @@ Three formats, told apart by their content:
   ``radius`` [m], ``yaw`` [deg]): one ``NAV_WAYPOINT`` per row at ``altitude`` above home (frame 6); an empty
   optional cell is the default (hold 0, the vehicle's acceptance radius, yaw toward the waypoint).
 - **QGC WPL 110** (the plain-text format MAVProxy and QGroundControl write): ``QGC WPL 110`` then one
-  tab-separated line per item ``index current frame command p1 p2 p3 p4 lat lon alt autocontinue``. Every line
-  is an item (as MAVProxy's ``wp load`` uploads them to PX4); the indices must count 0, 1, 2, ...
+  tab-separated line per item ``index current frame command p1 p2 p3 p4 lat lon alt autocontinue``, the indices
+  counting 0, 1, 2, ... Line 0 is the planned home (QGroundControl's loader and ArduPilot's convention: "planned home
+  position is already in position 0"), informational as a .plan's; the items are the lines after it.
 
 Every item is checked by the vehicle's own check (:func:`autopilot.mission_protocol.parse_item`), so that a
 file is refused here, with its file, item (or line), field and value, exactly when the vehicle would refuse
@@ -74,7 +75,7 @@ class Mission:
     path: Path
     kind: str  # "plan", "csv" or "wpl"
     items: tuple[mp.MissionItem, ...]
-    planned_home: tuple[float, float, float] | None = None  # a .plan's plannedHomePosition, informational
+    planned_home: tuple[float, float, float] | None = None  # a .plan's plannedHomePosition or a WPL file's line 0
 
     @property
     def lands(self) -> bool:
@@ -243,7 +244,7 @@ def _wpl(path: Path, text: str) -> Mission:
     lines = text.splitlines()
     if lines[0].split() != ["QGC", "WPL", "110"]:
         raise MissionFileError(f"mission {path}, line 1: {lines[0].strip()!r}; allowed: 'QGC WPL 110'")
-    items = []
+    items, home = [], None
     for line, raw in enumerate(lines[1:], start=2):
         if not raw.strip():
             continue
@@ -258,10 +259,16 @@ def _wpl(path: Path, text: str) -> Mission:
             auto = int(float(fields[11]))
         except ValueError:
             raise MissionFileError(f"{where}: {raw.strip()!r} has a field that is not a number") from None
-        if index != len(items):
-            raise MissionFileError(f"{where}, index: {index}; expected {len(items)} (the items in order from 0)")
-        items.append(check_item(f"{where} (item {index})", index, command, frame, params, bool(auto)))
-    return Mission(path, "wpl", tuple(items))
+        expected = len(items) + (home is not None)
+        if index != expected:
+            raise MissionFileError(f"{where}, index: {index}; expected {expected} (the items in order from 0)")
+        if index == 0:  # the planned home: not flown
+            home = (params[4], params[5], params[6])
+            continue
+        items.append(check_item(f"{where} (item {index})", index - 1, command, frame, params, bool(auto)))
+    if not items:
+        raise MissionFileError(f"mission {path}: no mission items after the planned home (line 2)")
+    return Mission(path, "wpl", tuple(items), planned_home=home)
 
 
 def nan_none(v: float) -> float | None:

@@ -117,15 +117,20 @@ def test_csv_refusals_name_the_line_and_column(tmp_path, text, expected):
 
 def test_qgc_wpl_110(tmp_path):
     p = tmp_path / "m.waypoints"
-    p.write_text("QGC WPL 110\n0\t1\t3\t22\t0\t0\t0\t0\t47.3977\t8.5456\t5\t1\n"
-                 "1\t0\t3\t16\t0\t0\t0\t0\t47.3978\t8.5456\t5\t1\n2\t0\t2\t20\t0\t0\t0\t0\t0\t0\t0\t1\n")  # fmt: skip
+    home = "0\t1\t0\t16\t0\t0\t0\t0\t47.397742\t8.545594\t488\t1\n"  # line 0: the planned home, AMSL
+    p.write_text("QGC WPL 110\n" + home + "1\t0\t3\t22\t0\t0\t0\t0\t47.3977\t8.5456\t5\t1\n"
+                 "2\t0\t3\t16\t0\t0\t0\t0\t47.3978\t8.5456\t5\t1\n3\t0\t2\t20\t0\t0\t0\t0\t0\t0\t0\t1\n")  # fmt: skip
     m = load(p)
     assert m.kind == "wpl" and m.lands and [i.command for i in m.items] == [22, 16, 20]
-    p.write_text("QGC WPL 110\n0\t0\t3\t16\t0\t0\t0\t0\t47.3\t8.5\t5\t1\n2\t0\t3\t16\t0\t0\t0\t0\t47.3\t8.5\t5\t1\n")
+    assert [i.seq for i in m.items] == [0, 1, 2] and m.planned_home == (47.397742, 8.545594, 488.0)
+    p.write_text("QGC WPL 110\n" + home + "2\t0\t3\t16\t0\t0\t0\t0\t47.3\t8.5\t5\t1\n")
     with pytest.raises(MissionFileError, match=r"line 3, index: 2; expected 1"):
         load(p)
-    p.write_text("QGC WPL 110\n0\t0\t3\t31\t0\t0\t0\t0\t47.3\t8.5\t5\t1\n")
-    with pytest.raises(MissionFileError, match=r"line 2 \(item 0\) \(command 31\), command: 31 is refused"):
+    p.write_text("QGC WPL 110\n" + home + "1\t0\t3\t31\t0\t0\t0\t0\t47.3\t8.5\t5\t1\n")
+    with pytest.raises(MissionFileError, match=r"line 3 \(item 1\) \(command 31\), command: 31 is refused"):
+        load(p)
+    p.write_text("QGC WPL 110\n" + home)
+    with pytest.raises(MissionFileError, match=r"no mission items after the planned home"):
         load(p)
 
 
