@@ -135,10 +135,11 @@ def test_sim_refuses_a_bad_trajectory_in_one_line(tmp_path):
 
 
 HOP = """QGC WPL 110
-0\t1\t3\t22\t0\t0\t0\tnan\t47.397742\t8.545594\t3\t1
-1\t0\t3\t16\t0\t0\t0\tnan\t47.3978139\t8.545594\t3\t1
-2\t0\t3\t21\t0\t0\t0\tnan\t0\t0\t0\t1
-"""
+0\t1\t0\t16\t0\t0\t0\t0\t47.397742\t8.545594\t488\t1
+1\t0\t3\t22\t0\t0\t0\tnan\t47.397742\t8.545594\t3\t1
+2\t0\t3\t16\t0\t0\t0\tnan\t47.3978139\t8.545594\t3\t1
+3\t0\t3\t21\t0\t0\t0\tnan\t0\t0\t0\t1
+"""  # line 0: the planned home (QGC WPL 110's convention), not flown
 
 
 def test_fly_equals_sim_on_a_mission(tmp_path):
