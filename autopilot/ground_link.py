@@ -80,9 +80,6 @@ class GroundLinks:
     def __iter__(self) -> Iterator[GcsLink]:
         return iter(self.links)
 
-    def __len__(self) -> int:
-        return len(self.links)
-
     def __getitem__(self, i: int) -> GcsLink:
         return self.links[i]
 

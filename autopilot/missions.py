@@ -43,6 +43,10 @@ class ID:
     MISSION_REQUEST_INT = mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT
     MISSION_ACK = mavlink.MAVLINK_MSG_ID_MISSION_ACK
     MISSION_CLEAR_ALL = mavlink.MAVLINK_MSG_ID_MISSION_CLEAR_ALL
+    MISSION_SET_CURRENT = mavlink.MAVLINK_MSG_ID_MISSION_SET_CURRENT
+
+
+MESSAGES = frozenset(v for k, v in vars(ID).items() if k.startswith("MISSION_"))  # what Missions.on_message takes
 
 
 class Missions:

@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from autopilot import mission_protocol, setpoints
+from autopilot import mission_protocol, missions, setpoints
 from autopilot import tick as kernel
 from autopilot.offboard_lockstep import OffboardLockstep
 from autopilot.outbox import Outbox
@@ -38,9 +38,6 @@ mavlink = wire.mavlink
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
 RATES_ONLY = 128  # SET_ATTITUDE_TARGET type_mask bit: the attitude is ignored (body rates alone)
 FTP_HEADER = 12  # bytes of a FILE_TRANSFER_PROTOCOL payload's header: shorter is not a request
-MISSION_NAMES = ("COUNT", "ITEM", "ITEM_INT", "REQUEST_LIST", "REQUEST", "REQUEST_INT", "ACK", "CLEAR_ALL",
-                 "SET_CURRENT")  # fmt: skip
-MISSION_MESSAGES = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_MISSION_{name}") for name in MISSION_NAMES)
 OFFBOARD_SETPOINTS = frozenset((mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
                                 mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
                                 mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT))  # fmt: skip
@@ -78,7 +75,7 @@ class Receiver:
             elif m.type == mavlink.MAV_TYPE_GCS:
                 self.routes.deliver(GroundHeartbeat(time.monotonic()))
             return
-        if mid in MISSION_MESSAGES:
+        if mid in missions.MESSAGES:
             if mission_protocol.addressed_to(m.target_system, m.target_component, self.system, self.component):
                 self.routes.deliver(MissionMessage(mid, (m.get_srcSystem(), m.get_srcComponent()), m.to_dict()))
             else:

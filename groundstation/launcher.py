@@ -187,8 +187,9 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
     if not args.quiet:
         if not cached(READY_FUNCTION):
             print(COMPILING, flush=True)
-        children.wait_ready(READY_TIMEOUT)  # the banner after the first heartbeat (a child that ended: said below)
-        print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
+        children.wait_ready(READY_TIMEOUT)  # the banner after the first heartbeat
+        if all(p.poll() is None for p in children.procs.values()):  # not when a child ended first: said below
+            print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
     tick = None if info is None else lambda: info.tick(time.monotonic())
     return supervise(children, "quadsitl up", diverged=up_diverged, tick=tick, period=0.1)
 
