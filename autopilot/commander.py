@@ -14,7 +14,8 @@ Rules (PX4's, DESIGN.md §8–§9):
   run sped up N×, where PX4's 1 s is 1/N s of its time. The stream is lost when it is stale on both clocks.
 - OFFBOARD: each axis group flies its last setpoint: horizontal (x, y: position, velocity or acceleration;
   none given: the last attitude setpoint's roll and pitch, level before one), vertical (altitude or climb
-  rate; the altitude on entering offboard until one arrives), heading (yaw, yaw rate, or the heading on
+  rate, or an attitude setpoint's collective thrust, flown as it is; the altitude on entering offboard until one
+  arrives), heading (yaw, yaw rate, or the heading on
   entry). A setpoint that ignores every field of a group leaves that group as it was.
 - Failsafe: in OFFBOARD, a stream older than the timeout switches to LAND and says so.
 - TAKEOFF: climb at MPC_TKO_SPEED to the takeoff altitude, then HOLD.
@@ -45,6 +46,7 @@ import numpy as np
 
 # The state's layout (generated names), modes, failsafes, events and settings, re-exported for the commander's users
 from autopilot.commander_state import *  # noqa: F403
+from quadsitl.compiled_frames import wrap_pi
 from quadsitl.jit import jit
 from quadsitl.state import Reference, VehicleState
 from quadsitl.wire import Mode
@@ -72,9 +74,11 @@ def enter(cm: np.ndarray, mode: int) -> None:
     cm[LANDED_SINCE] = math.nan
     cm[OFFBOARD_TICK] = -1.0  # an offboard flight starts at the next tick (set in update)
     if mode == OFFBOARD:
-        if math.isnan(cm[SP_ALT]) and math.isnan(cm[SP_CLIMB]) and math.isnan(cm[SP_CLIMB_ACC]):
+        vertical = (cm[SP_ALT], cm[SP_CLIMB], cm[SP_CLIMB_ACC], cm[SP_THRUST])
+        if math.isnan(vertical[0]) and math.isnan(vertical[1]) and math.isnan(vertical[2]) and math.isnan(vertical[3]):
             cm[SP_ALT] = cm[ALTITUDE]
-        cm[HOLD_YAW] = cm[YAW]
+        cm[HOLD_YAW] = cm[YAW_REF] = cm[YAW]
+        cm[ALT_LOCK] = math.nan
         return
     a = cm[ACC_HOR]
     # Resting on the ground, the reference starts and stays on it: an estimated altitude and climb rate (sensor
@@ -86,7 +90,7 @@ def enter(cm: np.ndarray, mode: int) -> None:
     cm[TARGET_X] = cm[X] + stop_distance(cm[VX], a)
     cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], a)
     cm[TARGET_ALT] = 0.0 if landed else max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)
-    cm[HOLD_YAW] = cm[YAW]
+    cm[HOLD_YAW] = cm[YAW_REF] = cm[YAW]
     cm[LEG_SPEED] = cm[CRUISE]
     cm[PHASE] = 0.0
     cm[LAND_ALT] = cm[TARGET_ALT]
@@ -154,13 +158,31 @@ def advance_reference(cm: np.ndarray, dt: float, speed: float, up: float, down: 
 
 
 @jit
-def _fly_generated(cm: np.ndarray) -> None:
-    """The auto modes' reference: position with velocity and acceleration feed-forward, the heading held."""
+def turn_heading(cm: np.ndarray, wanted: float, rate: float, dt: float) -> None:
+    """The heading flown (cm[YAW_REF]) turned toward ``wanted`` [rad] the short way, at up to ``rate`` [rad/s] over
+    ``dt`` [s], into the reference (REF_YAW; REF_YAW_RATE 0): a new heading is turned to as PX4 turns to it
+    (MPC_YAWRAUTO_MAX; SP_YAWRATE_MAX as its MC_YAWRATE_MAX), not stepped, so a large turn neither tilts the
+    vehicle past its limits nor costs it height."""
+    error = wrap_pi(wanted - cm[YAW_REF])
+    step = rate * dt
+    if abs(error) <= step:
+        cm[YAW_REF], cm[REF_YAW_RATE] = wanted, 0.0
+    else:
+        cm[YAW_REF] = wrap_pi(cm[YAW_REF] + math.copysign(step, error))
+        cm[REF_YAW_RATE] = 0.0  # no rate feed-forward: it would ask for the whole rate at once
+    cm[REF_YAW] = cm[YAW_REF]
+
+
+@jit
+def _fly_generated(cm: np.ndarray, dt: float) -> None:
+    """The auto modes' reference: position with velocity and acceleration feed-forward, the heading turned toward
+    the one held at up to MPC_YAWRAUTO_MAX."""
     cm[REF_X], cm[REF_Y], cm[REF_VX], cm[REF_VY] = cm[GEN_X], cm[GEN_Y], cm[GEN_VX], cm[GEN_VY]
     cm[REF_AX], cm[REF_AY] = cm[GEN_AX], cm[GEN_AY]
     cm[REF_ALT], cm[REF_CLIMB], cm[REF_CLIMB_ACC] = cm[GEN_ALT], cm[GEN_CLIMB], cm[GEN_CLIMB_ACC]
-    cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW], cm[REF_YAW_RATE] = 0.0, 0.0, cm[HOLD_YAW], 0.0
-    cm[REF_LIMITED] = 1.0
+    cm[REF_ROLL], cm[REF_PITCH] = 0.0, 0.0
+    turn_heading(cm, cm[HOLD_YAW], cm[YAW_RATE_AUTO], dt)
+    cm[REF_LIMITED], cm[REF_THRUST] = 1.0, math.nan
 
 
 @jit
@@ -170,7 +192,7 @@ def _land(cm: np.ndarray, dt: float, now: float) -> int:
     if cm[MODE] == LAND and cm[PHASE] == LAND_BRAKING:
         if math.sqrt(cm[VX] ** 2 + cm[VY] ** 2) >= LAND_BRAKED:
             advance_reference(cm, dt, 0.0, cm[Z_VEL_UP], cm[Z_VEL_DN])  # only the altitude moves
-            _fly_generated(cm)
+            _fly_generated(cm, dt)
             cm[REF_X], cm[REF_Y], cm[REF_VX], cm[REF_VY], cm[REF_AX], cm[REF_AY] = (
                 math.nan,
                 math.nan,
@@ -194,7 +216,7 @@ def _land(cm: np.ndarray, dt: float, now: float) -> int:
     cm[GEN_ALT] = cm[TARGET_ALT] = cm[LAND_ALT]
     cm[GEN_CLIMB] = -speed if cm[LAND_ALT] > cm[LAND_TARGET] else 0.0
     cm[GEN_CLIMB_ACC] = 0.0
-    _fly_generated(cm)
+    _fly_generated(cm, dt)
     if cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB:
         if math.isnan(cm[LANDED_SINCE]):
             cm[LANDED_SINCE] = now
@@ -208,7 +230,7 @@ def _land(cm: np.ndarray, dt: float, now: float) -> int:
 
 
 @jit
-def _fly_offboard(cm: np.ndarray) -> None:
+def _fly_offboard(cm: np.ndarray, dt: float) -> None:
     """The offboard setpoints as this tick's reference (module docstring)."""
     horizontal = not (
         math.isnan(cm[SP_X]) and math.isnan(cm[SP_VX]) and math.isnan(cm[SP_AX])
@@ -217,14 +239,30 @@ def _fly_offboard(cm: np.ndarray) -> None:
     for i in range(6):
         cm[REF_X + i] = cm[SP_X + i]
     cm[REF_ALT], cm[REF_CLIMB], cm[REF_CLIMB_ACC] = cm[SP_ALT], cm[SP_CLIMB], cm[SP_CLIMB_ACC]
+    cm[REF_THRUST] = cm[SP_THRUST]
+    if math.isnan(cm[SP_ALT]) and cm[SP_CLIMB] == 0.0 and (math.isnan(cm[SP_CLIMB_ACC]) or cm[SP_CLIMB_ACC] == 0.0):
+        # A climb rate of zero holds the altitude where the vehicle stops (as PX4's altitude modes lock it), so
+        # what the velocity loop lets slip in turns and reversals is flown back, not kept.
+        if math.isnan(cm[ALT_LOCK]):
+            cm[ALT_LOCK] = max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], cm[ACC_HOR]), 0.0)
+        cm[REF_ALT] = cm[ALT_LOCK]
+    else:
+        cm[ALT_LOCK] = math.nan
     if math.isnan(cm[ROLL_SP]) or horizontal:
         cm[REF_ROLL], cm[REF_PITCH] = 0.0, 0.0
     else:
         cm[REF_ROLL], cm[REF_PITCH] = cm[ROLL_SP], cm[PITCH_SP]
+    attitude = not horizontal and not math.isnan(cm[ROLL_SP])  # an attitude setpoint flown: its heading as it is
     if math.isnan(cm[YAW_SP]) and math.isnan(cm[SP_YAW_RATE]):
         cm[REF_YAW], cm[REF_YAW_RATE] = cm[HOLD_YAW], math.nan
-    else:
+        cm[YAW_REF] = cm[HOLD_YAW]
+    elif math.isnan(cm[YAW_SP]) or attitude:
         cm[REF_YAW], cm[REF_YAW_RATE] = cm[YAW_SP], cm[SP_YAW_RATE]
+        cm[YAW_REF] = cm[YAW] if math.isnan(cm[YAW_SP]) else cm[YAW_SP]
+    else:
+        turn_heading(cm, cm[YAW_SP], cm[YAW_RATE_OFFBOARD], dt)
+        if not math.isnan(cm[SP_YAW_RATE]):
+            cm[REF_YAW_RATE] += cm[SP_YAW_RATE]
     cm[REF_LIMITED] = 1.0 if horizontal else 0.0
 
 
@@ -251,7 +289,7 @@ def update(
         enter(cm, LAND)
         mode = LAND
     if mode == OFFBOARD:
-        _fly_offboard(cm)
+        _fly_offboard(cm, dt)
         return event
     if mode == LAND:
         landed = _land(cm, dt, now)
@@ -267,18 +305,18 @@ def update(
             cm[PHASE] = RTL_LAND
             cm[LAND_ALT] = cm[GEN_ALT]
             event = EVENT_HOME_REACHED
-        _fly_generated(cm)
+        _fly_generated(cm, dt)
         return event
     if mode == TAKEOFF:
         done = advance_reference(cm, dt, cm[LEG_SPEED], cm[TKO_SPEED], cm[Z_VEL_DN])
-        _fly_generated(cm)
+        _fly_generated(cm, dt)
         if done and abs(altitude - cm[TARGET_ALT]) < TAKEOFF_TOLERANCE:
             cm[MODE] = HOLD  # the reference rests on the target: hold it
             return EVENT_TAKEOFF_DONE
         return event
     # HOLD and MISSION
     advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
-    _fly_generated(cm)
+    _fly_generated(cm, dt)
     return event
 
 
@@ -289,7 +327,7 @@ class Commander:
     def __init__(self, settings: CommanderSettings | None = None) -> None:
         self.cm = np.zeros(SIZE)
         self.cm[SETPOINT_FIRST:SETPOINT_END] = math.nan
-        self.cm[[LANDED_SINCE, TAKEOFF_ALT]] = math.nan
+        self.cm[[LANDED_SINCE, TAKEOFF_ALT, ALT_LOCK]] = math.nan
         self.cm[REFERENCE_FIRST:REFERENCE_END] = math.nan
         self.cm[LAST_SP_TIME] = -1e9
         self.cm[OFFBOARD_TICK] = -1.0
@@ -312,6 +350,7 @@ class Commander:
         )  # fmt: skip
         cm[ACC_HOR], cm[CRUISE], cm[TKO_SPEED] = s.acc_hor, s.cruise, s.takeoff_speed
         cm[Z_VEL_UP], cm[Z_VEL_DN], cm[RTL_ALT] = s.z_vel_up, s.z_vel_dn, s.rtl_alt
+        cm[YAW_RATE_AUTO], cm[YAW_RATE_OFFBOARD] = s.yaw_rate_auto, s.yaw_rate_offboard
 
     @property
     def armed(self) -> bool:
@@ -401,13 +440,17 @@ class Commander:
         self.cm[SP_WALL_FRESH] = 1.0 if wall - self.setpoint_wall <= self.settings.setpoint_timeout else 0.0
 
     def on_attitude_setpoint(
-        self, roll: float | None, pitch: float | None, yaw: float | None, wall: float = -math.inf
-    ) -> None:
+        self, roll: float | None, pitch: float | None, yaw: float | None, wall: float = -math.inf,
+        thrust: float = math.nan,
+    ) -> None:  # fmt: skip
         """A SET_ATTITUDE_TARGET (None for an axis the type_mask ignores): roll and pitch take over the
-        horizontal axes from any position, velocity or acceleration setpoint. ``wall``: the shell's wall clock
-        [s] (see :meth:`wall_clock`)."""
+        horizontal axes from any position, velocity or acceleration setpoint; a ``thrust`` (normalised collective,
+        NaN: ignored) takes over the vertical axis from any altitude or climb rate, until one comes again.
+        ``wall``: the shell's wall clock [s] (see :meth:`wall_clock`)."""
         old = self.attitude_setpoint or (0.0, 0.0, float(self.cm[YAW]))
         cm = self.cm
+        if not math.isnan(thrust):
+            cm[SP_ALT], cm[SP_CLIMB], cm[SP_CLIMB_ACC], cm[SP_THRUST] = math.nan, math.nan, math.nan, thrust
         cm[ROLL_SP] = old[0] if roll is None else roll
         cm[PITCH_SP] = old[1] if pitch is None else pitch
         cm[YAW_SP] = old[2] if yaw is None else yaw
@@ -437,6 +480,7 @@ class Commander:
             cm[SP_HORIZONTAL_FIRST:SP_HORIZONTAL_END] = horizontal
         if vertical is not None:
             cm[SP_ALT], cm[SP_CLIMB], cm[SP_CLIMB_ACC] = vertical
+            cm[SP_THRUST] = math.nan
         if heading is not None:
             cm[YAW_SP], cm[SP_YAW_RATE] = heading
         elif horizontal is not None and not math.isnan(cm[SP_YAW_RATE]):
@@ -450,7 +494,7 @@ class Commander:
 
     def on_attitude(self, r: AttitudeSetpoint) -> None:
         """An attitude setpoint from the receiver."""
-        self.on_attitude_setpoint(r.roll, r.pitch, r.yaw, wall=r.wall)
+        self.on_attitude_setpoint(r.roll, r.pitch, r.yaw, wall=r.wall, thrust=r.thrust)
 
     def arm(self) -> tuple[bool, str]:
         if self.armed:

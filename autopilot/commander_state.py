@@ -4,6 +4,7 @@ parameter). :mod:`autopilot.commander` works on it; everything here is re-export
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from quadsitl.config import PositionParams
@@ -26,25 +27,29 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 # The commander's state array (positions local NED [m], altitudes up [m], velocities [m/s], angles [rad]), declared
 # by group; the constants below are generated from it (quadsitl.layout):
 # - the offboard setpoints (NaN: not given): horizontal position, velocity, acceleration; altitude, climb rate and its
-#   rate; attitude; yaw and yaw rate; then the time of the newest [s], whether the newest is within the timeout of
-#   wall time (1.0, set by the shell) and the tick the offboard flight started;
+#   rate; attitude; yaw and yaw rate; the normalised collective thrust of an attitude setpoint (0..1, −1..1 for
+#   reversible motors: the vertical group's third kind, flown instead of an altitude or climb rate); then the time
+#   of the newest [s], whether the newest is within the timeout of wall time (1.0, set by the shell) and the tick the
+#   offboard flight started;
 # - the auto modes: the moving reference (position, velocity, acceleration), its target, the heading held, the speed
-#   limit of the current leg, the phase (RTL), the takeoff altitude, the descending altitude of a landing and when
-#   the vehicle came to rest (NaN: it has not);
+#   limit of the current leg, the phase (RTL), the takeoff altitude, the descending altitude of a landing, when
+#   the vehicle came to rest (NaN: it has not), the heading flown (turning toward the one wanted at a bounded rate)
+#   and the altitude an offboard climb rate of zero holds (NaN: none held);
 # - home (set on arming): position and heading; the time and tick of the last update and the state it saw;
 # - the reference to fly this tick (valid while armed): x, y, vx, vy, ax, ay (NaN: the horizontal position is not
 #   controlled, and roll and pitch are flown), altitude (NaN: the climb rate alone), climb rate, its rate, roll,
-#   pitch, yaw (NaN: the yaw rate alone), yaw rate; and whether the velocity limits apply.
+#   pitch, yaw (NaN: the yaw rate alone), yaw rate; whether the velocity limits apply; and the normalised collective
+#   thrust (NaN: the altitude channel makes it; else it is flown as it is, :func:`autopilot.tick.autopilot_step`).
 STATE = """
 status: ARMED MODE FAILSAFE
 sp_horizontal: SP_X SP_Y SP_VX SP_VY SP_AX SP_AY
-sp_rest: SP_ALT SP_CLIMB SP_CLIMB_ACC ROLL_SP PITCH_SP YAW_SP SP_YAW_RATE
+sp_rest: SP_ALT SP_CLIMB SP_CLIMB_ACC ROLL_SP PITCH_SP YAW_SP SP_YAW_RATE SP_THRUST
 stream: LAST_SP_TIME SP_WALL_FRESH OFFBOARD_TICK
-auto: GEN_X GEN_Y GEN_ALT GEN_VX GEN_VY GEN_CLIMB GEN_AX GEN_AY GEN_CLIMB_ACC TARGET_X TARGET_Y TARGET_ALT HOLD_YAW LEG_SPEED PHASE TAKEOFF_ALT LAND_ALT LANDED_SINCE
+auto: GEN_X GEN_Y GEN_ALT GEN_VX GEN_VY GEN_CLIMB GEN_AX GEN_AY GEN_CLIMB_ACC TARGET_X TARGET_Y TARGET_ALT HOLD_YAW LEG_SPEED PHASE TAKEOFF_ALT LAND_ALT LANDED_SINCE YAW_REF ALT_LOCK
 home: HOME_X HOME_Y HOME_ALT HOME_YAW
 seen: NOW TICK X Y ALTITUDE VX VY CLIMB_RATE YAW
-settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT
-reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED
+settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT YAW_RATE_AUTO YAW_RATE_OFFBOARD
+reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
 LAYOUTS = {"STATE": STATE}
@@ -53,25 +58,25 @@ LAYOUTS = {"STATE": STATE}
 STATUS_FIRST, STATUS_END = 0, 3
 (SP_X, SP_Y, SP_VX, SP_VY, SP_AX, SP_AY) = range(3, 9)  # fmt: skip
 SP_HORIZONTAL_FIRST, SP_HORIZONTAL_END = 3, 9
-(SP_ALT, SP_CLIMB, SP_CLIMB_ACC, ROLL_SP, PITCH_SP, YAW_SP, SP_YAW_RATE) = range(9, 16)  # fmt: skip
-SP_REST_FIRST, SP_REST_END = 9, 16
-(LAST_SP_TIME, SP_WALL_FRESH, OFFBOARD_TICK) = range(16, 19)  # fmt: skip
-STREAM_FIRST, STREAM_END = 16, 19
+(SP_ALT, SP_CLIMB, SP_CLIMB_ACC, ROLL_SP, PITCH_SP, YAW_SP, SP_YAW_RATE, SP_THRUST) = range(9, 17)  # fmt: skip
+SP_REST_FIRST, SP_REST_END = 9, 17
+(LAST_SP_TIME, SP_WALL_FRESH, OFFBOARD_TICK) = range(17, 20)  # fmt: skip
+STREAM_FIRST, STREAM_END = 17, 20
 (GEN_X, GEN_Y, GEN_ALT, GEN_VX, GEN_VY, GEN_CLIMB, GEN_AX, GEN_AY, GEN_CLIMB_ACC, TARGET_X, TARGET_Y, TARGET_ALT,
- HOLD_YAW, LEG_SPEED, PHASE, TAKEOFF_ALT, LAND_ALT, LANDED_SINCE) = range(19, 37)  # fmt: skip
-AUTO_FIRST, AUTO_END = 19, 37
-(HOME_X, HOME_Y, HOME_ALT, HOME_YAW) = range(37, 41)  # fmt: skip
-HOME_FIRST, HOME_END = 37, 41
-(NOW, TICK, X, Y, ALTITUDE, VX, VY, CLIMB_RATE, YAW) = range(41, 50)  # fmt: skip
-SEEN_FIRST, SEEN_END = 41, 50
-(SETPOINT_TIMEOUT, LAND_SPEED, LANDED_TIME, LAND_TARGET, ACC_HOR, CRUISE, TKO_SPEED, Z_VEL_UP, Z_VEL_DN,
- RTL_ALT) = range(50, 60)  # fmt: skip
-SETTINGS_FIRST, SETTINGS_END = 50, 60
+ HOLD_YAW, LEG_SPEED, PHASE, TAKEOFF_ALT, LAND_ALT, LANDED_SINCE, YAW_REF, ALT_LOCK) = range(20, 40)  # fmt: skip
+AUTO_FIRST, AUTO_END = 20, 40
+(HOME_X, HOME_Y, HOME_ALT, HOME_YAW) = range(40, 44)  # fmt: skip
+HOME_FIRST, HOME_END = 40, 44
+(NOW, TICK, X, Y, ALTITUDE, VX, VY, CLIMB_RATE, YAW) = range(44, 53)  # fmt: skip
+SEEN_FIRST, SEEN_END = 44, 53
+(SETPOINT_TIMEOUT, LAND_SPEED, LANDED_TIME, LAND_TARGET, ACC_HOR, CRUISE, TKO_SPEED, Z_VEL_UP, Z_VEL_DN, RTL_ALT,
+ YAW_RATE_AUTO, YAW_RATE_OFFBOARD) = range(53, 65)  # fmt: skip
+SETTINGS_FIRST, SETTINGS_END = 53, 65
 (REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
- REF_YAW_RATE, REF_LIMITED) = range(60, 74)  # fmt: skip
-REFERENCE_FIRST, REFERENCE_END = 60, 74
-SETPOINT_FIRST, SETPOINT_END = 3, 16
-SIZE = 74
+ REF_YAW_RATE, REF_LIMITED, REF_THRUST) = range(65, 80)  # fmt: skip
+REFERENCE_FIRST, REFERENCE_END = 65, 80
+SETPOINT_FIRST, SETPOINT_END = 3, 17
+SIZE = 80
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
@@ -115,3 +120,11 @@ class CommanderSettings:
                          doc="return altitude above home")  # fmt: skip
     max_distance: float = key(0.0, unit="m", low=0, high=1e7, mavlink=param("GF_MAX_HOR_DIST"),
                               doc="setpoints farther from home are refused (0 = no limit)")  # fmt: skip
+    yaw_rate_auto: float = key(math.radians(45.0), unit="rad/s", low=0, low_open=True, high=math.radians(360.0),
+                               doc="heading rate limit of the auto modes (takeoff, hold, goto, mission, return)",
+                               mavlink=param("MPC_YAWRAUTO_MAX", unit="deg/s", low=0, low_open=True, high=360,
+                                             to_param=math.degrees, from_param=math.radians))  # fmt: skip
+    yaw_rate_offboard: float = key(math.radians(200.0), unit="rad/s", low=0, low_open=True, high=math.radians(1800.0),
+                                   doc="heading rate limit of offboard position and velocity setpoints",
+                                   mavlink=param("SP_YAWRATE_MAX", unit="deg/s", low=0, low_open=True, high=1800,
+                                                 to_param=math.degrees, from_param=math.radians))  # fmt: skip

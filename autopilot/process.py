@@ -370,7 +370,7 @@ class Autopilot:
         c, st = self.commander, self.commander.settings
         return setpoints.Frame(
             self.origin, c.home, float(self.st[8]), st.altitude_max, st.max_distance, st.xy_vel_max, st.z_vel_up,
-            st.z_vel_dn,
+            st.z_vel_dn, -1.0 if self.reversible else 0.0,
         )  # fmt: skip
 
     # ---- the records' routes ----------------------------------------------------------------------

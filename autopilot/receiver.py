@@ -9,6 +9,7 @@ Offboard setpoints of a ground station that paces them by the vehicle's clock (`
 from __future__ import annotations
 
 import math
+import struct
 import time
 from collections.abc import Callable
 
@@ -31,12 +32,15 @@ from autopilot.records import (
     Routes,
     TrajectorySetpoint,
 )
-from quadsitl import wire
+from quadsitl import codec, wire
 from quadsitl.compiled_frames import quaternion_to_euler
 
 mavlink = wire.mavlink
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
-RATES_ONLY = 128  # SET_ATTITUDE_TARGET type_mask bit: the attitude is ignored (body rates alone)
+# SET_ATTITUDE_TARGET's type_mask bits (ATTITUDE_TARGET_TYPEMASK): the attitude is ignored (body rates alone); the
+# thrust is ignored; the thrust is the extension field thrust_body (x, y, z in the body frame) instead.
+RATES_ONLY, THROTTLE_IGNORE, THRUST_BODY_SET = 128, 64, 32
+THRUST_BODY_AT = 39  # [bytes] where SET_ATTITUDE_TARGET's thrust_body extension starts in its payload
 FTP_HEADER = 12  # bytes of a FILE_TRANSFER_PROTOCOL payload's header: shorter is not a request
 OFFBOARD_SETPOINTS = frozenset((mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
                                 mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
@@ -136,9 +140,10 @@ class Receiver:
         self.routes.deliver(TrajectorySetpoint(*groups, wall=time.monotonic()))
 
     def _attitude_target(self, m, link) -> None:
-        """SET_ATTITUDE_TARGET: the attitude reference. type_mask 128 (attitude ignored) carries no attitude we can
-        fly (no body-rate control here), so it is not a setpoint. The thrust field is always ignored: in offboard an
-        altitude reference always exists and the altitude loop makes u1."""
+        """SET_ATTITUDE_TARGET: the attitude reference and, as PX4 reads it, the normalised collective thrust (its
+        ``thrust``, or ``thrust_body`` when type_mask sets THRUST_BODY_SET; ignored with THROTTLE_IGNORE: the vertical
+        setpoint stays as it was). type_mask 128 (attitude ignored) carries no attitude we can fly (no body-rate
+        control here), so it is not a setpoint."""
         if m.type_mask & RATES_ONLY:
             self.outbox.say_once("rates", "Attitude setpoint ignored: body-rate setpoints (type_mask 128) not "
                                           "supported")  # fmt: skip
@@ -155,7 +160,29 @@ class Receiver:
             self.outbox.refuse("tilt", f"Attitude setpoint refused: roll {roll:.3f}, pitch {pitch:.3f} rad beyond "
                                        f"ATT_TILT_MAX {tilt:.3f} rad")  # fmt: skip
             return
-        self.routes.deliver(AttitudeSetpoint(roll, pitch, yaw, wall=time.monotonic()))
+        thrust = self._thrust(m)
+        if thrust is not None:
+            self.routes.deliver(AttitudeSetpoint(roll, pitch, yaw, wall=time.monotonic(), thrust=thrust))
+
+    def _thrust(self, m) -> float | None:
+        """SET_ATTITUDE_TARGET's normalised collective thrust (NaN: ignored), or None when refused (said why)."""
+        if m.type_mask & THRUST_BODY_SET:
+            tx, ty, tz = thrust_body(m)
+            if tx != 0.0 or ty != 0.0:
+                why = f"thrust_body x {tx:g}, y {ty:g}; a quadrotor's thrust is along its body z axis alone (x = y = 0)"
+                self.outbox.refuse("thrust_body", f"Attitude setpoint refused: {why}")
+                return None
+            value, field = -tz, "-thrust_body z"
+        elif m.type_mask & THROTTLE_IGNORE:
+            return math.nan
+        else:
+            value, field = m.thrust, "thrust"
+        low = self.frame().thrust_low
+        if not low <= value <= 1.0:  # False for NaN too
+            self.outbox.refuse("thrust", f"Attitude setpoint refused: {field} {value:g}; allowed: [{low:g}, 1] "
+                                         f"(normalised collective thrust)")  # fmt: skip
+            return None
+        return value
 
     def _set_mode(self, m, link) -> None:
         """SET_MODE, QGroundControl's way to PX4 modes (no acknowledgement)."""
@@ -176,3 +203,14 @@ class Receiver:
             self.routes.deliver(FileTransfer(bytes(m.payload), (m.get_srcSystem(), m.get_srcComponent())))
         else:
             self.counters.unknown += 1
+
+
+def thrust_body(m) -> tuple[float, float, float]:
+    """SET_ATTITUDE_TARGET's ``thrust_body`` (a MAVLink 2 extension our pymavlink's dialect predates), read from the
+    frame: three float32 after the 39 bytes of the base payload, zeros where MAVLink 2 truncated them."""
+    frame = bytes(m.get_msgbuf())
+    if not frame or frame[0] != codec.MAVLINK2_STX:
+        return 0.0, 0.0, 0.0
+    payload = frame[codec.HEADER_SIZE : codec.HEADER_SIZE + frame[1]]
+    ext = payload[THRUST_BODY_AT : THRUST_BODY_AT + 12].ljust(12, b"\0")
+    return struct.unpack("<3f", ext)

@@ -31,12 +31,14 @@ class TrajectorySetpoint:
 
 @dataclass(frozen=True)
 class AttitudeSetpoint:
-    """SET_ATTITUDE_TARGET's attitude (roll, pitch, yaw), within the tilt limit."""
+    """SET_ATTITUDE_TARGET's attitude (roll, pitch, yaw), within the tilt limit, and its normalised collective thrust
+    (0..1, −1..1 on reversible motors; NaN: the type_mask ignores it, and the vertical setpoint stays as it was)."""
 
     roll: float
     pitch: float
     yaw: float
     wall: float
+    thrust: float = math.nan
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,7 @@ Heading = tuple[float, float]
 class Frame:
     """Where setpoints are measured from: the local origin (latitude, longitude [deg], altitude AMSL [m]), home
     (x, y NED [m], altitude above the origin [m]), the vehicle's yaw [rad] now, and the limits (SP_ALT_MAX,
-    GF_MAX_HOR_DIST (0: none), MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN)."""
+    GF_MAX_HOR_DIST (0: none), MPC_XY_VEL_MAX, MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN, the lowest normalised thrust)."""
 
     origin: tuple[float, float, float]
     home: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -55,6 +55,7 @@ class Frame:
     xy_vel_max: float = PositionParams.xy_vel_max  # [m/s] the preset keys' defaults (quadsitl.config)
     z_vel_up: float = PositionParams.z_vel_max_up  # [m/s]
     z_vel_dn: float = PositionParams.z_vel_max_dn  # [m/s]
+    thrust_low: float = 0.0  # the lowest normalised collective thrust: −1 on reversible motors
 
 
 class SetpointError(ValueError):

@@ -27,7 +27,6 @@ from autopilot.commander import (
     EVENT_NONE,
     FAILSAFE,
     MODE,
-    OFFBOARD,
     OFFBOARD_TICK,
     REF_ALT,
     REF_AY,
@@ -36,6 +35,7 @@ from autopilot.commander import (
     REF_LIMITED,
     REF_PITCH,
     REF_ROLL,
+    REF_THRUST,
     REF_X,
     REF_YAW,
     REF_YAW_RATE,
@@ -127,6 +127,8 @@ def fly(
     else:
         b, e1, e2, zeta_h = altitude_law(h, climb, h_ref, climb_ff, climb_acc, zeta_h, alt_mode, lo, hi, v, c)
         a_v = b / c[PERIOD]
+    if not math.isnan(cm[REF_THRUST]):  # the thrust is given (autopilot_step flies it): no altitude channel
+        a_v, e1, e2, zeta_h = 0.0, 0.0, 0.0, mem[MEM_ZETA]
     sp = (cm[REF_X], cm[REF_X + 1], cm[REF_X + 2], cm[REF_X + 3], cm[REF_X + 4], cm[REF_AY])
     if not controls_horizontal(sp):
         roll_ref, pitch_ref = cm[REF_ROLL], cm[REF_PITCH]
@@ -205,6 +207,19 @@ def plugged(plug: tuple, x: tuple, cm: np.ndarray, v: np.ndarray, c: np.ndarray,
 
 
 @jit(inline=True)
+def climb_asked(cm: np.ndarray, h: float) -> bool:
+    """Whether the reference asks a vehicle resting on the ground at altitude ``h`` [m] to leave it: a thrust given
+    (flown as it is), an altitude above it, or (no altitude) a climb rate, or else an acceleration, upward."""
+    if not math.isnan(cm[REF_THRUST]):
+        return True
+    if not math.isnan(cm[REF_ALT]):
+        return cm[REF_ALT] > max(h, 0.0) + GROUND_IDLE_MARGIN
+    if not math.isnan(cm[REF_CLIMB]):
+        return cm[REF_CLIMB] > 0.0
+    return cm[REF_CLIMB_ACC] > 0.0  # False for NaN too
+
+
+@jit(inline=True)
 def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray,
                    c: np.ndarray, f_min: float, f_max: float, tick: int, now: float) -> tuple[Forces, int]:  # fmt: skip
     """The autopilot's per-tick work, composed once (every runtime calls it: the autopilot process through
@@ -214,13 +229,17 @@ def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: 
     disarmed, or idle on the ground, a zero command and zero forces. Returns (the commanded motor forces [N], the
     commander's event).
 
-    **Idle on the ground**, as PX4's multicopter keeps its thrust at idle while landed: armed in an auto mode
-    (hold, takeoff, land, return, mission), resting on the ground (below TOUCHDOWN_ALT, |climb| below
-    TOUCHDOWN_CLIMB) and with an altitude reference not above the vehicle (armed in hold, or a landing touched
-    down), the motors idle and the integrators stay at zero, until a reference asks for a climb. Offboard
-    setpoints are always flown (an attitude setpoint on the ground tilts the vehicle there, as on PX4). Without
-    the idle, a vehicle whose autopilot believes it heavier than it is (a mass mismatch) would lift off in hold;
-    with it, an offboard flight starts from rest with a previous command of zero (the backstepping's Ωr).
+    **Idle on the ground**, as PX4's multicopter keeps its thrust at idle while landed until a setpoint asks it up:
+    armed, resting on the ground (below TOUCHDOWN_ALT, |climb| below TOUCHDOWN_CLIMB) and with a reference that
+    does not ask for a climb (:func:`climb_asked`: armed in hold, a landing touched down, an offboard altitude of
+    the ground or a velocity along it), the motors idle and the integrators stay at zero. Without the idle, a
+    vehicle whose autopilot believes it heavier than it is (a mass mismatch) would lift off in hold, and an offboard
+    attitude or velocity setpoint on the ground would skate the vehicle along it, hovering at its height; with it, a
+    flight starts from rest with a previous command of zero (the backstepping's Ωr).
+
+    **A thrust given** (an offboard attitude setpoint's normalised collective thrust, cm[REF_THRUST]) is flown as
+    it is, whichever law makes the torques: u1 = thrust × 4·f_max, every motor at that share of its largest force,
+    as HIL_ACTUATOR_CONTROLS normalises them (PX4's normalised thrust).
 
     **A plugged controller** (``kind`` PLUGGED, its law in ``plug``) is flown instead of :func:`fly`. A command of
     it that is not finite never reaches the motors: that tick and every one until the next arming fly the
@@ -229,8 +248,7 @@ def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: 
     h, climb = altitude(st), climb_rate(st)
     event = commander.update(cm, tick, now, st[0], st[1], h, st[3], st[4], climb, st[8])
     armed = cm[ARMED] != 0.0
-    idle = (cm[MODE] != OFFBOARD and h < TOUCHDOWN_ALT and abs(climb) < TOUCHDOWN_CLIMB
-            and cm[REF_ALT] <= max(h, 0.0) + GROUND_IDLE_MARGIN)  # fmt: skip
+    idle = h < TOUCHDOWN_ALT and abs(climb) < TOUCHDOWN_CLIMB and not climb_asked(cm, h)
     if armed and not idle:
         x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])
         law = kind
@@ -250,6 +268,8 @@ def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: 
                         commander.enter(cm, commander.LAND)
         if law != PLUGGED:
             u, errors, omega_r = fly(law, x, cm, mem, v, c)
+        if not math.isnan(cm[REF_THRUST]):
+            u = Inputs(cm[REF_THRUST] * 4.0 * f_max, u[1], u[2], u[3])
         forces = allocate(u, v[D_OVER_B], f_min, f_max)
         for i in range(4):
             mem[MEM_U + i] = u[i]

@@ -64,7 +64,8 @@ from quadsitl.process_util import parse_address, readable_of
 from quadsitl.state import Reference
 
 mavlink = wire.mavlink
-MASK_IGNORE_RATES = 1 | 2 | 4  # SET_ATTITUDE_TARGET: attitude and thrust fields used
+# SET_ATTITUDE_TARGET: the attitude alone (rates and thrust ignored; the altitude is a position target beside it)
+MASK_ATTITUDE_ONLY = 1 | 2 | 4 | 64
 MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
 MASK_POSITION_VELOCITY_YAW = POSITION_VELOCITY_YAW  # a position trajectory's (groundstation.setpoint_grid)
 COMMAND_RETRY = 0.5  # [s] wall: a command is sent again until acknowledged (MAVSDK waits 0.5 s too)
@@ -236,7 +237,7 @@ class GroundStation:
         ts, tc = self.target
         q = euler_to_quaternion(ref.roll, ref.pitch, ref.yaw)
         ms, frame = self.stamp_ms() if ms is None else ms, mavlink.MAV_FRAME_LOCAL_NED
-        self.send(mavlink.MAVLink_set_attitude_target_message(ms, ts, tc, MASK_IGNORE_RATES, q, 0, 0, 0, 0.5))
+        self.send(mavlink.MAVLink_set_attitude_target_message(ms, ts, tc, MASK_ATTITUDE_ONLY, q, 0, 0, 0, 0.0))
         z = -ref.altitude  # NED: z down
         self.send(mavlink.MAVLink_set_position_target_local_ned_message(
             ms, ts, tc, frame, MASK_Z_ONLY, 0, 0, z, 0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip

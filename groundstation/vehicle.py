@@ -43,8 +43,8 @@ from quadsitl.state import Reference, VehicleState
 from sitl import tick as plant_tick
 from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X, Plant, inside, step_arrays
 
-# The commander's offboard setpoint fields, in its state array's order: what a setpoint sets (cmd.SP_X..SP_YAW_RATE).
-SP_FIELDS = cmd.SP_YAW_RATE + 1 - cmd.SP_X
+# The commander's offboard setpoint fields, in its state array's order: what a setpoint sets (cmd.SP_X..SP_THRUST).
+SP_FIELDS = cmd.SETPOINT_END - cmd.SETPOINT_FIRST
 # A row of the result (fly_ticks): the truth x(k) (12), what the autopilot flew on (12), the reference shown
 # (altitude, roll, pitch, yaw, x, y: autopilot.tick.reference_shown), u1..u4, the commanded forces f1..f4 [N].
 R_STATE, R_SEEN, R_REF, R_XY_REF, R_INPUTS, R_FORCES, ROW_SIZE = 0, 12, 24, 28, 30, 34, 38
@@ -117,7 +117,7 @@ def vehicle_tick(k: int, kind: int, period: float, substeps: int, method: int, p
 @jit(inline=True)
 def setpoints_due(k: int, cm: np.ndarray, sp_ticks: np.ndarray, sp_values: np.ndarray, sp_next: np.ndarray) -> None:
     """The offboard setpoints made for tick ``k`` or before and not yet flown (``sp_next``[0] the first) to the
-    commander, as the autopilot's handlers set them (cmd.SP_X..SP_YAW_RATE), stamped with the commander's time."""
+    commander, as the autopilot's handlers set them (cmd.SP_X..SP_THRUST), stamped with the commander's time."""
     while sp_next[0] < sp_ticks.shape[0] and sp_ticks[sp_next[0]] <= k:
         for i in range(SP_FIELDS):
             cm[cmd.SP_X + i] = sp_values[sp_next[0], i]
@@ -197,7 +197,7 @@ def commander_for(position: PositionParams) -> Commander:
 @dataclass
 class Setpoints:
     """Offboard setpoints as the commander holds them: ticks[i] the tick setpoint i is flown from (ascending),
-    values[i] the commander's fields it sets (cmd.SP_X..SP_YAW_RATE, NaN where not given)."""
+    values[i] the commander's fields it sets (cmd.SP_X..SP_THRUST, NaN where not given)."""
 
     ticks: np.ndarray  # (N,) int64
     values: np.ndarray  # (N, SP_FIELDS)
@@ -275,7 +275,7 @@ class Vehicle:
         (:meth:`autopilot.process.Autopilot.frame`)."""
         c, st = self.commander, self.commander.settings
         return setpoints.Frame(self.home, c.home, float(self.st[8]), st.altitude_max, st.max_distance, st.xy_vel_max,
-                               st.z_vel_up, st.z_vel_dn)  # fmt: skip
+                               st.z_vel_up, st.z_vel_dn, -1.0 if self.preset.actuators.reversible else 0.0)  # fmt: skip
 
     @property
     def state(self) -> VehicleState:

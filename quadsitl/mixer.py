@@ -63,28 +63,41 @@ def residual_rotor_speed(forces: Forces, b: float) -> float:
 
 @jit(inline=True)
 def allocate(u: tuple[float, float, float, float], d_over_b: float, f_min: float, f_max: float) -> Forces:
-    """Control allocation with saturation: inputs → motor forces within [f_min, f_max].
+    """Control allocation with saturation: inputs → motor forces within [f_min, f_max], in PX4's order of priority
+    (its sequential desaturation, ``ControlAllocationSequentialDesaturation``): roll and pitch, then the collective
+    thrust, then yaw.
 
-    When the exact inverse of eq (8) fits, it is returned unchanged. Otherwise the torques are kept
-    and the collective thrust is shifted (all motors by the same amount) to fit; if the torques alone
-    need more than the range, they are scaled down (attitude keeps priority over thrust, as in PX4's
-    mixer). The result always lies in [f_min, f_max].
+    When the exact inverse of eq (8) fits, it is returned unchanged. Otherwise roll, pitch and thrust are
+    allocated first: the torques kept and the collective shifted (all motors by the same amount) to fit, or, when
+    the torques alone need more than the range, scaled down. Yaw comes last, with what the motors have left: it is
+    reduced until it fits. So a large yaw demand turns the vehicle more slowly instead of costing it height (PX4
+    lets yaw lower the collective by up to 15 % of the range; its yaw demands are small, the backstepping's in a
+    large turn are not). The result always lies in [f_min, f_max].
     """
     forces = inputs_to_forces(u, d_over_b)
     f1, f2, f3, f4 = forces
     lo, hi = min(min(f1, f2), min(f3, f4)), max(max(f1, f2), max(f3, f4))
     if lo >= f_min and hi <= f_max:
         return forces
-    mean = 0.25 * u[0]
-    d1, d2, d3, d4 = f1 - mean, f2 - mean, f3 - mean, f4 - mean  # the torque part, zero-sum
-    spread_lo, spread_hi = lo - mean, hi - mean
-    span = f_max - f_min
-    if spread_hi - spread_lo > span:
-        scale = span / (spread_hi - spread_lo)
-        d1, d2, d3, d4 = scale * d1, scale * d2, scale * d3, scale * d4
-        spread_lo, spread_hi = spread_lo * scale, spread_hi * scale
-    mean = min(max(mean, f_min - spread_lo), f_max - spread_hi)
-    return clamp4((mean + d1, mean + d2, mean + d3, mean + d4), f_min, f_max)
+    g1, g2, g3, g4 = inputs_to_forces((u[0], u[1], u[2], 0.0), d_over_b)
+    lo, hi = min(min(g1, g2), min(g3, g4)), max(max(g1, g2), max(g3, g4))
+    if lo < f_min or hi > f_max:
+        mean = 0.25 * u[0]
+        d1, d2, d3, d4 = g1 - mean, g2 - mean, g3 - mean, g4 - mean  # the torque part, zero-sum
+        spread_lo, spread_hi = lo - mean, hi - mean
+        span = f_max - f_min
+        if spread_hi - spread_lo > span:
+            scale = span / (spread_hi - spread_lo)
+            d1, d2, d3, d4 = scale * d1, scale * d2, scale * d3, scale * d4
+            spread_lo, spread_hi = spread_lo * scale, spread_hi * scale
+        mean = min(max(mean, f_min - spread_lo), f_max - spread_hi)
+        g1, g2, g3, g4 = clamp4((mean + d1, mean + d2, mean + d3, mean + d4), f_min, f_max)
+    # Yaw: +y on motors 2 and 4, −y on 1 and 3 (u4 = (d/b)·4y, u1..u3 unchanged), y within what each motor has left.
+    y = u[3] / (4.0 * d_over_b)
+    up24, down13 = min(f_max - g2, f_max - g4), min(g1 - f_min, g3 - f_min)  # room for y > 0
+    up13, down24 = min(f_max - g1, f_max - g3), min(g2 - f_min, g4 - f_min)  # room for y < 0
+    y = min(max(y, -min(up13, down24)), min(up24, down13))
+    return clamp4((g1 - y, g2 + y, g3 - y, g4 + y), f_min, f_max)
 
 
 @jit(inline=True)

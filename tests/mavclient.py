@@ -238,7 +238,7 @@ class Client:
         from quadsitl.frames import euler_to_quaternion
 
         q = euler_to_quaternion(roll, pitch, yaw)
-        self.conn.mav.set_attitude_target_send(0, 1, 1, 7, q, 0.0, 0.0, 0.0, 0.5)
+        self.conn.mav.set_attitude_target_send(0, 1, 1, 71, q, 0.0, 0.0, 0.0, 0.0)  # thrust ignored (64)
         mask = 0b110111111011  # z only
         self.conn.mav.set_position_target_local_ned_send(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask, 0, 0, -altitude,
                                                         0, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip

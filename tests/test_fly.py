@@ -411,7 +411,7 @@ def test_setpoint_loss_failsafe_with_a_raw_pymavlink_client(procs):
         assert hb is not None and hb.autopilot == mavutil.mavlink.MAV_AUTOPILOT_PX4
 
         def setpoints():
-            gcs.mav.set_attitude_target_send(0, 1, 1, 7, [1, 0, 0, 0], 0, 0, 0, 0.5)
+            gcs.mav.set_attitude_target_send(0, 1, 1, 71, [1, 0, 0, 0], 0, 0, 0, 0)
             gcs.mav.set_position_target_local_ned_send(0, 1, 1, 1, 0b110111111011, 0, 0, -1.0, 0, 0, 0, 0, 0, 0, 0, 0)
 
         def command(cmd, *p):

@@ -83,3 +83,19 @@ def test_allocate_exact_when_it_fits_and_bounded_when_not():
     # Torque alone larger than the range: everything inside, sign of the torque kept.
     f = allocate((10.0, 30.0, 0.0, 0.0), 0.016, 0.0, 8.5)
     assert all(0.0 <= x <= 8.5 for x in f) and f[3] > f[1]
+
+
+def test_allocate_gives_up_yaw_before_the_collective_and_roll_and_pitch_before_neither():
+    d, f_max = 0.016, 8.5
+    # Hover (19.6 N) with a roll torque and a yaw torque the motors cannot make beside it: the yaw is cut, the
+    # collective and the roll kept (the old allocation kept the yaw and lowered the collective: the vehicle sank).
+    u = (19.6, 2.0, 0.0, 0.5)
+    f = allocate(u, d, 0.0, f_max)
+    got = forces_to_inputs(f, d)
+    assert got[0] == pytest.approx(19.6) and got[1] == pytest.approx(2.0) and got[2] == pytest.approx(0.0)
+    assert 0.0 < got[3] < 0.5 and all(0.0 <= x <= f_max for x in f)
+    # A roll torque beyond the range: scaled to the whole range (the collective where that fits: mid-range), and
+    # the yaw gets nothing.
+    f = allocate((19.6, 12.0, 0.0, 0.2), d, 0.0, f_max)
+    got = forces_to_inputs(f, d)
+    assert got[1] == pytest.approx(f_max) and got[0] == pytest.approx(2 * f_max) and got[3] == pytest.approx(0.0)

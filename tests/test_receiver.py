@@ -100,3 +100,42 @@ def test_unknown_messages_and_short_ftp_requests_are_counted(rx):
     receiver.on_message(M.MAVLink_file_transfer_protocol_message(0, 1, 1, [0] * 4), link=None)
     receiver.on_message(M.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0), link=None)
     assert got == [] and counters.unknown == 2
+
+
+def attitude_target(mask: int, thrust: float, thrust_body: tuple[float, float, float] | None = None):
+    """A SET_ATTITUDE_TARGET as it arrives: packed, and with ``thrust_body`` its MAVLink 2 extension (which
+    pymavlink's dialect predates) appended to the payload as a newer sender packs it, then parsed."""
+    import struct
+
+    from pymavlink.generator.mavcrc import x25crc
+
+    mav = M.MAVLink(None, srcSystem=255, srcComponent=190)
+    frame = bytearray(M.MAVLink_set_attitude_target_message(0, 1, 1, mask, [1, 0, 0, 0], 0, 0, 0, thrust).pack(mav))
+    if thrust_body is not None:
+        payload = bytes(frame[10 : 10 + frame[1]]).ljust(39, b"\0") + struct.pack("<3f", *thrust_body)
+        frame = bytearray(frame[:10]) + payload
+        frame[1] = len(payload)
+        crc = x25crc(frame[1:])
+        crc.accumulate(bytes([M.MAVLink_set_attitude_target_message.crc_extra]))
+        frame += struct.pack("<H", crc.crc)
+    (m,) = mav.parse_buffer(bytes(frame))
+    return m
+
+
+def test_an_attitude_setpoints_thrust_is_its_collective_thrust_unless_ignored(rx):
+    receiver, got, counters, _ = rx
+    receiver.on_message(attitude_target(7, 0.7), link=None)  # MAVSDK's set_attitude: rates ignored
+    receiver.on_message(attitude_target(7 | 64, 0.7), link=None)  # THROTTLE_IGNORE: the vertical setpoint stays
+    receiver.on_message(attitude_target(7 | 32, 0.0, (0.0, 0.0, -0.55)), link=None)  # THRUST_BODY_SET: −z is up
+    assert [r.thrust for r in got[:1] + got[2:]] == pytest.approx([0.7, 0.55]) and math.isnan(got[1].thrust)
+    assert counters.refused == 0
+
+
+def test_a_thrust_out_of_range_or_off_the_body_z_axis_is_refused_with_the_field_named(rx):
+    receiver, got, counters, outbox = rx
+    receiver.on_message(attitude_target(7, 1.5), link=None)
+    receiver.on_message(attitude_target(7, -0.2), link=None)  # the x500's motors do not reverse
+    receiver.on_message(attitude_target(7 | 32, 0.0, (0.3, 0.0, -0.5)), link=None)
+    assert got == [] and counters.refused == 3
+    assert "thrust 1.5; allowed: [0, 1]" in outbox.texts[0] and "thrust -0.2; allowed: [0, 1]" in outbox.texts[1]
+    assert "thrust_body x 0.3" in outbox.texts[2]

@@ -300,10 +300,10 @@ def test_tlog_falls_back_on_the_ground_stations_setpoints_and_servo_outputs(tmp_
         ms = 20 * i
         w.add(w.vehicle, M.MAVLink_attitude_message(ms, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
         q = euler_to_quaternion(0.4, -0.3, 1.0)
-        w.add(w.gcs, M.MAVLink_set_attitude_target_message(ms, 1, 1, 7, q, 0, 0, 0, 0.5))
+        w.add(w.gcs, M.MAVLink_set_attitude_target_message(ms, 1, 1, 71, q, 0, 0, 0, 0))
         w.add(w.gcs, M.MAVLink_set_position_target_local_ned_message(ms, 1, 1, M.MAV_FRAME_LOCAL_NED, 0b110111111011,
                                                                      0, 0, -3.0, 0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
-        w.add(w.gcs, M.MAVLink_set_attitude_target_message(ms, 2, 1, 7, [1, 0, 0, 0], 0, 0, 0, 0.5))  # not ours
+        w.add(w.gcs, M.MAVLink_set_attitude_target_message(ms, 2, 1, 71, [1, 0, 0, 0], 0, 0, 0, 0))  # not ours
         w.add(w.vehicle, M.MAVLink_servo_output_raw_message(ms * 1000, 0, 1750, 1500, 1000, 0, *[0] * 12))
     path = w.save(tmp_path / "flight.tlog")
     r, sub = play(path, "fallback", "--speed", "0", expect=10)

@@ -108,7 +108,9 @@ def test_mavproxy_sees_the_vehicle_sets_parameters_arms_and_flies_offboard(mavpr
 
     # Offboard: a setpoint stream first (10° roll: q = [cos 5°, sin 5°, 0, 0]), then PX4's offboard mode.
     # (MAVProxy's "mode OFFBOARD" does not work for PX4 vehicles: it sends a tuple; "long DO_SET_MODE" does.)
-    attitude = "attitude 0.9961947 0.0871557 0 0 0.5"
+    # The thrust is flown, normalised to the motors' 4 × 10 000 N: 0.0004 (16 N) keeps the paper's 2 kg vehicle on
+    # the ground, where it rolls to 10°.
+    attitude = "attitude 0.9961947 0.0871557 0 0 0.0004"
     streaming = threading.Event()
     streaming.set()
 

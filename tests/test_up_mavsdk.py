@@ -43,7 +43,9 @@ async def session(port: int) -> dict:
         await off.set_position_ned(PositionNedYaw(0.0, 0.0, -2.0, 0.0))  # climb to 2 m first
         await off.start()
         await until(tel.subscribe_position_velocity_ned(), lambda p: abs(p.position.down_m + 2.0) < 0.01, 10)
-        await off.set_attitude(Attitude(5.0, -5.0, 30.0, 0.5))  # degrees; thrust ignored: the altitude loop holds 2 m
+        # Degrees, and the thrust flown as PX4 flies it: normalised to the paper vehicle's 4 × 10 000 N motors,
+        # 0.0005 is 20 N, 0.4 N above its weight: it climbs slowly from 2 m.
+        await off.set_attitude(Attitude(5.0, -5.0, 30.0, 0.0005))
         seen["mode"] = await until(tel.subscribe_flight_mode(), lambda m: m == FlightMode.OFFBOARD, 5)
         seen["attitude"] = await until(
             tel.subscribe_attitude_euler(),
@@ -70,7 +72,7 @@ def test_mavsdk_connects_sets_parameters_arms_flies_offboard_attitude_and_lands(
     assert seen["refused"] is not None and seen["VM_MASS"] == 2.0  # the echo kept 2.0, so MAVSDK reports failure
     assert seen["mode_before"] == FlightMode.HOLD and seen["home"] == pytest.approx((47.397742, 8.545594, 488.0))
     assert seen["armed"] and seen["mode"] == FlightMode.OFFBOARD and seen["in_air"] == LandedState.IN_AIR
-    assert seen["down"] == pytest.approx(-2.0, abs=0.01) and seen["relative_alt"] == pytest.approx(2.0, abs=0.01)
+    assert seen["down"] < -2.0 and seen["relative_alt"] == pytest.approx(-seen["down"], abs=0.05)
     assert seen["hold"] == FlightMode.HOLD and seen["disarmed"] is False and seen["landed"] == LandedState.ON_GROUND
 
 

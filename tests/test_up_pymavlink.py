@@ -295,7 +295,7 @@ def test_setpoint_validation_normalises_near_unit_quaternions_and_refuses_the_re
     def stream(quat, seconds: float, z: float = -1.0) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            c.conn.mav.set_attitude_target_send(0, 1, 1, 7, quat, 0, 0, 0, 0.5)
+            c.conn.mav.set_attitude_target_send(0, 1, 1, 71, quat, 0, 0, 0, 0)
             c.conn.mav.set_position_target_local_ned_send(0, 1, 1, M.MAV_FRAME_LOCAL_NED, 0b110111111011, 0, 0, z,
                                                           0, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip
             c.pump(0.05)
