@@ -29,6 +29,8 @@ Rules (PX4's, DESIGN.md §8–§9):
   hold that point while the altitude reference descends (at MPC_Z_VEL_MAX_DN above 10 m, at ``land_speed``
   below 5 m) to below the ground; touchdown
   (altitude < 5 cm, |climb| < 0.1 m/s for ``landed_time``) disarms.
+- Automatic disarming (PX4's, :func:`auto_disarm`): armed and not taken off within COM_DISARM_PRFLT, or resting on
+  the ground for COM_DISARM_LAND after a flight, in any mode.
 
 The per-tick part (:func:`update`) is compiled (:mod:`quadsitl.jit`) and works on the commander's state,
 one float64 array with a name per index, so the autopilot's whole tick runs as one compiled call
@@ -106,7 +108,37 @@ def arm(cm: np.ndarray) -> None:
     cm[ARMED] = 1.0
     cm[FAILSAFE] = FAILSAFE_NONE
     cm[HOME_X], cm[HOME_Y], cm[HOME_ALT], cm[HOME_YAW] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0), cm[YAW]
+    cm[ARMED_AT], cm[TOOK_OFF], cm[RESTING_SINCE], cm[ARM_WALL_RECENT] = cm[NOW], 0.0, math.nan, 0.0
     enter(cm, int(cm[MODE]))
+
+
+@jit
+def auto_disarm(cm: np.ndarray, now: float) -> int:
+    """PX4's automatic disarming (``Commander::handleAutoDisarm``), in every mode: not taken off (above AIRBORNE_ALT)
+    within COM_DISARM_PRFLT of arming (simulated time, and wall time when the shell keeps ARM_WALL_RECENT: a ground
+    station on the wall clock gets its seconds in a lockstep run sped up N×) → EVENT_PREFLIGHT_DISARM; resting on
+    the ground for COM_DISARM_LAND after taking off → EVENT_LANDED. A landing of LAND or RTL disarms by its own
+    count (:func:`_land`), and one amid a mission does not (PX4's ``landed_amid_mission``). Disarms and returns the
+    event, or EVENT_NONE."""
+    if cm[ALTITUDE] > AIRBORNE_ALT:
+        cm[TOOK_OFF] = 1.0
+    if cm[TOOK_OFF] == 0.0:
+        limit = cm[DISARM_PREFLIGHT]
+        if limit > 0.0 and now - cm[ARMED_AT] >= limit and cm[ARM_WALL_RECENT] == 0.0:
+            cm[ARMED], cm[OFFBOARD_TICK] = 0.0, -1.0
+            return EVENT_PREFLIGHT_DISARM
+        return EVENT_NONE
+    mode = cm[MODE]
+    resting = cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB
+    if mode in (LAND, RTL, MISSION) or not resting:
+        cm[RESTING_SINCE] = math.nan
+        return EVENT_NONE
+    if math.isnan(cm[RESTING_SINCE]):
+        cm[RESTING_SINCE] = now
+    elif now - cm[RESTING_SINCE] >= cm[LANDED_TIME]:
+        cm[ARMED], cm[OFFBOARD_TICK] = 0.0, -1.0
+        return EVENT_LANDED
+    return EVENT_NONE
 
 
 @jit
@@ -279,7 +311,9 @@ def update(
     cm[VX], cm[VY], cm[CLIMB_RATE], cm[YAW] = vx, vy, climb_rate, yaw
     if cm[ARMED] == 0.0:
         return EVENT_NONE
-    event = EVENT_NONE
+    event = auto_disarm(cm, now)
+    if event != EVENT_NONE:
+        return event
     mode = cm[MODE]
     if mode == OFFBOARD and cm[OFFBOARD_TICK] < 0.0:
         cm[OFFBOARD_TICK] = tick
@@ -327,13 +361,14 @@ class Commander:
     def __init__(self, settings: CommanderSettings | None = None) -> None:
         self.cm = np.zeros(SIZE)
         self.cm[SETPOINT_FIRST:SETPOINT_END] = math.nan
-        self.cm[[LANDED_SINCE, TAKEOFF_ALT, ALT_LOCK]] = math.nan
+        self.cm[[LANDED_SINCE, TAKEOFF_ALT, ALT_LOCK, RESTING_SINCE]] = math.nan
         self.cm[REFERENCE_FIRST:REFERENCE_END] = math.nan
         self.cm[LAST_SP_TIME] = -1e9
         self.cm[OFFBOARD_TICK] = -1.0
         self.settings = settings or CommanderSettings()
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) to announce
         self.setpoint_wall = -math.inf  # [s] the shell's wall clock when the newest setpoint arrived
+        self.armed_wall: float | None = None  # [s] the shell's wall clock at its first call after arming
 
     # ---- the state, by name --------------------------------------------------------------------
 
@@ -351,6 +386,7 @@ class Commander:
         cm[ACC_HOR], cm[CRUISE], cm[TKO_SPEED] = s.acc_hor, s.cruise, s.takeoff_speed
         cm[Z_VEL_UP], cm[Z_VEL_DN], cm[RTL_ALT] = s.z_vel_up, s.z_vel_dn, s.rtl_alt
         cm[YAW_RATE_AUTO], cm[YAW_RATE_OFFBOARD] = s.yaw_rate_auto, s.yaw_rate_offboard
+        cm[DISARM_PREFLIGHT] = s.disarm_preflight
 
     @property
     def armed(self) -> bool:
@@ -438,6 +474,12 @@ class Commander:
         """The shell's wall clock [s], every few milliseconds: the setpoint stream stays fresh while its newest
         setpoint arrived (``wall=`` of the setpoint handlers) within the timeout of wall time too."""
         self.cm[SP_WALL_FRESH] = 1.0 if wall - self.setpoint_wall <= self.settings.setpoint_timeout else 0.0
+        if not self.armed:
+            self.armed_wall = None
+            return
+        if self.armed_wall is None:
+            self.armed_wall = wall
+        self.cm[ARM_WALL_RECENT] = 1.0 if wall - self.armed_wall < self.settings.disarm_preflight else 0.0
 
     def on_attitude_setpoint(
         self, roll: float | None, pitch: float | None, yaw: float | None, wall: float = -math.inf,
@@ -620,6 +662,9 @@ class Commander:
             )
         elif event == EVENT_LANDED:
             self.messages.append((6, "Landed, disarmed"))
+        elif event == EVENT_PREFLIGHT_DISARM:
+            self.messages.append((6, f"Disarmed by auto preflight disarming: not taken off within COM_DISARM_PRFLT "
+                                     f"{self.settings.disarm_preflight:g} s"))  # fmt: skip
         elif event == EVENT_TAKEOFF_DONE:
             self.messages.append((6, "Takeoff complete, holding"))
         elif event == EVENT_HOME_REACHED:

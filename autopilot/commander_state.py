@@ -35,7 +35,11 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 #   limit of the current leg, the phase (RTL), the takeoff altitude, the descending altitude of a landing, when
 #   the vehicle came to rest (NaN: it has not), the heading flown (turning toward the one wanted at a bounded rate)
 #   and the altitude an offboard climb rate of zero holds (NaN: none held);
-# - home (set on arming): position and heading; the time and tick of the last update and the state it saw;
+# - home (set on arming): position and heading;
+# - automatic disarming: the simulated time of arming [s], whether the vehicle has taken off since, since when it has
+#   rested on the ground after taking off (NaN: it does not), and whether arming was within COM_DISARM_PRFLT of
+#   wall time (1.0, set by the shell);
+# - the time and tick of the last update and the state it saw;
 # - the reference to fly this tick (valid while armed): x, y, vx, vy, ax, ay (NaN: the horizontal position is not
 #   controlled, and roll and pitch are flown), altitude (NaN: the climb rate alone), climb rate, its rate, roll,
 #   pitch, yaw (NaN: the yaw rate alone), yaw rate; whether the velocity limits apply; and the normalised collective
@@ -47,8 +51,9 @@ sp_rest: SP_ALT SP_CLIMB SP_CLIMB_ACC ROLL_SP PITCH_SP YAW_SP SP_YAW_RATE SP_THR
 stream: LAST_SP_TIME SP_WALL_FRESH OFFBOARD_TICK
 auto: GEN_X GEN_Y GEN_ALT GEN_VX GEN_VY GEN_CLIMB GEN_AX GEN_AY GEN_CLIMB_ACC TARGET_X TARGET_Y TARGET_ALT HOLD_YAW LEG_SPEED PHASE TAKEOFF_ALT LAND_ALT LANDED_SINCE YAW_REF ALT_LOCK
 home: HOME_X HOME_Y HOME_ALT HOME_YAW
+disarm: ARMED_AT TOOK_OFF RESTING_SINCE ARM_WALL_RECENT
 seen: NOW TICK X Y ALTITUDE VX VY CLIMB_RATE YAW
-settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT YAW_RATE_AUTO YAW_RATE_OFFBOARD
+settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT YAW_RATE_AUTO YAW_RATE_OFFBOARD DISARM_PREFLIGHT
 reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
@@ -67,20 +72,24 @@ STREAM_FIRST, STREAM_END = 17, 20
 AUTO_FIRST, AUTO_END = 20, 40
 (HOME_X, HOME_Y, HOME_ALT, HOME_YAW) = range(40, 44)  # fmt: skip
 HOME_FIRST, HOME_END = 40, 44
-(NOW, TICK, X, Y, ALTITUDE, VX, VY, CLIMB_RATE, YAW) = range(44, 53)  # fmt: skip
-SEEN_FIRST, SEEN_END = 44, 53
+(ARMED_AT, TOOK_OFF, RESTING_SINCE, ARM_WALL_RECENT) = range(44, 48)  # fmt: skip
+DISARM_FIRST, DISARM_END = 44, 48
+(NOW, TICK, X, Y, ALTITUDE, VX, VY, CLIMB_RATE, YAW) = range(48, 57)  # fmt: skip
+SEEN_FIRST, SEEN_END = 48, 57
 (SETPOINT_TIMEOUT, LAND_SPEED, LANDED_TIME, LAND_TARGET, ACC_HOR, CRUISE, TKO_SPEED, Z_VEL_UP, Z_VEL_DN, RTL_ALT,
- YAW_RATE_AUTO, YAW_RATE_OFFBOARD) = range(53, 65)  # fmt: skip
-SETTINGS_FIRST, SETTINGS_END = 53, 65
+ YAW_RATE_AUTO, YAW_RATE_OFFBOARD, DISARM_PREFLIGHT) = range(57, 70)  # fmt: skip
+SETTINGS_FIRST, SETTINGS_END = 57, 70
 (REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
- REF_YAW_RATE, REF_LIMITED, REF_THRUST) = range(65, 80)  # fmt: skip
-REFERENCE_FIRST, REFERENCE_END = 65, 80
+ REF_YAW_RATE, REF_LIMITED, REF_THRUST) = range(70, 85)  # fmt: skip
+REFERENCE_FIRST, REFERENCE_END = 70, 85
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 80
+SIZE = 85
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
 EVENT_CONTROLLER_FAILED = 5  # reported by the autopilot's tick, not update()
+EVENT_PREFLIGHT_DISARM = 6
+AIRBORNE_ALT = 0.3  # [m]: above this the vehicle has taken off (PX4's land detector's "not landed"), estimates included
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
 TAKEOFF_TOLERANCE = 0.1  # [m]: takeoff is done when the vehicle is this close to the takeoff altitude
 LAND_ALT1, LAND_ALT2 = 10.0, 5.0  # [m] a landing slows from MPC_Z_VEL_MAX_DN above ALT1 to land_speed below ALT2
@@ -100,7 +109,9 @@ class CommanderSettings:
     land_speed: float = key(1.0, unit="m/s", low=0, low_open=True, high=100, mavlink=param("MPC_LAND_SPEED"),
                             doc="descent speed in LAND")  # fmt: skip
     landed_time: float = key(0.5, unit="s", low=0, low_open=True, high=60, mavlink=param("COM_DISARM_LAND"),
-                             doc="time on the ground before LAND disarms")  # fmt: skip
+                             doc="time on the ground after a landing before disarming, in every mode")  # fmt: skip
+    disarm_preflight: float = key(10.0, unit="s", low=-1, high=3600, mavlink=param("COM_DISARM_PRFLT"),
+                                  doc="disarm when not taken off this long after arming (≤ 0: never)")  # fmt: skip
     land_target: float = -0.5  # [m] the landing reference goes this far below the ground
     altitude_max: float = key(1000.0, unit="m", low=0, low_open=True, high=100000, mavlink=param("SP_ALT_MAX"),
                               doc="altitude setpoints above this are refused")  # fmt: skip

@@ -66,6 +66,7 @@ Sender = tuple[int, int]
 MISSION_TYPE_MISSION = 0
 MISSION_TYPE_FENCE = 1
 MISSION_TYPE_RALLY = 2
+TYPE_NAMES = {MISSION_TYPE_FENCE: "Geofence", MISSION_TYPE_RALLY: "Rally point"}
 MISSION_TYPE_ALL = 255
 
 # MAV_MISSION_RESULT
@@ -407,6 +408,12 @@ class MissionProtocol:
         self.mission_state = STATE_NOT_STARTED if items else STATE_NO_MISSION
         self.version += 1
 
+    def _unsupported(self, mission_type: int, what: str) -> Out:
+        """The STATUSTEXT beside an UNSUPPORTED mission type: MAVSDK reports it as a bare ERROR (its geofence plugin
+        maps UNSUPPORTED so), the text says why."""
+        name = TYPE_NAMES.get(mission_type, f"Mission type {mission_type}")
+        return self._statustext(f"{name} {what} refused: not supported")
+
     def _statustext(self, text: str) -> Out:
         return Out("STATUSTEXT", None, {"severity": STATUSTEXT_CRITICAL, "text": text[:50]})
 
@@ -415,7 +422,7 @@ class MissionProtocol:
     def on_count(self, sender: Sender, count: int, mission_type: int, now: float) -> list[Out]:
         """``MISSION_COUNT``: start an upload of ``count`` items (0 clears the mission)."""
         if mission_type != MISSION_TYPE_MISSION:
-            return [self._ack(sender, UNSUPPORTED, mission_type)]
+            return [self._ack(sender, UNSUPPORTED, mission_type), self._unsupported(mission_type, "upload")]
         up = self._upload
         if up is not None and now - up.last_recv > TIMEOUT_S:
             out = self.tick(now)  # a stale upload not yet dropped by tick: drop it first
@@ -490,7 +497,7 @@ class MissionProtocol:
     def on_request_list(self, sender: Sender, mission_type: int, now: float) -> list[Out]:
         """``MISSION_REQUEST_LIST``: start (or restart) this client's download → ``MISSION_COUNT``."""
         if mission_type != MISSION_TYPE_MISSION:
-            return [self._ack(sender, UNSUPPORTED, mission_type)]
+            return [self._ack(sender, UNSUPPORTED, mission_type), self._unsupported(mission_type, "download")]
         self._downloads.pop(sender, None)
         if len(self._downloads) >= MAX_DOWNLOADS:
             oldest = min(self._downloads, key=lambda s: self._downloads[s].last_recv)

@@ -72,6 +72,11 @@ class Outbox:
         self.send(mavlink.MAVLink_param_value_message(name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32, count,
                                                       index))  # fmt: skip
 
+    def param_error(self, index: int, name: str, error: int, to: tuple[int, int]) -> None:
+        """PARAM_ERROR (MAV_PARAM_ERROR ``error``) to the sender ``to`` of a refused PARAM_SET: MAVSDK ends the set
+        with the matching result (ValueOutOfRange, DoesNotExist) instead of resending it until it times out."""
+        self.send(mavlink.MAVLink_param_error_message(to[0], to[1], name.encode(), index, error))
+
     def mission(self, out: mission_protocol.Out) -> None:
         """One of the mission protocol's answers (:class:`autopilot.mission_protocol.Out`)."""
         if out.kind == "STATUSTEXT":

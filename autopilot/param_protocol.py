@@ -34,14 +34,17 @@ class ParamProtocol:
             self.send(*found)
 
     def on_set(self, r: ParamSet) -> None:
-        """A new value: applied, or refused with the reason (counted); the value in force is sent back either way."""
+        """A new value: applied, or refused with the reason (counted) and a PARAM_ERROR to its sender (before the
+        PARAM_VALUE: MAVSDK takes the first answer); the value in force is sent back either way."""
         reason = self.params.set(r.name, r.value)
         found = self.params.lookup(r.name)
         if found is None:
+            self.outbox.param_error(-1, r.name, mavlink.MAV_PARAM_ERROR_DOES_NOT_EXIST, r.source)
             self.outbox.say(mavlink.MAV_SEVERITY_WARNING, f"Param set refused: {reason}")
             return
         if reason:
             self.outbox.counters.refused += 1
+            self.outbox.param_error(found[0], r.name, mavlink.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE, r.source)
         else:
             self.apply()
         self.send(*found)  # the value in force: the new one, or the unchanged one when refused

@@ -86,10 +86,11 @@ class ParamRequest:
 
 @dataclass(frozen=True)
 class ParamSet:
-    """PARAM_SET: a parameter's new value."""
+    """PARAM_SET: a parameter's new value, and who sent it (system, component: a refusal's PARAM_ERROR goes to it)."""
 
     name: str
     value: float
+    source: tuple[int, int] = (0, 0)
 
 
 @dataclass(frozen=True)

@@ -311,12 +311,13 @@ def test_an_item_of_another_mission_type_during_upload_is_an_error_but_the_uploa
 def test_fence_rally_and_unknown_types_are_unsupported_with_the_type_echoed(mission_type):
     p = MissionProtocol()
     upload(p, 1)
-    for out in (
-        p.on_count(GCS, 3, mission_type, 1.0),
-        p.on_request_list(GCS, mission_type, 1.0),
-        p.on_clear_all(GCS, mission_type, 1.0),
-    ):
-        assert out == [Out("MISSION_ACK", GCS, {"type": mp.UNSUPPORTED, "mission_type": mission_type})]
+    ack = Out("MISSION_ACK", GCS, {"type": mp.UNSUPPORTED, "mission_type": mission_type})
+    name = {1: "Geofence", 2: "Rally point"}.get(mission_type, "Mission type 7")
+    for out, what in ((p.on_count(GCS, 3, mission_type, 1.0), "upload"),
+                      (p.on_request_list(GCS, mission_type, 1.0), "download")):  # fmt: skip
+        assert out[0] == ack and out[1].kind == "STATUSTEXT"  # the ack, and why: MAVSDK says only ERROR
+        assert out[1].fields["text"] == f"{name} {what} refused: not supported"
+    assert p.on_clear_all(GCS, mission_type, 1.0) == [ack]
     assert len(p.items) == 1 and not p.upload_in_progress
 
 

@@ -3,12 +3,13 @@ connect, see a PX4 vehicle, read and set parameters, arm, fly offboard attitude 
 hold, land; and see it healthy and armable, with a GPS fix and a home, before takeoff."""
 
 import asyncio
+import time
 
 import pytest
 from mavsdk.asyncio import Autopilot, ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import Attitude, OffboardAsync, PositionNedYaw
-from mavsdk.asyncio.plugins.param import ParamAsync, ParamError
+from mavsdk.asyncio.plugins.param import ParamAsync, ParamError, ParamResult
 from mavsdk.asyncio.plugins.telemetry import FixType, FlightMode, LandedState, TelemetryAsync
 
 from tests.mavclient import quadsitl_up
@@ -27,11 +28,13 @@ async def session(port: int) -> dict:
         seen["BS_K1"] = await param.get_param_float("BS_K1")
         await param.set_param_float("BS_K8", 12.0)
         seen["BS_K8"] = await param.get_param_float("BS_K8")
-        try:
-            await param.set_param_float("VM_MASS", -1.0)
-            seen["refused"] = None
-        except ParamError as exc:
-            seen["refused"] = exc
+        for name, value in (("VM_MASS", -1.0), ("BS_K1", 5000.0), ("NO_SUCH_PARAM", 1.0)):  # range, (41), name
+            began = time.monotonic()
+            try:
+                await param.set_param_float(name, value)
+                seen[f"refused {name}"] = None
+            except ParamError as exc:
+                seen[f"refused {name}"] = (exc.result, time.monotonic() - began)
         seen["VM_MASS"] = await param.get_param_float("VM_MASS")
         seen["mode_before"] = await first(tel.subscribe_flight_mode())
         home = await first(tel.subscribe_home())
@@ -69,7 +72,12 @@ def test_mavsdk_connects_sets_parameters_arms_flies_offboard_attitude_and_lands(
         assert v.proc.poll() is None
     assert seen["autopilot"] == Autopilot.PX4
     assert seen["BS_K1"] == 10.0 and seen["BS_K8"] == 12.0
-    assert seen["refused"] is not None and seen["VM_MASS"] == 2.0  # the echo kept 2.0, so MAVSDK reports failure
+    # Refusals reach MAVSDK as what they are (a PARAM_ERROR), at once: no resends, no TIMEOUT.
+    out_of_range = ParamResult.VALUE_OUT_OF_RANGE
+    assert seen["refused VM_MASS"][0] == out_of_range and seen["refused BS_K1"][0] == out_of_range
+    assert seen["refused NO_SUCH_PARAM"][0] == ParamResult.DOES_NOT_EXIST
+    assert max(seen[f"refused {n}"][1] for n in ("VM_MASS", "BS_K1", "NO_SUCH_PARAM")) < 1.0
+    assert seen["VM_MASS"] == 2.0
     assert seen["mode_before"] == FlightMode.HOLD and seen["home"] == pytest.approx((47.397742, 8.545594, 488.0))
     assert seen["armed"] and seen["mode"] == FlightMode.OFFBOARD and seen["in_air"] == LandedState.IN_AIR
     assert seen["down"] < -2.0 and seen["relative_alt"] == pytest.approx(-seen["down"], abs=0.05)
