@@ -93,7 +93,7 @@ def enter(cm: np.ndarray, mode: int) -> None:
     cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], a)
     cm[TARGET_ALT] = 0.0 if landed else max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)
     cm[HOLD_YAW] = cm[YAW_REF] = cm[YAW]
-    cm[LEG_SPEED] = cm[CRUISE]
+    cm[LEG_SPEED], cm[LEG_CLIMB], cm[LEG_DESCENT] = cm[CRUISE], math.nan, math.nan
     cm[PHASE] = 0.0
     cm[LAND_ALT] = cm[TARGET_ALT]
     if mode == TAKEOFF:
@@ -348,8 +348,10 @@ def update(
             cm[MODE] = HOLD  # the reference rests on the target: hold it
             return EVENT_TAKEOFF_DONE
         return event
-    # HOLD and MISSION
-    advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
+    # HOLD and MISSION: the leg's vertical speeds (a mission's takeoff, DO_CHANGE_SPEED) within MPC_Z_VEL_MAX_UP, _DN
+    up = cm[Z_VEL_UP] if math.isnan(cm[LEG_CLIMB]) else min(cm[LEG_CLIMB], cm[Z_VEL_UP])
+    down = cm[Z_VEL_DN] if math.isnan(cm[LEG_DESCENT]) else min(cm[LEG_DESCENT], cm[Z_VEL_DN])
+    advance_reference(cm, dt, cm[LEG_SPEED], up, down)
     _fly_generated(cm, dt)
     return event
 
@@ -584,15 +586,18 @@ class Commander:
         self.goto(x, y, altitude, yaw, speed)
         return True, ""
 
-    def goto(self, x: float, y: float, altitude: float, yaw: float, speed: float) -> None:
+    def goto(self, x: float, y: float, altitude: float, yaw: float, speed: float, climb: float = math.nan,
+             descent: float = math.nan) -> None:  # fmt: skip
         """Aim the auto modes' reference at (x, y NED [m], altitude [m]), heading ``yaw`` [rad], at ``speed``
-        [m/s] (NaN or ≤ 0: MPC_XY_CRUISE); NaN keeps a value. No checks: :meth:`reposition` and the mission
-        executor check first."""
+        [m/s] (NaN or ≤ 0: MPC_XY_CRUISE), climbing at up to ``climb`` and descending at up to ``descent`` [m/s]
+        (NaN: MPC_Z_VEL_MAX_UP, _DN); NaN keeps a position or heading. No checks: :meth:`reposition` and the
+        mission executor check first."""
         cm = self.cm
         for index, value in ((TARGET_X, x), (TARGET_Y, y), (TARGET_ALT, altitude), (HOLD_YAW, yaw)):
             if not math.isnan(value):
                 cm[index] = value
         cm[LEG_SPEED] = self.settings.cruise if math.isnan(speed) or speed <= 0.0 else speed
+        cm[LEG_CLIMB], cm[LEG_DESCENT] = climb, descent
 
     def position_target_here(self) -> tuple[float, float, float]:
         """Where the vehicle can stop from its current velocity (x, y NED [m], altitude [m])."""

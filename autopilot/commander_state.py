@@ -34,7 +34,8 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 # - the auto modes: the moving reference (position, velocity, acceleration), its target, the heading held, the speed
 #   limit of the current leg, the phase (RTL), the takeoff altitude, the descending altitude of a landing, when
 #   the vehicle came to rest (NaN: it has not), the heading flown (turning toward the one wanted at a bounded rate)
-#   and the altitude an offboard climb rate of zero holds (NaN: none held);
+#   the altitude an offboard climb rate of zero holds (NaN: none held), and the current leg's climb and descent
+#   speed limits (NaN: MPC_Z_VEL_MAX_UP, _DN);
 # - home (set on arming): position and heading;
 # - automatic disarming: the simulated time of arming [s], whether the vehicle has taken off since, since when it has
 #   rested on the ground after taking off (NaN: it does not), and whether arming was within COM_DISARM_PRFLT of
@@ -49,7 +50,7 @@ status: ARMED MODE FAILSAFE
 sp_horizontal: SP_X SP_Y SP_VX SP_VY SP_AX SP_AY
 sp_rest: SP_ALT SP_CLIMB SP_CLIMB_ACC ROLL_SP PITCH_SP YAW_SP SP_YAW_RATE SP_THRUST
 stream: LAST_SP_TIME SP_WALL_FRESH OFFBOARD_TICK
-auto: GEN_X GEN_Y GEN_ALT GEN_VX GEN_VY GEN_CLIMB GEN_AX GEN_AY GEN_CLIMB_ACC TARGET_X TARGET_Y TARGET_ALT HOLD_YAW LEG_SPEED PHASE TAKEOFF_ALT LAND_ALT LANDED_SINCE YAW_REF ALT_LOCK
+auto: GEN_X GEN_Y GEN_ALT GEN_VX GEN_VY GEN_CLIMB GEN_AX GEN_AY GEN_CLIMB_ACC TARGET_X TARGET_Y TARGET_ALT HOLD_YAW LEG_SPEED PHASE TAKEOFF_ALT LAND_ALT LANDED_SINCE YAW_REF ALT_LOCK LEG_CLIMB LEG_DESCENT
 home: HOME_X HOME_Y HOME_ALT HOME_YAW
 disarm: ARMED_AT TOOK_OFF RESTING_SINCE ARM_WALL_RECENT
 seen: NOW TICK X Y ALTITUDE VX VY CLIMB_RATE YAW
@@ -68,22 +69,23 @@ SP_REST_FIRST, SP_REST_END = 9, 17
 (LAST_SP_TIME, SP_WALL_FRESH, OFFBOARD_TICK) = range(17, 20)  # fmt: skip
 STREAM_FIRST, STREAM_END = 17, 20
 (GEN_X, GEN_Y, GEN_ALT, GEN_VX, GEN_VY, GEN_CLIMB, GEN_AX, GEN_AY, GEN_CLIMB_ACC, TARGET_X, TARGET_Y, TARGET_ALT,
- HOLD_YAW, LEG_SPEED, PHASE, TAKEOFF_ALT, LAND_ALT, LANDED_SINCE, YAW_REF, ALT_LOCK) = range(20, 40)  # fmt: skip
-AUTO_FIRST, AUTO_END = 20, 40
-(HOME_X, HOME_Y, HOME_ALT, HOME_YAW) = range(40, 44)  # fmt: skip
-HOME_FIRST, HOME_END = 40, 44
-(ARMED_AT, TOOK_OFF, RESTING_SINCE, ARM_WALL_RECENT) = range(44, 48)  # fmt: skip
-DISARM_FIRST, DISARM_END = 44, 48
-(NOW, TICK, X, Y, ALTITUDE, VX, VY, CLIMB_RATE, YAW) = range(48, 57)  # fmt: skip
-SEEN_FIRST, SEEN_END = 48, 57
+ HOLD_YAW, LEG_SPEED, PHASE, TAKEOFF_ALT, LAND_ALT, LANDED_SINCE, YAW_REF, ALT_LOCK, LEG_CLIMB,
+ LEG_DESCENT) = range(20, 42)  # fmt: skip
+AUTO_FIRST, AUTO_END = 20, 42
+(HOME_X, HOME_Y, HOME_ALT, HOME_YAW) = range(42, 46)  # fmt: skip
+HOME_FIRST, HOME_END = 42, 46
+(ARMED_AT, TOOK_OFF, RESTING_SINCE, ARM_WALL_RECENT) = range(46, 50)  # fmt: skip
+DISARM_FIRST, DISARM_END = 46, 50
+(NOW, TICK, X, Y, ALTITUDE, VX, VY, CLIMB_RATE, YAW) = range(50, 59)  # fmt: skip
+SEEN_FIRST, SEEN_END = 50, 59
 (SETPOINT_TIMEOUT, LAND_SPEED, LANDED_TIME, LAND_TARGET, ACC_HOR, CRUISE, TKO_SPEED, Z_VEL_UP, Z_VEL_DN, RTL_ALT,
- YAW_RATE_AUTO, YAW_RATE_OFFBOARD, DISARM_PREFLIGHT) = range(57, 70)  # fmt: skip
-SETTINGS_FIRST, SETTINGS_END = 57, 70
+ YAW_RATE_AUTO, YAW_RATE_OFFBOARD, DISARM_PREFLIGHT) = range(59, 72)  # fmt: skip
+SETTINGS_FIRST, SETTINGS_END = 59, 72
 (REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
- REF_YAW_RATE, REF_LIMITED, REF_THRUST) = range(70, 85)  # fmt: skip
-REFERENCE_FIRST, REFERENCE_END = 70, 85
+ REF_YAW_RATE, REF_LIMITED, REF_THRUST) = range(72, 87)  # fmt: skip
+REFERENCE_FIRST, REFERENCE_END = 72, 87
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 85
+SIZE = 87
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
@@ -110,6 +112,14 @@ class CommanderSettings:
                             doc="descent speed in LAND")  # fmt: skip
     landed_time: float = key(0.5, unit="s", low=0, low_open=True, high=60, mavlink=param("COM_DISARM_LAND"),
                              doc="time on the ground after a landing before disarming, in every mode")  # fmt: skip
+    dist_1wp: float = key(
+        10000.0,
+        unit="m",
+        low=-1,
+        high=100000,
+        mavlink=param("MIS_DIST_1WP"),
+        doc="a mission whose first waypoint is this far from home is refused (≤ 0: no check)",
+    )
     disarm_preflight: float = key(10.0, unit="s", low=-1, high=3600, mavlink=param("COM_DISARM_PRFLT"),
                                   doc="disarm when not taken off this long after arming (≤ 0: never)")  # fmt: skip
     land_target: float = -0.5  # [m] the landing reference goes this far below the ground

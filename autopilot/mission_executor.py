@@ -38,11 +38,14 @@ Rules, and where they come from:
   altitude or the ground plus ``takeoff_alt``, whichever is higher (PX4's ``calculate_takeoff_altitude``
   with the mission's climb-before-start), then fly the item. The climb is not an item: nothing is
   announced for it.
-- **NAV_LOITER_TIME (19)**: as a waypoint (default acceptance radius), holding p1 seconds.
+- **NAV_LOITER_TIME (19)**: as a waypoint, its radius |p3| (when > 0) the acceptance radius, holding p1
+  seconds; with p2 = 1 ("heading required") it then turns to face the next waypoint before it completes.
   **NAV_DELAY (93)**: hold where the vehicle is for p1 seconds (a time of day is refused at upload).
-  **DO_CHANGE_SPEED (178)**: p2 > 0 is the horizontal speed of the following legs, −1 no change, −2 (or 0)
-  back to the default (NaN: the commander's ``MPC_XY_CRUISE``); it completes at once, as does any run of
-  them, in the same step.
+  **DO_CHANGE_SPEED (178)**: p2 > 0 is the speed of the following legs (p1 0, 1: horizontal; 2: climb; 3:
+  descent), −1 no change, −2 (or 0) back to the default (NaN: the commander's ``MPC_XY_CRUISE``,
+  ``MPC_Z_VEL_MAX_UP``, ``_DN``); it completes at once, as does any run of them, in the same step.
+- **autocontinue 0**: the item is reached (announced), then held, the mission waiting on it, until
+  :meth:`MissionExecutor.set_current` (PX4 loiters at such an item).
 - **NAV_LAND (21)**: fly to the item's position at the current altitude (latitude and longitude both 0,
   or frame 2: where the vehicle is), then land; the item completes, and the mission finishes, on landing
   (disarming is the commander's). **NAV_RETURN_TO_LAUNCH (20)**: return (the commander's RTL), completing
@@ -56,7 +59,7 @@ Rules, and where they come from:
 
 The executor owns ``current`` and ``mission_state``; the shell copies them to the
 :class:`~autopilot.mission_protocol.MissionProtocol` with its :meth:`~MissionProtocol.set_progress`, which
-returns a ``MISSION_CURRENT`` when they changed. Not wired to the autopilot process yet (docs/missions.md).
+returns a ``MISSION_CURRENT`` when they changed. The autopilot process runs it through :mod:`autopilot.missions`.
 """
 
 from __future__ import annotations
@@ -109,6 +112,8 @@ class Goto:
     altitude: float
     yaw: float = NAN
     speed: float = NAN
+    climb: float = NAN  # [m/s] the climb and descent speeds (DO_CHANGE_SPEED 2, 3; NaN: MPC_Z_VEL_MAX_UP, _DN)
+    descent: float = NAN
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,7 +167,9 @@ class Finished:
 Event = Reached | Current | Finished
 
 # The phases of the current item.
-_START, _CLIMB, _GO, _HOLDING, _DESCENDING, _DONE = range(6)
+_START, _CLIMB, _GO, _HOLDING, _DESCENDING, _DONE, _WAITING = range(7)
+# DO_CHANGE_SPEED's speed types (p1) → the executor's attribute they set: air and ground speed, climb, descent.
+SPEED_TYPES = ("speed", "speed", "climb", "descent")
 
 
 class MissionExecutor:
@@ -198,6 +205,8 @@ class MissionExecutor:
         """MISSION_STATE: 1 none, 2 not started, 3 active, 4 paused, 5 complete."""
         self.speed = NAN
         """The horizontal speed of the legs [m/s] (DO_CHANGE_SPEED; NaN: the commander's cruise speed)."""
+        self.climb = self.descent = NAN
+        """The climb and descent speeds of the legs [m/s] (DO_CHANGE_SPEED types 2 and 3; NaN: the limits')."""
         self.events: list[Event] = []
         """What to announce, in order; the shell takes and clears them."""
         self.action: Action = Hold()
@@ -287,6 +296,8 @@ class MissionExecutor:
         """Run the current item; True if it completed (the next one should run at once)."""
         item = self.items[self.current]
         cmd = item.command
+        if self._phase == _WAITING:  # reached, autocontinue 0: held until the current item is set
+            return False
         if self._phase == _START:
             self._begin(item, v)
         if self._phase == _CLIMB:
@@ -295,10 +306,11 @@ class MissionExecutor:
             self._phase = _START
             self._begin(item, v)
         if cmd == mp.DO_CHANGE_SPEED:
+            name = SPEED_TYPES[int(item.p1)]
             if item.p2 > 0.0:
-                self.speed = item.p2
+                setattr(self, name, item.p2)
             elif item.p2 != -1.0:
-                self.speed = NAN
+                setattr(self, name, NAN)
             return self._complete()
         if cmd == mp.NAV_DELAY:
             if now - self._since_now(now) < max(item.p1, 0.0):
@@ -324,8 +336,27 @@ class MissionExecutor:
             hold = 0.0 if math.isnan(item.p1) or cmd == mp.NAV_TAKEOFF else item.p1
             if now - self._since < hold:
                 return False
+            if cmd == mp.NAV_LOITER_TIME and item.p2 == 1.0 and not self._heading_out(v):
+                return False
             return self._complete()
         return False
+
+    def _heading_out(self, v: VehicleNow) -> bool:
+        """NAV_LOITER_TIME with p2 = 1 ("heading required"): leave only once facing the next position item (turned to
+        it here, at the heading rate limit); True when there is none, or once within ``yaw_error`` of it."""
+        nxt = next((i for i in self.items[self.current + 1 :] if i.command in (mp.NAV_WAYPOINT, mp.NAV_LOITER_TIME)),
+                   None)  # fmt: skip
+        if nxt is None:
+            return True
+        x, y, _ = self.local(nxt)
+        if math.hypot(x - v.x, y - v.y) <= self._radius(nxt):
+            return True
+        bearing = math.atan2(y - v.y, x - v.x)
+        t = self._target
+        assert t is not None
+        if t.yaw != bearing:
+            self._goto(Goto(t.x, t.y, t.altitude, bearing, t.speed, t.climb, t.descent))
+        return abs((v.yaw - bearing + math.pi) % (2.0 * math.pi) - math.pi) <= self.yaw_error
 
     def _since_now(self, now: float) -> float:
         if math.isnan(self._since):
@@ -341,7 +372,7 @@ class MissionExecutor:
         if cmd == mp.NAV_TAKEOFF:
             alt = self.altitude_of(item)
             if flying:
-                self._goto(Goto(v.x, v.y, alt, self._yaw(item), self.speed))
+                self._goto(Goto(v.x, v.y, alt, self._yaw(item), self.speed, self.climb, self.descent))
             else:
                 self._goto(Goto(v.x, v.y, max(alt, max(v.altitude, 0.0) + self.takeoff_alt), NAN, NAN))
                 self.action = Takeoff(self._target.altitude)  # type: ignore[union-attr]
@@ -370,10 +401,10 @@ class MissionExecutor:
                 self.action = Land()
             else:
                 x, y, _ = self.local(item)
-                self._goto(Goto(x, y, v.altitude, self._leg_yaw(item, v, x, y), self.speed))
+                self._goto(Goto(x, y, v.altitude, self._leg_yaw(item, v, x, y), self.speed, self.climb, self.descent))
             return
         x, y, alt = self.local(item)
-        self._goto(Goto(x, y, alt, self._leg_yaw(item, v, x, y), self.speed))
+        self._goto(Goto(x, y, alt, self._leg_yaw(item, v, x, y), self.speed, self.climb, self.descent))
 
     def _goto(self, g: Goto) -> None:
         self._target = g
@@ -389,9 +420,11 @@ class MissionExecutor:
         return math.radians(item.p4) if math.isfinite(item.p4) else NAN
 
     def _radius(self, item: mp.MissionItem) -> float:
-        if item.command == mp.NAV_WAYPOINT and math.isfinite(item.p2) and item.p2 > 0.0:
-            return item.p2
-        return self.acceptance_radius
+        """The horizontal acceptance radius [m]: a waypoint's p2, a loiter's |p3| (its radius), when > 0."""
+        given = (
+            item.p2 if item.command == mp.NAV_WAYPOINT else abs(item.p3) if item.command == mp.NAV_LOITER_TIME else 0
+        )
+        return given if math.isfinite(given) and given > 0.0 else self.acceptance_radius
 
     def _leg_yaw(self, item: mp.MissionItem, v: VehicleNow, x: float, y: float) -> float:
         """The item's yaw, or (NaN) the bearing of the leg when it is longer than the acceptance radius."""
@@ -424,8 +457,12 @@ class MissionExecutor:
         return True
 
     def _complete(self, *, finished: bool = False) -> bool:
-        """The current item completed: announce it, go on to the next (or finish). True to run on."""
+        """The current item completed: announce it, go on to the next (or finish; or, autocontinue 0 and more items to
+        come, hold there until the current item is set, as PX4's loiter at such an item). True to run on."""
         self.events.append(Reached(self.current))
+        if not finished and self.items[self.current].autocontinue == 0 and self.current + 1 < len(self.items):
+            self._phase = _WAITING
+            return False
         self._since = NAN
         self._target = None
         self._phase = _START

@@ -275,8 +275,15 @@ def parse_item(fields: Mapping[str, Any], *, legacy: bool = False) -> MissionIte
         need(math.isnan(p[0]) or (_finite(p[0]) and p[0] >= 0.0), INVALID_PARAM1, "hold time must be >= 0 s")
         need(math.isnan(p[1]) or (_finite(p[1]) and p[1] >= 0.0), INVALID_PARAM2, "acceptance radius must be >= 0 m")
         need(math.isnan(p[3]) or _finite(p[3]), INVALID_PARAM4, "yaw must be finite or NaN")
+        need(
+            math.isnan(p[2]) or p[2] == 0.0,
+            INVALID_PARAM3,
+            "pass radius must be 0 or NaN: a multicopter stops at each waypoint (its acceptance radius is param2)",
+        )
     elif command == NAV_LOITER_TIME:
         need(_finite(p[0]) and p[0] >= 0.0, INVALID_PARAM1, "loiter time must be a number >= 0 s")
+        need(math.isnan(p[1]) or p[1] in (0.0, 1.0), INVALID_PARAM2, "heading required must be 0 or 1")
+        need(math.isnan(p[2]) or _finite(p[2]), INVALID_PARAM3, "loiter radius must be finite or NaN")
         need(math.isnan(p[3]) or _finite(p[3]), INVALID_PARAM4, "yaw must be finite or NaN")
     elif command in (NAV_TAKEOFF, NAV_LAND):
         need(math.isnan(p[3]) or _finite(p[3]), INVALID_PARAM4, "yaw must be finite or NaN")

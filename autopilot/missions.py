@@ -88,6 +88,9 @@ class Missions:
         if ex is None:
             return False, "Mission denied: no mission uploaded", []
         ex.home = c.home
+        far = self.first_waypoint_distance(ex, c)
+        if c.settings.dist_1wp > 0.0 and far >= c.settings.dist_1wp:  # PX4's checkHorizontalDistanceToFirstWaypoint
+            return False, f"First waypoint far away from home: {far:.0f}m. Correct mission loaded?", []
         if c.mode != Mode.MISSION:
             ok, reason = c.set_mode(Mode.MISSION)
             if not ok:
@@ -96,6 +99,18 @@ class Missions:
         self.flying = True
         self._apply(c, ex.action)
         return True, "", self._events(ex)
+
+    @staticmethod
+    def first_waypoint_distance(ex: MissionExecutor, c: Commander) -> float:
+        """The horizontal distance [m] from home to the mission's first item that flies to a place of its own (0:
+        none does; a takeoff goes straight up, a landing may land where the vehicle is)."""
+        for item in ex.items:
+            if item.command in (mp.NAV_WAYPOINT, mp.NAV_LOITER_TIME) or (
+                item.command == mp.NAV_LAND and not ex.land_here(item)
+            ):
+                x, y, _ = ex.local(item)
+                return math.hypot(x - c.home[0], y - c.home[1])
+        return 0.0
 
     def step(self, c: Commander, now: float) -> list[mp.Out]:
         """Once per control tick (cheap when nothing changes): the executor's next action to the commander, its
@@ -163,10 +178,10 @@ class Missions:
 
     def _apply(self, c: Commander, a: object) -> None:
         if isinstance(a, Goto):
-            c.goto(a.x, a.y, a.altitude, a.yaw, a.speed)
-        elif isinstance(a, Takeoff):
+            c.goto(a.x, a.y, a.altitude, a.yaw, a.speed, a.climb, a.descent)
+        elif isinstance(a, Takeoff):  # straight up at MPC_TKO_SPEED, as takeoff mode climbs
             x, y, _ = c.position_target_here()
-            c.goto(x, y, a.altitude, math.nan, math.nan)
+            c.goto(x, y, a.altitude, math.nan, math.nan, c.settings.takeoff_speed)
         elif isinstance(a, Hold):
             c.goto(*c.position_target_here(), math.nan, math.nan)
         elif isinstance(a, Land):

@@ -70,8 +70,8 @@ SETPOINTS = params_of(
 )  # COM_*, MPC_LAND_SPEED, SP_ALT_MAX
 MISSIONS = params_of(CommanderSettings, ("takeoff_alt", "rtl_alt", "max_distance"))  # MIS_, RTL_, GF_
 HEADING = params_of(CommanderSettings, ("yaw_rate_auto", "yaw_rate_offboard"))  # MPC_YAWRAUTO_MAX, SP_YAWRATE_MAX
-DISARM = params_of(CommanderSettings, ("disarm_preflight",))  # COM_DISARM_PRFLT
-SETTINGS = SETPOINTS + MISSIONS + HEADING + DISARM  # the commander's settings that are parameters
+SAFETY = params_of(CommanderSettings, ("disarm_preflight", "dist_1wp"))  # COM_DISARM_PRFLT, MIS_DIST_1WP
+SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY  # the commander's settings that are parameters
 
 
 def _declared(entries: tuple[ParamEntry, ...]) -> list[ParamSpec]:
@@ -83,7 +83,7 @@ def _specs() -> tuple[ParamSpec, ...]:
     in the order clients have always seen them."""
     s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
     s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS) + _declared(SETPOINTS) + _declared(POSITION)
-    s += _declared(MISSIONS) + _declared(HEADING) + _declared(DISARM)
+    s += _declared(MISSIONS) + _declared(HEADING) + _declared(SAFETY)
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
     return tuple(s)
@@ -105,7 +105,7 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(param_values(preset.position, POSITION))
     out.update(param_values(settings, MISSIONS))
     out.update(param_values(settings, HEADING))
-    out.update(param_values(settings, DISARM))
+    out.update(param_values(settings, SAFETY))
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 

@@ -136,7 +136,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
         duration = args.duration or MISSION_DURATION
     elif args.home is not None:
         raise UsageError(f"--home {args.home!r}: only with --mission (it places the mission's waypoints)")
-    home = parse_home(args.home) or PX4_HOME
+    planned = mission.planned_home if mission is not None else None  # where the plan expects the vehicle
+    home = parse_home(args.home) or planned or PX4_HOME
     if args.duration is None and isinstance(path, PositionTrajectory) and mission is None:
         duration = path.duration
     try:
@@ -254,7 +255,9 @@ def cmd_fly(args: argparse.Namespace) -> int:
         if args.trajectory != "step":
             raise UsageError(f"--trajectory {args.trajectory!r} with --mission: a flight flies one or the other")
         parse_home(args.home)
-        load(args.mission)  # refuse what the vehicle would refuse (one line) before anything starts
+        mission = load(args.mission)  # refuse what the vehicle would refuse (one line) before anything starts
+        if args.home is None and mission.planned_home is not None:  # the vehicle starts where the plan expects it
+            args.home = ",".join(repr(float(v)) for v in mission.planned_home)
     else:
         if args.home:
             raise UsageError(f"--home {args.home!r}: only with --mission (it places the mission's waypoints)")
@@ -322,7 +325,10 @@ MISSION_HELP = (
     "lat,lon,altitude[,hold,radius,yaw] or a QGC WPL 110 file (see docs/missions.md); --duration then bounds it in "
     "simulated seconds (default 900)"
 )
-HOME_HELP = "with --mission: the vehicle's home (default: PX4 SITL's, in Zürich)"
+HOME_HELP = (
+    "with --mission: the vehicle's home (default: the mission file's planned home, QGroundControl's "
+    "plannedHomePosition or a WPL file's line 0; else PX4 SITL's, in Zürich)"
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

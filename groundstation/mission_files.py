@@ -6,16 +6,16 @@ Three formats, told apart by their content:
   its ``"mission"`` object's ``"items"``. Each ``SimpleItem`` has ``command``, ``frame``, ``params`` (seven
   numbers or null, QGroundControl's NaN: params 5–7 are latitude, longitude, altitude) and ``autoContinue``.
   A ``ComplexItem`` (survey, corridor scan, structure scan) is refused: it is a QGroundControl-side pattern
-  that QGroundControl itself expands into simple items before it uploads. ``plannedHomePosition`` is
-  informational (the vehicle's home is its own). Geofence and rally points are ignored if empty, refused if not
-  (the vehicle has no fence or rally types yet).
+  that QGroundControl itself expands into simple items before it uploads. ``plannedHomePosition`` is where the
+  vehicle is expected: ``fly`` and ``sim`` start it there unless ``--home`` says otherwise. Geofence and rally
+  points are ignored if empty, refused if not (the vehicle has no fence or rally types yet).
 - **Waypoint CSV** with the header ``lat, lon, altitude`` (any order, plus optional ``hold`` [s],
   ``radius`` [m], ``yaw`` [deg]): one ``NAV_WAYPOINT`` per row at ``altitude`` above home (frame 6); an empty
   optional cell is the default (hold 0, the vehicle's acceptance radius, yaw toward the waypoint).
 - **QGC WPL 110** (the plain-text format MAVProxy and QGroundControl write): ``QGC WPL 110`` then one
   tab-separated line per item ``index current frame command p1 p2 p3 p4 lat lon alt autocontinue``, the indices
   counting 0, 1, 2, ... Line 0 is the planned home (QGroundControl's loader and ArduPilot's convention: "planned home
-  position is already in position 0"), informational as a .plan's; the items are the lines after it.
+  position is already in position 0"), used as a .plan's; the items are the lines after it.
 
 Every item is checked by the vehicle's own check (:func:`autopilot.mission_protocol.parse_item`), so that a
 file is refused here, with its file, item (or line), field and value, exactly when the vehicle would refuse
@@ -66,6 +66,15 @@ MISSION_DURATION = 900.0  # [s] simulated: the default bound on a mission's flig
 
 class MissionFileError(UsageError):
     """A mission file that cannot be flown: one line naming the file, the item or line, the field and value."""
+
+
+def usable_home(home: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+    """A planned home (latitude, longitude [deg], altitude AMSL [m]) a vehicle can start at, or None: finite, on the
+    globe, and not 0, 0 (what MAVProxy and QGroundControl write when they knew no home)."""
+    if home is None or not all(math.isfinite(v) for v in home):
+        return None
+    lat, lon, _ = home
+    return home if abs(lat) <= 90 and abs(lon) <= 180 and (lat, lon) != (0.0, 0.0) else None
 
 
 @dataclass(frozen=True)
@@ -189,7 +198,7 @@ def _plan(path: Path, text: str) -> Mission:
         if not isinstance(auto, bool):
             raise MissionFileError(f"{where}, autoContinue: {auto!r}; expected true or false")
         items.append(check_item(where, len(items), command, frame, values, auto))
-    return Mission(path, "plan", tuple(items), planned_home)
+    return Mission(path, "plan", tuple(items), usable_home(planned_home))
 
 
 def _is_number(v: object) -> bool:
@@ -268,7 +277,7 @@ def _wpl(path: Path, text: str) -> Mission:
         items.append(check_item(f"{where} (item {index})", index - 1, command, frame, params, bool(auto)))
     if not items:
         raise MissionFileError(f"mission {path}: no mission items after the planned home (line 2)")
-    return Mission(path, "wpl", tuple(items), planned_home=home)
+    return Mission(path, "wpl", tuple(items), planned_home=usable_home(home))
 
 
 def nan_none(v: float) -> float | None:

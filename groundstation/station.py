@@ -157,6 +157,8 @@ class GroundStation:
         self.mode: wire.Mode | None = None
         self.heard = False
         self.acks: dict[int, int] = {}
+        self.said: list[str] = []  # the vehicle's STATUSTEXTs since the last command sent
+        self._chunks: dict[int, list[str]] = {}  # a STATUSTEXT's chunks by id, until its last
         self.flight_rate: tuple[float, float] | None = None
         self.progress: FlightProgress | None = None  # from the switch to offboard until landing
         self.last_read = 0.0  # monotonic time of the last socket read (poll)
@@ -225,8 +227,21 @@ class GroundStation:
             elif mid == mavlink.MAVLINK_MSG_ID_MISSION_ITEM_REACHED:
                 if not any(r["seq"] == m.seq and r["t"] is None for r in self.reached):
                     self.reached.append({"seq": m.seq, "t": None})
-            elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT and not self.args.quiet:
-                print(f"gcs: vehicle says: {m.text}", file=sys.stderr)
+            elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT:
+                text = self._statustext(m)
+                if text is not None:
+                    self.said.append(text)  # a refusal's reason comes beside its COMMAND_ACK (until_accepted)
+                    if not self.args.quiet:
+                        print(f"gcs: vehicle says: {text}", file=sys.stderr)
+
+    def _statustext(self, m) -> str | None:
+        """A STATUSTEXT's whole text, its chunks joined (MAVLink 2: an ``id``, 50 characters a chunk, the last one
+        shorter), or None while chunks are still to come."""
+        if not m.id:
+            return m.text
+        parts = self._chunks.setdefault(m.id, [])
+        parts.append(m.text)
+        return "".join(self._chunks.pop(m.id)) if len(m.text) < 50 else None
 
     def send_setpoint(self, ref: Reference | trajectories.PositionSetpoint, ms: int | None = None) -> None:
         """One setpoint of the trajectory: a position setpoint, or an attitude + altitude pair; stamped ``ms``
@@ -329,8 +344,10 @@ class GroundStation:
         if result == mavlink.MAV_RESULT_ACCEPTED:
             return True, last_sent
         if result is not None:
-            raise GcsError(f"{what} refused (MAV_RESULT {result})")
+            why = f": the vehicle says {self.said[-1]!r}" if self.said else ""
+            raise GcsError(f"{what} refused (MAV_RESULT {result}){why}")
         if now - last_sent > COMMAND_RETRY:
+            self.said.clear()
             self.command(command, *params)
             last_sent = now
         return False, last_sent

@@ -486,3 +486,83 @@ def test_the_plan_for_maps_places_each_item_as_it_is_flown_and_says_nothing_it_c
     assert (doc["version"], doc["current"], doc["state"], doc["total"]) == (7, 2, 3, 7)
     assert doc["items"][1]["x"] == pytest.approx(plan[1]["x"], abs=1e-3) and doc["items"][0]["x"] is None
     assert m.plan(SimpleNamespace(home=home)) == plan and Missions(ORIGIN).plan(vehicle) == []
+
+
+def test_change_speed_types_2_and_3_set_the_climb_and_descent_speeds_not_the_horizontal_one():
+    p = Point()
+    p.landed, p.alt = False, 10.0
+    items = [item(0, mp.DO_CHANGE_SPEED, p1=2.0, p2=0.5, frame=mp.FRAME_MISSION),
+             item(1, mp.DO_CHANGE_SPEED, p1=3.0, p2=0.7, frame=mp.FRAME_MISSION),
+             item(2, north=10.0, z=12.0),
+             item(3, mp.DO_CHANGE_SPEED, p1=2.0, p2=-2.0, frame=mp.FRAME_MISSION), item(4, north=20.0)]  # fmt: skip
+    ex = MissionExecutor(items, ORIGIN)
+    p.start(ex)
+    p.fly(ex, 60.0, until=complete)
+    gotos = [a for _, a in p.actions if isinstance(a, Goto)]
+    assert (gotos[0].climb, gotos[0].descent) == (0.5, 0.7) and math.isnan(gotos[0].speed)
+    assert math.isnan(gotos[1].climb) and gotos[1].descent == 0.7  # −2: the climb back to its default
+
+
+def test_an_item_with_autocontinue_0_is_reached_then_held_until_the_next_is_set_current():
+    p = Point()
+    p.landed, p.alt = False, 10.0
+    items = [dataclasses.replace(item(0, north=10.0), autocontinue=0), item(1, north=20.0)]
+    ex = MissionExecutor(items, ORIGIN)
+    p.start(ex)
+    p.fly(ex, 30.0)
+    assert p.reached() == [0] and ex.current == 0 and ex.mission_state == mp.STATE_ACTIVE
+    assert p.x == pytest.approx(10.0, abs=0.01)  # held at the item, as PX4 loiters there
+    assert ex.set_current(1)
+    p.fly(ex, 30.0, until=complete)
+    assert p.reached() == [0, 1] and p.x == pytest.approx(20.0, abs=2.0)  # within its acceptance radius
+
+
+def test_loiter_time_radius_is_its_acceptance_and_heading_required_faces_the_next_waypoint_before_leaving():
+    p = Point()
+    p.landed, p.alt = False, 10.0
+    loiter = dataclasses.replace(item(0, mp.NAV_LOITER_TIME, north=10.0, p1=1.0, p2=1.0), p3=6.0)
+    ex = MissionExecutor([loiter, item(1, north=10.0, east=30.0)], ORIGIN)
+    p.start(ex)
+    p.fly(ex, 30.0, until=lambda p, ex: p.reached() == [0])
+    t0, where = p.reached_at(0)
+    # Arrived 6 m short (its radius; 2 m would be at 1.6 s) at 0.8 s, held 1 s, then turned east at 90°/s: ~2.7 s.
+    assert 2.5 < t0 < 3.0
+    assert abs(where[3] - math.pi / 2) <= math.radians(12)  # facing the next waypoint before leaving
+
+
+def test_a_waypoint_pass_radius_and_a_bad_loiter_heading_flag_are_refused_at_upload():
+    def fields(command: int, p2: float, p3: float) -> dict:
+        f = item(0, command).message_fields()
+        return {**f, "param2": p2, "param3": p3}
+
+    with pytest.raises(mp.ItemRefusedError, match="pass radius") as e:
+        mp.parse_item(fields(mp.NAV_WAYPOINT, 0.0, 5.0))
+    assert e.value.code == mp.INVALID_PARAM3
+    with pytest.raises(mp.ItemRefusedError, match="heading required"):
+        mp.parse_item(fields(mp.NAV_LOITER_TIME, 2.0, 0.0))
+    assert mp.parse_item(fields(mp.NAV_WAYPOINT, 0.0, 0.0)).p3 == 0.0
+
+
+def test_a_mission_from_the_ground_takes_off_at_mpc_tko_speed_as_takeoff_mode_does():
+    """Through the autopilot's own glue (autopilot.missions) and the commander, the x500 flying: the climb before the
+    first waypoint goes at MPC_TKO_SPEED (1.5 m/s), not at MPC_Z_VEL_MAX_UP (3 m/s)."""
+    from autopilot import commander as cmd
+    from autopilot.commander import CommanderSettings
+    from autopilot.missions import Missions
+    from quadsitl.config import load_preset
+    from tests.flight_loop import Flight
+
+    f = Flight(load_preset("x500"), settings=CommanderSettings())
+    c = f.commander
+    missions = Missions(ORIGIN)
+    missions.protocol.items = [item(0, north=10.0, z=8.0)]
+    assert c.arm()[0]
+    ok, why, _ = missions.start(c, f.time)
+    assert ok, why
+    climbs = []
+    while f.state.altitude < 7.0:
+        assert f.time < 30.0
+        f.step(10)
+        missions.step(c, f.time)
+        climbs.append(c.cm[cmd.REF_CLIMB])
+    assert max(climbs) == pytest.approx(CommanderSettings().takeoff_speed, abs=1e-9)
