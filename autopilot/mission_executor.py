@@ -170,6 +170,7 @@ Event = Reached | Current | Finished
 _START, _CLIMB, _GO, _HOLDING, _DESCENDING, _DONE, _WAITING = range(7)
 # DO_CHANGE_SPEED's speed types (p1) → the executor's attribute they set: air and ground speed, climb, descent.
 SPEED_TYPES = ("speed", "speed", "climb", "descent")
+ROI_STEP = math.radians(2.0)  # [rad] the heading toward a region of interest is re-aimed when it moves this much
 
 
 class MissionExecutor:
@@ -207,6 +208,8 @@ class MissionExecutor:
         """The horizontal speed of the legs [m/s] (DO_CHANGE_SPEED; NaN: the commander's cruise speed)."""
         self.climb = self.descent = NAN
         """The climb and descent speeds of the legs [m/s] (DO_CHANGE_SPEED types 2 and 3; NaN: the limits')."""
+        self.roi: tuple[float, float] | None = None
+        """The region of interest (x, y NED [m]) the vehicle faces (DO_SET_ROI_LOCATION; None: DO_SET_ROI_NONE)."""
         self.events: list[Event] = []
         """What to announce, in order; the shell takes and clears them."""
         self.action: Action = Hold()
@@ -215,6 +218,7 @@ class MissionExecutor:
         self._target: Goto | None = None
         self._since = NAN  # when the hold of the current item began [s]
         self._climb_alt = NAN
+        self._target_alt = NAN  # the altitude of the last goto [m]: a waypoint without one keeps it
 
     # ---- commands --------------------------------------------------------------------------------------
 
@@ -305,6 +309,16 @@ class MissionExecutor:
                 return False
             self._phase = _START
             self._begin(item, v)
+        if cmd == mp.DO_SET_ROI_LOCATION:
+            self.roi = self.local(item)[:2]
+            return self._complete()
+        if cmd == mp.DO_SET_ROI_NONE:
+            self.roi = None
+            return self._complete()
+        if cmd in mp.CAMERA_COMMANDS:  # no camera, no gimbal: done as it comes (the mission said so at start)
+            return self._complete()
+        if self.roi is not None and self._phase in (_GO, _HOLDING) and math.isnan(self._yaw(item)):
+            self._face_roi(v)
         if cmd == mp.DO_CHANGE_SPEED:
             name = SPEED_TYPES[int(item.p1)]
             if item.p2 > 0.0:
@@ -377,7 +391,7 @@ class MissionExecutor:
                 self._goto(Goto(v.x, v.y, max(alt, max(v.altitude, 0.0) + self.takeoff_alt), NAN, NAN))
                 self.action = Takeoff(self._target.altitude)  # type: ignore[union-attr]
             return
-        if cmd in (mp.DO_CHANGE_SPEED, mp.NAV_DELAY):
+        if cmd in mp.NO_POSITION_COMMANDS - {mp.NAV_RETURN_TO_LAUNCH} or cmd == mp.DO_SET_ROI_LOCATION:
             if cmd == mp.NAV_DELAY and not isinstance(self.action, Hold):
                 self.action = Hold()
             return
@@ -404,11 +418,28 @@ class MissionExecutor:
                 self._goto(Goto(x, y, v.altitude, self._leg_yaw(item, v, x, y), self.speed, self.climb, self.descent))
             return
         x, y, alt = self.local(item)
+        if math.isnan(alt):  # no altitude given (null): the one the vehicle is flying at
+            alt = self._target_alt if math.isfinite(self._target_alt) else v.altitude
         self._goto(Goto(x, y, alt, self._leg_yaw(item, v, x, y), self.speed, self.climb, self.descent))
 
     def _goto(self, g: Goto) -> None:
         self._target = g
         self.action = g
+        if math.isfinite(g.altitude):
+            self._target_alt = g.altitude
+
+    def _face_roi(self, v: VehicleNow) -> None:
+        """Point the heading at the region of interest from where the vehicle is (PX4 with MIS_MNT_YAW_CTL 0: the
+        vehicle yaws toward it), a new goto when the bearing has moved by more than ROI_STEP."""
+        t = self._target
+        if t is None or self.roi is None:
+            return
+        dx, dy = self.roi[0] - v.x, self.roi[1] - v.y
+        if math.hypot(dx, dy) < 1.0:  # over it: any heading
+            return
+        bearing = math.atan2(dy, dx)
+        if math.isnan(t.yaw) or abs((bearing - t.yaw + math.pi) % (2.0 * math.pi) - math.pi) > ROI_STEP:
+            self._goto(Goto(t.x, t.y, t.altitude, bearing, t.speed, t.climb, t.descent))
 
     @staticmethod
     def land_here(item: mp.MissionItem) -> bool:
@@ -429,6 +460,8 @@ class MissionExecutor:
     def _leg_yaw(self, item: mp.MissionItem, v: VehicleNow, x: float, y: float) -> float:
         """The item's yaw, or (NaN) the bearing of the leg when it is longer than the acceptance radius."""
         yaw = self._yaw(item)
+        if math.isnan(yaw) and self.roi is not None:
+            return math.atan2(self.roi[1] - v.y, self.roi[0] - v.x)
         if math.isnan(yaw) and math.hypot(x - v.x, y - v.y) > self._radius(item):
             yaw = math.atan2(y - v.y, x - v.x)
         return yaw
@@ -437,7 +470,8 @@ class MissionExecutor:
         """The altitude of the first item from the current one that flies to a position (NaN: none)."""
         for item in self.items[self.current :]:
             if item.command in (mp.NAV_WAYPOINT, mp.NAV_LOITER_TIME, mp.NAV_TAKEOFF):
-                return self.altitude_of(item)
+                alt = self.altitude_of(item)
+                return alt if math.isfinite(alt) else -math.inf
             if item.command in (mp.NAV_LAND, mp.NAV_RETURN_TO_LAUNCH):
                 break
         return -math.inf

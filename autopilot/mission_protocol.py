@@ -116,11 +116,24 @@ NAV_LAND = 21
 NAV_TAKEOFF = 22
 NAV_DELAY = 93
 DO_CHANGE_SPEED = 178
+DO_SET_ROI_LOCATION = 195
+DO_SET_ROI_NONE = 197
 POSITION_COMMANDS = frozenset({NAV_WAYPOINT, NAV_LOITER_TIME, NAV_LAND, NAV_TAKEOFF})
 """Commands that fly to a position: they need a global frame and a valid latitude, longitude, altitude."""
-NO_POSITION_COMMANDS = frozenset({NAV_RETURN_TO_LAUNCH, NAV_DELAY, DO_CHANGE_SPEED})
+CAMERA_COMMANDS = frozenset({
+    202, 203, 205, 206, 214,  # DO_DIGICAM_CONFIGURE, _CONTROL, DO_MOUNT_CONTROL, DO_SET_CAM_TRIGG_DIST, _INTERVAL
+    530, 531, 532,  # SET_CAMERA_MODE, _ZOOM, _FOCUS
+    1000,  # DO_GIMBAL_MANAGER_PITCHYAW
+    2000, 2001, 2003, 2500, 2501,  # IMAGE_START/STOP_CAPTURE, DO_TRIGGER_CONTROL, VIDEO_START/STOP_CAPTURE
+})  # fmt: skip
+"""Camera and gimbal items: the vehicle has neither, so each completes as it comes, as PX4's mission does with no
+camera (it only forwards them); the mission says so once when it starts (autopilot.missions)."""
+NO_POSITION_COMMANDS = frozenset({NAV_RETURN_TO_LAUNCH, NAV_DELAY, DO_CHANGE_SPEED, DO_SET_ROI_NONE}) | CAMERA_COMMANDS
 """Commands without a position: frame MISSION (2), or a global frame whose x, y, z are ignored."""
-SUPPORTED_COMMANDS = POSITION_COMMANDS | NO_POSITION_COMMANDS
+PLACE_COMMANDS = POSITION_COMMANDS | {DO_SET_ROI_LOCATION}
+"""Commands that name a place (a global frame, a valid latitude, longitude): the positions and the region of
+interest, which the vehicle faces on the following legs."""
+SUPPORTED_COMMANDS = PLACE_COMMANDS | NO_POSITION_COMMANDS
 
 MAX_ITEMS = 500
 """The most items a mission may have; a longer upload is refused with NO_SPACE."""
@@ -255,13 +268,15 @@ def parse_item(fields: Mapping[str, Any], *, legacy: bool = False) -> MissionIte
         raise ItemRefusedError(UNSUPPORTED, f"command {command} is not supported")
     if frame not in GLOBAL_FRAMES and frame != FRAME_MISSION:
         raise ItemRefusedError(UNSUPPORTED_FRAME, f"frame {frame} is not supported")
-    if command in POSITION_COMMANDS and frame not in GLOBAL_FRAMES:
+    if command in PLACE_COMMANDS and frame not in GLOBAL_FRAMES:
         raise ItemRefusedError(UNSUPPORTED_FRAME, f"command {command} needs a global frame, not {frame}")
 
-    if command in POSITION_COMMANDS:
+    if command in PLACE_COMMANDS:
         xi, yi = _position(x, y, legacy)
-        if not _finite(z):
-            raise ItemRefusedError(INVALID_PARAM7, "altitude is not a finite number")
+        # NaN (QGroundControl's null): a waypoint keeps the altitude it is flown at; a region of interest has none
+        keeps = command in (NAV_WAYPOINT, NAV_LOITER_TIME, DO_SET_ROI_LOCATION)
+        if not (_finite(z) or (keeps and math.isnan(z))):
+            raise ItemRefusedError(INVALID_PARAM7, "altitude is not a finite number (or NaN: the current one)")
     else:
         xi, yi = _ignored_xy(x, y, legacy, scale=frame in GLOBAL_FRAMES)
         z = z if _finite(z) else 0.0

@@ -98,7 +98,12 @@ class Missions:
         ex.start(now, self.vehicle(c))
         self.flying = True
         self._apply(c, ex.action)
-        return True, "", self._events(ex)
+        said = []
+        cameras = sum(item.command in mp.CAMERA_COMMANDS for item in ex.items)
+        if cameras:  # accepted as PX4 accepts them, and said: nothing here takes a picture
+            text = f"Mission: {cameras} camera/gimbal items done as they come: no camera"
+            said.append(mp.Out("STATUSTEXT", None, {"severity": mavlink.MAV_SEVERITY_INFO, "text": text}))
+        return True, "", said + self._events(ex)
 
     @staticmethod
     def first_waypoint_distance(ex: MissionExecutor, c: Commander) -> float:

@@ -5,10 +5,11 @@ Three formats, told apart by their content:
 - **QGroundControl ``.plan``** (JSON; QGroundControl's documented plan file format): ``"fileType": "Plan"``,
   its ``"mission"`` object's ``"items"``. Each ``SimpleItem`` has ``command``, ``frame``, ``params`` (seven
   numbers or null, QGroundControl's NaN: params 5–7 are latitude, longitude, altitude) and ``autoContinue``.
-  A ``ComplexItem`` (survey, corridor scan, structure scan) is refused: it is a QGroundControl-side pattern
-  that QGroundControl itself expands into simple items before it uploads. ``plannedHomePosition`` is where the
-  vehicle is expected: ``fly`` and ``sim`` start it there unless ``--home`` says otherwise. Geofence and rally
-  points are ignored if empty, refused if not (the vehicle has no fence or rally types yet).
+  A survey or corridor scan (``ComplexItem``) is flown as the simple items QGroundControl saved in its
+  ``TransectStyleComplexItem.Items`` (what it uploads); a structure scan, which has none saved, is refused.
+  ``plannedHomePosition`` is where the vehicle is expected: ``fly`` and ``sim`` start it there unless ``--home``
+  says otherwise. Geofence and rally points are ignored if empty, refused if not (the vehicle has no fence or
+  rally types yet).
 - **Waypoint CSV** with the header ``lat, lon, altitude`` (any order, plus optional ``hold`` [s],
   ``radius`` [m], ``yaw`` [deg]): one ``NAV_WAYPOINT`` per row at ``altitude`` above home (frame 6); an empty
   optional cell is the default (hold 0, the vehicle's acceptance radius, yaw toward the waypoint).
@@ -42,6 +43,9 @@ COMMAND_NAMES = {
     mp.NAV_TAKEOFF: "NAV_TAKEOFF",
     mp.NAV_DELAY: "NAV_DELAY",
     mp.DO_CHANGE_SPEED: "DO_CHANGE_SPEED",
+    mp.DO_SET_ROI_LOCATION: "DO_SET_ROI_LOCATION",
+    mp.DO_SET_ROI_NONE: "DO_SET_ROI_NONE",
+    **{c: f"camera/gimbal {c}" for c in mp.CAMERA_COMMANDS},
 }
 ALLOWED_COMMANDS = ", ".join(f"{c} ({n})" for c, n in sorted(COMMAND_NAMES.items()))
 ALLOWED_FRAMES = "0, 3, 5, 6 (global; 2 for commands without a position)"
@@ -90,6 +94,31 @@ class Mission:
     def lands(self) -> bool:
         """True if the mission ends by landing (its last item is NAV_LAND or NAV_RETURN_TO_LAUNCH)."""
         return bool(self.items) and self.items[-1].command in FINISHING_COMMANDS
+
+
+def _simple_items(path: Path, entries: list) -> list[tuple[str, dict]]:
+    """A .plan's items as the simple items QGroundControl uploads, each with the words that name it: a survey's or
+    corridor scan's (a ``ComplexItem`` with ``TransectStyleComplexItem.Items``, the waypoints and camera items
+    QGroundControl generated and saved) in its place; another complex item (a structure scan, which QGroundControl
+    generates only as it uploads) refused."""
+    out = []
+    for i, it in enumerate(entries):
+        where = f"mission {path}, item {i}"
+        if not isinstance(it, dict):
+            raise MissionFileError(f"{where}: {it!r} is not an object; expected a SimpleItem")
+        if it.get("type") != "ComplexItem":
+            out.append((where, it))
+            continue
+        name = it.get("complexItemType", "complex item")
+        inner = (it.get("TransectStyleComplexItem") or {}).get("Items")
+        if not isinstance(inner, list) or not inner:
+            raise MissionFileError(f"{where}, type: ComplexItem ({name}) has no saved items; allowed: SimpleItem, or "
+                                   "a survey or corridor scan with its TransectStyleComplexItem.Items")  # fmt: skip
+        for j, sub in enumerate(inner):
+            if not isinstance(sub, dict) or sub.get("type") != "SimpleItem":
+                raise MissionFileError(f"{where} ({name}), item {j}: {sub!r}; expected a SimpleItem")
+            out.append((f"{where} ({name}), item {j}", sub))
+    return out
 
 
 def _num(v: object) -> float:
@@ -171,15 +200,8 @@ def _plan(path: Path, text: str) -> Mission:
         except (TypeError, ValueError):
             planned_home = None
     items = []
-    for i, it in enumerate(mission["items"]):
-        where = f"mission {path}, item {i}"
-        if not isinstance(it, dict):
-            raise MissionFileError(f"{where}: {it!r} is not an object; expected a SimpleItem")
+    for where, it in _simple_items(path, mission["items"]):
         kind = it.get("type")
-        if kind == "ComplexItem":
-            name = it.get("complexItemType", "complex item")
-            raise MissionFileError(f"{where}, type: ComplexItem ({name}) is not supported; allowed: SimpleItem "
-                                   "(expand the pattern into waypoints first)")  # fmt: skip
         if kind != "SimpleItem":
             raise MissionFileError(f"{where}, type: {kind!r}; allowed: 'SimpleItem'")
         command, frame = it.get("command"), it.get("frame")

@@ -566,3 +566,32 @@ def test_a_mission_from_the_ground_takes_off_at_mpc_tko_speed_as_takeoff_mode_do
         missions.step(c, f.time)
         climbs.append(c.cm[cmd.REF_CLIMB])
     assert max(climbs) == pytest.approx(CommanderSettings().takeoff_speed, abs=1e-9)
+
+
+def test_a_region_of_interest_is_faced_on_the_following_legs_until_cleared_and_camera_items_pass_at_once():
+    p = Point()
+    p.landed, p.alt = False, 10.0
+    roi = dataclasses.replace(item(0, mp.DO_SET_ROI_LOCATION, north=0.0, east=50.0, z=0.0))
+    camera = item(1, 2000, frame=mp.FRAME_MISSION)  # IMAGE_START_CAPTURE: no camera, done as it comes
+    items = [roi, camera, item(2, north=30.0), item(3, mp.DO_SET_ROI_NONE, frame=mp.FRAME_MISSION),
+             item(4, north=30.0, east=-30.0)]  # fmt: skip
+    ex = MissionExecutor(items, ORIGIN)
+    p.start(ex)
+    p.fly(ex, 60.0, until=complete)
+    assert p.reached() == [0, 1, 2, 3, 4] and p.reached_at(1)[0] == p.reached_at(0)[0]
+    _, (x, y, _, yaw) = p.reached_at(2)
+    assert abs(yaw - math.atan2(50.0 - y, 0.0 - x)) < math.radians(3)  # facing the ROI, not north along the leg
+    gotos = [a for t, a in p.actions if isinstance(a, Goto) and t >= p.reached_at(3)[0]]
+    _, (x, y, _, _) = p.reached_at(3)
+    assert gotos[0].yaw == pytest.approx(math.atan2(-30.0 - y, 30.0 - x), abs=1e-3)  # cleared: the leg's bearing, west
+
+
+def test_a_waypoint_without_an_altitude_is_flown_at_the_altitude_of_the_one_before():
+    p = Point()
+    p.landed, p.alt = False, 10.0
+    items = [item(0, north=10.0, z=15.0), item(1, north=20.0, z=NAN)]
+    ex = MissionExecutor(items, ORIGIN)
+    p.start(ex)
+    p.fly(ex, 60.0, until=complete)
+    assert p.reached() == [0, 1] and p.alt == pytest.approx(15.0)
+    assert mp.parse_item(items[1].message_fields()).z != mp.parse_item(items[1].message_fields()).z  # NaN kept

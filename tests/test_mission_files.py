@@ -45,15 +45,16 @@ def wp(command=16, frame=3, params=(0, 0, 0, None, 47.3978, 8.5456, 5)):
 @pytest.mark.parametrize(
     "items, expected",
     [
-        ([wp(), {"type": "ComplexItem", "complexItemType": "survey"}],
-         "item 1, type: ComplexItem (survey) is not supported; allowed: SimpleItem"),
+        ([wp(), {"type": "ComplexItem", "complexItemType": "StructureScan"}],
+         "item 1, type: ComplexItem (StructureScan) has no saved items; allowed: SimpleItem, or a survey"),
         ([wp(command=17)], "item 0 (command 17), command: 17 is refused by the vehicle; allowed: one of 16 (NAV_WAYP"),
         ([wp(frame=1)], "item 0 (NAV_WAYPOINT), frame: 1 is refused by the vehicle; allowed: 0, 3, 5, 6"),
         ([wp(frame=2)], "item 0 (NAV_WAYPOINT), frame: 2 is refused"),
         ([wp(params=(-1, 0, 0, 0, 47.3, 8.5, 5))], "item 0 (NAV_WAYPOINT), param1: -1 is refused by the vehicle; "
          "allowed: hold time must be >= 0 s"),
         ([wp(params=(0, 0, 0, 0, 95, 8.5, 5))], "item 0 (NAV_WAYPOINT), latitude (param5): 95 is refused"),
-        ([wp(params=(0, 0, 0, 0, 47, 8.5, None))], "item 0 (NAV_WAYPOINT), altitude (param7): NaN is refused"),
+        ([wp(command=22, params=(0, 0, 0, 0, 47, 8.5, None))],
+         "item 0 (NAV_TAKEOFF), altitude (param7): NaN is refused"),
         ([wp(), wp(command=93, frame=2, params=(-1, 0, 0, 0, 0, 0, 0))], "item 1 (NAV_DELAY), param1: -1"),
         ([wp(params=(0, 0, 0))], "item 0, params: [0, 0, 0]; expected a list of 7 numbers (or null)"),
         ([wp(params=(0, 0, 0, "x", 47, 8, 5))], "item 0, params: 'x' is not a number (or null)"),

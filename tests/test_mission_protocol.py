@@ -243,7 +243,8 @@ BAD_ITEMS = [
     ({"param4": math.inf}, mp.INVALID_PARAM4),
     ({"x": 900_000_001}, mp.INVALID_PARAM5_X),
     ({"y": -1_800_000_001}, mp.INVALID_PARAM6_Y),
-    ({"z": math.nan}, mp.INVALID_PARAM7),
+    ({"z": math.inf}, mp.INVALID_PARAM7),
+    ({"command": 22, "z": math.nan}, mp.INVALID_PARAM7),  # a takeoff needs its altitude (a waypoint keeps its own)
     ({"command": 19, "param1": math.nan}, mp.INVALID_PARAM1),  # loiter time needs a time
     ({"command": 93, "frame": 2, "param1": -1.0}, mp.INVALID_PARAM1),  # delay until a time of day
     ({"command": 178, "frame": 2, "param1": 1.0, "param2": math.nan}, mp.INVALID_PARAM2),

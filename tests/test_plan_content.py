@@ -1,0 +1,56 @@
+"""What QGroundControl plans carry besides waypoints, flown by ``quadsitl fly --mission`` as PX4 flies them: a region of
+interest the vehicle faces, camera items done as they come (no camera), a survey's saved waypoints, and a waypoint
+whose altitude is null (the one before's)."""
+
+import json
+import math
+
+import pandas as pd
+
+from quadsitl.frames import geodetic_to_ned
+from tests.conftest import run_cli
+
+HOME = (47.397742, 8.545594, 488.0)
+DLAT = 0.00009  # ≈ 10 m north
+DLON = 0.000133  # ≈ 10 m east
+
+
+def simple(command: int, frame: int, params: list) -> dict:
+    return {"type": "SimpleItem", "command": command, "frame": frame, "params": params, "autoContinue": True,
+            "doJumpId": 1}  # fmt: skip
+
+
+def at(north: float, east: float, alt: float | None, command: int = 16) -> dict:
+    lat, lon = HOME[0] + north / 10 * DLAT, HOME[1] + east / 10 * DLON
+    return simple(command, 3, [0, 0, 0, None, lat, lon, alt])
+
+
+def test_a_plan_with_roi_camera_items_a_survey_and_a_null_altitude_is_flown(tmp_path):
+    saved = [simple(206, 2, [5, 0, 1, 0, 0, 0, 0]), at(20, 0, 8), at(20, 20, 8), simple(206, 2, [0, 0, 1, 0, 0, 0, 0])]
+    survey = {"type": "ComplexItem", "complexItemType": "survey", "version": 5,
+              "TransectStyleComplexItem": {"Items": saved}}  # fmt: skip
+    items = [simple(22, 3, [0, 0, 0, None, HOME[0], HOME[1], 8]),
+             at(10, 40, 0, command=195),  # look at a point 40 m east, 10 m north
+             simple(2000, 2, [0, 0, 1, 0, 0, 0, 0]),  # IMAGE_START_CAPTURE
+             survey, at(0, 20, None),  # null altitude: stays at 8 m
+             simple(197, 2, [0, 0, 0, 0, 0, 0, 0]), simple(20, 2, [0, 0, 0, 0, 0, 0, 0])]  # fmt: skip
+    plan = {"fileType": "Plan", "version": 1, "groundStation": "QGroundControl",
+            "mission": {"version": 2, "firmwareType": 12, "vehicleType": 2, "plannedHomePosition": list(HOME),
+                        "items": items}, "geoFence": {"polygons": []}, "rallyPoints": {"points": []}}  # fmt: skip
+    path = tmp_path / "content.plan"
+    path.write_text(json.dumps(plan))
+    out = tmp_path / "out"
+    r = run_cli("fly", "--preset", "x500", "--mission", str(path), "--no-figures", "--out", str(out), timeout=300)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((out / "mission.json").read_text())
+    assert doc["all_reached_in_order"] and len(doc["items"]) == 10, doc["reached"]
+    assert "camera/gimbal items done as they come: no camera" in r.stderr  # said once, not silently skipped
+    t = pd.read_csv(out / "telemetry.csv")
+    reached = {e["seq"]: e["t"] for e in doc["reached"]}
+    roi = geodetic_to_ned(HOME[0] + DLAT, HOME[1] + 4 * DLON, HOME[0], HOME[1])
+    legs = t[(t.t > reached[4] + 3.0) & (t.t <= reached[5])]  # the survey's leg east, the turn to it done
+    bearing = [math.atan2(roi[1] - y, roi[0] - x) for x, y in zip(legs.x, legs.y)]
+    off = [abs((b - yaw + math.pi) % (2 * math.pi) - math.pi) for b, yaw in zip(bearing, legs.yaw)]
+    assert max(off) < math.radians(5)  # facing the region of interest, not the leg (east)
+    null = t[(t.t > reached[6]) & (t.t <= reached[7])]
+    assert abs(null.altitude - 8.0).max() < 0.5  # the null altitude flown at the one before
