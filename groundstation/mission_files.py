@@ -4,7 +4,8 @@ Three formats, told apart by their content:
 
 - **QGroundControl ``.plan``** (JSON; QGroundControl's documented plan file format): ``"fileType": "Plan"``,
   its ``"mission"`` object's ``"items"``. Each ``SimpleItem`` has ``command``, ``frame``, ``params`` (seven
-  numbers or null, QGroundControl's NaN: params 5–7 are latitude, longitude, altitude) and ``autoContinue``.
+  numbers or null, QGroundControl's NaN: params 5–7 are latitude, longitude, altitude; QGroundControl's older
+  items: four params and a ``coordinate``) and ``autoContinue``.
   A survey or corridor scan (``ComplexItem``) is flown as the simple items QGroundControl saved in its
   ``TransectStyleComplexItem.Items`` (what it uploads); a structure scan, which has none saved, is refused.
   ``plannedHomePosition`` is where the vehicle is expected: ``fly`` and ``sim`` start it there unless ``--home``
@@ -209,8 +210,12 @@ def _plan(path: Path, text: str) -> Mission:
             if not isinstance(v, int) or isinstance(v, bool):
                 raise MissionFileError(f"{where}, {field}: {v!r} is not an integer")
         params = it.get("params")
+        coordinate = it.get("coordinate")  # QGroundControl's older items: four params, the place apart
+        if isinstance(params, list) and len(params) == 4 and isinstance(coordinate, list) and len(coordinate) == 3:
+            params = params + coordinate
         if not isinstance(params, list) or len(params) != 7:
-            raise MissionFileError(f"{where}, params: {params!r}; expected a list of 7 numbers (or null)")
+            raise MissionFileError(f"{where}, params: {params!r}; expected a list of 7 numbers (or null), or 4 with "
+                                   "a coordinate [latitude, longitude, altitude]")  # fmt: skip
         try:
             values = [_num(v) for v in params]
         except (TypeError, ValueError):

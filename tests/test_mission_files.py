@@ -142,3 +142,14 @@ def test_every_supported_command_passes_and_the_vehicle_agrees(tmp_path):
     m = load(plan(tmp_path, items))
     for item in m.items:
         assert mp.parse_item({**item.message_fields()}) == item
+
+
+def test_qgroundcontrols_older_items_with_a_coordinate_and_four_params_and_a_surveys_saved_items(tmp_path):
+    old = {"type": "SimpleItem", "command": 16, "frame": 3, "params": [0, 0, 0, None],
+           "coordinate": [47.3978, 8.5456, 5], "autoContinue": True}  # fmt: skip
+    mount = {"type": "SimpleItem", "command": 205, "frame": 2, "params": [0, 0, 0, 0], "coordinate": [0, 0, 2],
+             "autoContinue": True}  # fmt: skip
+    survey = {"type": "ComplexItem", "complexItemType": "survey", "TransectStyleComplexItem": {"Items": [wp(), wp()]}}
+    m = load(plan(tmp_path, [old, mount, survey, wp()]))
+    assert [i.command for i in m.items] == [16, 205, 16, 16, 16] and [i.seq for i in m.items] == [0, 1, 2, 3, 4]
+    assert m.items[0].z == 5.0 and m.items[0].x == 473978000

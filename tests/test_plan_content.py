@@ -54,3 +54,54 @@ def test_a_plan_with_roi_camera_items_a_survey_and_a_null_altitude_is_flown(tmp_
     assert max(off) < math.radians(5)  # facing the region of interest, not the leg (east)
     null = t[(t.t > reached[6]) & (t.t <= reached[7])]
     assert abs(null.altitude - 8.0).max() < 0.5  # the null altitude flown at the one before
+
+
+async def mission_import(port: int, text: str) -> dict:
+    """MAVSDK-Python's mission_import.py, as written but for the file (a string here): import a QGroundControl plan
+    with mission_raw, upload it, arm, start; then wait for the mission to finish and the vehicle to disarm."""
+    import asyncio
+
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.action import ActionAsync
+    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
+    from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+    from tests.mavsdk_client import autopilot, healthy, until
+
+    seen: dict = {}
+    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as m:
+        system = await autopilot(m, port)
+        raw, action, tel = MissionRawAsync(system), ActionAsync(system), TelemetryAsync(system)
+        data = await raw.import_qgroundcontrol_mission_from_string(text)
+        seen["imported"] = [i.command for i in data.mission_items]
+        await raw.upload_mission(data.mission_items)
+        await healthy(tel)
+        await action.arm()
+        await raw.start_mission()
+        done = await until(raw.subscribe_mission_progress(), lambda p: p.current == p.total, 120)
+        seen["progress"] = (done.current, done.total)
+        seen["disarmed"] = await until(tel.subscribe_armed(), lambda a: not a, 60)
+        await asyncio.sleep(0)
+    return seen
+
+
+def test_mavsdk_imports_a_plan_with_roi_camera_items_and_a_survey_uploads_and_flies_it():
+    import asyncio
+
+    from tests.mavclient import quadsitl_up
+
+    saved = [simple(206, 2, [5, 0, 1, 0, 0, 0, 0]), at(20, 0, 8), at(20, 20, 8), simple(206, 2, [0, 0, 1, 0, 0, 0, 0])]
+    items = [simple(22, 3, [0, 0, 0, None, HOME[0], HOME[1], 8]), at(10, 40, 0, command=195),
+             simple(2000, 2, [0, 0, 1, 0, 0, 0, 0]),
+             {"type": "ComplexItem", "complexItemType": "survey", "version": 5,
+              "TransectStyleComplexItem": {"Items": saved}},
+             simple(197, 2, [0, 0, 0, 0, 0, 0, 0]), simple(20, 2, [0, 0, 0, 0, 0, 0, 0])]  # fmt: skip
+    plan = {"fileType": "Plan", "version": 1, "groundStation": "QGroundControl",
+            "mission": {"version": 2, "firmwareType": 12, "vehicleType": 2, "plannedHomePosition": list(HOME),
+                        "items": items}, "geoFence": {"version": 2, "polygons": [], "circles": []},
+            "rallyPoints": {"version": 2, "points": []}}  # fmt: skip
+    with quadsitl_up("--preset", "x500", "--speed", "4") as v:  # lockstep at 4× real time: the mission in ~20 s
+        seen = asyncio.run(asyncio.wait_for(mission_import(v.api_port, json.dumps(plan)), 240))
+        assert v.proc.poll() is None
+    assert seen["imported"] == [22, 195, 2000, 206, 16, 16, 206, 197, 20]  # MAVSDK expands the survey too
+    assert seen["progress"] == (9, 9) and seen["disarmed"] is False
