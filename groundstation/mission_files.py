@@ -46,7 +46,7 @@ COMMAND_NAMES = {
     mp.DO_CHANGE_SPEED: "DO_CHANGE_SPEED",
     mp.DO_SET_ROI_LOCATION: "DO_SET_ROI_LOCATION",
     mp.DO_SET_ROI_NONE: "DO_SET_ROI_NONE",
-    **{c: f"camera/gimbal {c}" for c in mp.CAMERA_COMMANDS},
+    **mp.CAMERA_NAMES,
 }
 ALLOWED_COMMANDS = ", ".join(f"{c} ({n})" for c, n in sorted(COMMAND_NAMES.items()))
 ALLOWED_FRAMES = "0, 3, 5, 6 (global; 2 for commands without a position)"

@@ -487,13 +487,13 @@ def test_fly_mission_refuses_a_bad_file_before_anything_starts(tmp_path):
     bad = tmp_path / "bad.plan"
     bad.write_text(json.dumps({"fileType": "Plan", "mission": {"items": [
         {"type": "SimpleItem", "command": 16, "frame": 3, "params": [0, 0, 0, None, 47.4, 8.5, 5]},
-        {"type": "ComplexItem", "complexItemType": "survey"}]}}))  # fmt: skip
+        {"type": "ComplexItem", "complexItemType": "StructureScan"}]}}))  # fmt: skip
     r = subprocess.run(quadsitl("fly", "--mission", str(bad), "--out", str(tmp_path)), capture_output=True, text=True,
                        timeout=60)  # fmt: skip
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [
-        f"quadsitl fly: error: mission {bad}, item 1, type: ComplexItem (survey) is not supported; allowed: "
-        "SimpleItem (expand the pattern into waypoints first)"
+        f"quadsitl fly: error: mission {bad}, item 1, type: ComplexItem (StructureScan) has no saved items; allowed: "
+        "SimpleItem, or a survey or corridor scan with its TransectStyleComplexItem.Items"
     ]
     assert not (tmp_path / "telemetry.csv").exists()
     r = subprocess.run(quadsitl("fly", "--mission", str(bad), "--trajectory", "sine"), capture_output=True, text=True,
