@@ -33,7 +33,9 @@ def test_a_plan_with_roi_camera_items_a_survey_and_a_null_altitude_is_flown(tmp_
              at(10, 40, 0, command=195),  # look at a point 40 m east, 10 m north
              simple(2000, 2, [0, 0, 1, 0, 0, 0, 0]),  # IMAGE_START_CAPTURE
              survey, at(0, 20, None),  # null altitude: stays at 8 m
-             simple(197, 2, [0, 0, 0, 0, 0, 0, 0]), simple(20, 2, [0, 0, 0, 0, 0, 0, 0])]  # fmt: skip
+             simple(197, 2, [0, 0, 0, 0, 0, 0, 0]),
+             simple(178, 2, [2, 0.8, 0, 0, 0, 0, 0]), at(0, 10, 14),  # climb at 0.8 m/s (speed type 2) to 14 m
+             simple(20, 2, [0, 0, 0, 0, 0, 0, 0])]  # fmt: skip
     plan = {"fileType": "Plan", "version": 1, "groundStation": "QGroundControl",
             "mission": {"version": 2, "firmwareType": 12, "vehicleType": 2, "plannedHomePosition": list(HOME),
                         "items": items}, "geoFence": {"polygons": []}, "rallyPoints": {"points": []}}  # fmt: skip
@@ -43,7 +45,7 @@ def test_a_plan_with_roi_camera_items_a_survey_and_a_null_altitude_is_flown(tmp_
     r = run_cli("fly", "--preset", "x500", "--mission", str(path), "--no-figures", "--out", str(out), timeout=300)
     assert r.returncode == 0, r.stderr
     doc = json.loads((out / "mission.json").read_text())
-    assert doc["all_reached_in_order"] and len(doc["items"]) == 10, doc["reached"]
+    assert doc["all_reached_in_order"] and len(doc["items"]) == 12, doc["reached"]
     assert "camera/gimbal items done as they come: no camera" in r.stderr  # said once, not silently skipped
     t = pd.read_csv(out / "telemetry.csv")
     reached = {e["seq"]: e["t"] for e in doc["reached"]}
@@ -54,6 +56,10 @@ def test_a_plan_with_roi_camera_items_a_survey_and_a_null_altitude_is_flown(tmp_
     assert max(off) < math.radians(5)  # facing the region of interest, not the leg (east)
     null = t[(t.t > reached[6]) & (t.t <= reached[7])]
     assert abs(null.altitude - 8.0).max() < 0.5  # the null altitude flown at the one before
+    takeoff = t[t.t <= reached[0]]
+    assert 1.4 < takeoff.vz.min() * -1 < 1.6  # the mission's takeoff at MPC_TKO_SPEED (NED: vz down)
+    climb = t[(t.t > reached[9]) & (t.t <= reached[10])]
+    assert 0.7 < -climb.vz.min() < 0.9 and climb.altitude.max() > 12.0  # DO_CHANGE_SPEED's climb speed, flown
 
 
 async def mission_import(port: int, text: str) -> dict:
