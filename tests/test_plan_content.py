@@ -111,3 +111,29 @@ def test_mavsdk_imports_a_plan_with_roi_camera_items_and_a_survey_uploads_and_fl
         assert v.proc.poll() is None
     assert seen["imported"] == [22, 195, 2000, 206, 16, 16, 206, 197, 20]  # MAVSDK expands the survey too
     assert seen["progress"] == (9, 9) and seen["disarmed"] is False
+
+
+def test_a_loiters_radius_and_heading_and_an_item_with_autocontinue_off_through_fly(tmp_path):
+    """LOITER_TIME's p3 (its radius) and p2 = 1 (face the next waypoint before leaving), then a waypoint with
+    autoContinue false: the vehicle holds there, the mission waiting on it, until --duration ends the run."""
+    loiter = simple(19, 3, [1, 1, 6, None, HOME[0] + 2 * DLAT, HOME[1], 8])  # 20 m north, 1 s, heading, 6 m
+    stop = {**at(20, 20, 8), "autoContinue": False}
+    items = [simple(22, 3, [0, 0, 0, None, HOME[0], HOME[1], 8]), loiter, stop, at(0, 0, 8)]
+    plan = {"fileType": "Plan", "version": 1, "groundStation": "QGroundControl",
+            "mission": {"version": 2, "firmwareType": 12, "vehicleType": 2, "plannedHomePosition": list(HOME),
+                        "items": items}}  # fmt: skip
+    path = tmp_path / "stop.plan"
+    path.write_text(json.dumps(plan))
+    out = tmp_path / "out"
+    r = run_cli("fly", "--preset", "x500", "--mission", str(path), "--duration", "60", "--no-figures", "--quiet",
+                "--out", str(out), timeout=300)  # fmt: skip
+    assert r.returncode != 0 and "current item 2 of 4, mission_state 3" in r.stderr  # still active, held on item 2
+    doc = json.loads((out / "mission.json").read_text())
+    reached = {e["seq"]: e["t"] for e in doc["reached"]}
+    assert sorted(reached) == [0, 1, 2]  # item 3 never flown
+    t = pd.read_csv(out / "telemetry.csv")
+    point = t[t.t <= reached[1]].iloc[-1]  # (the reached time is the ground station's: telemetry comes in batches)
+    gone = t[(t.t > reached[1] - 1.0) & (((t.x - point.x) ** 2 + (t.y - point.y) ** 2) > 2.0**2)].iloc[0]
+    assert abs((gone.yaw - math.pi / 2 + math.pi) % (2 * math.pi) - math.pi) < math.radians(15)  # faced east first
+    held = t[t.t > reached[2] + 2.0]
+    assert len(held) > 10_000 and held.x.max() - held.x.min() < 0.3 and held.y.max() - held.y.min() < 0.3
