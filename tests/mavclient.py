@@ -88,6 +88,19 @@ def fleet_up(n: int, *extra: str):
         v.stop()
 
 
+@contextlib.contextmanager
+def armable_client(*extra: str):
+    """``quadsitl up`` (:func:`quadsitl_up`, with ``extra``) and a :class:`Client` on its ground-station link, once
+    the vehicle is armable (the plant's first state has reached the autopilot); closed afterwards."""
+    with quadsitl_up(*extra) as v:
+        c = Client(v.gcs_port)
+        try:
+            c.wait_armable()
+            yield c
+        finally:
+            c.close()
+
+
 class Client:
     """A raw pymavlink ground station listening where the vehicle streams (like QGroundControl on 14550)."""
 

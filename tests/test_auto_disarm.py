@@ -6,20 +6,15 @@ import time
 
 import pytest
 
-from tests.mavclient import Client, M, quadsitl_up
+from tests.mavclient import Client, M, armable_client
 
 VELOCITY_ONLY = 0b0000_1111_1100_0111  # SET_POSITION_TARGET_LOCAL_NED: vx, vy, vz
 
 
 @pytest.fixture(scope="module")
 def vehicle():
-    with quadsitl_up("--preset", "x500") as v:
-        c = Client(v.gcs_port)
-        try:
-            c.wait_armable()
-            yield c
-        finally:
-            c.close()
+    with armable_client("--preset", "x500") as c:
+        yield c
 
 
 def armed(c: Client) -> bool:

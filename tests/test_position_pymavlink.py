@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from quadsitl.frames import geodetic_to_ned, ned_to_geodetic
-from tests.mavclient import Client, M, quadsitl_up
+from tests.mavclient import Client, M, armable_client
 
 NAN = math.nan
 HOLD, RTL = (4 << 16) | (3 << 24), (4 << 16) | (5 << 24)
@@ -18,13 +18,8 @@ ORIGIN = (47.397742, 8.545594, 488.0)  # PX4 SITL's default home: the local orig
 
 @pytest.fixture
 def client():
-    with quadsitl_up("--speed", "4") as v:
-        c = Client(v.gcs_port)
-        try:
-            c.wait_armable()
-            yield c
-        finally:
-            c.close()
+    with armable_client("--speed", "4") as c:
+        yield c
 
 
 def command_int(c: Client, cmd: int, frame: int, params=(NAN,) * 4, x: int = 0, y: int = 0, z: float = NAN):

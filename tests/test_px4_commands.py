@@ -6,18 +6,13 @@ import math
 
 import pytest
 
-from tests.mavclient import Client, M, quadsitl_up
+from tests.mavclient import M, armable_client
 
 
 @pytest.fixture(scope="module")
 def vehicle():
-    with quadsitl_up("--preset", "x500") as v:
-        c = Client(v.gcs_port)
-        try:
-            c.wait_armable()  # the plant's first state has reached the autopilot
-            yield c
-        finally:
-            c.close()
+    with armable_client("--preset", "x500") as c:
+        yield c
 
 
 def test_a_takeoff_below_the_minimum_altitude_climbs_to_mis_takeoff_alt_and_says_so(vehicle):

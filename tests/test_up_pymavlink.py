@@ -7,18 +7,13 @@ import time
 
 import pytest
 
-from tests.mavclient import Client, M, quadsitl_up
+from tests.mavclient import Client, M, armable_client
 
 
 @pytest.fixture
 def client():
-    with quadsitl_up() as v:
-        c = Client(v.gcs_port)
-        try:
-            c.wait_armable()  # the plant's first state has reached the autopilot
-            yield c
-        finally:
-            c.close()
+    with armable_client() as c:
+        yield c
 
 
 def for_a_while(c: Client, seconds: float, each=None) -> None:
