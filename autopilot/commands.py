@@ -44,7 +44,7 @@ class Vehicle(Protocol):
     def frame(self) -> setpoints.Frame: ...
     def home_position(self): ...
     def set_mode(self, mode: wire.Mode) -> tuple[bool, str]: ...
-    def answer_armed(self) -> None: ...
+    def armed(self) -> None: ...
     def refresh_streams(self) -> None: ...
 
 
@@ -62,9 +62,12 @@ def arm_disarm(v: Vehicle, c: Command) -> Result:
     cm = v.commander
     if c.param(1) == 1.0:
         reason = "" if cm.armed else gcs_messages.arming_check(v.has_state())
+        if not reason and not cm.armed and cm.mode == wire.Mode.MISSION:  # arming in AUTO.MISSION starts it
+            reason = v.missions.refusal(cm)
+            reason = f"Arming denied: {reason}" if reason else ""
         ok, reason = (False, reason) if reason else cm.arm()
         if ok:
-            v.answer_armed()
+            v.armed()
         return _result(ok, reason)
     if c.param(1) == 0.0:
         state = v.state()

@@ -46,6 +46,7 @@ class ID:
     MISSION_SET_CURRENT = mavlink.MAVLINK_MSG_ID_MISSION_SET_CURRENT
 
 
+MAX_REACHED = 4096  # reached items kept for the mission document (a mission flown over and over keeps its first)
 MESSAGES = frozenset(v for k, v in vars(ID).items() if k.startswith("MISSION_"))  # what Missions.on_message takes
 
 
@@ -59,6 +60,11 @@ class Missions:
         self.acceptance_radius = acceptance_radius
         self.executor: MissionExecutor | None = None
         self._version = -1
+        self.now = math.nan  # [s] simulated: the tick the executor last stepped at
+        self.reached: list[tuple[int, float]] = []
+        """(seq, simulated time [s] of the tick after which it was reached) of each MISSION_ITEM_REACHED since the
+        stored mission was replaced: the mission document carries them (a ground station's record, exact on any
+        machine, where MISSION_ITEM_REACHED arrives when it arrives)."""
         self.flying = False
         """The executor is in charge (in MISSION, or in its own LAND/RTL): :meth:`step` it every control tick. A
         plain attribute: the process reads it after every tick."""
@@ -75,6 +81,7 @@ class Missions:
         if self.executor is None or self._version != self.protocol.version:
             self._version = self.protocol.version
             self.executor = None
+            self.reached = []
             if self.protocol.items:
                 self.executor = MissionExecutor(self.protocol.items, self.origin, c.home,
                                                 acceptance_radius=self.acceptance_radius,
@@ -82,20 +89,34 @@ class Missions:
                                                 current=self.protocol.current)  # fmt: skip
         return self.executor
 
-    def start(self, c: Commander, now: float) -> tuple[bool, str, list[mp.Out]]:
-        """AUTO.MISSION: (accepted, why not, messages). Needs a mission; flies it from its current item."""
+    def refusal(self, c: Commander) -> str:
+        """Why AUTO.MISSION cannot start now ("" when it can): no mission, or its first waypoint too far from home
+        (PX4's checkHorizontalDistanceToFirstWaypoint, MIS_DIST_1WP)."""
         ex = self._executor(c)
         if ex is None:
-            return False, "Mission denied: no mission uploaded", []
+            return "Mission denied: no mission uploaded"
         ex.home = c.home
         far = self.first_waypoint_distance(ex, c)
-        if c.settings.dist_1wp > 0.0 and far >= c.settings.dist_1wp:  # PX4's checkHorizontalDistanceToFirstWaypoint
-            return False, f"First waypoint far away from home: {far:.0f}m. Correct mission loaded?", []
+        if c.settings.dist_1wp > 0.0 and far >= c.settings.dist_1wp:
+            return f"First waypoint far away from home: {far:.0f}m. Correct mission loaded?"
+        return ""
+
+    def start(self, c: Commander, now: float) -> tuple[bool, str, list[mp.Out]]:
+        """AUTO.MISSION: (accepted, why not, messages). Needs a mission; flies it from its current item. Disarmed,
+        as PX4, the mode is selected and the mission starts when the vehicle arms in it (:meth:`armed`): a ground
+        station that selects the mode, then arms, has the flight start at the tick it armed at."""
+        reason = self.refusal(c)
+        if reason:
+            return False, reason, []
+        ex = self.executor
         if c.mode != Mode.MISSION:
             ok, reason = c.set_mode(Mode.MISSION)
             if not ok:
                 return False, reason, []
+        if not c.armed:
+            return True, "", []
         ex.start(now, self.vehicle(c))
+        self.now = now
         self.flying = True
         self._apply(c, ex.action)
         said = []
@@ -104,6 +125,15 @@ class Missions:
             text = f"Mission: {cameras} camera/gimbal items done as they come: no camera"
             said.append(mp.Out("STATUSTEXT", None, {"severity": mavlink.MAV_SEVERITY_INFO, "text": text}))
         return True, "", said + self._events(ex)
+
+    def armed(self, c: Commander, now: float) -> list[mp.Out]:
+        """The vehicle just armed: in AUTO.MISSION, the mission starts (its messages)."""
+        if c.mode != Mode.MISSION:
+            return []
+        ok, reason, outs = self.start(c, now)
+        if not ok:  # the arming check (commands.arm_disarm) asked :meth:`refusal` first: never here
+            raise AssertionError(reason)
+        return outs
 
     @staticmethod
     def first_waypoint_distance(ex: MissionExecutor, c: Commander) -> float:
@@ -133,6 +163,7 @@ class Missions:
             ex.pause()
         else:
             before = ex.action
+            self.now = now
             action = ex.step(now, self.vehicle(c))
             if action is not before:
                 self._apply(c, action)
@@ -199,6 +230,8 @@ class Missions:
         for e in ex.events:
             if isinstance(e, Reached):
                 out.append(self.protocol.item_reached(e.seq))
+                if len(self.reached) < MAX_REACHED:
+                    self.reached.append((e.seq, self.now))
             elif isinstance(e, Current):
                 out += self.protocol.set_progress(e.seq, e.mission_state)
         ex.events.clear()

@@ -10,12 +10,14 @@ With ``quadsitl autopilot --offboard-lockstep S`` (``quadsitl fly`` uses it) the
 more than S simulated seconds after the moment its newest offboard setpoint was made for: the setpoint's
 ``time_boot_ms``, which quadsitl's ground station stamps from the vehicle's own clock (the tick of the newest
 telemetry it has seen, as the ATTITUDE stream's ``time_boot_ms``). So the reference flown lags the trajectory by
-at most S on any machine. The clock waits at most :data:`HOLD_MAX` of wall time for one setpoint: a ground
-station that has gone is then the setpoint-loss failsafe's business, as without the option (and the plant, which
-says "autopilot lost" after 0.5 s without an answer, never hears silence that long).
+at most S on any machine. The clock waits for a setpoint as long as the ground station is there: until it has not
+been heard (its heartbeat) for ``hold_max`` of wall time, the autopilot's datalink timeout (COM_DL_LOSS_T, 10 s), or
+:data:`HOLD_MAX` when it was never heard. A ground station descheduled for seconds by a busy machine (or stopped
+with SIGSTOP) holds the simulated clock the whole time, so the flight is the same as if it had never stopped; one that
+has gone is then the datalink-loss and setpoint-loss failsafes' business, as without the option.
 
 PX4's lockstep never waits for an offboard API, and a client that stamps ``time_boot_ms`` from its own clock
-(MAVSDK does) would make every setpoint wait :data:`HOLD_MAX`: so the option is off by default, for ground
+(MAVSDK does) would make every setpoint wait ``hold_max``: so the option is off by default, for ground
 stations that stamp with the vehicle's time.
 
 A ground station may also send its setpoints ahead of the vehicle's clock (``quadsitl gcs --setpoints-ahead``, as
@@ -33,7 +35,7 @@ Pure and I/O-free: the autopilot's shell calls :meth:`OffboardLockstep.stamp` fo
 
 from __future__ import annotations
 
-HOLD_MAX = 0.25  # [s] wall: the longest the clock waits for one setpoint
+HOLD_MAX = 0.25  # [s] wall: the longest the clock waits for one setpoint from a ground station never heard
 HOLD_AHEAD = 2.0  # [s] simulated: a setpoint made for at most this far ahead of the vehicle's clock is held until then
 NO_WAIT = 2**63 - 1  # free_until: no tick waits
 
@@ -42,7 +44,9 @@ class OffboardLockstep:
     """When the answer to a plant tick must wait for a newer offboard setpoint.
 
     ``lead`` [s, simulated]: how far the vehicle's clock may run past the moment the newest setpoint was made for;
-    ``period`` [s]: the control period (a tick); ``hold_max`` [s, wall]: the longest wait for one setpoint."""
+    ``period`` [s]: the control period (a tick); ``hold_max`` [s, wall]: how long after the ground station was last
+    heard (or, never heard, after the wait began) the clock stops waiting for it (the shell sets it to its datalink
+    timeout)."""
 
     def __init__(self, lead: float, period: float, hold_max: float = HOLD_MAX) -> None:
         self.period = period
@@ -87,10 +91,11 @@ class OffboardLockstep:
         """The tick the first held setpoint is made for (NO_WAIT: none held)."""
         return self.held[0][0] if self.held else NO_WAIT
 
-    def must_wait(self, tick: int, flying_offboard: bool, wall: float) -> bool:
+    def must_wait(self, tick: int, flying_offboard: bool, wall: float, heard: float | None = None) -> bool:
         """True while the answer to ``tick`` must wait: flying offboard, no setpoint yet made for ``tick`` + 2 −
-        ``lead`` or later (one made for a later tick completes the ones before it), and this setpoint not yet waited
-        for ``hold_max`` [s] of ``wall`` time."""
+        ``lead`` or later (one made for a later tick completes the ones before it), and the ground station heard
+        within ``hold_max`` [s] of ``wall`` time (``heard``: when it last was; None: never, the wait's start
+        counts)."""
         behind = flying_offboard and self.newest >= 0 and tick + 2 - self.newest > self.lead_ticks
         if not behind or self.newest == self.gave_up:
             self._end(wall)
@@ -99,7 +104,8 @@ class OffboardLockstep:
             self.since = wall
             self.waits += 1
             return True
-        if wall - self.since >= self.hold_max:
+        last = self.since if heard is None else max(heard, self.since)
+        if wall - last >= self.hold_max:
             self.gave_up = self.newest
             self.gave_up_count += 1
             self._end(wall)

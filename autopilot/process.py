@@ -216,7 +216,7 @@ class Autopilot:
         if self.receiver.release():
             self.outbox.announce(self.commander)
         if flags & kernel.ANSWER:
-            if self.pace is not None and self.pace.must_wait(int(self.io[kernel.TICK]), self._offboard(), wall):
+            if self.pace is not None and self._must_wait(wall):
                 self.pending = (bytes(self.plant.tx_view[: self.io[kernel.TX_LEN]]), sender)
                 self.zenoh.flush()  # the ground station sees at once the tick the clock waits at
             else:
@@ -226,6 +226,13 @@ class Autopilot:
                 self.outbox.mission(out)
         if flags > kernel.ANSWER:
             self._after_tick(flags, nbytes, sender)
+
+    def armed(self) -> None:
+        """Just armed: in AUTO.MISSION the mission starts (:meth:`autopilot.missions.Missions.armed`); and a plant
+        holding its clock until the vehicle arms is answered at once (:meth:`answer_armed`)."""
+        for out in self.missions.armed(self.commander, self.commander.now):
+            self.outbox.mission(out)
+        self.answer_armed()
 
     def answer_armed(self) -> None:
         """Just armed, and the plant quiet for PLANT_HOLDING: a lockstep plant that holds its clock until the vehicle
@@ -465,11 +472,10 @@ class Autopilot:
         next_chores = wall + HOUSEKEEPING
         receive = self.plant.wait
         while True:
-            if self.pending is not None:
-                self.wait_for_setpoint()
-                continue
             status = -1
-            if self.plant.address is not None and not self.plant.lost and not self.missions.flying:
+            if self.pending is not None:  # the wall-clock work goes on while the clock waits (the heartbeat)
+                self.wait_for_setpoint()
+            elif self.plant.address is not None and not self.plant.lost and not self.missions.flying:
                 status = self.serve_plant(next_chores)  # the plant's ticks in compiled code, until Python's turn
             else:
                 try:
@@ -517,11 +523,17 @@ class Autopilot:
         c = self.commander
         return c.armed and c.mode == wire.Mode.OFFBOARD and c.offboard_tick >= 0
 
+    def _must_wait(self, wall: float) -> bool:
+        """``--offboard-lockstep``: whether the answer to the tick flown waits for a setpoint; for as long as the
+        ground station is heard, within the datalink timeout (COM_DL_LOSS_T)."""
+        self.pace.hold_max = self.commander.settings.datalink_timeout
+        return self.pace.must_wait(int(self.io[kernel.TICK]), self._offboard(), wall, self.gcs_heard)
+
     def wait_for_setpoint(self) -> None:
         """``--offboard-lockstep``: the answer to the plant's tick waits (and with it the simulated clock) until
-        an offboard setpoint made for a recent enough moment arrives, or HOLD_MAX of wall time has passed
-        (:mod:`autopilot.offboard_lockstep`). The ground station sees the tick the clock waits at at once; the
-        plant's re-sends of the tick wait in the socket (answered afterwards as any repeat is)."""
+        an offboard setpoint made for a recent enough moment arrives, or the ground station has not been heard for
+        the datalink timeout (:mod:`autopilot.offboard_lockstep`). The ground station sees the tick the clock waits at
+        at once; the plant's re-sends of the tick wait in the socket (answered afterwards as any repeat is)."""
         if self.io[kernel.ROWS]:
             self.zenoh.flush()
         select.select([link.sock for link in self.links], [], [], GCS_POLL)
@@ -529,7 +541,7 @@ class Autopilot:
         self.poll_gcs()
         self.commander.wall_clock(wall)
         self.plant.heard = wall  # the plant waits for this answer: it is not lost
-        if self.pending is not None and not self.pace.must_wait(int(self.io[kernel.TICK]), self._offboard(), wall):
+        if self.pending is not None and not self._must_wait(wall):
             buf, sender = self.pending
             self.pending = None
             self.plant.sock.sendto(buf, sender)

@@ -138,7 +138,8 @@ class ZenohOut:
         io[kernel.CAPACITY] = BATCH_TICKS  # records are batched only while there is a session
         self.slow = telemetry.SlowCopies(session, vehicle)
         self.plan_pub = session.declare_publisher(telemetry.key(vehicle, telemetry.MISSION),
-                                                  encoding=telemetry.mission_encoding())  # fmt: skip
+                                                  encoding=telemetry.mission_encoding(),
+                                                  congestion_control=CONGESTION[congestion])  # fmt: skip
 
     @staticmethod
     def open(args) -> zenoh.Session:
@@ -192,11 +193,12 @@ class ZenohOut:
         if self.plan_pub is None:
             return
         p = missions.protocol
-        now = (p.version, p.current, p.mission_state, commander.home)
+        now = (p.version, p.current, p.mission_state, commander.home, len(missions.reached))
         if now == self.plan_published and not again:
             return
         self.plan_published = now
-        self.plan_pub.put(telemetry.encode_mission(p.version, p.current, p.mission_state, missions.plan(commander)))
+        self.plan_pub.put(telemetry.encode_mission(p.version, p.current, p.mission_state, missions.plan(commander),
+                                                   missions.reached))  # fmt: skip
 
     def close(self) -> None:
         if self.pubs:

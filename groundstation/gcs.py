@@ -63,8 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--arm-at",
         type=float,
         metavar="S",
-        help="switch to offboard and arm once the vehicle's clock reaches S simulated seconds (its lockstep plant "
-        "holding there with --hold-until-armed): the flight starts at the same tick in every run",
+        help="switch to offboard (with --mission: to mission) and arm once the vehicle's clock reaches S simulated "
+        "seconds (its lockstep plant holding there with --hold-until-armed): the flight starts at the same tick in "
+        "every run",
     )
     p.add_argument(
         "--setpoints-ahead",

@@ -408,8 +408,9 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         # The vehicle waits on the ground for SENSOR_GROUND_S (on sensors, the estimator aligns in its first second)
         # and the plant's clock holds there until it is armed: every run, and `sim`, start flying at the same tick,
         # and plant and autopilot wait (a datagram every 50 ms) instead of racing through ground ticks on the cores
-        # the ground station needs to start (which made the lockstep loops give up polling into the flight).
-        hold = ["--hold-until-armed", repr(SENSOR_GROUND_S)] if not mission else []
+        # the ground station needs to start (which made the lockstep loops give up polling into the flight). A mission
+        # is selected there and then armed, which starts it (groundstation.mission_flight).
+        hold = ["--hold-until-armed", repr(SENSOR_GROUND_S)]
         # Once landed and disarmed the flight is over: the clock holds, so the results are written on idle cores
         # (it ran on, both loops polling, until the ground station had written its files and the plant was stopped).
         children.start("plant", plant + wind_argv(args) + state_argv(args) + home + hold + ["--hold-when-landed"]
@@ -417,8 +418,7 @@ def fly(preset_name: str, preset: Preset, args) -> int:
         gcs = ["groundstation", "--preset", preset_name, "--connect", f"127.0.0.1:{gcs_port}",
                "--zenoh-connect", zenoh_ep, "--trajectory", args.trajectory, "--out", str(out),
                "--setpoints-ahead", repr(SETPOINTS_AHEAD), *quiet]  # fmt: skip
-        if hold:
-            gcs += ["--arm-at", repr(SENSOR_GROUND_S)]
+        gcs += ["--arm-at", repr(SENSOR_GROUND_S)]
         if args.duration:
             gcs += ["--duration", str(args.duration)]
         if mission:

@@ -55,8 +55,10 @@ class TelemetryLogger:
         self._truth: list[np.ndarray] = []  # sensor mode: the ground truth beside the estimate
         self._subs = [
             (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(CHANNEL)))
-            for stream in (*telemetry.STREAMS, telemetry.TRUTH)
+            for stream in (*telemetry.STREAMS, telemetry.TRUTH, telemetry.MISSION)
         ]
+        self.mission: dict | None = None  # the newest mission document (quadsitl.telemetry.decode_mission)
+        self.mission_reached: list[tuple[int, float]] = []  # its (seq, simulated time [s]) reached
 
     def _received(self) -> list[tuple[str, bytes, zenoh.Timestamp | None]]:
         out = []
@@ -69,6 +71,13 @@ class TelemetryLogger:
         """File what arrived; follow the status stream. Returns how many samples arrived."""
         received = self._received()
         for stream, data, stamp in received:
+            if stream == telemetry.MISSION:
+                try:
+                    self.mission = telemetry.decode_mission(data)
+                    self.mission_reached = self.mission["reached"]
+                except ValueError:
+                    self.malformed += 1
+                continue
             size = DTYPES[stream].itemsize
             if not data or len(data) % size:
                 self.malformed += 1
@@ -167,6 +176,15 @@ class TelemetryLogger:
                 columns.append(np.where(found, truth[name][at], np.nan))
         table = np.column_stack(columns) if len(k) else np.zeros((0, len(columns)))
         return dict(zip(k.tolist(), table.tolist()))
+
+    def reached(self) -> list[dict]:
+        """The mission items reached in this flight, as the vehicle's mission document says (exact: the tick after
+        which each was reached, not when the ground station heard of it): {"seq", "t"}, t [s] from the flight's
+        start."""
+        if self.flight_start_tick < 0:
+            return []
+        start = self.flight_start_tick * self.period
+        return [{"seq": seq, "t": round(t - start, 6)} for seq, t in self.mission_reached if t >= start]
 
     def flight_time(self, tick: int | None = None) -> float:
         """Simulated seconds flown under the trajectory at ``tick`` (default: the newest tick seen; −1 before the

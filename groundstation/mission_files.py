@@ -96,6 +96,19 @@ class Mission:
         """True if the mission ends by landing (its last item is NAV_LAND or NAV_RETURN_TO_LAUNCH)."""
         return bool(self.items) and self.items[-1].command in FINISHING_COMMANDS
 
+    @property
+    def flown(self) -> tuple[mp.MissionItem, ...]:
+        """The items ``quadsitl fly`` and ``quadsitl sim`` give the vehicle: the file's, and after a mission that does
+        not land by itself a NAV_LAND that lands where it ends (latitude and longitude 0: here), as MAVSDK appends a
+        return for ``set_return_to_launch_after_mission``. The vehicle lands the tick its mission is complete, on any
+        machine (a ground station that sends NAV_LAND when it sees the mission complete lands it later the busier
+        its machine)."""
+        if self.lands:
+            return self.items
+        land = mp.MissionItem(len(self.items), mp.FRAME_GLOBAL_RELATIVE_ALT_INT, mp.NAV_LAND, 0, 1, 0.0, 0.0, 0.0,
+                              math.nan, 0, 0, 0.0)  # fmt: skip
+        return (*self.items, land)
+
 
 def _simple_items(path: Path, entries: list) -> list[tuple[str, dict]]:
     """A .plan's items as the simple items QGroundControl uploads, each with the words that name it: a survey's or
@@ -318,6 +331,7 @@ def report(mission: Mission, origin: tuple[float, float, float], reached: list[d
     from ``origin`` (lat, lon [deg], alt [m AMSL]) for those with a position), each item's first reached time, the
     reached items in order (``reached``: {"seq", "t"} [s of the flight, 0 at arming]) and the time of the disarm
     (None: the flight was cut short)."""
+    reached = [r for r in reached if r["seq"] < len(mission.items)]  # the file's items (not an appended landing)
     first: dict[int, float | None] = {}
     for r in reached:
         first.setdefault(r["seq"], r["t"])
@@ -334,7 +348,7 @@ def report(mission: Mission, origin: tuple[float, float, float], reached: list[d
         "file": str(mission.path),
         "format": mission.kind,
         "origin": list(origin),
-        "ends": "mission lands" if mission.lands else "landed where it ended (MAV_CMD_NAV_LAND)",
+        "ends": "mission lands" if mission.lands else "landed where it ended (a NAV_LAND item after its last)",
         "items": items,
         "reached": list(reached),
         "all_reached_in_order": [r["seq"] for r in reached] == list(range(len(mission.items))),

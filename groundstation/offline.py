@@ -47,7 +47,6 @@ from quadsitl.cli_util import UsageError
 from quadsitl.compiled_frames import euler_rates_to_body_rates
 from quadsitl.config import Preset
 from quadsitl.frames import PX4_HOME
-from quadsitl.wire import Mode
 from sitl.plant import outside_what
 
 
@@ -123,32 +122,31 @@ def rows_of(res: SimResult) -> np.ndarray:
 def fly_mission(vehicle: Vehicle, mission: Mission, duration: float,
                 progress: Callable[[float], None] | None = None) -> SimResult:  # fmt: skip
     """Fly ``mission`` as ``quadsitl fly --mission`` flies it: stored as an upload stores it (each item through the
-    autopilot's parser), on the ground first (on sensors, while the estimator aligns), armed, AUTO.MISSION; the
-    mission executor (:mod:`autopilot.missions`) after every tick, as the autopilot process runs it; a mission that
-    does not land by itself is landed once complete (``fly``'s ground station sends MAV_CMD_NAV_LAND then). The
+    autopilot's parser: :attr:`groundstation.mission_files.Mission.flown`, a landing after a mission that does not
+    land), on the ground first (on sensors, while the estimator aligns), AUTO.MISSION selected, armed (which starts
+    it); the mission executor (:mod:`autopilot.missions`) after every tick, as the autopilot process runs it. The
     rows are the armed ticks, up to the disarm, or ``duration`` seconds, or a state out of bounds."""
     c, period = vehicle.commander, vehicle.period
     missions = Missions(vehicle.home)
     try:
-        missions.protocol.store(tuple(mp.parse_item(it.message_fields()) for it in mission.items))
+        missions.protocol.store(tuple(mp.parse_item(it.message_fields()) for it in mission.flown))
     except mp.ItemRefusedError as exc:
         raise UsageError(f"--mission {mission.path}: the vehicle refuses it: {exc}") from None
     vehicle.fly(ground_ticks(vehicle.preset), record=False)
     vehicle.seen()
     first = vehicle.tick
-    ok, why = c.arm()
+    ok, why, _ = missions.start(c, c.now)  # selected on the ground, then armed, as fly's ground station does
     if ok:
-        ok, why, _ = missions.start(c, c.now)
+        ok, why = c.arm()
     if not ok:
         raise UsageError(f"--mission {mission.path}: {why}")
+    missions.armed(c, c.now)
     reached: list[dict] = []
 
     def after_tick() -> bool:
         for out in missions.step(c, c.now):
             if out.kind == "MISSION_ITEM_REACHED":
                 reached.append({"seq": out.fields["seq"], "t": round((vehicle.tick - 1 - first) * period, 6)})
-        if not mission.lands and missions.executor.mission_state == mp.STATE_COMPLETE and c.mode != Mode.LAND:
-            c.set_mode(Mode.LAND)
         return c.armed
 
     n = round(duration / period)

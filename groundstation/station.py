@@ -166,11 +166,9 @@ class GroundStation:
         self.wait_data = 0.0  # [s] wall: > interval: the next read also waits for a datagram, up to this long
         self._pace_mark = (0.0, 0)  # (monotonic time, vehicle tick) the vehicle's pace is measured from
         self.pace = 0.0  # simulated seconds per wall second, over the last PACE_WINDOW (0: not known)
-        # the mission: items requested (seq, legacy), the upload's MISSION_ACK, MISSION_CURRENT, reached items
+        # the mission: items requested (seq, legacy), the upload's MISSION_ACK
         self.requested: list[int] = []
         self.mission_ack: int | None = None
-        self.mission_state: tuple[int, int] | None = None  # (seq, mission_state) of the last MISSION_CURRENT
-        self.reached: list[dict] = []  # {"seq", "t"}: t stamped from the telemetry once it is drained
 
     # ---- MAVLink ---------------------------------------------------------------------------------
 
@@ -222,11 +220,6 @@ class GroundStation:
             elif mid == mavlink.MAVLINK_MSG_ID_MISSION_ACK:
                 if getattr(m, "mission_type", 0) == 0 and m.target_system == wire.GCS_SYSTEM_ID:
                     self.mission_ack = m.type
-            elif mid == mavlink.MAVLINK_MSG_ID_MISSION_CURRENT:
-                self.mission_state = (m.seq, getattr(m, "mission_state", 0))
-            elif mid == mavlink.MAVLINK_MSG_ID_MISSION_ITEM_REACHED:
-                if not any(r["seq"] == m.seq and r["t"] is None for r in self.reached):
-                    self.reached.append({"seq": m.seq, "t": None})
             elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT:
                 text = self._statustext(m)
                 if text is not None:

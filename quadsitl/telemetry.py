@@ -22,12 +22,15 @@ it, JSON (``application/json`` with schema ``quadsitl.mission.v1``), published w
 item or its state changes and once a second (so a subscriber that joins late has it within a second)::
 
     {"version": 3, "current": 1, "state": 3, "total": 4,
-     "items": [{"seq": 0, "command": 22, "x": null, "y": null, "altitude": 5.0}, ...]}
+     "items": [{"seq": 0, "command": 22, "x": null, "y": null, "altitude": 5.0}, ...],
+     "reached": [[0, 4.213], [1, 9.87]]}
 
 ``version`` counts replacements of the stored mission; ``state`` is MAVLink's MISSION_STATE (1 none, 2 not
 started, 3 active, 4 paused, 5 complete); each item's ``x``, ``y`` (local NED [m], x north, y east of the
 origin) and ``altitude`` [m] are where the item flies, null where it has no place of its own (a takeoff or
-landing where the vehicle is, a delay, a speed change; a return to launch has home's x, y).
+landing where the vehicle is, a delay, a speed change; a return to launch has home's x, y). ``reached`` lists each
+MISSION_ITEM_REACHED since the stored mission was replaced, in order: the item and the simulated time [s] of the tick
+after which it was reached (absent in documents of older autopilots: an empty list).
 :func:`encode_mission` and :func:`decode_mission` write and check it.
 
 Versions: v3 added x_ref and y_ref to the setpoint record (v2's was ``<Qd4d``); the other streams' records
@@ -187,9 +190,10 @@ def mission_encoding() -> zenoh.Encoding:
     return zenoh.Encoding.APPLICATION_JSON.with_schema(f"quadsitl.{MISSION}.v{MISSION_SCHEMA}")
 
 
-def encode_mission(version: int, current: int, state: int, items: Sequence[dict]) -> bytes:
+def encode_mission(version: int, current: int, state: int, items: Sequence[dict],
+                   reached: Sequence[tuple[int, float]] = ()) -> bytes:  # fmt: skip
     """The mission document (see the module's docstring): ``items`` are dicts of seq, command, x, y, altitude
-    (NaN or None where unknown; NaN goes out as null)."""
+    (NaN or None where unknown; NaN goes out as null); ``reached`` (seq, simulated time [s]) pairs."""
 
     def num(v: float | None) -> float | None:
         return None if v is None or not math.isfinite(v) else round(float(v), 3)
@@ -204,6 +208,7 @@ def encode_mission(version: int, current: int, state: int, items: Sequence[dict]
              "altitude": num(i["altitude"])}
             for i in items
         ],
+        "reached": [[int(seq), round(float(t), 6)] for seq, t in reached],
     }  # fmt: skip
     return json.dumps(doc, separators=(",", ":"), allow_nan=False).encode()
 
@@ -257,6 +262,16 @@ def decode_mission(payload: bytes) -> dict:
         out["items"].append({"seq": integer(item, "seq", 0, 65535), "command": integer(item, "command", 0, 65535),
                              "x": number(item, "x"), "y": number(item, "y"),
                              "altitude": number(item, "altitude")})  # fmt: skip
+    reached = doc.get("reached", [])
+    if not isinstance(reached, list):
+        raise ValueError(f"mission: reached = {reached!r:.40}, expected a list")
+    out["reached"] = []
+    for r in reached:
+        ok = isinstance(r, list) and len(r) == 2 and isinstance(r[0], int) and not isinstance(r[0], bool)
+        ok = ok and 0 <= r[0] <= 65535 and isinstance(r[1], (int, float)) and not isinstance(r[1], bool)
+        if not ok or not math.isfinite(r[1]):
+            raise ValueError(f"mission: reached {r!r:.40}, expected [item, simulated time [s]]")
+        out["reached"].append((r[0], float(r[1])))
     return out
 
 

@@ -63,6 +63,18 @@ def test_a_wait_runs_out_after_hold_max_and_is_not_repeated_for_the_same_setpoin
     assert p.waits == 2
 
 
+def test_the_clock_waits_as_long_as_the_ground_station_is_heard():
+    """A ground station descheduled (or stopped) for seconds: the clock waits while it was heard within hold_max (the
+    autopilot's datalink timeout), however long that is; it runs on hold_max after the last time it was heard."""
+    p = OffboardLockstep(0.0, 0.001, hold_max=10.0)
+    p.stamp(0)
+    assert p.must_wait(600, True, wall=100.0, heard=99.5)
+    assert p.must_wait(600, True, wall=108.0, heard=99.5)  # 8 s stopped, heard 8.5 s ago: still waiting
+    assert p.must_wait(600, True, wall=115.0, heard=106.0)  # heard again (a heartbeat between two stops)
+    assert not p.must_wait(600, True, wall=116.0, heard=106.0)  # silent for 10 s: gone, the failsafes' business
+    assert p.gave_up_count == 1 and p.waited == pytest.approx(16.0)
+
+
 def test_free_until_is_the_last_tick_answered_without_a_wait():
     """What a compiled loop may answer alone (autopilot.plant_loop): every tick up to it, must_wait agrees."""
     p = pace()
