@@ -614,10 +614,10 @@ class Commander:
         """No vehicle state arrives: flying blind. Armed, switch to LAND (it resumes when states do)."""
         self._fail_and_land("Plant link lost: no vehicle state", FAILSAFE_PLANT_LOST)
 
-    def estimator_failed(self) -> None:
-        """The state estimate is not to be trusted (sensor mode: the estimator diverged). Armed, switch to LAND, as
-        PX4 does when its position estimate is lost."""
-        self._fail_and_land("Estimator diverged: innovations beyond their bound", FAILSAFE_ESTIMATOR)
+    def estimator_failed(self, why: str = "Estimator diverged: innovations beyond their bound") -> None:
+        """The state estimate is not to be trusted (sensor mode: the estimator diverged, or lost the GPS). Armed,
+        switch to LAND, as PX4 does when its position estimate is lost."""
+        self._fail_and_land(why, FAILSAFE_ESTIMATOR)
 
     def _fail_and_land(self, why: str, failsafe: int) -> None:
         """Say ``why`` (critical); armed, the failsafe ``failsafe``: LAND."""

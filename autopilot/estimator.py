@@ -11,16 +11,27 @@ arXiv:1711.02508, 2017, §5–§7; the same structure as PX4's EKF2, reduced to 
 - updates, one scalar at a time (K = P·hᵀ/(h·P·hᵀ + r)): GPS velocity (N, E, D) and horizontal position, the
   barometer's altitude (relative to its reading at alignment) and the magnetometer's three axes against the
   known Earth field (h(x) = R(q)ᵀ·B, Jacobian [R(q)ᵀ·B]× on δθ);
+- the time stamps: each IMU sample's interval is the time from the last one (HIL_SENSOR's ``time_usec``), so a lost
+  datagram is a longer interval, predicted over and counted (``io[IMU_GAPS]``); a fix is taken as measured when
+  its HIL_GPS ``time_usec`` says (the plant stamps the measurement, ``sensors.gps_delay_s`` before delivery), or,
+  stamped at or after the tick it arrives with (a receiver that stamps its delivery), ``gps_delay_s`` before it
+  (PX4's EKF2_GPS_DELAY; the preset's ``sensors.gps_delay_s``);
 - the GPS delay: every tick's estimated position and velocity are kept for ``HISTORY`` ticks; a fix that arrives
-  ``gps_delay`` seconds after it was measured is compared with the estimate of *that* time, and the correction
+  after it was measured is compared with the estimate of *that* time (older than the history: refused, counted in
+  ``io[GPS_TOO_OLD]``), and the correction
   is applied now and to the kept history (so the next fix, measured before this one was applied, does not count
   it twice; the history is kept net of the corrections, their running sum beside it). PX4's EKF2 instead runs
   the whole filter on a delayed time horizon and predicts forward to now; the innovation here is the same, the
   covariance used is the current one (an approximation, good while the delay is short against the filter's time
   constants);
 - innovation gates: a measurement whose normalised innovation y²/S exceeds ``gate``² is not fused; when one
-  sensor's measurements have all been refused for ``divergence_time`` seconds (or the state is not finite),
-  the filter reports itself diverged (:data:`DIVERGED`), for the autopilot's STATUSTEXT and failsafe.
+  sensor's measurements keep arriving and have all been refused, at least ``REFUSALS_TO_DIVERGE`` in a row over
+  ``divergence_time`` seconds (or the state is not finite), the filter reports itself diverged (:data:`DIVERGED`);
+- timeouts, distinct from divergence: a sensor from which nothing has arrived for its timeout (``lost_time_s``, and
+  at least ``LOST_INTERVALS`` of its intervals) is lost (``io[LOST]``: LOST_GPS, LOST_BARO, LOST_MAG), each said and
+  acted on by the autopilot as PX4 does (docs/sensors.md#when-a-sensor-fails). With the barometer lost, the GPS
+  altitude is fused instead (PX4's height source fallback); with the magnetometer lost, the heading is the gyro's;
+  with the GPS lost, position and velocity are the IMU's alone, and the autopilot lands.
 
 The filter aligns first: for ``align_time`` seconds at rest it averages the accelerometer (roll and pitch), the
 magnetometer (yaw, with the known declination) and the barometer (the altitude reference), then starts at the
@@ -30,6 +41,7 @@ from the bias-corrected gyro, by the inverse of eq (1)).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -45,8 +57,21 @@ from quadsitl.compiled_frames import (
     quaternion_to_euler,
     rotation_vector_to_quaternion,
 )
+from quadsitl.config import SensorParams
 from quadsitl.earth import magnetic_field_ned
-from quadsitl.hil import BARO_NEW, GPS_NEW, MAG_NEW, Z_ACCEL, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_GYRO, Z_MAG, Z_SIZE
+from quadsitl.hil import (
+    BARO_NEW,
+    GPS_NEW,
+    MAG_NEW,
+    Z_ACCEL,
+    Z_BARO,
+    Z_GPS_POS,
+    Z_GPS_TIME,
+    Z_GPS_VEL,
+    Z_GYRO,
+    Z_MAG,
+    Z_SIZE,
+)
 from quadsitl.jit import jit
 from quadsitl.state import VehicleState
 
@@ -67,11 +92,18 @@ CORRECTION = HISTORY  # hist's last row: the corrections applied since alignment
  INIT_GYRO_BIAS, INIT_ACC_BIAS, PARAM_SIZE) = range(22)  # fmt: skip
 
 # ---- the integer bookkeeping (io) ---------------------------------------------------------------------------
-# ticks seen, alignment ticks, GPS delay [ticks], divergence limits [ticks], and per measurement group the ticks
-# since one was last fused and whether any arrived since; the flags.
+# ticks seen, alignment ticks, GPS delay [ticks], divergence limits [ticks], the flags, and per measurement group the
+# ticks since one was last fused (SINCE_*) and the refusals in a row (ROW_*); measurements refused in all; the last
+# IMU sample's time [µs] and its tick (of the clock: time / period), the IMU intervals lost, the fixes older than the
+# history; per sensor the tick it was last heard at (HEARD_*) and its timeout [ticks] (LOST_*_TICKS); what is lost.
 (TICK, ALIGN_TICKS, DELAY_TICKS, DIVERGE_TICKS, ALIGNED, DIVERGED, SINCE_GPS_POS, SINCE_GPS_VEL, SINCE_BARO,
- SINCE_MAG, REFUSED, IO_SIZE) = range(12)  # fmt: skip
-GROUPS = 4  # GPS position, GPS velocity, baro, mag: io[SINCE_GPS_POS + g]
+ SINCE_MAG, REFUSED, LAST_USEC, NOW_TICK, IMU_GAPS, GPS_TOO_OLD, ROW_GPS_POS, ROW_GPS_VEL, ROW_BARO, ROW_MAG,
+ HEARD_GPS, HEARD_BARO, HEARD_MAG, LOST_GPS_TICKS, LOST_BARO_TICKS, LOST_MAG_TICKS, LOST,
+ IO_SIZE) = range(27)  # fmt: skip
+GROUPS = 4  # GPS position, GPS velocity, baro, mag: io[SINCE_GPS_POS + g], io[ROW_GPS_POS + g]
+LOST_GPS, LOST_BARO, LOST_MAG = 1, 2, 4  # io[LOST]; io[HEARD_GPS + i], io[LOST_GPS_TICKS + i] for bit 1 << i
+REFUSALS_TO_DIVERGE = 3  # one refused fix of a 1 Hz GPS is not a divergence
+LOST_INTERVALS = 3  # a sensor is lost after at least this many of its intervals without a measurement
 
 # ---- the accumulators of the alignment (acc) and the innovation test ratios (ratio) -------------------------
 A_ACCEL, A_MAG, A_BARO, A_N_IMU, A_N_MAG, A_N_BARO, A_BARO_REF, ACC_SIZE = 0, 3, 6, 7, 8, 9, 10, 11
@@ -94,9 +126,10 @@ class EstimatorParams:
     gps_vz_noise_m_s: float = 0.2
     baro_noise_m: float = 0.1
     mag_noise_gauss: float = 5e-3
-    gps_delay_s: float = 0.12  # EKF2_GPS_DELAY (PX4: 110 ms); 0 ignores the delay
+    gps_delay_s: float = 0.12  # EKF2_GPS_DELAY, for fixes stamped at delivery (the preset's sensors.gps_delay_s)
     gate_sigma: float = 5.0  # innovation gate
     divergence_time_s: float = 1.0
+    lost_time_s: float = 0.5  # a sensor silent this long (and LOST_INTERVALS of its intervals) is lost
     align_time_s: float = 1.0
     init_tilt_rad: float = 0.01  # initial standard deviations (tilt: beyond the accelerometer bias's share)
     init_yaw_rad: float = 0.1
@@ -289,23 +322,47 @@ def fuse(x: np.ndarray, P: np.ndarray, h: np.ndarray, y: float, r: float, gate: 
 @jit
 def _fused(io: np.ndarray, group: int, ratio: float) -> None:
     """Bookkeeping of a measurement of ``group``: fused (all its components: the clock since the last fusion
-    restarts) or refused (the largest test ratio ``ratio`` above 1)."""
+    and the refusals in a row restart) or refused (the largest test ratio ``ratio`` above 1)."""
     if ratio <= 1.0:
         io[SINCE_GPS_POS + group] = 0
+        io[ROW_GPS_POS + group] = 0
     else:
         io[REFUSED] += 1
+        io[ROW_GPS_POS + group] += 1
 
 
 @jit
-def estimator_tick(flags: int, z: np.ndarray, dt: float, p0: tuple, x: np.ndarray, P: np.ndarray, hist: np.ndarray,
-                   io: np.ndarray, acc: np.ndarray, e: np.ndarray, ratio: np.ndarray, scratch: np.ndarray,
-                   out: np.ndarray) -> None:  # fmt: skip
-    """One control tick: the IMU sample z[Z_GYRO], z[Z_ACCEL] (always), and the magnetometer, barometer altitude
-    [m AMSL] and GPS fix (position [m, NED], velocity [m/s, NED], measured ``io[DELAY_TICKS]`` ticks ago) when
-    ``flags`` says they are new. ``out`` gets the state in VehicleState order (12; zeros while aligning);
-    ``ratio`` the last test ratio of each group (GPS pos N/E, GPS vel N/E/D, baro, mag x/y/z)."""
+def _interval(t_usec: int, period: float, io: np.ndarray) -> int:
+    """The IMU sample stamped ``t_usec`` [µs]: how many control periods since the last one (1, or more when
+    datagrams were lost: counted in io[IMU_GAPS]; 1 for the first, or after a jump of the clock back or by more
+    than the history, a restarted plant); io[NOW_TICK] becomes its tick."""
+    period_us = period * 1e6
+    k = round(t_usec / period_us)
+    steps = 1
+    if io[LAST_USEC] >= 0:
+        n = round((t_usec - io[LAST_USEC]) / period_us)
+        if 1 <= n <= HISTORY:
+            steps = n
+            io[IMU_GAPS] += n - 1
+    io[LAST_USEC] = t_usec
+    io[NOW_TICK] = k
+    return steps
+
+
+@jit
+def estimator_tick(flags: int, z: np.ndarray, t_usec: int, period: float, p0: tuple, x: np.ndarray, P: np.ndarray,
+                   hist: np.ndarray, io: np.ndarray, acc: np.ndarray, e: np.ndarray, ratio: np.ndarray,
+                   scratch: np.ndarray, out: np.ndarray) -> None:  # fmt: skip
+    """One control tick, stamped ``t_usec`` [µs] (HIL_SENSOR's time_usec; ``period`` [s] the control period): the IMU
+    sample z[Z_GYRO], z[Z_ACCEL] (always), and the magnetometer, barometer altitude [m AMSL] and GPS fix (position
+    [m, NED], velocity [m/s, NED], measured at z[Z_GPS_TIME] [µs]) when ``flags`` says they are new. ``out`` gets the
+    state in VehicleState order (12; zeros while aligning); ``ratio`` the last test ratio of each group (GPS pos
+    N/E, GPS vel N/E/D, baro, mag x/y/z, GPS altitude)."""
     tick = io[TICK]
     io[TICK] = tick + 1
+    steps = _interval(t_usec, period, io)
+    k = io[NOW_TICK]
+    dt = steps * period
     gyro = (z[Z_GYRO], z[Z_GYRO + 1], z[Z_GYRO + 2])
     if io[ALIGNED] == 0:  # average the sensors at rest, then start
         for i in range(3):
@@ -323,22 +380,32 @@ def estimator_tick(flags: int, z: np.ndarray, dt: float, p0: tuple, x: np.ndarra
             align(x, P, acc, e, p0)
             io[ALIGNED] = 1
             hist[:, :] = 0.0
-            for k in range(HISTORY):
+            for j in range(HISTORY):
                 for i in range(3):
-                    hist[k, i] = x[X_P + i]
+                    hist[j, i] = x[X_P + i]
+            for i in range(3):  # every sensor's timeout counts from here
+                io[HEARD_GPS + i] = k
         return
     FP = scratch[: N + 2, :]
     h, pht, dx = scratch[N + 2, :], scratch[N + 3, :], scratch[N + 4, :]
     predict(x, P, FP, gyro, (z[Z_ACCEL], z[Z_ACCEL + 1], z[Z_ACCEL + 2]), dt, e)
     # This tick's estimate joins the history net of the corrections so far (hist[CORRECTION]): an estimate of the
-    # history read back plus the corrections then is the estimate shifted by every correction applied since.
-    now = tick % HISTORY
-    for i in range(3):
-        hist[now, i] = x[X_P + i] - hist[CORRECTION, i]
-        hist[now, 3 + i] = x[X_V + i] - hist[CORRECTION, 3 + i]
+    # history read back plus the corrections then is the estimate shifted by every correction applied since. The
+    # history is kept by the clock's ticks: those of lost datagrams get this estimate too.
+    for j in range(steps):
+        now = (k - j) % HISTORY
+        for i in range(3):
+            hist[now, i] = x[X_P + i] - hist[CORRECTION, i]
+            hist[now, 3 + i] = x[X_V + i] - hist[CORRECTION, 3 + i]
     gate = e[GATE]
     for g in range(GROUPS):
-        io[SINCE_GPS_POS + g] += 1
+        io[SINCE_GPS_POS + g] += steps
+    if flags & BARO_NEW:
+        io[HEARD_BARO] = k
+    if flags & MAG_NEW:
+        io[HEARD_MAG] = k
+    if flags & GPS_NEW:
+        io[HEARD_GPS] = k
     if flags & BARO_NEW:  # altitude above the origin: −p_D
         h[:] = 0.0
         h[DP + 2] = -1.0
@@ -356,28 +423,47 @@ def estimator_tick(flags: int, z: np.ndarray, dt: float, p0: tuple, x: np.ndarra
                 h[DTH], h[DTH + 1] = -m[1], m[0]
             ratio[6 + i] = fuse(x, P, h, z[Z_MAG + i] - m[i], e[MAG_NOISE] ** 2, gate, pht, dx)
         _fused(io, 3, max(ratio[6], ratio[7], ratio[8]))
-    if flags & GPS_NEW:  # against the estimate of the fix's time, kept in hist; corrections shift the history too
-        then = (tick - io[DELAY_TICKS]) % HISTORY
-        for i in range(5):
+    age = k - round(z[Z_GPS_TIME] / (period * 1e6))  # [ticks] since the fix was measured, by its time stamp
+    if age <= 0:  # stamped when delivered: measured EKF2_GPS_DELAY before
+        age = io[DELAY_TICKS]
+    if flags & GPS_NEW and age >= HISTORY:
+        io[GPS_TOO_OLD] += 1
+    elif flags & GPS_NEW:  # against the estimate of the fix's time, kept in hist; corrections shift the history too
+        then = (k - age) % HISTORY
+        # the altitude too while the barometer is lost (PX4's height source fallback)
+        last = 6 if io[LOST] & LOST_BARO else 5
+        for i in range(last):
             h[:] = 0.0
             if i < 2:
                 h[DP + i] = 1.0
                 y = z[Z_GPS_POS + i] - (hist[then, i] + hist[CORRECTION, i])
                 r = e[GPS_POS_NOISE] ** 2
-            else:
+            elif i < 5:
                 h[DV + i - 2] = 1.0
                 y = z[Z_GPS_VEL + i - 2] - (hist[then, 1 + i] + hist[CORRECTION, 1 + i])
                 r = (e[GPS_VZ_NOISE] if i == 4 else e[GPS_VEL_NOISE]) ** 2
-            ratio[i] = fuse(x, P, h, y, r, gate, pht, dx)
-            if ratio[i] <= 1.0:
+            else:
+                h[DP + 2] = 1.0
+                y = z[Z_GPS_POS + 2] - (hist[then, 2] + hist[CORRECTION, 2])
+                r = (1.5 * e[GPS_POS_NOISE]) ** 2  # the vertical error of a fix: 1.5 times the horizontal
+            at = i if i < 5 else 9  # ratio[9]: the GPS altitude
+            ratio[at] = fuse(x, P, h, y, r, gate, pht, dx)
+            if ratio[at] <= 1.0:
                 for j in range(3):
                     hist[CORRECTION, j] += dx[DP + j]
                     hist[CORRECTION, 3 + j] += dx[DV + j]
         _fused(io, 0, max(ratio[0], ratio[1]))
         _fused(io, 1, max(ratio[2], ratio[3], ratio[4]))
+        if last == 6:  # the height's clock: the GPS altitude stands in for the barometer
+            _fused(io, 2, ratio[9])
+    lost = 0
+    for i in range(3):
+        if k - io[HEARD_GPS + i] > io[LOST_GPS_TICKS + i]:
+            lost |= 1 << i
+    io[LOST] = lost
     diverged = False
     for g in range(GROUPS):
-        if io[SINCE_GPS_POS + g] > io[DIVERGE_TICKS]:
+        if io[ROW_GPS_POS + g] >= REFUSALS_TO_DIVERGE and io[SINCE_GPS_POS + g] > io[DIVERGE_TICKS]:
             diverged = True
     for i in range(X_SIZE):
         if not math.isfinite(x[i]):
@@ -396,7 +482,8 @@ class Estimator:
 
     ``period`` [s]: the control period (one IMU sample a tick); ``field_ned``: the Earth's field at home [gauss,
     NED], as the sensors' preset section gives it; ``start``: the position [m, NED] at alignment (the vehicle
-    starts at rest there)."""
+    starts at rest there); ``rates``: the GPS's, barometer's and magnetometer's rates [Hz] (their timeouts are at
+    least LOST_INTERVALS of their intervals; None: ``lost_time_s`` alone)."""
 
     def __init__(
         self,
@@ -405,11 +492,13 @@ class Estimator:
         field_ned: tuple[float, float, float],
         params: EstimatorParams | None = None,
         start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        rates: tuple[float, float, float] | None = None,
     ) -> None:
         p = params or EstimatorParams()
         delay = round(p.gps_delay_s / period)
         if not 0 <= delay < HISTORY:
             raise ValueError(f"gps_delay_s = {p.gps_delay_s!r}: expected at most {(HISTORY - 1) * period:g} s")
+        lost = [p.lost_time_s if rates is None else max(p.lost_time_s, LOST_INTERVALS / r) for r in rates or (1, 1, 1)]
         self.params, self.period, self.start = p, period, tuple(float(v) for v in start)
         self.e = parameter_array(p, field_ned, gravity)
         self.x = np.zeros(X_SIZE)
@@ -419,8 +508,11 @@ class Estimator:
         self.io[ALIGN_TICKS] = max(1, round(p.align_time_s / period))
         self.io[DELAY_TICKS] = delay
         self.io[DIVERGE_TICKS] = round(p.divergence_time_s / period)
+        self.io[LAST_USEC] = -1
+        for i in range(3):
+            self.io[LOST_GPS_TICKS + i] = round(lost[i] / period)
         self.acc = np.zeros(ACC_SIZE)
-        self.ratio = np.zeros(9)
+        self.ratio = np.zeros(10)
         self.scratch = np.zeros((N + 5, N))
         self.z = np.zeros(Z_SIZE)
         self.out = np.zeros(12)
@@ -432,11 +524,24 @@ class Estimator:
         field = magnetic_field_ned(strength, math.radians(declination_deg), math.radians(inclination_deg))
         return cls(period, gravity, field, **kw)
 
-    def tick(self, flags: int | None = None) -> None:
-        """One tick on the measurements in ``self.z`` (flags: MAG_NEW | BARO_NEW | GPS_NEW); the state goes to
-        ``self.out``."""
-        estimator_tick(flags or 0, self.z, self.period, self.start, self.x, self.P, self.hist, self.io, self.acc,
-                       self.e, self.ratio, self.scratch, self.out)  # fmt: skip
+    @classmethod
+    def for_sensors(cls, s: SensorParams, period: float, gravity: float, params: EstimatorParams | None = None
+                    ) -> Estimator:  # fmt: skip
+        """The autopilot's estimator for the preset's ``[sensors]`` ``s``: its Earth field, its GPS delay for fixes
+        stamped at delivery (EKF2_GPS_DELAY) and its sensors' rates for their timeouts. Every runtime makes its
+        estimator here (the processes, ``sim``, the sweeps)."""
+        p = dataclasses.replace(params or EstimatorParams(), gps_delay_s=s.gps_delay_s)
+        return cls.for_field(period, gravity, s.mag_strength_gauss, s.mag_declination_deg, s.mag_inclination_deg,
+                             params=p, rates=(s.gps_rate_hz, s.baro_rate_hz, s.mag_rate_hz))  # fmt: skip
+
+    def tick(self, flags: int | None = None, t_usec: int | None = None) -> None:
+        """One tick on the measurements in ``self.z`` (flags: MAG_NEW | BARO_NEW | GPS_NEW), stamped ``t_usec``
+        [µs] (None: a period after the last); the state goes to ``self.out``."""
+        if t_usec is None:
+            last = int(self.io[LAST_USEC])
+            t_usec = 0 if last < 0 else last + round(self.period * 1e6)
+        estimator_tick(flags or 0, self.z, t_usec, self.period, self.start, self.x, self.P, self.hist, self.io,
+                       self.acc, self.e, self.ratio, self.scratch, self.out)  # fmt: skip
 
     @property
     def arrays(self) -> tuple:
@@ -453,15 +558,21 @@ class Estimator:
         return bool(self.io[ALIGNED])
 
     @property
+    def lost(self) -> int:
+        """The sensors lost (LOST_GPS | LOST_BARO | LOST_MAG): nothing heard from them for their timeouts."""
+        return int(self.io[LOST])
+
+    @property
     def diverged(self) -> bool:
-        """An innovation-bound failure: one sensor's measurements refused for ``divergence_time_s``, or a
-        non-finite state."""
+        """An innovation-bound failure: one sensor's measurements refused (REFUSALS_TO_DIVERGE in a row) for
+        ``divergence_time_s``, or a non-finite state. A sensor that stops is lost (:attr:`lost`), not diverged."""
         return bool(self.io[DIVERGED])
 
     def status(self) -> tuple[int, float, float, float, float, float, float]:
         """The filter's health as ``ESTIMATOR_STATUS`` says it (PX4's EKF2 fills it likewise): the flags of what is
         valid (ESTIMATOR_*: attitude, velocity, relative and absolute horizontal position, absolute vertical
-        position; none while aligning or diverged; GPS_GLITCH while GPS positions are refused), the innovation test
+        position; none while aligning or diverged; no absolute horizontal position while the GPS is lost;
+        GPS_GLITCH while GPS positions are refused), the innovation test
         ratios (> 1: refused) of the velocity, horizontal position, vertical position (barometer) and magnetometer
         (each the largest of its components, at the last fusion), and the 1σ horizontal and vertical position
         accuracy [m] from P."""
@@ -469,6 +580,8 @@ class Estimator:
         valid = self.aligned and not self.diverged
         flags = (ESTIMATOR_ATTITUDE | ESTIMATOR_VELOCITY_HORIZ | ESTIMATOR_VELOCITY_VERT | ESTIMATOR_POS_HORIZ_REL
                  | ESTIMATOR_POS_HORIZ_ABS | ESTIMATOR_POS_VERT_ABS) if valid else 0  # fmt: skip
+        if valid and self.lost & LOST_GPS:  # dead reckoning: no absolute horizontal position
+            flags &= ~ESTIMATOR_POS_HORIZ_ABS
         if self.aligned and max(r[0], r[1]) > 1.0:
             flags |= ESTIMATOR_GPS_GLITCH
         P = self.P

@@ -103,10 +103,9 @@ class Autopilot:
         self.home = Home(*args.home) if args.home else Home()
         self.sensing = preset.sensors is not None  # fly on the estimate of the plant's sensors
         self.estimator: Estimator | None = None
+        self.estimate_said = 0  # the estimator's status (kernel.ESTIMATE_*) last said to the ground stations
         if self.sensing:
-            s = preset.sensors
-            self.estimator = Estimator.for_field(self.period, preset.vehicle.gravity, s.mag_strength_gauss,
-                                                 s.mag_declination_deg, s.mag_inclination_deg)  # fmt: skip
+            self.estimator = Estimator.for_sensors(preset.sensors, self.period, preset.vehicle.gravity)
         self.truth = np.full(codec.DECODED_SIZE, np.nan)  # the plant's ground truth of the last tick (sensor mode)
         self.hil_frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)  # one frame of a sensor datagram, being decoded
         self.origin = (self.home.lat, self.home.lon, self.home.alt)  # where the GPS's positions are taken from
@@ -295,13 +294,24 @@ class Autopilot:
             self._estimator_changed()
 
     def _estimator_changed(self) -> None:
-        """The estimator aligned, diverged, or recovered: said to the ground stations; a divergence in flight is
-        the estimator failsafe (land)."""
+        """The estimator aligned, diverged or recovered, or lost a sensor or heard it again: said to the ground
+        stations; in flight a divergence, or the GPS lost, is the estimator failsafe (land), as PX4 lands when its
+        position estimate is lost (docs/sensors.md#when-a-sensor-fails)."""
         status = int(self.io[kernel.ESTIMATE])
-        if status & kernel.ESTIMATE_DIVERGED:
-            self.commander.estimator_failed()
-        elif status & kernel.ESTIMATE_ALIGNED:
+        came, went = status & ~self.estimate_said, self.estimate_said & ~status
+        self.estimate_said = status
+        if came & kernel.ESTIMATE_ALIGNED:
             self.outbox.say(mavlink.MAV_SEVERITY_INFO, "EKF aligned: attitude, altitude and position from the sensors")
+        for bit, lost, back in SENSOR_NEWS:
+            if came & bit:
+                self.outbox.say(mavlink.MAV_SEVERITY_CRITICAL if bit == kernel.ESTIMATE_GPS_LOST else
+                                mavlink.MAV_SEVERITY_WARNING, lost)  # fmt: skip
+            elif went & bit:
+                self.outbox.say(mavlink.MAV_SEVERITY_NOTICE, back)
+        if came & kernel.ESTIMATE_DIVERGED:
+            self.commander.estimator_failed()
+        elif came & kernel.ESTIMATE_GPS_LOST:
+            self.commander.estimator_failed("Position estimate lost: no GPS")
         self.outbox.announce(self.commander)
 
     def _parse_slowly(self, nbytes: int, sender: tuple[str, int]) -> None:
@@ -555,6 +565,15 @@ class Autopilot:
         self.zenoh.close()
         self.plant.close()
         self.ground.close()
+
+
+# A sensor the estimator lost (kernel.ESTIMATE_*_LOST), and heard again: what the ground stations are told.
+SENSOR_NEWS = (
+    (kernel.ESTIMATE_GPS_LOST, "GPS lost: position and velocity from the IMU alone"),
+    (kernel.ESTIMATE_BARO_LOST, "Barometer lost: altitude from the GPS"),
+    (kernel.ESTIMATE_MAG_LOST, "Compass lost: heading from the gyro"),
+)
+SENSOR_NEWS = tuple((bit, lost, lost.split(" lost")[0] + " regained") for bit, lost in SENSOR_NEWS)
 
 
 def warm_up_loops() -> None:

@@ -171,7 +171,8 @@ def _put_int(buf: np.ndarray, at: int, value: int) -> None:
 # (autopilot.stream_frames) and those pymavlink packs.
 (LAST_USEC, TX_LEN, SEQ, ROWS, CAPACITY, NEXT_STREAM_TICK, TICK, EVENT, SYSTEM, COMPONENT, DROPPED, ESTIMATE, GCS_SEQ,
  IO_SIZE) = range(14)  # fmt: skip
-ESTIMATE_ALIGNED, ESTIMATE_DIVERGED = 1, 2
+# The estimator's status (io[ESTIMATE], bits): aligned, diverged, and each sensor lost (estimator.LOST_* << 2).
+ESTIMATE_ALIGNED, ESTIMATE_DIVERGED, ESTIMATE_GPS_LOST, ESTIMATE_BARO_LOST, ESTIMATE_MAG_LOST = 1, 2, 4, 8, 16
 # What autopilot_tick reports (bits): an answer is in tx; telemetry messages are due; the commander has an
 # event (io[EVENT]); the batch is full; the datagram is no per-tick frame (pymavlink's to parse); it was
 # corrupt or carried a state never to fly; (sensor mode) the estimator's status changed; telemetry frames built here
@@ -414,17 +415,19 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
 
 
 @jit
-def estimate(flags: int, period: float, est: tuple, st: np.ndarray) -> int:
+def estimate(flags: int, t_usec: int, period: float, est: tuple, st: np.ndarray) -> int:
     """Sensor mode: the estimator's tick on the measurements decoded into its ``est`` arrays (``flags``: which came,
-    :func:`quadsitl.hil.decode_sensors`), its estimate into ``st`` (the VehicleState fields, then the body rates the
-    controllers' eq (1) inverse came from: the bias-corrected gyro). Returns the estimator's status (ESTIMATE_*)."""
+    :func:`quadsitl.hil.decode_sensors`; ``t_usec`` [µs]: their HIL_SENSOR's time), its estimate into ``st`` (the
+    VehicleState fields, then the body rates the controllers' eq (1) inverse came from: the bias-corrected gyro).
+    Returns the estimator's status (ESTIMATE_*)."""
     z, x, P, hist, eio, acc, e, ratio, scratch, out = est
-    ekf.estimator_tick(flags, z, period, (0.0, 0.0, 0.0), x, P, hist, eio, acc, e, ratio, scratch, out)
+    ekf.estimator_tick(flags, z, t_usec, period, (0.0, 0.0, 0.0), x, P, hist, eio, acc, e, ratio, scratch, out)
     for i in range(12):
         st[i] = out[i]
     for i in range(3):
         st[BODY_RATES + i] = z[Z_GYRO + i] - x[ekf.X_BG + i]
-    return (ESTIMATE_ALIGNED if eio[ekf.ALIGNED] else 0) | (ESTIMATE_DIVERGED if eio[ekf.DIVERGED] else 0)
+    status = (ESTIMATE_ALIGNED if eio[ekf.ALIGNED] else 0) | (ESTIMATE_DIVERGED if eio[ekf.DIVERGED] else 0)
+    return status | (eio[ekf.LOST] << 2 if eio[ekf.ALIGNED] else 0)
 
 
 @jit
@@ -445,7 +448,7 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
         return answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
     for bit in range(4):
         io[DROPPED] += (dropped >> bit) & 1
-    status = estimate(flags, period, est, st)
+    status = estimate(flags, t, period, est, st)
     tick = tick_of(t, period)
     io[TICK] = tick
     row = io[ROWS]

@@ -61,8 +61,8 @@ def _sense(k: int, period: float, x: np.ndarray, out: np.ndarray, air: np.ndarra
            est: tuple, pio: np.ndarray, datagram: np.ndarray, home: tuple, truth: np.ndarray,
            frame: np.ndarray) -> None:  # fmt: skip
     plant_tick.encode_tick(datagram, pio, x, out, air, sens, k, period)
-    _, flags, _ = hil.decode_sensors(datagram, pio[plant_tick.TX_LEN], home, est[0], truth, frame)
-    estimate(flags, period, est, st)
+    t, flags, _ = hil.decode_sensors(datagram, pio[plant_tick.TX_LEN], home, est[0], truth, frame)
+    estimate(flags, t, period, est, st)
 
 
 def observe(k: int, period: float, x: np.ndarray, out: np.ndarray, air: np.ndarray, st: np.ndarray, sens: tuple,
@@ -260,9 +260,7 @@ class Vehicle:
                    np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8),
                    plug if plug is not None else plugin.no_plug())  # fmt: skip
         s = preset.sensors  # in sensor mode the autopilot flies on its estimator's estimate (observe)
-        self.estimator = None if s is None else Estimator.for_field(self.period, preset.vehicle.gravity,
-                                                                    s.mag_strength_gauss, s.mag_declination_deg,
-                                                                    s.mag_inclination_deg)  # fmt: skip
+        self.estimator = None if s is None else Estimator.for_sensors(s, self.period, preset.vehicle.gravity)
         self.est = () if self.estimator is None else self.estimator.arrays
         a = preset.actuators
         self.f_min, self.f_max = a.min_thrust, a.max_thrust

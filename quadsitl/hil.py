@@ -57,7 +57,8 @@ GPS_FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
 ACCEL_UPDATED, GYRO_UPDATED, MAG_UPDATED, BARO_UPDATED = 0b111, 0b111000, 0b111000000, 0b1101000000000
 
 # ---- what a sensor datagram decodes to (``z``: the estimator's measurements of a tick) and which are new -------
-Z_GYRO, Z_ACCEL, Z_MAG, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_SIZE = 0, 3, 6, 9, 10, 13, 16
+# (Z_GPS_TIME: the fix's HIL_GPS time_usec [µs], when it was measured)
+Z_GYRO, Z_ACCEL, Z_MAG, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_GPS_TIME, Z_SIZE = 0, 3, 6, 9, 10, 13, 16, 17
 MAG_NEW, BARO_NEW, GPS_NEW = 1, 2, 4
 # ... and the ground truth (``truth``): the 12 VehicleState fields (Euler-angle rates by the inverse of eq (1)),
 # then body rates p, q, r [rad/s] (as quadsitl.codec.decode_state's), NaN when the datagram carried none.
@@ -260,6 +261,7 @@ def decode_sensors(buf: np.ndarray, length: int, home: tuple, z: np.ndarray, tru
                     z[Z_GPS_POS + 2] = home[2] - _get_int(frame, 16, 4, True) * 1e-3
                     for i in range(3):
                         z[Z_GPS_VEL + i] = _get_int(frame, 26 + 2 * i, 2, True) * 0.01
+                    z[Z_GPS_TIME] = float(get(frame, HEADER_SIZE, np.int64) & 0x7FFFFFFFFFFFFFFF)
                     flags |= GPS_NEW
                 else:
                     dropped |= GPS_DROPPED

@@ -16,10 +16,12 @@ import numpy as np
 from autopilot.estimator import (
     BARO_NEW,
     GPS_NEW,
+    IMU_GAPS,
     MAG_NEW,
     Z_ACCEL,
     Z_BARO,
     Z_GPS_POS,
+    Z_GPS_TIME,
     Z_GYRO,
     Z_MAG,
     Z_SIZE,
@@ -37,6 +39,7 @@ from sitl.sensors import (
     MAG_UPDATED,
     OUT_ACCEL,
     OUT_GPS_POS,
+    OUT_GPS_TIME,
     OUT_GYRO,
     OUT_MAG,
     OUT_PRESSURE_ALT,
@@ -84,6 +87,7 @@ def fly(sensor_params: SensorParams, duration: float = 18.0) -> Flight:
         z[k, Z_MAG : Z_MAG + 3] = out[OUT_MAG : OUT_MAG + 3]
         z[k, Z_BARO] = out[OUT_PRESSURE_ALT]
         z[k, Z_GPS_POS : Z_GPS_POS + 6] = out[OUT_GPS_POS : OUT_GPS_POS + 6]
+        z[k, Z_GPS_TIME] = out[OUT_GPS_TIME]  # when the fix was measured [µs], as HIL_GPS stamps it
         flags[k] = ((MAG_NEW if fields & MAG_UPDATED else 0) | (BARO_NEW if fields & BARO_UPDATED else 0)
                     | (GPS_NEW if sensors.gps_new else 0))  # fmt: skip
         t = k * T
@@ -101,20 +105,32 @@ class Estimate:
     aligned: np.ndarray  # (n,) bool
     diverged: np.ndarray  # (n,) bool
     gyro_bias: np.ndarray  # (n, 3)
+    lost: np.ndarray  # (n,) the sensors lost (estimator.LOST_*)
+    imu_gaps: int  # IMU intervals lost (the estimator's count)
 
 
-def estimate(f: Flight, params: EstimatorParams | None = None) -> Estimate:
-    """The estimator run open-loop on the flight's sensor records."""
+def estimate(f: Flight, params: EstimatorParams | None = None, skip: np.ndarray | None = None,
+             stamped: bool = True) -> Estimate:  # fmt: skip
+    """The estimator run open-loop on the flight's sensor records, as the autopilot makes it for these sensors
+    (``params`` None: its defaults, the sensors' GPS delay), each tick stamped with its time; ``skip``: ticks whose
+    datagram is lost (the estimate stays the last one); ``stamped`` False: each fix stamped when it is delivered."""
     s = f.sensors
-    est = Estimator.for_field(f.period, f.gravity, s.mag_strength_gauss, s.mag_declination_deg,
-                              s.mag_inclination_deg, params=params)  # fmt: skip
+    est = Estimator.for_sensors(s, f.period, f.gravity)
+    if params is not None:
+        est = Estimator.for_field(f.period, f.gravity, s.mag_strength_gauss, s.mag_declination_deg,
+                                  s.mag_inclination_deg, params=params)  # fmt: skip
     n = len(f.truth)
     state, aligned, diverged, bias = np.empty((n, 12)), np.zeros(n, bool), np.zeros(n, bool), np.empty((n, 3))
+    lost = np.zeros(n, dtype=np.int64)
     for k in range(n):
-        est.z[:] = f.z[k]
-        est.tick(int(f.flags[k]))
+        if skip is None or not skip[k]:
+            est.z[:] = f.z[k]
+            if not stamped:
+                est.z[Z_GPS_TIME] = usec_of(k, f.period)
+            est.tick(int(f.flags[k]), usec_of(k, f.period))
         state[k], aligned[k], diverged[k], bias[k] = est.out, est.aligned, est.diverged, est.gyro_bias
-    return Estimate(state, aligned, diverged, bias)
+        lost[k] = est.lost
+    return Estimate(state, aligned, diverged, bias, lost, int(est.io[IMU_GAPS]))
 
 
 def attitude_error(truth: np.ndarray, state: np.ndarray) -> np.ndarray:

@@ -202,3 +202,54 @@ def test_the_benchs_fifo_fleets_hold_the_cores_awake_while_they_run():
     assert not held()  # released with the run
     with cores_awake(False):
         assert not held()
+
+
+def test_fan_out_loss_counts_distinct_ticks_of_the_run_and_is_never_negative():
+    """The fan-out's subscriber process (benchmarks.subscriber) against a real Zenoh publisher that sends every tick
+    of a 200-tick run twice, a record of another run (tick 5000), and leaves ticks 150..199 out of one stream: the
+    loss is the worst stream's missing share of the run's distinct ticks (25 %), not records against records (which
+    made a run with a repeated batch report negative loss)."""
+    import signal
+    import socket
+    import time
+
+    import numpy as np
+    import zenoh
+
+    from benchmarks.subscriber import loss_percent
+    from quadsitl import telemetry
+    from quadsitl.children import start_module
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    endpoint = f"tcp/127.0.0.1:{port}"
+    session = zenoh.open(telemetry.zenoh_config("peer", listen=[endpoint]))
+    sub = start_module("benchmarks.subscriber", endpoint, "v1", "0", "200", stdout=subprocess.PIPE, text=True)
+    try:
+        assert sub.stdout.readline().strip() == "ready"
+        time.sleep(1.0)  # the subscriptions declared
+        pubs = {s: session.declare_publisher(telemetry.key("v1", s)) for s in telemetry.STREAMS}
+        for stream, pub in pubs.items():
+            dtype = telemetry.record_dtype(stream)
+            last = 150 if stream == "actuators" else 200
+            recs = np.zeros(last, dtype=dtype)
+            recs["tick"] = np.arange(last)
+            for _ in range(2):
+                pub.put(recs.tobytes())
+            other = np.zeros(1, dtype=dtype)
+            other["tick"] = 5000
+            pub.put(other.tobytes())
+        time.sleep(1.0)
+        sub.send_signal(signal.SIGTERM)
+        out, _ = sub.communicate(timeout=20)
+    finally:
+        if sub.poll() is None:
+            sub.kill()
+            sub.wait()
+        session.close()
+    result = json.loads(out.strip().splitlines()[-1])
+    assert result["counts"] == {"state": 401, "setpoint": 401, "actuators": 301, "status": 401}
+    assert result["distinct"] == {"state": 200, "setpoint": 200, "actuators": 150, "status": 200}
+    assert loss_percent([result], 200) == 25.0
+    assert loss_percent([{"distinct": {"state": 200}}], 200) == 0.0

@@ -178,6 +178,7 @@ def test_a_tick_datagram_decodes_to_the_estimators_measurements_and_the_truth():
     assert np.allclose(z[hil.Z_GPS_POS : hil.Z_GPS_POS + 3], GPS_POS, rtol=0, atol=HALF_LATLON_M)
     assert abs(z[hil.Z_GPS_POS + 2] - GPS_POS[2]) <= HALF_MM
     assert np.allclose(z[hil.Z_GPS_VEL : hil.Z_GPS_VEL + 3], GPS_VEL, rtol=0, atol=HALF_CM)
+    assert z[hil.Z_GPS_TIME] == 880  # when the fix was measured [µs]: HIL_GPS's time_usec, before the tick's 1000
     assert np.allclose(truth[0:6], STATE[0:6], rtol=0, atol=HALF_CM)
     assert np.allclose(truth[6:12], STATE[6:12], rtol=0, atol=1e-6)
 
