@@ -638,6 +638,26 @@ class Commander:
             if self.cm[MODE] != mode:
                 enter(self.cm, mode)
 
+    def motors_failed(self, off: int, what: str) -> None:
+        """The motors now off (bits: motor i + 1 is 1 << i; a failure injected, ``what`` in words). One newly off
+        while armed in the air is PX4's actuator failure: COM_ACT_FAIL_ACT's action (none, hold, land, return, or
+        terminate: the motors off, the vehicle falls), said."""
+        newly = off & ~int(self.cm[MOTORS_OFF])
+        self.cm[MOTORS_OFF] = float(off)
+        if not newly or not self.armed or self.cm[ALTITUDE] <= AIRBORNE_ALT:
+            return
+        action = ACTUATOR_FAILURE_ACTIONS[self.settings.actuator_failure_action]
+        self.messages.append((2, f"Motor failure: {what}; action: {action}"))
+        if action == "none":
+            return
+        self.cm[FAILSAFE] = FAILSAFE_MOTOR
+        if action == "terminate":
+            self.disarm("Flight termination: motors off")
+            return
+        mode = {"hold": HOLD, "land": LAND, "return": RTL}[action]
+        if self.cm[MODE] != mode:
+            enter(self.cm, mode)
+
     def datalink_restored(self) -> None:
         self.messages.append((5, "Ground station back"))
 

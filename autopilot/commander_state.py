@@ -18,6 +18,8 @@ FAILSAFE_PLANT_LOST = 2
 FAILSAFE_GCS_LOST = 3
 FAILSAFE_ESTIMATOR = 4
 FAILSAFE_CONTROLLER = 5  # a plugged controller commanded a non-finite value (autopilot.tick.autopilot_step)
+FAILSAFE_MOTOR = 6  # a motor failed (failure injection: MAV_CMD_INJECT_FAILURE), COM_ACT_FAIL_ACT's action
+ACTUATOR_FAILURE_ACTIONS = ("none", "hold", "land", "return", "terminate")  # COM_ACT_FAIL_ACT, as PX4 numbers them
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
 HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION = (int(m) for m in Mode)
 # The phases of RTL and of LAND.
@@ -44,7 +46,8 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 # - the reference to fly this tick (valid while armed): x, y, vx, vy, ax, ay (NaN: the horizontal position is not
 #   controlled, and roll and pitch are flown), altitude (NaN: the climb rate alone), climb rate, its rate, roll,
 #   pitch, yaw (NaN: the yaw rate alone), yaw rate; whether the velocity limits apply; and the normalised collective
-#   thrust (NaN: the altitude channel makes it; else it is flown as it is, :func:`autopilot.tick.autopilot_step`).
+#   thrust (NaN: the altitude channel makes it; else it is flown as it is, :func:`autopilot.tick.autopilot_step`);
+# - the failures injected: the motors off (bits: motor i is 1 << i; their force is 0 whatever the allocation asks).
 STATE = """
 status: ARMED MODE FAILSAFE
 sp_horizontal: SP_X SP_Y SP_VX SP_VY SP_AX SP_AY
@@ -56,6 +59,7 @@ disarm: ARMED_AT TOOK_OFF RESTING_SINCE ARM_WALL_RECENT
 seen: NOW TICK X Y ALTITUDE VX VY CLIMB_RATE YAW
 settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT YAW_RATE_AUTO YAW_RATE_OFFBOARD DISARM_PREFLIGHT
 reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST
+failures: MOTORS_OFF
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
 LAYOUTS = {"STATE": STATE}
@@ -84,8 +88,10 @@ SETTINGS_FIRST, SETTINGS_END = 59, 72
 (REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
  REF_YAW_RATE, REF_LIMITED, REF_THRUST) = range(72, 87)  # fmt: skip
 REFERENCE_FIRST, REFERENCE_END = 72, 87
+(MOTORS_OFF,) = range(87, 88)  # fmt: skip
+FAILURES_FIRST, FAILURES_END = 87, 88
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 87
+SIZE = 88
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
@@ -129,6 +135,11 @@ class CommanderSettings:
                                   doc="ground-station heartbeat loss timeout (wall time)")  # fmt: skip
     datalink_action: int = key(0, low=0, high=2, mavlink=param("NAV_DLL_ACT"),
                                doc="on ground-station loss: 0 = nothing, 1 = hold, 2 = land")  # fmt: skip
+    failure_injection: int = key(0, low=0, high=1, mavlink=param("SYS_FAILURE_EN"),
+                                 doc="failure injection (MAV_CMD_INJECT_FAILURE): 0 = refused, 1 = taken")  # fmt: skip
+    actuator_failure_action: int = key(0, low=0, high=4, mavlink=param("COM_ACT_FAIL_ACT"),
+                                       doc="on a motor failure in the air: 0 = nothing, 1 = hold, 2 = land, "
+                                           "3 = return, 4 = terminate (motors off)")  # fmt: skip
     acc_hor: float = _POSITION.acc_hor  # [m/s²] MPC_ACC_HOR: acceleration of the auto modes' references
     cruise: float = _POSITION.xy_cruise  # [m/s] MPC_XY_CRUISE
     takeoff_speed: float = _POSITION.takeoff_speed  # [m/s] MPC_TKO_SPEED

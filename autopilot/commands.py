@@ -45,6 +45,7 @@ class Vehicle(Protocol):
     def home_position(self): ...
     def set_mode(self, mode: wire.Mode) -> tuple[bool, str]: ...
     def armed(self) -> None: ...
+    def inject_failure(self, unit: int, kind: int, instance: int) -> tuple[bool, str]: ...
     def refresh_streams(self) -> None: ...
 
 
@@ -219,6 +220,16 @@ def get_message_interval(v: Vehicle, c: Command) -> Result:
     return DENIED, f"Message interval: message id {c.param(1):g} is not streamed", None
 
 
+def inject_failure(v: Vehicle, c: Command) -> Result:
+    """MAV_CMD_INJECT_FAILURE (PX4's failure injection; refused unless SYS_FAILURE_EN is 1): p1 the unit
+    (FAILURE_UNIT_*), p2 the type (FAILURE_TYPE_*), p3 the instance (0: all). What the vehicle takes is
+    :data:`autopilot.failures.TAKEN`; the rest is unsupported, naming what is taken."""
+    if not v.commander.settings.failure_injection:
+        return DENIED, "Failure injection disabled: set SYS_FAILURE_EN to 1", None
+    ok, reason = v.inject_failure(as_int(c.param(1)), as_int(c.param(2)), as_int(c.param(3)))
+    return (ACCEPTED if ok else UNSUPPORTED), reason, None
+
+
 COMMANDS: dict[int, Callable[[Vehicle, Command], Result]] = {
     mavlink.MAV_CMD_COMPONENT_ARM_DISARM: arm_disarm,
     mavlink.MAV_CMD_DO_SET_MODE: do_set_mode,
@@ -234,6 +245,7 @@ COMMANDS: dict[int, Callable[[Vehicle, Command], Result]] = {
     mavlink.MAV_CMD_REQUEST_MESSAGE: request_message,
     mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: set_message_interval,
     mavlink.MAV_CMD_GET_MESSAGE_INTERVAL: get_message_interval,
+    mavlink.MAV_CMD_INJECT_FAILURE: inject_failure,
 }
 
 

@@ -28,10 +28,12 @@ arXiv:1711.02508, 2017, §5–§7; the same structure as PX4's EKF2, reduced to 
   sensor's measurements keep arriving and have all been refused, at least ``REFUSALS_TO_DIVERGE`` in a row over
   ``divergence_time`` seconds (or the state is not finite), the filter reports itself diverged (:data:`DIVERGED`);
 - timeouts, distinct from divergence: a sensor from which nothing has arrived for its timeout (``lost_time_s``, and
-  at least ``LOST_INTERVALS`` of its intervals) is lost (``io[LOST]``: LOST_GPS, LOST_BARO, LOST_MAG), each said and
+  at least ``LOST_INTERVALS`` of its intervals; the IMU after ``imu_lost_time_s``) is lost (``io[LOST]``: LOST_GPS,
+  LOST_BARO, LOST_MAG, LOST_IMU), each said and
   acted on by the autopilot as PX4 does (docs/sensors.md#when-a-sensor-fails). With the barometer lost, the GPS
   altitude is fused instead (PX4's height source fallback); with the magnetometer lost, the heading is the gyro's;
-  with the GPS lost, position and velocity are the IMU's alone, and the autopilot lands.
+  with the GPS lost, position and velocity are the IMU's alone, and the autopilot lands; with the IMU lost, the
+  filter predicts on its last sample, and the autopilot lands on what remains.
 
 The filter aligns first: for ``align_time`` seconds at rest it averages the accelerometer (roll and pitch), the
 magnetometer (yaw, with the known declination) and the barometer (the altitude reference), then starts at the
@@ -62,6 +64,7 @@ from quadsitl.earth import magnetic_field_ned
 from quadsitl.hil import (
     BARO_NEW,
     GPS_NEW,
+    IMU_NEW,
     MAG_NEW,
     Z_ACCEL,
     Z_BARO,
@@ -98,10 +101,11 @@ CORRECTION = HISTORY  # hist's last row: the corrections applied since alignment
 # history; per sensor the tick it was last heard at (HEARD_*) and its timeout [ticks] (LOST_*_TICKS); what is lost.
 (TICK, ALIGN_TICKS, DELAY_TICKS, DIVERGE_TICKS, ALIGNED, DIVERGED, SINCE_GPS_POS, SINCE_GPS_VEL, SINCE_BARO,
  SINCE_MAG, REFUSED, LAST_USEC, NOW_TICK, IMU_GAPS, GPS_TOO_OLD, ROW_GPS_POS, ROW_GPS_VEL, ROW_BARO, ROW_MAG,
- HEARD_GPS, HEARD_BARO, HEARD_MAG, LOST_GPS_TICKS, LOST_BARO_TICKS, LOST_MAG_TICKS, LOST,
- IO_SIZE) = range(27)  # fmt: skip
+ HEARD_GPS, HEARD_BARO, HEARD_MAG, HEARD_IMU, LOST_GPS_TICKS, LOST_BARO_TICKS, LOST_MAG_TICKS, LOST_IMU_TICKS, LOST,
+ IO_SIZE) = range(29)  # fmt: skip
 GROUPS = 4  # GPS position, GPS velocity, baro, mag: io[SINCE_GPS_POS + g], io[ROW_GPS_POS + g]
-LOST_GPS, LOST_BARO, LOST_MAG = 1, 2, 4  # io[LOST]; io[HEARD_GPS + i], io[LOST_GPS_TICKS + i] for bit 1 << i
+# io[LOST]; io[HEARD_GPS + i], io[LOST_GPS_TICKS + i] for bit 1 << i
+LOST_GPS, LOST_BARO, LOST_MAG, LOST_IMU, SENSORS = 1, 2, 4, 8, 4
 REFUSALS_TO_DIVERGE = 3  # one refused fix of a 1 Hz GPS is not a divergence
 LOST_INTERVALS = 3  # a sensor is lost after at least this many of its intervals without a measurement
 
@@ -130,6 +134,7 @@ class EstimatorParams:
     gate_sigma: float = 5.0  # innovation gate
     divergence_time_s: float = 1.0
     lost_time_s: float = 0.5  # a sensor silent this long (and LOST_INTERVALS of its intervals) is lost
+    imu_lost_time_s: float = 0.1  # the IMU, the filter's clock: ticks without a sample predict on the last one
     align_time_s: float = 1.0
     init_tilt_rad: float = 0.01  # initial standard deviations (tilt: beyond the accelerometer bias's share)
     init_yaw_rad: float = 0.1
@@ -332,6 +337,35 @@ def _fused(io: np.ndarray, group: int, ratio: float) -> None:
 
 
 @jit
+def _reset_to_gps(z: np.ndarray, x: np.ndarray, P: np.ndarray, hist: np.ndarray, then: int, e: np.ndarray) -> None:
+    """A fix after the GPS was lost (the dead-reckoned position has drifted beyond any gate): the horizontal position
+    and the velocity take the fix's (its innovation against the estimate of its time, hist[then], applied whole:
+    :func:`_reset_axis`), as PX4's EKF2 resets to the GPS when it comes back."""
+    for i in range(5):
+        if i < 2:
+            at, col = X_P + i, DP + i
+            value = z[Z_GPS_POS + i] - (hist[then, i] + hist[CORRECTION, i]) + x[at]
+            r = e[GPS_POS_NOISE] ** 2
+        else:
+            at, col = X_V + i - 2, DV + i - 2
+            value = z[Z_GPS_VEL + i - 2] - (hist[then, 1 + i] + hist[CORRECTION, 1 + i]) + x[at]
+            r = (e[GPS_VZ_NOISE] if i == 4 else e[GPS_VEL_NOISE]) ** 2
+        _reset_axis(x, P, hist, at, col, value, r)
+
+
+@jit
+def _reset_axis(x: np.ndarray, P: np.ndarray, hist: np.ndarray, at: int, col: int, value: float, r: float) -> None:
+    """x[at] (a position or velocity component, X_P..X_V + 2) set to ``value``, the history shifted with it, its error
+    state ``col``'s variance ``r`` and its correlations cleared."""
+    hist[CORRECTION, at - X_P] += value - x[at]  # X_P..X_V + 2 are the history's columns 0..5
+    x[at] = value
+    for j in range(N):
+        P[col, j] = 0.0
+        P[j, col] = 0.0
+    P[col, col] = r
+
+
+@jit
 def _interval(t_usec: int, period: float, io: np.ndarray) -> int:
     """The IMU sample stamped ``t_usec`` [µs]: how many control periods since the last one (1, or more when
     datagrams were lost: counted in io[IMU_GAPS]; 1 for the first, or after a jump of the clock back or by more
@@ -354,10 +388,10 @@ def estimator_tick(flags: int, z: np.ndarray, t_usec: int, period: float, p0: tu
                    hist: np.ndarray, io: np.ndarray, acc: np.ndarray, e: np.ndarray, ratio: np.ndarray,
                    scratch: np.ndarray, out: np.ndarray) -> None:  # fmt: skip
     """One control tick, stamped ``t_usec`` [µs] (HIL_SENSOR's time_usec; ``period`` [s] the control period): the IMU
-    sample z[Z_GYRO], z[Z_ACCEL] (always), and the magnetometer, barometer altitude [m AMSL] and GPS fix (position
-    [m, NED], velocity [m/s, NED], measured at z[Z_GPS_TIME] [µs]) when ``flags`` says they are new. ``out`` gets the
-    state in VehicleState order (12; zeros while aligning); ``ratio`` the last test ratio of each group (GPS pos
-    N/E, GPS vel N/E/D, baro, mag x/y/z, GPS altitude)."""
+    sample z[Z_GYRO], z[Z_ACCEL] (new when ``flags`` has IMU_NEW, else the last one again), and the magnetometer,
+    barometer altitude [m AMSL] and GPS fix (position [m, NED], velocity [m/s, NED], measured at z[Z_GPS_TIME] [µs])
+    when ``flags`` says they are new. ``out`` gets the state in VehicleState order (12; zeros while aligning);
+    ``ratio`` the last test ratio of each group (GPS pos N/E, GPS vel N/E/D, baro, mag x/y/z, GPS altitude)."""
     tick = io[TICK]
     io[TICK] = tick + 1
     steps = _interval(t_usec, period, io)
@@ -383,7 +417,7 @@ def estimator_tick(flags: int, z: np.ndarray, t_usec: int, period: float, p0: tu
             for j in range(HISTORY):
                 for i in range(3):
                     hist[j, i] = x[X_P + i]
-            for i in range(3):  # every sensor's timeout counts from here
+            for i in range(SENSORS):  # every sensor's timeout counts from here
                 io[HEARD_GPS + i] = k
         return
     FP = scratch[: N + 2, :]
@@ -406,7 +440,11 @@ def estimator_tick(flags: int, z: np.ndarray, t_usec: int, period: float, p0: tu
         io[HEARD_MAG] = k
     if flags & GPS_NEW:
         io[HEARD_GPS] = k
+    if flags & IMU_NEW:
+        io[HEARD_IMU] = k
     if flags & BARO_NEW:  # altitude above the origin: −p_D
+        if io[LOST] & LOST_BARO:  # back after a loss: the height reset to it, the reference again (PX4's reset)
+            _reset_axis(x, P, hist, X_P + 2, DP + 2, acc[A_BARO_REF] - z[Z_BARO], e[BARO_NOISE] ** 2)
         h[:] = 0.0
         h[DP + 2] = -1.0
         ratio[5] = fuse(x, P, h, (z[Z_BARO] - acc[A_BARO_REF]) + x[X_P + 2], e[BARO_NOISE] ** 2, gate, pht, dx)
@@ -428,6 +466,10 @@ def estimator_tick(flags: int, z: np.ndarray, t_usec: int, period: float, p0: tu
         age = io[DELAY_TICKS]
     if flags & GPS_NEW and age >= HISTORY:
         io[GPS_TOO_OLD] += 1
+    elif flags & GPS_NEW and io[LOST] & LOST_GPS:  # back after a loss: the position and velocity reset to the fix
+        _reset_to_gps(z, x, P, hist, (k - age) % HISTORY, e)
+        _fused(io, 0, 0.0)
+        _fused(io, 1, 0.0)
     elif flags & GPS_NEW:  # against the estimate of the fix's time, kept in hist; corrections shift the history too
         then = (k - age) % HISTORY
         # the altitude too while the barometer is lost (PX4's height source fallback)
@@ -457,7 +499,7 @@ def estimator_tick(flags: int, z: np.ndarray, t_usec: int, period: float, p0: tu
         if last == 6:  # the height's clock: the GPS altitude stands in for the barometer
             _fused(io, 2, ratio[9])
     lost = 0
-    for i in range(3):
+    for i in range(SENSORS):
         if k - io[HEARD_GPS + i] > io[LOST_GPS_TICKS + i]:
             lost |= 1 << i
     io[LOST] = lost
@@ -511,6 +553,7 @@ class Estimator:
         self.io[LAST_USEC] = -1
         for i in range(3):
             self.io[LOST_GPS_TICKS + i] = round(lost[i] / period)
+        self.io[LOST_IMU_TICKS] = round(p.imu_lost_time_s / period)
         self.acc = np.zeros(ACC_SIZE)
         self.ratio = np.zeros(10)
         self.scratch = np.zeros((N + 5, N))
@@ -559,7 +602,8 @@ class Estimator:
 
     @property
     def lost(self) -> int:
-        """The sensors lost (LOST_GPS | LOST_BARO | LOST_MAG): nothing heard from them for their timeouts."""
+        """The sensors lost (LOST_GPS | LOST_BARO | LOST_MAG | LOST_IMU): nothing heard from them for their
+        timeouts."""
         return int(self.io[LOST])
 
     @property

@@ -282,7 +282,7 @@ CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE  # integer parameters as INT32, bytewise, as PX4
     # MAVSDK refuses a mission upload without MISSION_INT; it uses it for nothing else (no download on
     # connecting), so advertising it before the mission protocol exists is harmless.
     | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT

@@ -67,10 +67,10 @@ class Outbox:
         if reason:
             self.say_once(reason, reason, every=REASON_EVERY)
 
-    def param_value(self, index: int, name: str, value: float, count: int) -> None:
-        """PARAM_VALUE: parameter ``index`` of ``count``."""
-        self.send(mavlink.MAVLink_param_value_message(name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32, count,
-                                                      index))  # fmt: skip
+    def param_value(self, index: int, name: str, value: float, count: int, integer: bool = False) -> None:
+        """PARAM_VALUE: parameter ``index`` of ``count``; an ``integer`` one as INT32, bytewise (as PX4)."""
+        carried, kind = wire.param_to_wire(value, integer)
+        self.send(mavlink.MAVLink_param_value_message(name.encode(), carried, kind, count, index))
 
     def param_error(self, index: int, name: str, error: int, to: tuple[int, int]) -> None:
         """PARAM_ERROR (MAV_PARAM_ERROR ``error``) to the sender ``to`` of a refused PARAM_SET: MAVSDK ends the set

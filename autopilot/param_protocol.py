@@ -21,7 +21,7 @@ class ParamProtocol:
         self.params, self.outbox, self.apply = params, outbox, apply
 
     def send(self, index: int, name: str, value: float) -> None:
-        self.outbox.param_value(index, name, value, len(self.params))
+        self.outbox.param_value(index, name, value, len(self.params), self.params.specs[index].integer)
 
     def on_request(self, r: ParamRequest) -> None:
         """The whole list (``r.name`` None), or one parameter by name or index."""
@@ -35,7 +35,8 @@ class ParamProtocol:
 
     def on_set(self, r: ParamSet) -> None:
         """A new value: applied, or refused with the reason (counted) and a PARAM_ERROR to its sender (before the
-        PARAM_VALUE: MAVSDK takes the first answer); the value in force is sent back either way."""
+        PARAM_VALUE: MAVSDK takes the first answer); the value in force is sent back either way, and an accepted
+        change once more, as PX4 announces it."""
         reason = self.params.set(r.name, r.value)
         found = self.params.lookup(r.name)
         if found is None:
@@ -48,5 +49,7 @@ class ParamProtocol:
         else:
             self.apply()
         self.send(*found)  # the value in force: the new one, or the unchanged one when refused
+        if not reason:  # and a change announced, as PX4 sends changed parameters again: MAVSDK's subscriptions
+            self.send(*found)  # (its failure plugin's to SYS_FAILURE_EN) hear the unsolicited one, not the answer
         if reason:
             self.outbox.say(mavlink.MAV_SEVERITY_WARNING, f"Param set refused: {reason}")

@@ -70,7 +70,8 @@ SETPOINTS = params_of(
 )  # COM_*, MPC_LAND_SPEED, SP_ALT_MAX
 MISSIONS = params_of(CommanderSettings, ("takeoff_alt", "rtl_alt", "max_distance"))  # MIS_, RTL_, GF_
 HEADING = params_of(CommanderSettings, ("yaw_rate_auto", "yaw_rate_offboard"))  # MPC_YAWRAUTO_MAX, SP_YAWRATE_MAX
-SAFETY = params_of(CommanderSettings, ("disarm_preflight", "dist_1wp"))  # COM_DISARM_PRFLT, MIS_DIST_1WP
+SAFETY = params_of(CommanderSettings, ("disarm_preflight", "dist_1wp", "failure_injection", "actuator_failure_action"))
+# COM_DISARM_PRFLT, MIS_DIST_1WP, SYS_FAILURE_EN, COM_ACT_FAIL_ACT
 SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY  # the commander's settings that are parameters
 
 

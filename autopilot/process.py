@@ -31,7 +31,7 @@ from collections.abc import Sequence
 import numpy as np
 import zenoh
 
-from autopilot import commands, gcs_messages, plant_link, plant_loop, plant_messages, plugin, setpoints
+from autopilot import commander_state, commands, gcs_messages, plant_link, plant_loop, plant_messages, plugin, setpoints
 from autopilot import tick as kernel
 from autopilot.arguments import build_parser, check
 from autopilot.commander import Commander, CommanderSettings
@@ -61,7 +61,7 @@ from autopilot.stream_frames import StreamFrames
 from autopilot.streams import MessageStreams, phase_of, spread_of
 from autopilot.telemetry_out import BATCH_WALL, Streams, ZenohOut
 from autopilot.tick import autopilot_tick, sensor_tick, warm_up
-from quadsitl import codec, fastio, wire
+from quadsitl import codec, failures, fastio, wire
 from quadsitl.cli_util import UsageError, parse_controller_params, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.process_util import (
@@ -304,12 +304,13 @@ class Autopilot:
             self.outbox.say(mavlink.MAV_SEVERITY_INFO, "EKF aligned: attitude, altitude and position from the sensors")
         for bit, lost, back in SENSOR_NEWS:
             if came & bit:
-                self.outbox.say(mavlink.MAV_SEVERITY_CRITICAL if bit == kernel.ESTIMATE_GPS_LOST else
-                                mavlink.MAV_SEVERITY_WARNING, lost)  # fmt: skip
+                self.outbox.say(mavlink.MAV_SEVERITY_CRITICAL if bit & LANDS else mavlink.MAV_SEVERITY_WARNING, lost)
             elif went & bit:
                 self.outbox.say(mavlink.MAV_SEVERITY_NOTICE, back)
         if came & kernel.ESTIMATE_DIVERGED:
             self.commander.estimator_failed()
+        elif came & kernel.ESTIMATE_IMU_LOST:
+            self.commander.estimator_failed("Attitude estimate lost: no IMU")
         elif came & kernel.ESTIMATE_GPS_LOST:
             self.commander.estimator_failed("Position estimate lost: no GPS")
         self.outbox.announce(self.commander)
@@ -412,6 +413,29 @@ class Autopilot:
         for out in outs:
             self.outbox.mission(out)
         return ok, reason
+
+    def inject_failure(self, unit: int, kind: int, instance: int) -> tuple[bool, str]:
+        """MAV_CMD_INJECT_FAILURE, checked (:mod:`quadsitl.failures`) → (taken, why not). A sensor's goes on to the
+        plant, whose sensors fail physically from its next tick; a motor's is applied in the outputs, and a motor
+        off in the air is COM_ACT_FAIL_ACT's business (:meth:`Commander.motors_failed`). Said in STATUSTEXT."""
+        reason = failures.refusal(unit, kind, instance, self.sensing)
+        if not reason and unit != failures.MOTOR and self.plant.peer is None:
+            reason = f"Failure {failures.describe(unit, kind)}: no plant connected to fail it in"
+        if reason:
+            return False, reason
+        what = failures.describe(unit, kind, instance)
+        if unit == failures.MOTOR:
+            off = failures.motors_off(int(self.commander.cm[commander_state.MOTORS_OFF]), kind, instance)
+            self.commander.motors_failed(off, what)
+        else:
+            m = self.plant.mav.command_long_encode(wire.PLANT_SYSTEM_ID, wire.PLANT_COMPONENT_ID,
+                                                   mavlink.MAV_CMD_INJECT_FAILURE, 0, unit, kind, instance, 0, 0, 0,
+                                                   0)  # fmt: skip
+            self.plant.sock.sendto(m.pack(self.plant.mav), self.plant.peer)
+        severity = mavlink.MAV_SEVERITY_INFO if kind == failures.OK else mavlink.MAV_SEVERITY_WARNING
+        self.outbox.say(severity, f"Failure injected: {what}")
+        self.outbox.announce(self.commander)
+        return True, ""
 
     def on_mission(self, r: MissionMessage) -> None:
         """A mission-protocol message, to the pure state machine (autopilot.mission_protocol); its answers out."""
@@ -572,8 +596,10 @@ SENSOR_NEWS = (
     (kernel.ESTIMATE_GPS_LOST, "GPS lost: position and velocity from the IMU alone"),
     (kernel.ESTIMATE_BARO_LOST, "Barometer lost: altitude from the GPS"),
     (kernel.ESTIMATE_MAG_LOST, "Compass lost: heading from the gyro"),
+    (kernel.ESTIMATE_IMU_LOST, "IMU lost: attitude from its last samples"),
 )
 SENSOR_NEWS = tuple((bit, lost, lost.split(" lost")[0] + " regained") for bit, lost in SENSOR_NEWS)
+LANDS = kernel.ESTIMATE_GPS_LOST | kernel.ESTIMATE_IMU_LOST  # losses that are the estimator failsafe, in the air
 
 
 def warm_up_loops() -> None:

@@ -196,7 +196,8 @@ class Receiver:
         self.routes.deliver(ParamRequest(m.param_id, m.param_index))
 
     def _param_set(self, m, link) -> None:
-        self.routes.deliver(ParamSet(m.param_id, m.param_value, (m.get_srcSystem(), m.get_srcComponent())))
+        value = wire.param_from_wire(m.param_value, m.param_type)  # an integer's bytes, as PX4 takes them
+        self.routes.deliver(ParamSet(m.param_id, value, (m.get_srcSystem(), m.get_srcComponent())))
 
     def _file_transfer(self, m, link) -> None:
         if len(m.payload) >= FTP_HEADER:

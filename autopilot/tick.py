@@ -173,6 +173,7 @@ def _put_int(buf: np.ndarray, at: int, value: int) -> None:
  IO_SIZE) = range(14)  # fmt: skip
 # The estimator's status (io[ESTIMATE], bits): aligned, diverged, and each sensor lost (estimator.LOST_* << 2).
 ESTIMATE_ALIGNED, ESTIMATE_DIVERGED, ESTIMATE_GPS_LOST, ESTIMATE_BARO_LOST, ESTIMATE_MAG_LOST = 1, 2, 4, 8, 16
+ESTIMATE_IMU_LOST = 32
 # What autopilot_tick reports (bits): an answer is in tx; telemetry messages are due; the commander has an
 # event (io[EVENT]); the batch is full; the datagram is no per-tick frame (pymavlink's to parse); it was
 # corrupt or carried a state never to fly; (sensor mode) the estimator's status changed; telemetry frames built here
@@ -218,6 +219,16 @@ def climb_asked(cm: np.ndarray, h: float) -> bool:
     if not math.isnan(cm[REF_CLIMB]):
         return cm[REF_CLIMB] > 0.0
     return cm[REF_CLIMB_ACC] > 0.0  # False for NaN too
+
+
+@jit(inline=True)
+def motors_working(forces: Forces, off: int) -> Forces:
+    """The forces [N] the motors make of the allocation's ``forces``: none from a motor that is off (bit i of ``off``:
+    motor i, a failure injected), as PX4's simulated outputs block a failed motor; the allocation does not know."""
+    if off == 0:
+        return forces
+    return (0.0 if off & 1 else forces[0], 0.0 if off & 2 else forces[1], 0.0 if off & 4 else forces[2],
+            0.0 if off & 8 else forces[3])  # fmt: skip
 
 
 @jit(inline=True)
@@ -271,7 +282,7 @@ def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: 
             u, errors, omega_r = fly(law, x, cm, mem, v, c)
         if not math.isnan(cm[REF_THRUST]):
             u = Inputs(cm[REF_THRUST] * 4.0 * f_max, u[1], u[2], u[3])
-        forces = allocate(u, v[D_OVER_B], f_min, f_max)
+        forces = motors_working(allocate(u, v[D_OVER_B], f_min, f_max), int(cm[commander.MOTORS_OFF]))
         for i in range(4):
             mem[MEM_U + i] = u[i]
             mem[MEM_FORCES + i] = forces[i]

@@ -55,11 +55,12 @@ GPS_FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
 
 # HIL_SENSOR.fields_updated, as PX4 reads them: accel, gyro, mag, baro (abs pressure, pressure alt, temperature)
 ACCEL_UPDATED, GYRO_UPDATED, MAG_UPDATED, BARO_UPDATED = 0b111, 0b111000, 0b111000000, 0b1101000000000
+IMU_UPDATED = ACCEL_UPDATED | GYRO_UPDATED
 
 # ---- what a sensor datagram decodes to (``z``: the estimator's measurements of a tick) and which are new -------
 # (Z_GPS_TIME: the fix's HIL_GPS time_usec [µs], when it was measured)
 Z_GYRO, Z_ACCEL, Z_MAG, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_GPS_TIME, Z_SIZE = 0, 3, 6, 9, 10, 13, 16, 17
-MAG_NEW, BARO_NEW, GPS_NEW = 1, 2, 4
+MAG_NEW, BARO_NEW, GPS_NEW, IMU_NEW = 1, 2, 4, 8
 # ... and the ground truth (``truth``): the 12 VehicleState fields (Euler-angle rates by the inverse of eq (1)),
 # then body rates p, q, r [rad/s] (as quadsitl.codec.decode_state's), NaN when the datagram carried none.
 TRUTH_DECODED = 15
@@ -219,7 +220,8 @@ def decode_sensors(buf: np.ndarray, length: int, home: tuple, z: np.ndarray, tru
     HIL_STATE_QUATERNION truth) → the measurements into ``z`` (Z_*; a GPS position in m NED from ``home``), the
     truth into ``truth`` (TRUTH_DECODED, NaN when absent). Returns (HIL_SENSOR's time_usec, or NOT_THIS_FRAME
     when the datagram holds anything else or no HIL_SENSOR (for pymavlink), or BAD_CRC; which measurements are
-    new besides the IMU (MAG_NEW | BARO_NEW | GPS_NEW); what was dropped for a non-finite value (*_DROPPED: a
+    new (IMU_NEW | MAG_NEW | BARO_NEW | GPS_NEW: a HIL_SENSOR whose fields_updated lacks the accelerometer or
+    the gyroscope carries no IMU sample, and z keeps the last); what was dropped for a non-finite value (*_DROPPED: a
     dropped IMU sample leaves z's previous one in place))."""
     t, flags, dropped = NOT_THIS_FRAME, 0, 0
     truth[:] = math.nan
@@ -233,9 +235,12 @@ def decode_sensors(buf: np.ndarray, length: int, home: tuple, z: np.ndarray, tru
             fields = _get_int(frame, 60, 4, False)
             ax, ay, az = _get_f32(frame, 8), _get_f32(frame, 12), _get_f32(frame, 16)
             gx, gy, gz = _get_f32(frame, 20), _get_f32(frame, 24), _get_f32(frame, 28)
-            if _finite3(ax, ay, az) and _finite3(gx, gy, gz):
+            if fields & IMU_UPDATED != IMU_UPDATED:
+                pass  # no IMU sample this tick (a failed sensor): z keeps the last one, IMU_NEW not set
+            elif _finite3(ax, ay, az) and _finite3(gx, gy, gz):
                 z[Z_ACCEL], z[Z_ACCEL + 1], z[Z_ACCEL + 2] = ax, ay, az
                 z[Z_GYRO], z[Z_GYRO + 1], z[Z_GYRO + 2] = gx, gy, gz
+                flags |= IMU_NEW
             else:
                 dropped |= IMU_DROPPED
             if fields & MAG_UPDATED == MAG_UPDATED:

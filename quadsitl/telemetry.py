@@ -13,7 +13,7 @@ setpoint: ``x_ref``, ``y_ref`` the horizontal position reference in local NED [m
 while the horizontal position is not controlled (attitude setpoints, the paper's experiment);
 status: ``armed`` uint8 (0/1), ``mode`` uint8 (:data:`MODES`: 0 hold, 1 offboard, 2 land, 3 takeoff,
 4 rtl, 5 mission), ``failsafe`` uint8 (0 none, 1 setpoint stream lost, 2 plant link lost, 3 ground station lost, 4
-estimator failed), ``offboard_tick``
+estimator failed, 5 controller failed, 6 motor failure), ``offboard_tick``
 int64 (tick at which the current offboard flight started, −1 when not in an offboard flight). The Zenoh
 encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v3`` (:data:`SCHEMA_VERSION`).
 

@@ -18,6 +18,7 @@ builders here: a test compares them).
 from __future__ import annotations
 
 import math
+import struct
 from enum import IntEnum
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -98,6 +99,30 @@ _PX4_MODES = {
     Mode.HOLD: (4, 3), Mode.OFFBOARD: (6, 0), Mode.LAND: (4, 6), Mode.TAKEOFF: (4, 2), Mode.RTL: (4, 5),
     Mode.MISSION: (4, 4),
 }  # fmt: skip
+
+
+# A parameter's value on the wire, as PX4 carries it (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE): a REAL32 as
+# itself, an integer's bytes in param_value's (MAVSDK and QGroundControl read a PX4 vehicle's integers so).
+_INT_PARAM_FORMATS = {mavlink.MAV_PARAM_TYPE_UINT8: "<B", mavlink.MAV_PARAM_TYPE_INT8: "<b",
+                      mavlink.MAV_PARAM_TYPE_UINT16: "<H", mavlink.MAV_PARAM_TYPE_INT16: "<h",
+                      mavlink.MAV_PARAM_TYPE_UINT32: "<I", mavlink.MAV_PARAM_TYPE_INT32: "<i"}  # fmt: skip
+
+
+def param_to_wire(value: float, integer: bool) -> tuple[float, int]:
+    """(param_value, param_type) of a parameter's ``value``: an ``integer`` one as INT32, bytewise."""
+    if not integer:
+        return float(value), mavlink.MAV_PARAM_TYPE_REAL32
+    return struct.unpack("<f", struct.pack("<i", int(value)))[0], mavlink.MAV_PARAM_TYPE_INT32
+
+
+def param_from_wire(param_value: float, param_type: int) -> float:
+    """A PARAM_SET's or PARAM_VALUE's value: an integer type's from the bytes of ``param_value`` (bytewise), any
+    other type's as it is (a REAL32 value set on an integer parameter is taken as a number, whole or refused)."""
+    fmt = _INT_PARAM_FORMATS.get(param_type)
+    if fmt is None:
+        return float(param_value)
+    raw = struct.pack("<f", param_value)
+    return float(struct.unpack(fmt, raw[: struct.calcsize(fmt)])[0])
 
 
 def link(system: int, component: int) -> mavlink.MAVLink:

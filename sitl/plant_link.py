@@ -18,11 +18,12 @@ import numpy as np
 
 from quadsitl import codec, hil, wire
 from quadsitl.process_util import SpinThenBlock, set_receive_timeout, wait_readable
-from sitl import realtime_loop, tick
+from sitl import realtime_loop, sensors, tick
 from sitl.impair import Impairment
 from sitl.plant import Plant
 
 HIL_ACTUATOR_CONTROLS = wire.mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
+COMMAND_LONG = wire.mavlink.MAVLINK_MSG_ID_COMMAND_LONG
 AUTOPILOT_LOST_AFTER = 0.5  # [s] wall without an actuator message: the autopilot is lost
 LOST_AFTER_NS = round(AUTOPILOT_LOST_AFTER * 1e9)
 
@@ -66,6 +67,7 @@ class PlantLink:
         self.outbox: list[tuple[float, int, bytes]] = []  # (release time, order, datagram), a heap
         self.inbox: list[tuple[float, int, bytes]] = []
         self.order = 0
+        self.sensor_clock: np.ndarray | None = None  # the plant's sensors' schedule, where failures are injected
 
     @property
     def last_heard(self) -> float | None:
@@ -175,11 +177,14 @@ class PlantLink:
         """What pymavlink finds in a datagram the compiled decoder does not take (several messages, signed):
         the newest finite HIL_ACTUATOR_CONTROLS, its forces in ``self.received``; −1 when there is none."""
         try:
-            msgs = [m for m in self.mav.parse_buffer(bytes(self.rx[:nbytes])) or []
-                    if m.get_msgId() == HIL_ACTUATOR_CONTROLS]  # fmt: skip
+            msgs = self.mav.parse_buffer(bytes(self.rx[:nbytes])) or []
         except wire.mavlink.MAVError:
             self.io[tick.CORRUPT] += 1
             return -1
+        for m in msgs:
+            if m.get_msgId() == COMMAND_LONG and m.command == wire.mavlink.MAV_CMD_INJECT_FAILURE:
+                self.inject_failure(m)
+        msgs = [m for m in msgs if m.get_msgId() == HIL_ACTUATOR_CONTROLS]
         best = -1
         for m in msgs:
             if not all(map(math.isfinite, m.controls[:4])):
@@ -189,6 +194,13 @@ class PlantLink:
                 self.received[:] = wire.forces_from_message(m, self.max_thrust)
                 self.io[tick.ANSWER_ARMED] = 1 if m.mode & codec.SAFETY_ARMED else 0
         return best
+
+    def inject_failure(self, m) -> None:
+        """A sensor failure the autopilot passes on (MAV_CMD_INJECT_FAILURE, which it checked): made physical in the
+        sensors (:func:`sitl.sensors.inject_failure`), from the next tick on; said on stderr."""
+        unit, kind = round(m.param1), round(m.param2)
+        if self.sensor_clock is not None and sensors.inject_failure(self.sensor_clock, unit, kind):
+            print(f"plant: failure injected: sensor unit {unit}, type {kind}", file=sys.stderr, flush=True)
 
     def apply(self, plant: Plant, t: int) -> bool:
         """Real time: make the actuator message stamped ``t`` (forces in ``self.received``) the command,

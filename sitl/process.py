@@ -270,6 +270,7 @@ def fleet_from_args(args: argparse.Namespace) -> list[Vehicle]:
         if args.hold_until_armed is not None:
             link.io[tick.HOLD_TICK] = round(args.hold_until_armed / preset.sim.period)
         link.io[tick.HOLD_LANDED] = int(args.hold_when_landed)
+        link.sensor_clock = plant.sensors.clock  # failure injection (the autopilot passes MAV_CMD_INJECT_FAILURE on)
         vehicles.append(Vehicle(name, preset, plant, link))
     return vehicles
 

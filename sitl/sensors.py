@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 
+from quadsitl import failures
 from quadsitl.compiled_frames import euler_rates_to_body_rates, euler_to_quaternion, ned_to_body
 from quadsitl.config import GPS_QUEUE, SensorParams
 from quadsitl.earth import ZERO_CELSIUS, isa_altitude, isa_pressure, isa_temperature, magnetic_field_ned
@@ -42,9 +43,11 @@ from sitl.noise import gauss_markov_coefficients, normal, seed_streams
  MAG_D, BARO_NOISE, HOME_ALT_M, GPS_XY, GPS_Z, GPS_TAU, GPS_VXY, GPS_VZ, GRAVITY, HOME_LAT_DEG, HOME_LON_DEG,
  SATELLITES, GYRO_STEP, ACC_STEP, MAG_STEP, GPS_XY_STEP, GPS_Z_STEP, PARAM_SIZE) = (*range(25), 25, 27, 29, 31, 33,
                                                                                    35)  # fmt: skip
-# ---- the integer schedule (``clock``, int64, µs) --------------------------------------------------------
+# ---- the integer schedule (``clock``, int64, µs), and the sensors failed (bits SENSOR_*: off, stuck) ---------
 (MAG_INTERVAL, BARO_INTERVAL, GPS_INTERVAL, GPS_DELAY, NEXT_MAG, NEXT_BARO, NEXT_GPS, QUEUE_HEAD, QUEUE_COUNT,
- CLOCK_SIZE) = range(10)  # fmt: skip
+ FAILED_OFF, FAILED_STUCK, CLOCK_SIZE) = range(12)  # fmt: skip
+# ---- failure injection (MAV_CMD_INJECT_FAILURE, :func:`inject_failure`): the sensors, as clock[FAILED_*]'s bits ----
+SENSOR_GYRO, SENSOR_ACCEL, SENSOR_MAG, SENSOR_BARO, SENSOR_GPS = 1, 2, 4, 8, 16
 # ---- the noise processes' state (``bias``): gyro, accel, mag biases, GPS position error ---------------------
 B_GYRO, B_ACC, B_MAG, E_GPS, BIAS_SIZE = 0, 3, 6, 9, 12
 # ---- the random streams -----------------------------------------------------------------------------
@@ -183,7 +186,15 @@ def sensors_tick(t_us: int, s: tuple, accel: tuple, dt: float, p: np.ndarray, rn
     """Every sensor due at time ``t_us`` [µs] for state ``s`` (VehicleState order) with true acceleration
     ``accel`` [m/s², NED]; ``dt`` [s] is the control period (the IMU's sample interval). Writes ``out`` and
     returns HIL_SENSOR's ``fields_updated`` for this tick; out[OUT_GPS_NEW] = 1 when a GPS fix (measured at
-    out[OUT_GPS_TIME] µs) is delivered this tick."""
+    out[OUT_GPS_TIME] µs) is delivered this tick.
+
+    Failed sensors (:func:`inject_failure`), as PX4's simulator fails them: one that is off sends nothing (its
+    fields not updated, its fix not delivered), one that is stuck sends its last sample again. Every sample is
+    still drawn, so a failure changes no other sensor's noise."""
+    stuck = clock[FAILED_STUCK]
+    kept = out
+    if stuck != 0:  # the samples sent last, sent again
+        kept = out.copy()
     imu(s, accel, p, rng, bias, dt, out)
     fields = ACCEL_UPDATED | GYRO_UPDATED
     if t_us >= clock[NEXT_MAG]:
@@ -209,7 +220,41 @@ def sensors_tick(t_us: int, s: tuple, accel: tuple, dt: float, p: np.ndarray, rn
             out[OUT_GPS_POS + i] = row[Q_POS + i]
         clock[QUEUE_HEAD] = (clock[QUEUE_HEAD] + 1) % GPS_QUEUE
         clock[QUEUE_COUNT] -= 1
+    if stuck != 0:
+        for bit, first, n in ((SENSOR_GYRO, OUT_GYRO, 3), (SENSOR_ACCEL, OUT_ACCEL, 3), (SENSOR_MAG, OUT_MAG, 3),
+                              (SENSOR_BARO, OUT_PRESSURE, 3)):  # fmt: skip
+            if stuck & bit:
+                for i in range(first, first + n):
+                    out[i] = kept[i]
+    off = clock[FAILED_OFF]
+    if off != 0:
+        for bit, updated in ((SENSOR_GYRO, GYRO_UPDATED), (SENSOR_ACCEL, ACCEL_UPDATED), (SENSOR_MAG, MAG_UPDATED),
+                             (SENSOR_BARO, BARO_UPDATED)):  # fmt: skip
+            if off & bit:
+                fields &= ~updated
+        if off & SENSOR_GPS:
+            out[OUT_GPS_NEW] = 0.0
     return fields
+
+
+# MAV_CMD_INJECT_FAILURE's sensor units (quadsitl.failures) as clock[FAILED_*]'s bits
+SENSOR_UNITS = {failures.GYRO: SENSOR_GYRO, failures.ACCEL: SENSOR_ACCEL, failures.MAG: SENSOR_MAG,
+                failures.BARO: SENSOR_BARO, failures.GPS: SENSOR_GPS}  # fmt: skip
+
+
+def inject_failure(clock: np.ndarray, unit: int, kind: int) -> bool:
+    """Fail (or, ``kind`` OK, restore) the sensor ``unit`` (FAILURE_UNIT_SENSOR_*) in the schedule ``clock``: off,
+    stuck or OK (:data:`quadsitl.failures.TAKEN`). False, and nothing changed, for a unit or type not taken."""
+    if unit not in SENSOR_UNITS or kind not in failures.TAKEN[unit]:
+        return False
+    bit = SENSOR_UNITS[unit]
+    clock[FAILED_OFF] &= ~bit
+    clock[FAILED_STUCK] &= ~bit
+    if kind == failures.OFF:
+        clock[FAILED_OFF] |= bit
+    elif kind == failures.STUCK:
+        clock[FAILED_STUCK] |= bit
+    return True
 
 
 class Sensors:

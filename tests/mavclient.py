@@ -15,6 +15,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
 
 from groundstation.launcher import free_port
+from quadsitl import wire
 
 PREARM_CHECK = M.MAV_SYS_STATUS_PREARM_CHECK  # SYS_STATUS: healthy = armable
 
@@ -154,6 +155,8 @@ class Client:
                     self.texts.append("".join(self._chunks.pop(m.id)))
         elif t == "COMMAND_ACK":
             self.acks.append(m)
+        elif t == "PARAM_VALUE":  # an integer parameter's bytes, as a ground station reads a PX4 vehicle's
+            m.param_value = wire.param_from_wire(m.param_value, m.param_type)
 
     def pump(self, seconds: float) -> None:
         end = time.monotonic() + seconds

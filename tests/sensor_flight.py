@@ -17,6 +17,7 @@ from autopilot.estimator import (
     BARO_NEW,
     GPS_NEW,
     IMU_GAPS,
+    IMU_NEW,
     MAG_NEW,
     Z_ACCEL,
     Z_BARO,
@@ -64,7 +65,7 @@ class Flight:
     sensors: SensorParams
     truth: np.ndarray  # (n, 12) VehicleState
     z: np.ndarray  # (n, Z_SIZE) the estimator's measurements
-    flags: np.ndarray  # (n,) MAG_NEW | BARO_NEW | GPS_NEW
+    flags: np.ndarray  # (n,) IMU_NEW | MAG_NEW | BARO_NEW | GPS_NEW
     gyro_bias: np.ndarray  # (n, 3) the true gyro bias [rad/s]
 
 
@@ -88,7 +89,7 @@ def fly(sensor_params: SensorParams, duration: float = 18.0) -> Flight:
         z[k, Z_BARO] = out[OUT_PRESSURE_ALT]
         z[k, Z_GPS_POS : Z_GPS_POS + 6] = out[OUT_GPS_POS : OUT_GPS_POS + 6]
         z[k, Z_GPS_TIME] = out[OUT_GPS_TIME]  # when the fix was measured [µs], as HIL_GPS stamps it
-        flags[k] = ((MAG_NEW if fields & MAG_UPDATED else 0) | (BARO_NEW if fields & BARO_UPDATED else 0)
+        flags[k] = (IMU_NEW | (MAG_NEW if fields & MAG_UPDATED else 0) | (BARO_NEW if fields & BARO_UPDATED else 0)
                     | (GPS_NEW if sensors.gps_new else 0))  # fmt: skip
         t = k * T
         if t < GROUND:

@@ -447,3 +447,20 @@ def test_gps_streams_at_5_hz_alongside_global_position():
     assert s.interval_us(gps) == 200_000
     ticks = [t for t in range(2000) if gps in s.due(t)]
     assert len(ticks) == 10 and all(gpi in s.due(t) for t in ticks)
+
+
+def test_integer_parameters_go_as_int32_bytewise_as_px4_carries_them():
+    """PX4's encoding (PARAM_ENCODE_BYTEWISE), which MAVSDK's set_param_int/get_param_int read: an integer
+    parameter's bytes in the float field, typed INT32; a REAL32 as itself; a REAL32 set of an integer parameter taken
+    as a number."""
+    import struct
+
+    from quadsitl import wire
+
+    carried, kind = wire.param_to_wire(2, integer=True)
+    assert kind == mavlink.MAV_PARAM_TYPE_INT32 and struct.pack("<f", carried) == struct.pack("<i", 2)
+    assert wire.param_from_wire(carried, kind) == 2.0
+    assert wire.param_to_wire(2.5, integer=False) == (2.5, mavlink.MAV_PARAM_TYPE_REAL32)
+    assert wire.param_from_wire(1.0, mavlink.MAV_PARAM_TYPE_REAL32) == 1.0
+    byte = struct.unpack("<f", bytes([200, 0, 0, 0]))[0]
+    assert wire.param_from_wire(byte, mavlink.MAV_PARAM_TYPE_UINT8) == 200.0

@@ -169,7 +169,7 @@ def decode(d, z=None, home=PX4_HOME):
 def test_a_tick_datagram_decodes_to_the_estimators_measurements_and_the_truth():
     d, _ = datagram()
     t, flags, dropped, z, truth = decode(d)
-    assert (t, flags, dropped) == (1000, hil.MAG_NEW | hil.BARO_NEW | hil.GPS_NEW, 0)
+    assert (t, flags, dropped) == (1000, hil.IMU_NEW | hil.MAG_NEW | hil.BARO_NEW | hil.GPS_NEW, 0)
     f32 = np.float32
     assert list(z[hil.Z_ACCEL : hil.Z_ACCEL + 3]) == [f32(0.1), f32(-0.2), f32(-9.8)]
     assert list(z[hil.Z_GYRO : hil.Z_GYRO + 3]) == [f32(0.01), f32(0.02), f32(-0.03)]
@@ -197,7 +197,7 @@ def test_random_datagrams_round_trip(home):
         d, _ = datagram(home=home, gps_pos=gps_pos, gps_vel=gps_vel, state=s, t=t, accel=accel, gyro=gyro, mag=mag,
                         baro=baro)  # fmt: skip
         got_t, flags, dropped, z, truth = decode(d, home=home)
-        assert (got_t, flags, dropped) == (t, hil.MAG_NEW | hil.BARO_NEW | hil.GPS_NEW, 0)
+        assert (got_t, flags, dropped) == (t, hil.IMU_NEW | hil.MAG_NEW | hil.BARO_NEW | hil.GPS_NEW, 0)
         f32 = np.float32
         assert list(z[hil.Z_ACCEL : hil.Z_ACCEL + 3]) == [f32(v) for v in accel]
         assert list(z[hil.Z_GYRO : hil.Z_GYRO + 3]) == [f32(v) for v in gyro]
@@ -222,10 +222,14 @@ def test_only_what_fields_updated_says_is_new():
         n = sensor_frame(buf, fields=fields)
         z = np.zeros(hil.Z_SIZE)
         t, flags, dropped = hil.decode_sensors(buf, n, PX4_HOME, z, truth, frame)
-        expected = (hil.MAG_NEW if fields & 0b111000000 == 0b111000000 else 0) | (
-            hil.BARO_NEW if fields & hil.BARO_UPDATED == hil.BARO_UPDATED else 0
-        )
+        expected = (
+            (hil.MAG_NEW if fields & 0b111000000 == 0b111000000 else 0)
+            | (hil.BARO_NEW if fields & hil.BARO_UPDATED == hil.BARO_UPDATED else 0)
+            | (hil.IMU_NEW if fields & 0b111111 == 0b111111 else 0)
+        )  # accel and gyro both, or no IMU sample
         assert (t, flags, dropped) == (1000, expected, 0), bin(fields)
+        if not flags & hil.IMU_NEW:  # none: z keeps the last (zeros here)
+            assert not z[hil.Z_GYRO : hil.Z_ACCEL + 3].any()
     assert hil.BARO_UPDATED == 0b1101000000000 and hil.MAG_UPDATED == 0b111000000
 
 
@@ -313,19 +317,19 @@ def test_a_non_finite_imu_sample_is_dropped_and_the_previous_one_kept(bad):
 def test_a_non_finite_magnetometer_sample_is_dropped():
     z = np.full(hil.Z_SIZE, 7.0)
     t, flags, dropped, z, _ = decode(datagram(gps=False, mag=(0.2, math.nan, 0.4))[0], z)
-    assert t == 1000 and dropped == hil.MAG_DROPPED and flags == hil.BARO_NEW
+    assert t == 1000 and dropped == hil.MAG_DROPPED and flags == hil.IMU_NEW | hil.BARO_NEW
     assert (z[hil.Z_MAG : hil.Z_MAG + 3] == 7.0).all()
     assert z[hil.Z_ACCEL + 2] == np.float32(-9.8)  # the IMU's sample is still used
     no_mag = ALL_FIELDS & ~hil.MAG_UPDATED  # a NaN in a field not marked updated is not looked at
     _, flags, dropped, _, _ = decode(datagram(gps=False, mag=(math.nan,) * 3, fields=no_mag)[0])
-    assert (flags, dropped) == (hil.BARO_NEW, 0)
+    assert (flags, dropped) == (hil.IMU_NEW | hil.BARO_NEW, 0)
 
 
 def test_a_non_finite_pressure_altitude_is_dropped():
     for alt in (math.inf, -math.inf, math.nan):
         z = np.full(hil.Z_SIZE, 7.0)
         t, flags, dropped, z, _ = decode(datagram(gps=False, baro=(955.0, alt, 11.0))[0], z)
-        assert t == 1000 and dropped == hil.BARO_DROPPED and flags == hil.MAG_NEW
+        assert t == 1000 and dropped == hil.BARO_DROPPED and flags == hil.IMU_NEW | hil.MAG_NEW
         assert z[hil.Z_BARO] == 7.0
 
 

@@ -50,6 +50,7 @@ TRAIL_RATE = 5.0  # fleet-map trail points per simulated second (at most the plo
 MODES = telemetry.MODES  # 0 hold, 1 offboard, 2 land, 3 takeoff, 4 rtl, 5 mission
 FAILSAFES = {
     0: "none", 1: "setpoint stream lost", 2: "plant link lost", 3: "ground station lost", 4: "estimator failed",
+    5: "controller failed", 6: "motor failure",
 }  # fmt: skip
 
 # A row of the plot series, in this order (the page receives columns by these names).
