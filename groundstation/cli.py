@@ -211,6 +211,7 @@ PROCESSES = {
     "dashboard": ("groundstation.dashboard.server", "live telemetry dashboard in the browser, fed by Zenoh"),
     "replay": ("groundstation.replay", "play a recorded telemetry.csv or .tlog back onto Zenoh"),
     "router": ("groundstation.router", "a Zenoh router, for telemetry across machines"),
+    "soak": ("groundstation.soak", "fly a fleet through missions for a long time; report memory and tick rate"),
 }
 
 

@@ -25,7 +25,6 @@ from groundstation.mission_upload import MissionUpload
 from groundstation.progress import FlightProgress
 from groundstation.station import (
     UNNEEDED_IN_FLIGHT,
-    UNNEEDED_STREAMS,
     GcsError,
     GroundStation,
     Phase,
@@ -62,7 +61,7 @@ class MissionFlight(GroundStation):
             flight_t = self.logger.flight_time()
             last_hb = self.heartbeat(now, last_hb)
             if phase is Phase.CONNECT and self.heard:
-                self.stop_streams(UNNEEDED_STREAMS)
+                self.take_link()
                 phase, upload = Phase.UPLOAD, MissionUpload(n_items, now)
             elif phase is Phase.UPLOAD:
                 step = upload.step(now, self.requested, self.mission_ack)

@@ -315,6 +315,14 @@ class GroundStation:
         """Flight time [s] of the vehicle's newest tick seen (0 before the flight starts)."""
         return max(0.0, self.logger.flight_time(self.vehicle_tick()))
 
+    def take_link(self) -> None:
+        """On connecting: the streams this ground station reads on its link (SYS_STATUS, until armed) at their default
+        rates, since a ground station before it on the same link may have stopped them (as this one does in flight),
+        and the ones it does not read stopped."""
+        for msg_id in UNNEEDED_IN_FLIGHT:
+            self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 0)
+        self.stop_streams(UNNEEDED_STREAMS)
+
     def stop_streams(self, msg_ids: Sequence[int]) -> None:
         """Ask the vehicle to stop streaming ``msg_ids`` on this link (MAV_CMD_SET_MESSAGE_INTERVAL, −1)."""
         for msg_id in msg_ids:
@@ -390,7 +398,7 @@ class GroundStation:
                 phase = Phase.PREARM
                 # This ground station logs telemetry from Zenoh and paces itself by it; ATTITUDE goes on to the
                 # .tlog, the other MAVLink streams on its link would only cost both ends CPU at a lockstep run's rate.
-                self.stop_streams(UNNEEDED_STREAMS)
+                self.take_link()
                 if self.ahead:
                     interval = attitude_interval_us(args.setpoints_ahead)
                     self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, interval)

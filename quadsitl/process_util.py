@@ -367,6 +367,52 @@ def quiet_garbage_collector() -> None:
     gc.set_threshold(50_000, 50, 100)
 
 
+def free_ports(n: int, kind: int = socket.SOCK_DGRAM, taken: set[int] | None = None) -> int:
+    """The first of ``n`` consecutive ports that are free on 127.0.0.1 now (for a fleet's PORT + i plan), none of
+    them in ``taken`` (ports picked before, not bound yet), which gets them."""
+    taken = set() if taken is None else taken
+    for _ in range(200):
+        base = free_port(kind, avoid=taken)
+        if taken.intersection(range(base, base + n)):
+            continue
+        socks = []
+        try:
+            for i in range(n):
+                s = socket.socket(socket.AF_INET, kind)
+                socks.append(s)
+                s.bind(("127.0.0.1", base + i))
+            taken.update(range(base, base + n))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise OSError(f"no {n} consecutive free ports on 127.0.0.1")
+
+
+def children_of(pid: int) -> list[int]:
+    """The live child processes of ``pid`` (Linux's /proc)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(d.name))
+    return out
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory [MB] of a live process (``/proc/PID/status``'s VmRSS)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return 0.0
+
+
 def start_process(quiet_gc: bool = True) -> None:
     """What every process's main() does first: die with the parent, stop cleanly on SIGINT and SIGTERM
     (:func:`handle_stop_signals`) and, for the per-tick loops, keep the garbage collector quiet."""

@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink consta
 
 from groundstation.launcher import free_port
 from quadsitl import wire
+from quadsitl.process_util import free_ports
 
 PREARM_CHECK = M.MAV_SYS_STATUS_PREARM_CHECK  # SYS_STATUS: healthy = armable
 
@@ -38,30 +39,6 @@ class Vehicle:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait()
         return self.proc.returncode
-
-
-def free_ports(n: int, kind: int = socket.SOCK_DGRAM, taken: set[int] | None = None) -> int:
-    """The first of ``n`` consecutive ports that are free on 127.0.0.1 now (for a fleet's PORT + i plan), none of
-    them in ``taken`` (ports picked before, not bound yet), which gets them."""
-    taken = set() if taken is None else taken
-    for _ in range(200):
-        base = free_port(kind, avoid=taken)
-        if taken.intersection(range(base, base + n)):
-            continue
-        socks = []
-        try:
-            for i in range(n):
-                s = socket.socket(socket.AF_INET, kind)
-                socks.append(s)
-                s.bind(("127.0.0.1", base + i))
-            taken.update(range(base, base + n))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise AssertionError(f"no {n} consecutive free ports")
 
 
 def quadsitl_up(*extra: str):

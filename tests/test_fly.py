@@ -20,6 +20,7 @@ from groundstation.launcher import SETPOINTS_AHEAD, free_port
 from groundstation.setpoint_grid import SETPOINT_MS
 from groundstation.telemetry_csv import read_csv
 from quadsitl.config import SENSOR_GROUND_S
+from quadsitl.process_util import children_of
 from quadsitl.state import Reference
 
 BIN = Path(sys.executable).parent
@@ -29,19 +30,6 @@ PREARM_CHECK = mavutil.mavlink.MAV_SYS_STATUS_PREARM_CHECK  # SYS_STATUS: health
 def quadsitl(*args: str) -> list[str]:
     exe = BIN / "quadsitl"
     return [str(exe), *args] if exe.exists() else [sys.executable, "-m", "groundstation.cli", *args]
-
-
-def children_of(pid: int) -> list[int]:
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(d.name))
-    return out
 
 
 def alive(pid: int) -> bool:

@@ -39,14 +39,7 @@ from benchmarks.scheduling import awake_missing, cores_awake, fifo_missing, fifo
 from benchmarks.sections.base import Context, Section
 from benchmarks.sections.dashboard import dashboard_page
 from quadsitl.children import stop
-
-
-def _rss_mb(pid: int) -> float:
-    """Resident memory [MB] of a live process (``/proc/PID/status``)."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024.0
-    return 0.0
+from quadsitl.process_util import rss_mb
 
 
 def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | None = None, fifo: bool = False,
@@ -91,7 +84,7 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
         with fifo_scheduling(fifo):
             plant = subprocess.Popen(argv, stderr=subprocess.DEVNULL)
         try:
-            rss = [_rss_mb(pid) for pid in ap_pids]
+            rss = [rss_mb(pid) for pid in ap_pids]
             _, status, usage = os.wait4(plant.pid, 0)  # reaped here, with its peak memory
             steal = machine.steal_ratio(before, machine.cpu_times())
             plant.returncode = os.waitstatus_to_exitcode(status)
