@@ -615,7 +615,8 @@ class Estimator:
     def status(self) -> tuple[int, float, float, float, float, float, float]:
         """The filter's health as ``ESTIMATOR_STATUS`` says it (PX4's EKF2 fills it likewise): the flags of what is
         valid (ESTIMATOR_*: attitude, velocity, relative and absolute horizontal position, absolute vertical
-        position; none while aligning or diverged; no absolute horizontal position while the GPS is lost;
+        position; none while aligning or diverged or the IMU is lost; no absolute horizontal position while the
+        GPS is lost;
         GPS_GLITCH while GPS positions are refused), the innovation test
         ratios (> 1: refused) of the velocity, horizontal position, vertical position (barometer) and magnetometer
         (each the largest of its components, at the last fusion), and the 1σ horizontal and vertical position
@@ -626,6 +627,8 @@ class Estimator:
                  | ESTIMATOR_POS_HORIZ_ABS | ESTIMATOR_POS_VERT_ABS) if valid else 0  # fmt: skip
         if valid and self.lost & LOST_GPS:  # dead reckoning: no absolute horizontal position
             flags &= ~ESTIMATOR_POS_HORIZ_ABS
+        if valid and self.lost & LOST_IMU:  # predicting on the last samples: nothing is to be trusted
+            flags = 0
         if self.aligned and max(r[0], r[1]) > 1.0:
             flags |= ESTIMATOR_GPS_GLITCH
         P = self.P

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from autopilot import estimator as ekf
 from autopilot.estimator import (
     BARO_NEW,
     GPS_NEW,
@@ -131,6 +132,13 @@ def test_a_sensor_that_stops_is_lost_not_diverged(px4, flag, lost, column, bound
     when = t[(e.lost & lost) != 0]
     assert len(when) and 10.4 <= when[0] <= 10.6 and (e.lost[t > 10.6] & lost).all()
     assert not (e.lost[t < 10.0]).any() and not e.diverged.any()
+    if flag == GPS_NEW:  # ESTIMATOR_STATUS: no absolute horizontal position while dead reckoning
+        est = Estimator.for_sensors(f.sensors, f.period, f.gravity)
+        for k in range(round(10.6 / f.period)):
+            est.z[:] = stopped.z[k]
+            est.tick(int(stopped.flags[k]), round(k * f.period * 1e6))
+        flags = est.status()[0]
+        assert flags & ekf.ESTIMATOR_ATTITUDE and not flags & ekf.ESTIMATOR_POS_HORIZ_ABS
     after = (t >= 10.0) & (t < 12.0 if flag == GPS_NEW else True)
     if flag == BARO_NEW:
         fixes = after & ((f.flags & GPS_NEW) != 0)
