@@ -202,9 +202,13 @@ class Soak:
                     break
         finally:
             shutil.rmtree(self.work, ignore_errors=True)
-        report = {"minutes": self.args.minutes, "vehicles": self.args.vehicles, "preset": self.args.preset,
-                  "segments": [summary(s) for s in segments]}  # fmt: skip
+        from benchmarks.machine import describe
+
+        report = {"machine": describe(), "minutes": self.args.minutes, "vehicles": self.args.vehicles,
+                  "preset": self.args.preset, "segments": [summary(s) for s in segments]}  # fmt: skip
         (self.out / "soak.json").write_text(json.dumps(report, indent=1) + "\n")
+        m = report["machine"]
+        print(f"machine: {m['cpu']}, {m['cores']} cores, {m['hypervisor']}, Linux {m['kernel']}, Python {m['python']}")
         for s in report["segments"]:
             print(table(s), flush=True)
         print(f"quadsitl soak: wrote {self.out / 'soak.json'}", flush=True)
