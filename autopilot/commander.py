@@ -109,6 +109,7 @@ def arm(cm: np.ndarray) -> None:
     cm[FAILSAFE] = FAILSAFE_NONE
     cm[HOME_X], cm[HOME_Y], cm[HOME_ALT], cm[HOME_YAW] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0), cm[YAW]
     cm[ARMED_AT], cm[TOOK_OFF], cm[RESTING_SINCE], cm[ARM_WALL_RECENT] = cm[NOW], 0.0, math.nan, 0.0
+    cm[NO_POSITION] = 0.0  # armed only with a position (the pre-arm check)
     enter(cm, int(cm[MODE]))
 
 
@@ -220,9 +221,10 @@ def _fly_generated(cm: np.ndarray, dt: float) -> None:
 @jit
 def _land(cm: np.ndarray, dt: float, now: float) -> int:
     """A landing's tick: brake to a stop (the velocity reference 0, the altitude held), then hold that point while
-    the altitude reference descends at LAND_SPEED; disarm after resting on the ground."""
+    the altitude reference descends at LAND_SPEED; disarm after resting on the ground. With the horizontal position
+    lost (cm[NO_POSITION]), PX4's Descend: no braking, no point held, level while the altitude reference descends."""
     if cm[MODE] == LAND and cm[PHASE] == LAND_BRAKING:
-        if math.sqrt(cm[VX] ** 2 + cm[VY] ** 2) >= LAND_BRAKED:
+        if math.sqrt(cm[VX] ** 2 + cm[VY] ** 2) >= LAND_BRAKED and cm[NO_POSITION] == 0.0:
             advance_reference(cm, dt, 0.0, cm[Z_VEL_UP], cm[Z_VEL_DN])  # only the altitude moves
             _fly_generated(cm, dt)
             cm[REF_X], cm[REF_Y], cm[REF_VX], cm[REF_VY], cm[REF_AX], cm[REF_AY] = (
@@ -249,6 +251,9 @@ def _land(cm: np.ndarray, dt: float, now: float) -> int:
     cm[GEN_CLIMB] = -speed if cm[LAND_ALT] > cm[LAND_TARGET] else 0.0
     cm[GEN_CLIMB_ACC] = 0.0
     _fly_generated(cm, dt)
+    if cm[NO_POSITION] != 0.0:  # PX4's Descend: no position to hold, the vehicle level (roll and pitch 0) goes down
+        for i in (REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY):
+            cm[i] = math.nan
     if cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB:
         if math.isnan(cm[LANDED_SINCE]):
             cm[LANDED_SINCE] = now
@@ -618,6 +623,12 @@ class Commander:
         """The state estimate is not to be trusted (sensor mode: the estimator diverged, or lost the GPS). Armed,
         switch to LAND, as PX4 does when its position estimate is lost."""
         self._fail_and_land(why, FAILSAFE_ESTIMATOR)
+
+    def position_lost(self) -> None:
+        """The horizontal position is lost (sensor mode: the GPS lost). Armed, the estimator failsafe as PX4 has it
+        without a pilot: Descend, a landing that holds no position, level (:func:`_land`)."""
+        self.cm[NO_POSITION] = 1.0 if self.armed else 0.0
+        self._fail_and_land("Position estimate lost: no GPS; descending", FAILSAFE_ESTIMATOR)
 
     def _fail_and_land(self, why: str, failsafe: int) -> None:
         """Say ``why`` (critical); armed, the failsafe ``failsafe``: LAND."""

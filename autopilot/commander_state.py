@@ -47,7 +47,9 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 #   controlled, and roll and pitch are flown), altitude (NaN: the climb rate alone), climb rate, its rate, roll,
 #   pitch, yaw (NaN: the yaw rate alone), yaw rate; whether the velocity limits apply; and the normalised collective
 #   thrust (NaN: the altitude channel makes it; else it is flown as it is, :func:`autopilot.tick.autopilot_step`);
-# - the failures injected: the motors off (bits: motor i is 1 << i; their force is 0 whatever the allocation asks).
+# - the failures: the motors off (bits: motor i is 1 << i; their force is 0 whatever the allocation asks, a failure
+#   injected), and whether the horizontal position is lost (1.0: the GPS lost; a landing then descends level, PX4's
+#   Descend, until the next arming).
 STATE = """
 status: ARMED MODE FAILSAFE
 sp_horizontal: SP_X SP_Y SP_VX SP_VY SP_AX SP_AY
@@ -59,7 +61,7 @@ disarm: ARMED_AT TOOK_OFF RESTING_SINCE ARM_WALL_RECENT
 seen: NOW TICK X Y ALTITUDE VX VY CLIMB_RATE YAW
 settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT YAW_RATE_AUTO YAW_RATE_OFFBOARD DISARM_PREFLIGHT
 reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST
-failures: MOTORS_OFF
+failures: MOTORS_OFF NO_POSITION
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
 LAYOUTS = {"STATE": STATE}
@@ -88,10 +90,10 @@ SETTINGS_FIRST, SETTINGS_END = 59, 72
 (REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
  REF_YAW_RATE, REF_LIMITED, REF_THRUST) = range(72, 87)  # fmt: skip
 REFERENCE_FIRST, REFERENCE_END = 72, 87
-(MOTORS_OFF,) = range(87, 88)  # fmt: skip
-FAILURES_FIRST, FAILURES_END = 87, 88
+(MOTORS_OFF, NO_POSITION) = range(87, 89)  # fmt: skip
+FAILURES_FIRST, FAILURES_END = 87, 89
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 88
+SIZE = 89
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4

@@ -312,7 +312,7 @@ class Autopilot:
         elif came & kernel.ESTIMATE_IMU_LOST:
             self.commander.estimator_failed("Attitude estimate lost: no IMU")
         elif came & kernel.ESTIMATE_GPS_LOST:
-            self.commander.estimator_failed("Position estimate lost: no GPS")
+            self.commander.position_lost()
         self.outbox.announce(self.commander)
 
     def _parse_slowly(self, nbytes: int, sender: tuple[str, int]) -> None:

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from autopilot import commander as cmd
 from autopilot.backstepping import integral_gain
 from autopilot.commander import CommanderSettings
 from autopilot.control_params import KI_XY, POLES_XY, XY_VEL_MAX, control_array
@@ -236,3 +237,23 @@ def test_the_time_scale_bound_keeps_the_horizontal_loop_below_the_attitude_loop(
         assert f.horizontal_error(10.0, 0.0) < 1e-3 and tilt < 1e-3
     else:
         assert f.horizontal_error(10.0, 0.0) > 0.1 or tilt > math.radians(10)
+
+
+def test_the_position_lost_in_the_air_is_a_descent_level_holding_no_point_as_px4s_descend():
+    """Commander.position_lost (the GPS lost, on sensors) while holding 5 m in a 2 N northward push: LAND, failsafe
+    4, and no horizontal reference at all (the dead-reckoned position is not to be held): roll and pitch level, the
+    altitude going down at MPC_LAND_SPEED; the push carries the vehicle north as it descends (a held point would
+    have resisted it), it touches down and disarms. Armed again, the position counts as there again."""
+    preset = dataclasses.replace(X500, wind=WindParams(force_n=(2.0, 0.0, 0.0)))
+    f = _hover(preset)
+    f.run(10.0)
+    x0 = f.state.x
+    f.commander.position_lost()
+    assert f.commander.mode == Mode.LAND and f.cm[cmd.FAILSAFE] == cmd.FAILSAFE_ESTIMATOR
+    f.run(1.0)
+    refs = [f.cm[i] for i in (cmd.REF_X, cmd.REF_Y, cmd.REF_VX, cmd.REF_VY)]
+    assert all(math.isnan(r) for r in refs) and f.cm[cmd.REF_ROLL] == f.cm[cmd.REF_PITCH] == 0.0
+    assert f.cm[cmd.REF_CLIMB] == pytest.approx(-CommanderSettings().land_speed)
+    f.until(lambda f: not f.commander.armed, 20)
+    assert f.state.x - x0 > 0.5 and f.state.altitude < 0.1
+    assert f.commander.set_mode(Mode.HOLD)[0] and f.commander.arm()[0] and f.cm[cmd.NO_POSITION] == 0.0
