@@ -63,8 +63,8 @@ class Missions:
         self.now = math.nan  # [s] simulated: the tick the executor last stepped at
         self.reached: list[tuple[int, float]] = []
         """(seq, simulated time [s] of the tick after which it was reached) of each MISSION_ITEM_REACHED since the
-        stored mission was replaced: the mission document carries them (a ground station's record, exact on any
-        machine, where MISSION_ITEM_REACHED arrives when it arrives)."""
+        vehicle last armed or the stored mission was replaced: the mission document carries them (a ground station's
+        record, exact on any machine, where MISSION_ITEM_REACHED arrives when it arrives)."""
         self.flying = False
         """The executor is in charge (in MISSION, or in its own LAND/RTL): :meth:`step` it every control tick. A
         plain attribute: the process reads it after every tick."""
@@ -127,7 +127,9 @@ class Missions:
         return True, "", said + self._events(ex)
 
     def armed(self, c: Commander, now: float) -> list[mp.Out]:
-        """The vehicle just armed: in AUTO.MISSION, the mission starts (its messages)."""
+        """The vehicle just armed: a new flight, whose items reached the mission document lists from none (a mission
+        flown again and again never makes it longer); in AUTO.MISSION, the mission starts (its messages)."""
+        self.reached = []
         if c.mode != Mode.MISSION:
             return []
         ok, reason, outs = self.start(c, now)

@@ -29,8 +29,8 @@ item or its state changes and once a second (so a subscriber that joins late has
 started, 3 active, 4 paused, 5 complete); each item's ``x``, ``y`` (local NED [m], x north, y east of the
 origin) and ``altitude`` [m] are where the item flies, null where it has no place of its own (a takeoff or
 landing where the vehicle is, a delay, a speed change; a return to launch has home's x, y). ``reached`` lists each
-MISSION_ITEM_REACHED since the stored mission was replaced, in order: the item and the simulated time [s] of the tick
-after which it was reached (absent in documents of older autopilots: an empty list).
+MISSION_ITEM_REACHED since the vehicle last armed (or the stored mission was replaced), in order: the item and the
+simulated time [s] of the tick after which it was reached (absent in documents of older autopilots: an empty list).
 :func:`encode_mission` and :func:`decode_mission` write and check it.
 
 Versions: v3 added x_ref and y_ref to the setpoint record (v2's was ``<Qd4d``); the other streams' records
