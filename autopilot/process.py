@@ -593,12 +593,11 @@ class Autopilot:
 
 # A sensor the estimator lost (kernel.ESTIMATE_*_LOST), and heard again: what the ground stations are told.
 SENSOR_NEWS = (
-    (kernel.ESTIMATE_GPS_LOST, "GPS lost: position and velocity from the IMU alone"),
-    (kernel.ESTIMATE_BARO_LOST, "Barometer lost: altitude from the GPS"),
-    (kernel.ESTIMATE_MAG_LOST, "Compass lost: heading from the gyro"),
-    (kernel.ESTIMATE_IMU_LOST, "IMU lost: attitude from its last samples"),
+    (kernel.ESTIMATE_GPS_LOST, "GPS lost: position and velocity from the IMU alone", "GPS regained"),
+    (kernel.ESTIMATE_BARO_LOST, "Barometer lost: altitude from the GPS", "Barometer regained"),
+    (kernel.ESTIMATE_MAG_LOST, "Compass lost: heading from the gyro", "Compass regained"),
+    (kernel.ESTIMATE_IMU_LOST, "IMU lost: attitude from its last samples", "IMU regained"),
 )
-SENSOR_NEWS = tuple((bit, lost, lost.split(" lost")[0] + " regained") for bit, lost in SENSOR_NEWS)
 LANDS = kernel.ESTIMATE_GPS_LOST | kernel.ESTIMATE_IMU_LOST  # losses that are the estimator failsafe, in the air
 
 
