@@ -92,7 +92,7 @@ CORRECTION = HISTORY  # hist's last row: the corrections applied since alignment
 # ---- the parameters (e) -----------------------------------------------------------------------------------
 (GYRO_NOISE, ACC_NOISE, GYRO_BIAS_NOISE, ACC_BIAS_NOISE, GPS_POS_NOISE, GPS_VEL_NOISE, GPS_VZ_NOISE, BARO_NOISE,
  MAG_NOISE, FIELD_N, FIELD_E, FIELD_D, GRAVITY, GATE, INIT_TILT, INIT_YAW, INIT_VEL, INIT_POS, INIT_ALT,
- INIT_GYRO_BIAS, INIT_ACC_BIAS, PARAM_SIZE) = range(22)  # fmt: skip
+ INIT_GYRO_BIAS, INIT_ACC_BIAS, PREDICT_PERIOD, PARAM_SIZE) = range(23)  # fmt: skip
 
 # ---- the integer bookkeeping (io) ---------------------------------------------------------------------------
 # ticks seen, alignment ticks, GPS delay [ticks], divergence limits [ticks], the flags, and per measurement group the
@@ -110,7 +110,21 @@ REFUSALS_TO_DIVERGE = 3  # one refused fix of a 1 Hz GPS is not a divergence
 LOST_INTERVALS = 3  # a sensor is lost after at least this many of its intervals without a measurement
 
 # ---- the accumulators of the alignment (acc) and the innovation test ratios (ratio) -------------------------
-A_ACCEL, A_MAG, A_BARO, A_N_IMU, A_N_MAG, A_N_BARO, A_BARO_REF, ACC_SIZE = 0, 3, 6, 7, 8, 9, 10, 11
+# then, once aligned, the samples since the covariance's last prediction: their delta angle [rad] and delta velocity
+# [m/s] (FRD, bias-corrected) and their time [s] (A_DANG..A_DT: _catch_up)
+A_ACCEL, A_MAG, A_BARO, A_N_IMU, A_N_MAG, A_N_BARO, A_BARO_REF, A_DANG, A_DVEL, A_DT, ACC_SIZE = (
+    0,
+    3,
+    6,
+    7,
+    8,
+    9,
+    10,
+    11,
+    14,
+    17,
+    18,
+)
 
 # ---- the measurements of a tick (z: Z_*) and which are new (flags: MAG_NEW, BARO_NEW, GPS_NEW) are laid out as
 # the plant link's decoder writes them (quadsitl.hil)
@@ -143,6 +157,7 @@ class EstimatorParams:
     init_alt_m: float = 0.2  # without a barometer sample during the alignment (else: the baro noise / √samples)
     init_gyro_bias_rad_s: float = 0.01
     init_accel_bias_m_s2: float = 0.05  # PX4's EKF2_ABIAS_INIT is 0.2; see docs/sensors.md
+    predict_period_s: float = 0.01  # EKF2_PREDICT_US: the covariance's prediction period (the state's: every sample)
 
 
 def parameter_array(e: EstimatorParams, field_ned: tuple[float, float, float], gravity: float) -> np.ndarray:
@@ -151,12 +166,13 @@ def parameter_array(e: EstimatorParams, field_ned: tuple[float, float, float], g
         [e.gyro_noise_rad_s_sqrt_hz, e.accel_noise_m_s2_sqrt_hz, e.gyro_bias_noise_rad_s2_sqrt_hz,
          e.accel_bias_noise_m_s3_sqrt_hz, e.gps_pos_noise_m, e.gps_vel_noise_m_s, e.gps_vz_noise_m_s, e.baro_noise_m,
          e.mag_noise_gauss, *field_ned, gravity, e.gate_sigma, e.init_tilt_rad, e.init_yaw_rad, e.init_vel_m_s,
-         e.init_pos_m, e.init_alt_m, e.init_gyro_bias_rad_s, e.init_accel_bias_m_s2],
+         e.init_pos_m, e.init_alt_m, e.init_gyro_bias_rad_s, e.init_accel_bias_m_s2,
+         e.predict_period_s - 1e-9],  # a period's worth of samples, however their intervals round
         dtype=np.float64,
     )  # fmt: skip
 
 
-@jit
+@jit(inline=True)
 def _quaternion(x: np.ndarray) -> tuple[float, float, float, float]:
     return (x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
 
@@ -214,11 +230,10 @@ def _f_times(tt: tuple, vt: tuple, vb: tuple, dt: float, u: np.ndarray, out: np.
         out[DBA + i] = 0.0 + u[DBA + i]
 
 
-@jit
-def predict(x: np.ndarray, P: np.ndarray, FP: np.ndarray, gyro: tuple, accel: tuple, dt: float,
-            e: np.ndarray) -> None:  # fmt: skip
-    """The strapdown prediction over ``dt`` [s] by the IMU sample (``gyro`` [rad/s], ``accel`` [m/s²], FRD), and the
-    covariance's (``FP``: (N + 2)×N scratch: F·P, then two rows of work)."""
+@jit(inline=True)
+def predict_state(x: np.ndarray, gyro: tuple, accel: tuple, dt: float, e: np.ndarray) -> tuple:
+    """The strapdown prediction of the nominal state over ``dt`` [s] by the IMU sample (``gyro`` [rad/s], ``accel``
+    [m/s²], FRD). Returns the bias-corrected rate ω and specific force f (FRD) it flew on."""
     q = _quaternion(x)
     w = (gyro[0] - x[X_BG], gyro[1] - x[X_BG + 1], gyro[2] - x[X_BG + 2])
     f = (accel[0] - x[X_BA], accel[1] - x[X_BA + 1], accel[2] - x[X_BA + 2])
@@ -230,6 +245,15 @@ def predict(x: np.ndarray, P: np.ndarray, FP: np.ndarray, gyro: tuple, accel: tu
     q = normalize_quaternion(quaternion_multiply(q, rotation_vector_to_quaternion(w[0] * dt, w[1] * dt, w[2] * dt)))
     for i in range(4):
         x[X_Q + i] = q[i]
+    return w, f
+
+
+@jit
+def predict_covariance(x: np.ndarray, P: np.ndarray, FP: np.ndarray, w: tuple, f: tuple, dt: float,
+                       e: np.ndarray) -> None:  # fmt: skip
+    """P = F·P·Fᵀ + Q·dt over ``dt`` [s] with F = I + A·dt linearised at the rate ``w`` and specific force ``f``
+    (bias-corrected, FRD) and the attitude now (``FP``: (N + 2)×N scratch: F·P, then two rows of work)."""
+    q = _quaternion(x)
     # F = I + A·dt (R the rotation after the attitude step: the same to first order), by its blocks:
     tt = (1.0, w[2] * dt, -w[1] * dt, -w[2] * dt, 1.0, w[0] * dt, w[1] * dt, -w[0] * dt, 1.0)  # I − [ω]×·dt
     c0 = body_to_ned(q, 0.0, f[2], -f[1])  # −R·[f]×·dt: column j of [f]× is f × e_j
@@ -259,6 +283,30 @@ def predict(x: np.ndarray, P: np.ndarray, FP: np.ndarray, gyro: tuple, accel: tu
         P[DV + i, DV + i] += e[ACC_NOISE] * e[ACC_NOISE] * dt
         P[DBG + i, DBG + i] += e[GYRO_BIAS_NOISE] * e[GYRO_BIAS_NOISE] * dt
         P[DBA + i, DBA + i] += e[ACC_BIAS_NOISE] * e[ACC_BIAS_NOISE] * dt
+
+
+@jit
+def predict(x: np.ndarray, P: np.ndarray, FP: np.ndarray, gyro: tuple, accel: tuple, dt: float,
+            e: np.ndarray) -> None:  # fmt: skip
+    """The state's and the covariance's prediction over ``dt`` [s] by one IMU sample (:func:`predict_state`, then
+    :func:`predict_covariance` on what it flew)."""
+    w, f = predict_state(x, gyro, accel, dt, e)
+    predict_covariance(x, P, FP, w, f, dt, e)
+
+
+@jit
+def _catch_up(x: np.ndarray, P: np.ndarray, FP: np.ndarray, acc: np.ndarray, e: np.ndarray) -> None:
+    """The covariance brought to now over the samples since its last prediction (acc[A_DT] [s]), linearised at
+    their mean rate and specific force (the delta angle and delta velocity over the interval), as EKF2 predicts
+    its covariance on the IMU's samples down-sampled to EKF2_PREDICT_US."""
+    dt = acc[A_DT]
+    if dt <= 0.0:
+        return
+    w = (acc[A_DANG] / dt, acc[A_DANG + 1] / dt, acc[A_DANG + 2] / dt)
+    f = (acc[A_DVEL] / dt, acc[A_DVEL + 1] / dt, acc[A_DVEL + 2] / dt)
+    predict_covariance(x, P, FP, w, f, dt, e)
+    for i in range(7):
+        acc[A_DANG + i] = 0.0
 
 
 @jit
@@ -324,7 +372,7 @@ def fuse(x: np.ndarray, P: np.ndarray, h: np.ndarray, y: float, r: float, gate: 
     return ratio
 
 
-@jit
+@jit(inline=True)
 def _fused(io: np.ndarray, group: int, ratio: float) -> None:
     """Bookkeeping of a measurement of ``group``: fused (all its components: the clock since the last fusion
     and the refusals in a row restart) or refused (the largest test ratio ``ratio`` above 1)."""
@@ -365,7 +413,7 @@ def _reset_axis(x: np.ndarray, P: np.ndarray, hist: np.ndarray, at: int, col: in
     P[col, col] = r
 
 
-@jit
+@jit(inline=True)
 def _interval(t_usec: int, period: float, io: np.ndarray) -> int:
     """The IMU sample stamped ``t_usec`` [µs]: how many control periods since the last one (1, or more when
     datagrams were lost: counted in io[IMU_GAPS]; 1 for the first, or after a jump of the clock back or by more
@@ -383,7 +431,7 @@ def _interval(t_usec: int, period: float, io: np.ndarray) -> int:
     return steps
 
 
-@jit
+@jit(inline=True)
 def estimator_tick(flags: int, z: np.ndarray, t_usec: int, period: float, p0: tuple, x: np.ndarray, P: np.ndarray,
                    hist: np.ndarray, io: np.ndarray, acc: np.ndarray, e: np.ndarray, ratio: np.ndarray,
                    scratch: np.ndarray, out: np.ndarray) -> None:  # fmt: skip
@@ -422,7 +470,14 @@ def estimator_tick(flags: int, z: np.ndarray, t_usec: int, period: float, p0: tu
         return
     FP = scratch[: N + 2, :]
     h, pht, dx = scratch[N + 2, :], scratch[N + 3, :], scratch[N + 4, :]
-    predict(x, P, FP, gyro, (z[Z_ACCEL], z[Z_ACCEL + 1], z[Z_ACCEL + 2]), dt, e)
+    w, f = predict_state(x, gyro, (z[Z_ACCEL], z[Z_ACCEL + 1], z[Z_ACCEL + 2]), dt, e)
+    for i in range(3):
+        acc[A_DANG + i] += w[i] * dt
+        acc[A_DVEL + i] += f[i] * dt
+    acc[A_DT] += dt
+    # The covariance at EKF2's rate (EKF2_PREDICT_US), and before any measurement is fused or reset against it.
+    if acc[A_DT] >= e[PREDICT_PERIOD] or flags & (BARO_NEW | MAG_NEW | GPS_NEW):
+        _catch_up(x, P, FP, acc, e)
     # This tick's estimate joins the history net of the corrections so far (hist[CORRECTION]): an estimate of the
     # history read back plus the corrections then is the estimate shifted by every correction applied since. The
     # history is kept by the clock's ticks: those of lost datagrams get this estimate too.

@@ -425,7 +425,7 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
     return _flags(io, tick) | _frames(tick, period, st, cm, mem, io, frames)
 
 
-@jit
+@jit(inline=True)
 def estimate(flags: int, t_usec: int, period: float, est: tuple, st: np.ndarray) -> int:
     """Sensor mode: the estimator's tick on the measurements decoded into its ``est`` arrays (``flags``: which came,
     :func:`quadsitl.hil.decode_sensors`; ``t_usec`` [µs]: their HIL_SENSOR's time), its estimate into ``st`` (the

@@ -14,6 +14,7 @@ x..r and the truth in x_true..r_true.
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -25,12 +26,13 @@ from autopilot import mission_protocol as mp
 from autopilot.control_params import MEM_PLUG_FAILED_TICK
 from autopilot.factory import make_controller
 from autopilot.missions import Missions
+from autopilot.setpoints import Frame
 from groundstation import mission_files, trajectories
 from groundstation.figures import write_figures, write_mission_figure, write_path_figure
 from groundstation.metrics import channel_outputs, estimate_rms, position_metrics, run_metrics
 from groundstation.mission_files import MISSION_DURATION, Mission
 from groundstation.setpoint_grid import grid_setpoints
-from groundstation.telemetry_csv import rows_from_arrays, write_csv
+from groundstation.telemetry_csv import TRUTH_COLUMNS, columns_from_arrays, write_csv
 from groundstation.vehicle import (
     R_FORCES,
     R_INPUTS,
@@ -47,6 +49,7 @@ from quadsitl.cli_util import UsageError
 from quadsitl.compiled_frames import euler_rates_to_body_rates
 from quadsitl.config import Preset
 from quadsitl.frames import PX4_HOME
+from quadsitl.state import Reference
 from sitl.plant import outside_what
 
 
@@ -176,6 +179,23 @@ class OfflineRun:
     files: list[Path] = field(default_factory=list)
 
 
+def grid_of(trajectory: str, path: Callable, reference: Reference, period: float, first: int,
+            ticks: int, frame: Frame) -> Setpoints:  # fmt: skip
+    """The setpoints of ``path`` (made from ``trajectory`` and ``reference``) on ``quadsitl fly``'s grid of ``ticks``
+    ticks of ``period`` [s] from tick ``first``, parsed in ``frame``. A named trajectory's are made once for the
+    same arguments (a sweep's trials share them; they are only read); a CSV file's each time (it may change)."""
+    if Path(trajectory).is_file():
+        return Setpoints.of(((first + g, sp) for g, sp in grid_setpoints(path, period, ticks)), frame)
+    return _named_grid(trajectory, reference, period, first, ticks, frame)
+
+
+@functools.lru_cache(maxsize=8)
+def _named_grid(trajectory: str, reference: Reference, period: float, first: int, ticks: int,
+                frame: Frame) -> Setpoints:  # fmt: skip
+    path = trajectories.make(trajectory, reference)
+    return Setpoints.of(((first + g, sp) for g, sp in grid_setpoints(path, period, ticks)), frame)
+
+
 def run_offline(
     preset: Preset,
     controllers: Sequence[str],
@@ -189,6 +209,7 @@ def run_offline(
     mission: Mission | None = None,
     home: tuple[float, float, float] = PX4_HOME,
     controller_values: dict[str, float] | None = None,
+    metrics: bool = True,
 ) -> tuple[dict[str, SimResult], dict[str, dict]]:
     """Fly each controller on a fresh vehicle, on the setpoints of ``trajectory`` (:func:`groundstation.trajectories.
     make`; ``step``: the preset's reference, the paper's experiment) made on ``quadsitl fly``'s grid
@@ -198,7 +219,8 @@ def run_offline(
     checked: with a position trajectory or a mission, the position loop's too) and every setpoint checked by the
     autopilot's parser before any flight starts, so bad input fails fast.
 
-    ``controller_values``: the first controller's parameters, when it plugs in (:mod:`autopilot.plugin`).
+    ``controller_values``: the first controller's parameters, when it plugs in (:mod:`autopilot.plugin`). Without
+    ``metrics`` the runs' metrics are not computed (a sweep takes its own from the telemetry): {} instead.
 
     ``progress``, when given, is called now and then with the simulated seconds done so far over all
     the runs: it reaches ``len(controllers) × duration`` at the end."""
@@ -214,8 +236,8 @@ def run_offline(
         or preset.sim.duration
     )
     period, first = preset.sim.period, ground_ticks(preset)
-    moments = ((first + g, sp) for g, sp in grid_setpoints(path, period, round(duration / period)))
-    results, metrics = {}, {}
+    ticks = round(duration / period)
+    results, found = {}, {}
     for i, (kind, controller) in enumerate(built.items()):
         vehicle = Vehicle(preset, controller.kind, controller.v, controller.c, integrator, substeps, home,
                           controller.plug)  # fmt: skip
@@ -224,28 +246,35 @@ def run_offline(
             res = fly_mission(vehicle, mission, duration, done)
         else:
             if i == 0:
-                setpoints = Setpoints.of(moments, vehicle.frame())
+                setpoints = grid_of(trajectory, path, preset.reference, period, first, ticks, vehicle.frame())
             res = fly_offline(vehicle, setpoints, duration, done)
         results[kind] = res
         flown = len(res.t) > 0  # a run that diverged at its first tick flew nothing: no metrics (None)
-        metrics[kind] = run_metrics(res.t, channel_outputs(res.state), res.reference, res.inputs) if flown else None
-    return results, metrics
+        if metrics:
+            found[kind] = run_metrics(res.t, channel_outputs(res.state), res.reference, res.inputs) if flown else None
+    return results, found
 
 
-def telemetry_rows(res: SimResult, rates: bool = True) -> np.ndarray:
-    """The run's rows of telemetry.csv (telemetry_csv.COLUMNS; in sensor mode the estimate flown in x..r, the truth
-    after, telemetry_csv.TRUTH_COLUMNS), as ``quadsitl fly``'s. Without ``rates`` the body rates p, q, r are NaN
-    (a sweep's metrics do not read them, and they cost one call per row: docs/performance.md#a-flights-files)."""
+def telemetry_columns(res: SimResult, rates: bool = True) -> dict[str, np.ndarray]:
+    """The run's telemetry.csv as {column: values} (telemetry_csv.COLUMNS; in sensor mode the estimate flown in
+    x..r, the truth after, telemetry_csv.TRUTH_COLUMNS), as ``quadsitl fly``'s. Without ``rates`` the body rates p,
+    q, r are NaN (a sweep's metrics do not read them, and they cost one call per row:
+    docs/performance.md#a-flights-files)."""
 
     def body(state: np.ndarray) -> np.ndarray:
         return res.body_rates(state) if rates else np.full((len(state), 3), np.nan)
 
-    if res.estimate is None:
-        return rows_from_arrays(res.t, res.state, body(res.state), res.reference, res.inputs, res.forces,
-                                res.position_reference)  # fmt: skip
-    rows = rows_from_arrays(res.t, res.estimate, body(res.estimate), res.reference, res.inputs, res.forces,
-                            res.position_reference)  # fmt: skip
-    return np.column_stack([rows, res.state[:, :9], body(res.state)])
+    seen = res.state if res.estimate is None else res.estimate
+    columns = columns_from_arrays(res.t, seen, body(seen), res.reference, res.inputs, res.forces,
+                                  res.position_reference)  # fmt: skip
+    if res.estimate is not None:
+        columns.update(zip(TRUTH_COLUMNS, [*res.state[:, :9].T, *body(res.state).T], strict=True))
+    return columns
+
+
+def telemetry_rows(res: SimResult, rates: bool = True) -> np.ndarray:
+    """The run's rows of telemetry.csv (:func:`telemetry_columns`, in their order)."""
+    return np.column_stack(list(telemetry_columns(res, rates).values()))
 
 
 def tracking(results: dict[str, SimResult]) -> dict[str, dict]:

@@ -27,6 +27,24 @@ COLUMNS = (
 TRUTH_COLUMNS = tuple(f"{c}_true" for c in ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"))
 
 
+def columns_from_arrays(
+    t: np.ndarray,
+    state: np.ndarray,
+    body_rates: np.ndarray,
+    reference: np.ndarray,
+    inputs: np.ndarray,
+    forces: np.ndarray,
+    position_reference: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """{column: values} for :data:`COLUMNS` (views of the arrays where they can be). ``reference``: (N, 4)
+    altitude, roll, pitch, yaw references; ``position_reference``: (N, 2) x_ref, y_ref [m, NED], or None: not
+    controlled (NaN)."""
+    xy_ref = np.full((len(t), 2), np.nan) if position_reference is None else position_reference
+    parts = [t, state[:, 0], state[:, 1], state[:, 2], -state[:, 2], *(state[:, i] for i in range(3, 9)),
+             *body_rates.T, *reference.T, *xy_ref.T, *inputs.T, *forces.T]  # fmt: skip
+    return dict(zip(COLUMNS, parts, strict=True))
+
+
 def rows_from_arrays(
     t: np.ndarray,
     state: np.ndarray,
@@ -36,12 +54,15 @@ def rows_from_arrays(
     forces: np.ndarray,
     position_reference: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(N, len(COLUMNS)) array in column order. ``reference``: (N, 4) altitude, roll, pitch, yaw references;
-    ``position_reference``: (N, 2) x_ref, y_ref [m, NED], or None: not controlled (NaN)."""
-    xy_ref = np.full((len(t), 2), np.nan) if position_reference is None else position_reference
-    return np.column_stack(
-        [t, state[:, 0:3], -state[:, 2], state[:, 3:6], state[:, 6:9], body_rates, reference, xy_ref, inputs, forces]
-    )
+    """(N, len(COLUMNS)) array in column order (:func:`columns_from_arrays`)."""
+    columns = columns_from_arrays(t, state, body_rates, reference, inputs, forces, position_reference)
+    return np.column_stack(list(columns.values()))
+
+
+def columns_of(rows: np.ndarray) -> dict[str, np.ndarray]:
+    """{column: values} of telemetry rows (:data:`COLUMNS`, then :data:`TRUTH_COLUMNS` when they have them)."""
+    names = COLUMNS + TRUTH_COLUMNS if rows.ndim == 2 and rows.shape[1] > len(COLUMNS) else COLUMNS
+    return {name: rows[:, i] for i, name in enumerate(names)}
 
 
 def write_csv(path: Path, rows: np.ndarray) -> None:

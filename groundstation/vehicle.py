@@ -213,7 +213,13 @@ class Setpoints:
         scratch = Commander()
         ticks, values = [], []
         nan = math.nan
+        previous, row = None, None
         for tick, sp in moments:
+            if row is not None and sp == previous:  # the same setpoint parses the same: a hold is parsed once
+                ticks.append(tick)
+                values.append(row)
+                continue
+            previous = sp
             if isinstance(sp, Reference):
                 scratch.on_attitude_setpoint(sp.roll, sp.pitch, sp.yaw)
                 scratch.on_altitude_setpoint(sp.altitude)
@@ -225,8 +231,9 @@ class Setpoints:
                 except setpoints.SetpointError as exc:
                     raise setpoints.SetpointError(f"the setpoint for tick {tick}: {exc}") from None
                 scratch.on_position_setpoint(*groups)
+            row = scratch.cm[cmd.SETPOINT_FIRST : cmd.SETPOINT_END].copy()
             ticks.append(tick)
-            values.append(scratch.cm[cmd.SETPOINT_FIRST : cmd.SETPOINT_END].copy())
+            values.append(row)
         return cls(np.array(ticks, dtype=np.int64), np.array(values).reshape(-1, SP_FIELDS))
 
 
@@ -251,7 +258,7 @@ class Vehicle:
         self.sensing = preset.sensors is not None
         p = self.plant
         pio = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
-        pio[plant_tick.SENSING] = 1 if self.sensing else 0
+        pio[plant_tick.SENSING] = plant_tick.SENSORS_ONLY if self.sensing else 0  # the rows take the truth from x
         self.plant_arrays = (p.work, p.v, p.a, p.air_rng, pio, np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8))
         self.commander = commander_for(preset.position)
         self.st = np.zeros(codec.DECODED_SIZE)

@@ -175,7 +175,7 @@ def encode_truth(buf: np.ndarray, seq: int, system: int, component: int, time_us
     return finish_frame(buf, TRUTH_SIZE, seq, system, component, TRUTH_ID, TRUTH_CRC_EXTRA)
 
 
-@jit
+@jit(inline=True)
 def take_frame(buf: np.ndarray, at: int, length: int, frame: np.ndarray) -> tuple[int, int]:
     """The MAVLink 2 frame at buf[at:length], when it is an unsigned HIL_SENSOR, HIL_GPS or HIL_STATE_QUATERNION
     with a good CRC: its header and payload copied into ``frame`` (FRAME_MAX), the payload zero-padded to the
@@ -213,7 +213,7 @@ def _finite3(a: float, b: float, c: float) -> bool:
     return math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
 
 
-@jit
+@jit(inline=True)
 def decode_sensors(buf: np.ndarray, length: int, home: tuple, z: np.ndarray, truth: np.ndarray,
                    frame: np.ndarray) -> tuple[int, int, int]:  # fmt: skip
     """A sensor datagram in buf[:length] (a HIL_SENSOR, then a HIL_GPS when a fix is delivered, and the

@@ -10,7 +10,8 @@ on any machine.
 The generator is xoshiro128** (Blackman & Vigna, "Scrambled linear pseudorandom number generators", ACM
 Transactions on Mathematical Software 47(4), 2021): 128 bits of state, period 2¹²⁸ − 1, 32-bit outputs. The
 words are held in int64 and masked to 32 bits, so no operation overflows in either runtime. Uniform deviates
-take 53 bits from two outputs; normal deviates come from the Box–Muller transform (Box & Muller, 1958).
+take 53 bits from two outputs; normal deviates come from the Box–Muller transform (Box & Muller, 1958), one of a
+pair or both.
 A seed becomes the streams' states through numpy's ``SeedSequence`` (one child per stream), so nearby seeds
 give unrelated streams.
 """
@@ -72,6 +73,16 @@ def normal(s: np.ndarray, i: int) -> float:
     u1 = 1.0 - uniform(s, i)  # in (0, 1]: the logarithm is finite
     u2 = uniform(s, i)
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@jit
+def normal_pair(s: np.ndarray, i: int) -> tuple[float, float]:
+    """Two independent standard normal deviates from stream ``i``: both of a Box–Muller pair (the first is
+    :func:`normal`'s), for half the logarithms and uniforms where a sample needs two."""
+    u1 = 1.0 - uniform(s, i)
+    u2 = uniform(s, i)
+    r = math.sqrt(-2.0 * math.log(u1))
+    return r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
 
 
 @jit

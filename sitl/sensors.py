@@ -34,7 +34,7 @@ from quadsitl.earth import ZERO_CELSIUS, isa_altitude, isa_pressure, isa_tempera
 from quadsitl.frames import PX4_HOME
 from quadsitl.hil import ACCEL_UPDATED, BARO_UPDATED, GYRO_UPDATED, MAG_UPDATED  # HIL_SENSOR.fields_updated
 from quadsitl.jit import jit
-from sitl.noise import gauss_markov_coefficients, normal, seed_streams
+from sitl.noise import gauss_markov_coefficients, normal, normal_pair, seed_streams
 
 # ---- the parameter array (sensor_array) -----------------------------------------------------------------
 # The noise processes' steps (φ, k: sitl.noise.gauss_markov_coefficients) come last: each sensor's samples are a
@@ -129,7 +129,7 @@ def specific_force(q: tuple, accel: tuple, gravity: float) -> tuple[float, float
     return ned_to_body(q, accel[0], accel[1], accel[2] - gravity)
 
 
-@jit
+@jit(inline=True)
 def imu(s: tuple, accel: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, dt: float, out: np.ndarray) -> None:
     """The accelerometer and gyroscope of state ``s`` (VehicleState order) accelerating at ``accel`` [m/s², NED],
     one sample after ``dt`` [s], into ``out``."""
@@ -137,12 +137,14 @@ def imu(s: tuple, accel: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray
     f = specific_force(q, accel, p[GRAVITY])
     w = euler_rates_to_body_rates(s[6], s[7], s[9], s[10], s[11])  # eq (1)
     root = 1.0 / math.sqrt(dt)
+    for i in range(3):  # each axis: its bias's step and its white noise, one Box–Muller pair
+        walk, white = normal_pair(rng, IMU)
+        bias[B_GYRO + i] = _step(bias[B_GYRO + i], p, GYRO_STEP, walk)
+        out[OUT_GYRO + i] = w[i] + bias[B_GYRO + i] + p[GYRO_ND] * root * white
     for i in range(3):
-        bias[B_GYRO + i] = _step(bias[B_GYRO + i], p, GYRO_STEP, normal(rng, IMU))
-        out[OUT_GYRO + i] = w[i] + bias[B_GYRO + i] + p[GYRO_ND] * root * normal(rng, IMU)
-    for i in range(3):
-        bias[B_ACC + i] = _step(bias[B_ACC + i], p, ACC_STEP, normal(rng, IMU))
-        out[OUT_ACCEL + i] = f[i] + bias[B_ACC + i] + p[ACC_ND] * root * normal(rng, IMU)
+        walk, white = normal_pair(rng, IMU)
+        bias[B_ACC + i] = _step(bias[B_ACC + i], p, ACC_STEP, walk)
+        out[OUT_ACCEL + i] = f[i] + bias[B_ACC + i] + p[ACC_ND] * root * white
 
 
 @jit
@@ -151,11 +153,12 @@ def magnetometer(s: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, dt:
     m = ned_to_body(euler_to_quaternion(s[6], s[7], s[8]), p[MAG_N], p[MAG_E], p[MAG_D])
     root = 1.0 / math.sqrt(dt)
     for i in range(3):
-        bias[B_MAG + i] = _step(bias[B_MAG + i], p, MAG_STEP, normal(rng, MAG))
-        out[OUT_MAG + i] = m[i] + bias[B_MAG + i] + p[MAG_ND] * root * normal(rng, MAG)
+        walk, white = normal_pair(rng, MAG)
+        bias[B_MAG + i] = _step(bias[B_MAG + i], p, MAG_STEP, walk)
+        out[OUT_MAG + i] = m[i] + bias[B_MAG + i] + p[MAG_ND] * root * white
 
 
-@jit
+@jit(inline=True)
 def barometer(s: tuple, p: np.ndarray, rng: np.ndarray, out: np.ndarray) -> None:
     """The barometer of state ``s`` into ``out``: absolute pressure [hPa], its pressure altitude [m AMSL],
     temperature [°C] (ISA at the true altitude)."""
@@ -180,7 +183,7 @@ def gps_measure(s: tuple, p: np.ndarray, rng: np.ndarray, bias: np.ndarray, row:
     row[Q_VEL + 2] = s[5] + p[GPS_VZ] * normal(rng, GPS)
 
 
-@jit
+@jit(inline=True)
 def sensors_tick(t_us: int, s: tuple, accel: tuple, dt: float, p: np.ndarray, rng: np.ndarray, bias: np.ndarray,
                  clock: np.ndarray, queue: np.ndarray, out: np.ndarray) -> int:  # fmt: skip
     """Every sensor due at time ``t_us`` [µs] for state ``s`` (VehicleState order) with true acceleration

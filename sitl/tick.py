@@ -3,7 +3,8 @@ integrate one period, and encode the next tick's datagram, in one call from the 
 (:func:`sitl.lockstep.run_lockstep`).
 
 The datagram is the state as ODOMETRY, or in sensor mode (io[SENSING]) what the vehicle's sensors measure of it
-(:mod:`quadsitl.hil`: HIL_SENSOR, HIL_GPS when a fix is delivered, and HIL_STATE_QUATERNION, the truth).
+(:mod:`quadsitl.hil`: HIL_SENSOR, HIL_GPS when a fix is delivered, and HIL_STATE_QUATERNION, the truth, unless
+io[SENSING] is SENSORS_ONLY).
 ``sens`` is :attr:`sitl.sensors.Sensors.arrays` (any sensors' arrays in truth mode: they are not touched)."""
 
 from __future__ import annotations
@@ -33,9 +34,12 @@ from sitl.plant import OUT_MEAN_ACCEL, OUT_ON_GROUND, inside, step_arrays
 # HELD: the answer to the hold tick, disarmed (io[HOLD_TICK]), or one saying disarmed with the vehicle on the ground
 # after a flight (io[HOLD_LANDED]): the clock waits.
 STEPPED, FUTURE, NOTHING, ANOTHER_FRAME, DIVERGED, HELD = 0, 1, 2, 3, 4, 5
+# io[SENSING]: the state as ODOMETRY (0), or the sensors' measurements and the truth for the autopilot's telemetry
+# (SENSORS), or the measurements alone (SENSORS_ONLY: quadsitl sim, which records the plant's state itself).
+SENSORS, SENSORS_ONLY = 1, 2
 
 
-@jit
+@jit(inline=True)
 def encode_sensors(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray, sens: tuple,
                    tick: int, period: float) -> None:  # fmt: skip
     """Tick ``tick``'s sensor datagram into ``tx``: the sensors sample the state ``x`` once (:func:`sitl.sensors.
@@ -60,6 +64,9 @@ def encode_sensors(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarra
                         (so[sn.OUT_GPS_POS], so[sn.OUT_GPS_POS + 1], so[sn.OUT_GPS_POS + 2]),
                         (so[sn.OUT_GPS_VEL], so[sn.OUT_GPS_VEL + 1], so[sn.OUT_GPS_VEL + 2]), home, p[sn.GPS_XY],
                         p[sn.GPS_Z], int(p[sn.SATELLITES]))  # fmt: skip
+    if io[SENSING] == SENSORS_ONLY:
+        io[TX_LEN] = n
+        return
     f = sn.specific_force(euler_to_quaternion(s[6], s[7], s[8]), acc, p[sn.GRAVITY])
     airspeed = math.sqrt((s[3] - d[0]) ** 2 + (s[4] - d[1]) ** 2 + (s[5] - d[2]) ** 2)
     io[SEQ] = (io[SEQ] + 1) & 0xFF
@@ -67,7 +74,7 @@ def encode_sensors(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarra
     io[TX_LEN] = n
 
 
-@jit
+@jit(inline=True)
 def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray, sens: tuple,
                 tick: int, period: float) -> None:  # fmt: skip
     """Tick ``tick``'s datagram into ``tx``: the state ``x`` stamped with the tick's simulated time as ODOMETRY, or

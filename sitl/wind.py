@@ -36,12 +36,13 @@ import numpy as np
 
 from quadsitl.config import TURBULENCE_W20_KNOTS, WindParams
 from quadsitl.jit import jit
-from sitl.noise import gauss_markov, normal, seed_streams
+from sitl.noise import gauss_markov, normal, normal_pair, seed_streams
 
 KNOT = 0.514444  # m/s
 FOOT = 0.3048  # m
 MIN_AIRSPEED = 1.0  # m/s: the filters' V is at least this (their time constants L/V stay finite when calm)
 SQRT3 = math.sqrt(3.0)
+HALF_ULP = 2.0**-54  # x·HALF_ULP is below half the spacing of doubles at x
 
 # The parameter array's layout (wind_params); the external force last
 MEAN_N, MEAN_E, W20, GUST_A, GUST_RISE, GUST_START, GUST_N, GUST_E, U_N, U_E, FORCE = range(11)
@@ -89,7 +90,11 @@ def gamma_lower(n: int, x: float) -> float:
     if x < 1.0:
         total, term, k = 0.0, 1.0, 0  # xⁿ·Σ (−x)ᵏ/(k!·(k + n))
         while k < 30:
-            total += term / (k + n)
+            step = term / (k + n)
+            # Below half an ulp of the sum, this term and every later one (smaller, alternating) leave it as it is.
+            if abs(step) < total * HALF_ULP:
+                break
+            total += step
             k += 1
             term *= -x / k
         return x**n * total
@@ -113,7 +118,7 @@ def dryden_second_order(x: np.ndarray, i: int, rng: np.ndarray, a: float, sigma:
     l11 = math.sqrt(q11)
     l21 = q12 / l11
     l22 = math.sqrt(max(q22 - l21 * l21, 0.0))
-    n1, n2 = normal(rng, 0), normal(rng, 0)
+    n1, n2 = normal_pair(rng, 0)
     decay = math.exp(-a * h)
     x1 = decay * (x[i] + h * x[i + 1]) + l11 * n1
     x2 = decay * x[i + 1] + l21 * n1 + l22 * n2

@@ -299,3 +299,39 @@ def test_the_covariance_prediction_is_the_dense_f_p_ft_plus_q():
         expected = F @ P0 @ F.T + Q
         assert np.allclose(P, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
         assert np.array_equal(P, P.T)
+
+
+def test_the_covariance_is_predicted_every_10_ms_and_before_each_fusion():
+    """As EKF2 (EKF2_PREDICT_US): the state every IMU sample, the covariance over the samples since its last
+    prediction, at their mean rate and specific force, every 10 ms and before any measurement is fused."""
+    from autopilot import estimator as ekf
+    from quadsitl.hil import IMU_NEW, Z_ACCEL, Z_GYRO, Z_MAG
+
+    est = Estimator(0.001, 9.81, (0.2, 0.0, 0.4))
+    est.z[Z_ACCEL : Z_ACCEL + 3] = (0.0, 0.0, -9.81)
+    est.z[Z_MAG : Z_MAG + 3] = (0.2, 0.0, 0.4)
+    for _ in range(1000):
+        est.tick(IMU_NEW | MAG_NEW)
+    assert est.aligned
+    est.tick(IMU_NEW | MAG_NEW)  # a fusion: the covariance is up to now
+    assert est.acc[ekf.A_DT] == 0.0
+    gyro, accel = (0.1, -0.05, 0.2), (0.3, 0.1, -9.7)
+    est.z[Z_GYRO : Z_GYRO + 3], est.z[Z_ACCEL : Z_ACCEL + 3] = gyro, accel
+    P0, x0 = est.P.copy(), est.x.copy()
+    for _ in range(9):
+        est.tick(IMU_NEW)
+        assert np.array_equal(est.P, P0)  # under 10 ms and nothing fused: the covariance waits
+    assert not np.array_equal(est.x, x0)  # the state does not
+    est.tick(IMU_NEW)
+    assert est.acc[ekf.A_DT] == 0.0
+    w = tuple(np.subtract(gyro, x0[ekf.X_BG : ekf.X_BG + 3]))
+    f = tuple(np.subtract(accel, x0[ekf.X_BA : ekf.X_BA + 3]))
+    want = P0.copy()
+    ekf.predict_covariance(est.x, want, np.zeros((ekf.N + 2, ekf.N)), w, f, 0.01, est.e)
+    assert np.allclose(est.P, want, rtol=1e-12, atol=1e-15)
+    for _ in range(3):
+        est.tick(IMU_NEW)
+    assert est.acc[ekf.A_DT] > 0.0
+    P1 = est.P.copy()
+    est.tick(IMU_NEW | MAG_NEW)  # 4 ms on: predicted to now, then fused
+    assert est.acc[ekf.A_DT] == 0.0 and not np.array_equal(est.P, P1)

@@ -322,3 +322,43 @@ def test_up_on_sensors_arms_once_aligned_takes_off_on_the_estimate_and_publishes
         finally:
             session.close()
             c.close()
+
+
+def payloads(datagram: np.ndarray) -> list[tuple[int, bytes]]:
+    """Each MAVLink 2 frame's (message id, payload)."""
+    out, at = [], 0
+    while at < len(datagram):
+        n = int(datagram[at + 1])
+        msg_id = int(datagram[at + 7]) | int(datagram[at + 8]) << 8 | int(datagram[at + 9]) << 16
+        out.append((msg_id, datagram[at + 10 : at + 10 + n].tobytes()))
+        at += 12 + n
+    return out
+
+
+def test_sim_s_datagram_is_the_plants_without_the_truth():
+    """SENSORS_ONLY (quadsitl sim, which records the plant's state itself): the same HIL_SENSOR and HIL_GPS frames,
+    byte for byte, as the plant process sends, without the HIL_STATE_QUATERNION; the autopilot decodes the same
+    measurements from it, and no truth."""
+    preset = dataclasses.replace(X500, sensors=SensorParams())
+    plants = [Plant(preset), Plant(preset)]
+    ios = [np.zeros(plant_tick.IO_SIZE, dtype=np.int64) for _ in plants]
+    ios[0][plant_tick.SENSING], ios[1][plant_tick.SENSING] = plant_tick.SENSORS, plant_tick.SENSORS_ONLY
+    txs = [np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8) for _ in plants]
+    home = frames.PX4_HOME
+    gps = 0
+    for k in range(300):
+        decoded = []
+        for plant, io, tx in zip(plants, ios, txs):
+            plant_tick.encode_tick(tx, io, plant.x, plant.out, plant.air, plant.sensors.arrays, k, plant.period)
+            z, truth = np.zeros(hil.Z_SIZE), np.zeros(codec.DECODED_SIZE)
+            frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+            decoded.append((hil.decode_sensors(tx, io[plant_tick.TX_LEN], home, z, truth, frame), z, truth))
+            plant.step((5.0, 5.0, 5.0, 5.0))
+        (full, z_full, truth_full), (only, z_only, truth_only) = decoded
+        n = ios[1][plant_tick.TX_LEN]
+        assert ios[0][plant_tick.TX_LEN] > n
+        assert payloads(txs[0][:n]) == payloads(txs[1][:n])  # the same frames, the sequence numbers aside
+        assert full == only and np.array_equal(z_full, z_only)
+        assert np.isfinite(truth_full[:12]).all() and np.isnan(truth_only).all()
+        gps += bool(full[1] & hil.GPS_NEW)
+    assert gps >= 2  # fixes were in it too

@@ -310,3 +310,19 @@ def test_compiled_and_plain_python_give_the_same_samples_bit_for_bit():
 
     compiled, plain = outputs(_SAMPLES)
     assert len(compiled) == 1500 * 20 * 16 and compiled == plain
+
+
+def test_a_box_muller_pair_is_two_independent_standard_normals():
+    """normal_pair: both deviates of a Box–Muller pair (the first is normal's from the same state), each standard
+    normal, and uncorrelated, over 200,000 pairs."""
+    from sitl.noise import normal, normal_pair, seed_streams
+
+    s = seed_streams(7, 1)
+    first = normal(s.copy(), 0)
+    assert normal_pair(s.copy(), 0)[0] == first
+    pairs = np.array([normal_pair(s, 0) for _ in range(200_000)])
+    assert np.abs(pairs.mean(axis=0)).max() < 0.01  # σ/√n = 0.0022
+    assert np.abs(pairs.std(axis=0) - 1.0).max() < 0.01
+    assert abs(np.corrcoef(pairs.T)[0, 1]) < 0.01
+    # the tails of a normal: |x| > 3 for 0.27 % of samples
+    assert 0.0022 < np.mean(np.abs(pairs) > 3.0) < 0.0032

@@ -153,3 +153,21 @@ def test_the_batch_engine_equals_the_sitl_engine_trial_by_trial_on_the_shipped_s
     for column in engine.POSITION_METRICS:
         assert np.allclose(batch[column], sitl[column], rtol=0.0, atol=quantum), (column, batch[column], sitl[column])
     assert np.allclose(batch["saturation_time"], sitl["saturation_time"], atol=0.01)
+
+
+def test_a_trials_row_is_the_same_from_the_telemetry_rows_and_from_its_columns():
+    """The sweep takes a trial's row from its telemetry's columns (groundstation.offline.telemetry_columns), without
+    stacking them into rows: the same row as from telemetry.csv's rows, on sensors, a step and a mission."""
+    from groundstation.offline import telemetry_columns, telemetry_rows
+
+    for name in ("x500-wind-hold", "x500-mission-mismatch", "paper-mass-mismatch"):
+        spec = load_spec(name)
+        preset = trial_preset(spec, 1)
+        sims, _ = run_offline(preset, [spec.controller], 3.0 if spec.mission is None else None,
+                              trajectory=spec.trajectory or "step", mission=spec.mission, metrics=False)  # fmt: skip
+        sim = sims[spec.controller]
+        mission = spec.mission is not None
+        by_rows = metrics_row(telemetry_rows(sim, rates=False), preset, spec.period, sim.diverged_at, mission)
+        by_columns = metrics_row(telemetry_columns(sim, rates=False), preset, spec.period, sim.diverged_at, mission)
+        assert np.array_equal(by_rows, by_columns, equal_nan=True), name
+        assert np.isfinite(by_columns[engine.M_HORIZONTAL_RMS]) == (spec.trajectory is not None or mission)

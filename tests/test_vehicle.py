@@ -205,3 +205,21 @@ def test_a_disarmed_vehicle_records_no_command_and_starts_its_integrators_afresh
     rows, flown = v.fly(3)
     assert flown == 3 and not rows[:, R_INPUTS : R_FORCES + 4].any()
     assert not v.mem[MEM_U : MEM_FORCES + 4].any() and not v.mem[MEM_ZETA : MEM_ZETA + 3].any()
+
+
+def test_a_named_trajectorys_setpoints_are_made_once_a_csv_files_each_time(tmp_path):
+    """The setpoints of a named trajectory are made and parsed once for the same preset and duration (a sweep's
+    trials share them); a CSV file's are read again each time, so an edited file flies as edited."""
+    from groundstation.offline import _named_grid
+
+    preset = load_preset("paper")
+    before = _named_grid.cache_info().hits
+    run_offline(preset, ["backstepping"], 0.5, trajectory="sine")
+    run_offline(preset, ["backstepping"], 0.5, trajectory="sine")
+    assert _named_grid.cache_info().hits == before + 1
+    path = tmp_path / "ref.csv"
+    path.write_text("t,altitude,roll,pitch,yaw\n0,1,0,0,0\n1,1,0,0,0\n")
+    first, _ = run_offline(preset, ["backstepping"], 0.5, trajectory=str(path))
+    path.write_text("t,altitude,roll,pitch,yaw\n0,2,0,0,0\n1,2,0,0,0\n")
+    second, _ = run_offline(preset, ["backstepping"], 0.5, trajectory=str(path))
+    assert first["backstepping"].reference[-1, 0] == 1.0 and second["backstepping"].reference[-1, 0] == 2.0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -109,7 +110,7 @@ def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> t
     ``quadsitl sim`` flies the trial's preset (:func:`groundstation.sweep.trials.trial_preset`), its row from its
     telemetry by the metrics' one definition (:mod:`groundstation.sweep.trial_row`), as the SITL engine's: (the
     metrics, engine.METRICS columns; the kept trajectories, engine.KEEP_SIZE columns)."""
-    from groundstation.offline import rows_of, run_offline, telemetry_rows
+    from groundstation.offline import rows_of, run_offline, telemetry_columns
 
     metrics = np.full((len(trials), engine.METRICS_SIZE), math.nan)
     kept: dict[int, np.ndarray] = {}
@@ -118,12 +119,12 @@ def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> t
             continue
         preset = trial_preset(spec, k)
         results, _ = run_offline(preset, [spec.controller], spec.duration, trajectory=spec.trajectory or "step",
-                                 mission=spec.mission)  # fmt: skip
+                                 mission=spec.mission, metrics=False)  # fmt: skip
         res = results[spec.controller]
         if res.mission is not None and res.mission.where:
             raise SweepError(f"sweep {spec.name!r}, trial {k}: {res.mission.where}")
         metrics[i] = metrics_row(
-            telemetry_rows(res, rates=False), preset, spec.period, res.diverged_at, spec.mission is not None
+            telemetry_columns(res, rates=False), preset, spec.period, res.diverged_at, spec.mission is not None
         )
         if k in spec.keep:
             kept[k] = rows_of(res)
@@ -212,6 +213,12 @@ class SweepError(RuntimeError):
     failed (:class:`groundstation.sweep.cluster.ClusterError`). One line; nothing is written."""
 
 
+def _worker_pid(seconds: float) -> int:
+    """A worker's process id, after ``seconds`` (so that one worker does not take every such task at once)."""
+    time.sleep(seconds)
+    return os.getpid()
+
+
 def run_sweep(
     spec: SweepSpec,
     workers: int = 1,
@@ -233,11 +240,13 @@ def run_sweep(
             done += len(part) * spec.duration
             if progress is not None:
                 progress(done)
+        wall = time.monotonic() - start
     else:
         with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"), initializer=warm_up,
                                  initargs=(spec,)) as pool:  # fmt: skip
-            for ready in [pool.submit(time.sleep, 0.2) for _ in range(processes)]:  # one each: all started, warm
-                ready.result()
+            ready: set[int] = set()  # every worker started and warm (a worker runs tasks once its warm-up is done)
+            while len(ready) < processes:
+                ready.update(f.result() for f in [pool.submit(_worker_pid, 0.05) for _ in range(processes)])
             start = time.monotonic()
             futures = [pool.submit(fly, spec, part) for part in parts]
             for fut, part in zip(futures, parts):
@@ -245,7 +254,8 @@ def run_sweep(
                 done += len(part) * spec.duration
                 if progress is not None:
                     progress(done)
-    return assemble(spec, results, time.monotonic() - start, {"cluster": None, "workers": processes})
+            wall = time.monotonic() - start  # the flights: not the workers' shutdown on leaving the pool
+    return assemble(spec, results, wall, {"cluster": None, "workers": processes})
 
 
 def assemble(

@@ -16,63 +16,63 @@ or wind) or a whole ``quadsitl fly`` (the SITL engine). Pure.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
 from groundstation.metrics import outputs_from_columns, position_metrics, run_metrics, saturation_time
 from groundstation.sweep import engine
-from groundstation.telemetry_csv import COLUMNS, TRUTH_COLUMNS
+from groundstation.telemetry_csv import columns_of
 from quadsitl.config import Preset
 
-COL = {name: i for i, name in enumerate(COLUMNS)}
-TRUTH = {name: len(COLUMNS) + i for i, name in enumerate(TRUTH_COLUMNS)}
+
+def flight_rows(table: Mapping[str, np.ndarray], mission: bool) -> Mapping[str, np.ndarray]:
+    """The rows the metrics are taken over ({column: values}): a mission's from its first thrust on."""
+    if mission and len(table["t"]):
+        thrust = np.flatnonzero(table["u1"] > 0.0)
+        first = thrust[0] if thrust.size else len(table["t"])
+        return {name: values[first:] for name, values in table.items()}
+    return table
 
 
-def flight_rows(rows: np.ndarray, mission: bool) -> np.ndarray:
-    """The rows the metrics are taken over: a mission's from its first thrust on."""
-    if mission and len(rows):
-        thrust = np.flatnonzero(rows[:, COL["u1"]] > 0.0)
-        return rows[thrust[0] :] if thrust.size else rows[:0]
-    return rows
-
-
-def metrics_row(rows: np.ndarray, preset: Preset, period: float, diverged_at: float | None,
-                mission: bool = False) -> np.ndarray:  # fmt: skip
-    """The trial's metrics (engine.METRICS columns) from its telemetry ``rows``; ``diverged_at`` [s]: the time of
-    the tick whose state left the bounds (None: it did not). ``mission``: the flight is a mission's."""
-    rows = flight_rows(rows, mission)
+def metrics_row(rows: np.ndarray | Mapping[str, np.ndarray], preset: Preset, period: float,
+                diverged_at: float | None, mission: bool = False) -> np.ndarray:  # fmt: skip
+    """The trial's metrics (engine.METRICS columns) from its telemetry: ``rows`` in telemetry.csv's columns, or
+    {column: values} (:func:`groundstation.offline.telemetry_columns`); ``diverged_at`` [s]: the time of the tick
+    whose state left the bounds (None: it did not). ``mission``: the flight is a mission's."""
+    table = flight_rows(columns_of(rows) if isinstance(rows, np.ndarray) else rows, mission)
+    n = len(table["t"])
     m = np.full(engine.METRICS_SIZE, math.nan)
     c, a = preset.controller, preset.actuators
-    inputs = rows[:, COL["u1"] : COL["u4"] + 1]
-    forces = rows[:, COL["f1"] : COL["f4"] + 1]
+    inputs = np.column_stack([table[f"u{i}"] for i in range(1, 5)])
+    forces = np.column_stack([table[f"f{i}"] for i in range(1, 5)])
     m[engine.M_SATURATED] = saturation_time(inputs, forces, period, (c.thrust_min, c.thrust_max),
                                             (a.min_thrust, a.max_thrust))  # fmt: skip
     for j in range(len(engine.CHANNELS)):
-        m[engine.PER_CHANNEL * j + engine.PEAK_U] = np.max(np.abs(inputs[:, j])) if len(rows) else 0.0
+        m[engine.PER_CHANNEL * j + engine.PEAK_U] = np.max(np.abs(inputs[:, j])) if n else 0.0
     m[engine.M_YAW_TURNS] = 0.0
-    m[engine.M_TICKS] = len(rows)
+    m[engine.M_TICKS] = n
     if diverged_at is not None:
         m[engine.M_DIVERGED], m[engine.M_DIVERGED_AT] = 1.0, diverged_at
         return m
     m[engine.M_DIVERGED] = 0.0
-    truth = rows.shape[1] > len(COLUMNS)  # sensor mode: x..r are the estimate, the truth follows
+    truth = "z_true" in table  # sensor mode: x..r are the estimate, the truth follows
 
     def col(name: str) -> np.ndarray:
         if name == "altitude":
-            return -rows[:, TRUTH["z_true"]] if truth else rows[:, COL["altitude"]]
-        return rows[:, TRUTH[f"{name}_true"]] if truth and f"{name}_true" in TRUTH else rows[:, COL[name]]
+            return -table["z_true"] if truth else table["altitude"]
+        return table.get(f"{name}_true", table[name]) if truth else table[name]
 
-    x_ref, y_ref = rows[:, COL["x_ref"]], rows[:, COL["y_ref"]]
-    tracked = position_metrics(col("x"), col("y"), x_ref, y_ref, col("altitude"), rows[:, COL["altitude_ref"]])
+    tracked = position_metrics(col("x"), col("y"), table["x_ref"], table["y_ref"], col("altitude"),
+                               table["altitude_ref"])  # fmt: skip
     if tracked["samples"]:
         for index, name in zip((engine.M_HORIZONTAL_RMS, engine.M_HORIZONTAL_MAX, engine.M_ALTITUDE_RMS),
                                engine.POSITION_METRICS):  # fmt: skip
             m[index] = tracked[name]
         return m
-    t = rows[:, COL["t"]]
     y = outputs_from_columns(col("altitude"), col("roll"), col("pitch"), col("yaw"))
-    ref = rows[:, COL["altitude_ref"] : COL["yaw_ref"] + 1]
-    metrics = run_metrics(t, y, ref, inputs)
+    ref = np.column_stack([table[f"{ch}_ref"] for ch in engine.CHANNELS])
+    metrics = run_metrics(table["t"], y, ref, inputs)
     for j, ch in enumerate(engine.CHANNELS):
         for q, name in enumerate(engine.STEP_METRICS):
             value = metrics[ch][name]
