@@ -188,6 +188,15 @@ def fly_ticks(first: int, n: int, recording: bool, kind: int, period: float, sub
     return n
 
 
+def frame_of(preset: Preset, home: tuple[float, float, float], commander: Commander, yaw: float) -> setpoints.Frame:
+    """Where the autopilot measures setpoints from, and the limits they must keep, as the autopilot process's
+    (:meth:`autopilot.process.Autopilot.frame`): the local origin ``home``, the commander's home and settings, the
+    vehicle's ``yaw`` [rad] now."""
+    st = commander.settings
+    return setpoints.Frame(home, commander.home, yaw, st.altitude_max, st.max_distance, st.xy_vel_max, st.z_vel_up,
+                           st.z_vel_dn, -1.0 if preset.actuators.reversible else 0.0)  # fmt: skip
+
+
 def commander_for(position: PositionParams) -> Commander:
     """The autopilot's commander, with the limits its auto modes share with the position loop (``position``), as
     the autopilot process starts it."""
@@ -276,11 +285,8 @@ class Vehicle:
         self.sp_next = np.zeros(1, dtype=np.int64)
 
     def frame(self) -> setpoints.Frame:
-        """Where the autopilot measures setpoints from, and the limits they must keep, as the autopilot process's
-        (:meth:`autopilot.process.Autopilot.frame`)."""
-        c, st = self.commander, self.commander.settings
-        return setpoints.Frame(self.home, c.home, float(self.st[8]), st.altitude_max, st.max_distance, st.xy_vel_max,
-                               st.z_vel_up, st.z_vel_dn, -1.0 if self.preset.actuators.reversible else 0.0)  # fmt: skip
+        """Where the autopilot measures setpoints from, and the limits they must keep (:func:`frame_of`)."""
+        return frame_of(self.preset, self.home, self.commander, float(self.st[8]))
 
     @property
     def state(self) -> VehicleState:

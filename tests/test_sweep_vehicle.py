@@ -103,6 +103,39 @@ def test_the_fused_loop_flies_integral_gains_as_sim_does():
     assert np.array_equal(res.kept[1][:, engine.K_STATE : engine.K_STATE + 12], sims[spec.controller].state)
 
 
+def test_the_fused_loop_flies_a_position_hold_on_the_whole_vehicle_as_sim_does():
+    """A position hold on the true state in calm air (the whole vehicle: the position loop, its limits and integral)
+    is flown by the fused loop: each trial's kept trajectory is sim's flight to the bit, and its row the metrics'
+    one definition on sim's telemetry (to 1e-12: the engine sums as it goes, numpy in pairs); a trial that leaves
+    the bounds is marked as sim marks it."""
+    spec = spec_of("""
+        preset = "x500"
+        trajectory = "hold:altitude=3,duration=4,yaw=0.5"
+        trials = 4
+        keep = [0, 1, 2, 3]
+        [vary]
+        gains.ki_xy = { dist = "grid", values = [0.0, 0.5] }
+        mismatch.mass = { dist = "uniform", low = 0.8, high = 1.2 }
+        initial.roll = { dist = "uniform", low = -0.2, high = 0.2 }
+    """)
+    assert spec.fused and spec.holds
+    res = fly(spec, range(4))
+    for k in range(4):
+        preset = trial_preset(spec, k)
+        sims, _ = run_offline(preset, [spec.controller], spec.duration, trajectory=spec.trajectory, metrics=False)
+        sim = sims[spec.controller]
+        from groundstation.offline import rows_of, telemetry_columns
+
+        assert np.array_equal(res.kept[k], rows_of(sim), equal_nan=True)
+        want = metrics_row(telemetry_columns(sim, rates=False), preset, spec.period, sim.diverged_at)
+        assert np.allclose(res.metrics[k], want, rtol=1e-12, atol=0.0, equal_nan=True), k
+        assert np.isfinite(res.metrics[k, TRACKING]).all()
+        assert np.isnan(res.metrics[k, engine.PER_CHANNEL * 0 + engine.SETTLE])  # no step response here
+        assert res.metrics[k, engine.M_YAW_TURNS] == 0.0 and res.metrics[k, engine.M_TICKS] == spec.ticks
+    # the integral action is flown: the two grid points hold differently
+    assert res.metrics[0, TRACKING[0]] != res.metrics[1, TRACKING[0]]
+
+
 @pytest.mark.parametrize(
     ("body", "says"),
     [

@@ -12,6 +12,15 @@ import time
 from benchmarks.report import Report
 from benchmarks.sections.base import Context, Section
 
+FULL_VEHICLE = """
+preset = "{preset}"
+trajectory = "hold:altitude=5,duration=5"
+trials = {trials}
+[vary]
+mismatch.mass = {{ dist = "uniform", low = 0.8, high = 1.2 }}
+mismatch.inertia = {{ dist = "uniform", low = 0.8, high = 1.2 }}
+"""
+
 
 def bench_batch(r: Report, trials: int) -> dict:
     """Vehicle-steps per second of the sweeps' batch engine on the paper's controller and plant (the
@@ -22,7 +31,7 @@ def bench_batch(r: Report, trials: int) -> dict:
     (the x500-wind-hold spec's hold, through the estimator), beside that spec's sweep."""
     from groundstation.offline import run_offline
     from groundstation.sweep.run import fly, run_sweep, warm_up
-    from groundstation.sweep.spec import load_spec
+    from groundstation.sweep.spec import load_spec, parse_spec
     from groundstation.sweep.trials import trial_preset
     from quadsitl.config import load_preset
 
@@ -58,6 +67,14 @@ def bench_batch(r: Report, trials: int) -> dict:
     result = run_sweep(big, workers=workers)
     wall = time.perf_counter() - start
     many = result.ticks_flown / result.wall_s  # the flights, workers started and warm: what `quadsitl sweep` reports
+    # The whole vehicle on the fused loop: a position hold (the position loop, its limits and integrals), truth,
+    # calm, the model's mass and inertias off by up to ±20 %, on the paper's plant (Euler) and on the x500 (RK4).
+    full = {}
+    for name in ("paper", "x500"):
+        held = parse_spec(FULL_VEHICLE.format(preset=name, trials=max(trials // 10, 200)), f"{name}-hold")
+        warm_up(held)
+        done = run_sweep(held, workers=workers)
+        full[name] = done.ticks_flown / done.wall_s
     sensed = run_sweep(wind, workers=workers)
     # the same hold in calm air: the issue's figure for sensors and the estimator (docs/sweeps.md#speed)
     calm = dataclasses.replace(wind, vary={k: v for k, v in wind.vary.items() if not k.startswith("wind.")})
@@ -68,6 +85,9 @@ def bench_batch(r: Report, trials: int) -> dict:
     r.add(f"batch engine, {workers} worker processes ({trials} trials)", many, "steps/s", max(one), "one process")
     r.add(f"  {trials} trials of 5 s: the flights / end to end with the workers' start", result.wall_s, "s", wall,
           "end to end")  # fmt: skip
+    r.add(f"batch engine, the whole vehicle (a hold: position loop, limits; truth, calm), paper's plant, {workers} "
+          "workers", full["paper"], "steps/s", many, "the paper's law alone")  # fmt: skip
+    r.add(f"  the same on the x500 (RK4), {workers} workers", full["x500"], "steps/s", many, "the paper's law alone")
     r.add("quadsitl sim's vehicle loop, x500-wind-hold's trial 0 (sensors, wind)", hold[0], "steps/s", hold[1],
           "end to end")  # fmt: skip
     r.add(f"sweep on sensors, {workers} workers (x500-wind-hold, {wind.trials} trials)",
@@ -78,7 +98,9 @@ def bench_batch(r: Report, trials: int) -> dict:
             "sim_circle_steps_per_s": circle[0], "sim_circle_steps_per_s_end_to_end": circle[1],
             "sim_sensors_steps_per_s": hold[0],
             "sensor_sweep_steps_per_s": sensed.ticks_flown / sensed.wall_s,
-            "sensor_sweep_calm_steps_per_s": calm_sensed.ticks_flown / calm_sensed.wall_s}  # fmt: skip
+            "sensor_sweep_calm_steps_per_s": calm_sensed.ticks_flown / calm_sensed.wall_s,
+            "batch_full_vehicle_steps_per_s": full["paper"],
+            "batch_full_vehicle_x500_steps_per_s": full["x500"]}  # fmt: skip
 
 
 def run(ctx: Context) -> dict[str, object]:

@@ -43,6 +43,7 @@ from autopilot import commander as cmd
 from autopilot import plugin
 from autopilot.control_params import BACKSTEPPING, MEM_FORCES, MEM_SIZE, MEM_U, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
+from autopilot.tick import reference_shown
 from groundstation.vehicle import (
     R_FORCES,
     R_INPUTS,
@@ -121,10 +122,38 @@ def _wrapped(d: float) -> float:
 
 
 @jit(inline=True)
+def _step_row(k: int, s: tuple, r: np.ndarray, target: tuple, y0: tuple, steps: tuple, band: np.ndarray,
+              i10: np.ndarray, i90: np.ndarray, outside: np.ndarray, extreme: np.ndarray, sq: np.ndarray, y: np.ndarray,
+              yaw_fix: float, yaw_raw: float) -> tuple[float, float, float]:  # fmt: skip
+    """Row k (the state ``s`` = x(k)) folded into the step response's metrics (the module's docstring): the first
+    rows at 10 % and 90 % of each step, the last outside its band, the extreme, the squared errors. Returns the yaw's
+    unwrapping (its corrections so far, the raw yaw) and its wrapped error."""
+    yaw_fix += _unwrap_step(yaw_raw, s[8])
+    yaw_raw = s[8]
+    y[0], y[1], y[2], y[3] = -s[2], s[6], s[7], s[8] + yaw_fix
+    err_yaw = _wrapped(r[3] - y[3])
+    for j in range(4):
+        yj = y[j]
+        if i90[j] < 0 and steps[j] != 0.0:
+            frac = (yj - y0[j]) / steps[j]
+            if i10[j] < 0 and frac >= 0.1:
+                i10[j] = k
+            if frac >= 0.9:
+                i90[j] = k
+        if abs(yj - target[j]) > band[j]:
+            outside[j] = k
+        if (yj > extreme[j]) if steps[j] > 0.0 else (yj < extreme[j]):
+            extreme[j] = yj
+        e = err_yaw if j == 3 else target[j] - yj
+        sq[j] += e * e
+    return yaw_fix, yaw_raw, err_yaw
+
+
+@jit(inline=True)
 def _fly(
     x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
-    kind: int, ticks: int, period: float, substeps: int, method: int, turns: float, lim: np.ndarray, m: np.ndarray,
-    keep: np.ndarray, kept: bool, ctx: tuple,
+    kind: int, ticks: int, period: float, substeps: int, method: int, turns: float, position: bool, lim: np.ndarray,
+    m: np.ndarray, keep: np.ndarray, kept: bool, ctx: tuple,
 ) -> None:  # fmt: skip
     """Fly one trial for ``ticks`` control periods and write its metrics into ``m`` (METRICS_SIZE).
 
@@ -133,9 +162,11 @@ def _fly(
     (:mod:`autopilot.control_params`); ``r`` the reference the metrics measure against (altitude [m], roll, pitch,
     yaw [rad]), and ``sp`` the offboard setpoint that flies it (the commander's fields, :class:`groundstation.vehicle.
     Setpoints`), sent at every moment of ``quadsitl fly``'s grid; ``kind`` BACKSTEPPING or PD; ``period`` T [s];
-    ``substeps``, ``method`` the plant's integration; ``turns`` the yaw reference's branch; ``lim`` the divergence
-    bounds. With ``kept``, tick k's row goes to keep[k] (KEEP_SIZE columns). ``ctx``: the vehicle's arrays, reused
-    from trial to trial (:func:`context`). The trial is flown as ``quadsitl sim`` flies it: the commander sees the
+    ``substeps``, ``method`` the plant's integration; ``turns`` the yaw reference's branch; ``position``: ``sp`` is a
+    position hold, whose metrics are the position tracking's (:data:`POSITION_METRICS`; the step's are NaN, as
+    :mod:`groundstation.sweep.trial_row` has them for a position trajectory); ``lim`` the divergence bounds. With
+    ``kept``, tick k's row goes to keep[k] (KEEP_SIZE columns). ``ctx``: the vehicle's arrays, reused from trial to
+    trial (:func:`context`). The trial is flown as ``quadsitl sim`` flies it: the commander sees the
     initial state, takes the setpoint, arms in offboard, and each tick is :func:`groundstation.vehicle.vehicle_tick`."""
     w, air_rng, pio, datagram, st, cm, mem, truth, frame, cm0, air0, rng0, sens, sp_ticks, table, \
         sp_next, plug = ctx  # fmt: skip
@@ -179,6 +210,7 @@ def _fly(
     saturated = 0
     diverged_at = -1
     err_yaw = 0.0
+    tracked, e2, e_max, ea2 = 0, 0.0, 0.0, 0.0  # a position hold's samples, squared errors and largest error
     for k in range(ticks):
         s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
         if not inside(s, lim):
@@ -192,24 +224,19 @@ def _fly(
         if kept:
             record(keep, k, s, st, cm, mem)
         # ---- the row's metrics ---------------------------------------------------------------------------
-        yaw_fix += _unwrap_step(yaw_raw, s[8])
-        yaw_raw = s[8]
-        y[0], y[1], y[2], y[3] = -s[2], s[6], s[7], s[8] + yaw_fix
-        err_yaw = _wrapped(r[3] - y[3])
+        if position:  # groundstation.metrics.position_metrics, over the rows whose x_ref and y_ref are finite
+            shown = reference_shown(cm, mem)
+            if not (math.isnan(shown[4]) or math.isnan(shown[5])):
+                tracked += 1
+                e = math.hypot(s[0] - shown[4], s[1] - shown[5])
+                e2 += e * e
+                e_max = max(e_max, e)
+                ea = shown[0] + s[2]  # altitude_ref − altitude
+                ea2 += ea * ea
+        else:
+            yaw_fix, yaw_raw, err_yaw = _step_row(k, s, r, target, y0, steps, band, i10, i90, outside, extreme, sq, y,
+                                                  yaw_fix, yaw_raw)  # fmt: skip
         for j in range(4):
-            yj = y[j]
-            if i90[j] < 0 and steps[j] != 0.0:
-                frac = (yj - y0[j]) / steps[j]
-                if i10[j] < 0 and frac >= 0.1:
-                    i10[j] = k
-                if frac >= 0.9:
-                    i90[j] = k
-            if abs(yj - target[j]) > band[j]:
-                outside[j] = k
-            if (yj > extreme[j]) if steps[j] > 0.0 else (yj < extreme[j]):
-                extreme[j] = yj
-            e = err_yaw if j == 3 else target[j] - yj
-            sq[j] += e * e
             au = abs(u[j])
             if au > peak[j]:
                 peak[j] = au
@@ -225,11 +252,15 @@ def _fly(
     m[M_DIVERGED_AT] = nan if diverged_at < 0 else diverged_at * period
     for j in range(4):
         m[PER_CHANNEL * j + PEAK_U] = peak[j]
-    if diverged_at >= 0 or flown == 0:
+    if position or diverged_at >= 0 or flown == 0:
         for j in range(4):
             for q in (RISE, SETTLE, OVERSHOOT, SSE, RMS):
                 m[PER_CHANNEL * j + q] = nan
-        m[M_YAW_TURNS] = turns
+        m[M_YAW_TURNS] = 0.0 if position else turns
+        if position and diverged_at < 0 and tracked > 0:
+            m[M_HORIZONTAL_RMS] = math.sqrt(e2 / tracked)
+            m[M_HORIZONTAL_MAX] = e_max
+            m[M_ALTITUDE_RMS] = math.sqrt(ea2 / tracked)
         return
     final = (target[0] - y[0], target[1] - y[1], target[2] - y[2], err_yaw)
     # The yaw reference's branch at the end (run_metrics: the unwrapped yaw plus the wrapped error).
@@ -254,22 +285,22 @@ def _fly(
 @jit
 def run_trial(
     x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
-    kind: int, ticks: int, period: float, substeps: int, method: int, turns: float, lim: np.ndarray, m: np.ndarray,
-    keep: np.ndarray, kept: bool, ctx: tuple,
+    kind: int, ticks: int, period: float, substeps: int, method: int, turns: float, position: bool, lim: np.ndarray,
+    m: np.ndarray, keep: np.ndarray, kept: bool, ctx: tuple,
 ) -> None:  # fmt: skip
     """Fly one trial and write its metrics into ``m`` (:func:`_fly`): any controller, integrator and step count."""
-    _fly(x0, v, a, vm, c, r, sp, kind, ticks, period, substeps, method, turns, lim, m, keep, kept, ctx)
+    _fly(x0, v, a, vm, c, r, sp, kind, ticks, period, substeps, method, turns, position, lim, m, keep, kept, ctx)
 
 
 @jit
 def run_trial_paper(
     x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
-    ticks: int, period: float, method: int, turns: float, lim: np.ndarray, m: np.ndarray, keep: np.ndarray,
-    kept: bool, ctx: tuple,
+    ticks: int, period: float, method: int, turns: float, position: bool, lim: np.ndarray, m: np.ndarray,
+    keep: np.ndarray, kept: bool, ctx: tuple,
 ) -> None:  # fmt: skip
     """:func:`run_trial` with the paper's controller and step count compiled in: the backstepping, one step of the
     plant per tick (see :func:`run_chunk`)."""
-    _fly(x0, v, a, vm, c, r, sp, BACKSTEPPING, ticks, period, 1, method, turns, lim, m, keep, kept, ctx)
+    _fly(x0, v, a, vm, c, r, sp, BACKSTEPPING, ticks, period, 1, method, turns, position, lim, m, keep, kept, ctx)
 
 
 def context(cm0: np.ndarray, sp_ticks: np.ndarray) -> tuple:
@@ -288,40 +319,42 @@ def context(cm0: np.ndarray, sp_ticks: np.ndarray) -> tuple:
 
 def run_chunk(
     x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
-    kind: int, ticks: int, period: float, substeps: int, method: int, turns: np.ndarray, lim: np.ndarray,
-    m: np.ndarray, slots: np.ndarray, keep: np.ndarray, ctx: tuple,
+    kind: int, ticks: int, period: float, substeps: int, method: int, turns: np.ndarray, position: bool,
+    lim: np.ndarray, m: np.ndarray, slots: np.ndarray, keep: np.ndarray, ctx: tuple,
 ) -> None:  # fmt: skip
     """Fly each trial i of a chunk (row i of every per-trial array), one after the other: metrics into m[i]; a
-    trial with slots[i] ≥ 0 writes its trajectory into keep[slots[i]].
+    trial with slots[i] ≥ 0 writes its trajectory into keep[slots[i]]. ``position``: the setpoints are a position
+    hold (:func:`_fly`).
 
     The paper's configuration (the backstepping, one step of the plant per tick) runs a version compiled for it
     (:func:`run_trial_paper`): with the controller and the step count known to the compiler, the tick is one
     straight pass. Each version is compiled the first time it is used."""
     if kind == BACKSTEPPING and substeps == 1:
-        _chunk_paper(x0, v, a, vm, c, r, sp, ticks, period, method, turns, lim, m, slots, keep, ctx)
+        _chunk_paper(x0, v, a, vm, c, r, sp, ticks, period, method, turns, position, lim, m, slots, keep, ctx)
     else:
-        _chunk(x0, v, a, vm, c, r, sp, kind, ticks, period, substeps, method, turns, lim, m, slots, keep, ctx)
+        _chunk(x0, v, a, vm, c, r, sp, kind, ticks, period, substeps, method, turns, position, lim, m, slots, keep,
+               ctx)  # fmt: skip
 
 
 @jit
 def _chunk(
     x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
-    kind: int, ticks: int, period: float, substeps: int, method: int, turns: np.ndarray, lim: np.ndarray,
-    m: np.ndarray, slots: np.ndarray, keep: np.ndarray, ctx: tuple,
+    kind: int, ticks: int, period: float, substeps: int, method: int, turns: np.ndarray, position: bool,
+    lim: np.ndarray, m: np.ndarray, slots: np.ndarray, keep: np.ndarray, ctx: tuple,
 ) -> None:  # fmt: skip
     for i in range(x0.shape[0]):
         slot = slots[i]
-        run_trial(x0[i], v[i], a[i], vm[i], c[i], r[i], sp[i], kind, ticks, period, substeps, method, turns[i], lim,
-                  m[i], keep[max(slot, 0)], slot >= 0, ctx)  # fmt: skip
+        run_trial(x0[i], v[i], a[i], vm[i], c[i], r[i], sp[i], kind, ticks, period, substeps, method, turns[i],
+                  position, lim, m[i], keep[max(slot, 0)], slot >= 0, ctx)  # fmt: skip
 
 
 @jit
 def _chunk_paper(
     x0: np.ndarray, v: np.ndarray, a: np.ndarray, vm: np.ndarray, c: np.ndarray, r: np.ndarray, sp: np.ndarray,
-    ticks: int, period: float, method: int, turns: np.ndarray, lim: np.ndarray, m: np.ndarray, slots: np.ndarray,
-    keep: np.ndarray, ctx: tuple,
+    ticks: int, period: float, method: int, turns: np.ndarray, position: bool, lim: np.ndarray, m: np.ndarray,
+    slots: np.ndarray, keep: np.ndarray, ctx: tuple,
 ) -> None:  # fmt: skip
     for i in range(x0.shape[0]):
         slot = slots[i]
-        run_trial_paper(x0[i], v[i], a[i], vm[i], c[i], r[i], sp[i], ticks, period, method, turns[i], lim, m[i],
-                        keep[max(slot, 0)], slot >= 0, ctx)  # fmt: skip
+        run_trial_paper(x0[i], v[i], a[i], vm[i], c[i], r[i], sp[i], ticks, period, method, turns[i], position, lim,
+                        m[i], keep[max(slot, 0)], slot >= 0, ctx)  # fmt: skip

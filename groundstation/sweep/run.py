@@ -24,12 +24,13 @@ import numpy as np
 
 from autopilot import setpoints
 from autopilot.control_params import BACKSTEPPING, KINDS, PD
+from groundstation import trajectories
 from groundstation.setpoint_grid import grid_setpoints
 from groundstation.sweep import engine
 from groundstation.sweep.spec import SweepSpec
 from groundstation.sweep.trial_row import metrics_row
 from groundstation.sweep.trials import draw, trial_arrays, trial_preset
-from groundstation.vehicle import Setpoints, commander_for
+from groundstation.vehicle import Setpoints, commander_for, frame_of
 from quadsitl.config import PositionParams
 from quadsitl.frames import PX4_HOME
 from quadsitl.state import Reference
@@ -85,20 +86,20 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
     keep = np.zeros((max(len(keep_rows), 1), spec.ticks if keep_rows else 1, engine.KEEP_SIZE))
     limits = np.array([spec.limits[k] for k in ("position", "speed", "tilt", "rate")], dtype=np.float64)
     sub = [np.ascontiguousarray(x[go]) for x in (arrays.x0, arrays.v, arrays.a, arrays.vm, arrays.c, arrays.r)]
-    sub.append(setpoint_rows(sub[5]))
+    sub.append(np.tile(hold_setpoint(spec), (len(go), 1)) if spec.holds else setpoint_rows(sub[5]))
     turns = np.zeros(len(go))
     out = np.empty((len(go), engine.METRICS_SIZE))
     kind = KINDS[spec.controller]
     ticks, T, substeps = spec.ticks, spec.period, spec.preset.sim.substeps
     ctx = context(spec.preset.position, spec.ticks, spec.period)
-    engine.run_chunk(*sub, kind, ticks, T, substeps, _method(spec), turns, limits, out, slots, keep, ctx)
+    engine.run_chunk(*sub, kind, ticks, T, substeps, _method(spec), turns, spec.holds, limits, out, slots, keep, ctx)
     # The rare trial that ended with its yaw on another branch than it flew on: again, on its own (module doc).
     again = np.flatnonzero(out[:, engine.M_YAW_TURNS] != turns)
     if again.size:
         turns2 = out[again, engine.M_YAW_TURNS].copy()
         out2 = np.empty((again.size, engine.METRICS_SIZE))
         engine.run_chunk(*(np.ascontiguousarray(x[again]) for x in sub), kind, ticks, T, substeps, _method(spec),
-                         turns2, limits, out2, np.ascontiguousarray(slots[again]), keep, ctx)  # fmt: skip
+                         turns2, spec.holds, limits, out2, np.ascontiguousarray(slots[again]), keep, ctx)  # fmt: skip
         out[again] = out2
     metrics[go] = out
     kept = {int(trials[row]): keep[slot].copy() for slot, row in enumerate(keep_rows)}
@@ -106,7 +107,8 @@ def fly(spec: SweepSpec, trials: Sequence[int] | np.ndarray) -> ChunkResult:
 
 
 def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> tuple[np.ndarray, dict]:
-    """Trials the fused loop does not fly (a trajectory, a mission, sensors, wind: :attr:`SweepSpec.fused`), each as
+    """Trials the fused loop does not fly (a moving trajectory, a mission, sensors, wind: :attr:`SweepSpec.fused`),
+    each as
     ``quadsitl sim`` flies the trial's preset (:func:`groundstation.sweep.trials.trial_preset`), its row from its
     telemetry by the metrics' one definition (:mod:`groundstation.sweep.trial_row`), as the SITL engine's: (the
     metrics, engine.METRICS columns; the kept trajectories, engine.KEEP_SIZE columns)."""
@@ -129,6 +131,14 @@ def fly_as_sim(spec: SweepSpec, trials: np.ndarray, admissible: np.ndarray) -> t
         if k in spec.keep:
             kept[k] = rows_of(res)
     return metrics, kept
+
+
+def hold_setpoint(spec: SweepSpec) -> np.ndarray:
+    """The offboard setpoint of the spec's position hold (the commander's fields), as ``quadsitl sim`` parses it for
+    the spec's preset (:func:`groundstation.offline.grid_of`: the frame of a vehicle not yet flown, yaw 0)."""
+    path = trajectories.make(spec.trajectory, spec.preset.reference)
+    frame = frame_of(spec.preset, PX4_HOME, commander_for(spec.preset.position), 0.0)
+    return Setpoints.of([(0, path(0.0))], frame).values[0]
 
 
 def setpoint_rows(r: np.ndarray) -> np.ndarray:
@@ -181,7 +191,7 @@ def warm_version(kind: int, substeps: int, method: int) -> None:
     r = np.array([[1.0, 0.0, 0.0, 0.0]])
     engine.run_chunk(one, np.ones((1, VEHICLE_SIZE)), np.ones((1, ACTUATOR_SIZE)), np.ones((1, VEHICLE_SIZE)),
                      np.full((1, SIZE), 0.5), r, setpoint_rows(r), kind, 1, 0.001, substeps, method, np.zeros(1),
-                     np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
+                     False, np.array(engine.DEFAULT_LIMITS), np.empty((1, engine.METRICS_SIZE)), np.zeros(1, np.int64),
                      np.zeros((1, 1, engine.KEEP_SIZE)), context(PositionParams(), 1, 0.001))  # fmt: skip
 
 

@@ -133,14 +133,21 @@ class SweepSpec:
     state: str = "truth"  # STATES
 
     @property
+    def holds(self) -> bool:
+        """The trajectory is a position hold (``hold[:...]``): one setpoint, sent again and again."""
+        return self.trajectory is not None and self.trajectory.partition(":")[0] == "hold"
+
+    @property
     def fused(self) -> bool:
         """The batch engine flies its trials in one compiled loop (:func:`groundstation.sweep.engine.run_chunk`):
-        the task's constant reference on the true state in calm air. Any other spec (a trajectory, a mission,
-        sensors, wind) has each trial flown as ``quadsitl sim`` flies the trial's preset (:func:`trial_preset`),
-        one after the other (:mod:`groundstation.sweep.run`); so is a controller of your own (``file.py:Name``)."""
+        the task's constant reference, or a position hold, on the true state in calm air. Any other spec (a moving
+        trajectory, a mission, sensors, wind) has each trial flown as ``quadsitl sim`` flies the trial's preset
+        (:func:`trial_preset`), one after the other (:mod:`groundstation.sweep.run`); so is a controller of your own
+        (``file.py:Name``)."""
         calm = self.preset.wind == WindParams() and not any(k.startswith(("wind.", "sensors.")) for k in self.vary)
         built_in = not is_plugin(self.controller)
-        return self.trajectory is None and self.mission is None and self.state == "truth" and calm and built_in
+        constant = self.trajectory is None or self.holds
+        return constant and self.mission is None and self.state == "truth" and calm and built_in
 
     @property
     def period(self) -> float:
