@@ -29,6 +29,7 @@ from autopilot.missions import Missions
 from autopilot.setpoints import Frame
 from groundstation import mission_files, trajectories
 from groundstation.figures import write_figures, write_mission_figure, write_path_figure
+from groundstation.flight_log import log_of
 from groundstation.metrics import channel_outputs, estimate_rms, position_metrics, run_metrics
 from groundstation.mission_files import MISSION_DURATION, Mission
 from groundstation.setpoint_grid import grid_setpoints
@@ -45,6 +46,7 @@ from groundstation.vehicle import (
     Vehicle,
     ground_ticks,
 )
+from quadsitl import ulog
 from quadsitl.cli_util import UsageError
 from quadsitl.compiled_frames import euler_rates_to_body_rates
 from quadsitl.config import Preset
@@ -294,7 +296,7 @@ def write_outputs(
     mission: Mission | None = None,
     home: tuple[float, float, float] = PX4_HOME,
 ) -> list[Path]:
-    """telemetry.csv (first controller), telemetry_<other>.csv, metrics.json and fig2–fig4 PNGs.
+    """telemetry.csv and flight.ulg (first controller), telemetry_<other>.csv, metrics.json and fig2–fig4 PNGs.
 
     metrics.json's ``diverged`` and ``diverged_at`` [s] (null when it did not) are those of the run in
     telemetry.csv, as in ``quadsitl fly``'s; with more than one controller, ``diverged_at_by_controller`` has
@@ -303,8 +305,12 @@ def write_outputs(
     files = []
     for i, (kind, res) in enumerate(results.items()):
         path = out / ("telemetry.csv" if i == 0 else f"telemetry_{kind}.csv")
-        write_csv(path, telemetry_rows(res))
+        columns = telemetry_columns(res)
+        write_csv(path, np.column_stack(list(columns.values())))
         files.append(path)
+        if i == 0:  # the flight's ULog, as fly's (PX4's topics: groundstation.flight_log)
+            ulog.write(out / "flight.ulg", log_of(columns, preset, kind, home, mission is not None))
+            files.append(out / "flight.ulg")
     mpath = out / "metrics.json"
     first = next(iter(results.values()))
     diverged = {"diverged": first.diverged_at is not None, "diverged_at": first.diverged_at}

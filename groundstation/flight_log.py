@@ -1,0 +1,158 @@
+"""A flight's ULog (``flight.ulg``): its telemetry as PX4's uORB topics, with PX4's topic and field names, so that
+pyulog, PlotJuggler and Flight Review read a quadsitl flight as they read PX4's (docs/telemetry.md#ulog).
+
+One function for every runtime: the telemetry's columns (:data:`groundstation.telemetry_csv.COLUMNS`, the truth's
+after them in sensor mode: ``quadsitl sim``'s :func:`groundstation.offline.telemetry_columns`, or ``fly``'s
+``telemetry.csv`` read back) → :class:`quadsitl.ulog.Log`. Each topic is sampled at PX4's default logging interval
+(``src/modules/logger/logged_topics.cpp``: the first row of each interval), its timestamp the row's t [µs].
+
+| topic | from the telemetry (what the autopilot flew on: the estimate in sensor mode) |
+|---|---|
+| ``vehicle_attitude`` (50 ms) | q from roll, pitch, yaw (FRD → NED) |
+| ``vehicle_attitude_setpoint`` (50 ms) | q_d from roll_ref, pitch_ref, yaw_ref; thrust_body z = −u1 / (4 F_max) |
+| ``vehicle_angular_velocity`` (20 ms) | xyz = p, q, r [rad/s, FRD] |
+| ``vehicle_local_position`` (100 ms) | x, y, z, vx, vy, vz [m, m/s, NED], heading = yaw, the origin |
+| ``vehicle_local_position_setpoint`` (100 ms) | x_ref, y_ref (NaN while not controlled), z = −altitude_ref, yaw |
+| ``vehicle_global_position`` (200 ms) | lat, lon (PX4's projection from the origin), alt AMSL |
+| ``actuator_outputs`` (100 ms) | noutputs 4, output[0..3] = f1..f4 / F_max (each motor's command, 0..1) |
+| ``vehicle_status`` (1 s) | arming_state 2 (armed), nav_state (offboard 14 or mission 3) |
+| ``vehicle_local_position_groundtruth``, ``vehicle_attitude_groundtruth`` | sensor mode: the truth (as PX4 SITL) |
+
+The parameters are the autopilot's (:func:`autopilot.params.values_from`); the information names the system
+(``sys_name``, ``ver_hw``: SITL, ``ver_sw``), the preset and the controller."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+from autopilot.commander import CommanderSettings
+from autopilot.params import CONTROLLER_TYPES, SPECS, commander_settings, values_from
+from quadsitl import __version__, ulog
+from quadsitl.config import Preset
+from quadsitl.frames import PX4_HOME, ned_to_geodetic
+
+# PX4's default logging intervals [ms] (logged_topics.cpp, add_default_topics)
+INTERVAL_MS = {"vehicle_attitude": 50, "vehicle_attitude_setpoint": 50, "vehicle_angular_velocity": 20,
+               "vehicle_local_position": 100, "vehicle_local_position_setpoint": 100, "vehicle_global_position": 200,
+               "actuator_outputs": 100, "vehicle_status": 1000}  # fmt: skip
+NAV_OFFBOARD, NAV_MISSION = 14, 3  # vehicle_status.nav_state
+ARMED = 2  # vehicle_status.arming_state
+
+
+def sampled(t: np.ndarray, interval_ms: int) -> np.ndarray:
+    """The rows logged at ``interval_ms``: the first of each interval of the flight's time ``t`` [s]."""
+    if len(t) == 0:
+        return np.zeros(0, dtype=np.int64)
+    slot = np.floor(np.round(t * 1e6) / (interval_ms * 1000.0)).astype(np.int64)
+    return np.flatnonzero(np.concatenate([[True], slot[1:] != slot[:-1]]))
+
+
+def quaternions(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions [w, x, y, z] of ZYX Euler angles (FRD → NED), as quadsitl.frames.euler_to_quaternion."""
+    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
+    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
+    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+    return np.column_stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+                            cr * cp * sy - sr * sp * cy])  # fmt: skip
+
+
+def _topic(name: str, fields: list[str], t: np.ndarray, rows: np.ndarray, values: dict[str, np.ndarray],
+           multi_id: int = 0) -> ulog.Topic:  # fmt: skip
+    stamp = np.round(t[rows] * 1e6).astype(np.uint64)
+    return ulog.Topic(name, ["uint64_t timestamp", *fields], {"timestamp": stamp, **values}, multi_id)
+
+
+def _attitude(name: str, t: np.ndarray, c: Mapping[str, np.ndarray]) -> ulog.Topic:
+    rows = sampled(t, INTERVAL_MS["vehicle_attitude"])
+    q = quaternions(c["roll"][rows], c["pitch"][rows], c["yaw"][rows])
+    stamp = np.round(t[rows] * 1e6).astype(np.uint64)
+    return _topic(name, ["uint64_t timestamp_sample", "float[4] q"], t, rows, {"timestamp_sample": stamp, "q": q})
+
+
+def _local_position(name: str, t: np.ndarray, c: Mapping[str, np.ndarray], home: tuple) -> ulog.Topic:
+    rows = sampled(t, INTERVAL_MS["vehicle_local_position"])
+    n = len(rows)
+    ones = np.ones(n)
+    values = {"timestamp_sample": np.round(t[rows] * 1e6).astype(np.uint64), "xy_valid": ones, "z_valid": ones,
+              "v_xy_valid": ones, "v_z_valid": ones, "heading": c["yaw"][rows], "xy_global": ones,
+              "z_global": ones, "ref_lat": np.full(n, home[0]), "ref_lon": np.full(n, home[1]),
+              "ref_alt": np.full(n, home[2])}  # fmt: skip
+    for k in ("x", "y", "z", "vx", "vy", "vz"):
+        values[k] = c[k][rows]
+    fields = ["uint64_t timestamp_sample", "bool xy_valid", "bool z_valid", "bool v_xy_valid", "bool v_z_valid",
+              "float x", "float y", "float z", "float vx", "float vy", "float vz", "float heading", "bool xy_global",
+              "bool z_global", "double ref_lat", "double ref_lon", "float ref_alt"]  # fmt: skip
+    return _topic(name, fields, t, rows, values)
+
+
+def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, home: tuple = PX4_HOME,
+           mission: bool = False, settings: CommanderSettings | None = None,
+           strings: list[tuple[float, str, str]] | None = None) -> ulog.Log:  # fmt: skip
+    """The ULog of a flight's telemetry ``columns`` ({column: values}, telemetry.csv's), flown from ``home`` (lat,
+    lon [deg], alt [m AMSL]) by ``controller`` on ``preset``; ``mission``: a mission's flight (nav_state
+    AUTO_MISSION, else OFFBOARD); ``strings``: the status texts said ((t [s], level, text))."""
+    c = columns
+    t = np.asarray(c["t"], dtype=np.float64)
+    f_max = preset.actuators.max_thrust
+    topics = [_attitude("vehicle_attitude", t, c)]
+    rows = sampled(t, INTERVAL_MS["vehicle_attitude_setpoint"])
+    thrust = np.zeros((len(rows), 3))
+    thrust[:, 2] = -c["u1"][rows] / (4.0 * f_max)
+    topics.append(_topic("vehicle_attitude_setpoint", ["float[4] q_d", "float[3] thrust_body"], t, rows,
+                         {"q_d": quaternions(c["roll_ref"][rows], c["pitch_ref"][rows], c["yaw_ref"][rows]),
+                          "thrust_body": thrust}))  # fmt: skip
+    rows = sampled(t, INTERVAL_MS["vehicle_angular_velocity"])
+    xyz = np.column_stack([c["p"][rows], c["q"][rows], c["r"][rows]])
+    topics.append(_topic("vehicle_angular_velocity", ["uint64_t timestamp_sample", "float[3] xyz"], t, rows,
+                         {"timestamp_sample": np.round(t[rows] * 1e6).astype(np.uint64), "xyz": xyz}))  # fmt: skip
+    topics.append(_local_position("vehicle_local_position", t, c, home))
+    rows = sampled(t, INTERVAL_MS["vehicle_local_position_setpoint"])
+    n = len(rows)
+    nan = np.full(n, math.nan)
+    topics.append(_topic("vehicle_local_position_setpoint",
+                         ["float x", "float y", "float z", "float vx", "float vy", "float vz", "float yaw"], t, rows,
+                         {"x": c["x_ref"][rows], "y": c["y_ref"][rows], "z": -c["altitude_ref"][rows], "vx": nan,
+                          "vy": nan, "vz": nan, "yaw": c["yaw_ref"][rows]}))  # fmt: skip
+    rows = sampled(t, INTERVAL_MS["vehicle_global_position"])
+    lat_lon = np.array([ned_to_geodetic(float(x), float(y), home[0], home[1])
+                        for x, y in zip(c["x"][rows], c["y"][rows])]).reshape(-1, 2)  # fmt: skip
+    ones = np.ones(len(rows))
+    topics.append(_topic("vehicle_global_position",
+                         ["uint64_t timestamp_sample", "double lat", "double lon", "float alt", "bool lat_lon_valid",
+                          "bool alt_valid"], t, rows,
+                         {"timestamp_sample": np.round(t[rows] * 1e6).astype(np.uint64), "lat": lat_lon[:, 0],
+                          "lon": lat_lon[:, 1], "alt": home[2] - c["z"][rows], "lat_lon_valid": ones,
+                          "alt_valid": ones}))  # fmt: skip
+    rows = sampled(t, INTERVAL_MS["actuator_outputs"])
+    output = np.zeros((len(rows), 16))
+    for i in range(4):
+        output[:, i] = c[f"f{i + 1}"][rows] / f_max
+    topics.append(_topic("actuator_outputs", ["uint32_t noutputs", "float[16] output"], t, rows,
+                         {"noutputs": np.full(len(rows), 4), "output": output}))  # fmt: skip
+    rows = sampled(t, INTERVAL_MS["vehicle_status"])
+    n = len(rows)
+    topics.append(_topic("vehicle_status", ["uint64_t armed_time", "uint8_t arming_state", "uint8_t nav_state"], t,
+                         rows, {"armed_time": np.zeros(n, dtype=np.uint64), "arming_state": np.full(n, ARMED),
+                                "nav_state": np.full(n, NAV_MISSION if mission else NAV_OFFBOARD)}))  # fmt: skip
+    if "z_true" in c:  # sensor mode: the truth, as PX4 SITL logs its ground truth
+        truth = {k[: -len("_true")]: v for k, v in c.items() if k.endswith("_true")}
+        topics.append(_attitude("vehicle_attitude_groundtruth", t, truth))
+        topics.append(_local_position("vehicle_local_position_groundtruth", t, truth, home))
+    s = commander_settings(preset.position, settings or CommanderSettings())
+    built_in = controller in CONTROLLER_TYPES
+    params = values_from(preset, controller if built_in else CONTROLLER_TYPES[0], s)
+    if not built_in:
+        params["CTL_TYPE"] = 2.0  # a controller that plugs in (autopilot.plugin)
+    integer = {spec.name for spec in SPECS if spec.integer}
+    info = {"char sys_name": "quadsitl", "char ver_hw": "SITL", "char ver_sw": __version__,
+            "char sys_os_name": "Linux", "char sys_toolchain": "numba", "char quadsitl_preset": preset.name,
+            "char quadsitl_controller": controller}  # fmt: skip
+    return ulog.Log(
+        info=info,
+        parameters={k: round(v) if k in integer else float(v) for k, v in params.items()},
+        topics=topics,
+        strings=[(round(ts * 1e6), level, text) for ts, level, text in strings or []],
+    )
