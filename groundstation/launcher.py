@@ -482,6 +482,7 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     import numpy as np  # here, not at the top: `quadsitl --help` should not wait for matplotlib
 
     from groundstation import trajectories
+    from groundstation.flight_log import log_of
     from groundstation.metrics import (
         estimate_rms,
         format_position_table,
@@ -491,8 +492,11 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
         run_metrics,
     )
     from groundstation.telemetry_csv import read_csv
+    from quadsitl import ulog
+    from quadsitl.frames import PX4_HOME
 
     data = read_csv(out / "telemetry.csv")
+    logged = data  # as written: in sensor mode the estimate in x..r, the truth after (the ULog has both)
     t = data["t"]
     sensing = "x_true" in data  # sensor mode: what the vehicle did is the truth; x..r is what the autopilot believed
     if sensing:
@@ -526,6 +530,8 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
         position = {kind: position_metrics(*(data[c] for c in columns))}
         report["position"] = position
     (out / "metrics.json").write_text(json.dumps(report, indent=2) + "\n")
+    origin = tuple(json.loads((out / "mission.json").read_text())["origin"]) if mission else PX4_HOME
+    ulog.write(out / "flight.ulg", log_of(logged, preset, kind, origin, mission=bool(mission)))
     figures: list[Path] = []
     if not args.no_figures:
         from groundstation.figures import write_figures, write_mission_figure, write_path_figure  # matplotlib: slow
@@ -544,12 +550,13 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
         missing = f" ({flown - len(t)} of them missing from the telemetry)" if len(t) < flown else ""
         print(f"quadsitl fly: the plant's state diverged at t = {report['diverged_at']:.3f} s of the flight "
               f"(telemetry.csv's clock; the plant's counts from its start): {flown} ticks flown{missing}, in {out}/"
-              f"telemetry.csv, flight.tlog and metrics.json (exit status {FLY_DIVERGED})", file=sys.stderr)  # fmt: skip
+              f"telemetry.csv, flight.tlog, flight.ulg and metrics.json (exit status {FLY_DIVERGED})",
+              file=sys.stderr)  # fmt: skip
     if not args.quiet:
         print(format_table(metrics) if position is None else format_position_table(position))
         if mission:
             print(mission_summary(json.loads((out / "mission.json").read_text())))
-        names = ["telemetry.csv", "flight.tlog", "metrics.json", *(["mission.json"] if mission else []),
+        names = ["telemetry.csv", "flight.tlog", "flight.ulg", "metrics.json", *(["mission.json"] if mission else []),
                  *(f.name for f in figures)]  # fmt: skip
         print(f"wrote {out}/" + ", ".join(names))
 

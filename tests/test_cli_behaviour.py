@@ -159,7 +159,8 @@ def test_fly_progress_is_a_plain_line_when_piped_and_quiet_silences_it(tmp_path)
     assert len(DONE_LINE.findall(r.stderr)) == 1, r.stderr
     assert "\x1b[" not in r.stderr  # no terminal control codes in a pipe
     # the closing line names what was written: no figures were
-    assert r.stdout.splitlines()[-1] == f"wrote {tmp_path / 'a'}/telemetry.csv, flight.tlog, metrics.json", r.stdout
+    wrote = f"wrote {tmp_path / 'a'}/telemetry.csv, flight.tlog, flight.ulg, metrics.json"
+    assert r.stdout.splitlines()[-1] == wrote, r.stdout
     assert not list((tmp_path / "a").glob("*.png"))
     q = quadsitl("fly", "--duration", "1", "--no-figures", "--quiet", "--out", str(tmp_path / "b"), timeout=180)
     assert q.returncode == 0, q.stderr

@@ -283,8 +283,8 @@ def test_fly_equals_sim_and_loses_nothing(tmp_path):
     assert np.diff(held).max() <= keep_ms, stamps
     assert len(stamps) <= 5000 / SETPOINT_MS  # 2 s flown, and the landing: each moment of the grid sent once
     assert (out / "metrics.json").exists() and (out / "fig2_outputs.png").exists()
-    assert r.stdout.splitlines()[-1] == (f"wrote {out}/telemetry.csv, flight.tlog, metrics.json, fig2_outputs.png, "
-                                         "fig3_errors.png, fig4_inputs.png")  # fmt: skip
+    assert r.stdout.splitlines()[-1] == (f"wrote {out}/telemetry.csv, flight.tlog, flight.ulg, metrics.json, "
+                                         "fig2_outputs.png, fig3_errors.png, fig4_inputs.png")  # fmt: skip
     report = json.loads((out / "metrics.json").read_text())
     assert report["diverged"] is False and report["diverged_at"] is None
     # The flight's pace, from the autopilot's publication times of its telemetry: most of the 2 s flight's ticks.

@@ -145,3 +145,20 @@ def test_the_writer_interleaves_topics_in_time_and_logs_strings(tmp_path):
     with pytest.raises(ValueError, match="type 'float32' is not one of"):
         ulog.encode(ulog.Log(topics=[ulog.Topic("c", ["uint64_t timestamp", "float32 v"],
                                                  {"timestamp": np.zeros(1), "v": np.zeros(1)})]))  # fmt: skip
+
+
+def test_fly_writes_the_same_log_from_its_telemetry_on_sensors(tmp_path):
+    """`quadsitl fly` (plant, autopilot and ground station processes) writes flight.ulg from its telemetry.csv by
+    the same mapping as sim: the estimate flown and the truth, at PX4's intervals."""
+    r = subprocess.run(quadsitl("fly", "--preset", "x500", "--state", "sensors", "--trajectory",
+                                "hold:altitude=2,duration=3", "--no-figures", "--quiet", "--out", str(tmp_path)),
+                       capture_output=True, text=True, timeout=240)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    data, t = topics(tmp_path / "flight.ulg"), read_csv(tmp_path / "telemetry.csv")
+    for name, suffix in (("vehicle_local_position", ""), ("vehicle_local_position_groundtruth", "_true")):
+        lp = data[name]
+        i = rows_at(t, lp["timestamp"])
+        assert len(i) == math.floor(t["t"][-1] / 0.1) + 1
+        assert close(lp["x"], t["x" + suffix][i]) and close(lp["z"], t["z" + suffix][i]), name
+    assert (data["vehicle_status"]["nav_state"] == 14).all()
+    assert ULog(str(tmp_path / "flight.ulg")).msg_info_dict["quadsitl_controller"] == "backstepping"
