@@ -45,18 +45,9 @@ def columns_from_arrays(
     return dict(zip(COLUMNS, parts, strict=True))
 
 
-def rows_from_arrays(
-    t: np.ndarray,
-    state: np.ndarray,
-    body_rates: np.ndarray,
-    reference: np.ndarray,
-    inputs: np.ndarray,
-    forces: np.ndarray,
-    position_reference: np.ndarray | None = None,
-) -> np.ndarray:
-    """(N, len(COLUMNS)) array in column order (:func:`columns_from_arrays`)."""
-    columns = columns_from_arrays(t, state, body_rates, reference, inputs, forces, position_reference)
-    return np.column_stack(list(columns.values()))
+def rows_from_arrays(*arrays: np.ndarray | None) -> np.ndarray:
+    """(N, len(COLUMNS)) array in column order, from :func:`columns_from_arrays`' arguments."""
+    return np.column_stack(list(columns_from_arrays(*arrays).values()))
 
 
 def columns_of(rows: np.ndarray) -> dict[str, np.ndarray]:
