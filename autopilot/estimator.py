@@ -6,7 +6,9 @@ arXiv:1711.02508, 2017, §5–§7; the same structure as PX4's EKF2, reduced to 
 - nominal state: position p and velocity v (NED), attitude quaternion q (FRD → NED), gyro bias b_g, accelerometer
   bias b_a; error state δx = (δθ, δv, δp, δb_g, δb_a), δθ a rotation vector in body axes (q_true = q ⊗ Exp(δθ));
 - prediction by the IMU every tick (strapdown mechanisation): ω = ω_m − b_g, f = f_m − b_a, a = R(q)·f + g·e_down,
-  p⁺ = p + v·dt + a·dt²/2, v⁺ = v + a·dt, q⁺ = q ⊗ Exp(ω·dt); covariance P⁺ = F·P·Fᵀ + Q·dt with F = I + A·dt,
+  p⁺ = p + v·dt + a·dt²/2, v⁺ = v + a·dt, q⁺ = q ⊗ Exp(ω·dt); the covariance, as EKF2 predicts it, every
+  EKF2_PREDICT_US (``predict_period_s``) and before any fusion, over the time Δ since its last prediction at the
+  samples' mean ω and f: P⁺ = F·P·Fᵀ + Q·Δ with F = I + A·Δ,
   A[δθ,δθ] = −[ω]×, A[δθ,δb_g] = −I, A[δv,δθ] = −R·[f]×, A[δv,δb_a] = −R, A[δp,δv] = I;
 - updates, one scalar at a time (K = P·hᵀ/(h·P·hᵀ + r)): GPS velocity (N, E, D) and horizontal position, the
   barometer's altitude (relative to its reading at alignment) and the magnetometer's three axes against the
@@ -112,19 +114,8 @@ LOST_INTERVALS = 3  # a sensor is lost after at least this many of its intervals
 # ---- the accumulators of the alignment (acc) and the innovation test ratios (ratio) -------------------------
 # then, once aligned, the samples since the covariance's last prediction: their delta angle [rad] and delta velocity
 # [m/s] (FRD, bias-corrected) and their time [s] (A_DANG..A_DT: _catch_up)
-A_ACCEL, A_MAG, A_BARO, A_N_IMU, A_N_MAG, A_N_BARO, A_BARO_REF, A_DANG, A_DVEL, A_DT, ACC_SIZE = (
-    0,
-    3,
-    6,
-    7,
-    8,
-    9,
-    10,
-    11,
-    14,
-    17,
-    18,
-)
+(A_ACCEL, A_MAG, A_BARO, A_N_IMU, A_N_MAG, A_N_BARO, A_BARO_REF, A_DANG, A_DVEL, A_DT,
+ ACC_SIZE) = 0, 3, 6, 7, 8, 9, 10, 11, 14, 17, 18  # fmt: skip
 
 # ---- the measurements of a tick (z: Z_*) and which are new (flags: MAG_NEW, BARO_NEW, GPS_NEW) are laid out as
 # the plant link's decoder writes them (quadsitl.hil)
@@ -305,8 +296,8 @@ def _catch_up(x: np.ndarray, P: np.ndarray, FP: np.ndarray, acc: np.ndarray, e: 
     w = (acc[A_DANG] / dt, acc[A_DANG + 1] / dt, acc[A_DANG + 2] / dt)
     f = (acc[A_DVEL] / dt, acc[A_DVEL + 1] / dt, acc[A_DVEL + 2] / dt)
     predict_covariance(x, P, FP, w, f, dt, e)
-    for i in range(7):
-        acc[A_DANG + i] = 0.0
+    for i in range(A_DANG, A_DT + 1):
+        acc[i] = 0.0
 
 
 @jit

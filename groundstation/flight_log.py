@@ -32,7 +32,7 @@ from autopilot.commander import CommanderSettings
 from autopilot.params import CONTROLLER_TYPES, SPECS, commander_settings, values_from
 from quadsitl import __version__, ulog
 from quadsitl.config import Preset
-from quadsitl.frames import PX4_HOME, ned_to_geodetic
+from quadsitl.frames import PX4_HOME, euler_to_quaternion, ned_to_geodetic
 
 # PX4's default logging intervals [ms] (logged_topics.cpp, add_default_topics)
 INTERVAL_MS = {"vehicle_attitude": 50, "vehicle_attitude_setpoint": 50, "vehicle_angular_velocity": 20,
@@ -51,49 +51,49 @@ def sampled(t: np.ndarray, interval_ms: int) -> np.ndarray:
 
 
 def quaternions(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions [w, x, y, z] of ZYX Euler angles (FRD → NED), as quadsitl.frames.euler_to_quaternion."""
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.column_stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-                            cr * cp * sy - sr * sp * cy])  # fmt: skip
+    """(N, 4) unit quaternions [w, x, y, z] of ZYX Euler angles (FRD → NED): :func:`quadsitl.frames.euler_to_quaternion`
+    of each row."""
+    return np.array([euler_to_quaternion(*angles) for angles in zip(roll.tolist(), pitch.tolist(), yaw.tolist())]
+                    ).reshape(-1, 4)  # fmt: skip
 
 
 def _topic(name: str, fields: list[str], t: np.ndarray, rows: np.ndarray, values: dict[str, np.ndarray],
-           multi_id: int = 0) -> ulog.Topic:  # fmt: skip
+           sampled_at: bool = False) -> ulog.Topic:  # fmt: skip
+    """Topic ``name`` with the rows ``rows`` of the flight's time ``t`` [s] as its timestamps [µs] (and, with
+    ``sampled_at``, as its ``timestamp_sample`` too: the row's measurement is the row's)."""
     stamp = np.round(t[rows] * 1e6).astype(np.uint64)
-    return ulog.Topic(name, ["uint64_t timestamp", *fields], {"timestamp": stamp, **values}, multi_id)
+    if sampled_at:
+        fields, values = ["uint64_t timestamp_sample", *fields], {"timestamp_sample": stamp, **values}
+    return ulog.Topic(name, ["uint64_t timestamp", *fields], {"timestamp": stamp, **values})
 
 
 def _attitude(name: str, t: np.ndarray, c: Mapping[str, np.ndarray]) -> ulog.Topic:
     rows = sampled(t, INTERVAL_MS["vehicle_attitude"])
     q = quaternions(c["roll"][rows], c["pitch"][rows], c["yaw"][rows])
-    stamp = np.round(t[rows] * 1e6).astype(np.uint64)
-    return _topic(name, ["uint64_t timestamp_sample", "float[4] q"], t, rows, {"timestamp_sample": stamp, "q": q})
+    return _topic(name, ["float[4] q"], t, rows, {"q": q}, sampled_at=True)
 
 
 def _local_position(name: str, t: np.ndarray, c: Mapping[str, np.ndarray], home: tuple) -> ulog.Topic:
     rows = sampled(t, INTERVAL_MS["vehicle_local_position"])
     n = len(rows)
     ones = np.ones(n)
-    values = {"timestamp_sample": np.round(t[rows] * 1e6).astype(np.uint64), "xy_valid": ones, "z_valid": ones,
+    values = {"xy_valid": ones, "z_valid": ones,
               "v_xy_valid": ones, "v_z_valid": ones, "heading": c["yaw"][rows], "xy_global": ones,
               "z_global": ones, "ref_lat": np.full(n, home[0]), "ref_lon": np.full(n, home[1]),
               "ref_alt": np.full(n, home[2])}  # fmt: skip
     for k in ("x", "y", "z", "vx", "vy", "vz"):
         values[k] = c[k][rows]
-    fields = ["uint64_t timestamp_sample", "bool xy_valid", "bool z_valid", "bool v_xy_valid", "bool v_z_valid",
+    fields = ["bool xy_valid", "bool z_valid", "bool v_xy_valid", "bool v_z_valid",
               "float x", "float y", "float z", "float vx", "float vy", "float vz", "float heading", "bool xy_global",
               "bool z_global", "double ref_lat", "double ref_lon", "float ref_alt"]  # fmt: skip
-    return _topic(name, fields, t, rows, values)
+    return _topic(name, fields, t, rows, values, sampled_at=True)
 
 
 def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, home: tuple = PX4_HOME,
-           mission: bool = False, settings: CommanderSettings | None = None,
-           strings: list[tuple[float, str, str]] | None = None) -> ulog.Log:  # fmt: skip
+           mission: bool = False) -> ulog.Log:  # fmt: skip
     """The ULog of a flight's telemetry ``columns`` ({column: values}, telemetry.csv's), flown from ``home`` (lat,
-    lon [deg], alt [m AMSL]) by ``controller`` on ``preset``; ``mission``: a mission's flight (nav_state
-    AUTO_MISSION, else OFFBOARD); ``strings``: the status texts said ((t [s], level, text))."""
+    lon [deg], alt [m AMSL]) by ``controller`` on ``preset`` (the autopilot's default settings); ``mission``: a
+    mission's flight (nav_state AUTO_MISSION, else OFFBOARD)."""
     c = columns
     t = np.asarray(c["t"], dtype=np.float64)
     f_max = preset.actuators.max_thrust
@@ -106,8 +106,7 @@ def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, h
                           "thrust_body": thrust}))  # fmt: skip
     rows = sampled(t, INTERVAL_MS["vehicle_angular_velocity"])
     xyz = np.column_stack([c["p"][rows], c["q"][rows], c["r"][rows]])
-    topics.append(_topic("vehicle_angular_velocity", ["uint64_t timestamp_sample", "float[3] xyz"], t, rows,
-                         {"timestamp_sample": np.round(t[rows] * 1e6).astype(np.uint64), "xyz": xyz}))  # fmt: skip
+    topics.append(_topic("vehicle_angular_velocity", ["float[3] xyz"], t, rows, {"xyz": xyz}, sampled_at=True))
     topics.append(_local_position("vehicle_local_position", t, c, home))
     rows = sampled(t, INTERVAL_MS["vehicle_local_position_setpoint"])
     n = len(rows)
@@ -121,11 +120,9 @@ def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, h
                         for x, y in zip(c["x"][rows], c["y"][rows])]).reshape(-1, 2)  # fmt: skip
     ones = np.ones(len(rows))
     topics.append(_topic("vehicle_global_position",
-                         ["uint64_t timestamp_sample", "double lat", "double lon", "float alt", "bool lat_lon_valid",
-                          "bool alt_valid"], t, rows,
-                         {"timestamp_sample": np.round(t[rows] * 1e6).astype(np.uint64), "lat": lat_lon[:, 0],
-                          "lon": lat_lon[:, 1], "alt": home[2] - c["z"][rows], "lat_lon_valid": ones,
-                          "alt_valid": ones}))  # fmt: skip
+                         ["double lat", "double lon", "float alt", "bool lat_lon_valid", "bool alt_valid"], t, rows,
+                         {"lat": lat_lon[:, 0], "lon": lat_lon[:, 1], "alt": home[2] - c["z"][rows],
+                          "lat_lon_valid": ones, "alt_valid": ones}, sampled_at=True))  # fmt: skip
     rows = sampled(t, INTERVAL_MS["actuator_outputs"])
     output = np.zeros((len(rows), 16))
     for i in range(4):
@@ -141,7 +138,7 @@ def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, h
         truth = {k[: -len("_true")]: v for k, v in c.items() if k.endswith("_true")}
         topics.append(_attitude("vehicle_attitude_groundtruth", t, truth))
         topics.append(_local_position("vehicle_local_position_groundtruth", t, truth, home))
-    s = commander_settings(preset.position, settings or CommanderSettings())
+    s = commander_settings(preset.position, CommanderSettings())
     built_in = controller in CONTROLLER_TYPES
     params = values_from(preset, controller if built_in else CONTROLLER_TYPES[0], s)
     if not built_in:
@@ -150,9 +147,5 @@ def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, h
     info = {"char sys_name": "quadsitl", "char ver_hw": "SITL", "char ver_sw": __version__,
             "char sys_os_name": "Linux", "char sys_toolchain": "numba", "char quadsitl_preset": preset.name,
             "char quadsitl_controller": controller}  # fmt: skip
-    return ulog.Log(
-        info=info,
-        parameters={k: round(v) if k in integer else float(v) for k, v in params.items()},
-        topics=topics,
-        strings=[(round(ts * 1e6), level, text) for ts, level, text in strings or []],
-    )
+    parameters = {k: round(v) if k in integer else float(v) for k, v in params.items()}
+    return ulog.Log(info=info, parameters=parameters, topics=topics)

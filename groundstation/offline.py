@@ -33,7 +33,7 @@ from groundstation.flight_log import log_of
 from groundstation.metrics import channel_outputs, estimate_rms, position_metrics, run_metrics
 from groundstation.mission_files import MISSION_DURATION, Mission
 from groundstation.setpoint_grid import grid_setpoints
-from groundstation.telemetry_csv import TRUTH_COLUMNS, columns_from_arrays, write_csv
+from groundstation.telemetry_csv import TRUTH_COLUMNS, columns_from_arrays, stacked, write_csv
 from groundstation.vehicle import (
     R_FORCES,
     R_INPUTS,
@@ -187,15 +187,18 @@ def grid_of(trajectory: str, path: Callable, reference: Reference, period: float
     ticks of ``period`` [s] from tick ``first``, parsed in ``frame``. A named trajectory's are made once for the
     same arguments (a sweep's trials share them; they are only read); a CSV file's each time (it may change)."""
     if Path(trajectory).is_file():
-        return Setpoints.of(((first + g, sp) for g, sp in grid_setpoints(path, period, ticks)), frame)
+        return _grid(path, period, first, ticks, frame)
     return _named_grid(trajectory, reference, period, first, ticks, frame)
+
+
+def _grid(path: Callable, period: float, first: int, ticks: int, frame: Frame) -> Setpoints:
+    return Setpoints.of(((first + g, sp) for g, sp in grid_setpoints(path, period, ticks)), frame)
 
 
 @functools.lru_cache(maxsize=8)
 def _named_grid(trajectory: str, reference: Reference, period: float, first: int, ticks: int,
                 frame: Frame) -> Setpoints:  # fmt: skip
-    path = trajectories.make(trajectory, reference)
-    return Setpoints.of(((first + g, sp) for g, sp in grid_setpoints(path, period, ticks)), frame)
+    return _grid(trajectories.make(trajectory, reference), period, first, ticks, frame)
 
 
 def run_offline(
@@ -276,7 +279,7 @@ def telemetry_columns(res: SimResult, rates: bool = True) -> dict[str, np.ndarra
 
 def telemetry_rows(res: SimResult, rates: bool = True) -> np.ndarray:
     """The run's rows of telemetry.csv (:func:`telemetry_columns`, in their order)."""
-    return np.column_stack(list(telemetry_columns(res, rates).values()))
+    return stacked(telemetry_columns(res, rates))
 
 
 def tracking(results: dict[str, SimResult]) -> dict[str, dict]:
@@ -306,7 +309,7 @@ def write_outputs(
     for i, (kind, res) in enumerate(results.items()):
         path = out / ("telemetry.csv" if i == 0 else f"telemetry_{kind}.csv")
         columns = telemetry_columns(res)
-        write_csv(path, np.column_stack(list(columns.values())))
+        write_csv(path, stacked(columns))
         files.append(path)
         if i == 0:  # the flight's ULog, as fly's (PX4's topics: groundstation.flight_log)
             ulog.write(out / "flight.ulg", log_of(columns, preset, kind, home, mission is not None))

@@ -47,7 +47,12 @@ def columns_from_arrays(
 
 def rows_from_arrays(*arrays: np.ndarray | None) -> np.ndarray:
     """(N, len(COLUMNS)) array in column order, from :func:`columns_from_arrays`' arguments."""
-    return np.column_stack(list(columns_from_arrays(*arrays).values()))
+    return stacked(columns_from_arrays(*arrays))
+
+
+def stacked(columns: dict[str, np.ndarray]) -> np.ndarray:
+    """{column: values}, in the columns' order, as rows (:func:`columns_of`'s inverse)."""
+    return np.column_stack(list(columns.values()))
 
 
 def columns_of(rows: np.ndarray) -> dict[str, np.ndarray]:

@@ -67,22 +67,27 @@ def uniform(s: np.ndarray, i: int) -> float:
     return (a * 67108864.0 + b) / 9007199254740992.0
 
 
+@jit(inline=True)
+def _box_muller(s: np.ndarray, i: int) -> tuple[float, float]:
+    """The Box–Muller transform's radius and angle [rad] from two uniforms of stream ``i``."""
+    u1 = 1.0 - uniform(s, i)  # in (0, 1]: the logarithm is finite
+    u2 = uniform(s, i)
+    return math.sqrt(-2.0 * math.log(u1)), 2.0 * math.pi * u2
+
+
 @jit
 def normal(s: np.ndarray, i: int) -> float:
     """A standard normal deviate from stream ``i`` (Box–Muller; the second deviate of the pair is not kept)."""
-    u1 = 1.0 - uniform(s, i)  # in (0, 1]: the logarithm is finite
-    u2 = uniform(s, i)
-    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+    r, angle = _box_muller(s, i)
+    return r * math.cos(angle)
 
 
 @jit
 def normal_pair(s: np.ndarray, i: int) -> tuple[float, float]:
     """Two independent standard normal deviates from stream ``i``: both of a Box–Muller pair (the first is
     :func:`normal`'s), for half the logarithms and uniforms where a sample needs two."""
-    u1 = 1.0 - uniform(s, i)
-    u2 = uniform(s, i)
-    r = math.sqrt(-2.0 * math.log(u1))
-    return r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
+    r, angle = _box_muller(s, i)
+    return r * math.cos(angle), r * math.sin(angle)
 
 
 @jit
