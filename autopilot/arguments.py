@@ -88,6 +88,12 @@ def build_parser() -> argparse.ArgumentParser:
         f"wrongly signed and replayed messages are refused (default: ${wire.SIGNING_ENV}, else no signing). "
         "A file or the environment keeps the key out of the process list",
     )
+    p.add_argument(
+        "--logs",
+        metavar="DIR",
+        help="keep a ULog of each flight, from arming to disarming, in DIR/YYYY-MM-DD/HH_MM_SS.ulg (UTC), as PX4's "
+        "logger does, and serve them over MAVLink's log protocol (default: none; quadsitl up keeps them)",
+    )
     telemetry.add_zenoh_arguments(p)
     p.add_argument("--no-zenoh", action="store_true", help="do not publish telemetry to Zenoh")
     p.add_argument(

@@ -28,12 +28,15 @@ class Outbox:
         self.ground, self.counters, self.on_plan_changed = ground, counters, on_plan_changed
         self.chunk_id = 0
         self.said: dict[str, float] = {}  # topic → wall time of the last such warning
+        self.on_said: Callable[[int, str], None] | None = None  # (severity, text): each status text also goes here
 
     def send(self, msg) -> None:
         self.ground.send(msg)
 
     def say(self, severity: int, text: str) -> None:
         """A STATUSTEXT (in chunks, one id, when longer than one message holds)."""
+        if self.on_said is not None:
+            self.on_said(severity, text)
         self.chunk_id = self.chunk_id % 65535 + 1
         for msg in gcs_messages.statustext(severity, text, self.chunk_id):
             self.send(msg)

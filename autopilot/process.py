@@ -27,11 +27,22 @@ import select
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import zenoh
 
-from autopilot import commander_state, commands, gcs_messages, plant_link, plant_loop, plant_messages, plugin, setpoints
+from autopilot import (
+    commander_state,
+    commands,
+    flight_log,
+    gcs_messages,
+    plant_link,
+    plant_loop,
+    plant_messages,
+    plugin,
+    setpoints,
+)
 from autopilot import tick as kernel
 from autopilot.arguments import build_parser, check
 from autopilot.commander import Commander, CommanderSettings
@@ -41,8 +52,10 @@ from autopilot.estimator import Estimator
 from autopilot.gains import GainError
 from autopilot.gcs_messages import Home, Snapshot
 from autopilot.ground_link import GcsLink, GroundLinks
+from autopilot.log_protocol import LogServer
 from autopilot.missions import Missions
 from autopilot.offboard_lockstep import OffboardLockstep
+from autopilot.onboard_log import OnboardLog
 from autopilot.outbox import Outbox
 from autopilot.param_protocol import ParamProtocol
 from autopilot.params import ParamStore
@@ -53,6 +66,7 @@ from autopilot.records import (
     Counters,
     FileTransfer,
     GroundHeartbeat,
+    LogRequest,
     MissionMessage,
     ModeRequest,
     Routes,
@@ -61,7 +75,7 @@ from autopilot.stream_frames import StreamFrames
 from autopilot.streams import MessageStreams, phase_of, spread_of
 from autopilot.telemetry_out import BATCH_WALL, Streams, ZenohOut
 from autopilot.tick import autopilot_tick, sensor_tick, warm_up
-from quadsitl import codec, failures, fastio, wire
+from quadsitl import codec, failures, fastio, telemetry, wire
 from quadsitl.cli_util import UsageError, parse_controller_params, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.process_util import (
@@ -80,6 +94,9 @@ GCS_POLL = 0.002  # [s] wall: how often the ground-station sockets are asked for
 # for both: each trip costs a real-time autopilot CPU, docs/performance.md).
 HOUSEKEEPING = BATCH_WALL
 GCS_BUDGET = 0.001  # [s] wall: the most time one reading of the ground-station sockets may take
+# A log's download: at most this many LOG_DATA (90 bytes each) a burst, so many to a datagram (about 1.7 kB): bursts
+# every GCS_POLL while one goes on
+LOG_DATA_BURST, LOG_DATA_PER_DATAGRAM = 128, 16
 
 
 class Autopilot:
@@ -136,6 +153,16 @@ class Autopilot:
         self.zenoh = ZenohOut(None if args.no_zenoh else ZenohOut.open(args), args.vehicle, self.sensing,
                               args.telemetry_congestion, self.io)  # fmt: skip
         self.outbox = Outbox(self.ground, self.counters, self.publish_plan)
+        # The flight logs (autopilot.onboard_log), kept from the batches of telemetry records, and served (LOG_*)
+        self.preset, self.kind = preset, kind
+        self.onboard: OnboardLog | None = None
+        logs = Path(args.logs) if args.logs else None
+        if logs is not None:
+            streams = ("state", "setpoint", "actuators", *((telemetry.TRUTH,) if self.sensing else ()))
+            self.onboard = OnboardLog(logs, self.log_definitions, preset.actuators.max_thrust, self.origin, streams)
+            self.zenoh.also(self.onboard.add)
+            self.outbox.on_said = lambda severity, text: self.onboard.say(self.commander.now, severity, text)
+        self.logs = LogServer(logs, lambda: self.onboard.path if self.onboard else None)
         # The per-tick telemetry messages (autopilot.stream_frames) are built by the compiled tick and sent by the
         # compiled loop, on unsigned links (a signed link's frames are pymavlink's to sign: Python builds them all).
         frames = StreamFrames(len(links), self.origin, 4.0 * preset.actuators.max_thrust)
@@ -148,7 +175,8 @@ class Autopilot:
         routes = Routes(trajectory=self.commander.on_trajectory, attitude=self.commander.on_attitude,
                         command=self.on_command, mode=self.on_mode, param_request=self.param_protocol.on_request,
                         param_set=self.param_protocol.on_set, mission=self.on_mission,
-                        file_transfer=self.on_file_transfer, ground_heartbeat=self.on_ground_heartbeat)  # fmt: skip
+                        file_transfer=self.on_file_transfer, log=self.on_log,
+                        ground_heartbeat=self.on_ground_heartbeat)  # fmt: skip
         self.receiver = Receiver(self.system_id, wire.AUTOPILOT_COMPONENT_ID, routes, self.outbox, self.counters,
                                  self.frame, lambda: self.controller.max_tilt, self.io, self.pace)  # fmt: skip
         self.last_heartbeat = 0.0
@@ -256,6 +284,8 @@ class Autopilot:
             c = self.commander
             if c.armed and c.mode == wire.Mode.OFFBOARD and c.offboard_tick < 0:  # the flight's first tick is next:
                 limit = min(limit, int(self.io[kernel.TICK]))  # Python's, which may hold the clock there
+        if self.logs.sending:  # a log's download: its next burst from Python after GCS_POLL
+            next_chores = min(next_chores, time.monotonic() + GCS_POLL)
         status, nbytes, flags, self.next_poll, wall = self.plant.serve(
             self.io, self.tick_arguments(), self.zenoh.deadline(next_chores), limit, self.destinations.out,
             self.ground_fds, self.next_poll, GCS_POLL,
@@ -446,6 +476,32 @@ class Autopilot:
         refusal = gcs_messages.ftp_refusal(r.payload)
         self.outbox.send(mavlink.MAVLink_file_transfer_protocol_message(0, *r.source, list(refusal)))
 
+    def on_log(self, r: LogRequest) -> None:
+        """The log protocol (:mod:`autopilot.log_protocol`): its answers on the link that asked."""
+        f = r.fields
+        if r.msg_id == mavlink.MAVLINK_MSG_ID_LOG_REQUEST_LIST:
+            for entry in self.logs.on_request_list(f["start"], f["end"]):
+                r.link.send(self.ground.pack(mavlink.MAVLink_log_entry_message(**entry)))
+        elif r.msg_id == mavlink.MAVLINK_MSG_ID_LOG_REQUEST_DATA:
+            if self.logs.on_request_data(f["id"], f["ofs"], f["count"], r.link):
+                self.send_log_data()
+        elif r.msg_id == mavlink.MAVLINK_MSG_ID_LOG_REQUEST_END:
+            self.logs.stop()
+        else:
+            self.logs.on_erase()
+
+    def send_log_data(self) -> None:
+        """The next burst of a log's data (LOG_DATA), LOG_DATA_PER_DATAGRAM messages to a datagram."""
+        link, burst = self.logs.pump(GCS_BUDGET, LOG_DATA_BURST)
+        frames = [self.ground.pack(mavlink.MAVLink_log_data_message(**fields)) for fields in burst]
+        for i in range(0, len(frames), LOG_DATA_PER_DATAGRAM):
+            link.send(b"".join(frames[i : i + LOG_DATA_PER_DATAGRAM]))
+
+    def log_definitions(self):
+        """A new flight log's definitions: the parameters as they are now (autopilot.flight_log.definitions)."""
+        return flight_log.definitions(self.preset, self.kind, self.sensing, self.origin,
+                                      {name: value for _, name, value in self.params})  # fmt: skip
+
     def on_ground_heartbeat(self, r: GroundHeartbeat) -> None:
         self.gcs_heard = r.wall
         if self.gcs_lost:
@@ -528,6 +584,8 @@ class Autopilot:
             if wall >= self.next_poll or status == plant_loop.GROUND:
                 self.next_poll = wall + GCS_POLL
                 self.poll_gcs()
+            if self.logs.sending:
+                self.send_log_data()
             if wall >= next_chores:
                 next_chores = wall + HOUSEKEEPING
                 self.chores(wall)
@@ -586,7 +644,10 @@ class Autopilot:
             print(f"{self.label}: --offboard-lockstep: the clock waited for a setpoint {p.waits} times, "
                   f"{p.waited:.3f} s of wall time in all ({p.gave_up_count} ran out of {p.hold_max:g} s)",
                   file=sys.stderr)  # fmt: skip
-        self.zenoh.close()
+        self.zenoh.close()  # the last rows to the onboard log too
+        if self.onboard is not None:
+            self.onboard.close()
+        self.logs.close()
         self.plant.close()
         self.ground.close()
 

@@ -25,6 +25,7 @@ from autopilot.records import (
     Counters,
     FileTransfer,
     GroundHeartbeat,
+    LogRequest,
     MissionMessage,
     ModeRequest,
     ParamRequest,
@@ -42,6 +43,8 @@ QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refus
 RATES_ONLY, THROTTLE_IGNORE, THRUST_BODY_SET = 128, 64, 32
 THRUST_BODY_AT = 39  # [bytes] where SET_ATTITUDE_TARGET's thrust_body extension starts in its payload
 FTP_HEADER = 12  # bytes of a FILE_TRANSFER_PROTOCOL payload's header: shorter is not a request
+LOG_MESSAGES = (mavlink.MAVLINK_MSG_ID_LOG_REQUEST_LIST, mavlink.MAVLINK_MSG_ID_LOG_REQUEST_DATA,
+                mavlink.MAVLINK_MSG_ID_LOG_REQUEST_END, mavlink.MAVLINK_MSG_ID_LOG_ERASE)  # fmt: skip
 OFFBOARD_SETPOINTS = frozenset((mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
                                 mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
                                 mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT))  # fmt: skip
@@ -68,6 +71,7 @@ class Receiver:
             mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_READ: self._param_request_read,
             mavlink.MAVLINK_MSG_ID_PARAM_SET: self._param_set,
             mavlink.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self._file_transfer,
+            **dict.fromkeys(LOG_MESSAGES, self._log),
         }
 
     def on_message(self, m, link) -> None:
@@ -198,6 +202,9 @@ class Receiver:
     def _param_set(self, m, link) -> None:
         value = wire.param_from_wire(m.param_value, m.param_type)  # an integer's bytes, as PX4 takes them
         self.routes.deliver(ParamSet(m.param_id, value, (m.get_srcSystem(), m.get_srcComponent())))
+
+    def _log(self, m, link) -> None:
+        self.routes.deliver(LogRequest(m.get_msgId(), m.to_dict(), link))
 
     def _file_transfer(self, m, link) -> None:
         if len(m.payload) >= FTP_HEADER:

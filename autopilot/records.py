@@ -112,6 +112,16 @@ class FileTransfer:
 
 
 @dataclass(frozen=True)
+class LogRequest:
+    """LOG_REQUEST_LIST, LOG_REQUEST_DATA, LOG_REQUEST_END or LOG_ERASE for this vehicle (:mod:`autopilot.
+    log_protocol`): its id, its fields by pymavlink's names, and the link it came on (the data goes back on it)."""
+
+    msg_id: int
+    fields: dict
+    link: Any
+
+
+@dataclass(frozen=True)
 class GroundHeartbeat:
     """A ground station's HEARTBEAT (MAV_TYPE_GCS): the datalink is alive."""
 
@@ -127,6 +137,7 @@ Record = (
     | ParamSet
     | MissionMessage
     | FileTransfer
+    | LogRequest
     | GroundHeartbeat
 )
 
@@ -143,6 +154,7 @@ class Routes:
     param_set: Callable[[ParamSet], None]
     mission: Callable[[MissionMessage], None]
     file_transfer: Callable[[FileTransfer], None]
+    log: Callable[[LogRequest], None]
     ground_heartbeat: Callable[[GroundHeartbeat], None]
 
     def deliver(self, record: Record) -> None:
@@ -159,6 +171,7 @@ _ROUTE = {
     ParamSet: "param_set",
     MissionMessage: "mission",
     FileTransfer: "file_transfer",
+    LogRequest: "log",
     GroundHeartbeat: "ground_heartbeat",
 }
 

@@ -129,6 +129,7 @@ class ZenohOut:
         self.batch = Batch(BATCH_TICKS)
         self.last_records: dict[str, bytes] = {}  # each stream's last record published
         self.last_flush = 0.0
+        self.readers: list[Callable[[Batch, int], None]] = []  # the batch's other readers (the onboard log)
         if session is None:
             return
         for stream in (*telemetry.STREAMS, *([telemetry.TRUTH] if sensing else [])):
@@ -140,6 +141,11 @@ class ZenohOut:
         self.plan_pub = session.declare_publisher(telemetry.key(vehicle, telemetry.MISSION),
                                                   encoding=telemetry.mission_encoding(),
                                                   congestion_control=CONGESTION[congestion])  # fmt: skip
+
+    def also(self, reader: Callable[[Batch, int], None]) -> None:
+        """``reader(batch, rows)`` reads every batch too, before it is emptied: records are batched from now on."""
+        self.readers.append(reader)
+        self.io[kernel.CAPACITY] = BATCH_TICKS
 
     @staticmethod
     def open(args) -> zenoh.Session:
@@ -161,6 +167,8 @@ class ZenohOut:
                 payload = self.batch.payload(stream, rows)
                 pub.put(payload)
                 self.last_records[stream] = payload[-self.batch.regions[stream][1] :]
+            for reader in self.readers:
+                reader(self.batch, rows)
             self.io[kernel.ROWS] = 0
         self.last_flush = time.monotonic()
         if rows and self.slow is not None:
@@ -201,7 +209,7 @@ class ZenohOut:
                                                    missions.reached))  # fmt: skip
 
     def close(self) -> None:
-        if self.pubs:
+        if self.pubs or self.readers:
             self.flush()
         if self.slow is not None and self.slow.owed:  # the overview ends on the last record
             self.slow.offer(self.last_records.get, time.monotonic(), force=True)

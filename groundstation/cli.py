@@ -496,6 +496,10 @@ the source, or 'mkdocs serve' there.""",
                      "dashboard's): TLS and access control, e.g. for a router that requires them (docs/security.md); "
                      "--zenoh-listen and --zenoh-connect replace its endpoints")  # fmt: skip
     upp.add_argument("--no-zenoh", action="store_true", help="no Zenoh telemetry")
+    upp.add_argument("--logs", default="runs/up/logs", metavar="DIR|none",
+                     help="where each vehicle keeps a ULog of each flight, from arming to disarming, as PX4's logger "
+                     "does (DIR/YYYY-MM-DD/HH_MM_SS.ulg; with --vehicles, DIR/v1/..., DIR/v2/...), served to ground "
+                     "stations over MAVLink's log protocol; none: no logs (default: runs/up/logs)")  # fmt: skip
     add_dashboard_arguments(upp)
     upp.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     upp.add_argument(

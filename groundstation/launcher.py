@@ -160,6 +160,8 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
             ap += ["--controller-param", item]
         home = ["--home", ",".join(repr(x) for x in v.home)] if args.home is not None or len(fleet) > 1 else []
         ap += home + state_argv(args)
+        if args.logs != "none":  # each vehicle's flight logs, as each PX4 SITL instance keeps its own
+            ap += ["--logs", str(Path(args.logs) / v.name) if len(fleet) > 1 else args.logs]
         if args.no_zenoh:
             ap.append("--no-zenoh")
         else:  # the first vehicle's session listens, the others connect to it (and find each other), or a router
@@ -481,8 +483,8 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     meaningless) and the x–y path figure."""
     import numpy as np  # here, not at the top: `quadsitl --help` should not wait for matplotlib
 
+    from autopilot.flight_log import log_of
     from groundstation import trajectories
-    from groundstation.flight_log import log_of
     from groundstation.metrics import (
         estimate_rms,
         format_position_table,

@@ -25,11 +25,11 @@ import numpy as np
 from autopilot import mission_protocol as mp
 from autopilot.control_params import MEM_PLUG_FAILED_TICK
 from autopilot.factory import make_controller
+from autopilot.flight_log import log_of
 from autopilot.missions import Missions
 from autopilot.setpoints import Frame
 from groundstation import mission_files, trajectories
 from groundstation.figures import write_figures, write_mission_figure, write_path_figure
-from groundstation.flight_log import log_of
 from groundstation.metrics import channel_outputs, estimate_rms, position_metrics, run_metrics
 from groundstation.mission_files import MISSION_DURATION, Mission
 from groundstation.setpoint_grid import grid_setpoints
@@ -311,7 +311,7 @@ def write_outputs(
         columns = telemetry_columns(res)
         write_csv(path, stacked(columns))
         files.append(path)
-        if i == 0:  # the flight's ULog, as fly's (PX4's topics: groundstation.flight_log)
+        if i == 0:  # the flight's ULog, as fly's (PX4's topics: autopilot.flight_log)
             ulog.write(out / "flight.ulg", log_of(columns, preset, kind, home, mission is not None))
             files.append(out / "flight.ulg")
     mpath = out / "metrics.json"

@@ -229,7 +229,8 @@ class Soak:
         seg.up = subprocess.Popen([*self.py, "up", "--quiet", "--preset", self.args.preset, "--vehicles", str(n),
                                    "--gcs-listen", f"127.0.0.1:{gcs_listen}", "--gcs-remote", f"127.0.0.1:{gcs}",
                                    "--api-listen", f"127.0.0.1:{api_listen}", "--api-remote", f"127.0.0.1:{api}",
-                                   "--zenoh-listen", endpoint, *mode], start_new_session=True)  # fmt: skip
+                                   "--zenoh-listen", endpoint, "--logs", str(self.out / "logs"), *mode],
+                                  start_new_session=True)  # fmt: skip
         session = zenoh.open(telemetry.zenoh_config("peer", connect=[endpoint]))
         sub = session.declare_subscriber(f"{telemetry.PREFIX}/*/status",
                                          lambda s: on_status(seg, str(s.key_expr).split("/")[1],

@@ -103,8 +103,11 @@ STATUS_AT_ARMED, STATUS_AT_MODE, STATUS_AT_FAILSAFE, STATUS_AT_OFFBOARD_TICK = (
 
 
 def record_dtype(stream: str) -> np.dtype:
-    """A record of ``stream`` as a numpy structured type: its fields at their offsets (the same bytes)."""
+    """A record of ``stream`` (or of the truth, laid out as the state's) as a numpy structured type: its fields at
+    their offsets (the same bytes)."""
     import numpy as np
+
+    stream = "state" if stream == TRUTH else stream
 
     size = STREAMS[stream].size
     dtype = np.dtype({"names": list(FIELDS[stream]), "formats": [FIELD_CODES[c] for c in _codes(stream)],

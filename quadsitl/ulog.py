@@ -1,6 +1,6 @@
 """PX4's ULog file format, written (https://docs.px4.io/main/en/dev_log/ulog_file_format): the header, the
 definitions (flag bits, formats, information, parameters) and the data (subscriptions, the topics' samples in time
-order, logged strings). Plain Python and numpy; what a flight's topics hold is :mod:`groundstation.flight_log`'s.
+order, logged strings). Plain Python and numpy; what a flight's topics hold is :mod:`autopilot.flight_log`'s.
 
 A topic is a format (``name:type field;type field;...``, the first field ``uint64_t timestamp`` [µs]) and its
 samples as columns; the samples of all topics are written interleaved by timestamp, as PX4's logger writes them,
@@ -108,8 +108,8 @@ def _parameter(name: str, value: float | int) -> bytes:
     return _message(b"P", struct.pack("<B", len(k)) + k + data)
 
 
-def encode(log: Log) -> bytes:
-    """The ULog file of ``log``, as bytes."""
+def _definitions(log: Log) -> list[bytes]:
+    """The header, the definitions and the subscriptions of ``log``'s topics (topic i is msg_id i)."""
     out = [MAGIC, bytes([VERSION]), struct.pack("<Q", log.start_us)]
     out.append(_message(b"B", bytes(8) + bytes(8) + bytes(24)))  # flag bits: none set, no appended data
     for topic in log.topics:
@@ -120,24 +120,63 @@ def encode(log: Log) -> bytes:
         out.append(_parameter(name, value))
     for msg_id, topic in enumerate(log.topics):
         out.append(_message(b"A", struct.pack("<BH", topic.multi_id, msg_id) + topic.name.encode("ascii")))
-    # the samples of every topic and the strings, in time order (a topic's own order kept at equal times)
+    return out
+
+
+def _data(topics: Sequence[Topic], strings: Sequence[tuple[int, str, str]], ids: dict[tuple[str, int], int]
+          ) -> list[bytes]:  # fmt: skip
+    """The samples of ``topics`` (each subscribed as ``ids[name, multi_id]``) and the logged ``strings``, in time
+    order (a topic's own order kept at equal times)."""
     stamps, records = [], []
-    for msg_id, topic in enumerate(log.topics):
+    for topic in topics:
         rows = topic.rows()
-        head = struct.pack("<H", msg_id)
+        head = struct.pack("<H", ids[topic.name, topic.multi_id])
         stamps.append(rows["timestamp"].astype(np.int64))
         records.extend(_message(b"D", head + r) for r in (rows.tobytes()[i : i + rows.itemsize]
                                                            for i in range(0, rows.nbytes, rows.itemsize)))  # fmt: skip
-    for t, level, text in log.strings:
+    for t, level, text in strings:
         stamps.append(np.array([t], dtype=np.int64))
         body = struct.pack("<BQ", ord("0") + LOG_LEVELS[level], t) + text.encode("utf-8")
         records.append(_message(b"L", body))
-    if records:
-        order = np.argsort(np.concatenate(stamps), kind="stable")
-        out.extend(records[i] for i in order.tolist())
-    return b"".join(out)
+    if not records:
+        return []
+    order = np.argsort(np.concatenate(stamps), kind="stable")
+    return [records[i] for i in order.tolist()]
+
+
+def _ids(topics: Sequence[Topic]) -> dict[tuple[str, int], int]:
+    return {(topic.name, topic.multi_id): msg_id for msg_id, topic in enumerate(topics)}
+
+
+def encode(log: Log) -> bytes:
+    """The ULog file of ``log``, as bytes."""
+    return b"".join(_definitions(log) + _data(log.topics, log.strings, _ids(log.topics)))
 
 
 def write(path: Path, log: Log) -> None:
     """Write ``log`` to ``path`` as a ULog file."""
     path.write_bytes(encode(log))
+
+
+class Writer:
+    """A ULog file written as a flight goes, as PX4's logger writes it: the definitions of ``log`` (its information,
+    parameters and topics' formats; its samples and strings, if any, go first) when opened, then each
+    :meth:`append`'s samples and strings. A file written in one append equals :func:`encode`'s."""
+
+    def __init__(self, path: Path, log: Log) -> None:
+        self.path = path
+        self.ids = _ids(log.topics)
+        self.file = open(path, "wb")  # noqa: SIM115 -- open for the flight, closed by close()
+        self.file.writelines(_definitions(log))
+        self.append(log.topics, log.strings)
+
+    def append(self, topics: Sequence[Topic], strings: Sequence[tuple[int, str, str]] = ()) -> None:
+        """More samples of the log's topics (by name and multi_id), and logged strings ((timestamp [µs], level name,
+        text)), written in time order among themselves."""
+        self.file.writelines(_data(topics, strings, self.ids))
+
+    def flush(self) -> None:
+        self.file.flush()
+
+    def close(self) -> None:
+        self.file.close()

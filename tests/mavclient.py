@@ -8,8 +8,10 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
@@ -29,6 +31,7 @@ class Vehicle:
     gcs_port: int  # the ground-station link streams here (PX4: 14550)
     api_port: int  # the offboard-API link streams here (PX4: 14540)
     zenoh: str
+    logs: Path | None = None  # where its flight logs go (up --logs)
 
     def stop(self) -> int:
         if self.proc.poll() is None:
@@ -49,7 +52,8 @@ def quadsitl_up(*extra: str):
 @contextlib.contextmanager
 def fleet_up(n: int, *extra: str):
     """``quadsitl up --vehicles n`` on free loopback ports: every vehicle's ground-station link streams to
-    ``gcs_port``; vehicle i's offboard-API link to ``api_port`` + i (as PX4's 14540 + i)."""
+    ``gcs_port``; vehicle i's offboard-API link to ``api_port`` + i (as PX4's 14540 + i). Its flight logs go to a
+    temporary folder (``logs``, removed afterwards) unless ``extra`` says where."""
     taken: set[int] = set()  # the five UDP ranges are picked before anything binds them: distinct
     gcs, api = free_ports(1, taken=taken), free_ports(n, taken=taken)
     gcs_listen, api_listen = free_ports(n, taken=taken), free_ports(n, taken=taken)
@@ -58,12 +62,15 @@ def fleet_up(n: int, *extra: str):
             "--gcs-listen", f"127.0.0.1:{gcs_listen}", "--gcs-remote", f"127.0.0.1:{gcs}",
             "--api-listen", f"127.0.0.1:{api_listen}", "--api-remote", f"127.0.0.1:{api}",
             "--zenoh-listen", zenoh, *extra]  # fmt: skip
-    proc = subprocess.Popen(argv, start_new_session=True)
-    v = Vehicle(proc, gcs, api, zenoh)
-    try:
-        yield v
-    finally:
-        v.stop()
+    with tempfile.TemporaryDirectory(prefix="quadsitl-logs-") as logs:
+        if "--logs" not in extra:
+            argv += ["--logs", logs]
+        proc = subprocess.Popen(argv, start_new_session=True)
+        v = Vehicle(proc, gcs, api, zenoh, None if "--logs" in extra else Path(logs))
+        try:
+            yield v
+        finally:
+            v.stop()
 
 
 @contextlib.contextmanager

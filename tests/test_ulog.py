@@ -1,4 +1,4 @@
-"""flight.ulg (quadsitl.ulog, groundstation.flight_log): PX4's ULog, read back by PX4's own reader (pyulog, its
+"""flight.ulg (quadsitl.ulog, autopilot.flight_log): PX4's ULog, read back by PX4's own reader (pyulog, its
 ``ulog_info`` and ``ulog2csv``) and compared with the flight's telemetry.csv."""
 
 from __future__ import annotations
@@ -13,10 +13,13 @@ import numpy as np
 import pytest
 from pyulog import ULog
 
-from groundstation.flight_log import INTERVAL_MS
+from autopilot.flight_log import INTERVAL_MS, definitions, record_columns, topics_of
+from autopilot.onboard_log import OnboardLog
+from autopilot.tick import Batch
 from groundstation.telemetry_csv import read_csv
 from quadsitl import frames, ulog
 from quadsitl.config import load_preset
+from quadsitl.telemetry import TRUTH, record_dtype
 from tests.test_fly import quadsitl
 
 pytestmark = pytest.mark.timeout(300)
@@ -162,3 +165,63 @@ def test_fly_writes_the_same_log_from_its_telemetry_on_sensors(tmp_path):
         assert close(lp["x"], t["x" + suffix][i]) and close(lp["z"], t["z" + suffix][i]), name
     assert (data["vehicle_status"]["nav_state"] == 14).all()
     assert ULog(str(tmp_path / "flight.ulg")).msg_info_dict["quadsitl_controller"] == "backstepping"
+
+
+def test_a_written_log_in_one_append_is_the_encoded_log(tmp_path):
+    a = ulog.Topic("a", ["uint64_t timestamp", "float v"], {"timestamp": np.array([0, 20]), "v": np.array([1.0, 2.0])})
+    log = ulog.Log({"char sys_name": "test"}, {"P1": 2.5}, [a], [(5, "info", "hello")], start_us=7)
+    w = ulog.Writer(tmp_path / "w.ulg", log)
+    w.close()
+    assert (tmp_path / "w.ulg").read_bytes() == ulog.encode(log)
+
+
+def fill(batch: Batch, records: dict[str, np.ndarray]) -> int:
+    """The records ({stream: structured rows}) into ``batch``'s regions → their count."""
+    for stream, rows in records.items():
+        at, _ = batch.regions[stream]
+        batch.records[at : at + rows.nbytes] = rows.view(np.uint8)
+    return len(next(iter(records.values())))
+
+
+def test_the_autopilots_log_written_batch_by_batch_is_the_flight_logged_whole(tmp_path):
+    """OnboardLog keeps the first row of each 10 ms of each batch and writes them every second: what it writes is
+    what flight_log makes of the whole flight's rows at once, from arming to disarming (sensor mode: the truth
+    too); the status texts said in flight are logged, those said on the ground are not."""
+    rng = np.random.default_rng(3)
+    n, armed_from, armed_to = 5000, 700, 4300
+    streams = ("state", "setpoint", "actuators", TRUTH)
+    records = {s: np.zeros(n, dtype=record_dtype(s)) for s in (*streams, "status")}
+    t = 0.25 + np.arange(n) * 0.001
+    for rows in records.values():
+        rows["tick"], rows["t"] = np.arange(n), t
+        for name in rows.dtype.names[2:]:
+            if rows.dtype[name].kind == "f":
+                rows[name] = rng.normal(size=n)
+    records["status"]["armed"][armed_from:armed_to] = 1
+    records["status"]["mode"] = 1
+    preset = load_preset("x500")
+    log = OnboardLog(tmp_path, lambda: definitions(preset, "backstepping", True), preset.actuators.max_thrust,
+                     frames.PX4_HOME, streams)  # fmt: skip
+    batch = Batch(2048)
+    at = 0
+    for size in rng.integers(1, 2048, size=50):  # batches of every size, as the wall clock cuts them
+        size = min(int(size), n - at)
+        if size == 0:
+            break
+        if at <= 2000 < at + size:
+            log.say(float(t[2000]), 4, "in flight")
+        if at <= 4500 < at + size:
+            log.say(float(t[4500]), 6, "on the ground")
+        at += log.add(batch, fill(batch, {s: r[at : at + size] for s, r in records.items()})) or size
+    log.close()
+    (path,) = tmp_path.glob("*/*.ulg")
+    whole = definitions(preset, "backstepping", True)
+    columns = record_columns({s: r[armed_from:armed_to] for s, r in records.items()})
+    whole.topics = topics_of(columns, preset.actuators.max_thrust, frames.PX4_HOME)
+    ulog.write(tmp_path / "whole.ulg", whole)
+    written, expected = topics(path), topics(tmp_path / "whole.ulg")
+    assert set(written) == set(expected) and "vehicle_attitude_groundtruth" in written
+    for name, data in expected.items():
+        for field, values in data.items():
+            assert np.array_equal(written[name][field], values, equal_nan=True), (name, field)
+    assert [m.message for m in ULog(str(path)).logged_messages] == ["in flight"]

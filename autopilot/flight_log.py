@@ -33,21 +33,31 @@ from autopilot.params import CONTROLLER_TYPES, SPECS, commander_settings, values
 from quadsitl import __version__, ulog
 from quadsitl.config import Preset
 from quadsitl.frames import PX4_HOME, euler_to_quaternion, ned_to_geodetic
+from quadsitl.telemetry import TRUTH, record_dtype
 
 # PX4's default logging intervals [ms] (logged_topics.cpp, add_default_topics)
 INTERVAL_MS = {"vehicle_attitude": 50, "vehicle_attitude_setpoint": 50, "vehicle_angular_velocity": 20,
                "vehicle_local_position": 100, "vehicle_local_position_setpoint": 100, "vehicle_global_position": 200,
                "actuator_outputs": 100, "vehicle_status": 1000}  # fmt: skip
 NAV_OFFBOARD, NAV_MISSION = 14, 3  # vehicle_status.nav_state
-ARMED = 2  # vehicle_status.arming_state
+# vehicle_status.nav_state of each of the autopilot's modes (quadsitl.telemetry.MODES): hold AUTO_LOITER, offboard,
+# land AUTO_LAND, takeoff AUTO_TAKEOFF, rtl AUTO_RTL, mission AUTO_MISSION
+NAV_STATE = {0: 4, 1: NAV_OFFBOARD, 2: 18, 3: 17, 4: 5, 5: NAV_MISSION}
+STANDBY, ARMED = 1, 2  # vehicle_status.arming_state
 
 
-def sampled(t: np.ndarray, interval_ms: int) -> np.ndarray:
-    """The rows logged at ``interval_ms``: the first of each interval of the flight's time ``t`` [s]."""
+def _slot(t: np.ndarray, interval_ms: int) -> np.ndarray:
+    return np.floor(np.round(np.asarray(t) * 1e6) / (interval_ms * 1000.0)).astype(np.int64)
+
+
+def sampled(t: np.ndarray, interval_ms: int, before: float | None = None) -> np.ndarray:
+    """The rows logged at ``interval_ms``: the first of each interval of the flight's time ``t`` [s]; ``before``:
+    the time of the row before ``t[0]`` (a flight logged in parts), None: ``t`` starts the flight."""
     if len(t) == 0:
         return np.zeros(0, dtype=np.int64)
-    slot = np.floor(np.round(t * 1e6) / (interval_ms * 1000.0)).astype(np.int64)
-    return np.flatnonzero(np.concatenate([[True], slot[1:] != slot[:-1]]))
+    slot = _slot(t, interval_ms)
+    first = before is None or slot[0] != _slot(before, interval_ms)
+    return np.flatnonzero(np.concatenate([[first], slot[1:] != slot[:-1]]))
 
 
 def quaternions(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -67,14 +77,15 @@ def _topic(name: str, fields: list[str], t: np.ndarray, rows: np.ndarray, values
     return ulog.Topic(name, ["uint64_t timestamp", *fields], {"timestamp": stamp, **values})
 
 
-def _attitude(name: str, t: np.ndarray, c: Mapping[str, np.ndarray]) -> ulog.Topic:
-    rows = sampled(t, INTERVAL_MS["vehicle_attitude"])
+def _attitude(name: str, t: np.ndarray, c: Mapping[str, np.ndarray], before: float | None) -> ulog.Topic:
+    rows = sampled(t, INTERVAL_MS["vehicle_attitude"], before)
     q = quaternions(c["roll"][rows], c["pitch"][rows], c["yaw"][rows])
     return _topic(name, ["float[4] q"], t, rows, {"q": q}, sampled_at=True)
 
 
-def _local_position(name: str, t: np.ndarray, c: Mapping[str, np.ndarray], home: tuple) -> ulog.Topic:
-    rows = sampled(t, INTERVAL_MS["vehicle_local_position"])
+def _local_position(name: str, t: np.ndarray, c: Mapping[str, np.ndarray], home: tuple,
+                    before: float | None) -> ulog.Topic:  # fmt: skip
+    rows = sampled(t, INTERVAL_MS["vehicle_local_position"], before)
     n = len(rows)
     ones = np.ones(n)
     values = {"xy_valid": ones, "z_valid": ones,
@@ -89,33 +100,45 @@ def _local_position(name: str, t: np.ndarray, c: Mapping[str, np.ndarray], home:
     return _topic(name, fields, t, rows, values, sampled_at=True)
 
 
-def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, home: tuple = PX4_HOME,
-           mission: bool = False) -> ulog.Log:  # fmt: skip
-    """The ULog of a flight's telemetry ``columns`` ({column: values}, telemetry.csv's), flown from ``home`` (lat,
-    lon [deg], alt [m AMSL]) by ``controller`` on ``preset`` (the autopilot's default settings); ``mission``: a
-    mission's flight (nav_state AUTO_MISSION, else OFFBOARD)."""
+def record_columns(records: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Telemetry columns ({column: values}, as :func:`topics_of` takes them) of the autopilot's telemetry records
+    ({stream: structured array}, :mod:`quadsitl.telemetry`'s streams, each the same ticks): each field by its name,
+    the truth's with ``_true``."""
+    columns: dict[str, np.ndarray] = {}
+    for stream, rows in records.items():
+        suffix = "_true" if stream == TRUTH else ""
+        for name in rows.dtype.names:
+            columns.setdefault(name if name in ("tick", "t") else name + suffix, rows[name])
+    return columns
+
+
+def topics_of(columns: Mapping[str, np.ndarray], f_max: float, home: tuple = PX4_HOME, mission: bool = False,
+              before: float | None = None) -> list[ulog.Topic]:  # fmt: skip
+    """The topics of a flight's telemetry ``columns`` ({column: values}, telemetry.csv's; with ``armed`` and ``mode``
+    (the status record's) when the autopilot logs them) flown from ``home`` (lat, lon [deg], alt [m AMSL]) with
+    motors of ``f_max`` [N] each; ``mission``: without a ``mode`` column, a mission's flight (nav_state AUTO_MISSION,
+    else OFFBOARD); ``before``: the time [s] of the row logged before these (a flight logged in parts)."""
     c = columns
     t = np.asarray(c["t"], dtype=np.float64)
-    f_max = preset.actuators.max_thrust
-    topics = [_attitude("vehicle_attitude", t, c)]
-    rows = sampled(t, INTERVAL_MS["vehicle_attitude_setpoint"])
+    topics = [_attitude("vehicle_attitude", t, c, before)]
+    rows = sampled(t, INTERVAL_MS["vehicle_attitude_setpoint"], before)
     thrust = np.zeros((len(rows), 3))
     thrust[:, 2] = -c["u1"][rows] / (4.0 * f_max)
     topics.append(_topic("vehicle_attitude_setpoint", ["float[4] q_d", "float[3] thrust_body"], t, rows,
                          {"q_d": quaternions(c["roll_ref"][rows], c["pitch_ref"][rows], c["yaw_ref"][rows]),
                           "thrust_body": thrust}))  # fmt: skip
-    rows = sampled(t, INTERVAL_MS["vehicle_angular_velocity"])
-    xyz = np.column_stack([c["p"][rows], c["q"][rows], c["r"][rows]])
+    rows = sampled(t, INTERVAL_MS["vehicle_angular_velocity"], before)
+    xyz = np.column_stack([c["p"][rows], c["q"][rows], c["r"][rows]]).reshape(-1, 3)
     topics.append(_topic("vehicle_angular_velocity", ["float[3] xyz"], t, rows, {"xyz": xyz}, sampled_at=True))
-    topics.append(_local_position("vehicle_local_position", t, c, home))
-    rows = sampled(t, INTERVAL_MS["vehicle_local_position_setpoint"])
+    topics.append(_local_position("vehicle_local_position", t, c, home, before))
+    rows = sampled(t, INTERVAL_MS["vehicle_local_position_setpoint"], before)
     n = len(rows)
     nan = np.full(n, math.nan)
     topics.append(_topic("vehicle_local_position_setpoint",
                          ["float x", "float y", "float z", "float vx", "float vy", "float vz", "float yaw"], t, rows,
                          {"x": c["x_ref"][rows], "y": c["y_ref"][rows], "z": -c["altitude_ref"][rows], "vx": nan,
                           "vy": nan, "vz": nan, "yaw": c["yaw_ref"][rows]}))  # fmt: skip
-    rows = sampled(t, INTERVAL_MS["vehicle_global_position"])
+    rows = sampled(t, INTERVAL_MS["vehicle_global_position"], before)
     lat_lon = np.array([ned_to_geodetic(float(x), float(y), home[0], home[1])
                         for x, y in zip(c["x"][rows], c["y"][rows])]).reshape(-1, 2)  # fmt: skip
     ones = np.ones(len(rows))
@@ -123,29 +146,55 @@ def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, h
                          ["double lat", "double lon", "float alt", "bool lat_lon_valid", "bool alt_valid"], t, rows,
                          {"lat": lat_lon[:, 0], "lon": lat_lon[:, 1], "alt": home[2] - c["z"][rows],
                           "lat_lon_valid": ones, "alt_valid": ones}, sampled_at=True))  # fmt: skip
-    rows = sampled(t, INTERVAL_MS["actuator_outputs"])
+    rows = sampled(t, INTERVAL_MS["actuator_outputs"], before)
     output = np.zeros((len(rows), 16))
     for i in range(4):
         output[:, i] = c[f"f{i + 1}"][rows] / f_max
     topics.append(_topic("actuator_outputs", ["uint32_t noutputs", "float[16] output"], t, rows,
                          {"noutputs": np.full(len(rows), 4), "output": output}))  # fmt: skip
-    rows = sampled(t, INTERVAL_MS["vehicle_status"])
+    rows = sampled(t, INTERVAL_MS["vehicle_status"], before)
     n = len(rows)
+    if "mode" in c:  # the autopilot's own log: its arming state and modes as they were
+        arming = np.where(c["armed"][rows] > 0, ARMED, STANDBY)
+        nav = np.array([NAV_STATE[int(m)] for m in c["mode"][rows]], dtype=np.uint8)
+    else:  # telemetry.csv: the flight's rows are the armed ones
+        arming, nav = np.full(n, ARMED), np.full(n, NAV_MISSION if mission else NAV_OFFBOARD)
     topics.append(_topic("vehicle_status", ["uint64_t armed_time", "uint8_t arming_state", "uint8_t nav_state"], t,
-                         rows, {"armed_time": np.zeros(n, dtype=np.uint64), "arming_state": np.full(n, ARMED),
-                                "nav_state": np.full(n, NAV_MISSION if mission else NAV_OFFBOARD)}))  # fmt: skip
+                         rows, {"armed_time": np.zeros(n, dtype=np.uint64), "arming_state": arming,
+                                "nav_state": nav}))  # fmt: skip
     if "z_true" in c:  # sensor mode: the truth, as PX4 SITL logs its ground truth
         truth = {k[: -len("_true")]: v for k, v in c.items() if k.endswith("_true")}
-        topics.append(_attitude("vehicle_attitude_groundtruth", t, truth))
-        topics.append(_local_position("vehicle_local_position_groundtruth", t, truth, home))
-    s = commander_settings(preset.position, CommanderSettings())
-    built_in = controller in CONTROLLER_TYPES
-    params = values_from(preset, controller if built_in else CONTROLLER_TYPES[0], s)
-    if not built_in:
-        params["CTL_TYPE"] = 2.0  # a controller that plugs in (autopilot.plugin)
+        topics.append(_attitude("vehicle_attitude_groundtruth", t, truth, before))
+        topics.append(_local_position("vehicle_local_position_groundtruth", t, truth, home, before))
+    return topics
+
+
+def definitions(preset: Preset, controller: str, sensing: bool, home: tuple = PX4_HOME,
+                parameters: Mapping[str, float] | None = None) -> ulog.Log:  # fmt: skip
+    """A flight log's definitions, no samples: its topics (those of :func:`topics_of`: the truth's with
+    ``sensing``), the parameters (``parameters``: the autopilot's as they are; None: its defaults for ``controller``
+    on ``preset``) and the system's information."""
+    streams = ("state", "setpoint", "actuators", *((TRUTH,) if sensing else ()))
+    empty = {stream: np.zeros(0, dtype=record_dtype(stream)) for stream in streams}
+    topics = topics_of(record_columns(empty), preset.actuators.max_thrust, home)
+    if parameters is None:
+        s = commander_settings(preset.position, CommanderSettings())
+        built_in = controller in CONTROLLER_TYPES
+        parameters = values_from(preset, controller if built_in else CONTROLLER_TYPES[0], s)
+        if not built_in:
+            parameters["CTL_TYPE"] = 2.0  # a controller that plugs in (autopilot.plugin)
     integer = {spec.name for spec in SPECS if spec.integer}
     info = {"char sys_name": "quadsitl", "char ver_hw": "SITL", "char ver_sw": __version__,
             "char sys_os_name": "Linux", "char sys_toolchain": "numba", "char quadsitl_preset": preset.name,
             "char quadsitl_controller": controller}  # fmt: skip
-    parameters = {k: round(v) if k in integer else float(v) for k, v in params.items()}
-    return ulog.Log(info=info, parameters=parameters, topics=topics)
+    values = {k: round(v) if k in integer else float(v) for k, v in parameters.items()}
+    return ulog.Log(info=info, parameters=values, topics=topics)
+
+
+def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, home: tuple = PX4_HOME,
+           mission: bool = False) -> ulog.Log:  # fmt: skip
+    """The ULog of a whole flight's telemetry ``columns`` ({column: values}, telemetry.csv's), flown from ``home``
+    (lat, lon [deg], alt [m AMSL]) by ``controller`` on ``preset``; ``mission``: a mission's flight."""
+    log = definitions(preset, controller, "z_true" in columns, home)
+    log.topics = topics_of(columns, preset.actuators.max_thrust, home, mission)
+    return log
