@@ -229,7 +229,12 @@ def test_fan_out_loss_counts_distinct_ticks_of_the_run_and_is_never_negative():
     try:
         assert sub.stdout.readline().strip() == "ready"
         time.sleep(1.0)  # the subscriptions declared
-        pubs = {s: session.declare_publisher(telemetry.key("v1", s)) for s in telemetry.STREAMS}
+        # BLOCK: on a loaded machine a dropping publisher loses records the test counts on
+        pubs = {s: session.declare_publisher(telemetry.key("v1", s), congestion_control=zenoh.CongestionControl.BLOCK)
+                for s in telemetry.STREAMS}  # fmt: skip
+        deadline = time.monotonic() + 20.0  # the subscriber's subscriptions known here (a loaded machine is slow)
+        while not all(pub.matching_status.matching for pub in pubs.values()) and time.monotonic() < deadline:
+            time.sleep(0.05)
         for stream, pub in pubs.items():
             dtype = telemetry.record_dtype(stream)
             last = 150 if stream == "actuators" else 200
@@ -240,7 +245,7 @@ def test_fan_out_loss_counts_distinct_ticks_of_the_run_and_is_never_negative():
             other = np.zeros(1, dtype=dtype)
             other["tick"] = 5000
             pub.put(other.tobytes())
-        time.sleep(1.0)
+        time.sleep(2.0)  # delivered and counted
         sub.send_signal(signal.SIGTERM)
         out, _ = sub.communicate(timeout=20)
     finally:
