@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 # The state's layout (generated names), modes, failsafes, events and settings, re-exported for the commander's users
+from autopilot import geofence
 from autopilot.commander_state import *  # noqa: F403
 from quadsitl.compiled_frames import wrap_pi
 from quadsitl.jit import jit
@@ -304,6 +305,35 @@ def _fly_offboard(cm: np.ndarray, dt: float) -> None:
 
 
 @jit
+def _geofence(cm: np.ndarray) -> int:
+    """A new breach of the geofence (autopilot.geofence): GF_ACTION's action, once (not again until the vehicle is back
+    inside), not while landing, nor while returning unless it terminates → EVENT_GEOFENCE (taken, or a warning),
+    EVENT_GEOFENCE_GOING_ON (a landing or return goes on), or EVENT_NONE."""
+    kind = geofence.breach(cm)
+    if kind == 0 or cm[GF_BREACH] != 0.0:
+        cm[GF_BREACH] = kind
+        return EVENT_NONE
+    cm[GF_BREACH] = kind
+    action = int(cm[GF_ACTION])
+    mode = cm[MODE]
+    if action == 1:
+        return EVENT_GEOFENCE
+    if mode == LAND or (mode == RTL and action != 4):  # already coming down or back
+        return EVENT_GEOFENCE_GOING_ON
+    cm[FAILSAFE] = FAILSAFE_GEOFENCE
+    if action == 4:  # terminate: the motors off, the vehicle falls
+        cm[ARMED] = 0.0
+        cm[OFFBOARD_TICK] = -1.0
+    elif action == 2 and mode != HOLD:
+        enter(cm, HOLD)
+    elif action == 3:
+        enter(cm, RTL)
+    elif action == 5:
+        enter(cm, LAND)
+    return EVENT_GEOFENCE
+
+
+@jit
 def update(
     cm: np.ndarray, tick: int, now: float, x: float, y: float, altitude: float, vx: float, vy: float,
     climb_rate: float, yaw: float,
@@ -319,6 +349,10 @@ def update(
     event = auto_disarm(cm, now)
     if event != EVENT_NONE:
         return event
+    if cm[GF_ACTION] != 0.0:  # GF_ACTION none: not checked, as PX4
+        event = _geofence(cm)
+        if cm[ARMED] == 0.0:  # terminated
+            return event
     mode = cm[MODE]
     if mode == OFFBOARD and cm[OFFBOARD_TICK] < 0.0:
         cm[OFFBOARD_TICK] = tick
@@ -366,7 +400,7 @@ class Commander:
     methods, the tick is :meth:`update` (or :func:`update` on ``self.cm`` from compiled code)."""
 
     def __init__(self, settings: CommanderSettings | None = None) -> None:
-        self.cm = np.zeros(SIZE)
+        self.cm = np.zeros(geofence.CM_SIZE)  # the state declared, then the geofence's items
         self.cm[SETPOINT_FIRST:SETPOINT_END] = math.nan
         self.cm[[LANDED_SINCE, TAKEOFF_ALT, ALT_LOCK, RESTING_SINCE]] = math.nan
         self.cm[REFERENCE_FIRST:REFERENCE_END] = math.nan
@@ -394,6 +428,7 @@ class Commander:
         cm[Z_VEL_UP], cm[Z_VEL_DN], cm[RTL_ALT] = s.z_vel_up, s.z_vel_dn, s.rtl_alt
         cm[YAW_RATE_AUTO], cm[YAW_RATE_OFFBOARD] = s.yaw_rate_auto, s.yaw_rate_offboard
         cm[DISARM_PREFLIGHT] = s.disarm_preflight
+        cm[GF_ACTION], cm[GF_MAX_HOR], cm[GF_MAX_VER] = s.geofence_action, s.max_distance, s.max_height
 
     @property
     def armed(self) -> bool:
@@ -552,6 +587,8 @@ class Commander:
             return False, "Arming denied: no offboard setpoint stream"
         if self.mode in (Mode.LAND, Mode.RTL):
             return False, f"Arming denied: mode {self.mode.name.lower()}; switch to hold, takeoff or offboard"
+        if self.settings.geofence_action != 0 and geofence.fence_breach(self.cm, self.cm[X], self.cm[Y]):
+            return False, "Arming denied: vehicle outside the geofence"
         arm(self.cm)
         self.messages.append((6, "Armed"))
         return True, ""
@@ -614,6 +651,10 @@ class Commander:
         """MAV_CMD_DO_CHANGE_SPEED: the horizontal speed of the current and later legs [m/s]."""
         self.settings.cruise = speed
         self.cm[CRUISE] = self.cm[LEG_SPEED] = speed
+
+    def set_fence(self, fence: np.ndarray) -> None:
+        """The geofence's polygons and circles (:func:`autopilot.geofence.items_to_array`), flown from the next tick."""
+        geofence.set_fence(self.cm, fence)
 
     def plant_lost(self) -> None:
         """No vehicle state arrives: flying blind. Armed, switch to LAND (it resumes when states do)."""
@@ -705,6 +746,12 @@ class Commander:
             self.messages.append((6, "Takeoff complete, holding"))
         elif event == EVENT_HOME_REACHED:
             self.messages.append((6, "Home reached, landing"))
+        elif event in (EVENT_GEOFENCE, EVENT_GEOFENCE_GOING_ON):
+            action = GEOFENCE_ACTIONS[self.settings.geofence_action]
+            what = geofence.BREACHES.get(int(self.cm[GF_BREACH]), "breached")
+            if event == EVENT_GEOFENCE_GOING_ON:
+                action = f"{action}, not taken: {self.mode.name.lower()} goes on"
+            self.messages.append((2, f"Geofence breached: {what}; action: {action}"))
         elif event == EVENT_CONTROLLER_FAILED:
             self.messages.append((2, "Failsafe: the controller commanded a non-finite value; flying the "
                                      "backstepping, landing"))  # fmt: skip

@@ -19,6 +19,8 @@ FAILSAFE_GCS_LOST = 3
 FAILSAFE_ESTIMATOR = 4
 FAILSAFE_CONTROLLER = 5  # a plugged controller commanded a non-finite value (autopilot.tick.autopilot_step)
 FAILSAFE_MOTOR = 6  # a motor failed (failure injection: MAV_CMD_INJECT_FAILURE), COM_ACT_FAIL_ACT's action
+FAILSAFE_GEOFENCE = 7  # the geofence breached, GF_ACTION's action (autopilot.geofence)
+GEOFENCE_ACTIONS = ("none", "warning", "hold", "return", "terminate", "land")  # GF_ACTION, as PX4 numbers them
 ACTUATOR_FAILURE_ACTIONS = ("none", "hold", "land", "return", "terminate")  # COM_ACT_FAIL_ACT, as PX4 numbers them
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
 HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION = (int(m) for m in Mode)
@@ -49,7 +51,10 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 #   thrust (NaN: the altitude channel makes it; else it is flown as it is, :func:`autopilot.tick.autopilot_step`);
 # - the failures: the motors off (bits: motor i is 1 << i; their force is 0 whatever the allocation asks, a failure
 #   injected), and whether the horizontal position is lost (1.0: the GPS lost; a landing then descends level, PX4's
-#   Descend, until the next arming).
+#   Descend, until the next arming);
+# - the geofence (autopilot.geofence): GF_ACTION, GF_MAX_HOR_DIST, GF_MAX_VER_DIST (0: none), the breach in force
+#   (geofence.BREACH_*, 0: none) and how many fence items follow the declared state (FENCE_AT: FENCE_ITEM numbers
+#   each).
 STATE = """
 status: ARMED MODE FAILSAFE
 sp_horizontal: SP_X SP_Y SP_VX SP_VY SP_AX SP_AY
@@ -62,6 +67,7 @@ seen: NOW TICK X Y ALTITUDE VX VY CLIMB_RATE YAW
 settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT YAW_RATE_AUTO YAW_RATE_OFFBOARD DISARM_PREFLIGHT
 reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST
 failures: MOTORS_OFF NO_POSITION
+geofence: GF_ACTION GF_MAX_HOR GF_MAX_VER GF_BREACH FENCE_N
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
 LAYOUTS = {"STATE": STATE}
@@ -92,13 +98,17 @@ SETTINGS_FIRST, SETTINGS_END = 59, 72
 REFERENCE_FIRST, REFERENCE_END = 72, 87
 (MOTORS_OFF, NO_POSITION) = range(87, 89)  # fmt: skip
 FAILURES_FIRST, FAILURES_END = 87, 89
+(GF_ACTION, GF_MAX_HOR, GF_MAX_VER, GF_BREACH, FENCE_N) = range(89, 94)  # fmt: skip
+GEOFENCE_FIRST, GEOFENCE_END = 89, 94
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 89
+SIZE = 94
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
 EVENT_CONTROLLER_FAILED = 5  # reported by the autopilot's tick, not update()
 EVENT_PREFLIGHT_DISARM = 6
+EVENT_GEOFENCE = 7  # the geofence breached: GF_ACTION's action taken (cm[GF_BREACH] says how)
+EVENT_GEOFENCE_GOING_ON = 8  # the geofence breached while landing or returning: that goes on
 AIRBORNE_ALT = 0.3  # [m]: above this the vehicle has taken off (PX4's land detector's "not landed"), estimates included
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
 TAKEOFF_TOLERANCE = 0.1  # [m]: takeoff is done when the vehicle is this close to the takeoff altitude
@@ -153,7 +163,13 @@ class CommanderSettings:
     rtl_alt: float = key(60.0, unit="m", low=0, high=10000, mavlink=param("RTL_RETURN_ALT"),
                          doc="return altitude above home")  # fmt: skip
     max_distance: float = key(0.0, unit="m", low=0, high=1e7, mavlink=param("GF_MAX_HOR_DIST"),
-                              doc="setpoints farther from home are refused (0 = no limit)")  # fmt: skip
+                              doc="the geofence's horizontal distance from home: farther is a breach, and setpoints "
+                                  "farther are refused (0 = no limit)")  # fmt: skip
+    max_height: float = key(0.0, unit="m", low=0, high=10000, mavlink=param("GF_MAX_VER_DIST"),
+                            doc="the geofence's height above home: higher is a breach (0 = no limit)")  # fmt: skip
+    geofence_action: int = key(2, low=0, high=5, mavlink=param("GF_ACTION"),
+                               doc="on a geofence breach: 0 = nothing, 1 = warning, 2 = hold, 3 = return, "
+                                   "4 = terminate (motors off), 5 = land")  # fmt: skip
     yaw_rate_auto: float = key(math.radians(45.0), unit="rad/s", low=0, low_open=True, high=math.radians(360.0),
                                doc="heading rate limit of the auto modes (takeoff, hold, goto, mission, return)",
                                mavlink=param("MPC_YAWRAUTO_MAX", unit="deg/s", low=0, low_open=True, high=360,

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot import stream_frames
-from autopilot.commander import TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, Commander
+from autopilot.commander import GF_BREACH, TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, Commander
 from quadsitl import __version__
 from quadsitl.codec import FRAME_MAX
 from quadsitl.compiled_frames import euler_to_quaternion
@@ -184,7 +184,7 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
         return home_position(origin, *s.home, time_usec=s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
-        return sys_status(s.load, s.errors, s.has_state)
+        return sys_status(s.load, s.errors, s.has_state, fence_breached=bool(c.cm[GF_BREACH]))
     if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
         flags, vel, pos_h, pos_v, mag, acc_h, acc_v = s.estimator or (TRUE_STATE_FLAGS, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         return mavlink.MAVLink_estimator_status_message(s.time_ms * 1000, flags, vel, pos_h, pos_v, mag, 0.0, 0.0,
@@ -221,13 +221,14 @@ CONTROL = (  # what the autopilot controls
     | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
 )
 PRESENT = SENSORS | CONTROL | mavlink.MAV_SYS_STATUS_PREARM_CHECK  # also "enabled"
-# Health bits say 1 = healthy; a geofence we do not have is not in breach (MAVProxy says "fence breach" otherwise).
+# Health bits say 1 = healthy; the geofence's is clear while it is breached (MAVProxy says "fence breach"); a geofence
+# we do not have is not in breach.
 HEALTH_ALWAYS = CONTROL | mavlink.MAV_SYS_STATUS_GEOFENCE
 HEALTH_WITH_STATE = SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK
 
 
 def sys_status(
-    load: float = 0.0, errors: tuple[int, ...] = (0, 0, 0, 0, 0), has_state: bool = True
+    load: float = 0.0, errors: tuple[int, ...] = (0, 0, 0, 0, 0), has_state: bool = True, fence_breached: bool = False
 ) -> mavlink.MAVLink_sys_status_message:
     """``SYS_STATUS``. Sensors gyro, accel, mag, absolute pressure and GPS, the control bits and the pre-arm
     check (MAV_SYS_STATUS_PREARM_CHECK) are present and enabled; the sensors and the pre-arm check are
@@ -241,6 +242,8 @@ def sys_status(
     another system or component); each saturates at 65535."""
     comm, c1, c2, c3, c4 = (min(max(int(e), 0), 65535) for e in (*errors, 0, 0, 0, 0, 0)[:5])
     health = HEALTH_ALWAYS | (HEALTH_WITH_STATE if has_state else 0)
+    if fence_breached:  # the geofence's health: not in breach (autopilot.geofence)
+        health &= ~mavlink.MAV_SYS_STATUS_GEOFENCE
     return mavlink.MAVLink_sys_status_message(
         PRESENT, PRESENT, health, stream_frames.clamp_int(float(load) * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1,
         c2, c3, c4, 0, 0, 0,

@@ -40,9 +40,17 @@ differs from it (docs/missions.md says the same for users):
   does :data:`TIMEOUT_S` of silence. Each download serves a snapshot of the mission taken at
   ``MISSION_REQUEST_LIST``, one per client, so an upload from another client (or one completing) never mixes
   two missions in one download. Requests outside a download are ignored, as PX4 does.
-- **Other mission types** (fence 1, rally 2, anything else) are answered with ``MISSION_ACK`` UNSUPPORTED
-  carrying the same ``mission_type`` (for upload, download and clear), so MAVSDK and QGroundControl stop at
-  once instead of waiting. ``MISSION_CLEAR_ALL`` with mission_type ALL (255) clears the mission.
+- **The geofence** (mission_type 1) is uploaded, downloaded and cleared the same way, into its own store
+  (:attr:`MissionProtocol.fence`): inclusion and exclusion polygons (``MAV_CMD_NAV_FENCE_POLYGON_VERTEX_*``, one
+  item per vertex, param1 the vertex count) and circles (``MAV_CMD_NAV_FENCE_CIRCLE_*``, param1 the radius [m]),
+  at most :data:`MAX_FENCE_ITEMS`. A polygon of fewer than 3 vertices is refused with ERROR as PX4 refuses it; a
+  circle's radius that is not a number > 0 with INVALID_PARAM1; and, when its last item arrives, a polygon whose
+  vertices do not come as its count says, or whose edges cross, with ERROR and a STATUSTEXT (PX4 leaves those to
+  the ground station's editor): a fence refused leaves the stored one as it was. Uploads of it are taken during a
+  flown mission (PX4 does too).
+- **Other mission types** (rally 2, anything else) are answered with ``MISSION_ACK`` UNSUPPORTED carrying the
+  same ``mission_type`` (for upload, download and clear), so MAVSDK and QGroundControl stop at once instead of
+  waiting. ``MISSION_CLEAR_ALL`` with mission_type ALL (255) clears the mission and the geofence.
 - **Current item.** ``MISSION_SET_CURRENT`` sets it within range and answers with ``MISSION_CURRENT``; out of
   range it changes nothing and says so in a STATUSTEXT (PX4 does the same; the message has no ACK).
   :meth:`MissionProtocol.do_set_mission_current` is ``MAV_CMD_DO_SET_MISSION_CURRENT``: FAILED out of range,
@@ -56,7 +64,7 @@ copies them here with :meth:`MissionProtocol.set_progress`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -135,9 +143,17 @@ PLACE_COMMANDS = POSITION_COMMANDS | {DO_SET_ROI_LOCATION}
 """Commands that name a place (a global frame, a valid latitude, longitude): the positions and the region of
 interest, which the vehicle faces on the following legs."""
 SUPPORTED_COMMANDS = PLACE_COMMANDS | NO_POSITION_COMMANDS
+FENCE_POLYGON_INCLUSION, FENCE_POLYGON_EXCLUSION = 5001, 5002  # MAV_CMD_NAV_FENCE_POLYGON_VERTEX_*
+FENCE_CIRCLE_INCLUSION, FENCE_CIRCLE_EXCLUSION = 5003, 5004  # MAV_CMD_NAV_FENCE_CIRCLE_*
+FENCE_POLYGONS = frozenset({FENCE_POLYGON_INCLUSION, FENCE_POLYGON_EXCLUSION})
+FENCE_COMMANDS = FENCE_POLYGONS | {FENCE_CIRCLE_INCLUSION, FENCE_CIRCLE_EXCLUSION}
+STORED_TYPES = (MISSION_TYPE_MISSION, MISSION_TYPE_FENCE)  # the mission types uploaded, downloaded and cleared
 
 MAX_ITEMS = 500
 """The most items a mission may have; a longer upload is refused with NO_SPACE."""
+MAX_FENCE_ITEMS = 64
+"""The most items a geofence may have (PX4's on boards with little memory); the commander holds them in its state
+array (:mod:`autopilot.geofence`)."""
 RETRY_S = 0.25
 """Re-send an upload's item request after this long without the wanted item [s] (PX4's 250 ms)."""
 TIMEOUT_S = 5.0
@@ -187,6 +203,7 @@ class MissionItem:
     x: int
     y: int
     z: float
+    mission_type: int = MISSION_TYPE_MISSION
 
     @property
     def lat(self) -> float:
@@ -239,7 +256,7 @@ class MissionItem:
             "x": x,
             "y": y,
             "z": self.z,
-            "mission_type": MISSION_TYPE_MISSION,
+            "mission_type": self.mission_type,
         }
 
 
@@ -352,6 +369,82 @@ def _ignored_xy(x: float, y: float, legacy: bool, *, scale: bool) -> tuple[int, 
     return out[0], out[1]
 
 
+def parse_fence_item(fields: Mapping[str, Any], *, legacy: bool = False) -> MissionItem:
+    """Check one uploaded geofence item (a polygon's vertex or a circle) and store it as a :class:`MissionItem`;
+    raise :class:`ItemRefusedError` if refused (the module's docstring says how). Its altitude is not used."""
+    frame, command = int(fields["frame"]), int(fields["command"])
+    p1 = float(fields["param1"])
+    if command not in FENCE_COMMANDS:
+        raise ItemRefusedError(UNSUPPORTED, f"command {command} is not a geofence item")
+    if frame not in GLOBAL_FRAMES:
+        raise ItemRefusedError(UNSUPPORTED_FRAME, f"frame {frame} is not a global frame")
+    xi, yi = _position(fields["x"], fields["y"], legacy)
+    if command in FENCE_POLYGONS:
+        if not (_finite(p1) and p1 + 0.5 >= 3):  # PX4's rounding of the vertex count
+            raise ItemRefusedError(ERROR, f"a polygon has at least 3 vertices, not {p1:g}")
+        p1 = float(int(p1 + 0.5))
+    elif not (_finite(p1) and p1 > 0.0):
+        raise ItemRefusedError(INVALID_PARAM1, f"a circle's radius must be a number > 0 m, not {p1:g}")
+    z = float(fields["z"])
+    return MissionItem(seq=int(fields["seq"]), frame=frame, command=command, current=0, autocontinue=0, p1=p1,
+                       p2=float(fields["param2"]) if _finite(float(fields["param2"])) else 0.0, p3=0.0, p4=0.0,
+                       x=xi, y=yi, z=z if _finite(z) else 0.0, mission_type=MISSION_TYPE_FENCE)  # fmt: skip
+
+
+def polygons(items: Sequence[MissionItem]) -> list[tuple[int, list[MissionItem]]]:
+    """A geofence's polygons, each (its first item's index, its vertices), as its items declare them (each vertex's
+    param1 its polygon's vertex count); :func:`check_fence` first."""
+    out, i = [], 0
+    while i < len(items):
+        n = int(items[i].p1) if items[i].command in FENCE_POLYGONS else 1
+        if items[i].command in FENCE_POLYGONS:
+            out.append((i, list(items[i : i + n])))
+        i += n
+    return out
+
+
+def _crosses(a: tuple, b: tuple, c: tuple, d: tuple) -> bool:
+    """Whether the segments ab and cd cross or touch (2-D points)."""
+
+    def side(p: tuple, q: tuple, r: tuple) -> float:
+        return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+
+    d1, d2, d3, d4 = side(c, d, a), side(c, d, b), side(a, b, c), side(a, b, d)
+    if ((d1 > 0) != (d2 > 0)) and ((d3 > 0) != (d4 > 0)) and d1 and d2 and d3 and d4:
+        return True
+
+    def on(p: tuple, q: tuple, r: tuple) -> bool:  # r on the segment pq, given collinear
+        return min(p[0], q[0]) <= r[0] <= max(p[0], q[0]) and min(p[1], q[1]) <= r[1] <= max(p[1], q[1])
+
+    return (d1 == 0 and on(c, d, a)) or (d2 == 0 and on(c, d, b)) or (d3 == 0 and on(a, b, c)) or (
+        d4 == 0 and on(a, b, d))  # fmt: skip
+
+
+def check_fence(items: Sequence[MissionItem]) -> str:
+    """Why a whole geofence is refused ("" when it is taken): a polygon's vertices not as its count says (each the
+    same command and count, that many in a row), or a polygon whose edges cross (a self-intersecting polygon has no
+    inside)."""
+    i = 0
+    while i < len(items):
+        first = items[i]
+        if first.command not in FENCE_POLYGONS:
+            i += 1
+            continue
+        n = int(first.p1)
+        run = items[i : i + n]
+        if len(run) < n or any((v.command, v.p1) != (first.command, first.p1) for v in run):
+            return f"Geofence refused: the polygon at item {i} has not {n} vertices in a row"
+        xy = [(v.x * 1e-7, v.y * 1e-7 * math.cos(math.radians(first.x * 1e-7))) for v in run]  # equirectangular
+        for a in range(n):
+            for b in range(a + 1, n):
+                if b == a + 1 or (a == 0 and b == n - 1):
+                    continue  # adjacent edges share a vertex
+                if _crosses(xy[a], xy[(a + 1) % n], xy[b], xy[(b + 1) % n]):
+                    return f"Geofence refused: the polygon at item {i} crosses itself (edges {a} and {b})"
+        i += n
+    return ""
+
+
 @dataclass
 class _Upload:
     partner: Sender
@@ -361,6 +454,7 @@ class _Upload:
     last_sent: float
     legacy: bool = False
     items: list[MissionItem] = field(default_factory=list)
+    mission_type: int = MISSION_TYPE_MISSION
 
 
 @dataclass
@@ -369,6 +463,7 @@ class _Download:
     version: int
     current: int
     last_recv: float
+    mission_type: int = MISSION_TYPE_MISSION
 
 
 class MissionProtocol:
@@ -391,8 +486,12 @@ class MissionProtocol:
         """Counts replacements of the stored mission (uploads that changed it, clears)."""
         self.busy_flying: bool = False
         """Set by the shell while a mission flies (not while paused): uploads and clears are then DENIED."""
+        self.fence: tuple[MissionItem, ...] = ()
+        """The stored geofence (mission_type 1): replaced by a complete upload, a clear or ``count`` = 0."""
+        self.fence_version: int = 0
+        """Counts replacements of the stored geofence."""
         self._upload: _Upload | None = None
-        self._last_upload: tuple[Sender, int, bool] | None = None  # partner, last seq, legacy: for a lost ACK
+        self._last_upload: tuple[Sender, int, int] | None = None  # partner, last seq, mission type: a lost ACK
         self._downloads: dict[Sender, _Download] = {}
 
     # ---- helpers -------------------------------------------------------------------------------------
@@ -409,7 +508,7 @@ class MissionProtocol:
     def _request(self, up: _Upload, now: float) -> Out:
         up.last_sent = now
         kind = "MISSION_REQUEST" if up.legacy else "MISSION_REQUEST_INT"
-        return Out(kind, up.partner, {"seq": up.next_seq, "mission_type": MISSION_TYPE_MISSION})
+        return Out(kind, up.partner, {"seq": up.next_seq, "mission_type": up.mission_type})
 
     def mission_current_fields(self) -> dict[str, Any]:
         """The fields of ``MISSION_CURRENT``: ``total`` is UINT16_MAX with no mission (the MAVLink spec,
@@ -431,6 +530,14 @@ class MissionProtocol:
         self.mission_state = STATE_NOT_STARTED if items else STATE_NO_MISSION
         self.version += 1
 
+    def _replace_fence(self, items: tuple[MissionItem, ...]) -> None:
+        self.fence = items
+        self.fence_version += 1
+
+    def stored(self, mission_type: int) -> tuple[MissionItem, ...]:
+        """The items stored of ``mission_type`` (one of STORED_TYPES)."""
+        return self.fence if mission_type == MISSION_TYPE_FENCE else self.items
+
     def _unsupported(self, mission_type: int, what: str) -> Out:
         """The STATUSTEXT beside an UNSUPPORTED mission type: MAVSDK reports it as a bare ERROR (its geofence plugin
         maps UNSUPPORTED so), the text says why."""
@@ -438,33 +545,38 @@ class MissionProtocol:
         return self._statustext(f"{name} {what} refused: not supported")
 
     def _statustext(self, text: str) -> Out:
-        return Out("STATUSTEXT", None, {"severity": STATUSTEXT_CRITICAL, "text": text[:50]})
+        return Out("STATUSTEXT", None, {"severity": STATUSTEXT_CRITICAL, "text": text})  # said in chunks
 
     # ---- upload --------------------------------------------------------------------------------------
 
     def on_count(self, sender: Sender, count: int, mission_type: int, now: float) -> list[Out]:
-        """``MISSION_COUNT``: start an upload of ``count`` items (0 clears the mission)."""
-        if mission_type != MISSION_TYPE_MISSION:
+        """``MISSION_COUNT``: start an upload of ``count`` items of ``mission_type`` (0 clears what is stored)."""
+        if mission_type not in STORED_TYPES:
             return [self._ack(sender, UNSUPPORTED, mission_type), self._unsupported(mission_type, "upload")]
         up = self._upload
         if up is not None and now - up.last_recv > TIMEOUT_S:
             out = self.tick(now)  # a stale upload not yet dropped by tick: drop it first
             return out + self.on_count(sender, count, mission_type, now)
         if up is not None and up.partner != sender:
-            return [self._ack(sender, ERROR)]  # PX4: another partner's upload is in progress
-        if self.busy_flying:
+            return [self._ack(sender, ERROR, mission_type)]  # PX4: another partner's upload is in progress
+        fence = mission_type == MISSION_TYPE_FENCE
+        if self.busy_flying and not fence:
             return [self._ack(sender, DENIED)]
-        if up is not None and up.next_seq == 0 and up.count == count:
+        if up is not None and up.next_seq == 0 and up.count == count and up.mission_type == mission_type:
             up.last_recv = now  # our first request was lost: ask again
             return [self._request(up, now)]
         self._upload = None
-        if count > MAX_ITEMS:
-            return [self._ack(sender, NO_SPACE)]
+        if count > (MAX_FENCE_ITEMS if fence else MAX_ITEMS):
+            return [self._ack(sender, NO_SPACE, mission_type)]
         if count <= 0:
-            self._replace((), 0)
             self._last_upload = None
+            if fence:
+                self._replace_fence(())
+                return [self._ack(sender, ACCEPTED, mission_type)]
+            self._replace((), 0)
             return [self._ack(sender, ACCEPTED), self.mission_current()]
-        self._upload = _Upload(partner=sender, count=count, next_seq=0, last_recv=now, last_sent=now)
+        self._upload = _Upload(partner=sender, count=count, next_seq=0, last_recv=now, last_sent=now,
+                               mission_type=mission_type)  # fmt: skip
         return [self._request(self._upload, now)]
 
     def on_item(self, sender: Sender, fields: Mapping[str, Any], now: float, *, legacy: bool = False) -> list[Out]:
@@ -474,21 +586,23 @@ class MissionProtocol:
         up = self._upload
         if up is None:
             last = self._last_upload
-            if last is not None and last[0] == sender and last[1] == seq and mission_type == MISSION_TYPE_MISSION:
-                return [self._ack(sender, ACCEPTED)]  # the client missed our ACK and sent the last item again
+            if last is not None and last == (sender, seq, mission_type):
+                return [self._ack(sender, ACCEPTED, mission_type)]  # the client missed our ACK: the last item again
             return [self._ack(sender, ERROR, mission_type)]  # PX4: no transfer
         if sender != up.partner:
             return []  # PX4: partner mismatch, ignored
-        if mission_type != MISSION_TYPE_MISSION:
+        if mission_type != up.mission_type:
             return [self._ack(sender, ERROR, mission_type)]
         up.last_recv = now
         if seq != up.next_seq:
             return []  # a duplicate or out of order: ignored, the re-request timer asks for the wanted one
+        fence = mission_type == MISSION_TYPE_FENCE
         try:
-            item = parse_item(fields, legacy=legacy)
+            item = parse_fence_item(fields, legacy=legacy) if fence else parse_item(fields, legacy=legacy)
         except ItemRefusedError as e:
             self._upload = None
-            return [self._ack(sender, e.code), self._statustext(f"Mission item {seq} refused: {e}")]
+            what = "Geofence" if fence else "Mission"
+            return [self._ack(sender, e.code, mission_type), self._statustext(f"{what} item {seq} refused: {e}")]
         up.legacy = legacy
         up.items.append(item)
         up.next_seq += 1
@@ -504,8 +618,15 @@ class MissionProtocol:
 
     def _complete(self, up: _Upload) -> list[Out]:
         self._upload = None
-        self._last_upload = (up.partner, up.count - 1, up.legacy)
         items = tuple(up.items)
+        if up.mission_type == MISSION_TYPE_FENCE:
+            reason = check_fence(items)
+            if reason:
+                return [self._ack(up.partner, ERROR, up.mission_type), self._statustext(reason)]
+            self._last_upload = (up.partner, up.count - 1, up.mission_type)
+            self._replace_fence(items)
+            return [self._ack(up.partner, ACCEPTED, up.mission_type)]
+        self._last_upload = (up.partner, up.count - 1, up.mission_type)
         unchanged = len(items) == len(self.items) and all(a.same_plan(b) for a, b in zip(items, self.items))
         out = [self._ack(up.partner, ACCEPTED)]
         if not unchanged:  # as PX4: the same mission again keeps the current item and the state
@@ -519,24 +640,28 @@ class MissionProtocol:
 
     def on_request_list(self, sender: Sender, mission_type: int, now: float) -> list[Out]:
         """``MISSION_REQUEST_LIST``: start (or restart) this client's download → ``MISSION_COUNT``."""
-        if mission_type != MISSION_TYPE_MISSION:
+        if mission_type not in STORED_TYPES:
             return [self._ack(sender, UNSUPPORTED, mission_type), self._unsupported(mission_type, "download")]
         self._downloads.pop(sender, None)
         if len(self._downloads) >= MAX_DOWNLOADS:
             oldest = min(self._downloads, key=lambda s: self._downloads[s].last_recv)
             del self._downloads[oldest]
-        self._downloads[sender] = _Download(self.items, self.version, self.current, now)
-        return [Out("MISSION_COUNT", sender, {"count": len(self.items), "mission_type": MISSION_TYPE_MISSION})]
+        items = self.stored(mission_type)
+        self._downloads[sender] = _Download(items, self.version, self.current, now, mission_type)
+        return [Out("MISSION_COUNT", sender, {"count": len(items), "mission_type": mission_type})]
 
     def on_request(self, sender: Sender, seq: int, mission_type: int, now: float, *, legacy: bool = False) -> list[Out]:
         """``MISSION_REQUEST_INT`` (or, ``legacy``, ``MISSION_REQUEST``) for item ``seq`` of a download."""
         dl = self._downloads.get(sender)
-        if dl is None or mission_type != MISSION_TYPE_MISSION:
+        if dl is None or mission_type != dl.mission_type:
             return []  # PX4: no transfer, ignored
         dl.last_recv = now
         if not 0 <= seq < len(dl.items):
             del self._downloads[sender]
-            return [self._ack(sender, INVALID_SEQUENCE)]
+            return [self._ack(sender, INVALID_SEQUENCE, mission_type)]
+        if mission_type == MISSION_TYPE_FENCE:
+            fields = dl.items[seq].message_fields(legacy=legacy, current=0)
+            return [Out("MISSION_ITEM" if legacy else "MISSION_ITEM_INT", sender, fields)]
         current = self.current if dl.version == self.version else dl.current
         fields = dl.items[seq].message_fields(legacy=legacy, current=1 if seq == current else 0)
         fields["autocontinue"] = 1
@@ -545,11 +670,13 @@ class MissionProtocol:
     def on_ack(self, sender: Sender, result: int, mission_type: int, now: float) -> list[Out]:
         """``MISSION_ACK`` from a client: ends its download; CANCELLED from the upload's partner drops the
         upload; UNSUPPORTED from it switches between ``MISSION_REQUEST_INT`` and ``MISSION_REQUEST`` (PX4)."""
-        if mission_type != MISSION_TYPE_MISSION:
+        if mission_type not in STORED_TYPES:
             return []
-        self._downloads.pop(sender, None)
+        dl = self._downloads.get(sender)
+        if dl is not None and dl.mission_type == mission_type:
+            del self._downloads[sender]
         up = self._upload
-        if up is not None and up.partner == sender:
+        if up is not None and up.partner == sender and up.mission_type == mission_type:
             if result == OPERATION_CANCELLED:
                 self._upload = None
             elif result == UNSUPPORTED:
@@ -561,11 +688,16 @@ class MissionProtocol:
     # ---- clear and current ---------------------------------------------------------------------------
 
     def on_clear_all(self, sender: Sender, mission_type: int, now: float) -> list[Out]:
-        """``MISSION_CLEAR_ALL``: empty the mission (mission_type 0 or ALL), ACK ACCEPTED."""
-        if mission_type not in (MISSION_TYPE_MISSION, MISSION_TYPE_ALL):
+        """``MISSION_CLEAR_ALL``: empty the mission (mission_type 0), the geofence (1) or both (ALL), ACK ACCEPTED."""
+        if mission_type not in (*STORED_TYPES, MISSION_TYPE_ALL):
             return [self._ack(sender, UNSUPPORTED, mission_type)]
+        if mission_type == MISSION_TYPE_FENCE:
+            self._replace_fence(())
+            return [self._ack(sender, ACCEPTED, mission_type)]
         if self.busy_flying:
             return [self._ack(sender, DENIED, mission_type)]
+        if mission_type == MISSION_TYPE_ALL:
+            self._replace_fence(())
         self._replace((), 0)
         self._last_upload = None
         return [self._ack(sender, ACCEPTED, mission_type), self.mission_current()]

@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
+from autopilot import geofence
 from autopilot import mission_protocol as mp
 from autopilot.commander import ALTITUDE, CLIMB_RATE, TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, VX, VY, YAW, Commander, X, Y
 from autopilot.mission_executor import (
@@ -29,6 +32,7 @@ from autopilot.mission_executor import (
     Takeoff,
     VehicleNow,
 )
+from quadsitl.compiled_frames import geodetic_to_ned
 from quadsitl.wire import Mode, mavlink
 
 
@@ -68,6 +72,12 @@ class Missions:
         self.flying = False
         """The executor is in charge (in MISSION, or in its own LAND/RTL): :meth:`step` it every control tick. A
         plain attribute: the process reads it after every tick."""
+
+    def fence_array(self) -> np.ndarray:
+        """The stored geofence as the commander holds it (:func:`autopilot.geofence.items_to_array`), in the local
+        frame of ``origin``."""
+        lat0, lon0 = self.origin[0], self.origin[1]
+        return geofence.items_to_array(self.protocol.fence, lambda lat, lon: geodetic_to_ned(lat, lon, lat0, lon0))
 
     @staticmethod
     def vehicle(c: Commander) -> VehicleNow:

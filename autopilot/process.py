@@ -469,8 +469,11 @@ class Autopilot:
 
     def on_mission(self, r: MissionMessage) -> None:
         """A mission-protocol message, to the pure state machine (autopilot.mission_protocol); its answers out."""
+        fence = self.missions.protocol.fence_version
         for out in self.missions.on_message(r.msg_id, r.sender, r.fields, time.monotonic()):
             self.outbox.mission(out)
+        if self.missions.protocol.fence_version != fence:  # a new geofence: flown from the next tick
+            self.commander.set_fence(self.missions.fence_array())
 
     def on_file_transfer(self, r: FileTransfer) -> None:
         refusal = gcs_messages.ftp_refusal(r.payload)

@@ -5,8 +5,8 @@ A declaration is a string, one group per line: ``group: NAME NAME …``; a line 
 consecutive groups together. The generated block (between the markers :data:`BEGIN` and :data:`END` in the
 declaring module) binds each name to its index, each group and span to ``GROUP_FIRST`` and ``GROUP_END`` (a slice
 ``a[GROUP_FIRST:GROUP_END]`` is the group whatever else is declared), and ``SIZE``.
-numba reads them as compile-time constants. ``python -m quadsitl.layout FILE.py`` regenerates a module's block;
-the tests check that every block is as its declaration generates it.
+numba reads them as compile-time constants. ``python -m quadsitl.layout MODULE`` (a module's dotted name)
+regenerates its blocks; the tests check that every block is as its declaration generates it.
 """
 
 from __future__ import annotations

@@ -308,8 +308,8 @@ def test_an_item_of_another_mission_type_during_upload_is_an_error_but_the_uploa
 # ---- other mission types ------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("mission_type", [1, 2, 7])
-def test_fence_rally_and_unknown_types_are_unsupported_with_the_type_echoed(mission_type):
+@pytest.mark.parametrize("mission_type", [2, 7])
+def test_rally_and_unknown_types_are_unsupported_with_the_type_echoed(mission_type):
     p = MissionProtocol()
     upload(p, 1)
     ack = Out("MISSION_ACK", GCS, {"type": mp.UNSUPPORTED, "mission_type": mission_type})
@@ -320,6 +320,97 @@ def test_fence_rally_and_unknown_types_are_unsupported_with_the_type_echoed(miss
         assert out[1].fields["text"] == f"{name} {what} refused: not supported"
     assert p.on_clear_all(GCS, mission_type, 1.0) == [ack]
     assert len(p.items) == 1 and not p.upload_in_progress
+
+
+# ---- the geofence (mission_type 1) ----------------------------------------------------------------------
+
+FENCE = 1
+
+
+def vertex(seq: int, east: float, north: float, n: int = 4, command: int = mp.FENCE_POLYGON_INCLUSION) -> dict:
+    """A polygon vertex ``east``, ``north`` [m] from (LAT, LON), of a polygon of ``n`` vertices."""
+    lat, lon = LAT + north / 111_320.0, LON + east / (111_320.0 * math.cos(math.radians(LAT)))
+    return item_fields(seq, command=command, frame=5, param1=float(n), param2=0.0, x=round(lat * 1e7),
+                       y=round(lon * 1e7), z=0.0, mission_type=FENCE)  # fmt: skip
+
+
+def circle(seq: int, radius: float, command: int = mp.FENCE_CIRCLE_INCLUSION) -> dict:
+    return item_fields(seq, command=command, frame=5, param1=radius, param2=0.0, z=0.0, mission_type=FENCE)
+
+
+def upload_fence(p: MissionProtocol, items: list[dict]) -> list[Out]:
+    out = p.on_count(GCS, len(items), FENCE, 0.0)
+    for f in items:
+        assert only(out, "MISSION_REQUEST_INT").fields == {"seq": f["seq"], "mission_type": FENCE}
+        out = p.on_item(GCS, f, 0.0)
+    return out
+
+
+SQUARE = [vertex(0, -10, -10), vertex(1, 10, -10), vertex(2, 10, 10), vertex(3, -10, 10)]
+
+
+def test_a_geofence_is_uploaded_downloaded_and_cleared_beside_the_mission():
+    p = MissionProtocol()
+    upload(p, 2)
+    items = [*SQUARE, circle(4, 30.0, mp.FENCE_CIRCLE_EXCLUSION)]
+    out = upload_fence(p, items)
+    assert out == [Out("MISSION_ACK", GCS, {"type": mp.ACCEPTED, "mission_type": FENCE})]
+    assert len(p.fence) == 5 and p.fence_version == 1 and len(p.items) == 2  # the mission untouched
+    assert p.on_request_list(GCS, FENCE, 1.0) == [Out("MISSION_COUNT", GCS, {"count": 5, "mission_type": FENCE})]
+    for f in items:
+        (o,) = p.on_request(GCS, f["seq"], FENCE, 1.0)
+        got = o.fields
+        assert (got["command"], got["param1"], got["x"], got["y"], got["mission_type"]) == (
+            f["command"], f["param1"], f["x"], f["y"], FENCE)  # fmt: skip
+    assert p.on_ack(GCS, mp.ACCEPTED, FENCE, 1.0) == []
+    p.busy_flying = True  # a fence may change while a mission flies; the mission may not
+    assert ack_type(p.on_clear_all(GCS, FENCE, 2.0)) == mp.ACCEPTED and p.fence == () and p.fence_version == 2
+    assert len(p.items) == 2
+    p.busy_flying = False
+    upload_fence(p, SQUARE)
+    assert ack_type(p.on_clear_all(GCS, mp.MISSION_TYPE_ALL, 3.0)) == mp.ACCEPTED
+    assert p.fence == () and p.items == ()
+
+
+@pytest.mark.parametrize(
+    ("items", "code", "why"),
+    [
+        ([vertex(0, 0, 0, n=2), vertex(1, 10, 0, n=2)], mp.ERROR, "at least 3 vertices"),  # PX4's answer
+        ([circle(0, 0.0)], mp.INVALID_PARAM1, "radius must be a number > 0"),
+        ([circle(0, -5.0)], mp.INVALID_PARAM1, "radius"),
+        ([circle(0, math.nan)], mp.INVALID_PARAM1, "radius"),
+        (
+            [vertex(0, -10, -10), vertex(1, 10, 10), vertex(2, 10, -10), vertex(3, -10, 10)],
+            mp.ERROR,
+            "crosses itself",
+        ),  # a bow tie
+        ([vertex(0, -10, -10), vertex(1, 10, -10), vertex(2, 10, 10)], mp.ERROR, "has not 4 vertices"),
+        ([*SQUARE[:3], vertex(3, -10, 10, command=mp.FENCE_POLYGON_EXCLUSION)], mp.ERROR, "has not 4 vertices"),
+        ([item_fields(0, mission_type=FENCE)], mp.UNSUPPORTED, "not a geofence item"),  # a waypoint
+        (
+            [vertex(0, 0, 0, n=3), vertex(1, 10, 0, n=3), {**vertex(2, 0, 10, n=3), "frame": 2}],
+            mp.UNSUPPORTED_FRAME,
+            "not a global frame",
+        ),
+    ],
+)
+def test_a_malformed_geofence_is_refused_and_the_stored_one_kept(items, code, why):
+    p = MissionProtocol()
+    upload_fence(p, SQUARE)
+    kept = p.fence
+    out = p.on_count(GCS, len(items), FENCE, 1.0)
+    for f in items:
+        if kinds(out) != ["MISSION_REQUEST_INT"]:
+            break
+        out = p.on_item(GCS, f, 1.0)
+    assert only(out, "MISSION_ACK").fields == {"type": code, "mission_type": FENCE}
+    assert why in only(out, "STATUSTEXT").fields["text"]
+    assert p.fence == kept and p.fence_version == 1 and not p.upload_in_progress
+
+
+def test_a_geofence_beyond_its_limit_is_no_space():
+    p = MissionProtocol()
+    assert ack_type(p.on_count(GCS, mp.MAX_FENCE_ITEMS + 1, FENCE, 0.0)) == mp.NO_SPACE
 
 
 # ---- download -----------------------------------------------------------------------------------------

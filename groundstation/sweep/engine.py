@@ -39,7 +39,6 @@ import math
 
 import numpy as np
 
-from autopilot import commander as cmd
 from autopilot import plugin
 from autopilot.control_params import BACKSTEPPING, MEM_FORCES, MEM_SIZE, MEM_U, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
@@ -310,7 +309,7 @@ def context(cm0: np.ndarray, sp_ticks: np.ndarray) -> tuple:
     air0, rng0 = air_arrays(WindParams())
     pio = np.zeros(plant_tick.IO_SIZE, dtype=np.int64)
     return (np.zeros(WORK_SIZE), rng0.copy(), pio,
-            np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8), np.zeros(codec.DECODED_SIZE), np.zeros(cmd.SIZE),
+            np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8), np.zeros(codec.DECODED_SIZE), np.zeros(len(cm0)),
             np.zeros(MEM_SIZE), np.zeros(codec.DECODED_SIZE), np.zeros(codec.FRAME_MAX, dtype=np.uint8),
             np.asarray(cm0, dtype=np.float64), air0, rng0, (),
             np.asarray(sp_ticks, dtype=np.int64), np.zeros((len(sp_ticks), SP_FIELDS)),

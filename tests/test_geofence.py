@@ -1,0 +1,124 @@
+"""The geofence as PX4 checks it (autopilot.geofence): inside at least one inclusion, outside every exclusion, within
+GF_MAX_HOR_DIST and GF_MAX_VER_DIST of home; and the commander's GF_ACTION on a breach, once per breach."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from autopilot import geofence
+from autopilot.commander import FAILSAFE, FAILSAFE_GEOFENCE, GF_BREACH, Commander, CommanderSettings
+from quadsitl.state import VehicleState
+from quadsitl.wire import Mode
+
+PI, PE, CI, CE = (geofence.POLYGON_INCLUSION, geofence.POLYGON_EXCLUSION, geofence.CIRCLE_INCLUSION,
+                  geofence.CIRCLE_EXCLUSION)  # fmt: skip
+
+
+def polygon(kind: int, *vertices: tuple[float, float]) -> list[float]:
+    return [v for x, y in vertices for v in (kind, len(vertices), x, y)]
+
+
+def circle(kind: int, x: float, y: float, radius: float) -> list[float]:
+    return [kind, radius, x, y]
+
+
+def fenced(*items: list[float]) -> np.ndarray:
+    cm = Commander().cm
+    geofence.set_fence(cm, np.array([v for item in items for v in item]))
+    return cm
+
+
+SQUARE = polygon(PI, (-10, -10), (10, -10), (10, 10), (-10, 10))
+L_SHAPE = polygon(PI, (0, 0), (20, 0), (20, 5), (5, 5), (5, 20), (0, 20))  # a notch at (10..20, 5..20)
+
+
+@pytest.mark.parametrize(
+    ("items", "point", "breach"),
+    [
+        ([SQUARE], (0, 0), 0),
+        ([SQUARE], (15, 0), geofence.BREACH_OUTSIDE),
+        ([SQUARE], (0, -10.5), geofence.BREACH_OUTSIDE),
+        ([L_SHAPE], (2, 2), 0),
+        ([L_SHAPE], (12, 12), geofence.BREACH_OUTSIDE),  # in the notch: outside a concave polygon
+        ([L_SHAPE], (2, 15), 0),
+        ([SQUARE, circle(CI, 30, 0, 5)], (30, 2), 0),  # the union of the inclusions
+        ([SQUARE, circle(CI, 30, 0, 5)], (20, 0), geofence.BREACH_OUTSIDE),
+        ([SQUARE, circle(CE, 5, 5, 2)], (5, 6), geofence.BREACH_EXCLUDED),
+        ([SQUARE, polygon(PE, (-2, -2), (2, -2), (0, 2))], (0, 0), geofence.BREACH_EXCLUDED),
+        ([circle(CE, 5, 5, 2)], (50, 50), 0),  # only exclusions: everywhere else is allowed
+        ([], (1e4, 1e4), 0),
+    ],
+)
+def test_a_point_breaches_the_fence_as_px4_says(items, point, breach):
+    assert geofence.fence_breach(fenced(*items), *point) == breach
+
+
+def armed(action: int, *items: list[float], **settings) -> Commander:
+    c = Commander(CommanderSettings(geofence_action=action, **settings))
+    c.set_fence(np.array([v for item in items for v in item]))
+    c.update(0, 0.0, VehicleState(z=-5.0))
+    ok, why = c.arm()
+    assert ok, why
+    c.set_mode(Mode.HOLD)
+    return c
+
+
+def fly(c: Commander, tick: int, x: float, altitude: float = 5.0) -> None:
+    c.messages.clear()
+    c.update(tick, tick * 0.001, VehicleState(x=x, z=-altitude))
+
+
+@pytest.mark.parametrize(("action", "mode"), [(1, Mode.HOLD), (2, Mode.HOLD), (3, Mode.RTL), (5, Mode.LAND)])
+def test_a_breach_takes_gf_action_once_and_again_after_coming_back(action, mode):
+    c = armed(action, SQUARE)
+    c.set_mode(Mode.MISSION if action == 2 else Mode.HOLD)
+    fly(c, 1, 5.0)
+    assert c.messages == [] and c.cm[GF_BREACH] == 0
+    fly(c, 2, 12.0)
+    what = ("warning", "hold", "return", "terminate", "land")[action - 1]
+    assert c.messages == [(2, f"Geofence breached: outside the fence; action: {what}")]
+    assert c.mode == mode and c.armed
+    assert c.cm[FAILSAFE] == (FAILSAFE_GEOFENCE if action != 1 else 0)
+    fly(c, 3, 13.0)
+    assert c.messages == []  # once per breach
+    c.set_mode(Mode.HOLD)
+    fly(c, 4, 5.0)
+    assert c.cm[GF_BREACH] == 0
+    fly(c, 5, 12.0)
+    assert c.messages and c.messages[0][1].startswith("Geofence breached")
+
+
+def test_terminate_turns_the_motors_off_and_none_checks_nothing():
+    c = armed(4, SQUARE)
+    fly(c, 1, 12.0)
+    assert not c.armed and c.messages[0] == (2, "Geofence breached: outside the fence; action: terminate")
+    c = armed(0, SQUARE)
+    fly(c, 1, 12.0)
+    assert c.armed and c.messages == [] and c.cm[GF_BREACH] == 0
+
+
+def test_the_distance_and_height_limits_are_breaches_too():
+    c = armed(2, max_distance=20.0, max_height=30.0)
+    fly(c, 1, 19.0, altitude=29.0)
+    assert c.cm[GF_BREACH] == 0
+    fly(c, 2, 21.0)
+    assert c.messages == [(2, "Geofence breached: farther from home than GF_MAX_HOR_DIST; action: hold")]
+    c = armed(3, max_height=30.0)  # home 5 m up (armed there)
+    fly(c, 1, 0.0, altitude=34.0)
+    assert c.cm[GF_BREACH] == 0
+    fly(c, 2, 0.0, altitude=36.0)
+    assert c.messages == [(2, "Geofence breached: higher above home than GF_MAX_VER_DIST; action: return")]
+    assert c.mode == Mode.RTL
+
+
+def test_a_landing_goes_on_through_a_breach_and_arming_outside_is_denied():
+    c = armed(2, SQUARE)
+    c.set_mode(Mode.LAND)
+    fly(c, 1, 12.0)
+    assert c.mode == Mode.LAND
+    assert c.messages == [(2, "Geofence breached: outside the fence; action: hold, not taken: land goes on")]
+    c = Commander(CommanderSettings(geofence_action=2))
+    c.set_fence(np.array(SQUARE, dtype=float))
+    c.update(0, 0.0, VehicleState(x=50.0))
+    assert c.arm() == (False, "Arming denied: vehicle outside the geofence") and not c.armed

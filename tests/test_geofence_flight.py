@@ -1,0 +1,97 @@
+"""A geofence on ``quadsitl up`` as on PX4 SITL: MAVSDK-Python's ``geofence.py`` steps (an inclusion polygon 0.0001°
+around home, uploaded), the fence downloaded back as uploaded, a malformed one refused with the stored one kept, and a
+breach flown end to end: offboard north out of the fence, GF_ACTION's hold (PX4's default) stops the vehicle just
+beyond it, and its return brings it home."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.geofence import (
+    FenceType,
+    GeofenceAsync,
+    GeofenceData,
+    GeofenceError,
+    Point,
+    Polygon,
+)
+from mavsdk.asyncio.plugins.offboard import OffboardAsync, VelocityNedYaw
+from mavsdk.asyncio.plugins.param import ParamAsync
+from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
+
+from tests.mavclient import quadsitl_up
+from tests.mavsdk_client import autopilot, first, healthy, until
+
+pytestmark = pytest.mark.timeout(300)
+FENCE_NORTH = 0.0001 * 111_320.0  # [m] the polygon's northern edge from home (0.0001° of latitude)
+
+
+async def texts(system, said: list[str]) -> None:
+    async for t in TelemetryAsync(system).subscribe_status_text():
+        said.append(t.text)
+
+
+async def fence_and_breach(port: int, action: int) -> dict:
+    seen: dict = {}
+    said: list[str] = []
+    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as m:
+        system = await autopilot(m, port)
+        tel, action_, fence = TelemetryAsync(system), ActionAsync(system), GeofenceAsync(system)
+        off, param = OffboardAsync(system), ParamAsync(system)
+        listener = asyncio.create_task(texts(system, said))
+        await healthy(tel)
+        home = await first(tel.subscribe_home())  # geofence.py: a polygon around home
+        lat, lon = home.latitude_deg, home.longitude_deg
+        corners = [Point(lat - 0.0001, lon - 0.0001), Point(lat + 0.0001, lon - 0.0001),
+                   Point(lat + 0.0001, lon + 0.0001), Point(lat - 0.0001, lon + 0.0001)]  # fmt: skip
+        await fence.upload_geofence(GeofenceData([Polygon(corners, FenceType.INCLUSION)], []))
+        try:  # two vertices: no inside; PX4's ERROR, the fence kept
+            await fence.upload_geofence(GeofenceData([Polygon(corners[:2], FenceType.INCLUSION)], []))
+            seen["malformed"] = None
+        except GeofenceError as exc:
+            seen["malformed"] = exc.result
+        back = await fence.download_geofence()
+        seen["downloaded"] = [[(p.latitude_deg, p.longitude_deg) for p in poly.points] for poly in back.polygons]
+        seen["corners"] = [(p.latitude_deg, p.longitude_deg) for p in corners]
+        await param.set_param_int("GF_ACTION", action)
+        await action_.set_takeoff_altitude(3.0)
+        await action_.arm()
+        await action_.takeoff()
+        await until(tel.subscribe_position(), lambda p: p.relative_altitude_m > 2.9, 30)
+        await off.set_velocity_ned(VelocityNedYaw(2.0, 0.0, 0.0, 0.0))
+        await off.start()
+        wanted = FlightMode.HOLD if action == 2 else FlightMode.RETURN_TO_LAUNCH
+        await until(tel.subscribe_flight_mode(), lambda mode: mode == wanted, 30)
+        seen["north_at_breach"] = (await first(tel.subscribe_position_velocity_ned())).position.north_m
+        if action == 2:
+            await asyncio.sleep(3)
+            seen["north_held"] = (await first(tel.subscribe_position_velocity_ned())).position.north_m
+            await action_.land()
+        await until(tel.subscribe_armed(), lambda a: not a, 90)
+        seen["north_landed"] = (await first(tel.subscribe_position_velocity_ned())).position.north_m
+        listener.cancel()
+    seen["said"] = said
+    return seen
+
+
+@pytest.mark.parametrize("action", [2, 3])  # hold (PX4's default), return
+def test_mavsdk_geofence_example_and_a_breach_flown_end_to_end(action):
+    with quadsitl_up("--preset", "x500", "--speed", "3") as v:
+        seen = asyncio.run(asyncio.wait_for(fence_and_breach(v.api_port, action), 240))
+        assert v.proc.poll() is None
+    assert seen["malformed"] is not None  # refused
+    (polygon,) = seen["downloaded"]  # the first fence, kept
+    assert len(polygon) == 4
+    for got, sent in zip(polygon, seen["corners"], strict=True):
+        assert got == pytest.approx(sent, abs=1e-7)
+    what = {2: "hold", 3: "return"}[action]
+    assert f"Geofence breached: outside the fence; action: {what}" in seen["said"], seen["said"]
+    assert FENCE_NORTH < seen["north_at_breach"] < FENCE_NORTH + 2.0
+    if action == 2:  # held where it stopped: at most its braking distance beyond the fence
+        assert abs(seen["north_held"] - seen["north_at_breach"]) < 3.0
+        assert seen["north_landed"] > FENCE_NORTH
+    else:  # returned home and landed there
+        assert abs(seen["north_landed"]) < 1.0
