@@ -101,6 +101,7 @@ def enter(cm: np.ndarray, mode: int) -> None:
         cm[TARGET_ALT] = cm[TAKEOFF_ALT]
     elif mode == RTL:
         cm[TARGET_ALT] = max(cm[TARGET_ALT], cm[HOME_ALT] + cm[RTL_ALT])
+        geofence.return_destination(cm)
 
 
 @jit
@@ -373,7 +374,7 @@ def update(
         done = advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
         if done and cm[PHASE] == RTL_CLIMB:
             cm[PHASE] = RTL_RETURN
-            cm[TARGET_X], cm[TARGET_Y] = cm[HOME_X], cm[HOME_Y]
+            cm[TARGET_X], cm[TARGET_Y] = cm[RTL_X], cm[RTL_Y]  # home, or the rally point nearer
         elif done and cm[PHASE] == RTL_RETURN:
             cm[PHASE] = RTL_LAND
             cm[LAND_ALT] = cm[GEN_ALT]
@@ -656,6 +657,11 @@ class Commander:
         """The geofence's polygons and circles (:func:`autopilot.geofence.items_to_array`), flown from the next tick."""
         geofence.set_fence(self.cm, fence)
 
+    def set_rally(self, rally: np.ndarray) -> None:
+        """The rally points (:func:`autopilot.geofence.rally_to_array`): a return from now on goes to the nearest of
+        them and home."""
+        geofence.set_rally(self.cm, rally)
+
     def plant_lost(self) -> None:
         """No vehicle state arrives: flying blind. Armed, switch to LAND (it resumes when states do)."""
         self._fail_and_land("Plant link lost: no vehicle state", FAILSAFE_PLANT_LOST)
@@ -745,7 +751,8 @@ class Commander:
         elif event == EVENT_TAKEOFF_DONE:
             self.messages.append((6, "Takeoff complete, holding"))
         elif event == EVENT_HOME_REACHED:
-            self.messages.append((6, "Home reached, landing"))
+            to = int(self.cm[RTL_TO])
+            self.messages.append((6, f"Rally point {to} reached, landing" if to else "Home reached, landing"))
         elif event in (EVENT_GEOFENCE, EVENT_GEOFENCE_GOING_ON):
             action = GEOFENCE_ACTIONS[self.settings.geofence_action]
             what = geofence.BREACHES.get(int(self.cm[GF_BREACH]), "breached")

@@ -53,8 +53,9 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 #   injected), and whether the horizontal position is lost (1.0: the GPS lost; a landing then descends level, PX4's
 #   Descend, until the next arming);
 # - the geofence (autopilot.geofence): GF_ACTION, GF_MAX_HOR_DIST, GF_MAX_VER_DIST (0: none), the breach in force
-#   (geofence.BREACH_*, 0: none) and how many fence items follow the declared state (FENCE_AT: FENCE_ITEM numbers
-#   each).
+#   (geofence.BREACH_*, 0: none), how many fence items follow the declared state (FENCE_AT: FENCE_ITEM numbers
+#   each) and how many rally points after them (RALLY_AT: RALLY_ITEM numbers each); where a return goes (x, y [m,
+#   NED]: home, or the rally point nearer when it began; RTL_TO 0: home, k: rally point k − 1).
 STATE = """
 status: ARMED MODE FAILSAFE
 sp_horizontal: SP_X SP_Y SP_VX SP_VY SP_AX SP_AY
@@ -67,7 +68,7 @@ seen: NOW TICK X Y ALTITUDE VX VY CLIMB_RATE YAW
 settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT YAW_RATE_AUTO YAW_RATE_OFFBOARD DISARM_PREFLIGHT
 reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST
 failures: MOTORS_OFF NO_POSITION
-geofence: GF_ACTION GF_MAX_HOR GF_MAX_VER GF_BREACH FENCE_N
+geofence: GF_ACTION GF_MAX_HOR GF_MAX_VER GF_BREACH FENCE_N RALLY_N RTL_X RTL_Y RTL_TO
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
 LAYOUTS = {"STATE": STATE}
@@ -98,10 +99,10 @@ SETTINGS_FIRST, SETTINGS_END = 59, 72
 REFERENCE_FIRST, REFERENCE_END = 72, 87
 (MOTORS_OFF, NO_POSITION) = range(87, 89)  # fmt: skip
 FAILURES_FIRST, FAILURES_END = 87, 89
-(GF_ACTION, GF_MAX_HOR, GF_MAX_VER, GF_BREACH, FENCE_N) = range(89, 94)  # fmt: skip
-GEOFENCE_FIRST, GEOFENCE_END = 89, 94
+(GF_ACTION, GF_MAX_HOR, GF_MAX_VER, GF_BREACH, FENCE_N, RALLY_N, RTL_X, RTL_Y, RTL_TO) = range(89, 98)  # fmt: skip
+GEOFENCE_FIRST, GEOFENCE_END = 89, 98
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 94
+SIZE = 98
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4

@@ -48,9 +48,13 @@ differs from it (docs/missions.md says the same for users):
   vertices do not come as its count says, or whose edges cross, with ERROR and a STATUSTEXT (PX4 leaves those to
   the ground station's editor): a fence refused leaves the stored one as it was. Uploads of it are taken during a
   flown mission (PX4 does too).
-- **Other mission types** (rally 2, anything else) are answered with ``MISSION_ACK`` UNSUPPORTED carrying the
-  same ``mission_type`` (for upload, download and clear), so MAVSDK and QGroundControl stop at once instead of
-  waiting. ``MISSION_CLEAR_ALL`` with mission_type ALL (255) clears the mission and the geofence.
+- **Rally points** (mission_type 2, ``MAV_CMD_NAV_RALLY_POINT``: a global position and altitude each, at most
+  :data:`MAX_RALLY_POINTS`) likewise, into their own store (:attr:`MissionProtocol.rally`). A rally point outside
+  the stored geofence refuses the upload with ERROR and a STATUSTEXT (the shell's ``rally_check`` says which; PX4
+  does not check): a return must not lead out of the fence.
+- **Other mission types** are answered with ``MISSION_ACK`` UNSUPPORTED carrying the same ``mission_type`` (for
+  upload, download and clear), so MAVSDK and QGroundControl stop at once instead of waiting. ``MISSION_CLEAR_ALL``
+  with mission_type ALL (255) clears the mission, the geofence and the rally points.
 - **Current item.** ``MISSION_SET_CURRENT`` sets it within range and answers with ``MISSION_CURRENT``; out of
   range it changes nothing and says so in a STATUSTEXT (PX4 does the same; the message has no ACK).
   :meth:`MissionProtocol.do_set_mission_current` is ``MAV_CMD_DO_SET_MISSION_CURRENT``: FAILED out of range,
@@ -64,7 +68,7 @@ copies them here with :meth:`MissionProtocol.set_progress`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -147,13 +151,16 @@ FENCE_POLYGON_INCLUSION, FENCE_POLYGON_EXCLUSION = 5001, 5002  # MAV_CMD_NAV_FEN
 FENCE_CIRCLE_INCLUSION, FENCE_CIRCLE_EXCLUSION = 5003, 5004  # MAV_CMD_NAV_FENCE_CIRCLE_*
 FENCE_POLYGONS = frozenset({FENCE_POLYGON_INCLUSION, FENCE_POLYGON_EXCLUSION})
 FENCE_COMMANDS = FENCE_POLYGONS | {FENCE_CIRCLE_INCLUSION, FENCE_CIRCLE_EXCLUSION}
-STORED_TYPES = (MISSION_TYPE_MISSION, MISSION_TYPE_FENCE)  # the mission types uploaded, downloaded and cleared
+RALLY_POINT = 5100  # MAV_CMD_NAV_RALLY_POINT
+STORED_TYPES = (MISSION_TYPE_MISSION, MISSION_TYPE_FENCE, MISSION_TYPE_RALLY)  # uploaded, downloaded and cleared
 
 MAX_ITEMS = 500
 """The most items a mission may have; a longer upload is refused with NO_SPACE."""
 MAX_FENCE_ITEMS = 64
 """The most items a geofence may have (PX4's on boards with little memory); the commander holds them in its state
 array (:mod:`autopilot.geofence`)."""
+MAX_RALLY_POINTS = 16
+"""The most rally points; the commander holds them beside the fence."""
 RETRY_S = 0.25
 """Re-send an upload's item request after this long without the wanted item [s] (PX4's 250 ms)."""
 TIMEOUT_S = 5.0
@@ -391,6 +398,22 @@ def parse_fence_item(fields: Mapping[str, Any], *, legacy: bool = False) -> Miss
                        x=xi, y=yi, z=z if _finite(z) else 0.0, mission_type=MISSION_TYPE_FENCE)  # fmt: skip
 
 
+def parse_rally_item(fields: Mapping[str, Any], *, legacy: bool = False) -> MissionItem:
+    """Check one uploaded rally point and store it as a :class:`MissionItem`; raise :class:`ItemRefusedError` if
+    refused: ``MAV_CMD_NAV_RALLY_POINT`` in a global frame, a valid position and a finite altitude."""
+    frame, command = int(fields["frame"]), int(fields["command"])
+    if command != RALLY_POINT:
+        raise ItemRefusedError(UNSUPPORTED, f"command {command} is not a rally point")
+    if frame not in GLOBAL_FRAMES:
+        raise ItemRefusedError(UNSUPPORTED_FRAME, f"frame {frame} is not a global frame")
+    xi, yi = _position(fields["x"], fields["y"], legacy)
+    z = float(fields["z"])
+    if not _finite(z):
+        raise ItemRefusedError(INVALID_PARAM7, "altitude is not a finite number")
+    return MissionItem(seq=int(fields["seq"]), frame=frame, command=command, current=0, autocontinue=0, p1=0.0, p2=0.0,
+                       p3=0.0, p4=0.0, x=xi, y=yi, z=z, mission_type=MISSION_TYPE_RALLY)  # fmt: skip
+
+
 def polygons(items: Sequence[MissionItem]) -> list[tuple[int, list[MissionItem]]]:
     """A geofence's polygons, each (its first item's index, its vertices), as its items declare them (each vertex's
     param1 its polygon's vertex count); :func:`check_fence` first."""
@@ -473,7 +496,9 @@ class MissionProtocol:
     messages to send. The shell filters by target (:func:`addressed_to`) before calling.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, rally_check: Callable[[tuple[MissionItem, ...]], str] | None = None) -> None:
+        self.rally_check = rally_check
+        """Why rally points are refused ("" when taken): the shell's check against the stored geofence."""
         self.items: tuple[MissionItem, ...] = ()
         """The stored mission: replaced only by a complete upload, a clear or ``count`` = 0."""
         self.current: int = 0
@@ -490,6 +515,10 @@ class MissionProtocol:
         """The stored geofence (mission_type 1): replaced by a complete upload, a clear or ``count`` = 0."""
         self.fence_version: int = 0
         """Counts replacements of the stored geofence."""
+        self.rally: tuple[MissionItem, ...] = ()
+        """The stored rally points (mission_type 2)."""
+        self.rally_version: int = 0
+        """Counts replacements of the stored rally points."""
         self._upload: _Upload | None = None
         self._last_upload: tuple[Sender, int, int] | None = None  # partner, last seq, mission type: a lost ACK
         self._downloads: dict[Sender, _Download] = {}
@@ -534,9 +563,20 @@ class MissionProtocol:
         self.fence = items
         self.fence_version += 1
 
+    def _replace_rally(self, items: tuple[MissionItem, ...]) -> None:
+        self.rally = items
+        self.rally_version += 1
+
+    def _replace_of(self, mission_type: int, items: tuple[MissionItem, ...]) -> None:
+        """The geofence or the rally points replaced by ``items``."""
+        if mission_type == MISSION_TYPE_FENCE:
+            self._replace_fence(items)
+        else:
+            self._replace_rally(items)
+
     def stored(self, mission_type: int) -> tuple[MissionItem, ...]:
         """The items stored of ``mission_type`` (one of STORED_TYPES)."""
-        return self.fence if mission_type == MISSION_TYPE_FENCE else self.items
+        return {MISSION_TYPE_FENCE: self.fence, MISSION_TYPE_RALLY: self.rally}.get(mission_type, self.items)
 
     def _unsupported(self, mission_type: int, what: str) -> Out:
         """The STATUSTEXT beside an UNSUPPORTED mission type: MAVSDK reports it as a bare ERROR (its geofence plugin
@@ -559,19 +599,20 @@ class MissionProtocol:
             return out + self.on_count(sender, count, mission_type, now)
         if up is not None and up.partner != sender:
             return [self._ack(sender, ERROR, mission_type)]  # PX4: another partner's upload is in progress
-        fence = mission_type == MISSION_TYPE_FENCE
-        if self.busy_flying and not fence:
+        other = mission_type != MISSION_TYPE_MISSION  # the geofence or the rally points
+        if self.busy_flying and not other:
             return [self._ack(sender, DENIED)]
         if up is not None and up.next_seq == 0 and up.count == count and up.mission_type == mission_type:
             up.last_recv = now  # our first request was lost: ask again
             return [self._request(up, now)]
         self._upload = None
-        if count > (MAX_FENCE_ITEMS if fence else MAX_ITEMS):
+        limit = {MISSION_TYPE_FENCE: MAX_FENCE_ITEMS, MISSION_TYPE_RALLY: MAX_RALLY_POINTS}.get(mission_type, MAX_ITEMS)
+        if count > limit:
             return [self._ack(sender, NO_SPACE, mission_type)]
         if count <= 0:
             self._last_upload = None
-            if fence:
-                self._replace_fence(())
+            if other:
+                self._replace_of(mission_type, ())
                 return [self._ack(sender, ACCEPTED, mission_type)]
             self._replace((), 0)
             return [self._ack(sender, ACCEPTED), self.mission_current()]
@@ -596,12 +637,13 @@ class MissionProtocol:
         up.last_recv = now
         if seq != up.next_seq:
             return []  # a duplicate or out of order: ignored, the re-request timer asks for the wanted one
-        fence = mission_type == MISSION_TYPE_FENCE
+        parsers = {MISSION_TYPE_FENCE: parse_fence_item, MISSION_TYPE_RALLY: parse_rally_item}
+        parse = parsers.get(mission_type, parse_item)
         try:
-            item = parse_fence_item(fields, legacy=legacy) if fence else parse_item(fields, legacy=legacy)
+            item = parse(fields, legacy=legacy)
         except ItemRefusedError as e:
             self._upload = None
-            what = "Geofence" if fence else "Mission"
+            what = {MISSION_TYPE_FENCE: "Geofence", MISSION_TYPE_RALLY: "Rally point"}.get(mission_type, "Mission")
             return [self._ack(sender, e.code, mission_type), self._statustext(f"{what} item {seq} refused: {e}")]
         up.legacy = legacy
         up.items.append(item)
@@ -619,12 +661,15 @@ class MissionProtocol:
     def _complete(self, up: _Upload) -> list[Out]:
         self._upload = None
         items = tuple(up.items)
-        if up.mission_type == MISSION_TYPE_FENCE:
-            reason = check_fence(items)
+        if up.mission_type != MISSION_TYPE_MISSION:
+            if up.mission_type == MISSION_TYPE_FENCE:
+                reason = check_fence(items)
+            else:
+                reason = self.rally_check(items) if self.rally_check is not None else ""
             if reason:
                 return [self._ack(up.partner, ERROR, up.mission_type), self._statustext(reason)]
             self._last_upload = (up.partner, up.count - 1, up.mission_type)
-            self._replace_fence(items)
+            self._replace_of(up.mission_type, items)
             return [self._ack(up.partner, ACCEPTED, up.mission_type)]
         self._last_upload = (up.partner, up.count - 1, up.mission_type)
         unchanged = len(items) == len(self.items) and all(a.same_plan(b) for a, b in zip(items, self.items))
@@ -659,7 +704,7 @@ class MissionProtocol:
         if not 0 <= seq < len(dl.items):
             del self._downloads[sender]
             return [self._ack(sender, INVALID_SEQUENCE, mission_type)]
-        if mission_type == MISSION_TYPE_FENCE:
+        if mission_type != MISSION_TYPE_MISSION:
             fields = dl.items[seq].message_fields(legacy=legacy, current=0)
             return [Out("MISSION_ITEM" if legacy else "MISSION_ITEM_INT", sender, fields)]
         current = self.current if dl.version == self.version else dl.current
@@ -688,16 +733,18 @@ class MissionProtocol:
     # ---- clear and current ---------------------------------------------------------------------------
 
     def on_clear_all(self, sender: Sender, mission_type: int, now: float) -> list[Out]:
-        """``MISSION_CLEAR_ALL``: empty the mission (mission_type 0), the geofence (1) or both (ALL), ACK ACCEPTED."""
+        """``MISSION_CLEAR_ALL``: empty the mission (mission_type 0), the geofence (1), the rally points (2) or all
+        (ALL), ACK ACCEPTED."""
         if mission_type not in (*STORED_TYPES, MISSION_TYPE_ALL):
             return [self._ack(sender, UNSUPPORTED, mission_type)]
-        if mission_type == MISSION_TYPE_FENCE:
-            self._replace_fence(())
+        if mission_type in (MISSION_TYPE_FENCE, MISSION_TYPE_RALLY):
+            self._replace_of(mission_type, ())
             return [self._ack(sender, ACCEPTED, mission_type)]
         if self.busy_flying:
             return [self._ack(sender, DENIED, mission_type)]
         if mission_type == MISSION_TYPE_ALL:
             self._replace_fence(())
+            self._replace_rally(())
         self._replace((), 0)
         self._last_upload = None
         return [self._ack(sender, ACCEPTED, mission_type), self.mission_current()]

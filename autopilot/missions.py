@@ -59,7 +59,7 @@ class Missions:
     [m]) of the local frame."""
 
     def __init__(self, origin: tuple[float, float, float], acceptance_radius: float = 2.0) -> None:
-        self.protocol = mp.MissionProtocol()
+        self.protocol = mp.MissionProtocol(rally_check=self.rally_outside)
         self.origin = origin
         self.acceptance_radius = acceptance_radius
         self.executor: MissionExecutor | None = None
@@ -73,11 +73,26 @@ class Missions:
         """The executor is in charge (in MISSION, or in its own LAND/RTL): :meth:`step` it every control tick. A
         plain attribute: the process reads it after every tick."""
 
+    def _local(self, lat: float, lon: float) -> tuple[float, float]:
+        return geodetic_to_ned(lat, lon, self.origin[0], self.origin[1])
+
     def fence_array(self) -> np.ndarray:
         """The stored geofence as the commander holds it (:func:`autopilot.geofence.items_to_array`), in the local
         frame of ``origin``."""
-        lat0, lon0 = self.origin[0], self.origin[1]
-        return geofence.items_to_array(self.protocol.fence, lambda lat, lon: geodetic_to_ned(lat, lon, lat0, lon0))
+        return geofence.items_to_array(self.protocol.fence, self._local)
+
+    def rally_array(self) -> np.ndarray:
+        """The stored rally points as the commander holds them (:func:`autopilot.geofence.rally_to_array`)."""
+        return geofence.rally_to_array(self.protocol.rally, self._local, self.origin[2])
+
+    def rally_outside(self, items: tuple[mp.MissionItem, ...]) -> str:
+        """Why rally points are refused: one outside the stored geofence's polygons and circles ("" when none)."""
+        cm = np.zeros(geofence.CM_SIZE)
+        geofence.set_fence(cm, self.fence_array())
+        for item in items:
+            if geofence.fence_breach(cm, *self._local(item.lat, item.lon)):
+                return f"Rally point {item.seq} is outside the geofence: refused"
+        return ""
 
     @staticmethod
     def vehicle(c: Commander) -> VehicleNow:

@@ -45,10 +45,10 @@ def wait_listed(url: str, count: int, timeout: float = 30.0) -> list[str]:
 def test_fly_dashboard_prints_its_url_shows_the_run_and_stays_until_ctrl_c(tmp_path, procs):  # noqa: F811
     port = free_port(socket.SOCK_STREAM)
     err = open(tmp_path / "stderr.txt", "w+")  # noqa: SIM115 - closed below
-    # 6 s at twice real time: 3 s of wall time in offboard, for samples of an idle-priority server on a loaded
-    # machine (a CI run's samples missed a 1.5 s offboard phase and saw only the landing)
+    # 12 s at twice real time: 6 s of wall time in offboard, for samples of an idle-priority server on a loaded
+    # machine (CI runs' samples missed a 1.5 s, then a 3 s, offboard phase and saw only the landing)
     fly = subprocess.Popen(quadsitl("fly", "--dashboard", "--dashboard-port", str(port), "--speed", "2", "--duration",
-                                    "6", "--no-figures", "--out", str(tmp_path / "run")),
+                                    "12", "--no-figures", "--out", str(tmp_path / "run")),
                            stdout=subprocess.PIPE, stderr=err, text=True)  # fmt: skip
     procs.append(fly)
     line = fly.stdout.readline()

@@ -7,7 +7,16 @@ import numpy as np
 import pytest
 
 from autopilot import geofence
-from autopilot.commander import FAILSAFE, FAILSAFE_GEOFENCE, GF_BREACH, Commander, CommanderSettings
+from autopilot.commander import (
+    FAILSAFE,
+    FAILSAFE_GEOFENCE,
+    GF_BREACH,
+    RTL_TO,
+    RTL_X,
+    RTL_Y,
+    Commander,
+    CommanderSettings,
+)
 from quadsitl.state import VehicleState
 from quadsitl.wire import Mode
 
@@ -122,3 +131,13 @@ def test_a_landing_goes_on_through_a_breach_and_arming_outside_is_denied():
     c.set_fence(np.array(SQUARE, dtype=float))
     c.update(0, 0.0, VehicleState(x=50.0))
     assert c.arm() == (False, "Arming denied: vehicle outside the geofence") and not c.armed
+
+
+def test_a_return_goes_to_the_nearest_of_home_and_the_rally_points():
+    c = armed(2)
+    c.set_rally(np.array([50.0, 0.0, 5.0, -60.0, 10.0, 5.0]))  # rally points 1 (50 m north) and 2 (60 m south)
+    for x, to, where in ((40.0, 1, (50.0, 0.0)), (-45.0, 2, (-60.0, 10.0)), (10.0, 0, (0.0, 0.0))):
+        c.set_mode(Mode.HOLD)
+        fly(c, 1, x)
+        assert c.set_mode(Mode.RTL) == (True, "")
+        assert c.cm[RTL_TO] == to and (c.cm[RTL_X], c.cm[RTL_Y]) == where, x

@@ -1,11 +1,15 @@
 """A geofence on ``quadsitl up`` as on PX4 SITL: MAVSDK-Python's ``geofence.py`` steps (an inclusion polygon 0.0001°
 around home, uploaded), the fence downloaded back as uploaded, a malformed one refused with the stored one kept, and a
 breach flown end to end: offboard north out of the fence, GF_ACTION's hold (PX4's default) stops the vehicle just
-beyond it, and its return brings it home."""
+beyond it, and its return brings it home. Rally points as MAVSDK's ``mission_import.py`` uploads them, and a return
+that lands at the nearest."""
 
 from __future__ import annotations
 
 import asyncio
+import json
+import math
+from pathlib import Path
 
 import pytest
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
@@ -18,6 +22,7 @@ from mavsdk.asyncio.plugins.geofence import (
     Point,
     Polygon,
 )
+from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, VelocityNedYaw
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
@@ -26,6 +31,7 @@ from tests.mavclient import quadsitl_up
 from tests.mavsdk_client import autopilot, first, healthy, until
 
 pytestmark = pytest.mark.timeout(300)
+DATA = Path(__file__).parent / "data"
 FENCE_NORTH = 0.0001 * 111_320.0  # [m] the polygon's northern edge from home (0.0001° of latitude)
 
 
@@ -95,3 +101,51 @@ def test_mavsdk_geofence_example_and_a_breach_flown_end_to_end(action):
         assert seen["north_landed"] > FENCE_NORTH
     else:  # returned home and landed there
         assert abs(seen["north_landed"]) < 1.0
+
+
+def north_east(lat0: float, lon0: float, north: float, east: float) -> tuple[float, float]:
+    return lat0 + north / 111_320.0, lon0 + east / (111_320.0 * math.cos(math.radians(lat0)))
+
+
+async def rally_and_return(port: int, plan: Path) -> dict:
+    """mission_import.py's steps (a QGroundControl plan imported, its mission and rally points uploaded), then a
+    flight north and a return, which goes to the rally point nearer than home."""
+    seen: dict = {}
+    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as m:
+        system = await autopilot(m, port)
+        tel, act, raw = TelemetryAsync(system), ActionAsync(system), MissionRawAsync(system)
+        await healthy(tel)
+        imported = await raw.import_qgroundcontrol_mission(str(plan))
+        await raw.upload_mission(imported.mission_items)
+        await raw.upload_rally_points(imported.rally_items)
+        seen["rally_back"] = [(p.x, p.y, p.z) for p in await raw.download_rallypoints()]
+        seen["rally_sent"] = [(p.x, p.y, p.z) for p in imported.rally_items]
+        home = await first(tel.subscribe_home())
+        await act.set_takeoff_altitude(5.0)
+        await act.arm()
+        await act.takeoff()
+        await until(tel.subscribe_position(), lambda p: p.relative_altitude_m > 4.9, 30)
+        lat, lon = north_east(home.latitude_deg, home.longitude_deg, 30.0, 0.0)
+        await act.goto_location(lat, lon, home.absolute_altitude_m + 5.0, 0.0)
+        await until(tel.subscribe_position_velocity_ned(), lambda p: p.position.north_m > 29.0, 60)
+        await act.return_to_launch()
+        await until(tel.subscribe_armed(), lambda a: not a, 120)
+        p = (await first(tel.subscribe_position_velocity_ned())).position
+        seen["landed"] = (p.north_m, p.east_m)
+    return seen
+
+
+def test_mavsdk_mission_import_uploads_rally_points_and_a_return_lands_at_the_nearest(tmp_path):
+    plan = json.loads((DATA / "square.plan").read_text())
+    home = plan["mission"]["plannedHomePosition"]
+    rally = north_east(home[0], home[1], 40.0, 10.0)  # nearer the vehicle at 30 m north than home is
+    far = north_east(home[0], home[1], -80.0, 0.0)
+    plan["rallyPoints"] = {"version": 2, "points": [[*far, 10.0], [*rally, 10.0]]}
+    path = tmp_path / "rally.plan"
+    path.write_text(json.dumps(plan))
+    with quadsitl_up("--preset", "x500", "--speed", "4") as v:
+        seen = asyncio.run(asyncio.wait_for(rally_and_return(v.api_port, path), 240))
+        assert v.proc.poll() is None
+    assert seen["rally_back"] == seen["rally_sent"] and len(seen["rally_sent"]) == 2
+    north, east = seen["landed"]
+    assert math.hypot(north - 40.0, east - 10.0) < 1.0, seen["landed"]  # at the rally point, not home

@@ -308,12 +308,12 @@ def test_an_item_of_another_mission_type_during_upload_is_an_error_but_the_uploa
 # ---- other mission types ------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("mission_type", [2, 7])
-def test_rally_and_unknown_types_are_unsupported_with_the_type_echoed(mission_type):
+@pytest.mark.parametrize("mission_type", [3, 7])
+def test_unknown_types_are_unsupported_with_the_type_echoed(mission_type):
     p = MissionProtocol()
     upload(p, 1)
     ack = Out("MISSION_ACK", GCS, {"type": mp.UNSUPPORTED, "mission_type": mission_type})
-    name = {1: "Geofence", 2: "Rally point"}.get(mission_type, "Mission type 7")
+    name = f"Mission type {mission_type}"
     for out, what in ((p.on_count(GCS, 3, mission_type, 1.0), "upload"),
                       (p.on_request_list(GCS, mission_type, 1.0), "download")):  # fmt: skip
         assert out[0] == ack and out[1].kind == "STATUSTEXT"  # the ack, and why: MAVSDK says only ERROR
@@ -339,9 +339,11 @@ def circle(seq: int, radius: float, command: int = mp.FENCE_CIRCLE_INCLUSION) ->
 
 
 def upload_fence(p: MissionProtocol, items: list[dict]) -> list[Out]:
-    out = p.on_count(GCS, len(items), FENCE, 0.0)
+    """Upload ``items`` of their mission type (the geofence's, or the rally points')."""
+    kind = items[0]["mission_type"]
+    out = p.on_count(GCS, len(items), kind, 0.0)
     for f in items:
-        assert only(out, "MISSION_REQUEST_INT").fields == {"seq": f["seq"], "mission_type": FENCE}
+        assert only(out, "MISSION_REQUEST_INT").fields == {"seq": f["seq"], "mission_type": kind}
         out = p.on_item(GCS, f, 0.0)
     return out
 
@@ -411,6 +413,39 @@ def test_a_malformed_geofence_is_refused_and_the_stored_one_kept(items, code, wh
 def test_a_geofence_beyond_its_limit_is_no_space():
     p = MissionProtocol()
     assert ack_type(p.on_count(GCS, mp.MAX_FENCE_ITEMS + 1, FENCE, 0.0)) == mp.NO_SPACE
+
+
+RALLY = 2
+
+
+def rally_point(seq: int, east: float, north: float, **kw) -> dict:
+    lat, lon = LAT + north / 111_320.0, LON + east / (111_320.0 * math.cos(math.radians(LAT)))
+    fields = {"param1": 0.0, "param2": 0.0, "x": round(lat * 1e7), "y": round(lon * 1e7), "z": 10.0, **kw}
+    return item_fields(seq, command=mp.RALLY_POINT, frame=6, mission_type=RALLY, **fields)
+
+
+def test_rally_points_are_uploaded_downloaded_and_cleared_and_checked_against_the_fence():
+    said = []
+
+    def outside(items):  # the shell's check: here, any point north of 50 m is outside
+        far = [it.seq for it in items if it.lat > LAT + 50 / 111_320.0]
+        said.append(len(items))
+        return f"Rally point {far[0]} is outside the geofence" if far else ""
+
+    p = MissionProtocol(rally_check=outside)
+    out = upload_fence(p, [rally_point(0, 10, 10), rally_point(1, -20, 30)])  # the same steps, type 2
+    assert out == [Out("MISSION_ACK", GCS, {"type": mp.ACCEPTED, "mission_type": RALLY})]
+    assert len(p.rally) == 2 and p.rally_version == 1 and said == [2]
+    assert p.on_request_list(GCS, RALLY, 1.0) == [Out("MISSION_COUNT", GCS, {"count": 2, "mission_type": RALLY})]
+    (o,) = p.on_request(GCS, 1, RALLY, 1.0)
+    assert (o.fields["command"], o.fields["z"], o.fields["mission_type"]) == (mp.RALLY_POINT, 10.0, RALLY)
+    out = upload_fence(p, [rally_point(0, 0, 0), rally_point(1, 0, 80)])
+    assert only(out, "MISSION_ACK").fields == {"type": mp.ERROR, "mission_type": RALLY}
+    assert only(out, "STATUSTEXT").fields["text"] == "Rally point 1 is outside the geofence"
+    assert len(p.rally) == 2 and p.rally_version == 1  # kept
+    out = upload_fence(p, [rally_point(0, 0, 0, z=math.inf)])
+    assert ack_type(out) == mp.INVALID_PARAM7
+    assert ack_type(p.on_clear_all(GCS, RALLY, 2.0)) == mp.ACCEPTED and p.rally == () and p.rally_version == 2
 
 
 # ---- download -----------------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """The mission protocol through ``quadsitl up``'s shell (autopilot.process → autopilot.mission_protocol): MAVSDK
 uploads a mission, downloads the same items, sees its progress (MISSION_CURRENT) and clears it; a raw pymavlink
-client's refused items and rally point type are answered. Flying missions comes with the executor (issue 15)."""
+client's refused items and unknown mission type are answered. Flying missions comes with the executor (issue 15)."""
 
 import asyncio
 import math
@@ -70,10 +70,10 @@ def test_refused_items_and_other_mission_types_are_answered(tmp_path):
         c = Client(v.gcs_port)
         try:
             c.heartbeat()
-            # a rally point upload: UNSUPPORTED with the mission type echoed, at once
-            c.conn.mav.mission_count_send(1, 1, 2, M.MAV_MISSION_TYPE_RALLY)
+            # an upload of a mission type MAVLink does not define: UNSUPPORTED with the type echoed, at once
+            c.conn.mav.mission_count_send(1, 1, 2, 7)
             ack = c.wait("MISSION_ACK")
-            assert (ack.type, ack.mission_type) == (M.MAV_MISSION_UNSUPPORTED, M.MAV_MISSION_TYPE_RALLY)
+            assert (ack.type, ack.mission_type) == (M.MAV_MISSION_UNSUPPORTED, 7)
             # a mission whose second item is a command we do not fly: the upload ends with UNSUPPORTED
             c.conn.mav.mission_count_send(1, 1, 2, 0)
             assert c.wait("MISSION_REQUEST_INT", lambda r: r.seq == 0).mission_type == 0
