@@ -652,6 +652,18 @@ class MissionProtocol:
             return [self._request(up, now)]
         return self._complete(up)
 
+    def store_other(self, mission_type: int, items: tuple[MissionItem, ...]) -> str:
+        """A whole geofence or set of rally points (each item parsed), as a completed upload stores it → why it is
+        refused ("" when stored): a geofence's polygons checked (:func:`check_fence`), rally points by ``rally_check``.
+        ``quadsitl sim`` stores a plan's so."""
+        if mission_type == MISSION_TYPE_FENCE:
+            reason = check_fence(items)
+        else:
+            reason = self.rally_check(items) if self.rally_check is not None else ""
+        if not reason:
+            self._replace_of(mission_type, items)
+        return reason
+
     def store(self, items: tuple[MissionItem, ...]) -> None:
         """A whole mission, as a completed upload of new items stores it (``quadsitl sim`` stores its mission file
         so, each item first through :func:`parse_item`)."""
@@ -662,14 +674,10 @@ class MissionProtocol:
         self._upload = None
         items = tuple(up.items)
         if up.mission_type != MISSION_TYPE_MISSION:
-            if up.mission_type == MISSION_TYPE_FENCE:
-                reason = check_fence(items)
-            else:
-                reason = self.rally_check(items) if self.rally_check is not None else ""
+            reason = self.store_other(up.mission_type, items)
             if reason:
                 return [self._ack(up.partner, ERROR, up.mission_type), self._statustext(reason)]
             self._last_upload = (up.partner, up.count - 1, up.mission_type)
-            self._replace_of(up.mission_type, items)
             return [self._ack(up.partner, ACCEPTED, up.mission_type)]
         self._last_upload = (up.partner, up.count - 1, up.mission_type)
         unchanged = len(items) == len(self.items) and all(a.same_plan(b) for a, b in zip(items, self.items))

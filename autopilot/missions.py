@@ -64,6 +64,7 @@ class Missions:
         self.acceptance_radius = acceptance_radius
         self.executor: MissionExecutor | None = None
         self._version = -1
+        self._fence_version = self._rally_version = 0  # what the commander was last given (sync)
         self.now = math.nan  # [s] simulated: the tick the executor last stepped at
         self.reached: list[tuple[int, float]] = []
         """(seq, simulated time [s] of the tick after which it was reached) of each MISSION_ITEM_REACHED since the
@@ -72,6 +73,16 @@ class Missions:
         self.flying = False
         """The executor is in charge (in MISSION, or in its own LAND/RTL): :meth:`step` it every control tick. A
         plain attribute: the process reads it after every tick."""
+
+    def sync(self, c: Commander) -> None:
+        """The commander given the stored geofence and rally points when either changed (an upload, a clear)."""
+        p = self.protocol
+        if p.fence_version != self._fence_version:
+            self._fence_version = p.fence_version
+            c.set_fence(self.fence_array())
+        if p.rally_version != self._rally_version:
+            self._rally_version = p.rally_version
+            c.set_rally(self.rally_array())
 
     def _local(self, lat: float, lon: float) -> tuple[float, float]:
         return geodetic_to_ned(lat, lon, self.origin[0], self.origin[1])

@@ -469,14 +469,9 @@ class Autopilot:
 
     def on_mission(self, r: MissionMessage) -> None:
         """A mission-protocol message, to the pure state machine (autopilot.mission_protocol); its answers out."""
-        p = self.missions.protocol
-        fence, rally = p.fence_version, p.rally_version
         for out in self.missions.on_message(r.msg_id, r.sender, r.fields, time.monotonic()):
             self.outbox.mission(out)
-        if p.fence_version != fence:  # a new geofence: flown from the next tick
-            self.commander.set_fence(self.missions.fence_array())
-        if p.rally_version != rally:  # new rally points: where a return goes from now on
-            self.commander.set_rally(self.missions.rally_array())
+        self.missions.sync(self.commander)  # a new geofence or rally points: flown from the next tick
 
     def on_file_transfer(self, r: FileTransfer) -> None:
         refusal = gcs_messages.ftp_refusal(r.payload)

@@ -90,6 +90,8 @@ class Mission:
     kind: str  # "plan", "csv" or "wpl"
     items: tuple[mp.MissionItem, ...]
     planned_home: tuple[float, float, float] | None = None  # a .plan's plannedHomePosition or a WPL file's line 0
+    fence: tuple[mp.MissionItem, ...] = ()  # a .plan's geoFence, as the vehicle stores it (mission_type 1)
+    rally: tuple[mp.MissionItem, ...] = ()  # a .plan's rallyPoints (mission_type 2)
 
     @property
     def lands(self) -> bool:
@@ -201,11 +203,7 @@ def _plan(path: Path, text: str) -> Mission:
     mission = doc.get("mission")
     if not isinstance(mission, dict) or not isinstance(mission.get("items"), list):
         raise MissionFileError(f"mission {path}, mission.items: missing; expected a list of mission items")
-    for key, parts in (("geoFence", ("polygons", "circles", "polygon")), ("rallyPoints", ("points",))):
-        section = doc.get(key) or {}
-        if isinstance(section, dict) and any(section.get(p) for p in parts):
-            raise MissionFileError(f"mission {path}, {key}: not empty; allowed: none (the vehicle has no geofence "
-                                   "or rally points yet)")  # fmt: skip
+    fence, rally = _fence(path, doc.get("geoFence")), _rally(path, doc.get("rallyPoints"))
     home = mission.get("plannedHomePosition")
     planned_home = None
     if isinstance(home, list) and len(home) == 3:
@@ -238,7 +236,87 @@ def _plan(path: Path, text: str) -> Mission:
         if not isinstance(auto, bool):
             raise MissionFileError(f"{where}, autoContinue: {auto!r}; expected true or false")
         items.append(check_item(where, len(items), command, frame, values, auto))
-    return Mission(path, "plan", tuple(items), usable_home(planned_home))
+    return Mission(path, "plan", tuple(items), usable_home(planned_home), fence, rally)
+
+
+def _section(path: Path, name: str, doc: object, key: str) -> list:
+    """A .plan section's list ``key`` (none: empty)."""
+    if doc is None:
+        return []
+    if not isinstance(doc, dict):
+        raise MissionFileError(f"mission {path}, {name}: {type(doc).__name__}; expected an object")
+    entries = doc.get(key) or []
+    if not isinstance(entries, list):
+        raise MissionFileError(f"mission {path}, {name}.{key}: {entries!r}; expected a list")
+    return entries
+
+
+def _checked(where: str, parse, fields: dict) -> mp.MissionItem:
+    try:
+        return parse(fields)
+    except mp.ItemRefusedError as exc:
+        raise MissionFileError(f"{where}: {exc}") from None
+    except (TypeError, ValueError):
+        raise MissionFileError(f"{where}: {fields!r} is not a place (latitude, longitude numbers)") from None
+
+
+def _place(where: str, point: object, n: int) -> list[float]:
+    if not isinstance(point, list) or len(point) != n or not all(_is_number(v) and v is not None for v in point):
+        raise MissionFileError(f"{where}: {point!r}; expected [{', '.join(('latitude', 'longitude', 'altitude')[:n])}]")
+    return [float(v) for v in point]
+
+
+def _fence(path: Path, doc: object) -> tuple[mp.MissionItem, ...]:
+    """A .plan's ``geoFence`` (QGroundControl's: ``polygons`` of ``{"polygon": [[lat, lon], ...], "inclusion"}``,
+    ``circles`` of ``{"circle": {"center": [lat, lon], "radius"}, "inclusion"}``) as the vehicle stores a fence,
+    checked as its upload is (:func:`autopilot.mission_protocol.parse_fence_item`, ``check_fence``)."""
+    items: list[mp.MissionItem] = []
+
+    def item(where: str, command: int, p1: float, lat: float, lon: float) -> None:
+        fields = {"seq": len(items), "frame": mp.FRAME_GLOBAL, "command": command, "param1": p1, "param2": 0.0,
+                  "x": lat, "y": lon, "z": 0.0}  # fmt: skip
+        items.append(_checked(where, lambda f: mp.parse_fence_item(f, legacy=True), fields))
+
+    for i, entry in enumerate(_section(path, "geoFence", doc, "polygons")):
+        where = f"mission {path}, geoFence.polygons[{i}]"
+        vertices = entry.get("polygon") if isinstance(entry, dict) else None
+        if not isinstance(vertices, list):
+            raise MissionFileError(f'{where}: {entry!r}; expected {{"polygon": [[latitude, longitude], ...]}}')
+        inclusion = entry.get("inclusion", True)
+        command = mp.FENCE_POLYGON_INCLUSION if inclusion else mp.FENCE_POLYGON_EXCLUSION
+        for j, vertex in enumerate(vertices):
+            item(f"{where}.polygon[{j}]", command, float(len(vertices)), *_place(f"{where}.polygon[{j}]", vertex, 2))
+    for i, entry in enumerate(_section(path, "geoFence", doc, "circles")):
+        where = f"mission {path}, geoFence.circles[{i}]"
+        circle = entry.get("circle") if isinstance(entry, dict) else None
+        if not isinstance(circle, dict) or not _is_number(circle.get("radius")) or circle.get("radius") is None:
+            raise MissionFileError(f"{where}: {entry!r}; expected {{\"circle\": {{\"center\": [latitude, "
+                                   "longitude], \"radius\": metres}}}}")  # fmt: skip
+        inclusion = entry.get("inclusion", True)
+        command = mp.FENCE_CIRCLE_INCLUSION if inclusion else mp.FENCE_CIRCLE_EXCLUSION
+        item(where, command, float(circle["radius"]), *_place(f"{where}.circle.center", circle.get("center"), 2))
+    if len(items) > mp.MAX_FENCE_ITEMS:
+        raise MissionFileError(f"mission {path}, geoFence: {len(items)} items; the vehicle takes at most "
+                               f"{mp.MAX_FENCE_ITEMS}")  # fmt: skip
+    reason = mp.check_fence(items)
+    if reason:
+        raise MissionFileError(f"mission {path}, geoFence: {reason}")
+    return tuple(items)
+
+
+def _rally(path: Path, doc: object) -> tuple[mp.MissionItem, ...]:
+    """A .plan's ``rallyPoints`` (``points`` of [lat, lon, altitude above home]) as the vehicle stores them."""
+    items = []
+    for i, point in enumerate(_section(path, "rallyPoints", doc, "points")):
+        where = f"mission {path}, rallyPoints.points[{i}]"
+        lat, lon, alt = _place(where, point, 3)
+        fields = {"seq": i, "frame": mp.FRAME_GLOBAL_RELATIVE_ALT, "command": mp.RALLY_POINT, "x": lat, "y": lon,
+                  "z": alt}  # fmt: skip
+        items.append(_checked(where, lambda f: mp.parse_rally_item(f, legacy=True), fields))
+    if len(items) > mp.MAX_RALLY_POINTS:
+        raise MissionFileError(f"mission {path}, rallyPoints: {len(items)} points; the vehicle takes at most "
+                               f"{mp.MAX_RALLY_POINTS}")  # fmt: skip
+    return tuple(items)
 
 
 def _is_number(v: object) -> bool:

@@ -32,21 +32,29 @@ from groundstation.station import (
 from quadsitl.frames import PX4_HOME
 from quadsitl.wire import mavlink
 
+UPLOADED = {0: "mission", 1: "geofence", 2: "rally point"}  # what each mission_type's upload is called
+
 
 class MissionFlight(GroundStation):
     """A ground station flying ``args.mission`` (loaded when made: :class:`groundstation.station.GroundStation`)."""
 
-    def send_mission_item(self, seq: int) -> None:
-        """The mission's item ``seq`` as MISSION_ITEM_INT."""
-        fields = self.mission.flown[seq].message_fields()
-        self.send(mavlink.MAVLink_mission_item_int_message(*self.target, **fields))
+    def uploads(self) -> list[tuple[int, tuple]]:
+        """What is uploaded, in QGroundControl's order: (mission_type, items) of the mission, then the plan's geofence
+        and rally points when it has them."""
+        m = self.mission
+        return [(0, m.flown)] + [(kind, items) for kind, items in ((1, m.fence), (2, m.rally)) if items]
+
+    def send_mission_item(self, items: tuple, seq: int) -> None:
+        """Item ``seq`` of ``items`` as MISSION_ITEM_INT."""
+        self.send(mavlink.MAVLink_mission_item_int_message(*self.target, **items[seq].message_fields()))
 
     def fly(self) -> int:
         """Upload the mission through the protocol (:class:`groundstation.mission_upload.MissionUpload`), select
         AUTO.MISSION, arm (which starts it), fly it to its landing; write the results (mission.json too) → the exit
         status."""
         args, mission = self.args, self.mission
-        n_items = len(mission.flown)
+        uploads = self.uploads()
+        kind, items = uploads.pop(0)
         arm_tick = None if args.arm_at is None else round(args.arm_at / self.period)
         phase = Phase.CONNECT
         deadline = time.monotonic() + args.timeout
@@ -62,20 +70,27 @@ class MissionFlight(GroundStation):
             last_hb = self.heartbeat(now, last_hb)
             if phase is Phase.CONNECT and self.heard:
                 self.take_link()
-                phase, upload = Phase.UPLOAD, MissionUpload(n_items, now)
+                phase, upload = Phase.UPLOAD, MissionUpload(len(items), now)
             elif phase is Phase.UPLOAD:
                 step = upload.step(now, self.requested, self.mission_ack)
                 self.requested.clear()
                 for seq in step.items:
-                    self.send_mission_item(seq)
+                    self.send_mission_item(items, seq)
                 if step.error is not None:
-                    raise GcsError(step.error)
+                    why = f": the vehicle says {self.said[-1]!r}" if self.said else ""
+                    raise GcsError(step.error.replace("mission", UPLOADED[kind], 1) + why)
                 if step.count:
-                    self.send(mavlink.MAVLink_mission_count_message(*self.target, n_items, 0))
+                    self.send(mavlink.MAVLink_mission_count_message(*self.target, len(items), kind))
                 if step.done:
                     if not args.quiet:
-                        print(f"gcs: uploaded {n_items} mission items from {mission.path}", file=sys.stderr)
-                    phase = Phase.PREARM
+                        print(f"gcs: uploaded {len(items)} {UPLOADED[kind]} items from {mission.path}",
+                              file=sys.stderr)  # fmt: skip
+                    self.mission_ack = None
+                    if uploads:  # the next: the geofence, the rally points
+                        kind, items = uploads.pop(0)
+                        self.upload_type, upload = kind, MissionUpload(len(items), now)
+                    else:
+                        phase = Phase.PREARM
             elif phase is Phase.PREARM and self.logger.last_status is not None and self.armable:
                 # never fly what cannot be recorded, nor arm before the pre-arm check (nor, --arm-at, before then)
                 if arm_tick is None or self.logger.last_tick >= arm_tick:

@@ -128,7 +128,8 @@ def fly_mission(vehicle: Vehicle, mission: Mission, duration: float,
                 progress: Callable[[float], None] | None = None) -> SimResult:  # fmt: skip
     """Fly ``mission`` as ``quadsitl fly --mission`` flies it: stored as an upload stores it (each item through the
     autopilot's parser: :attr:`groundstation.mission_files.Mission.flown`, a landing after a mission that does not
-    land), on the ground first (on sensors, while the estimator aligns), AUTO.MISSION selected, armed (which starts
+    land; its geofence and rally points as their uploads store them), on the ground first (on sensors, while the
+    estimator aligns), AUTO.MISSION selected, armed (which starts
     it); the mission executor (:mod:`autopilot.missions`) after every tick, as the autopilot process runs it. The
     rows are the armed ticks, up to the disarm, or ``duration`` seconds, or a state out of bounds."""
     c, period = vehicle.commander, vehicle.period
@@ -137,6 +138,11 @@ def fly_mission(vehicle: Vehicle, mission: Mission, duration: float,
         missions.protocol.store(tuple(mp.parse_item(it.message_fields()) for it in mission.flown))
     except mp.ItemRefusedError as exc:
         raise UsageError(f"--mission {mission.path}: the vehicle refuses it: {exc}") from None
+    for kind, items in ((mp.MISSION_TYPE_FENCE, mission.fence), (mp.MISSION_TYPE_RALLY, mission.rally)):
+        reason = missions.protocol.store_other(kind, items) if items else ""  # as fly uploads them, after the mission
+        if reason:
+            raise UsageError(f"--mission {mission.path}: the vehicle refuses it: {reason}")
+    missions.sync(c)
     vehicle.fly(ground_ticks(vehicle.preset), record=False)
     vehicle.seen()
     first = vehicle.tick

@@ -169,6 +169,7 @@ class GroundStation:
         # the mission: items requested (seq, legacy), the upload's MISSION_ACK
         self.requested: list[int] = []
         self.mission_ack: int | None = None
+        self.upload_type = 0  # the mission_type being uploaded (0 mission, 1 geofence, 2 rally points)
 
     # ---- MAVLink ---------------------------------------------------------------------------------
 
@@ -215,10 +216,10 @@ class GroundStation:
             elif mid == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
                 self.acks[m.command] = m.result
             elif mid in (mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mavlink.MAVLINK_MSG_ID_MISSION_REQUEST):
-                if getattr(m, "mission_type", 0) == 0 and m.target_system == wire.GCS_SYSTEM_ID:
+                if getattr(m, "mission_type", 0) == self.upload_type and m.target_system == wire.GCS_SYSTEM_ID:
                     self.requested.append(m.seq)
             elif mid == mavlink.MAVLINK_MSG_ID_MISSION_ACK:
-                if getattr(m, "mission_type", 0) == 0 and m.target_system == wire.GCS_SYSTEM_ID:
+                if getattr(m, "mission_type", 0) == self.upload_type and m.target_system == wire.GCS_SYSTEM_ID:
                     self.mission_ack = m.type
             elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT:
                 text = self._statustext(m)

@@ -69,7 +69,7 @@ def test_plan_refusals_name_the_item_field_and_value(tmp_path, items, expected):
     assert "\n" not in str(e.value)
 
 
-def test_plan_refuses_other_files_fences_and_rally_points(tmp_path):
+def test_plan_refuses_other_files(tmp_path):
     p = tmp_path / "x.plan"
     p.write_text('{"fileType": "Mission"}')
     with pytest.raises(MissionFileError, match="fileType: 'Mission'; expected 'Plan'"):
@@ -77,11 +77,50 @@ def test_plan_refuses_other_files_fences_and_rally_points(tmp_path):
     p.write_text("{not json")
     with pytest.raises(MissionFileError, match="line 1: not valid JSON"):
         load(p)
-    with pytest.raises(MissionFileError, match="geoFence: not empty"):
-        load(plan(tmp_path, [wp()], geoFence={"polygons": [{"polygon": [[1, 2]]}], "version": 2}))
-    load(plan(tmp_path, [wp()], geoFence={"polygons": [], "circles": [], "version": 2}))  # empty: fine
     with pytest.raises(MissionFileError, match="cannot read it"):
         load(tmp_path / "missing.plan")
+
+
+SQUARE = [[47.3976, 8.5454], [47.3979, 8.5454], [47.3979, 8.5458], [47.3976, 8.5458]]
+
+
+def test_a_plans_geofence_and_rally_points_are_read_as_the_vehicle_stores_them(tmp_path):
+    fence = {
+        "version": 2,
+        "polygons": [{"polygon": SQUARE, "inclusion": True, "version": 1}],
+        "circles": [{"circle": {"center": [47.3977, 8.5456], "radius": 3.5}, "inclusion": False, "version": 1}],
+    }
+    m = load(plan(tmp_path, [wp()], geoFence=fence, rallyPoints={"version": 2, "points": [[47.3978, 8.5457, 12]]}))
+    assert [(it.command, it.p1, it.lat, it.lon) for it in m.fence] == [
+        *((mp.FENCE_POLYGON_INCLUSION, 4.0, pytest.approx(a), pytest.approx(b)) for a, b in SQUARE),
+        (mp.FENCE_CIRCLE_EXCLUSION, 3.5, pytest.approx(47.3977), pytest.approx(8.5456))]  # fmt: skip
+    assert [it.seq for it in m.fence] == list(range(5)) and {it.mission_type for it in m.fence} == {1}
+    ((rally),) = m.rally
+    assert (rally.command, rally.lat, rally.lon, rally.z, rally.mission_type) == (
+        mp.RALLY_POINT, pytest.approx(47.3978), pytest.approx(8.5457), 12.0, 2)  # fmt: skip
+    load(plan(tmp_path, [wp()], geoFence={"polygons": [], "circles": [], "version": 2}))  # empty: fine
+
+
+@pytest.mark.parametrize(
+    ("section", "expected"),
+    [
+        ({"geoFence": {"polygons": [{"polygon": [[1, 2]]}]}}, "geoFence.polygons[0].polygon[0]: a polygon has at "
+         "least 3 vertices, not 1"),
+        ({"geoFence": {"polygons": [{"polygon": [SQUARE[0], SQUARE[2], SQUARE[1], SQUARE[3]]}]}}, "crosses itself"),
+        ({"geoFence": {"circles": [{"circle": {"center": [47.3, 8.5], "radius": 0}}]}}, "geoFence.circles[0]: a "
+         "circle's radius must be a number > 0 m, not 0"),
+        ({"geoFence": {"circles": [{"circle": {"center": [47.3], "radius": 5}}]}}, "circle.center: [47.3]; expected "
+         "[latitude, longitude]"),
+        ({"geoFence": {"polygons": "x"}}, "geoFence.polygons: 'x'; expected a list"),
+        ({"rallyPoints": {"points": [[47.3, 8.5]]}}, "rallyPoints.points[0]: [47.3, 8.5]; expected [latitude, "
+         "longitude, altitude]"),
+        ({"rallyPoints": {"points": [[95.0, 8.5, 10]]}}, "rallyPoints.points[0]: latitude must be within [-90, 90]"),
+    ],
+)  # fmt: skip
+def test_a_malformed_geofence_or_rally_point_is_refused_naming_where(tmp_path, section, expected):
+    with pytest.raises(MissionFileError) as e:
+        load(plan(tmp_path, [wp()], **section))
+    assert expected in str(e.value), str(e.value)
 
 
 def test_waypoint_csv_is_waypoints_at_relative_altitude(tmp_path):

@@ -137,3 +137,49 @@ def test_a_loiters_radius_and_heading_and_an_item_with_autocontinue_off_through_
     assert abs((gone.yaw - math.pi / 2 + math.pi) % (2 * math.pi) - math.pi) < math.radians(15)  # faced east first
     held = t[t.t > reached[2] + 2.0]
     assert len(held) > 10_000 and held.x.max() - held.x.min() < 0.3 and held.y.max() - held.y.min() < 0.3
+
+
+def fenced_plan(tmp_path, far_north: float) -> str:
+    """A plan: take off to 8 m, fly to 20 m north, then ``far_north`` metres north, return; a fence 30 m around
+    home, a rally point 25 m north, 10 m east."""
+    items = [simple(22, 3, [0, 0, 0, None, HOME[0], HOME[1], 8]), at(2 * 10 / 10, 0, 8), simple(16, 3, [0, 0, 0, None,
+             HOME[0] + DLAT * far_north / 10, HOME[1], 8]), simple(20, 2, [0, 0, 0, 0, 0, 0, 0])]  # fmt: skip
+    d = 30 / 10
+    square = [[HOME[0] - d * DLAT, HOME[1] - d * DLON], [HOME[0] + d * DLAT, HOME[1] - d * DLON],
+              [HOME[0] + d * DLAT, HOME[1] + d * DLON], [HOME[0] - d * DLAT, HOME[1] + d * DLON]]  # fmt: skip
+    plan = {"fileType": "Plan", "version": 1, "groundStation": "QGroundControl",
+            "mission": {"version": 2, "firmwareType": 12, "vehicleType": 2, "plannedHomePosition": list(HOME),
+                        "items": items},
+            "geoFence": {"version": 2, "polygons": [{"polygon": square, "inclusion": True, "version": 1}],
+                         "circles": []},
+            "rallyPoints": {"version": 2, "points": [[HOME[0] + 2.5 * DLAT, HOME[1] + DLON, 8]]}}  # fmt: skip
+    path = tmp_path / f"fenced-{far_north:g}.plan"
+    path.write_text(json.dumps(plan))
+    return str(path)
+
+
+def test_a_plans_geofence_and_rally_points_are_flown_by_fly_and_sim_alike(tmp_path):
+    """The plan's rally point is nearer than home when its mission returns: fly (uploading the geofence and the rally
+    points after the mission, as QGroundControl does) and sim both land there."""
+    path = fenced_plan(tmp_path, 25)
+    landed = {}
+    for command in ("fly", "sim"):
+        out = tmp_path / command
+        r = run_cli(command, "--preset", "x500", "--mission", path, "--no-figures", "--quiet", "--out", str(out),
+                    timeout=300)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        t = pd.read_csv(out / "telemetry.csv")
+        landed[command] = (t.x.iloc[-1], t.y.iloc[-1])
+    rally = geodetic_to_ned(HOME[0] + 2.5 * DLAT, HOME[1] + DLON, HOME[0], HOME[1])
+    for command, (x, y) in landed.items():
+        assert math.hypot(x - rally[0], y - rally[1]) < 0.5, (command, landed, rally)
+
+
+def test_a_mission_leg_out_of_the_plans_geofence_is_stopped_at_the_fence(tmp_path):
+    """GF_ACTION 2 (PX4's default): the vehicle holds where it stops beyond the fence; the mission does not go on."""
+    out = tmp_path / "sim"
+    r = run_cli("sim", "--preset", "x500", "--mission", fenced_plan(tmp_path, 60), "--duration", "60", "--no-figures",
+                "--quiet", "--out", str(out), timeout=300)  # fmt: skip
+    assert r.returncode != 0 and "did not end within --duration" in r.stderr, r.stderr
+    t = pd.read_csv(out / "telemetry.csv")
+    assert 30.0 < t.x.max() < 36.0  # past the fence by its braking distance from cruise speed, at most
