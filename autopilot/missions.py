@@ -96,6 +96,16 @@ class Missions:
         """The stored rally points as the commander holds them (:func:`autopilot.geofence.rally_to_array`)."""
         return geofence.rally_to_array(self.protocol.rally, self._local, self.origin[2])
 
+    def fence_doc(self) -> list[dict]:
+        """The geofence for maps (:func:`quadsitl.telemetry.encode_mission`'s ``fence``)."""
+        a = self.fence_array().reshape(-1, geofence.FENCE_ITEM)
+        return [{"kind": int(k), "size": float(n), "x": float(x), "y": float(y)} for k, n, x, y in a]
+
+    def rally_doc(self) -> list[dict]:
+        """The rally points for maps (:func:`quadsitl.telemetry.encode_mission`'s ``rally``)."""
+        a = self.rally_array().reshape(-1, geofence.RALLY_ITEM)
+        return [{"x": float(x), "y": float(y)} for x, y, _ in a]
+
     def rally_outside(self, items: tuple[mp.MissionItem, ...]) -> str:
         """Why rally points are refused: one outside the stored geofence's polygons and circles ("" when none)."""
         cm = np.zeros(geofence.CM_SIZE)

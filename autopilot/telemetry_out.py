@@ -201,12 +201,14 @@ class ZenohOut:
         if self.plan_pub is None:
             return
         p = missions.protocol
-        now = (p.version, p.current, p.mission_state, commander.home, len(missions.reached))
+        now = (p.version, p.current, p.mission_state, commander.home, len(missions.reached), p.fence_version,
+               p.rally_version)  # fmt: skip
         if now == self.plan_published and not again:
             return
         self.plan_published = now
         self.plan_pub.put(telemetry.encode_mission(p.version, p.current, p.mission_state, missions.plan(commander),
-                                                   missions.reached))  # fmt: skip
+                                                   missions.reached, missions.fence_doc(),
+                                                   missions.rally_doc()))  # fmt: skip
 
     def close(self) -> None:
         if self.pubs or self.readers:

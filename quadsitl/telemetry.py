@@ -23,7 +23,8 @@ item or its state changes and once a second (so a subscriber that joins late has
 
     {"version": 3, "current": 1, "state": 3, "total": 4,
      "items": [{"seq": 0, "command": 22, "x": null, "y": null, "altitude": 5.0}, ...],
-     "reached": [[0, 4.213], [1, 9.87]]}
+     "reached": [[0, 4.213], [1, 9.87]],
+     "fence": [{"kind": 1, "size": 4, "x": -20.0, "y": -20.0}, ...], "rally": [{"x": 40.0, "y": 10.0}]}
 
 ``version`` counts replacements of the stored mission; ``state`` is MAVLink's MISSION_STATE (1 none, 2 not
 started, 3 active, 4 paused, 5 complete); each item's ``x``, ``y`` (local NED [m], x north, y east of the
@@ -31,6 +32,9 @@ origin) and ``altitude`` [m] are where the item flies, null where it has no plac
 landing where the vehicle is, a delay, a speed change; a return to launch has home's x, y). ``reached`` lists each
 MISSION_ITEM_REACHED since the vehicle last armed (or the stored mission was replaced), in order: the item and the
 simulated time [s] of the tick after which it was reached (absent in documents of older autopilots: an empty list).
+``fence`` is the geofence's items in order (``kind`` 1 inclusion polygon, 2 exclusion polygon, 3 inclusion circle,
+4 exclusion circle; ``size`` a polygon's vertex count, a circle's radius [m]; ``x``, ``y`` a vertex or a centre) and
+``rally`` the rally points (both absent in older documents: empty).
 :func:`encode_mission` and :func:`decode_mission` write and check it.
 
 Versions: v3 added x_ref and y_ref to the setpoint record (v2's was ``<Qd4d``); the other streams' records
@@ -194,9 +198,13 @@ def mission_encoding() -> zenoh.Encoding:
 
 
 def encode_mission(version: int, current: int, state: int, items: Sequence[dict],
-                   reached: Sequence[tuple[int, float]] = ()) -> bytes:  # fmt: skip
+                   reached: Sequence[tuple[int, float]] = (), fence: Sequence[dict] = (),
+                   rally: Sequence[dict] = ()) -> bytes:  # fmt: skip
     """The mission document (see the module's docstring): ``items`` are dicts of seq, command, x, y, altitude
-    (NaN or None where unknown; NaN goes out as null); ``reached`` (seq, simulated time [s]) pairs."""
+    (NaN or None where unknown; NaN goes out as null); ``reached`` (seq, simulated time [s]) pairs; ``fence`` the
+    geofence's items, dicts of kind (1 inclusion polygon, 2 exclusion polygon, 3 inclusion circle, 4 exclusion
+    circle), size (a polygon's vertex count, a circle's radius [m]), x, y [m, NED]; ``rally`` the rally points' x,
+    y [m, NED]."""
 
     def num(v: float | None) -> float | None:
         return None if v is None or not math.isfinite(v) else round(float(v), 3)
@@ -212,6 +220,8 @@ def encode_mission(version: int, current: int, state: int, items: Sequence[dict]
             for i in items
         ],
         "reached": [[int(seq), round(float(t), 6)] for seq, t in reached],
+        "fence": [{"kind": int(f["kind"]), "size": num(f["size"]), "x": num(f["x"]), "y": num(f["y"])} for f in fence],
+        "rally": [{"x": num(r["x"]), "y": num(r["y"])} for r in rally],
     }  # fmt: skip
     return json.dumps(doc, separators=(",", ":"), allow_nan=False).encode()
 
@@ -275,6 +285,13 @@ def decode_mission(payload: bytes) -> dict:
         if not ok or not math.isfinite(r[1]):
             raise ValueError(f"mission: reached {r!r:.40}, expected [item, simulated time [s]]")
         out["reached"].append((r[0], float(r[1])))
+    fence, rally = doc.get("fence", []), doc.get("rally", [])  # absent from an older vehicle's: none
+    for name, value in (("fence", fence), ("rally", rally)):
+        if not isinstance(value, list) or not all(isinstance(f, dict) for f in value):
+            raise ValueError(f"mission: {name} = {value!r:.40}, expected a list of objects")
+    out["fence"] = [{"kind": integer(f, "kind", 1, 4), "size": number(f, "size"), "x": number(f, "x"),
+                     "y": number(f, "y")} for f in fence]  # fmt: skip
+    out["rally"] = [{"x": number(r, "x"), "y": number(r, "y")} for r in rally]
     return out
 
 

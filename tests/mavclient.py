@@ -243,11 +243,13 @@ class Client:
         self.conn.mav.set_position_target_local_ned_send(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask, 0, 0, -altitude,
                                                         0, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip
 
-    def upload_mission(self, items: list[tuple[int, float, float, float]], timeout: float = 10.0):
+    def upload_mission(self, items: list[tuple[int, float, float, float]], timeout: float = 10.0,
+                       mission_type: int = M.MAV_MISSION_TYPE_MISSION, param1: float = 0.0):  # fmt: skip
         """Upload a mission by the protocol, as a ground station does: MISSION_COUNT, then each
         MISSION_ITEM_INT the vehicle requests; returns the MISSION_ACK. ``items``: (command, latitude,
-        longitude [deg], altitude above home [m]) each."""
-        self.conn.mav.mission_count_send(1, 1, len(items), M.MAV_MISSION_TYPE_MISSION)
+        longitude [deg], altitude above home [m]) each; ``mission_type`` 1 and ``param1`` for a geofence's items (a
+        polygon's vertex count), 2 for rally points."""
+        self.conn.mav.mission_count_send(1, 1, len(items), mission_type)
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             m = self.wait_any(lambda m: m.get_type() in ("MISSION_REQUEST_INT", "MISSION_ACK"), end - time.monotonic())
@@ -255,6 +257,6 @@ class Client:
                 return m
             command, lat, lon, alt = items[m.seq]
             self.conn.mav.mission_item_int_send(1, 1, m.seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command, 0, 1,
-                                                0, 0, 0, float("nan"), round(lat * 1e7), round(lon * 1e7), alt,
-                                                M.MAV_MISSION_TYPE_MISSION)  # fmt: skip
+                                                param1, 0, 0, float("nan"), round(lat * 1e7), round(lon * 1e7), alt,
+                                                mission_type)  # fmt: skip
         raise AssertionError(f"the upload of {len(items)} items did not end within {timeout} s")

@@ -355,8 +355,9 @@ def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
 
 @pytest.mark.timeout(120)
 def test_the_map_shows_the_mission_and_its_current_item_as_it_flies(browser, artifacts):
-    """``quadsitl up --dashboard``; a raw pymavlink ground station uploads three waypoints by the mission protocol
-    and starts the mission: the page's map shows the plan where the items are, rings the current item, and
+    """``quadsitl up --dashboard``; a raw pymavlink ground station uploads three waypoints by the mission protocol,
+    a geofence and a rally point, and starts the mission: the page's map shows the plan where the items are, the
+    fence and the rally point where they are, rings the current item, and
     follows it to the next one when the first is reached; the status panel says which item of how many."""
     from quadsitl.frames import PX4_HOME, ned_to_geodetic
 
@@ -370,12 +371,27 @@ def test_the_map_shows_the_mission_and_its_current_item_as_it_flies(browser, art
             c.connect()
             items = [(M.MAV_CMD_NAV_WAYPOINT, *ned_to_geodetic(n, e, *PX4_HOME[:2]), 4.0) for n, e in points]
             assert c.upload_mission(items).type == M.MAV_MISSION_ACCEPTED
+            square = [(M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, *ned_to_geodetic(n, e, *PX4_HOME[:2]), 0.0)
+                      for n, e in ((-12, -12), (12, -12), (12, 12), (-12, 12))]  # fmt: skip
+            assert c.upload_mission(square, mission_type=1, param1=4).type == M.MAV_MISSION_ACCEPTED
+            rally = [(M.MAV_CMD_NAV_RALLY_POINT, *ned_to_geodetic(9.0, -6.0, *PX4_HOME[:2]), 5.0)]
+            assert c.upload_mission(rally, mission_type=2).type == M.MAV_MISSION_ACCEPTED
             wait_http(url)
             page = browser.new_page(viewport={"width": 1400, "height": 1100})
             page.goto(url)
             plan = "document.getElementById('plot-map').dataset"
             page.wait_for_function(f"() => Number({plan}.planItems) === 3 && {plan}.current === '0'", timeout=BEHIND_MS)
+            page.wait_for_function(f"() => {plan}.fenceItems === '4' && {plan}.rallyPx !== ''", timeout=BEHIND_MS)
+            triangle = page.evaluate("""() => {
+                const box = document.getElementById('plot-map'), c = box.querySelector('canvas');
+                const r = window.devicePixelRatio || 1, [x, y] = box.dataset.rallyPx.split(',').map(Number);
+                const px = c.getContext('2d').getImageData(Math.round(x * r), Math.round(y * r), 1, 1);
+                return Array.from(px.data); }""")
+            assert triangle[:3] == pytest.approx([140, 86, 75], abs=40)  # the rally point's brown triangle, there
             mission = page.evaluate("() => quadsitl.mission")
+            assert [(f["x"], f["y"]) for f in mission["fence"]] == [
+                pytest.approx(p, abs=0.02) for p in ((-12, -12), (12, -12), (12, 12), (-12, 12))]  # fmt: skip
+            assert [(r["x"], r["y"]) for r in mission["rally"]] == [pytest.approx((9.0, -6.0), abs=0.02)]
             assert [(i["x"], i["y"]) for i in mission["items"]] == [pytest.approx(p, abs=0.02) for p in points]
             assert [i["altitude"] for i in mission["items"]] == [pytest.approx(4.0)] * 3
             text = "document.querySelector('#status [data-field=mission]').textContent"

@@ -1,6 +1,7 @@
 """The dashboard's pure model: decimation, the join across streams, runs that restart, rates, and input
 that must not hurt it (malformed payloads, strangers' keys, too many vehicles)."""
 
+import json
 import math
 
 import pytest
@@ -198,7 +199,21 @@ def test_the_mission_document_is_kept_for_the_map_and_a_bad_one_is_counted_and_i
     assert v.malformed == len(bad) and v.mission == good
     fleet.ingest("quadsitl/v1/mission", telemetry.encode_mission(3, 0, 1, []), 0.2)  # cleared
     cleared = fleet.summaries(0.2)[0]["mission"]
-    assert cleared["items"] == [] and cleared["state_name"] == "none"
+    assert cleared["items"] == [] and cleared["state_name"] == "none" and cleared["fence"] == cleared["rally"] == []
+
+
+def test_the_mission_document_carries_the_geofence_and_rally_points_and_refuses_bad_ones():
+    fence = [{"kind": 1, "size": 3, "x": -20.0, "y": -20.0}, {"kind": 1, "size": 3, "x": 20.0, "y": 0.0},
+             {"kind": 1, "size": 3, "x": -20.0, "y": 20.0}, {"kind": 4, "size": 5.5, "x": 1.0, "y": 2.0}]  # fmt: skip
+    rally = [{"x": 40.0, "y": 10.0}]
+    doc = telemetry.decode_mission(telemetry.encode_mission(1, 0, 2, [], (), fence, rally))
+    assert doc["fence"] == fence and doc["rally"] == rally
+    old = telemetry.encode_mission(1, 0, 2, []).replace(b',"fence":[],"rally":[]', b"")  # an older vehicle's
+    assert b"fence" not in old and telemetry.decode_mission(old)["fence"] == []
+    for bad in ([{**fence[0], "kind": 9}], [{**fence[0], "x": 1e99}], ["x"]):
+        with pytest.raises(ValueError, match="mission: "):
+            telemetry.decode_mission(telemetry.encode_mission(1, 0, 2, [], (), [], []).replace(
+                b'"fence":[]', b'"fence":' + json.dumps(bad).encode()))  # fmt: skip
 
 
 def slow(fleet: Fleet, tick: int, wall: float, vehicle: str = "v1", x: float | None = None) -> None:

@@ -32,7 +32,7 @@ const PLOTS = [
 ];
 
 const MAP = { height: 320, setpoint: "#d62728", home: "#2ca02c", grid: "#eee", text: "#777",
-              plan: "#9467bd", current: "#ff7f0e" };
+              plan: "#9467bd", current: "#ff7f0e", fence: "#17becf", excluded: "#d62728", rally: "#8c564b" };
 
 const FLEET = { height: 520, grid: "#eee", text: "#555", minSpan: 4,
                 colours: ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
@@ -96,7 +96,9 @@ function makeMap(root) {
   title.innerHTML = "x–y map [m] from above: x north ↑, y east → " +
     `<span style="color:${MEASURED}">━ path</span><span style="color:${REFERENCE}">┅ reference</span>` +
     `<span style="color:${MAP.setpoint}">⊕ setpoint</span><span style="color:${MAP.home}">■ home</span>` +
-    `<span style="color:${MAP.plan}">● mission</span><span style="color:${MAP.current}">◯ current item</span>`;
+    `<span style="color:${MAP.plan}">● mission</span><span style="color:${MAP.current}">◯ current item</span>` +
+    `<span style="color:${MAP.fence}">▭ geofence</span><span style="color:${MAP.excluded}">▭ excluded</span>` +
+    `<span style="color:${MAP.rally}">▲ rally point</span>`;
   const canvas = document.createElement("canvas");
   box.append(title, canvas);
   root.appendChild(box);
@@ -161,7 +163,33 @@ function drawMap() {
   const mission = state.mission;
   const placed = mission ? mission.items.filter(it => it.x !== null && it.y !== null) : [];
   for (const it of placed) grow(it.x, it.y);
+  const fence = mission && mission.fence ? mission.fence : [], rally = mission && mission.rally ? mission.rally : [];
+  for (const f of fence) {  // a circle's extent, a polygon's vertices
+    const r = f.kind >= 3 ? f.size : 0;
+    grow(f.x - r, f.y - r); grow(f.x + r, f.y + r);
+  }
+  for (const p of rally) grow(p.x, p.y);
   const { px, py, scale } = mapFrame(ctx, W, H, [minN, maxN, minE, maxE], 2, 1.1, 5, MAP);
+  // The geofence (inclusions, exclusions in red) and the rally points, under everything else.
+  ctx.lineWidth = 1.5; ctx.setLineDash([8, 3]);
+  for (let i = 0; i < fence.length;) {
+    const f = fence[i], inclusion = f.kind === 1 || f.kind === 3;
+    ctx.strokeStyle = inclusion ? MAP.fence : MAP.excluded; ctx.beginPath();
+    if (f.kind <= 2) {  // a polygon: its vertices follow
+      const n = Math.max(1, Math.round(f.size));
+      fence.slice(i, i + n).forEach((v, k) => k ? ctx.lineTo(px(v.y), py(v.x)) : ctx.moveTo(px(v.y), py(v.x)));
+      ctx.closePath(); i += n;
+    } else {
+      ctx.arc(px(f.y), py(f.x), f.size * scale, 0, 2 * Math.PI); i += 1;
+    }
+    ctx.stroke();
+  }
+  ctx.setLineDash([]);
+  ctx.fillStyle = MAP.rally;
+  for (const p of rally) {
+    ctx.beginPath(); ctx.moveTo(px(p.y), py(p.x) - 7); ctx.lineTo(px(p.y) - 6, py(p.x) + 5);
+    ctx.lineTo(px(p.y) + 6, py(p.x) + 5); ctx.closePath(); ctx.fill();
+  }
   // The measured path, then the reference dashed over it (where they coincide, both show): null breaks a line.
   const trail = (xs, ys, color, dash, width) => {
     ctx.strokeStyle = color; ctx.lineWidth = width; ctx.setLineDash(dash); ctx.beginPath();
@@ -216,6 +244,8 @@ function drawMap() {
   box.dataset.homePx = home.map(v => v.toFixed(1)).join(",");
   box.dataset.scale = scale.toFixed(4);
   box.dataset.planItems = placed.length;
+  box.dataset.fenceItems = fence.length;
+  box.dataset.rallyPx = rally.map(p => [px(p.y), py(p.x)].map(v => v.toFixed(1)).join(",")).join(";");
   box.dataset.current = current ? current.seq : "";
   box.dataset.currentPx = current ? [px(current.y), py(current.x) - 10].map(v => v.toFixed(1)).join(",") : "";
 }
