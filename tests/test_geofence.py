@@ -141,3 +141,28 @@ def test_a_return_goes_to_the_nearest_of_home_and_the_rally_points():
         fly(c, 1, x)
         assert c.set_mode(Mode.RTL) == (True, "")
         assert c.cm[RTL_TO] == to and (c.cm[RTL_X], c.cm[RTL_Y]) == where, x
+
+
+def test_rally_points_outside_the_stored_geofence_are_refused_by_the_vehicles_check():
+    """Missions.rally_outside: the stored fence's polygons and circles, in the local frame, applied to each point."""
+    from autopilot import mission_protocol as mp
+    from autopilot.missions import Missions
+    from quadsitl.frames import PX4_HOME, ned_to_geodetic
+
+    def item(seq: int, command: int, north: float, east: float, p1: float, kind: int) -> mp.MissionItem:
+        lat, lon = ned_to_geodetic(north, east, *PX4_HOME[:2])
+        return mp.MissionItem(seq, mp.FRAME_GLOBAL_INT, command, 0, 0, p1, 0.0, 0.0, 0.0, round(lat * 1e7),
+                              round(lon * 1e7), 10.0, kind)  # fmt: skip
+
+    m = Missions(PX4_HOME)
+    corners = ((-20, -20), (20, -20), (20, 20), (-20, 20))
+    fence = [item(i, mp.FENCE_POLYGON_INCLUSION, n, e, 4.0, 1) for i, (n, e) in enumerate(corners)]
+    fence.append(item(4, mp.FENCE_CIRCLE_EXCLUSION, 10, 10, 3.0, 1))
+    assert m.protocol.store_other(mp.MISSION_TYPE_FENCE, tuple(fence)) == ""
+    inside, outside, excluded = (item(0, mp.RALLY_POINT, 5, -5, 0, 2), item(1, mp.RALLY_POINT, 25, 0, 0, 2),
+                                 item(1, mp.RALLY_POINT, 10, 11, 0, 2))  # fmt: skip
+    assert m.rally_outside((inside,)) == ""
+    assert m.rally_outside((inside, outside)) == "Rally point 1 is outside the geofence: refused"
+    assert m.rally_outside((inside, excluded)) == "Rally point 1 is outside the geofence: refused"
+    assert m.protocol.store_other(mp.MISSION_TYPE_RALLY, (inside, outside)) != "" and m.protocol.rally == ()
+    assert m.protocol.store_other(mp.MISSION_TYPE_RALLY, (inside,)) == "" and len(m.protocol.rally) == 1
