@@ -100,6 +100,12 @@ def _local_position(name: str, t: np.ndarray, c: Mapping[str, np.ndarray], home:
     return _topic(name, fields, t, rows, values, sampled_at=True)
 
 
+def logged_streams(sensing: bool) -> tuple[str, ...]:
+    """The telemetry records a flight log is made of (:mod:`quadsitl.telemetry`'s streams): the truth's too in sensor
+    mode."""
+    return ("state", "setpoint", "actuators", *((TRUTH,) if sensing else ()))
+
+
 def record_columns(records: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Telemetry columns ({column: values}, as :func:`topics_of` takes them) of the autopilot's telemetry records
     ({stream: structured array}, :mod:`quadsitl.telemetry`'s streams, each the same ticks): each field by its name,
@@ -174,8 +180,7 @@ def definitions(preset: Preset, controller: str, sensing: bool, home: tuple = PX
     """A flight log's definitions, no samples: its topics (those of :func:`topics_of`: the truth's with
     ``sensing``), the parameters (``parameters``: the autopilot's as they are; None: its defaults for ``controller``
     on ``preset``) and the system's information."""
-    streams = ("state", "setpoint", "actuators", *((TRUTH,) if sensing else ()))
-    empty = {stream: np.zeros(0, dtype=record_dtype(stream)) for stream in streams}
+    empty = {stream: np.zeros(0, dtype=record_dtype(stream)) for stream in logged_streams(sensing)}
     topics = topics_of(record_columns(empty), preset.actuators.max_thrust, home)
     if parameters is None:
         s = commander_settings(preset.position, CommanderSettings())

@@ -37,7 +37,6 @@ class Entry:
 @dataclass
 class _Transfer:
     entry_id: int
-    entry: Entry
     offset: int  # [bytes] the next LOG_DATA's
     end: int  # [bytes] where this request's data stops
     link: Any
@@ -93,7 +92,7 @@ class LogServer:
                 self.transfer = None
                 return False
             self.file_id = entry_id
-        self.transfer = _Transfer(entry_id, entry, ofs, min(entry.size, ofs + count), link)
+        self.transfer = _Transfer(entry_id, ofs, min(entry.size, ofs + count), link)
         return True
 
     def on_erase(self) -> None:
@@ -141,6 +140,3 @@ class LogServer:
         if t.offset >= t.end or not out:
             self.transfer = None  # the file stays open for the next chunk's request
         return link, out
-
-    def close(self) -> None:
-        self.stop()

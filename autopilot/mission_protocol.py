@@ -414,18 +414,6 @@ def parse_rally_item(fields: Mapping[str, Any], *, legacy: bool = False) -> Miss
                        p3=0.0, p4=0.0, x=xi, y=yi, z=z, mission_type=MISSION_TYPE_RALLY)  # fmt: skip
 
 
-def polygons(items: Sequence[MissionItem]) -> list[tuple[int, list[MissionItem]]]:
-    """A geofence's polygons, each (its first item's index, its vertices), as its items declare them (each vertex's
-    param1 its polygon's vertex count); :func:`check_fence` first."""
-    out, i = [], 0
-    while i < len(items):
-        n = int(items[i].p1) if items[i].command in FENCE_POLYGONS else 1
-        if items[i].command in FENCE_POLYGONS:
-            out.append((i, list(items[i : i + n])))
-        i += n
-    return out
-
-
 def _crosses(a: tuple, b: tuple, c: tuple, d: tuple) -> bool:
     """Whether the segments ab and cd cross or touch (2-D points)."""
 
@@ -643,7 +631,7 @@ class MissionProtocol:
             item = parse(fields, legacy=legacy)
         except ItemRefusedError as e:
             self._upload = None
-            what = {MISSION_TYPE_FENCE: "Geofence", MISSION_TYPE_RALLY: "Rally point"}.get(mission_type, "Mission")
+            what = TYPE_NAMES.get(mission_type, "Mission")
             return [self._ack(sender, e.code, mission_type), self._statustext(f"{what} item {seq} refused: {e}")]
         up.legacy = legacy
         up.items.append(item)

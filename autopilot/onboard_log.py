@@ -42,10 +42,6 @@ class OnboardLog:
         self.last_kept: float | None = None  # [s] the time of the last row kept in this log
         self.last_written: float | None = None  # [s] the time of the last row written
 
-    @property
-    def logging(self) -> bool:
-        return self.writer is not None
-
     def add(self, batch: Batch, rows: int) -> None:
         """The batch's first ``rows`` rows (each stream's the same ticks): a flight's rows logged, a log started at
         arming and closed at disarming."""

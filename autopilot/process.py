@@ -75,7 +75,7 @@ from autopilot.stream_frames import StreamFrames
 from autopilot.streams import MessageStreams, phase_of, spread_of
 from autopilot.telemetry_out import BATCH_WALL, Streams, ZenohOut
 from autopilot.tick import autopilot_tick, sensor_tick, warm_up
-from quadsitl import codec, failures, fastio, telemetry, wire
+from quadsitl import codec, failures, fastio, wire
 from quadsitl.cli_util import UsageError, parse_controller_params, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.process_util import (
@@ -158,8 +158,8 @@ class Autopilot:
         self.onboard: OnboardLog | None = None
         logs = Path(args.logs) if args.logs else None
         if logs is not None:
-            streams = ("state", "setpoint", "actuators", *((telemetry.TRUTH,) if self.sensing else ()))
-            self.onboard = OnboardLog(logs, self.log_definitions, preset.actuators.max_thrust, self.origin, streams)
+            self.onboard = OnboardLog(logs, self.log_definitions, preset.actuators.max_thrust, self.origin,
+                                      flight_log.logged_streams(self.sensing))  # fmt: skip
             self.zenoh.also(self.onboard.add)
             self.outbox.on_said = lambda severity, text: self.onboard.say(self.commander.now, severity, text)
         self.logs = LogServer(logs, lambda: self.onboard.path if self.onboard else None)
@@ -648,7 +648,7 @@ class Autopilot:
         self.zenoh.close()  # the last rows to the onboard log too
         if self.onboard is not None:
             self.onboard.close()
-        self.logs.close()
+        self.logs.stop()
         self.plant.close()
         self.ground.close()
 
