@@ -31,6 +31,10 @@ Rules (PX4's, DESIGN.md §8–§9):
   (altitude < 5 cm, |climb| < 0.1 m/s for ``landed_time``) disarms.
 - Automatic disarming (PX4's, :func:`auto_disarm`): armed and not taken off within COM_DISARM_PRFLT, or resting on
   the ground for COM_DISARM_LAND after a flight, in any mode.
+- Battery (PX4's, :func:`_battery`): below BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR of its charge it is low,
+  critical, at emergency; while armed the level only rises, and each new level worse than at arming takes
+  COM_LOW_BAT_ACT's action (critical: return or land; emergency: land, or return for 1). Critical or worse denies
+  arming.
 
 The per-tick part (:func:`update`) is compiled (:mod:`quadsitl.jit`) and works on the commander's state,
 one float64 array with a name per index, so the autopilot's whole tick runs as one compiled call
@@ -112,6 +116,7 @@ def arm(cm: np.ndarray) -> None:
     cm[HOME_X], cm[HOME_Y], cm[HOME_ALT], cm[HOME_YAW] = cm[X], cm[Y], max(cm[ALTITUDE], 0.0), cm[YAW]
     cm[ARMED_AT], cm[TOOK_OFF], cm[RESTING_SINCE], cm[ARM_WALL_RECENT] = cm[NOW], 0.0, math.nan, 0.0
     cm[NO_POSITION] = 0.0  # armed only with a position (the pre-arm check)
+    cm[BAT_WARNING_ARMED] = cm[BAT_WARNING]
     enter(cm, int(cm[MODE]))
 
 
@@ -335,6 +340,52 @@ def _geofence(cm: np.ndarray) -> int:
 
 
 @jit
+def battery_seen(cm: np.ndarray, values: tuple[float, float, float, float, float]) -> None:
+    """The battery's BATTERY_STATUS (:func:`quadsitl.hil.battery_values`: voltage [V], current [A], charge drawn
+    [mAh], energy drawn [J], share left), as the commander keeps it."""
+    for i in range(5):
+        cm[BAT_V + i] = values[i]
+
+
+@jit
+def battery_level(cm: np.ndarray) -> int:
+    """The battery's warning level for its share left (BATTERY_WARNINGS' index; 0 without a battery): below
+    BAT_EMERGEN_THR emergency, below BAT_CRIT_THR critical, below BAT_LOW_THR low, as PX4's battery."""
+    r = cm[BAT_REMAINING]
+    if r < cm[BAT_EMERGEN]:
+        return 3
+    if r < cm[BAT_CRIT]:
+        return 2
+    return 1 if r < cm[BAT_LOW] else 0
+
+
+@jit
+def _battery(cm: np.ndarray) -> int:
+    """The battery's level (:func:`battery_level`): disarmed, as it is; armed, it only rises (PX4's commander), and a
+    new level worse than at arming takes COM_LOW_BAT_ACT's action (PX4's ``fromBatteryWarningActParam``): critical,
+    return (1, 3) or land (2); emergency, return (1) or land (2, 3); a warning otherwise, and for a vehicle that has
+    not taken off. A landing goes on; a return goes on unless the action is to land. → EVENT_BATTERY when the level
+    rose while armed, else EVENT_NONE."""
+    level = battery_level(cm)
+    if cm[ARMED] == 0.0:
+        cm[BAT_WARNING] = level
+        return EVENT_NONE
+    if level <= cm[BAT_WARNING]:
+        return EVENT_NONE
+    cm[BAT_WARNING] = level
+    action = int(cm[BAT_ACTION]) if level > cm[BAT_WARNING_ARMED] and cm[TOOK_OFF] != 0.0 else 0
+    if level < 2 or action == 0:
+        return EVENT_BATTERY
+    target = RTL if action == 1 or (action == 3 and level == 2) else LAND
+    mode = cm[MODE]
+    if mode in (LAND, target):
+        return EVENT_BATTERY
+    cm[FAILSAFE] = FAILSAFE_BATTERY
+    enter(cm, target)
+    return EVENT_BATTERY
+
+
+@jit
 def update(
     cm: np.ndarray, tick: int, now: float, x: float, y: float, altitude: float, vx: float, vy: float,
     climb_rate: float, yaw: float,
@@ -345,6 +396,7 @@ def update(
     dt = max(now - cm[NOW], 0.0)
     cm[TICK], cm[NOW], cm[X], cm[Y], cm[ALTITUDE] = tick, now, x, y, altitude
     cm[VX], cm[VY], cm[CLIMB_RATE], cm[YAW] = vx, vy, climb_rate, yaw
+    battery = _battery(cm)
     if cm[ARMED] == 0.0:
         return EVENT_NONE
     event = auto_disarm(cm, now)
@@ -354,6 +406,8 @@ def update(
         event = _geofence(cm)
         if cm[ARMED] == 0.0:  # terminated
             return event
+    if event == EVENT_NONE:
+        event = battery
     mode = cm[MODE]
     if mode == OFFBOARD and cm[OFFBOARD_TICK] < 0.0:
         cm[OFFBOARD_TICK] = tick
@@ -407,6 +461,7 @@ class Commander:
         self.cm[REFERENCE_FIRST:REFERENCE_END] = math.nan
         self.cm[LAST_SP_TIME] = -1e9
         self.cm[OFFBOARD_TICK] = -1.0
+        self.cm[BAT_V : BAT_REMAINING + 1] = math.nan  # no battery until one reports
         self.settings = settings or CommanderSettings()
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) to announce
         self.setpoint_wall = -math.inf  # [s] the shell's wall clock when the newest setpoint arrived
@@ -430,6 +485,8 @@ class Commander:
         cm[YAW_RATE_AUTO], cm[YAW_RATE_OFFBOARD] = s.yaw_rate_auto, s.yaw_rate_offboard
         cm[DISARM_PREFLIGHT] = s.disarm_preflight
         cm[GF_ACTION], cm[GF_MAX_HOR], cm[GF_MAX_VER] = s.geofence_action, s.max_distance, s.max_height
+        cm[BAT_LOW], cm[BAT_CRIT], cm[BAT_EMERGEN] = s.bat_low_thr, s.bat_crit_thr, s.bat_emergen_thr
+        cm[BAT_ACTION] = s.low_bat_action
 
     @property
     def armed(self) -> bool:
@@ -590,6 +647,9 @@ class Commander:
             return False, f"Arming denied: mode {self.mode.name.lower()}; switch to hold, takeoff or offboard"
         if self.settings.geofence_action != 0 and geofence.fence_breach(self.cm, self.cm[X], self.cm[Y]):
             return False, "Arming denied: vehicle outside the geofence"
+        if battery_level(self.cm) >= 2:
+            return False, (f"Arming denied: low battery, {self.cm[BAT_REMAINING]:.0%} remaining "
+                           f"(BAT_CRIT_THR {self.settings.bat_crit_thr:.0%})")  # fmt: skip
         arm(self.cm)
         self.messages.append((6, "Armed"))
         return True, ""
@@ -759,9 +819,26 @@ class Commander:
             if event == EVENT_GEOFENCE_GOING_ON:
                 action = f"{action}, not taken: {self.mode.name.lower()} goes on"
             self.messages.append((2, f"Geofence breached: {what}; action: {action}"))
+        elif event == EVENT_BATTERY:
+            self.messages.append(self.battery_message())
         elif event == EVENT_CONTROLLER_FAILED:
             self.messages.append((2, "Failsafe: the controller commanded a non-finite value; flying the "
                                      "backstepping, landing"))  # fmt: skip
+
+    def battery_message(self) -> tuple[int, str]:
+        """The STATUSTEXT of the battery's new level (EVENT_BATTERY): how much is left and what the vehicle does."""
+        cm, s = self.cm, self.settings
+        level = int(cm[BAT_WARNING])
+        text = f"Battery {BATTERY_WARNINGS[level]}: {cm[BAT_REMAINING]:.0%} remaining"
+        if level == 1:
+            return 4, text
+        wanted = "warning"
+        if s.low_bat_action != 0 and level > cm[BAT_WARNING_ARMED] and cm[TOOK_OFF] != 0.0:
+            wanted = "return" if s.low_bat_action == 1 or (s.low_bat_action == 3 and level == 2) else "land"
+        mode = self.mode.name.lower().replace("rtl", "return")
+        if wanted != "warning" and mode != wanted:
+            wanted = f"{wanted}, not taken: {mode} goes on"
+        return (2 if level == 2 else 1), f"{text}; action: {wanted}"
 
     def update(self, tick: int, now: float, state: VehicleState) -> Reference | None:
         """Advance to tick ``tick`` at simulated time ``now`` [s] with the measured state. Returns the

@@ -20,7 +20,11 @@ FAILSAFE_ESTIMATOR = 4
 FAILSAFE_CONTROLLER = 5  # a plugged controller commanded a non-finite value (autopilot.tick.autopilot_step)
 FAILSAFE_MOTOR = 6  # a motor failed (failure injection: MAV_CMD_INJECT_FAILURE), COM_ACT_FAIL_ACT's action
 FAILSAFE_GEOFENCE = 7  # the geofence breached, GF_ACTION's action (autopilot.geofence)
+FAILSAFE_BATTERY = 8  # the battery critical or emergency low, COM_LOW_BAT_ACT's action
 GEOFENCE_ACTIONS = ("none", "warning", "hold", "return", "terminate", "land")  # GF_ACTION, as PX4 numbers them
+# The battery's warning levels, as PX4's battery_status.warning numbers them, and COM_LOW_BAT_ACT's actions.
+BATTERY_WARNINGS = ("none", "low", "critical", "emergency")
+LOW_BATTERY_ACTIONS = ("warning", "return", "land", "return, then land at emergency")
 ACTUATOR_FAILURE_ACTIONS = ("none", "hold", "land", "return", "terminate")  # COM_ACT_FAIL_ACT, as PX4 numbers them
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
 HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION = (int(m) for m in Mode)
@@ -55,7 +59,11 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 # - the geofence (autopilot.geofence): GF_ACTION, GF_MAX_HOR_DIST, GF_MAX_VER_DIST (0: none), the breach in force
 #   (geofence.BREACH_*, 0: none), how many fence items follow the declared state (FENCE_AT: FENCE_ITEM numbers
 #   each) and how many rally points after them (RALLY_AT: RALLY_ITEM numbers each); where a return goes (x, y [m,
-#   NED]: home, or the rally point nearer when it began; RTL_TO 0: home, k: rally point k − 1).
+#   NED]: home, or the rally point nearer when it began; RTL_TO 0: home, k: rally point k − 1);
+# - the battery, as its BATTERY_STATUS says (quadsitl.hil.battery_values): voltage [V], current [A], charge drawn [mAh],
+#   energy drawn [J], the share left (NaN: no battery, an ideal supply); its warning level (BATTERY_WARNINGS' index:
+#   while armed it only rises, as PX4's) and the level at arming; BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR and
+#   COM_LOW_BAT_ACT.
 STATE = """
 status: ARMED MODE FAILSAFE
 sp_horizontal: SP_X SP_Y SP_VX SP_VY SP_AX SP_AY
@@ -69,6 +77,7 @@ settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO
 reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST
 failures: MOTORS_OFF NO_POSITION
 geofence: GF_ACTION GF_MAX_HOR GF_MAX_VER GF_BREACH FENCE_N RALLY_N RTL_X RTL_Y RTL_TO
+battery: BAT_V BAT_I BAT_MAH BAT_J BAT_REMAINING BAT_WARNING BAT_WARNING_ARMED BAT_LOW BAT_CRIT BAT_EMERGEN BAT_ACTION
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
 LAYOUTS = {"STATE": STATE}
@@ -101,8 +110,11 @@ REFERENCE_FIRST, REFERENCE_END = 72, 87
 FAILURES_FIRST, FAILURES_END = 87, 89
 (GF_ACTION, GF_MAX_HOR, GF_MAX_VER, GF_BREACH, FENCE_N, RALLY_N, RTL_X, RTL_Y, RTL_TO) = range(89, 98)  # fmt: skip
 GEOFENCE_FIRST, GEOFENCE_END = 89, 98
+(BAT_V, BAT_I, BAT_MAH, BAT_J, BAT_REMAINING, BAT_WARNING, BAT_WARNING_ARMED, BAT_LOW, BAT_CRIT, BAT_EMERGEN,
+ BAT_ACTION) = range(98, 109)  # fmt: skip
+BATTERY_FIRST, BATTERY_END = 98, 109
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 98
+SIZE = 109
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
@@ -110,6 +122,7 @@ EVENT_CONTROLLER_FAILED = 5  # reported by the autopilot's tick, not update()
 EVENT_PREFLIGHT_DISARM = 6
 EVENT_GEOFENCE = 7  # the geofence breached: GF_ACTION's action taken (cm[GF_BREACH] says how)
 EVENT_GEOFENCE_GOING_ON = 8  # the geofence breached while landing or returning: that goes on
+EVENT_BATTERY = 9  # the battery's warning rose (cm[BAT_WARNING]): COM_LOW_BAT_ACT's action taken, or a warning
 AIRBORNE_ALT = 0.3  # [m]: above this the vehicle has taken off (PX4's land detector's "not landed"), estimates included
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
 TAKEOFF_TOLERANCE = 0.1  # [m]: takeoff is done when the vehicle is this close to the takeoff altitude
@@ -171,6 +184,15 @@ class CommanderSettings:
     geofence_action: int = key(2, low=0, high=5, mavlink=param("GF_ACTION"),
                                doc="on a geofence breach: 0 = nothing, 1 = warning, 2 = hold, 3 = return, "
                                    "4 = terminate (motors off), 5 = land")  # fmt: skip
+    bat_low_thr: float = key(0.15, low=0.12, high=0.5, mavlink=param("BAT_LOW_THR", unit="norm"),
+                             doc="the battery is low below this share of its charge")  # fmt: skip
+    bat_crit_thr: float = key(0.07, low=0.05, high=0.5, mavlink=param("BAT_CRIT_THR", unit="norm"),
+                              doc="the battery is critical below this share (COM_LOW_BAT_ACT acts)")  # fmt: skip
+    bat_emergen_thr: float = key(0.05, low=0.03, high=0.5, mavlink=param("BAT_EMERGEN_THR", unit="norm"),
+                                 doc="the battery is at emergency level below this share")  # fmt: skip
+    low_bat_action: int = key(0, low=0, high=3, mavlink=param("COM_LOW_BAT_ACT"),
+                              doc="on a critical or emergency battery: 0 = warning, 1 = return (both levels), "
+                                  "2 = land, 3 = return at critical, land at emergency")  # fmt: skip
     yaw_rate_auto: float = key(math.radians(45.0), unit="rad/s", low=0, low_open=True, high=math.radians(360.0),
                                doc="heading rate limit of the auto modes (takeoff, hold, goto, mission, return)",
                                mavlink=param("MPC_YAWRAUTO_MAX", unit="deg/s", low=0, low_open=True, high=360,

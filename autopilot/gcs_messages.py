@@ -24,8 +24,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot import stream_frames
-from autopilot.commander import GF_BREACH, TOUCHDOWN_ALT, TOUCHDOWN_CLIMB, Commander
-from quadsitl import __version__
+from autopilot.commander import (
+    BAT_I,
+    BAT_J,
+    BAT_MAH,
+    BAT_REMAINING,
+    BAT_V,
+    BAT_WARNING,
+    GF_BREACH,
+    TOUCHDOWN_ALT,
+    TOUCHDOWN_CLIMB,
+    Commander,
+)
+from quadsitl import __version__, hil
 from quadsitl.codec import FRAME_MAX
 from quadsitl.compiled_frames import euler_to_quaternion
 from quadsitl.frames import PX4_HOME
@@ -184,7 +195,9 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
         return home_position(origin, *s.home, time_usec=s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
-        return sys_status(s.load, s.errors, s.has_state, fence_breached=bool(c.cm[GF_BREACH]))
+        return sys_status(s.load, s.errors, s.has_state, fence_breached=bool(c.cm[GF_BREACH]), cm=c.cm)
+    if msg_id == mavlink.MAVLINK_MSG_ID_BATTERY_STATUS:
+        return battery_status(c.cm)
     if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
         flags, vel, pos_h, pos_v, mag, acc_h, acc_v = s.estimator or (TRUE_STATE_FLAGS, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         return mavlink.MAVLink_estimator_status_message(s.time_ms * 1000, flags, vel, pos_h, pos_v, mag, 0.0, 0.0,
@@ -227,8 +240,33 @@ HEALTH_ALWAYS = CONTROL | mavlink.MAV_SYS_STATUS_GEOFENCE
 HEALTH_WITH_STATE = SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK
 
 
+# BATTERY_STATUS.charge_state for the commander's warning level (none, low, critical, emergency)
+CHARGE_STATES = (mavlink.MAV_BATTERY_CHARGE_STATE_OK, mavlink.MAV_BATTERY_CHARGE_STATE_LOW,
+                 mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL, mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY)  # fmt: skip
+
+
+def battery_status(cm: np.ndarray) -> mavlink.MAVLink_battery_status_message:
+    """``BATTERY_STATUS`` of the battery the commander knows (cm[BAT_*], from the plant's report): the plant's own
+    frame's fields (:func:`quadsitl.hil.encode_battery`) with the charge state of the warning level, as PX4 sends
+    it; without a battery (an ideal supply), every field unknown."""
+    if math.isnan(cm[BAT_REMAINING]):
+        return mavlink.MAVLink_battery_status_message(
+            0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 32767, [65535] * 10, -1, -1, -1, -1, 0,
+            mavlink.MAV_BATTERY_CHARGE_STATE_UNDEFINED, [0] * 4, 0, 0,
+        )  # fmt: skip
+    buf = np.zeros(FRAME_MAX, dtype=np.uint8)
+    n = hil.encode_battery(buf, 0, 1, 1, cm[BAT_V], cm[BAT_I], cm[BAT_MAH] * 3.6, cm[BAT_J], cm[BAT_REMAINING])
+    msg = message_of(buf[:n].tobytes())
+    msg.charge_state = CHARGE_STATES[int(cm[BAT_WARNING])]
+    return msg
+
+
 def sys_status(
-    load: float = 0.0, errors: tuple[int, ...] = (0, 0, 0, 0, 0), has_state: bool = True, fence_breached: bool = False
+    load: float = 0.0,
+    errors: tuple[int, ...] = (0, 0, 0, 0, 0),
+    has_state: bool = True,
+    fence_breached: bool = False,
+    cm: np.ndarray | None = None,
 ) -> mavlink.MAVLink_sys_status_message:
     """``SYS_STATUS``. Sensors gyro, accel, mag, absolute pressure and GPS, the control bits and the pre-arm
     check (MAV_SYS_STATUS_PREARM_CHECK) are present and enabled; the sensors and the pre-arm check are
@@ -236,7 +274,9 @@ def sys_status(
     MAVSDK's health reads these bits: gyro/accel/mag calibration ok, global and local position ok (GPS),
     armable (pre-arm).
 
-    ``load`` is the fraction of the control period the tick used; no battery is simulated. ``errors``:
+    ``load`` is the fraction of the control period the tick used. The battery's fields and its present, enabled and
+    (below the critical level) healthy bit come from the commander's state ``cm`` once a battery reports (else
+    unknown: an ideal supply). ``errors``:
     errors_comm (bad frames on the ground link), errors_count1 (unknown messages), errors_count2 (refused
     setpoints and parameter values), errors_count3 (plant-link errors), errors_count4 (messages for
     another system or component); each saturates at 65535."""
@@ -244,9 +284,16 @@ def sys_status(
     health = HEALTH_ALWAYS | (HEALTH_WITH_STATE if has_state else 0)
     if fence_breached:  # the geofence's health: not in breach (autopilot.geofence)
         health &= ~mavlink.MAV_SYS_STATUS_GEOFENCE
+    present, voltage, current, remaining = PRESENT, 65535, -1, -1
+    if cm is not None and not math.isnan(cm[BAT_REMAINING]):
+        present |= mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
+        health |= mavlink.MAV_SYS_STATUS_SENSOR_BATTERY if cm[BAT_WARNING] < 2 else 0
+        voltage = stream_frames.clamp_int(cm[BAT_V] * 1000.0, 0, 65534)
+        current = stream_frames.clamp_int(cm[BAT_I] * 100.0, -1, 32767)
+        remaining = stream_frames.clamp_int(cm[BAT_REMAINING] * 100.0, 0, 100)
     return mavlink.MAVLink_sys_status_message(
-        PRESENT, PRESENT, health, stream_frames.clamp_int(float(load) * 1000, 0, 1000), 65535, -1, -1, 0, comm, c1,
-        c2, c3, c4, 0, 0, 0,
+        present, present, health, stream_frames.clamp_int(float(load) * 1000, 0, 1000), voltage, current, remaining, 0,
+        comm, c1, c2, c3, c4, 0, 0, 0,
     )  # fmt: skip
 
 

@@ -73,7 +73,9 @@ HEADING = params_of(CommanderSettings, ("yaw_rate_auto", "yaw_rate_offboard"))  
 SAFETY = params_of(CommanderSettings, ("disarm_preflight", "dist_1wp", "failure_injection", "actuator_failure_action"))
 # COM_DISARM_PRFLT, MIS_DIST_1WP, SYS_FAILURE_EN, COM_ACT_FAIL_ACT
 GEOFENCE = params_of(CommanderSettings, ("geofence_action", "max_height"))  # GF_ACTION, GF_MAX_VER_DIST
-SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE  # the commander's settings that are parameters
+BATTERY = params_of(CommanderSettings, ("bat_low_thr", "bat_crit_thr", "bat_emergen_thr", "low_bat_action"))
+# BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR, COM_LOW_BAT_ACT
+SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE + BATTERY  # the commander's settings that are parameters
 
 
 def _declared(entries: tuple[ParamEntry, ...]) -> list[ParamSpec]:
@@ -85,7 +87,7 @@ def _specs() -> tuple[ParamSpec, ...]:
     in the order clients have always seen them."""
     s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
     s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS) + _declared(SETPOINTS) + _declared(POSITION)
-    s += _declared(MISSIONS) + _declared(HEADING) + _declared(SAFETY) + _declared(GEOFENCE)
+    s += _declared(MISSIONS) + _declared(HEADING) + _declared(SAFETY) + _declared(GEOFENCE) + _declared(BATTERY)
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
     return tuple(s)
@@ -109,6 +111,7 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(param_values(settings, HEADING))
     out.update(param_values(settings, SAFETY))
     out.update(param_values(settings, GEOFENCE))
+    out.update(param_values(settings, BATTERY))
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 

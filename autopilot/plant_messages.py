@@ -22,8 +22,9 @@ MODE_MISMATCH = {
 @dataclass(frozen=True)
 class Sorted:
     """What a datagram held: ``datagrams`` to fly (each ODOMETRY alone; in sensor mode a tick's HIL_SENSOR, HIL_GPS
-    and HIL_STATE_QUATERNION together), how many messages are ``refused`` (the other mode's; 1 for a datagram that
-    is not MAVLink), whether the ``other_mode``'s were among them, and the plant's text: (severity, text) or None."""
+    and HIL_STATE_QUATERNION together; a BATTERY_STATUS after them with them), how many messages are ``refused``
+    (the other mode's; 1 for a datagram that is not MAVLink), whether the ``other_mode``'s were among them, and the
+    plant's text: (severity, text) or None."""
 
     datagrams: list[bytes]
     refused: int
@@ -43,6 +44,8 @@ def sort_out(mav: wire.mavlink.MAVLink, data: bytes, sensing: bool) -> Sorted:
         mid = msg.get_msgId()
         if mid in mine:
             frames.append(msg.pack(wire.link(msg.get_srcSystem(), msg.get_srcComponent())))
+        elif mid == mavlink.MAVLINK_MSG_ID_BATTERY_STATUS and frames:  # the battery's goes with its tick's frames
+            frames[-1] += msg.pack(wire.link(msg.get_srcSystem(), msg.get_srcComponent()))
         elif mid in theirs:
             refused += 1
         elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT:

@@ -531,7 +531,8 @@ class Autopilot:
         if not self.has_state() or still:
             # No new ticks, so no streams (no plant, or a lockstep plant holding its clock until the vehicle arms):
             # SYS_STATUS says here whether the vehicle may arm, and the last tick's records go out again.
-            self.outbox.send(gcs_messages.sys_status(self.load, self.counters.as_tuple(), has_state=self.has_state()))
+            self.outbox.send(gcs_messages.sys_status(self.load, self.counters.as_tuple(), has_state=self.has_state(),
+                                                     cm=self.commander.cm))  # fmt: skip
             self.zenoh.again()
 
     def poll_gcs(self) -> None:

@@ -44,6 +44,7 @@ SLOW_RATES: dict[int, float] = {  # [Hz]
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,  # PX4's rate
 }
 
 # The tick after the fast messages' at which each slow one goes out (an odd offset: never on a fast tick at the
@@ -58,6 +59,7 @@ SLOTS: dict[int, int] = {
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 11,
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 13,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 15,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 17,
 }
 
 MAX_INTERVAL_US = 60_000_000

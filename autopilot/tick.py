@@ -70,9 +70,27 @@ from autopilot.control_params import (
 from autopilot.pd import pd_attitude, pd_thrust, pd_vertical
 from autopilot.position import channel_mode, controls_horizontal, horizontal, or_zero
 from quadsitl import telemetry
-from quadsitl.codec import BODY_RATES, NOT_THIS_FRAME, decode_state, encode_actuators, tick_of
+from quadsitl.codec import (
+    BODY_RATES,
+    HEADER_SIZE,
+    MAVLINK2_STX,
+    NOT_THIS_FRAME,
+    check_frame,
+    decode_state,
+    encode_actuators,
+    tick_of,
+)
 from quadsitl.compiled_frames import altitude, climb_rate, euler_rates_to_body_rates
-from quadsitl.hil import Z_GYRO, decode_sensors
+from quadsitl.hil import (
+    BATTERY_CRC_EXTRA,
+    BATTERY_ID,
+    BATTERY_NEW,
+    BATTERY_SIZE,
+    Z_BATTERY,
+    Z_GYRO,
+    decode_battery,
+    decode_sensors,
+)
 from quadsitl.jit import jit
 from quadsitl.mixer import Forces, allocate
 from quadsitl.param_arrays import ARM, D_OVER_B
@@ -411,13 +429,23 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
     """A datagram from the plant (rx[:length]) → what to do (ANSWER | STREAM | ...). A new state becomes
     ``st`` and is flown (:func:`control_tick`), and its telemetry frames due are built (``frames``:
     :attr:`autopilot.stream_frames.StreamFrames.out`); a re-sent one gets the same answer again; a stale one (older
-    than the last, by less than 1 s: a jump back by more is a restarted plant) none."""
-    t = decode_state(rx, length, scratch)
+    than the last, by less than 1 s: a jump back by more is a restarted plant) none. A BATTERY_STATUS after the
+    ODOMETRY (a vehicle with a battery) goes to the commander (:func:`autopilot.commander.battery_seen`)."""
+    n = length  # the first frame's length: the ODOMETRY, a BATTERY_STATUS may follow
+    if length >= 12 and rx[0] == MAVLINK2_STX:
+        n = min(length, HEADER_SIZE + np.int64(rx[1]) + 2)
+    if n < length:  # checked first: the state's check pads its payload in place, over what follows
+        status = check_frame(rx[n:], length - n, BATTERY_ID, BATTERY_CRC_EXTRA, BATTERY_SIZE)
+        if status < 0:
+            return NOT_MINE if status == NOT_THIS_FRAME else REFUSED
+    t = decode_state(rx, n, scratch)
     if t < 0:
         return NOT_MINE if t == NOT_THIS_FRAME else REFUSED
     new = _new_tick(t, io)
     if new <= 0:
         return answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
+    if n < length:
+        commander.battery_seen(cm, decode_battery(rx[n:]))
     st[:] = scratch
     tick = tick_of(t, period)
     io[TICK] = tick
@@ -459,6 +487,10 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
         return answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
     for bit in range(4):
         io[DROPPED] += (dropped >> bit) & 1
+    if flags & BATTERY_NEW:
+        z = est[0]
+        commander.battery_seen(cm, (z[Z_BATTERY], z[Z_BATTERY + 1], z[Z_BATTERY + 2], z[Z_BATTERY + 3],
+                                    z[Z_BATTERY + 4]))  # fmt: skip
     status = estimate(flags, t, period, est, st)
     tick = tick_of(t, period)
     io[TICK] = tick

@@ -4,7 +4,8 @@ A tick k, compiled (:func:`vehicle_tick`), is what the three processes do betwee
 
 1. what the autopilot sees of the state x(k): the state itself, or in sensor mode the plant's sensor datagram
    (:func:`sitl.tick.encode_tick`, the plant process's encoder) decoded (:func:`quadsitl.hil.decode_sensors`) and
-   estimated (:func:`autopilot.tick.estimate`), as the autopilot process decodes and estimates it;
+   estimated (:func:`autopilot.tick.estimate`), as the autopilot process decodes and estimates it; and the battery's
+   report, in the wire's units (:func:`quadsitl.hil.battery_fields`);
 2. the autopilot's tick (:func:`autopilot.tick.autopilot_step`): commander and auto modes, position, altitude and
    attitude control with their limits and integrators, allocation;
 3. one control period of the plant (:func:`sitl.plant.step_arrays`): air, actuators and dynamics, ground.
@@ -41,7 +42,21 @@ from quadsitl.frames import PX4_HOME
 from quadsitl.jit import DISABLED, jit
 from quadsitl.state import Reference, VehicleState
 from sitl import tick as plant_tick
-from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X, Plant, inside, step_arrays
+from sitl.plant import (
+    OUT_CHARGE,
+    OUT_CURRENT,
+    OUT_ENERGY,
+    OUT_REMAINING,
+    OUT_VOLTAGE,
+    W_AIR,
+    W_COMMANDED,
+    W_MOTORS,
+    W_OUT,
+    W_X,
+    Plant,
+    inside,
+    step_arrays,
+)
 
 # The commander's offboard setpoint fields, in its state array's order: what a setpoint sets (cmd.SP_X..SP_THRUST).
 SP_FIELDS = cmd.SETPOINT_END - cmd.SETPOINT_FIRST
@@ -105,6 +120,10 @@ def vehicle_tick(k: int, kind: int, period: float, substeps: int, method: int, p
     st, cm, mem, v, c, truth, frame, plug = ap
     x, out, air = w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:]
     observe(k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame)
+    if not math.isnan(out[OUT_REMAINING]):  # the battery's report, as the wire carries it
+        cmd.battery_seen(cm, hil.battery_values(hil.battery_fields(out[OUT_VOLTAGE], out[OUT_CURRENT],
+                                                                   out[OUT_CHARGE], out[OUT_ENERGY],
+                                                                   out[OUT_REMAINING])))  # fmt: skip
     forces, event = autopilot_step(kind, plug, st, cm, mem, v, c, f_min, f_max, k, k * period)
     commanded = w[W_COMMANDED:W_OUT]
     for i in range(4):

@@ -293,6 +293,24 @@ class WindParams:
 
 
 @dataclass(frozen=True)
+class BatteryParams:
+    """The battery the motors draw from (docs/battery.md): a pack of ``cells`` lithium cells in series holding
+    ``capacity_mah``, its open-circuit voltage falling linearly with the charge drawn from ``v_full`` to
+    ``v_empty`` per cell, behind an internal resistance; the motors and ESCs turn electric power into shaft power
+    at ``efficiency``; the rest of the vehicle draws ``avionics_w``. It starts at ``remaining`` of its charge.
+    Empty, it powers nothing. No [battery] section: an ideal supply (the paper's)."""
+
+    capacity_mah: float = key(unit="mAh", low=0, low_open=True, high=1e6, doc="the charge of a full pack")
+    cells: int = key(integer=True, low=1, high=14, doc="cells in series (PX4's BAT1_N_CELLS)")
+    v_full: float = key(4.2, unit="V", low=2, high=5, doc="a full cell's open-circuit voltage")
+    v_empty: float = key(3.5, unit="V", low=2, high=5, doc="an empty cell's open-circuit voltage, below v_full")
+    cell_resistance_ohm: float = key(0.005, unit="Ω", low=0, high=1, doc="a cell's internal resistance")
+    efficiency: float = key(0.8, low=0, low_open=True, high=1, doc="shaft power / electric power, motors and ESCs")
+    avionics_w: float = key(5.0, unit="W", low=0, high=1000, doc="the power the rest of the vehicle draws")
+    remaining: float = key(1.0, low=0, low_open=True, high=1, doc="the share of the charge it starts with")
+
+
+@dataclass(frozen=True)
 class InitialState:
     """Where the vehicle starts: altitude [m], ZYX Euler angles [rad], climb rate [m/s] (up) and Euler-angle
     rates φ̇, θ̇, ψ̇ [rad/s] (not body rates); at the origin, otherwise at rest."""
@@ -339,6 +357,7 @@ class Preset:
     position: PositionParams = field(default_factory=PositionParams)
     sensors: SensorParams | None = None  # None: no [sensors] section, the autopilot gets the true state
     wind: WindParams = field(default_factory=WindParams)  # no [wind] section: calm
+    battery: BatteryParams | None = None  # None: no [battery] section, an ideal supply
     model: tuple[tuple[str, float], ...] = ()  # the [model] section: (VehicleParams field, value), in file order
 
     @property
@@ -375,12 +394,13 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     # the IMU's figures default to the profile's (None here: filled in by _sensors)
     "sensors": {k: s.with_default(None) if k in _PX4 else s for k, s in section_of(SensorParams).items()},
     "wind": section_of(WindParams),
+    "battery": section_of(BatteryParams),
     "initial": section_of(InitialState),
 }
 # [model]: the autopilot's model of the vehicle, key by key over [vehicle]'s values (each key optional).
 SCHEMA["model"] = {name: s.with_default(None) for name, s in SCHEMA["vehicle"].items()}
 TOP_LEVEL_KEYS = {"description"}
-OPTIONAL_SECTIONS = {"initial", "position", "sensors", "model", "wind"}
+OPTIONAL_SECTIONS = {"initial", "position", "sensors", "model", "wind", "battery"}
 
 
 def _is_number(v: Any) -> bool:
@@ -437,7 +457,7 @@ def _validate(raw: dict[str, Any], where: str) -> dict[str, dict[str, Any]]:
         for name, s in specs.items():
             if name in table:
                 values[name] = check_value(f"{part}.{name}", table[name], s, where)
-            elif s.required:
+            elif s.required and part in raw:  # an optional section left out has no keys to miss
                 raise ConfigError(f"{where}: missing key {part}.{name} ({s.allowed})")
             else:
                 values[name] = s.default
@@ -478,11 +498,13 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
             )
     sim = SimParams(**v["sim"])
     sensors = _sensors(v["sensors"], sim, where) if "sensors" in raw else None
+    actuators = ActuatorParams(**v["actuators"])
+    battery = _battery(v["battery"], vehicle, actuators, where) if "battery" in raw else None
     return Preset(
         name=name,
         description=desc,
         vehicle=vehicle,
-        actuators=ActuatorParams(**v["actuators"]),
+        actuators=actuators,
         sim=sim,
         controller=controller,
         reference=ref,
@@ -490,8 +512,34 @@ def _build(name: str, raw: dict[str, Any], where: str) -> Preset:
         position=PositionParams(**v["position"]),
         sensors=sensors,
         wind=WindParams(**v["wind"]),
+        battery=battery,
         model=tuple(model),
     )
+
+
+def full_power(vehicle: VehicleParams, actuators: ActuatorParams, battery: BatteryParams) -> float:
+    """The electric power [W] the vehicle draws with every motor at its largest force: the shaft power d·Ω³ of each
+    (Ω = √(F_max/b), F = b·Ω²) over the efficiency, and the avionics."""
+    omega = math.sqrt(actuators.max_thrust / vehicle.thrust_factor)
+    return 4.0 * vehicle.drag_factor * omega**3 / battery.efficiency + battery.avionics_w
+
+
+def _battery(values: dict[str, Any], vehicle: VehicleParams, actuators: ActuatorParams, where: str) -> BatteryParams:
+    """The [battery] section, checked across keys: v_empty below v_full, and a pack that can give the motors' full
+    power even when empty (its largest power, V²/4R at the empty voltage, above :func:`full_power`)."""
+    b = BatteryParams(**values)
+    if b.v_empty >= b.v_full:
+        raise ConfigError(f"{where}: battery.v_empty = {b.v_empty!r}: must be below battery.v_full = {b.v_full!r}")
+    need = full_power(vehicle, actuators, b)
+    resistance = b.cells * b.cell_resistance_ohm
+    most = math.inf if resistance == 0.0 else (b.cells * b.v_empty) ** 2 / (4.0 * resistance)
+    if need >= most:
+        raise ConfigError(
+            f"{where}: battery.cell_resistance_ohm = {b.cell_resistance_ohm!r}: an empty pack of {b.cells} cells "
+            f"gives at most {most:.4g} W through it, and the motors at full thrust draw {need:.4g} W; "
+            f"allowed: below {b.cells * b.v_empty**2 / (4.0 * need):.4g} Ω per cell"
+        )
+    return b
 
 
 def _sensors(values: dict[str, Any], sim: SimParams, where: str) -> SensorParams:
@@ -617,6 +665,8 @@ def preset_toml(preset: Preset) -> str:
         sections["sensors"] = asdict(preset.sensors)
     if preset.wind != WindParams():
         sections["wind"] = asdict(preset.wind)
+    if preset.battery is not None:
+        sections["battery"] = asdict(preset.battery)
     lines = [f"description = {_toml_value(preset.description)}"]
     for part, values in sections.items():
         lines += ["", f"[{part}]", *(f"{k} = {_toml_value(x)}" for k, x in values.items())]

@@ -26,7 +26,17 @@ import math
 
 import numpy as np
 
-from quadsitl.codec import BAD_CRC, HEADER_SIZE, MAVLINK2_STX, NOT_THIS_FRAME, _get_f32, _put_f32, crc16, finish_frame
+from quadsitl.codec import (
+    BAD_CRC,
+    HEADER_SIZE,
+    MAVLINK2_STX,
+    NOT_THIS_FRAME,
+    ODOMETRY_SIZE,
+    _get_f32,
+    _put_f32,
+    crc16,
+    finish_frame,
+)
 from quadsitl.compiled_frames import (
     body_rates_to_euler_rates,
     euler_rates_to_body_rates,
@@ -42,13 +52,18 @@ from quadsitl.wire import UINT16_UNKNOWN, mavlink
 _SENSOR = mavlink.MAVLink_hil_sensor_message
 _GPS = mavlink.MAVLink_hil_gps_message
 _TRUTH = mavlink.MAVLink_hil_state_quaternion_message
+_BATTERY = mavlink.MAVLink_battery_status_message
 assert _SENSOR.unpacker.format == "<QfffffffffffffIB"
+assert _BATTERY.unpacker.format == "<iih10HhBBBbiB4HBI"
 assert _GPS.unpacker.format == "<QiiiHHHhhhHBBBH"
 assert _TRUTH.unpacker.format == "<Q4ffffiiihhhHHhhh"
 SENSOR_ID, SENSOR_CRC_EXTRA, SENSOR_SIZE = _SENSOR.id, _SENSOR.crc_extra, _SENSOR.unpacker.size
 GPS_ID, GPS_CRC_EXTRA, GPS_SIZE = _GPS.id, _GPS.crc_extra, _GPS.unpacker.size
 TRUTH_ID, TRUTH_CRC_EXTRA, TRUTH_SIZE = _TRUTH.id, _TRUTH.crc_extra, _TRUTH.unpacker.size
-DATAGRAM_MAX = 3 * (HEADER_SIZE + 2) + SENSOR_SIZE + GPS_SIZE + TRUTH_SIZE  # the three frames of one tick
+BATTERY_ID, BATTERY_CRC_EXTRA, BATTERY_SIZE = _BATTERY.id, _BATTERY.crc_extra, _BATTERY.unpacker.size
+# A tick's datagram at its largest: the sensors' three frames or the state's ODOMETRY, then the battery's
+DATAGRAM_MAX = (max(3 * (HEADER_SIZE + 2) + SENSOR_SIZE + GPS_SIZE + TRUTH_SIZE, HEADER_SIZE + 2 + ODOMETRY_SIZE)
+                + HEADER_SIZE + 2 + BATTERY_SIZE)  # fmt: skip
 
 G_MILLI = 9.80665e-3  # [m/s² per mG]: HIL_STATE_QUATERNION's accelerations count standard gravity's thousandths
 GPS_FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
@@ -58,9 +73,10 @@ ACCEL_UPDATED, GYRO_UPDATED, MAG_UPDATED, BARO_UPDATED = 0b111, 0b111000, 0b1110
 IMU_UPDATED = ACCEL_UPDATED | GYRO_UPDATED
 
 # ---- what a sensor datagram decodes to (``z``: the estimator's measurements of a tick) and which are new -------
-# (Z_GPS_TIME: the fix's HIL_GPS time_usec [µs], when it was measured)
-Z_GYRO, Z_ACCEL, Z_MAG, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_GPS_TIME, Z_SIZE = 0, 3, 6, 9, 10, 13, 16, 17
-MAG_NEW, BARO_NEW, GPS_NEW, IMU_NEW = 1, 2, 4, 8
+# (Z_GPS_TIME: the fix's HIL_GPS time_usec [µs], when it was measured; Z_BATTERY: the battery's BATTERY_STATUS,
+# :func:`decode_battery`'s five values, for the commander)
+Z_GYRO, Z_ACCEL, Z_MAG, Z_BARO, Z_GPS_POS, Z_GPS_VEL, Z_GPS_TIME, Z_BATTERY, Z_SIZE = 0, 3, 6, 9, 10, 13, 16, 17, 22
+MAG_NEW, BARO_NEW, GPS_NEW, IMU_NEW, BATTERY_NEW = 1, 2, 4, 8, 16
 # ... and the ground truth (``truth``): the 12 VehicleState fields (Euler-angle rates by the inverse of eq (1)),
 # then body rates p, q, r [rad/s] (as quadsitl.codec.decode_state's), NaN when the datagram carried none.
 TRUTH_DECODED = 15
@@ -114,6 +130,63 @@ def encode_sensor(buf: np.ndarray, seq: int, system: int, component: int, time_u
     _put(buf, 60, 4, fields)
     buf[HEADER_SIZE + 64] = 0  # id: the first sensor instance
     return finish_frame(buf, SENSOR_SIZE, seq, system, component, SENSOR_ID, SENSOR_CRC_EXTRA)
+
+
+@jit(inline=True)
+def battery_fields(voltage: float, current: float, charge: float, energy: float,
+                   remaining: float) -> tuple[int, int, int, int, int]:  # fmt: skip
+    """The battery as BATTERY_STATUS carries it (PX4's units and rounding): (voltage [mV], current [cA], charge drawn
+    [mAh], energy drawn [hJ], remaining [%]), from the voltage [V], current [A], charge [C], energy [J] and the
+    remaining share (0..1)."""
+    return (round(voltage * 1000.0), _clamp(round(current * 100.0), -1, 32767), round(charge / 3.6),
+            round(energy / 100.0), _clamp(round(remaining * 100.0), 0, 100))  # fmt: skip
+
+
+@jit(inline=True)
+def battery_values(fields: tuple[int, int, int, int, int]) -> tuple[float, float, float, float, float]:
+    """:func:`battery_fields` back to (voltage [V], current [A], charge drawn [mAh], energy drawn [J], remaining
+    share): what the autopilot knows of its battery, from the wire or, in ``quadsitl sim``, from the plant itself."""
+    mv, ca, mah, hj, pct = fields
+    return mv / 1000.0, ca / 100.0, float(mah), hj * 100.0, pct / 100.0
+
+
+@jit
+def encode_battery(buf: np.ndarray, seq: int, system: int, component: int, voltage: float, current: float,
+                   charge: float, energy: float, remaining: float) -> int:  # fmt: skip
+    """BATTERY_STATUS into ``buf``, as a smart battery reports itself (:func:`battery_fields`): the pack's voltage in
+    the first cell (over 65.534 V, the rest in the next: MAVLink's rule), the others unknown; a LiPo powering
+    everything; temperature unknown. Returns the frame's length."""
+    mv, ca, mah, hj, pct = battery_fields(voltage, current, charge, energy, remaining)
+    _put(buf, 0, 4, mah)
+    _put(buf, 4, 4, hj)
+    _put(buf, 8, 2, 32767)  # temperature: unknown (INT16_MAX)
+    for i in range(10):
+        cell = min(mv, UINT16_UNKNOWN - 1)
+        _put(buf, 10 + 2 * i, 2, cell if mv > 0 or i == 0 else UINT16_UNKNOWN)
+        mv -= cell
+    _put(buf, 30, 2, ca)
+    buf[HEADER_SIZE + 32] = 0  # id
+    buf[HEADER_SIZE + 33] = mavlink.MAV_BATTERY_FUNCTION_ALL
+    buf[HEADER_SIZE + 34] = mavlink.MAV_BATTERY_TYPE_LIPO
+    buf[HEADER_SIZE + 35] = pct
+    for i in range(36, BATTERY_SIZE):  # time remaining, charge state, voltages_ext, mode, faults: none given
+        buf[HEADER_SIZE + i] = 0
+    return finish_frame(buf, BATTERY_SIZE, seq, system, component, BATTERY_ID, BATTERY_CRC_EXTRA)
+
+
+@jit(inline=True)
+def decode_battery(frame: np.ndarray) -> tuple[float, float, float, float, float]:
+    """A BATTERY_STATUS frame (its payload zero-padded) → :func:`battery_values`; the cells' voltages summed up to the
+    first unknown one."""
+    mv = 0
+    for i in range(10):
+        cell = _get_int(frame, 10 + 2 * i, 2, False)
+        if cell == UINT16_UNKNOWN:
+            break
+        mv += cell
+    fields = (mv, _get_int(frame, 30, 2, True), _get_int(frame, 0, 4, True), _get_int(frame, 4, 4, True),
+              int(np.int8(frame[HEADER_SIZE + 35])))  # fmt: skip
+    return battery_values(fields)
 
 
 @jit
@@ -177,10 +250,10 @@ def encode_truth(buf: np.ndarray, seq: int, system: int, component: int, time_us
 
 @jit(inline=True)
 def take_frame(buf: np.ndarray, at: int, length: int, frame: np.ndarray) -> tuple[int, int]:
-    """The MAVLink 2 frame at buf[at:length], when it is an unsigned HIL_SENSOR, HIL_GPS or HIL_STATE_QUATERNION
-    with a good CRC: its header and payload copied into ``frame`` (FRAME_MAX), the payload zero-padded to the
-    message's size (MAVLink 2 drops trailing zeros). Returns (message id or NOT_THIS_FRAME or BAD_CRC, where the
-    next frame starts)."""
+    """The MAVLink 2 frame at buf[at:length], when it is an unsigned HIL_SENSOR, HIL_GPS, HIL_STATE_QUATERNION or
+    BATTERY_STATUS with a good CRC: its header and payload copied into ``frame`` (FRAME_MAX), the payload
+    zero-padded to the message's size (MAVLink 2 drops trailing zeros). Returns (message id or NOT_THIS_FRAME or
+    BAD_CRC, where the next frame starts)."""
     if length - at < 12 or buf[at] != MAVLINK2_STX or buf[at + 2] != 0:
         return NOT_THIS_FRAME, length
     n = np.int64(buf[at + 1])
@@ -194,6 +267,8 @@ def take_frame(buf: np.ndarray, at: int, length: int, frame: np.ndarray) -> tupl
         crc_extra, size = GPS_CRC_EXTRA, GPS_SIZE
     elif msg_id == TRUTH_ID:
         crc_extra, size = TRUTH_CRC_EXTRA, TRUTH_SIZE
+    elif msg_id == BATTERY_ID:
+        crc_extra, size = BATTERY_CRC_EXTRA, BATTERY_SIZE
     else:
         return NOT_THIS_FRAME, end
     if n > size:
@@ -216,13 +291,14 @@ def _finite3(a: float, b: float, c: float) -> bool:
 @jit(inline=True)
 def decode_sensors(buf: np.ndarray, length: int, home: tuple, z: np.ndarray, truth: np.ndarray,
                    frame: np.ndarray) -> tuple[int, int, int]:  # fmt: skip
-    """A sensor datagram in buf[:length] (a HIL_SENSOR, then a HIL_GPS when a fix is delivered, and the
-    HIL_STATE_QUATERNION truth) → the measurements into ``z`` (Z_*; a GPS position in m NED from ``home``), the
-    truth into ``truth`` (TRUTH_DECODED, NaN when absent). Returns (HIL_SENSOR's time_usec, or NOT_THIS_FRAME
-    when the datagram holds anything else or no HIL_SENSOR (for pymavlink), or BAD_CRC; which measurements are
-    new (IMU_NEW | MAG_NEW | BARO_NEW | GPS_NEW: a HIL_SENSOR whose fields_updated lacks the accelerometer or
-    the gyroscope carries no IMU sample, and z keeps the last); what was dropped for a non-finite value (*_DROPPED: a
-    dropped IMU sample leaves z's previous one in place))."""
+    """A sensor datagram in buf[:length] (a HIL_SENSOR, then a HIL_GPS when a fix is delivered, the
+    HIL_STATE_QUATERNION truth, and the BATTERY_STATUS of a vehicle with a battery) → the measurements into ``z``
+    (Z_*; a GPS position in m NED from ``home``; the battery's values), the truth into ``truth`` (TRUTH_DECODED, NaN
+    when absent). Returns (HIL_SENSOR's time_usec, or NOT_THIS_FRAME when the datagram holds anything else or no
+    HIL_SENSOR (for pymavlink), or BAD_CRC; which measurements are new (IMU_NEW | MAG_NEW | BARO_NEW | GPS_NEW |
+    BATTERY_NEW: a HIL_SENSOR whose fields_updated lacks the accelerometer or the gyroscope carries no IMU sample,
+    and z keeps the last); what was dropped for a non-finite value (*_DROPPED: a dropped IMU sample leaves z's
+    previous one in place))."""
     t, flags, dropped = NOT_THIS_FRAME, 0, 0
     truth[:] = math.nan
     at = 0
@@ -270,6 +346,11 @@ def decode_sensors(buf: np.ndarray, length: int, home: tuple, z: np.ndarray, tru
                     flags |= GPS_NEW
                 else:
                     dropped |= GPS_DROPPED
+        elif msg_id == BATTERY_ID:
+            battery = decode_battery(frame)
+            for i in range(5):
+                z[Z_BATTERY + i] = battery[i]
+            flags |= BATTERY_NEW
         else:  # the truth
             q0, q1, q2, q3 = _get_f32(frame, 8), _get_f32(frame, 12), _get_f32(frame, 16), _get_f32(frame, 20)
             p, q, r = _get_f32(frame, 24), _get_f32(frame, 28), _get_f32(frame, 32)

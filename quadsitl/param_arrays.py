@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from quadsitl.config import ActuatorParams, VehicleParams
+from quadsitl.config import ActuatorParams, BatteryParams, VehicleParams
 
 # ---- the vehicle: paper Table 1 symbols, SI units ------------------------------------------------------
 MASS, IXX, IYY, IZZ, K1, K2, K3, K4, K5, K6, ARM, JR, B, D, G, D_OVER_B = range(16)
@@ -33,11 +33,22 @@ FIELD_COLUMNS: dict[str, tuple[int, ...]] = {
 """A :class:`quadsitl.config.VehicleParams` field → its columns in :func:`vehicle_array` (d/b is derived)."""
 
 
-# ---- the motors ----------------------------------------------------------------------------------------
+# ---- the motors and the battery they draw from -------------------------------------------------------------
+# BAT_CAPACITY 0: an ideal supply (no [battery]); the rest is read only when it is not.
 F_MIN, F_MAX, TAU_UP, TAU_DOWN = range(4)
-ACTUATOR_SIZE = 4
+(BAT_CAPACITY, BAT_CELLS, BAT_V_FULL, BAT_V_EMPTY, BAT_RESISTANCE, BAT_EFFICIENCY, BAT_AVIONICS,
+ BAT_REMAINING) = range(4, 12)  # fmt: skip
+ACTUATOR_SIZE = 12
 
 
-def actuator_array(a: ActuatorParams) -> np.ndarray:
-    """Force range [N] and first-order lag time constants [s] (0 = no lag)."""
-    return np.array([a.min_thrust, a.max_thrust, a.time_constant_up, a.time_constant_down], dtype=np.float64)
+def actuator_array(a: ActuatorParams, battery: BatteryParams | None = None) -> np.ndarray:
+    """Force range [N] and first-order lag time constants [s] (0 = no lag); then the battery (None: an ideal
+    supply): capacity [C], cells, a cell's full and empty open-circuit voltage [V], the pack's resistance [Ω], the
+    motors' efficiency, the avionics' power [W], the share of the charge it starts with."""
+    if battery is None:
+        bat = [0.0] * (ACTUATOR_SIZE - BAT_CAPACITY)
+    else:
+        b = battery
+        bat = [b.capacity_mah * 3.6, float(b.cells), b.v_full, b.v_empty, b.cells * b.cell_resistance_ohm,
+               b.efficiency, b.avionics_w, b.remaining]  # fmt: skip
+    return np.array([a.min_thrust, a.max_thrust, a.time_constant_up, a.time_constant_down, *bat], dtype=np.float64)

@@ -34,6 +34,7 @@ from quadsitl.jit import jit, specialized
 from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
 from quadsitl.param_arrays import D_OVER_B, VEHICLE_SIZE, B, actuator_array, vehicle_array
 from quadsitl.state import Inputs, VehicleState
+from sitl import battery
 from sitl.actuators import advance
 from sitl.dynamics import Disturbance, State
 from sitl.integrators import INTEGRATORS, integrate
@@ -42,8 +43,11 @@ from sitl.wind import AIR_SIZE, air_arrays, air_tick
 
 # The outputs of a step besides the state, in Plant.out: mean motor forces (4), inputs u1..u4 (4), Ωr, on ground,
 # the mean acceleration over the step (3, [m/s², NED]: the change of velocity over the period, the ground's stop
-# included; what the accelerometer measures, :mod:`sitl.sensors`).
-OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_MEAN_ACCEL, OUT_SIZE = 0, 4, 8, 9, 10, 13
+# included; what the accelerometer measures, :mod:`sitl.sensors`); the battery (sitl.battery): its current over the
+# step [A], the charge [C] and energy [J] drawn since the start, its voltage at the step's end [V] and the share of its
+# charge left (NaN: an ideal supply, no battery; set before the first step by sitl.battery.start).
+OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_MEAN_ACCEL = 0, 4, 8, 9, 10
+OUT_CURRENT, OUT_CHARGE, OUT_ENERGY, OUT_VOLTAGE, OUT_REMAINING, OUT_SIZE = 13, 14, 15, 16, 17, 18
 # Plant.work, the one array its per-step arrays are views of: the state, the motor forces, the command, the outputs,
 # the air (sitl.wind's layout).
 W_X, W_MOTORS, W_COMMANDED, W_OUT, W_AIR = 0, 12, 16, 20, 20 + OUT_SIZE
@@ -98,6 +102,8 @@ def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: n
     v0 = (x[3], x[4], x[5])
     m = (motors[0], motors[1], motors[2], motors[3])
     c = (commanded[0], commanded[1], commanded[2], commanded[3])
+    if battery.empty(out[OUT_CHARGE], a):  # an empty battery powers no motor
+        c = (0.0, 0.0, 0.0, 0.0)
     s, m, forces, u, wr, on_ground = step(s, m, c, v, a, period, substeps, method, omega_r,
                                           (d[0], d[1], d[2], d[3], d[4], d[5]))  # fmt: skip
     for i in range(12):
@@ -108,6 +114,7 @@ def step_arrays(x: np.ndarray, motors: np.ndarray, commanded: np.ndarray, out: n
         out[OUT_INPUTS + i] = u[i]
     out[OUT_OMEGA_R] = wr
     out[OUT_ON_GROUND] = 1.0 if on_ground else 0.0
+    battery.step(out[OUT_CURRENT:OUT_SIZE], forces, v, a, period)
     for i in range(3):
         out[OUT_MEAN_ACCEL + i] = (s[3 + i] - v0[i]) / period
 
@@ -185,11 +192,12 @@ class Plant:
         self.method = INTEGRATORS[name]
         self.substeps = int(substeps or preset.sim.substeps)
         # The arrays the compiled step works on, as views of two (step_work): the parameters, and the rest.
-        self.params = np.concatenate([vehicle_array(preset.vehicle), actuator_array(preset.actuators)])
+        self.params = np.concatenate([vehicle_array(preset.vehicle), actuator_array(preset.actuators, preset.battery)])
         self.work = np.zeros(WORK_SIZE)
         self._views()
         self.x[:] = initial_state(preset)
         self.out[OUT_ON_GROUND] = self.x[2] >= 0.0
+        battery.start(self.out[OUT_CURRENT:OUT_SIZE], self.a)
         self.time = 0.0
         self.air[:], self.air_rng = air_arrays(preset.wind)
         # The sensors (the preset's, else the defaults: their arrays are passed in truth mode too, untouched).

@@ -16,10 +16,20 @@ import numpy as np
 from quadsitl.codec import HEADER_SIZE, HIL_SIZE, NOT_THIS_FRAME, SAFETY_ARMED, decode_actuators, encode_state, usec_of
 from quadsitl.compiled_frames import euler_to_quaternion
 from quadsitl.config import DEFAULT_LIMITS
-from quadsitl.hil import encode_gps, encode_sensor, encode_truth
+from quadsitl.hil import encode_battery, encode_gps, encode_sensor, encode_truth
 from quadsitl.jit import jit
 from sitl import sensors as sn
-from sitl.plant import OUT_MEAN_ACCEL, OUT_ON_GROUND, inside, step_arrays
+from sitl.plant import (
+    OUT_CHARGE,
+    OUT_CURRENT,
+    OUT_ENERGY,
+    OUT_MEAN_ACCEL,
+    OUT_ON_GROUND,
+    OUT_REMAINING,
+    OUT_VOLTAGE,
+    inside,
+    step_arrays,
+)
 
 # The tick's integer bookkeeping (``io``, int64): the link's sequence number, the length of the state frame
 # in tx, the stamp of the newest actuator message used, and what was refused: stale or duplicate answers,
@@ -78,12 +88,18 @@ def encode_sensors(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarra
 def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray, sens: tuple,
                 tick: int, period: float) -> None:  # fmt: skip
     """Tick ``tick``'s datagram into ``tx``: the state ``x`` stamped with the tick's simulated time as ODOMETRY, or
-    in sensor mode its measurements (:func:`encode_sensors`)."""
+    in sensor mode its measurements (:func:`encode_sensors`); then, for a vehicle with a battery, its BATTERY_STATUS
+    (:func:`quadsitl.hil.encode_battery`: the battery's state in ``out`` after the step that made ``x``)."""
     if io[SENSING] != 0:
         encode_sensors(tx, io, x, out, air, sens, tick, period)
-        return
-    io[SEQ] = (io[SEQ] + 1) & 0xFF
-    io[TX_LEN] = encode_state(tx, io[SEQ], io[SYSTEM], io[COMPONENT], usec_of(tick, period), x)
+    else:
+        io[SEQ] = (io[SEQ] + 1) & 0xFF
+        io[TX_LEN] = encode_state(tx, io[SEQ], io[SYSTEM], io[COMPONENT], usec_of(tick, period), x)
+    if not math.isnan(out[OUT_REMAINING]):
+        io[SEQ] = (io[SEQ] + 1) & 0xFF
+        n = io[TX_LEN]
+        io[TX_LEN] = n + encode_battery(tx[n:], io[SEQ], io[SYSTEM], io[COMPONENT], out[OUT_VOLTAGE], out[OUT_CURRENT],
+                                        out[OUT_CHARGE], out[OUT_ENERGY], out[OUT_REMAINING])  # fmt: skip
 
 
 @jit

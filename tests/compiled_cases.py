@@ -23,8 +23,8 @@ from groundstation.offline import run_offline
 from quadsitl import codec, compiled_frames, mixer
 from quadsitl.config import SensorParams, WindParams, load_preset
 from quadsitl.param_arrays import actuator_array, vehicle_array
-from sitl import actuators, dynamics, integrators, tick
-from sitl.plant import OUT_SIZE
+from sitl import actuators, battery, dynamics, integrators, tick
+from sitl.plant import OUT_CURRENT, OUT_SIZE
 from sitl.sensors import Sensors
 from sitl.wind import air_arrays
 
@@ -103,6 +103,7 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
     io_pl = np.zeros(tick.IO_SIZE, dtype=np.int64)
     io_pl[tick.LAST_USEC] = -1
     x, motors, out, received, commanded = states[0].copy(), np.zeros(4), np.zeros(OUT_SIZE), np.zeros(4), np.zeros(4)
+    battery.start(out[OUT_CURRENT:], a)  # the paper's ideal supply: nothing to report
     gusty = WindParams(speed_m_s=3.0, from_deg=200.0, turbulence="severe", gust_m_s=2.0, gust_start_s=0.05, seed=4,
                        force_n=(0.5, -0.2, 0.1))  # fmt: skip
     air = air_arrays(gusty)  # in a wind, with an external force

@@ -172,7 +172,7 @@ def test_streams_are_spread_over_ticks_and_over_a_fleets_vehicles():
 
 def test_a_fleets_python_built_messages_are_spread_over_the_ticks():
     """The messages with a slot of their own (Python builds them: a trip out of the compiled loop) of a fleet of
-    sixteen: at most three on one tick and sixteen in any 20 ticks in a row (sent at each vehicle's fast phase + slot,
+    sixteen: at most three on one tick and seventeen in any 20 ticks in a row (sent at each vehicle's fast phase + slot,
     as before spread_of, sixteen fell on one tick and 112 within 20); the other messages stay where they were, and
     vehicle 1 streams as before."""
     slotted = {mid for mid, slot in SLOTS.items() if slot}
@@ -180,7 +180,7 @@ def test_a_fleets_python_built_messages_are_spread_over_the_ticks():
     per_tick = [sum(len(slotted.intersection(s.due(t))) for s in fleet) for t in range(2000)]
     assert sum(per_tick) == 16 * sum(2000 // fleet[0].defaults[mid] for mid in slotted)  # every one, at its rate
     assert max(per_tick) <= 3
-    assert max(sum(per_tick[t : t + 20]) for t in range(1980)) <= 16
+    assert max(sum(per_tick[t : t + 20]) for t in range(1980)) <= 17  # 11.5 on average (36 a second per vehicle)
     for i, s in enumerate(fleet, start=1):
         alone = MessageStreams(0.001, 50.0, phase_of(i))
         assert all(s.phases[mid] == alone.phases[mid] for mid in s.phases if mid not in slotted)

@@ -47,15 +47,17 @@ def test_the_plant_sends_hil_sensor_every_tick_gps_late_and_the_truth_in_px4_uni
     plant = subprocess.Popen([sys.executable, "-m", "sitl", "--preset", "x500", "--state", "sensors", "--autopilot",
                               f"127.0.0.1:{port}", "--ticks", str(ticks), "--quiet"], stderr=err)  # fmt: skip
     mav, ap = wire.link(1, wire.AUTOPILOT_COMPONENT_ID), wire.link(1, wire.AUTOPILOT_COMPONENT_ID)
-    sensor, gps, truth = {}, {}, {}
+    sensor, gps, truth, battery = {}, {}, {}, {}
     try:
         while len(sensor) < ticks:
             data, sender = sock.recvfrom(65535)
             msgs = mav.parse_buffer(data) or []
-            assert [m.get_type() for m in msgs if m.get_type() != "HIL_GPS"] == ["HIL_SENSOR", "HIL_STATE_QUATERNION"]
+            kinds = [m.get_type() for m in msgs if m.get_type() != "HIL_GPS"]
+            assert kinds == ["HIL_SENSOR", "HIL_STATE_QUATERNION", "BATTERY_STATUS"]  # the x500 has a battery
             t = msgs[0].time_usec
             sensor[t // 1000] = msgs[0]
-            truth[t // 1000] = msgs[-1]
+            truth[t // 1000] = msgs[-2]
+            battery[t // 1000] = msgs[-1]
             for m in msgs:
                 if m.get_type() == "HIL_GPS":
                     gps[t // 1000] = m
@@ -101,6 +103,9 @@ def test_the_plant_sends_hil_sensor_every_tick_gps_late_and_the_truth_in_px4_uni
         assert (m.lat, m.lon, m.alt) == (round(lat0 * 1e7), round(lon0 * 1e7), round(alt0 * 1000))
         assert (m.vx, m.vy, m.vz) == (0, 0, 0)
         assert m.zacc == round(-g / 9.80665e-3)  # mG
+    for k, m in battery.items():  # a full 4-cell pack at rest, drawing the avionics' 5 W from the first step on
+        assert (m.voltages[0], m.voltages[1], m.battery_remaining) == (16800 if k == 0 else 16794, 65535, 100)
+        assert m.current_battery == (0 if k == 0 else round(5.0 / 16.8 * 100))  # cA
 
 
 def sensor_datagrams(preset, ticks: int):
@@ -156,14 +161,17 @@ class SensorAutopilot:
 
 
 def with_truth(datagram: np.ndarray, state: tuple) -> np.ndarray:
-    """``datagram`` with its HIL_STATE_QUATERNION replaced by one saying ``state`` (VehicleState order)."""
-    n = len(datagram) - (hil.TRUTH_SIZE + 12)
-    while datagram[n + 7] != hil.TRUTH_ID:  # MAVLink 2 drops trailing zeros: find the frame
-        n += 1
-    out = np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8)
+    """``datagram`` with its HIL_STATE_QUATERNION replaced by one saying ``state`` (VehicleState order); the frames
+    after it (the battery's) as they were."""
+    n = 0
+    while datagram[n + 7] != hil.TRUTH_ID:  # frame by frame: MAVLink 2 drops trailing zeros
+        n += codec.HEADER_SIZE + int(datagram[n + 1]) + 2
+    after = datagram[n + codec.HEADER_SIZE + int(datagram[n + 1]) + 2 :]
+    out = np.zeros(hil.DATAGRAM_MAX + 64, dtype=np.uint8)
     out[:n] = datagram[:n]
     m = hil.encode_truth(out[n:], 0, 1, wire.PLANT_COMPONENT_ID, 0, state, 0.0, (0.0, 0.0, -9.81), frames.PX4_HOME)
-    return out[: n + m]
+    out[n + m : n + m + len(after)] = after
+    return out[: n + m + len(after)]
 
 
 def test_the_controllers_never_see_the_truth():
@@ -357,7 +365,8 @@ def test_sim_s_datagram_is_the_plants_without_the_truth():
         (full, z_full, truth_full), (only, z_only, truth_only) = decoded
         n = ios[1][plant_tick.TX_LEN]
         assert ios[0][plant_tick.TX_LEN] > n
-        assert payloads(txs[0][:n]) == payloads(txs[1][:n])  # the same frames, the sequence numbers aside
+        without_truth = [p for p in payloads(txs[0][: ios[0][plant_tick.TX_LEN]]) if p[0] != hil.TRUTH_ID]
+        assert without_truth == payloads(txs[1][:n])  # the same frames (the battery's too), the sequence numbers aside
         assert full == only and np.array_equal(z_full, z_only)
         assert np.isfinite(truth_full[:12]).all() and np.isnan(truth_only).all()
         gps += bool(full[1] & hil.GPS_NEW)

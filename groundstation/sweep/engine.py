@@ -64,8 +64,9 @@ from quadsitl.config import WindParams
 from quadsitl.frames import PX4_HOME as HOME
 from quadsitl.jit import constants, jit
 from quadsitl.param_arrays import ACTUATOR_SIZE, F_MAX, F_MIN, VEHICLE_SIZE
+from sitl import battery
 from sitl import tick as plant_tick
-from sitl.plant import OUT_ON_GROUND, W_AIR, W_MOTORS, W_OUT, W_X, WORK_SIZE, inside
+from sitl.plant import OUT_CURRENT, OUT_ON_GROUND, OUT_SIZE, W_AIR, W_MOTORS, W_OUT, W_X, WORK_SIZE, inside
 from sitl.wind import air_arrays
 
 CHANNELS = ("altitude", "roll", "pitch", "yaw")
@@ -174,6 +175,7 @@ def _fly(
     for i in range(12):
         w[W_X + i] = x0[i]
     w[W_OUT + OUT_ON_GROUND] = 1.0 if x0[2] >= 0.0 else 0.0
+    battery.start(w[W_OUT + OUT_CURRENT : W_OUT + OUT_SIZE], a)
     w[W_AIR:] = air0
     air_rng[:] = rng0
     cm[:] = cm0

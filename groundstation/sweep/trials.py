@@ -114,7 +114,7 @@ def nominal(spec: SweepSpec) -> tuple[np.ndarray, ...]:
         x0[:] = 0.0
         x0[2] = -p.reference.altitude
         r[1:] = 0.0
-    return x0, v, actuator_array(p.actuators), vehicle_array(p.autopilot_model), ctrl, r
+    return x0, v, actuator_array(p.actuators, p.battery), vehicle_array(p.autopilot_model), ctrl, r
 
 
 def trial_arrays(spec: SweepSpec, params: dict[str, np.ndarray], n: int) -> TrialArrays:
