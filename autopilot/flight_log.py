@@ -16,6 +16,7 @@ after them in sensor mode: ``quadsitl sim``'s :func:`groundstation.offline.telem
 | ``vehicle_global_position`` (200 ms) | lat, lon (PX4's projection from the origin), alt AMSL |
 | ``actuator_outputs`` (100 ms) | noutputs 4, output[0..3] = f1..f4 / F_max (each motor's command, 0..1) |
 | ``vehicle_status`` (1 s) | arming_state 2 (armed), nav_state (offboard 14 or mission 3) |
+| ``battery_status`` (200 ms) | a battery's (``up``'s own logs): voltage_v, current_a, discharged_mah, remaining |
 | ``vehicle_local_position_groundtruth``, ``vehicle_attitude_groundtruth`` | sensor mode: the truth (as PX4 SITL) |
 
 The parameters are the autopilot's (:func:`autopilot.params.values_from`); the information names the system
@@ -38,7 +39,7 @@ from quadsitl.telemetry import TRUTH, record_dtype
 # PX4's default logging intervals [ms] (logged_topics.cpp, add_default_topics)
 INTERVAL_MS = {"vehicle_attitude": 50, "vehicle_attitude_setpoint": 50, "vehicle_angular_velocity": 20,
                "vehicle_local_position": 100, "vehicle_local_position_setpoint": 100, "vehicle_global_position": 200,
-               "actuator_outputs": 100, "vehicle_status": 1000}  # fmt: skip
+               "actuator_outputs": 100, "vehicle_status": 1000, "battery_status": 200}  # fmt: skip
 NAV_OFFBOARD, NAV_MISSION = 14, 3  # vehicle_status.nav_state
 # vehicle_status.nav_state of each of the autopilot's modes (quadsitl.telemetry.MODES): hold AUTO_LOITER, offboard,
 # land AUTO_LAND, takeoff AUTO_TAKEOFF, rtl AUTO_RTL, mission AUTO_MISSION
@@ -168,6 +169,14 @@ def topics_of(columns: Mapping[str, np.ndarray], f_max: float, home: tuple = PX4
     topics.append(_topic("vehicle_status", ["uint64_t armed_time", "uint8_t arming_state", "uint8_t nav_state"], t,
                          rows, {"armed_time": np.zeros(n, dtype=np.uint64), "arming_state": arming,
                                 "nav_state": nav}))  # fmt: skip
+    if "battery_remaining" in c and np.isfinite(c["battery_remaining"]).all():  # a battery reports (status records)
+        rows = sampled(t, INTERVAL_MS["battery_status"], before)
+        values = {
+            k: c[f"battery_{f}"][rows]
+            for k, f in (("voltage_v", "v"), ("current_a", "a"), ("discharged_mah", "mah"), ("remaining", "remaining"))
+        }
+        topics.append(_topic("battery_status", ["bool connected", *(f"float {k}" for k in values)], t, rows,
+                             {"connected": np.ones(len(rows)), **values}))  # fmt: skip
     if "z_true" in c:  # sensor mode: the truth, as PX4 SITL logs its ground truth
         truth = {k[: -len("_true")]: v for k, v in c.items() if k.endswith("_true")}
         topics.append(_attitude("vehicle_attitude_groundtruth", t, truth, before))
@@ -180,7 +189,8 @@ def definitions(preset: Preset, controller: str, sensing: bool, home: tuple = PX
     """A flight log's definitions, no samples: its topics (those of :func:`topics_of`: the truth's with
     ``sensing``), the parameters (``parameters``: the autopilot's as they are; None: its defaults for ``controller``
     on ``preset``) and the system's information."""
-    empty = {stream: np.zeros(0, dtype=record_dtype(stream)) for stream in logged_streams(sensing)}
+    streams = (*logged_streams(sensing), *(("status",) if preset.battery is not None else ()))  # the battery's too
+    empty = {stream: np.zeros(0, dtype=record_dtype(stream)) for stream in streams}
     topics = topics_of(record_columns(empty), preset.actuators.max_thrust, home)
     if parameters is None:
         s = commander_settings(preset.position, CommanderSettings())

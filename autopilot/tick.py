@@ -105,6 +105,7 @@ from quadsitl.telemetry import (  # where a record's fields are [bytes]: globals
     STATE_AT_P,
     STATE_AT_X,
     STATUS_AT_ARMED,
+    STATUS_AT_BATTERY,
     STATUS_AT_FAILSAFE,
     STATUS_AT_MODE,
     STATUS_AT_OFFBOARD_TICK,
@@ -372,6 +373,8 @@ def control_tick(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: np
     records[at + STATUS_AT_ARMED], records[at + STATUS_AT_MODE] = armed, int(cm[MODE])
     records[at + STATUS_AT_FAILSAFE] = int(cm[FAILSAFE])
     _put_int(records, at + STATUS_AT_OFFBOARD_TICK, int(cm[OFFBOARD_TICK]))
+    for i in range(5):  # the battery: V, A, mAh, J, share left (NaN: none)
+        _put(records, at + STATUS_AT_BATTERY + FLOAT64 * i, cm[commander.BAT_V + i])
     io[ROWS] = row + 1
 
 

@@ -33,7 +33,8 @@ def measure(number: int) -> dict[str, float]:
     from quadsitl.config import SensorParams, load_preset
     from quadsitl.jit import specialized
     from quadsitl.param_arrays import actuator_array, vehicle_array
-    from sitl.plant import OUT_SIZE, Plant, step_work
+    from sitl import battery
+    from sitl.plant import OUT_CURRENT, OUT_SIZE, Plant, step_work
     from sitl.sensors import Sensors
     from sitl.wind import air_arrays
 
@@ -44,6 +45,7 @@ def measure(number: int) -> dict[str, float]:
     x = np.array([0.0, 0.0, -1.0, 0.0, 0.0, -0.2, 0.1, -0.05, 0.3, 0.2, 0.1, 0.05])
     ref, mem = np.array([5.0, 1.0, 1.0, 1.0]), np.zeros(MEM_SIZE)
     motors, commanded, out = np.zeros(4), np.full(4, 5.0), np.zeros(OUT_SIZE)
+    battery.start(out[OUT_CURRENT:], a)  # the paper's ideal supply: no battery to report
     air = air_arrays(preset.wind)  # calm: the preset's [wind]
     sens = Sensors(SensorParams(), T, preset.vehicle.gravity).arrays  # truth mode: passed, not touched
     # Called as the controllers and the Plant call them, every tick: their machine code without numba's dispatch
@@ -103,6 +105,7 @@ def measure(number: int) -> dict[str, float]:
         commander.arm()
         commander.takeoff(2.0)
         xs[:], mem[:], motors[:], out[:] = x, 0.0, 0.0, 0.0
+        battery.start(out[OUT_CURRENT:], a)
         pio[:], io[:] = 0, 0
         pio[tick.LAST_USEC] = io[LAST_USEC] = -1
         io[CAPACITY] = batch.capacity  # the telemetry records written on every tick, as in the process

@@ -486,6 +486,7 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
     from autopilot.flight_log import log_of
     from groundstation import trajectories
     from groundstation.metrics import (
+        battery_use,
         estimate_rms,
         format_position_table,
         format_table,
@@ -531,6 +532,8 @@ def write_report(out: Path, preset: Preset, args, diverged: bool = False) -> Non
         columns = ("x", "y", "x_ref", "y_ref", "altitude", "altitude_ref")
         position = {kind: position_metrics(*(data[c] for c in columns))}
         report["position"] = position
+    if (used := battery_use(data)) is not None:
+        report["battery"] = used
     (out / "metrics.json").write_text(json.dumps(report, indent=2) + "\n")
     origin = tuple(json.loads((out / "mission.json").read_text())["origin"]) if mission else PX4_HOME
     ulog.write(out / "flight.ulg", log_of(logged, preset, kind, origin, mission=bool(mission)))

@@ -23,6 +23,17 @@ STATUS_FIELDS = ("tick", "armed", "mode", "failsafe", "offboard_tick")
 CHANNEL = 1 << 20  # samples per stream that may wait for drain()
 
 
+def by_tick(chunks: list[np.ndarray], stream: str, ticks: np.ndarray, names: tuple[str, ...]) -> list[np.ndarray]:
+    """The fields ``names`` of a stream's records (``chunks`` as they arrived) at ``ticks``: the newest record of a
+    tick that came twice, NaN for a tick that never came."""
+    recs = joined_records(chunks, DTYPES[stream])[::-1]
+    _, first = np.unique(recs["tick"], return_index=True)
+    kept = recs[first]
+    at = np.minimum(np.searchsorted(kept["tick"], ticks), len(kept) - 1)
+    found = kept["tick"][at] == ticks
+    return [np.where(found, kept[name][at], np.nan) for name in names]
+
+
 def joined_records(chunks: list[np.ndarray], dtype: np.dtype) -> np.ndarray:
     """The records of ``chunks`` (contiguous arrays of ``dtype``, as received) in one array. Their bytes joined:
     ``np.concatenate`` promotes the structured dtype of each pair of chunks in Python (numpy 2), many times slower
@@ -53,6 +64,7 @@ class TelemetryLogger:
         # logger wakes no thread per sample); drain() takes them. A full channel holds Zenoh back, and with it a
         # vehicle whose publishers wait (fly's) or drop (up's): the capacity covers minutes of samples.
         self._truth: list[np.ndarray] = []  # sensor mode: the ground truth beside the estimate
+        self._battery: list[np.ndarray] = []  # a battery's status records (none kept for an ideal supply)
         self._subs = [
             (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(CHANNEL)))
             for stream in (*telemetry.STREAMS, telemetry.TRUTH, telemetry.MISSION)
@@ -89,6 +101,8 @@ class TelemetryLogger:
             if stream != "status":
                 self._raw[stream].append(recs)
                 continue
+            if np.isfinite(recs["battery_remaining"]).any():
+                self._battery.append(recs)
             self.last_status = {name: int(recs[-1][name]) for name in STATUS_FIELDS}
             self.last_tick = max(self.last_tick, int(recs["tick"].max()))
             if stamp is not None:  # the publisher's clock when the batch went out (the autopilot's, on its machine)
@@ -158,7 +172,8 @@ class TelemetryLogger:
         return {s: int(ticks - np.isin(wanted, t.astype(np.int64)).sum()) for s, t in got.items()}
 
     def rows(self) -> dict[int, list[float]]:
-        """Flight tick → row in telemetry_csv.COLUMNS order, t = 0 at the flight's first tick."""
+        """Flight tick → row in telemetry_csv.COLUMNS order (the truth's and the battery's after them, when there are
+        any: telemetry_csv.names_of), t = 0 at the flight's first tick."""
         flown, recs = self._joined()
         s, r, a = recs["state"], recs["setpoint"], recs["actuators"]
         k = flown.astype(np.int64) - self.flight_start_tick
@@ -166,14 +181,10 @@ class TelemetryLogger:
                    s["pitch"], s["yaw"], s["p"], s["q"], s["r"], r["altitude_ref"], r["roll_ref"], r["pitch_ref"],
                    r["yaw_ref"], r["x_ref"], r["y_ref"], a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"],
                    a["f4"]]  # fmt: skip
-        if self._truth:  # sensor mode: the truth's columns (telemetry_csv.TRUTH_COLUMNS), NaN for a tick it missed
-            recs = joined_records(self._truth, DTYPES[telemetry.TRUTH])[::-1]
-            _, first = np.unique(recs["tick"], return_index=True)
-            truth = recs[first]
-            at = np.minimum(np.searchsorted(truth["tick"], flown), len(truth) - 1)
-            found = truth["tick"][at] == flown
-            for name in ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"):
-                columns.append(np.where(found, truth[name][at], np.nan))
+        if self._truth:  # sensor mode: the truth's columns (telemetry_csv.TRUTH_COLUMNS)
+            columns += by_tick(self._truth, telemetry.TRUTH, flown, telemetry.FIELDS["state"][2:])
+        if self._battery:  # a battery: its columns last (telemetry_csv.BATTERY_COLUMNS)
+            columns += by_tick(self._battery, "status", flown, telemetry.BATTERY_FIELDS)
         table = np.column_stack(columns) if len(k) else np.zeros((0, len(columns)))
         return dict(zip(k.tolist(), table.tolist()))
 

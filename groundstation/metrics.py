@@ -5,6 +5,7 @@ error, peak |u| and RMS tracking error; for position trajectories, horizontal an
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -105,6 +106,20 @@ def format_table(metrics: dict[str, dict]) -> str:
                 f"{f(m['peak_abs_u'], fmt='.1f'):>11}"
             )
     return "\n".join(lines)
+
+
+def battery_use(columns: Mapping[str, np.ndarray]) -> dict | None:
+    """What a flight drew from its battery, from its telemetry ``columns`` (telemetry_csv.BATTERY_COLUMNS, what the
+    autopilot knew: docs/battery.md): ``energy_j`` and ``charge_mah`` drawn from the first row to the last,
+    ``remaining_start`` and ``remaining_end`` (0..1), the lowest ``voltage_min_v`` and the highest ``current_max_a``;
+    None for a flight without a battery."""
+    if "battery_j" not in columns or not len(columns["battery_j"]):
+        return None
+    c = columns
+    return {"energy_j": float(c["battery_j"][-1] - c["battery_j"][0]),
+            "charge_mah": float(c["battery_mah"][-1] - c["battery_mah"][0]),
+            "remaining_start": float(c["battery_remaining"][0]), "remaining_end": float(c["battery_remaining"][-1]),
+            "voltage_min_v": float(np.min(c["battery_v"])), "current_max_a": float(np.max(c["battery_a"]))}  # fmt: skip
 
 
 def position_metrics(

@@ -30,11 +30,12 @@ from autopilot.missions import Missions
 from autopilot.setpoints import Frame
 from groundstation import mission_files, trajectories
 from groundstation.figures import write_figures, write_mission_figure, write_path_figure
-from groundstation.metrics import channel_outputs, estimate_rms, position_metrics, run_metrics
+from groundstation.metrics import battery_use, channel_outputs, estimate_rms, position_metrics, run_metrics
 from groundstation.mission_files import MISSION_DURATION, Mission
 from groundstation.setpoint_grid import grid_setpoints
-from groundstation.telemetry_csv import TRUTH_COLUMNS, columns_from_arrays, stacked, write_csv
+from groundstation.telemetry_csv import BATTERY_COLUMNS, TRUTH_COLUMNS, columns_from_arrays, stacked, write_csv
 from groundstation.vehicle import (
+    R_BATTERY,
     R_FORCES,
     R_INPUTS,
     R_REF,
@@ -81,6 +82,7 @@ class SimResult:
     position_reference: np.ndarray | None = None  # (N, 2) x, y flown [m, NED]; NaN while not controlled
     mission: MissionFlight | None = None  # a mission's flight: how it went
     controller_failed_at: float | None = None  # [s]: when a plugged controller commanded a non-finite value
+    battery: np.ndarray | None = None  # (N, 5) the battery the autopilot knew: V, A, mAh, J, share left
 
     def body_rates(self, state: np.ndarray | None = None) -> np.ndarray:
         """(N, 3) body rates p, q, r [rad/s] from the Euler-angle rates of ``state`` (default: the truth), eq (1)."""
@@ -107,19 +109,22 @@ def result_of(vehicle: Vehicle, rows: np.ndarray, diverged: bool) -> SimResult:
     flown = len(rows)
     failed = vehicle.mem[MEM_PLUG_FAILED_TICK]  # the tick + 1 (0: none), counted from the vehicle's first
     first = vehicle.tick - flown  # the rows' first tick: their t = 0
+    battery = rows[:, R_BATTERY : R_BATTERY + 5]
     return SimResult(np.arange(flown) * vehicle.period, rows[:, R_STATE : R_STATE + 12], rows[:, R_REF : R_REF + 4],
                      rows[:, R_INPUTS : R_INPUTS + 4], rows[:, R_FORCES : R_FORCES + 4],
                      flown * vehicle.period if diverged else None, outside_what(vehicle.plant.x) if diverged else "",
                      rows[:, R_SEEN : R_SEEN + 12] if vehicle.sensing else None,
                      rows[:, R_XY_REF : R_XY_REF + 2],
-                     controller_failed_at=(failed - 1 - first) * vehicle.period if failed else None)  # fmt: skip
+                     controller_failed_at=(failed - 1 - first) * vehicle.period if failed else None,
+                     battery=battery if vehicle.preset.battery is not None else None)  # fmt: skip
 
 
 def rows_of(res: SimResult) -> np.ndarray:
     """The flight's rows as :func:`groundstation.vehicle.record` lays them out (R_*; :func:`result_of`'s inverse):
     the sweeps' kept trajectories."""
     seen = res.state if res.estimate is None else res.estimate
-    rows = np.column_stack([res.state, seen, res.reference, res.position_reference, res.inputs, res.forces])
+    battery = np.full((len(res.t), 5), np.nan) if res.battery is None else res.battery
+    rows = np.column_stack([res.state, seen, res.reference, res.position_reference, res.inputs, res.forces, battery])
     assert rows.shape[1] == ROW_SIZE
     return rows
 
@@ -280,6 +285,8 @@ def telemetry_columns(res: SimResult, rates: bool = True) -> dict[str, np.ndarra
                                   res.position_reference)  # fmt: skip
     if res.estimate is not None:
         columns.update(zip(TRUTH_COLUMNS, [*res.state[:, :9].T, *body(res.state).T], strict=True))
+    if res.battery is not None:
+        columns.update(zip(BATTERY_COLUMNS, res.battery.T, strict=True))
     return columns
 
 
@@ -330,6 +337,8 @@ def write_outputs(
                np.isfinite(r.position_reference).all(axis=1).any()}  # fmt: skip
     if tracked:
         report["position"] = tracking(tracked)
+    if first.battery is not None:  # as fly's: what the flight drew from its battery
+        report["battery"] = battery_use(dict(zip(BATTERY_COLUMNS, first.battery.T)))
     if first.estimate is not None:  # as fly's: the sensors flown and the estimate's RMS error
         names = ("x", "y", "altitude", "roll", "pitch", "yaw")
 

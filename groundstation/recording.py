@@ -1,7 +1,7 @@
 """A recorded flight as records, file → :class:`Recording`: pure, no I/O but reading the file (:func:`load`).
 
 A :class:`Recording` holds one record per stream and tick, packed in the schema of :mod:`quadsitl.telemetry`
-(v3) for ``quadsitl/<vehicle>/{state,setpoint,actuators,status}``; :mod:`groundstation.replay` (``quadsitl
+(v4) for ``quadsitl/<vehicle>/{state,setpoint,actuators,status}``; :mod:`groundstation.replay` (``quadsitl
 replay``) paces and publishes it. The file is a ``telemetry.csv`` (from ``quadsitl sim`` or ``quadsitl
 fly``; :func:`records_from_csv`) or a ``.tlog`` (MAVLink telemetry log: an 8-byte big-endian µs timestamp
 before each raw MAVLink 1/2 frame, as ``quadsitl gcs``, MAVProxy and QGroundControl write it;
@@ -37,7 +37,9 @@ frame are skipped (the scanner resynchronises) and counted:
   F_j/F_max, or, when the log has none, SERVO_OUTPUT_RAW PWM 1000..2000 µs (0 when disarmed: F = 0) with
   a 1 µs = F_max/1000 resolution, times F_max from ``--preset`` (and its reversible motors map
   1000..2000 µs to −F_max..F_max). That is this autopilot's encoding; PX4's outputs are not forces.
-- status: armed and mode from the vehicle's HEARTBEAT (``base_mode`` & SAFETY_ARMED,
+- status: the battery from the vehicle's BATTERY_STATUS (the cells' voltages summed, current, charge and energy
+  drawn, share left; NaN where it says unknown, or before one); armed and mode from the vehicle's HEARTBEAT
+  (``base_mode`` & SAFETY_ARMED,
   :meth:`quadsitl.wire.Mode.from_px4` on ``custom_mode``), updated between heartbeats (they come at
   1 Hz of *wall* time, a few per lockstep flight) by the vehicle's accepted COMMAND_ACK to a logged
   COMMAND_LONG/INT: ARM_DISARM, DO_SET_MODE, NAV_LAND. Mode 255 when not known (no heartbeat yet, or a
@@ -103,10 +105,11 @@ class Recording:
         state: Sequence[float],
         setpoint: Sequence[float],
         actuators: Sequence[float],
-        status: tuple[int, int, int, int],
+        status: tuple[float, ...],
     ) -> None:
         """Add one tick: state = x..r (12 values), setpoint = altitude_ref..y_ref (6), actuators =
-        u1..u4, f1..f4 (8), status = (armed, mode, failsafe, offboard_tick)."""
+        u1..u4, f1..f4 (8), status = (armed, mode, failsafe, offboard_tick, then the battery's V, A, mAh, J, share
+        left)."""
         s, p = telemetry.STREAMS, self.payload
         p["state"] += s["state"].pack(tick, t, *state)
         p["setpoint"] += s["setpoint"].pack(tick, t, *setpoint)
@@ -208,7 +211,7 @@ def records_from_csv(path: Path, period: float = DEFAULT_PERIOD) -> Recording:
     if absent:
         rec.notes.append(f"no {', '.join(absent)} column{'s' if len(absent) > 1 else ''} (a telemetry.csv from "
                          "before schema v3): NaN, the horizontal position not controlled")  # fmt: skip
-    status = (1, 1, 0, 0)  # armed, offboard, no failsafe, the flight started at tick 0 (t = 0)
+    status = (1, 1, 0, 0, *[NAN] * 5)  # armed, offboard, no failsafe, started at tick 0 (t = 0); no battery known
     ns, nsp = len(STATE), len(SETPOINT)
     for line, values in rows:
         t = values[0]
@@ -298,6 +301,7 @@ class _TlogState:
         self.gcs_altitude: float | None = None
         self.gcs_xy: tuple[float, float] | None = None
         self.forces = [NAN] * 4
+        self.battery = [NAN] * 5  # V, A, mAh, J, share left: BATTERY_STATUS's (NaN: not known)
         self.status = _Status()
         self.commands: dict[int, tuple[float, float, float]] = {}  # command → params 1..3 last sent
         self.heard: set[str] = set()  # message types from the vehicle
@@ -423,7 +427,15 @@ class _TlogState:
         self.target_sources["position"].add(xy_src if math.isfinite(xy[0]) else "")
         return (altitude, *attitude, *xy)  # type: ignore[return-value]
 
-    def status_record(self, tick: int) -> tuple[int, int, int, int]:
+    def _vehicle_battery_status(self, m) -> None:
+        cells = list(itertools.takewhile(lambda mv: mv != 65535, m.voltages))
+        known = m.battery_remaining >= 0
+        self.battery = [sum(cells) / 1000.0 if cells else NAN, m.current_battery / 100.0 if m.current_battery >= 0
+                        else NAN, float(m.current_consumed) if m.current_consumed >= 0 else NAN,
+                        m.energy_consumed * 100.0 if m.energy_consumed >= 0 else NAN,
+                        m.battery_remaining / 100.0 if known else NAN]  # fmt: skip
+
+    def status_record(self, tick: int) -> tuple[float, ...]:
         st = self.status
         in_offboard = bool(st.armed) and st.mode == wire.Mode.OFFBOARD
         if not in_offboard:
@@ -431,7 +443,7 @@ class _TlogState:
         elif st.offboard_tick < 0:
             st.offboard_tick = tick
         mode = MODE_UNKNOWN if st.mode is None else int(st.mode)
-        return int(bool(st.armed)), mode, int(st.failsafe), st.offboard_tick
+        return int(bool(st.armed)), mode, int(st.failsafe), st.offboard_tick, *self.battery
 
 
 def _horizontal_target(m) -> tuple[float, float]:

@@ -7,7 +7,9 @@ controlled: attitude setpoints, ``quadsitl sim``); u1 [N], u2, u3 [N], u4 [N·m]
 forces [N].
 
 In sensor mode (``--state sensors``) x..r are the autopilot's estimate, what its controllers flew on, and the
-plant's ground truth follows in :data:`TRUTH_COLUMNS` (x_true .. r_true, the same quantities and units).
+plant's ground truth follows in :data:`TRUTH_COLUMNS` (x_true .. r_true, the same quantities and units). A vehicle
+with a battery has :data:`BATTERY_COLUMNS` last: what the autopilot knows of it (docs/battery.md), battery_v [V],
+battery_a [A], battery_mah and battery_j (the charge and energy drawn [mAh, J]), battery_remaining (0..1).
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from quadsitl import telemetry
+
 COLUMNS = (
     "t", "x", "y", "z", "altitude", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r",
     "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "x_ref", "y_ref", "u1", "u2", "u3", "u4",
@@ -25,6 +29,20 @@ COLUMNS = (
 
 
 TRUTH_COLUMNS = tuple(f"{c}_true" for c in ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"))
+BATTERY_COLUMNS = telemetry.BATTERY_FIELDS  # the status record's battery fields, by their names
+
+
+def names_of(width: int) -> tuple[str, ...]:
+    """The columns of telemetry rows ``width`` wide: :data:`COLUMNS`, then :data:`TRUTH_COLUMNS` (sensor mode) and
+    :data:`BATTERY_COLUMNS` (a battery) where the width has room for them."""
+    extra = width - len(COLUMNS)
+    truth = extra in (len(TRUTH_COLUMNS), len(TRUTH_COLUMNS) + len(BATTERY_COLUMNS))
+    battery = extra in (len(BATTERY_COLUMNS), len(TRUTH_COLUMNS) + len(BATTERY_COLUMNS))
+    names = COLUMNS + (TRUTH_COLUMNS if truth else ()) + (BATTERY_COLUMNS if battery else ())
+    if len(names) != width:
+        raise ValueError(f"telemetry rows of {width} columns: expected {len(COLUMNS)}, the truth's "
+                         f"{len(TRUTH_COLUMNS)} and the battery's {len(BATTERY_COLUMNS)} after, or not")  # fmt: skip
+    return names
 
 
 def columns_from_arrays(
@@ -56,14 +74,14 @@ def stacked(columns: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def columns_of(rows: np.ndarray) -> dict[str, np.ndarray]:
-    """{column: values} of telemetry rows (:data:`COLUMNS`, then :data:`TRUTH_COLUMNS` when they have them)."""
-    names = COLUMNS + TRUTH_COLUMNS if rows.ndim == 2 and rows.shape[1] > len(COLUMNS) else COLUMNS
+    """{column: values} of telemetry rows (:func:`names_of` their width)."""
+    names = names_of(rows.shape[1]) if rows.ndim == 2 else COLUMNS
     return {name: rows[:, i] for i, name in enumerate(names)}
 
 
 def write_csv(path: Path, rows: np.ndarray) -> None:
-    """Write rows (in :data:`COLUMNS` order, then :data:`TRUTH_COLUMNS` when they have them) with a header line."""
-    columns = COLUMNS + TRUTH_COLUMNS if rows.ndim == 2 and rows.shape[1] > len(COLUMNS) else COLUMNS
+    """Write rows (:func:`names_of` their width, in that order) with a header line."""
+    columns = names_of(rows.shape[1]) if rows.ndim == 2 else COLUMNS
     np.savetxt(path, rows, delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
 
 

@@ -61,8 +61,9 @@ from sitl.plant import (
 # The commander's offboard setpoint fields, in its state array's order: what a setpoint sets (cmd.SP_X..SP_THRUST).
 SP_FIELDS = cmd.SETPOINT_END - cmd.SETPOINT_FIRST
 # A row of the result (fly_ticks): the truth x(k) (12), what the autopilot flew on (12), the reference shown
-# (altitude, roll, pitch, yaw, x, y: autopilot.tick.reference_shown), u1..u4, the commanded forces f1..f4 [N].
-R_STATE, R_SEEN, R_REF, R_XY_REF, R_INPUTS, R_FORCES, ROW_SIZE = 0, 12, 24, 28, 30, 34, 38
+# (altitude, roll, pitch, yaw, x, y: autopilot.tick.reference_shown), u1..u4, the commanded forces f1..f4 [N], the
+# battery as the autopilot knows it (V, A, mAh, J, share left: the status record's; NaN without one).
+R_STATE, R_SEEN, R_REF, R_XY_REF, R_INPUTS, R_FORCES, R_BATTERY, ROW_SIZE = 0, 12, 24, 28, 30, 34, 38, 43
 
 
 @jit(inline=True)
@@ -120,7 +121,7 @@ def vehicle_tick(k: int, kind: int, period: float, substeps: int, method: int, p
     st, cm, mem, v, c, truth, frame, plug = ap
     x, out, air = w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:]
     observe(k, period, x, out, air, st, sens, est, pio, datagram, home, truth, frame)
-    if not math.isnan(out[OUT_REMAINING]):  # the battery's report, as the wire carries it
+    if out[OUT_REMAINING] >= 0.0:  # the battery's report, as the wire carries it (an ideal supply: none)
         cmd.battery_seen(cm, hil.battery_values(hil.battery_fields(out[OUT_VOLTAGE], out[OUT_CURRENT],
                                                                    out[OUT_CHARGE], out[OUT_ENERGY],
                                                                    out[OUT_REMAINING])))  # fmt: skip
@@ -170,7 +171,8 @@ def arm_offboard(k: int, cm: np.ndarray, x: np.ndarray, period: float, sp_ticks:
 @jit(inline=True)
 def record(rows: np.ndarray, j: int, s: tuple, st: np.ndarray, cm: np.ndarray, mem: np.ndarray) -> None:
     """Row ``j`` of ``rows`` (R_*) for the tick just flown: the truth ``s`` = x(k) (12) it started from, what the
-    autopilot flew on, the reference shown (:func:`autopilot.tick.reference_shown`), u1..u4 and the forces."""
+    autopilot flew on, the reference shown (:func:`autopilot.tick.reference_shown`), u1..u4, the forces and the
+    battery."""
     for i in range(12):
         rows[j, R_STATE + i] = s[i]
         rows[j, R_SEEN + i] = st[i]
@@ -180,6 +182,8 @@ def record(rows: np.ndarray, j: int, s: tuple, st: np.ndarray, cm: np.ndarray, m
         rows[j, R_INPUTS + i] = mem[MEM_U + i]
         rows[j, R_FORCES + i] = mem[MEM_FORCES + i]
     rows[j, R_XY_REF], rows[j, R_XY_REF + 1] = shown[4], shown[5]
+    for i in range(5):
+        rows[j, R_BATTERY + i] = cm[cmd.BAT_V + i]
 
 
 @jit

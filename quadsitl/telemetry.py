@@ -5,7 +5,8 @@ Keys (``<vehicle>`` defaults to ``v1``), one record per control tick on each:
     quadsitl/<vehicle>/state      tick, t, x, y, z, vx, vy, vz, roll, pitch, yaw, p, q, r
     quadsitl/<vehicle>/setpoint   tick, t, altitude_ref, roll_ref, pitch_ref, yaw_ref, x_ref, y_ref
     quadsitl/<vehicle>/actuators  tick, t, u1, u2, u3, u4, f1, f2, f3, f4
-    quadsitl/<vehicle>/status     tick, t, armed, mode, failsafe, offboard_tick
+    quadsitl/<vehicle>/status     tick, t, armed, mode, failsafe, offboard_tick, battery_v, battery_a, battery_mah,
+                                  battery_j, battery_remaining
 
 Encoding: little-endian C structs (``struct`` formats below): ``tick`` uint64 (control ticks since the
 plant started), ``t`` float64 simulated time [s], then float64 fields in SI units, radians, NED/FRD;
@@ -13,9 +14,11 @@ setpoint: ``x_ref``, ``y_ref`` the horizontal position reference in local NED [m
 while the horizontal position is not controlled (attitude setpoints, the paper's experiment);
 status: ``armed`` uint8 (0/1), ``mode`` uint8 (:data:`MODES`: 0 hold, 1 offboard, 2 land, 3 takeoff,
 4 rtl, 5 mission), ``failsafe`` uint8 (0 none, 1 setpoint stream lost, 2 plant link lost, 3 ground station lost, 4
-estimator failed, 5 controller failed, 6 motor failure), ``offboard_tick``
-int64 (tick at which the current offboard flight started, −1 when not in an offboard flight). The Zenoh
-encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v3`` (:data:`SCHEMA_VERSION`).
+estimator failed, 5 controller failed, 6 motor failure, 7 geofence, 8 battery), ``offboard_tick``
+int64 (tick at which the current offboard flight started, −1 when not in an offboard flight), then the battery as
+the autopilot knows it (docs/battery.md): voltage [V], current [A], charge drawn [mAh], energy drawn [J], the share
+of its charge left (0..1), all float64, NaN without a battery (an ideal supply). The Zenoh
+encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v4`` (:data:`SCHEMA_VERSION`).
 
 One more key is not per tick: ``quadsitl/<vehicle>/mission`` carries the stored mission as the dashboard draws
 it, JSON (``application/json`` with schema ``quadsitl.mission.v1``), published when the plan, its current
@@ -37,8 +40,9 @@ simulated time [s] of the tick after which it was reached (absent in documents o
 ``rally`` the rally points (both absent in older documents: empty).
 :func:`encode_mission` and :func:`decode_mission` write and check it.
 
-Versions: v3 added x_ref and y_ref to the setpoint record (v2's was ``<Qd4d``); the other streams' records
-are as in v2, and carry v3 too, so that one version names the whole set. v2 batched records; v1 carried
+Versions: v4 added the battery to the status record (v3's was ``<QdBBBq``); v3 added x_ref and y_ref to the
+setpoint record (v2's was ``<Qd4d``); the other streams' records are as they were, and carry the newest version
+too, so that one version names the whole set. v2 batched records; v1 carried
 exactly one per sample.
 
 A sample carries one or more records of consecutive ticks, concatenated (since v2).
@@ -64,18 +68,30 @@ if TYPE_CHECKING:  # the schema needs no Zenoh: pure modules (dashboard model, r
     import zenoh
 
 PREFIX = "quadsitl"
-SCHEMA_VERSION = 3  # of every stream's record layout; in the Zenoh encoding's schema, quadsitl.<stream>.v3
+SCHEMA_VERSION = 4  # of every stream's record layout; in the Zenoh encoding's schema, quadsitl.<stream>.v4
 STREAMS: dict[str, struct.Struct] = {
     "state": struct.Struct("<Qd12d"),
     "setpoint": struct.Struct("<Qd6d"),
     "actuators": struct.Struct("<Qd8d"),
-    "status": struct.Struct("<QdBBBq"),
+    "status": struct.Struct("<QdBBBq5d"),
 }
 FIELDS: dict[str, tuple[str, ...]] = {
     "state": ("tick", "t", "x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"),
     "setpoint": ("tick", "t", "altitude_ref", "roll_ref", "pitch_ref", "yaw_ref", "x_ref", "y_ref"),
     "actuators": ("tick", "t", "u1", "u2", "u3", "u4", "f1", "f2", "f3", "f4"),
-    "status": ("tick", "t", "armed", "mode", "failsafe", "offboard_tick"),
+    "status": (
+        "tick",
+        "t",
+        "armed",
+        "mode",
+        "failsafe",
+        "offboard_tick",
+        "battery_v",
+        "battery_a",
+        "battery_mah",
+        "battery_j",
+        "battery_remaining",
+    ),
 }
 # Where each field of a record is [bytes from the record's start], from the layouts above (little-endian, packed: no
 # padding). Every writer takes its offsets from here: the compiled tick's (autopilot.tick) read these as globals.
@@ -102,8 +118,9 @@ assert all(set(_codes(s)[2:]) == {"d"} for s in ("state", "setpoint", "actuators
 STATE_AT_X, STATE_AT_P = OFFSETS["state"]["x"], OFFSETS["state"]["p"]  # x..yaw, then p, q, r
 SETPOINT_AT_REF = OFFSETS["setpoint"]["altitude_ref"]  # altitude_ref..y_ref
 ACTUATORS_AT_U = OFFSETS["actuators"]["u1"]  # u1..u4, f1..f4
-STATUS_AT_ARMED, STATUS_AT_MODE, STATUS_AT_FAILSAFE, STATUS_AT_OFFBOARD_TICK = (
-    OFFSETS["status"][f] for f in ("armed", "mode", "failsafe", "offboard_tick"))  # fmt: skip
+STATUS_AT_ARMED, STATUS_AT_MODE, STATUS_AT_FAILSAFE, STATUS_AT_OFFBOARD_TICK, STATUS_AT_BATTERY = (
+    OFFSETS["status"][f] for f in ("armed", "mode", "failsafe", "offboard_tick", "battery_v"))  # fmt: skip
+BATTERY_FIELDS = FIELDS["status"][6:]  # battery_v .. battery_remaining, float64s in a row
 
 
 def record_dtype(stream: str) -> np.dtype:

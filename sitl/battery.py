@@ -10,7 +10,7 @@ full_power`) keeps P within what the pack can give. Empty, the pack gives nothin
 ``a`` is the plant's :func:`quadsitl.param_arrays.actuator_array` (BAT_*: capacity 0 is an ideal supply, which
 draws nothing and never empties); the battery's state ``bat`` (the plant's outputs from OUT_CURRENT on) is the current
 [A], the charge [C] and energy [J] drawn since the start, the voltage at the terminals [V] and the share of the charge
-left (NaN for an ideal supply: no battery to report).
+left (−1 for an ideal supply: no battery to report; not NaN, so that the plant's arrays compare equal to themselves).
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from quadsitl.param_arrays import (
 )
 
 CURRENT, CHARGE, ENERGY, VOLTAGE, REMAINING = range(5)  # the battery's state, ``bat``
+NONE = -1.0  # bat[REMAINING] of an ideal supply: no battery
 
 
 @jit(inline=True)
@@ -87,12 +88,13 @@ def draw(forces: Forces, charge: float, energy: float, v: np.ndarray, a: np.ndar
 
 @jit(inline=True)
 def start(bat: np.ndarray, a: np.ndarray) -> None:
-    """The battery before the first step: nothing drawn, at rest (its open-circuit voltage); an ideal supply, none."""
+    """The battery before the first step: nothing drawn, at rest (its open-circuit voltage); an ideal supply, none
+    (share left −1)."""
     bat[CURRENT] = bat[CHARGE] = bat[ENERGY] = 0.0
     if a[BAT_CAPACITY] > 0.0:
         bat[VOLTAGE], bat[REMAINING] = open_circuit(0.0, a), remaining(0.0, a)
     else:
-        bat[VOLTAGE], bat[REMAINING] = math.nan, math.nan
+        bat[VOLTAGE], bat[REMAINING] = 0.0, NONE
 
 
 @jit(inline=True)

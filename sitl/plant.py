@@ -45,7 +45,7 @@ from sitl.wind import AIR_SIZE, air_arrays, air_tick
 # the mean acceleration over the step (3, [m/s², NED]: the change of velocity over the period, the ground's stop
 # included; what the accelerometer measures, :mod:`sitl.sensors`); the battery (sitl.battery): its current over the
 # step [A], the charge [C] and energy [J] drawn since the start, its voltage at the step's end [V] and the share of its
-# charge left (NaN: an ideal supply, no battery; set before the first step by sitl.battery.start).
+# charge left (−1: an ideal supply, no battery; set before the first step by sitl.battery.start).
 OUT_FORCES, OUT_INPUTS, OUT_OMEGA_R, OUT_ON_GROUND, OUT_MEAN_ACCEL = 0, 4, 8, 9, 10
 OUT_CURRENT, OUT_CHARGE, OUT_ENERGY, OUT_VOLTAGE, OUT_REMAINING, OUT_SIZE = 13, 14, 15, 16, 17, 18
 # Plant.work, the one array its per-step arrays are views of: the state, the motor forces, the command, the outputs,

@@ -95,7 +95,7 @@ def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, 
     else:
         io[SEQ] = (io[SEQ] + 1) & 0xFF
         io[TX_LEN] = encode_state(tx, io[SEQ], io[SYSTEM], io[COMPONENT], usec_of(tick, period), x)
-    if not math.isnan(out[OUT_REMAINING]):
+    if out[OUT_REMAINING] >= 0.0:  # a battery (an ideal supply's is −1)
         io[SEQ] = (io[SEQ] + 1) & 0xFF
         n = io[TX_LEN]
         io[TX_LEN] = n + encode_battery(tx[n:], io[SEQ], io[SYSTEM], io[COMPONENT], out[OUT_VOLTAGE], out[OUT_CURRENT],

@@ -3,6 +3,7 @@ charge and energy drawn, an empty pack stopping the motors, the ideal supply of 
 [battery] section's refusals."""
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -288,3 +289,28 @@ def test_a_battery_status_stays_with_its_state_on_the_pymavlink_path():
     assert [m.get_type() for m in flown] == ["ODOMETRY", "BATTERY_STATUS"]
     assert flown[1].to_dict() == sent[1].to_dict() and flown[0].time_usec == sent[0].time_usec == 1000
     assert sorted_out.said == (4, "hello")
+
+
+# ---- what a flight drew: telemetry.csv, metrics.json ---------------------------------------------------------
+
+
+def test_sims_files_carry_the_battery_for_an_x500_and_nothing_for_the_paper(tmp_path):
+    from groundstation.offline import run_offline, write_outputs
+    from groundstation.telemetry_csv import BATTERY_COLUMNS, COLUMNS, read_csv
+
+    for name in ("x500", "paper"):
+        preset = load_preset(name)
+        results, metrics = run_offline(preset, ["backstepping"], 2.0)
+        out = tmp_path / name
+        write_outputs(out, preset, results, metrics, {}, figures=False)
+        csv = read_csv(out / "telemetry.csv")
+        report = json.loads((out / "metrics.json").read_text())
+        if name == "paper":
+            assert tuple(csv) == COLUMNS and "battery" not in report
+            continue
+        assert tuple(csv)[-5:] == BATTERY_COLUMNS
+        used = report["battery"]
+        assert used["energy_j"] == pytest.approx(csv["battery_j"][-1] - csv["battery_j"][0])
+        assert 400.0 < used["energy_j"] < 1000.0  # 2 s of a climb to 2 m on some 300 W, in steps of 100 J
+        assert used["remaining_start"] == 1.0 and used["remaining_end"] == 1.0  # 0.2 % of 5000 mAh: rounds to 100 %
+        assert 15.0 < used["voltage_min_v"] < 16.8 and 15.0 < used["current_max_a"] < 60.0

@@ -67,6 +67,7 @@ def page_state(page) -> dict:
         "armed: document.querySelector('#status [data-field=armed]').textContent, "
         "mode: document.querySelector('#status [data-field=mode]').textContent, "
         "link: document.querySelector('#status [data-field=link]').textContent, "
+        "battery: document.querySelector('#status [data-field=battery]').textContent, "
         "rate: document.querySelector('#status [data-field=tick_rate]').textContent})"
     )
 
@@ -135,6 +136,7 @@ def test_the_page_shows_live_data_and_a_gain_change_over_mavlink(browser, artifa
             page.wait_for_function("() => quadsitl.updates > 0 && quadsitl.lastT !== null", timeout=BEHIND_MS)
             first = page_state(page)
             assert first["armed"] == "disarmed" and first["mode"] == "hold"
+            assert first["battery"] == "none"  # the paper's ideal supply
             assert first["link"].startswith("live")
 
             sp = stack.enter_context(SetpointStream(c, 1.0))
@@ -258,7 +260,7 @@ class Publisher:
             out["state"] += st["state"].pack(k, t, x, y, -2.0, *[0.0] * 9)
             out["setpoint"] += st["setpoint"].pack(k, t, 2.0, 0.0, 0.0, 0.0, x_ref, y_ref)
             out["actuators"] += st["actuators"].pack(k, t, *[0.0] * 8)
-            out["status"] += st["status"].pack(k, t, 1, mode, 0, 0)
+            out["status"] += st["status"].pack(k, t, 1, mode, 0, 0, 15.2, 17.9, 830.0, 4.5e4, 0.12)  # a low battery
         for s, pub in self.pubs.items():
             pub.put(out[s])
         self.slow.offer(lambda s: out[s][-telemetry.STREAMS[s].size :], time.monotonic())
@@ -289,7 +291,9 @@ def map_state(page) -> dict:
         return {points: Number(box.dataset.points), t: Number(box.dataset.tLast), setpoint: box.dataset.setpoint,
                 home: at(box.dataset.homePx),
                 setpointColour: at(box.dataset.setpointPx), measured, scale: Number(box.dataset.scale),
-                mode: document.querySelector('#status [data-field=mode]').textContent};
+                mode: document.querySelector('#status [data-field=mode]').textContent,
+                battery: document.querySelector('#status [data-field=battery]').textContent,
+                batteryClass: document.querySelector('#status [data-field=battery]').className};
     }""")
 
 
@@ -331,6 +335,7 @@ def test_the_map_shows_the_path_the_setpoint_and_home(browser, artifacts):
         # 8 s at 0.3 rad/s: 2.4 rad of a 4 m circle, plus home: the map spans about 7 m, at equal scales
         assert 20 < m["scale"] < 100
         assert m["mode"] == "offboard"
+        assert m["battery"] == "12 %, 15.20 V, 17.9 A" and m["batteryClass"] == "v bad"  # the panel's: below 15 %
         page.screenshot(path=str(artifacts / "dashboard-map.png"), full_page=True)
 
         # x_ref, y_ref NaN (attitude setpoints now): no setpoint; return to launch shows its name.

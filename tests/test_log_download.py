@@ -97,6 +97,11 @@ def test_mavsdk_lists_and_downloads_the_flight_log_byte_for_byte_and_erases_it(t
     # on the simulated clock: "Armed" on the tick before the first armed one, the rest within the flight
     assert all(t[0] - 1_000 <= stamp <= t[-1] + 100_000 for stamp, _ in texts), (t[0], t[-1], texts)
     assert log.initial_parameters["MPC_XY_CRUISE"] > 0  # the autopilot's parameters
+    battery = topics["battery_status"]  # the x500's 4-cell pack, as PX4 logs it (every 200 ms)
+    assert np.all(np.diff(battery["timestamp"])[1:] == 200_000)
+    assert 15.0 < battery["voltage_v"].min() < battery["voltage_v"].max() <= 16.8
+    assert battery["current_a"].max() > 10.0 and np.all(np.diff(battery["discharged_mah"]) >= 0)
+    assert battery["remaining"][0] == 1.0 and battery["connected"].all()
 
 
 def recv(c, kind: str, timeout: float):

@@ -67,6 +67,29 @@ def test_a_trial_with_nothing_varied_is_quadsitl_sims_flight(controller):
     assert res.metrics[0, engine.M_DIVERGED] == 0.0 and res.metrics[0, engine.M_TICKS] == 5000
 
 
+def test_an_x500_trials_energy_is_its_sim_flights_and_the_papers_is_undefined():
+    """The battery's energy over a trial (engine.M_ENERGY, from the autopilot's report as the rows have it) equals
+    the one :mod:`groundstation.sweep.trial_row` takes from ``quadsitl sim``'s telemetry of the same flight; the
+    paper's ideal supply has none."""
+    from groundstation.offline import telemetry_columns
+    from groundstation.sweep.trial_row import metrics_row
+
+    spec = spec_of("""
+        preset = "x500"
+        keep = [0]
+    """)
+    res = fly(spec, [0])
+    sims, _ = run_offline(spec.preset, ["backstepping"], spec.duration)
+    sim = sims["backstepping"]
+    assert np.array_equal(res.kept[0][:, -5:], sim.battery)  # the rows' battery: the autopilot's report, tick by tick
+    want = metrics_row(telemetry_columns(sim), spec.preset, spec.period, None)[engine.M_ENERGY]
+    energy = res.metrics[0, engine.M_ENERGY]
+    assert energy == want
+    assert 200.0 * spec.duration < energy < 500.0 * spec.duration  # a 2 kg quadrotor flies on some 300 W
+    paper = fly(spec_of('preset = "paper"'), [0])
+    assert math.isnan(paper.metrics[0, engine.M_ENERGY])
+
+
 def test_the_paper_configurations_own_compiled_version_flies_as_the_general_one_to_the_bit(monkeypatch):
     """run_chunk flies the backstepping with one plant step per tick on a version compiled for it (run_trial_paper);
     the general version (run_trial, the controller and step count at run time) flies the same trials to the bit:

@@ -26,4 +26,5 @@ def test_the_writers_offsets_are_the_layouts():
     o = telemetry.OFFSETS
     assert (o["status"]["tick"], o["status"]["t"]) == (telemetry.AT_TICK, telemetry.AT_T)
     assert o["state"]["x"] + 9 * telemetry.FLOAT64 == telemetry.STATE_AT_P  # x..yaw, then p, q, r
-    assert telemetry.STREAMS["status"].size - 8 == telemetry.STATUS_AT_OFFBOARD_TICK
+    assert telemetry.STATUS_AT_BATTERY - 8 == telemetry.STATUS_AT_OFFBOARD_TICK  # then the battery's 5 float64s
+    assert telemetry.STREAMS["status"].size - 5 * telemetry.FLOAT64 == telemetry.STATUS_AT_BATTERY

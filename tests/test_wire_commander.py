@@ -49,9 +49,10 @@ def test_px4_custom_modes():
 
 
 def test_telemetry_encoding_round_trip_and_bad_payload():
-    rec = telemetry.STREAMS["status"].pack(10, 0.01, 1, 1, 0, 7)
+    rec = telemetry.STREAMS["status"].pack(10, 0.01, 1, 1, 0, 7, 16.1, 18.2, 120.0, 7000.0, 0.9)
     assert telemetry.decode("status", rec) == {
-        "tick": 10, "t": 0.01, "armed": 1, "mode": 1, "failsafe": 0, "offboard_tick": 7,
+        "tick": 10, "t": 0.01, "armed": 1, "mode": 1, "failsafe": 0, "offboard_tick": 7, "battery_v": 16.1,
+        "battery_a": 18.2, "battery_mah": 120.0, "battery_j": 7000.0, "battery_remaining": 0.9,
     }  # fmt: skip
     with pytest.raises(ValueError, match="expected"):
         telemetry.decode("state", b"\x00" * 5)
@@ -229,7 +230,7 @@ def test_telemetry_samples_carry_one_or_more_records():
     two = one + telemetry.STREAMS["setpoint"].pack(6, 0.006, 1.5, 0.1, 0.2, 0.3, math.nan, math.nan)
     assert telemetry.records("setpoint", one) == [(5, 0.005, 1.0, 0.1, 0.2, 0.3, 4.0, -2.0)]
     assert [r[0] for r in telemetry.records("setpoint", two)] == [5, 6]
-    assert telemetry.FIELDS["setpoint"][-2:] == ("x_ref", "y_ref") and telemetry.SCHEMA_VERSION == 3
+    assert telemetry.FIELDS["setpoint"][-2:] == ("x_ref", "y_ref") and telemetry.SCHEMA_VERSION == 4
     for bad in (b"", two[:-1]):
         with pytest.raises(ValueError, match="multiple of 64"):
             telemetry.records("setpoint", bad)

@@ -50,7 +50,7 @@ TRAIL_RATE = 5.0  # fleet-map trail points per simulated second (at most the plo
 MODES = telemetry.MODES  # 0 hold, 1 offboard, 2 land, 3 takeoff, 4 rtl, 5 mission
 FAILSAFES = {
     0: "none", 1: "setpoint stream lost", 2: "plant link lost", 3: "ground station lost", 4: "estimator failed",
-    5: "controller failed", 6: "motor failure",
+    5: "controller failed", 6: "motor failure", 7: "geofence", 8: "battery",
 }  # fmt: skip
 
 # A row of the plot series, in this order (the page receives columns by these names).
@@ -269,6 +269,7 @@ class Vehicle:
                 "mode": MODES.get(st[3], f"unknown ({st[3]})"),
                 "failsafe": FAILSAFES.get(st[4], f"unknown ({st[4]})"),
                 "offboard_tick": st[5],
+                **{f: (None if math.isnan(st[6 + i]) else st[6 + i]) for i, f in enumerate(telemetry.BATTERY_FIELDS)},
             }
             if st
             else None

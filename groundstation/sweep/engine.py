@@ -40,6 +40,7 @@ import math
 import numpy as np
 
 from autopilot import plugin
+from autopilot.commander_state import BAT_J
 from autopilot.control_params import BACKSTEPPING, MEM_FORCES, MEM_SIZE, MEM_U, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
 from autopilot.tick import reference_shown
@@ -77,6 +78,7 @@ RISE, SETTLE, OVERSHOOT, SSE, PEAK_U, RMS = range(PER_CHANNEL)
 M_SATURATED, M_DIVERGED, M_DIVERGED_AT, M_TICKS, M_YAW_TURNS, M_HORIZONTAL_RMS, M_HORIZONTAL_MAX, M_ALTITUDE_RMS = (
     range(4 * PER_CHANNEL, 4 * PER_CHANNEL + 8)
 )
+M_ENERGY = 4 * PER_CHANNEL + 8
 POSITION_METRICS = ("horizontal_rms", "horizontal_max", "altitude_rms")
 """Position tracking, in :func:`groundstation.metrics.position_metrics`' names and units [m]: NaN while the
 horizontal position is not controlled (the task's attitude reference)."""
@@ -88,6 +90,7 @@ METRICS = (
     "ticks",  # control ticks flown
     "yaw_turns",  # the branch of the yaw reference at the end, in turns of 2π (see the module's docstring)
     *POSITION_METRICS,
+    "energy_j",  # [J] drawn from the battery over the rows flown (its report's, docs/battery.md); NaN: no battery
 )
 """The columns of the metrics array :func:`run_chunk` fills, one row per trial."""
 METRICS_SIZE = len(METRICS)
@@ -212,6 +215,7 @@ def _fly(
     diverged_at = -1
     err_yaw = 0.0
     tracked, e2, e_max, ea2 = 0, 0.0, 0.0, 0.0  # a position hold's samples, squared errors and largest error
+    e_first = math.nan  # the energy drawn, as the first row has it [J]
     for k in range(ticks):
         s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
         if not inside(s, lim):
@@ -220,6 +224,8 @@ def _fly(
         # ---- the vehicle's tick: the autopilot on x(k), its allocation, the plant's period -----------------------
         setpoints_due(k, cm, sp_ticks, table, sp_next)
         vehicle_tick(k, kind, period, substeps, method, plant, sens, ap, (), HOME, f_min, f_max)
+        if k == 0:
+            e_first = cm[BAT_J]
         u = (mem[MEM_U], mem[MEM_U + 1], mem[MEM_U + 2], mem[MEM_U + 3])
         forces = (mem[MEM_FORCES], mem[MEM_FORCES + 1], mem[MEM_FORCES + 2], mem[MEM_FORCES + 3])
         if kept:
@@ -247,6 +253,7 @@ def _fly(
     flown = ticks if diverged_at < 0 else diverged_at
     nan = math.nan
     m[M_SATURATED] = saturated * period
+    m[M_ENERGY] = cm[BAT_J] - e_first if flown > 0 else nan  # the last row's less the first's
     m[M_HORIZONTAL_RMS], m[M_HORIZONTAL_MAX], m[M_ALTITUDE_RMS] = nan, nan, nan  # the attitude reference flown
     m[M_TICKS] = flown
     m[M_DIVERGED] = 0.0 if diverged_at < 0 else 1.0

@@ -36,7 +36,7 @@ from quadsitl.frames import PX4_HOME
 from quadsitl.state import Reference
 from sitl.integrators import EULER, INTEGRATORS
 
-FLOWN_METRICS = engine.METRICS[: engine.M_TICKS + 1] + engine.POSITION_METRICS
+FLOWN_METRICS = engine.METRICS[: engine.M_TICKS + 1] + engine.POSITION_METRICS + ("energy_j",)
 """The metrics columns of the table (:data:`groundstation.sweep.engine.METRICS` less the engine's bookkeeping)."""
 PERCENTILES = (5, 25, 50, 75, 95)
 WORST = 10  # trials listed in summary.json's "worst"
@@ -343,7 +343,7 @@ def summarize(result: SweepResult) -> dict:
     diverged = table["diverged"] & flown
     ok = flown & ~diverged
     metrics = {}
-    for name in (*FLOWN_METRICS[: 4 * engine.PER_CHANNEL], "saturation_time", *engine.POSITION_METRICS):
+    for name in (*FLOWN_METRICS[: 4 * engine.PER_CHANNEL], "saturation_time", *engine.POSITION_METRICS, "energy_j"):
         col = table[name][ok]
         finite = col[np.isfinite(col)]
         entry: dict[str, float | int | None] = {"undefined": int(col.size - finite.size)}

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from groundstation.metrics import outputs_from_columns, position_metrics, run_metrics, saturation_time
+from groundstation.metrics import battery_use, outputs_from_columns, position_metrics, run_metrics, saturation_time
 from groundstation.sweep import engine
 from groundstation.telemetry_csv import columns_of
 from quadsitl.config import Preset
@@ -52,6 +52,8 @@ def metrics_row(rows: np.ndarray | Mapping[str, np.ndarray], preset: Preset, per
         m[engine.PER_CHANNEL * j + engine.PEAK_U] = np.max(np.abs(inputs[:, j])) if n else 0.0
     m[engine.M_YAW_TURNS] = 0.0
     m[engine.M_TICKS] = n
+    if (used := battery_use(table)) is not None:
+        m[engine.M_ENERGY] = used["energy_j"]
     if diverged_at is not None:
         m[engine.M_DIVERGED], m[engine.M_DIVERGED_AT] = 1.0, diverged_at
         return m

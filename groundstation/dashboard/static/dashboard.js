@@ -295,6 +295,10 @@ function showStatus(v) {
   set("mission", !m || !m.total ? "none" : `item ${m.current} of ${m.total}, ${m.state_name}`,
       m && m.state === 3 ? "ok" : "");
   set("failsafe", s.failsafe || "–", s.failsafe && s.failsafe !== "none" ? "bad" : "ok");
+  const left = s.battery_remaining;  // null: no battery (an ideal supply)
+  set("battery", left === null || left === undefined ? "none" :
+      `${fmt(left * 100, 0, " %")}, ${fmt(s.battery_v, 2, " V")}, ${fmt(s.battery_a, 1, " A")}`,
+      left === null || left === undefined ? "" : left < 0.15 ? "bad" : left < 0.3 ? "warn" : "ok");
   set("link", `${v.link.telemetry} (${fmt(v.link.age_s * 1000, 0, " ms")} ago)`, v.link.telemetry === "live" ? "ok" : "bad");
   set("tick_rate", fmt(v.tick_rate, 0, " /s"));
   set("real_time_factor", fmt(v.real_time_factor, 2, "×"));
