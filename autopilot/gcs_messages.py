@@ -36,10 +36,10 @@ from autopilot.commander import (
     TOUCHDOWN_CLIMB,
     Commander,
 )
-from quadsitl import __version__, hil
+from quadsitl import __version__, earth, hil
 from quadsitl.codec import FRAME_MAX
 from quadsitl.compiled_frames import euler_to_quaternion
-from quadsitl.frames import PX4_HOME
+from quadsitl.frames import PX4_HOME, ned_to_body
 from quadsitl.state import Reference, VehicleState
 from quadsitl.wire import STATUSTEXT_LEN as STATUSTEXT_LEN  # STATUSTEXT: one place for all, quadsitl.wire
 from quadsitl.wire import Mode, mavlink, message_of
@@ -86,6 +86,9 @@ class Snapshot:
     # ESTIMATOR_STATUS: flags, test ratios (velocity, horizontal and vertical position, magnetometer), horizontal and
     # vertical accuracy [m] (autopilot.estimator.Estimator.status); None: the true state is flown (all valid, exact)
     estimator: tuple[int, float, float, float, float, float, float] | None = None
+    # HIGHRES_IMU in sensor mode: the newest measurements the estimator took (accel [m/s²], gyro [rad/s], mag
+    # [gauss], FRD; barometric altitude [m AMSL]); None: the true state is flown (highres_imu builds what it can)
+    imu: tuple[float, ...] | None = None
 
 
 def position_target(s: Snapshot, ms: int) -> mavlink.MAVLink_position_target_local_ned_message:
@@ -198,6 +201,8 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
         return sys_status(s.load, s.errors, s.has_state, fence_breached=bool(c.cm[GF_BREACH]), cm=c.cm)
     if msg_id == mavlink.MAVLINK_MSG_ID_BATTERY_STATUS:
         return battery_status(c.cm)
+    if msg_id == mavlink.MAVLINK_MSG_ID_HIGHRES_IMU:
+        return highres_imu(s, origin)
     if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
         flags, vel, pos_h, pos_v, mag, acc_h, acc_v = s.estimator or (TRUE_STATE_FLAGS, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         return mavlink.MAVLink_estimator_status_message(s.time_ms * 1000, flags, vel, pos_h, pos_v, mag, 0.0, 0.0,
@@ -238,6 +243,36 @@ PRESENT = SENSORS | CONTROL | mavlink.MAV_SYS_STATUS_PREARM_CHECK  # also "enabl
 # we do not have is not in breach.
 HEALTH_ALWAYS = CONTROL | mavlink.MAV_SYS_STATUS_GEOFENCE
 HEALTH_WITH_STATE = SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK
+
+
+FLOAT32_MAX = 3.4028234663852886e38
+IMU_ALL = 0b1101111111111  # HIGHRES_IMU.fields_updated: accel, gyro, mag, abs pressure, pressure alt, temperature
+IMU_NO_ACCEL = IMU_ALL & ~0b111
+
+
+def highres_imu(s: Snapshot, origin: Origin) -> mavlink.MAVLink_highres_imu_message:
+    """``HIGHRES_IMU`` (MAVSDK's ``telemetry.imu()``), FRD. In sensor mode the measurements the estimator took last
+    (:attr:`Snapshot.imu`), all fields updated. On the true state: the gyro is the body rates, the magnetometer the
+    Earth's field (quadsitl.earth's) turned into the body, the barometer the altitude AMSL through the standard
+    atmosphere; the true state carries no acceleration, so the accelerometer's fields are 0 and ``fields_updated``
+    leaves them out."""
+    if s.imu is not None:
+        accel, gyro, mag, alt = s.imu[0:3], s.imu[3:6], s.imu[6:9], s.imu[9]
+        fields = IMU_ALL
+    else:
+        st = s.state
+        field = earth.magnetic_field_ned(earth.MAG_STRENGTH, math.radians(earth.MAG_DECLINATION_DEG),
+                                         math.radians(earth.MAG_INCLINATION_DEG))  # fmt: skip
+        q = euler_to_quaternion(st.roll, st.pitch, st.yaw)
+        accel, gyro, mag = (0.0, 0.0, 0.0), s.body_rates, ned_to_body(q, *field)
+        alt, fields = origin.alt + st.altitude, IMU_NO_ACCEL
+    values = (*accel, *gyro, *mag, earth.isa_pressure(alt) / 100.0, 0.0, alt, earth.isa_temperature(alt) - 273.15)
+    return mavlink.MAVLink_highres_imu_message(s.time_ms * 1000, *map(float32, values), fields, 0)
+
+
+def float32(value: float) -> float:
+    """``value`` as a float32 field holds it: beyond its range (a diverged state), infinite; NaN stays NaN."""
+    return value if not abs(value) > FLOAT32_MAX else math.copysign(math.inf, value)
 
 
 # BATTERY_STATUS.charge_state for the commander's warning level (none, low, critical, emergency)

@@ -75,7 +75,7 @@ from autopilot.stream_frames import StreamFrames
 from autopilot.streams import MessageStreams, phase_of, spread_of
 from autopilot.telemetry_out import BATCH_WALL, Streams, ZenohOut
 from autopilot.tick import autopilot_tick, sensor_tick, warm_up
-from quadsitl import codec, failures, fastio, wire
+from quadsitl import codec, failures, fastio, hil, wire
 from quadsitl.cli_util import UsageError, parse_controller_params, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.process_util import (
@@ -396,7 +396,15 @@ class Autopilot:
             home=self._home(),
             target=self.commander.target if self.commander.armed else (math.nan,) * 4 + (ref.altitude, math.nan),
             estimator=None if self.estimator is None else self.estimator.status(),
+            imu=None if self.estimator is None else self.imu(),
         )
+
+    def imu(self) -> tuple[float, ...]:
+        """Sensor mode: the newest measurements the estimator took, as HIGHRES_IMU says them (accel, gyro, mag, then
+        the barometric altitude)."""
+        z = self.estimator.z.tolist()
+        return (*z[hil.Z_ACCEL : hil.Z_ACCEL + 3], *z[hil.Z_GYRO : hil.Z_GYRO + 3], *z[hil.Z_MAG : hil.Z_MAG + 3],
+                z[hil.Z_BARO])  # fmt: skip
 
     def _home(self) -> tuple[float, float, float, float]:
         """Home (where the vehicle armed) in the local frame: x, y, z [m] NED and heading [rad]."""

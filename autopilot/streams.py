@@ -45,6 +45,7 @@ SLOW_RATES: dict[int, float] = {  # [Hz]
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,  # PX4's rate
+    mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 0.0,  # off until asked for, as on PX4's normal link (MAVSDK's set_rate_imu)
 }
 
 # The tick after the fast messages' at which each slow one goes out (an odd offset: never on a fast tick at the
@@ -60,6 +61,7 @@ SLOTS: dict[int, int] = {
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 13,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 15,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 17,
+    mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 19,
 }
 
 MAX_INTERVAL_US = 60_000_000
@@ -89,7 +91,7 @@ class MessageStreams:
         self.phases = {mid: (spread if SLOTS.get(mid, 0) else phase) + SLOTS.get(mid, 0)
                        for mid in (*FAST, *SLOW_RATES)}  # fmt: skip
         self.defaults: dict[int, int] = {mid: self._ticks(1.0 / fast_rate) for mid in FAST}
-        self.defaults.update({mid: self._ticks(1.0 / hz) for mid, hz in SLOW_RATES.items()})
+        self.defaults.update({mid: self._ticks(1.0 / hz) if hz else 0 for mid, hz in SLOW_RATES.items()})
         self.every = dict(self.defaults)
         self._rebuild()
 

@@ -10,8 +10,9 @@ before each raw MAVLink 1/2 frame, as ``quadsitl gcs``, MAVProxy and QGroundCont
 **From a telemetry.csv.** T is the median step of the ``t`` column [s] (``--period`` when there is one
 row); tick = round(t/T). state ← x, y, z, vx, vy, vz [m, m/s, NED], roll, pitch, yaw [rad], p, q, r
 [rad/s, FRD]; setpoint ← altitude_ref [m], roll_ref, pitch_ref, yaw_ref [rad], x_ref, y_ref [m, NED];
-actuators ← u1..u4, f1..f4; status ← armed 1, mode 1 (offboard), failsafe 0, offboard_tick 0: the CSV holds
-the offboard flight, with t = 0 at its first tick. Values go out exactly as written in the CSV. A CSV
+actuators ← u1..u4, f1..f4; status ← armed 1, mode 1 (offboard), failsafe 0, offboard_tick 0 (the CSV holds
+the offboard flight, with t = 0 at its first tick), and the battery's columns when it has them (NaN when not).
+Values go out exactly as written in the CSV. A CSV
 written before schema v3 has no x_ref, y_ref columns: they go out as NaN (not controlled), with a note.
 
 **From a .tlog.** The vehicle is the system whose component 1 (the autopilot) sends the first ATTITUDE;
@@ -73,8 +74,9 @@ MODE_UNKNOWN = 255
 TARGET_STALE = 1.0  # [s] of vehicle time: an older ATTITUDE_TARGET / POSITION_TARGET_LOCAL_NED is not used
 STATE, SETPOINT = telemetry.FIELDS["state"][2:], telemetry.FIELDS["setpoint"][2:]  # the CSV columns they take
 # The CSV columns read, by name, in record order: t, then each stream's fields (altitude = −z is redundant).
-CSV_FIELDS = ("t", *STATE, *SETPOINT, *telemetry.FIELDS["actuators"][2:])
-assert set(CSV_FIELDS) == set(COLUMNS) - {"altitude"}, "telemetry CSV columns and Zenoh fields diverged"
+# A vehicle with a battery has its columns last (the status record's battery fields; NaN for one without).
+CSV_FIELDS = ("t", *STATE, *SETPOINT, *telemetry.FIELDS["actuators"][2:], *telemetry.BATTERY_FIELDS)
+assert set(CSV_FIELDS) == set(COLUMNS) - {"altitude"} | set(telemetry.BATTERY_FIELDS), "CSV columns, Zenoh fields"
 CSV_OPTIONAL = ("x_ref", "y_ref")  # new in schema v3: an older telemetry.csv replays them as NaN
 POSITION_IGNORED = 1 | 2  # SET_/POSITION_TARGET_LOCAL_NED type_mask bits: ignore x, ignore y
 
@@ -170,7 +172,7 @@ def records_from_csv(path: Path, period: float = DEFAULT_PERIOD) -> Recording:
         if header is None:
             raise ReplayError(f"{path}: empty file; expected a header line with the columns {', '.join(COLUMNS)}")
         names = [h.strip() for h in header]
-        missing = [c for c in CSV_FIELDS if c not in names and c not in CSV_OPTIONAL]
+        missing = [c for c in CSV_FIELDS if c not in names and c not in (*CSV_OPTIONAL, *telemetry.BATTERY_FIELDS)]
         if missing:
             raise ReplayError(
                 f"{path}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; a telemetry CSV "
@@ -211,8 +213,7 @@ def records_from_csv(path: Path, period: float = DEFAULT_PERIOD) -> Recording:
     if absent:
         rec.notes.append(f"no {', '.join(absent)} column{'s' if len(absent) > 1 else ''} (a telemetry.csv from "
                          "before schema v3): NaN, the horizontal position not controlled")  # fmt: skip
-    status = (1, 1, 0, 0, *[NAN] * 5)  # armed, offboard, no failsafe, started at tick 0 (t = 0); no battery known
-    ns, nsp = len(STATE), len(SETPOINT)
+    ns, nsp, na = len(STATE), len(SETPOINT), len(telemetry.FIELDS["actuators"]) - 2
     for line, values in rows:
         t = values[0]
         tick = round(t / T)
@@ -222,7 +223,9 @@ def records_from_csv(path: Path, period: float = DEFAULT_PERIOD) -> Recording:
                 f"tick {rec.ticks[-1]}; expected t increasing by about T per row"
             )
         v = values[1:]
-        rec.append(tick, t, v[:ns], v[ns : ns + nsp], v[ns + nsp :], status)
+        # armed, offboard, no failsafe, the flight started at tick 0 (t = 0); the battery (NaN: none)
+        status = (1, 1, 0, 0, *v[ns + nsp + na :])
+        rec.append(tick, t, v[:ns], v[ns : ns + nsp], v[ns + nsp : ns + nsp + na], status)
     return rec
 
 

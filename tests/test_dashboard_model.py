@@ -13,7 +13,8 @@ T = 0.001
 
 
 def records(stream: str, ticks, **values) -> bytes:
-    """A schema-v3 sample of consecutive ticks; fields not given are tick-dependent so they can be checked."""
+    """A schema-v4 sample of consecutive ticks; fields not given are tick-dependent so they can be checked (the
+    status record's are 0)."""
     fmt, fields = telemetry.STREAMS[stream], telemetry.FIELDS[stream]
     out = []
     for k in ticks:
@@ -114,10 +115,17 @@ def test_rates_use_the_publication_time_so_a_backlog_taken_at_once_is_no_burst()
 
 def test_status_names_mode_and_failsafe():
     fleet = Fleet()
-    feed(fleet, range(1, 10), wall=0.0, armed=0, mode=2, failsafe=2, offboard_tick=-1)
+    feed(fleet, range(1, 10), wall=0.0, armed=0, mode=2, failsafe=8, offboard_tick=-1, battery_v=15.2,
+         battery_a=17.5, battery_mah=900.0, battery_j=5e4, battery_remaining=0.06)  # fmt: skip
     st = fleet.summaries(0.0)[0]["status"]
-    assert st == {"tick": 9, "t": pytest.approx(0.009), "armed": False, "mode": "land",
-                  "failsafe": "plant link lost", "offboard_tick": -1}  # fmt: skip
+    assert st == {"tick": 9, "t": pytest.approx(0.009), "armed": False, "mode": "land", "failsafe": "battery",
+                  "offboard_tick": -1, "battery_v": 15.2, "battery_a": 17.5, "battery_mah": 900.0,
+                  "battery_j": 5e4, "battery_remaining": 0.06}  # fmt: skip
+    nan = float("nan")
+    feed(fleet, range(10, 12), wall=0.0, battery_v=nan, battery_a=nan, battery_mah=nan, battery_j=nan,
+         battery_remaining=nan)  # fmt: skip
+    st = fleet.summaries(0.0)[0]["status"]  # no battery (an ideal supply): null in JSON, never NaN
+    assert [st[f] for f in telemetry.BATTERY_FIELDS] == [None] * 5
 
 
 @pytest.mark.parametrize(("number", "name"), [(0, "hold"), (1, "offboard"), (2, "land"), (3, "takeoff"), (4, "rtl"),

@@ -174,7 +174,8 @@ def test_csv_every_tick_arrives_in_order_with_the_csv_values(sim_csv):
         assert [rec[0] for rec in recs] == list(range(n)), stream  # every tick, once, in tick order
         got = np.array([rec[1:] for rec in recs], dtype=float)
         if stream == "status":
-            assert (got[:, 1:] == [1, 1, 0, 0]).all()  # armed, offboard, no failsafe, flight started at tick 0
+            assert (got[:, 1:5] == [1, 1, 0, 0]).all()  # armed, offboard, no failsafe, flight started at tick 0
+            assert np.isnan(got[:, 5:]).all()  # the paper's CSV: no battery
             want = np.column_stack([csv["t"]])
             np.testing.assert_array_equal(got[:, :1], want)
         else:  # exactly the CSV's numbers: the replay sends what the CSV says
@@ -255,6 +256,9 @@ def vehicle_tlog(path: Path) -> tuple[Path, list[dict]]:
         w.add(w.vehicle, M.MAVLink_position_target_local_ned_message(ms, M.MAV_FRAME_LOCAL_NED, mask, 0, 0,
                                                                      v["z_ref"], 0, 0, 0, 0, 0, 0, 0.7, 0))  # fmt: skip
         w.add(w.vehicle, M.MAVLink_actuator_output_status_message(ms * 1000, 0b1111, [*v["controls"], *[0.0] * 28]))
+        if i >= 15:  # a battery reports from tick 1150 on: 16.7 V in the first cell, 80 mAh and 5 kJ drawn, 80 % left
+            w.add(w.vehicle, M.MAVLink_battery_status_message(0, 1, 1, 32767, [16700, *[65535] * 9], 1820 + i, 80,
+                                                              50, 80, 0, 0, [0] * 4, 0, 0))  # fmt: skip
         if i == 4:  # the ground station arms: the ack counts before the next heartbeat
             w.add(w.gcs, M.MAVLink_command_long_message(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0))
             w.add(w.vehicle, M.MAVLink_command_ack_message(M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_RESULT_ACCEPTED))
@@ -288,7 +292,9 @@ def test_tlog_values_arrive_decoded(tmp_path):
         armed = 1 if i >= 4 else 0
         mode = 0 if i < 10 else (1 if i < 20 else 2)
         offboard_tick = 1100 if 10 <= i < 20 else -1
-        assert st[2:] == (armed, mode, 1 if i >= 20 else 0, offboard_tick), i
+        assert st[2:6] == (armed, mode, 1 if i >= 20 else 0, offboard_tick), i
+        battery = (16.7, (1820 + i) / 100, 80.0, 5000.0, 0.8) if i >= 15 else (math.nan,) * 5
+        assert st[6:] == pytest.approx(battery, nan_ok=True), i
     assert "skipped 390 bytes" in r.stderr  # the 13 bytes of garbage × 30
     assert "f1..f4 from ACTUATOR_OUTPUT_STATUS" in r.stderr
 
@@ -315,7 +321,7 @@ def test_tlog_falls_back_on_the_ground_stations_setpoints_and_servo_outputs(tmp_
         assert math.isnan(sp[6]) and math.isnan(sp[7])  # z only: the horizontal position is not controlled
     # SERVO_OUTPUT_RAW, reversible motors (paper preset): 1000..2000 µs = −F_max..F_max; 0 µs = off
     assert actuators[-1][6:] == (0.5 * F_MAX, 0.0, -F_MAX, 0.0)
-    assert sub.records("status")[0][2:] == (0, recording.MODE_UNKNOWN, 0, -1)  # nothing known yet
+    assert sub.records("status")[0][2:6] == (0, recording.MODE_UNKNOWN, 0, -1)  # nothing known yet
     assert "no LOCAL_POSITION_NED" in r.stderr and "from SET_ATTITUDE_TARGET" in r.stderr
     assert "x_ref, y_ref from nothing: NaN" in r.stderr
 

@@ -12,7 +12,8 @@ from quadsitl import telemetry
 @pytest.mark.parametrize("stream", list(telemetry.STREAMS))
 def test_a_record_packed_by_its_struct_reads_back_field_by_field_through_its_numpy_type(stream):
     fields = telemetry.FIELDS[stream]
-    values = [7, 0.25] + ([1, 4, 2, -3] if stream == "status" else [i + 0.5 for i in range(len(fields) - 2)])
+    battery = [15.5, 18.25, 120.0, 9000.0, 0.75]  # the status record's battery (V, A, mAh, J, share left)
+    values = [7, 0.25] + ([1, 4, 2, -3, *battery] if stream == "status" else [i + 0.5 for i in range(len(fields) - 2)])
     record = telemetry.STREAMS[stream].pack(*values)
     read = np.frombuffer(record, dtype=telemetry.record_dtype(stream))[0]
     assert [read[f] for f in fields] == values
