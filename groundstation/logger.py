@@ -143,8 +143,11 @@ class TelemetryLogger:
         return flown, {s: r[np.searchsorted(r["tick"], flown)] for s, r in latest.items()}
 
     def complete(self) -> set[int]:
-        """Flight ticks (counted from the flight's start) for which all four streams arrived."""
+        """Flight ticks (counted from the flight's start) for which all four streams arrived, and in sensor mode the
+        truth's: a truth record still on its way must not become a row's NaN."""
         flown, _ = self._joined()
+        if self._truth:  # sensor mode: the truth's record too (its columns would be NaN without it)
+            flown = np.intersect1d(flown, np.concatenate([r["tick"] for r in self._truth]))
         return set((flown.astype(np.int64) - self.flight_start_tick).tolist())
 
     def wait_for(self, ticks: int, quiet: float) -> bool:

@@ -105,3 +105,18 @@ def test_the_logger_joins_its_samples_keeping_a_ticks_newest_record_and_only_tic
     chunks = logger._raw["setpoint"]
     assert (joined_records(chunks, DTYPES["setpoint"]) == np.concatenate(chunks)).all()
     assert joined_records([], DTYPES["state"]).shape == (0,)
+
+
+def test_on_sensors_the_logger_waits_for_the_truth_still_on_its_way():
+    """The truth's records come on a stream of their own: the last of them may still be on their way when the other
+    four streams are complete. Waited for, so that no row's truth columns are NaN for a record that was coming (a
+    telemetry.csv that differed from run to run at its last rows)."""
+    every = ("status", *STREAMS)
+    truth = (telemetry.TRUTH,)
+    late = logger_fed([(0.0, range(100, 200), every), (0.0, range(100, 150), truth), (0.3, range(150, 200), truth)])
+    began = time.monotonic()
+    assert late.wait_for(100, quiet=1.0)
+    assert time.monotonic() - began > 0.25  # it waited for the truth's last records
+    rows = late.rows()
+    assert sorted(rows) == list(range(100))
+    assert not np.isnan(np.array([rows[k][28:40] for k in range(100)])).any()  # telemetry_csv.TRUTH_COLUMNS
