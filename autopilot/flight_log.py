@@ -16,7 +16,7 @@ after them in sensor mode: ``quadsitl sim``'s :func:`groundstation.offline.telem
 | ``vehicle_global_position`` (200 ms) | lat, lon (PX4's projection from the origin), alt AMSL |
 | ``actuator_outputs`` (100 ms) | noutputs 4, output[0..3] = f1..f4 / F_max (each motor's command, 0..1) |
 | ``vehicle_status`` (1 s) | arming_state 2 (armed), nav_state (offboard 14 or mission 3) |
-| ``battery_status`` (200 ms) | a battery's (``up``'s own logs): voltage_v, current_a, discharged_mah, remaining |
+| ``battery_status`` (200 ms) | a vehicle with a battery: voltage_v, current_a, discharged_mah, remaining |
 | ``vehicle_local_position_groundtruth``, ``vehicle_attitude_groundtruth`` | sensor mode: the truth (as PX4 SITL) |
 
 The parameters are the autopilot's (:func:`autopilot.params.values_from`); the information names the system
