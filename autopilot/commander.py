@@ -360,12 +360,21 @@ def battery_level(cm: np.ndarray) -> int:
 
 
 @jit
+def battery_action(cm: np.ndarray, level: int) -> int:
+    """The mode COM_LOW_BAT_ACT flies the battery's new warning ``level`` in (PX4's ``fromBatteryWarningActParam``),
+    or HOLD for a warning alone: critical, return (1, 3) or land (2); emergency, return (1) or land (2, 3); a warning
+    for the low level, for a level no worse than at arming, and for a vehicle that has not taken off."""
+    action = int(cm[BAT_ACTION]) if level > cm[BAT_WARNING_ARMED] and cm[TOOK_OFF] != 0.0 else 0
+    if level < 2 or action == 0:
+        return HOLD
+    return RTL if action == 1 or (action == 3 and level == 2) else LAND
+
+
+@jit
 def _battery(cm: np.ndarray) -> int:
     """The battery's level (:func:`battery_level`): disarmed, as it is; armed, it only rises (PX4's commander), and a
-    new level worse than at arming takes COM_LOW_BAT_ACT's action (PX4's ``fromBatteryWarningActParam``): critical,
-    return (1, 3) or land (2); emergency, return (1) or land (2, 3); a warning otherwise, and for a vehicle that has
-    not taken off. A landing goes on; a return goes on unless the action is to land. → EVENT_BATTERY when the level
-    rose while armed, else EVENT_NONE."""
+    new level takes COM_LOW_BAT_ACT's action (:func:`battery_action`). A landing goes on; a return goes on unless the
+    action is to land. → EVENT_BATTERY when the level rose while armed, else EVENT_NONE."""
     level = battery_level(cm)
     if cm[ARMED] == 0.0:
         cm[BAT_WARNING] = level
@@ -373,12 +382,8 @@ def _battery(cm: np.ndarray) -> int:
     if level <= cm[BAT_WARNING]:
         return EVENT_NONE
     cm[BAT_WARNING] = level
-    action = int(cm[BAT_ACTION]) if level > cm[BAT_WARNING_ARMED] and cm[TOOK_OFF] != 0.0 else 0
-    if level < 2 or action == 0:
-        return EVENT_BATTERY
-    target = RTL if action == 1 or (action == 3 and level == 2) else LAND
-    mode = cm[MODE]
-    if mode in (LAND, target):
+    target = battery_action(cm, level)
+    if target == HOLD or cm[MODE] in (LAND, target):  # a warning, or already coming down or back
         return EVENT_BATTERY
     cm[FAILSAFE] = FAILSAFE_BATTERY
     enter(cm, target)
@@ -827,14 +832,12 @@ class Commander:
 
     def battery_message(self) -> tuple[int, str]:
         """The STATUSTEXT of the battery's new level (EVENT_BATTERY): how much is left and what the vehicle does."""
-        cm, s = self.cm, self.settings
+        cm = self.cm
         level = int(cm[BAT_WARNING])
         text = f"Battery {BATTERY_WARNINGS[level]}: {cm[BAT_REMAINING]:.0%} remaining"
         if level == 1:
             return 4, text
-        wanted = "warning"
-        if s.low_bat_action != 0 and level > cm[BAT_WARNING_ARMED] and cm[TOOK_OFF] != 0.0:
-            wanted = "return" if s.low_bat_action == 1 or (s.low_bat_action == 3 and level == 2) else "land"
+        wanted = {HOLD: "warning", RTL: "return", LAND: "land"}[battery_action(cm, level)]
         mode = self.mode.name.lower().replace("rtl", "return")
         if wanted != "warning" and mode != wanted:
             wanted = f"{wanted}, not taken: {mode} goes on"

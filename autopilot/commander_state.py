@@ -22,9 +22,8 @@ FAILSAFE_MOTOR = 6  # a motor failed (failure injection: MAV_CMD_INJECT_FAILURE)
 FAILSAFE_GEOFENCE = 7  # the geofence breached, GF_ACTION's action (autopilot.geofence)
 FAILSAFE_BATTERY = 8  # the battery critical or emergency low, COM_LOW_BAT_ACT's action
 GEOFENCE_ACTIONS = ("none", "warning", "hold", "return", "terminate", "land")  # GF_ACTION, as PX4 numbers them
-# The battery's warning levels, as PX4's battery_status.warning numbers them, and COM_LOW_BAT_ACT's actions.
+# The battery's warning levels, as PX4's battery_status.warning numbers them.
 BATTERY_WARNINGS = ("none", "low", "critical", "emergency")
-LOW_BATTERY_ACTIONS = ("warning", "return", "land", "return, then land at emergency")
 ACTUATOR_FAILURE_ACTIONS = ("none", "hold", "land", "return", "terminate")  # COM_ACT_FAIL_ACT, as PX4 numbers them
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
 HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION = (int(m) for m in Mode)

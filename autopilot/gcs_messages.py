@@ -323,9 +323,9 @@ def sys_status(
     if cm is not None and not math.isnan(cm[BAT_REMAINING]):
         present |= mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
         health |= mavlink.MAV_SYS_STATUS_SENSOR_BATTERY if cm[BAT_WARNING] < 2 else 0
-        voltage = stream_frames.clamp_int(cm[BAT_V] * 1000.0, 0, 65534)
-        current = stream_frames.clamp_int(cm[BAT_I] * 100.0, -1, 32767)
-        remaining = stream_frames.clamp_int(cm[BAT_REMAINING] * 100.0, 0, 100)
+        mv, current, _, _, remaining = hil.battery_fields(cm[BAT_V], cm[BAT_I], cm[BAT_MAH] * 3.6, cm[BAT_J],
+                                                          cm[BAT_REMAINING])  # BATTERY_STATUS's units  # fmt: skip
+        voltage = min(mv, 65534)
     return mavlink.MAVLink_sys_status_message(
         present, present, health, stream_frames.clamp_int(float(load) * 1000, 0, 1000), voltage, current, remaining, 0,
         comm, c1, c2, c3, c4, 0, 0, 0,
