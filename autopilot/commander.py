@@ -31,6 +31,12 @@ Rules (PX4's, DESIGN.md §8–§9):
   (altitude < 5 cm, |climb| < 0.1 m/s for ``landed_time``) disarms.
 - Automatic disarming (PX4's, :func:`auto_disarm`): armed and not taken off within COM_DISARM_PRFLT, or resting on
   the ground for COM_DISARM_LAND after a flight, in any mode.
+- Manual modes (PX4's, :mod:`autopilot.manual`, docs/manual.md): MANUAL_CONTROL's sticks fly STABILIZED (attitude,
+  yaw rate, thrust), ALTCTL (attitude, yaw rate, climb rate; centred throttle holds the altitude) and POSCTL
+  (velocity; centred sticks hold the position). Arming in them or switching to them needs fresh sticks.
+- The sticks' loss (PX4's, :func:`_sticks`): none for COM_RC_LOSS_T (simulated and wall time) in flight, having had
+  them since arming, is NAV_RCL_ACT's failsafe (not in the modes COM_RCL_EXCEPT names), a return or landing after
+  COM_FAIL_ACT_T in hold; a hold it made returns to the mode it left when they come back.
 - Battery (PX4's, :func:`_battery`): below BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR of its charge it is low,
   critical, at emergency; while armed the level only rises, and each new level worse than at arming takes
   COM_LOW_BAT_ACT's action (critical: return or land; emergency: land, or return for 1). Critical or worse denies
@@ -51,7 +57,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 # The state's layout (generated names), modes, failsafes, events and settings, re-exported for the commander's users
-from autopilot import geofence
+from autopilot import geofence, manual
 from autopilot.commander_state import *  # noqa: F403
 from quadsitl.compiled_frames import wrap_pi
 from quadsitl.jit import jit
@@ -59,12 +65,20 @@ from quadsitl.state import Reference, VehicleState
 from quadsitl.wire import Mode
 
 if TYPE_CHECKING:
-    from autopilot.records import AttitudeSetpoint, TrajectorySetpoint
+    from autopilot.records import AttitudeSetpoint, ManualControl, TrajectorySetpoint
 
 
 @jit
 def stream_fresh(cm: np.ndarray) -> bool:
     return cm[NOW] - cm[LAST_SP_TIME] <= cm[SETPOINT_TIMEOUT] or cm[SP_WALL_FRESH] == 1.0
+
+
+@jit
+def sticks_fresh(cm: np.ndarray) -> bool:
+    """Whether the sticks are live: the newest within COM_RC_LOSS_T of simulated time or of wall time, and taken."""
+    if cm[RC_IN_MODE] == 0.0 or cm[RC_IN_MODE] == RC_IN_MODE_DISABLED:
+        return False
+    return cm[NOW] - cm[STICK_TIME] <= cm[RC_LOSS_T] or cm[STICK_WALL_FRESH] == 1.0
 
 
 @jit
@@ -80,6 +94,12 @@ def enter(cm: np.ndarray, mode: int) -> None:
     cm[MODE] = mode
     cm[LANDED_SINCE] = math.nan
     cm[OFFBOARD_TICK] = -1.0  # an offboard flight starts at the next tick (set in update)
+    cm[REF_THROTTLE] = math.nan  # STABILIZED's alone
+    if mode in (POSCTL, ALTCTL, STABILIZED):  # the sticks move the reference from the vehicle's velocity and heading
+        cm[GEN_VX], cm[GEN_VY] = cm[VX], cm[VY]
+        cm[HOLD_YAW] = cm[YAW_REF] = cm[YAW]
+        cm[ALT_LOCK], cm[POS_LOCK_X], cm[POS_LOCK_Y] = math.nan, math.nan, math.nan
+        return
     if mode == OFFBOARD:
         vertical = (cm[SP_ALT], cm[SP_CLIMB], cm[SP_CLIMB_ACC], cm[SP_THRUST])
         if math.isnan(vertical[0]) and math.isnan(vertical[1]) and math.isnan(vertical[2]) and math.isnan(vertical[3]):
@@ -117,6 +137,7 @@ def arm(cm: np.ndarray) -> None:
     cm[ARMED_AT], cm[TOOK_OFF], cm[RESTING_SINCE], cm[ARM_WALL_RECENT] = cm[NOW], 0.0, math.nan, 0.0
     cm[NO_POSITION] = 0.0  # armed only with a position (the pre-arm check)
     cm[BAT_WARNING_ARMED] = cm[BAT_WARNING]
+    cm[STICK_LOST_ARMED] = 0.0 if sticks_fresh(cm) else 1.0  # lost at arming: their loss is no failsafe until they come
     enter(cm, int(cm[MODE]))
 
 
@@ -391,6 +412,149 @@ def _battery(cm: np.ndarray) -> int:
 
 
 @jit
+def rc_loss_action(cm: np.ndarray) -> int:
+    """What the sticks' loss does in the current mode (RC_LOSS_ACTIONS' index): NAV_RCL_ACT's action, none in a mode
+    COM_RCL_EXCEPT names; in a manual mode, which cannot fly without them, a return where NAV_RCL_ACT takes none (PX4's
+    mode fallback)."""
+    mode, bits = cm[MODE], int(cm[RCL_EXCEPT])
+    if ((mode == MISSION and bits & RCL_EXCEPT_MISSION) or (mode in (HOLD, TAKEOFF) and bits & RCL_EXCEPT_HOLD)
+            or (mode == OFFBOARD and bits & RCL_EXCEPT_OFFBOARD)):  # fmt: skip
+        return 0
+    action = int(cm[RCL_ACT])
+    if action in (0, 4) and mode in (POSCTL, ALTCTL, STABILIZED):
+        return 2
+    return 0 if action == 4 else action
+
+
+@jit
+def _sticks(cm: np.ndarray) -> int:
+    """The sticks' loss and return (PX4's RC-loss failsafe). Newly lost in flight, having come since arming:
+    :func:`rc_loss_action`'s action, kept in cm[STICK_ACTION] → EVENT_STICKS_LOST. A landing goes on, and a return
+    unless the action is to land; terminate and disarm act at once; return and land come after COM_FAIL_ACT_T of
+    simulated time in hold (PX4's failsafe delay, cm[STICK_DEADLINE]) → EVENT_STICKS_ACTION then. Back after a loss
+    → EVENT_STICKS_REGAINED, and a hold the loss made (its delay, or its action) returns to the mode it left, as PX4
+    clears a failsafe whose cause cleared. Else EVENT_NONE."""
+    fresh = sticks_fresh(cm)
+    was = cm[STICK_LOST]
+    if fresh:
+        cm[STICK_LOST], cm[STICK_LOST_ARMED] = STICKS_LIVE, 0.0
+        if was != STICKS_LOST:  # live, or the first sticks since boot
+            return EVENT_NONE
+        cm[STICK_DEADLINE] = math.nan
+        before = int(cm[STICK_MODE_BEFORE])
+        if cm[FAILSAFE] == FAILSAFE_MANUAL_CONTROL and cm[MODE] != RTL and cm[MODE] != LAND:  # not taken, or a hold
+            cm[FAILSAFE] = FAILSAFE_NONE
+            if cm[ARMED] != 0.0 and cm[MODE] == HOLD and before != HOLD:
+                enter(cm, before)
+        return EVENT_STICKS_REGAINED
+    if was == STICKS_LOST and not math.isnan(cm[STICK_DEADLINE]) and cm[NOW] >= cm[STICK_DEADLINE]:
+        cm[STICK_DEADLINE] = math.nan
+        if cm[ARMED] == 0.0 or cm[MODE] != HOLD or cm[FAILSAFE] != FAILSAFE_MANUAL_CONTROL:
+            return EVENT_NONE  # the pilot chose another mode meanwhile (PX4: a mode change clears it), or landed
+        enter(cm, RTL if cm[STICK_ACTION] == 2 else LAND)
+        return EVENT_STICKS_ACTION
+    if was != STICKS_LIVE:
+        return EVENT_NONE
+    cm[STICK_LOST] = STICKS_LOST
+    if cm[ARMED] == 0.0 or cm[STICK_LOST_ARMED] != 0.0:
+        return EVENT_NONE
+    action = rc_loss_action(cm)
+    mode = cm[MODE]
+    cm[STICK_ACTION], cm[STICK_MODE_BEFORE] = action, mode
+    if action == 0:
+        return EVENT_STICKS_LOST
+    if mode == LAND or (mode == RTL and action != 3):  # already coming down or back
+        cm[STICK_ACTION] = RC_LOSS_GOES_ON
+        return EVENT_STICKS_LOST
+    cm[FAILSAFE] = FAILSAFE_MANUAL_CONTROL
+    if action >= 5:  # terminate, or disarm: the motors off, the vehicle falls
+        cm[ARMED], cm[OFFBOARD_TICK] = 0.0, -1.0
+        return EVENT_STICKS_LOST
+    if mode != HOLD:
+        enter(cm, HOLD)
+    if action != 1:  # return or land: after the delay, or at once without one
+        if cm[FAIL_ACT_T] > 0.0:
+            cm[STICK_DEADLINE] = cm[NOW] + cm[FAIL_ACT_T]
+        else:
+            enter(cm, RTL if action == 2 else LAND)
+    return EVENT_STICKS_LOST
+
+
+@jit
+def _manual_heading(cm: np.ndarray, rate: float) -> None:
+    """The manual modes' heading: the yaw stick's ``rate`` [rad/s] flown as a yaw rate; centred, the heading where it
+    centred held (PX4's ``StickYaw``)."""
+    if rate != 0.0:
+        cm[HOLD_YAW] = cm[YAW]
+        cm[REF_YAW], cm[REF_YAW_RATE] = math.nan, rate
+    else:
+        cm[REF_YAW], cm[REF_YAW_RATE] = cm[HOLD_YAW], 0.0
+    cm[YAW_REF] = cm[HOLD_YAW]
+
+
+@jit
+def _manual_vertical(cm: np.ndarray) -> None:
+    """ALTCTL's and POSCTL's vertical reference: the throttle stick's climb rate (:func:`autopilot.manual.climb_rate`
+    of the shaped stick); centred, the altitude where the vehicle stops held, as an offboard climb rate of zero."""
+    t = manual.expo_deadzone(cm[STICK_THROTTLE], cm[Z_EXPO], cm[HOLD_DZ])
+    if t == 0.0:
+        if math.isnan(cm[ALT_LOCK]):
+            cm[ALT_LOCK] = max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], cm[ACC_HOR]), 0.0)
+        cm[REF_ALT], cm[REF_CLIMB] = cm[ALT_LOCK], 0.0
+    else:
+        cm[ALT_LOCK] = math.nan
+        cm[REF_ALT], cm[REF_CLIMB] = math.nan, manual.climb_rate(t, cm[Z_VEL_UP], cm[Z_VEL_DN])
+    cm[REF_CLIMB_ACC] = math.nan
+
+
+@jit
+def _fly_manual(cm: np.ndarray, dt: float) -> None:
+    """The manual modes' reference from the sticks (module docstring, :mod:`autopilot.manual`)."""
+    mode = cm[MODE]
+    cm[REF_THRUST], cm[REF_THROTTLE] = math.nan, math.nan
+    if mode == STABILIZED:  # the sticks as they are: attitude, yaw rate, thrust (PX4's mc_att_control)
+        cm[REF_ROLL], cm[REF_PITCH] = manual.tilt(cm[STICK_ROLL], cm[STICK_PITCH], cm[MAN_TILT])
+        for i in range(REF_X, REF_CLIMB_ACC + 1):
+            cm[i] = math.nan
+        _manual_heading(cm, cm[STICK_YAW] * cm[MAN_YAW_RATE])
+        cm[REF_LIMITED], cm[REF_THROTTLE] = 0.0, min(max(cm[STICK_THROTTLE], -1.0), 1.0)
+        return
+    dz = cm[HOLD_DZ]
+    pitch = manual.expo_deadzone(cm[STICK_PITCH], cm[XY_EXPO], dz)
+    roll = manual.expo_deadzone(cm[STICK_ROLL], cm[XY_EXPO], dz)
+    _manual_vertical(cm)
+    _manual_heading(cm, manual.expo_deadzone(cm[STICK_YAW], cm[YAW_EXPO], dz) * cm[MAN_YAW_RATE])
+    cm[REF_LIMITED] = 1.0
+    if mode == ALTCTL:
+        cm[REF_ROLL], cm[REF_PITCH] = manual.tilt(roll, pitch, cm[MAN_TILT])
+        for i in range(REF_X, REF_AY + 1):
+            cm[i] = math.nan
+        return
+    # POSCTL: the velocity reference goes toward the sticks' at up to MPC_ACC_HOR; at rest with the sticks centred,
+    # the position where the vehicle stops is held
+    cm[REF_ROLL], cm[REF_PITCH] = 0.0, 0.0
+    want_n, want_e = manual.velocity(pitch, roll, cm[YAW], cm[VEL_MANUAL])
+    dvx, dvy = want_n - cm[GEN_VX], want_e - cm[GEN_VY]
+    n, dv_max = math.sqrt(dvx * dvx + dvy * dvy), cm[ACC_HOR] * dt
+    if n > dv_max:
+        dvx, dvy = dvx * dv_max / n, dvy * dv_max / n
+    cm[GEN_VX] += dvx
+    cm[GEN_VY] += dvy
+    cm[GEN_AX], cm[GEN_AY] = (dvx / dt, dvy / dt) if dt > 0.0 else (0.0, 0.0)
+    if cm[GEN_VX] == 0.0 and cm[GEN_VY] == 0.0 and pitch == 0.0 and roll == 0.0:
+        if math.isnan(cm[POS_LOCK_X]):
+            cm[POS_LOCK_X] = cm[X] + stop_distance(cm[VX], cm[ACC_HOR])
+            cm[POS_LOCK_Y] = cm[Y] + stop_distance(cm[VY], cm[ACC_HOR])
+        cm[REF_X], cm[REF_Y] = cm[POS_LOCK_X], cm[POS_LOCK_Y]
+        for i in range(REF_VX, REF_AY + 1):
+            cm[i] = 0.0
+    else:
+        cm[POS_LOCK_X], cm[POS_LOCK_Y] = math.nan, math.nan
+        cm[REF_X], cm[REF_Y] = math.nan, math.nan
+        cm[REF_VX], cm[REF_VY], cm[REF_AX], cm[REF_AY] = cm[GEN_VX], cm[GEN_VY], cm[GEN_AX], cm[GEN_AY]
+
+
+@jit
 def update(
     cm: np.ndarray, tick: int, now: float, x: float, y: float, altitude: float, vx: float, vy: float,
     climb_rate: float, yaw: float,
@@ -402,8 +566,11 @@ def update(
     cm[TICK], cm[NOW], cm[X], cm[Y], cm[ALTITUDE] = tick, now, x, y, altitude
     cm[VX], cm[VY], cm[CLIMB_RATE], cm[YAW] = vx, vy, climb_rate, yaw
     battery = _battery(cm)
+    sticks = _sticks(cm)
     if cm[ARMED] == 0.0:
-        return EVENT_NONE
+        return sticks  # the sticks' return is said on the ground too; their loss does nothing there
+    if sticks == EVENT_STICKS_LOST and cm[STICK_ACTION] >= 5.0:  # terminated or disarmed
+        return sticks
     event = auto_disarm(cm, now)
     if event != EVENT_NONE:
         return event
@@ -413,6 +580,8 @@ def update(
             return event
     if event == EVENT_NONE:
         event = battery
+    if event == EVENT_NONE:
+        event = sticks
     mode = cm[MODE]
     if mode == OFFBOARD and cm[OFFBOARD_TICK] < 0.0:
         cm[OFFBOARD_TICK] = tick
@@ -423,6 +592,9 @@ def update(
         mode = LAND
     if mode == OFFBOARD:
         _fly_offboard(cm, dt)
+        return event
+    if mode in (POSCTL, ALTCTL, STABILIZED):
+        _fly_manual(cm, dt)
         return event
     if mode == LAND:
         landed = _land(cm, dt, now)
@@ -467,9 +639,12 @@ class Commander:
         self.cm[LAST_SP_TIME] = -1e9
         self.cm[OFFBOARD_TICK] = -1.0
         self.cm[BAT_V : BAT_REMAINING + 1] = math.nan  # no battery until one reports
+        self.cm[STICK_TIME], self.cm[STICK_LOST] = -1e9, STICKS_NEVER
+        self.cm[[POS_LOCK_X, POS_LOCK_Y, STICK_DEADLINE]] = math.nan
         self.settings = settings or CommanderSettings()
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) to announce
         self.setpoint_wall = -math.inf  # [s] the shell's wall clock when the newest setpoint arrived
+        self.sticks_wall = -math.inf  # [s] the shell's wall clock when the newest sticks arrived
         self.armed_wall: float | None = None  # [s] the shell's wall clock at its first call after arming
 
     # ---- the state, by name --------------------------------------------------------------------
@@ -492,6 +667,12 @@ class Commander:
         cm[GF_ACTION], cm[GF_MAX_HOR], cm[GF_MAX_VER] = s.geofence_action, s.max_distance, s.max_height
         cm[BAT_LOW], cm[BAT_CRIT], cm[BAT_EMERGEN] = s.bat_low_thr, s.bat_crit_thr, s.bat_emergen_thr
         cm[BAT_ACTION] = s.low_bat_action
+        cm[RC_LOSS_T], cm[RCL_ACT], cm[RCL_EXCEPT], cm[RC_IN_MODE] = (
+            s.rc_loss_timeout, s.rc_loss_action, s.rc_loss_except, s.rc_in_mode,
+        )  # fmt: skip
+        cm[MAN_TILT], cm[MAN_YAW_RATE], cm[VEL_MANUAL] = s.man_tilt_max, s.man_yaw_rate, s.vel_manual
+        cm[HOLD_DZ], cm[XY_EXPO], cm[Z_EXPO], cm[YAW_EXPO] = s.hold_deadzone, s.xy_expo, s.z_expo, s.yaw_expo
+        cm[FAIL_ACT_T] = s.fail_act_t
 
     @property
     def armed(self) -> bool:
@@ -579,6 +760,7 @@ class Commander:
         """The shell's wall clock [s], every few milliseconds: the setpoint stream stays fresh while its newest
         setpoint arrived (``wall=`` of the setpoint handlers) within the timeout of wall time too."""
         self.cm[SP_WALL_FRESH] = 1.0 if wall - self.setpoint_wall <= self.settings.setpoint_timeout else 0.0
+        self.cm[STICK_WALL_FRESH] = 1.0 if wall - self.sticks_wall <= self.settings.rc_loss_timeout else 0.0
         if not self.armed:
             self.armed_wall = None
             return
@@ -635,6 +817,25 @@ class Commander:
         cm[LAST_SP_TIME] = cm[NOW]
         self.setpoint_wall = max(self.setpoint_wall, wall)
 
+    def on_sticks(self, pitch: float, roll: float, throttle: float, yaw: float, wall: float = -math.inf) -> None:
+        """MANUAL_CONTROL's sticks, as PX4's manual_control_setpoint (each −1..1; throttle −1 at the bottom), checked
+        by the receiver: flown by the manual modes, and a sign of life for the sticks' loss. Not taken when
+        COM_RC_IN_MODE says there is no MAVLink stick input (0: RC only; 4: disabled). ``wall``: the shell's wall
+        clock [s] (see :meth:`wall_clock`)."""
+        if self.settings.rc_in_mode in (0, RC_IN_MODE_DISABLED):
+            return
+        cm = self.cm
+        cm[STICK_PITCH], cm[STICK_ROLL], cm[STICK_THROTTLE], cm[STICK_YAW] = pitch, roll, throttle, yaw
+        cm[STICK_TIME] = cm[NOW]
+        self.sticks_wall = max(self.sticks_wall, wall)
+
+    def on_manual_control(self, r: ManualControl) -> None:
+        """Sticks from the receiver (:mod:`autopilot.receiver`)."""
+        self.on_sticks(r.pitch, r.roll, r.throttle, r.yaw, wall=r.wall)
+
+    def sticks_fresh(self) -> bool:
+        return bool(sticks_fresh(self.cm))
+
     def on_trajectory(self, r: TrajectorySetpoint) -> None:
         """A trajectory setpoint from the receiver (:mod:`autopilot.receiver`)."""
         self.on_position_setpoint(r.horizontal, r.vertical, r.heading, wall=r.wall)
@@ -655,9 +856,25 @@ class Commander:
         if battery_level(self.cm) >= 2:
             return False, (f"Arming denied: low battery, {self.cm[BAT_REMAINING]:.0%} remaining "
                            f"(BAT_CRIT_THR {self.settings.bat_crit_thr:.0%})")  # fmt: skip
+        if self.mode in MANUAL_MODES:
+            reason = self._manual_arming_check()
+            if reason:
+                return False, reason
         arm(self.cm)
         self.messages.append((6, "Armed"))
         return True, ""
+
+    def _manual_arming_check(self) -> str:
+        """PX4's checks for arming in a manual mode: the sticks live; the throttle not above the centre (ALTCTL,
+        POSCTL: it would climb at once), or low (STABILIZED: it is the thrust). "" when they pass."""
+        if not self.sticks_fresh():
+            return f"Arming denied: no manual control input (MANUAL_CONTROL) for {self.mode.name.lower()}"
+        throttle = self.cm[STICK_THROTTLE]
+        if self.mode == Mode.STABILIZED and throttle >= THROTTLE_LOW:
+            return f"Arming denied: high throttle ({throttle:+.2f}; below {THROTTLE_LOW:+.1f} to arm in stabilized)"
+        if self.mode != Mode.STABILIZED and throttle > THROTTLE_ABOVE_CENTER:
+            return f"Arming denied: throttle above center ({throttle:+.2f}; at most {THROTTLE_ABOVE_CENTER:+.1f})"
+        return ""
 
     def disarm(self, reason: str = "Disarmed") -> None:
         if self.armed:
@@ -796,6 +1013,8 @@ class Commander:
             return self.takeoff()
         if mode == Mode.RTL and not self.armed:
             return False, "Return denied: not armed"
+        if mode in MANUAL_MODES and not self.sticks_fresh():
+            return False, f"Mode {mode.name.lower()} denied: no manual control input (MANUAL_CONTROL)"
         enter(self.cm, int(mode))
         self.messages.append((6, f"Mode {mode.name.lower()}"))
         return True, ""
@@ -826,6 +1045,19 @@ class Commander:
             self.messages.append((2, f"Geofence breached: {what}; action: {action}"))
         elif event == EVENT_BATTERY:
             self.messages.append(self.battery_message())
+        elif event == EVENT_STICKS_LOST:
+            action = self.cm[STICK_ACTION]
+            said = ("none, a landing or return goes on" if action == RC_LOSS_GOES_ON
+                    else RC_LOSS_ACTIONS[int(action)])  # fmt: skip
+            if not math.isnan(self.cm[STICK_DEADLINE]):
+                said += f" in {self.settings.fail_act_t:g} s (COM_FAIL_ACT_T), holding until then"
+            self.messages.append((2, f"Manual control lost: no MANUAL_CONTROL for {self.settings.rc_loss_timeout:g} "
+                                     f"s; action: {said}"))  # fmt: skip
+        elif event == EVENT_STICKS_ACTION:
+            action = "return" if self.mode == Mode.RTL else "land"
+            self.messages.append((2, f"Failsafe: manual control still lost; {action}"))
+        elif event == EVENT_STICKS_REGAINED:
+            self.messages.append((5, f"Manual control regained; mode {self.mode.name.lower()}"))
         elif event == EVENT_CONTROLLER_FAILED:
             self.messages.append((2, "Failsafe: the controller commanded a non-finite value; flying the "
                                      "backstepping, landing"))  # fmt: skip

@@ -21,12 +21,22 @@ FAILSAFE_CONTROLLER = 5  # a plugged controller commanded a non-finite value (au
 FAILSAFE_MOTOR = 6  # a motor failed (failure injection: MAV_CMD_INJECT_FAILURE), COM_ACT_FAIL_ACT's action
 FAILSAFE_GEOFENCE = 7  # the geofence breached, GF_ACTION's action (autopilot.geofence)
 FAILSAFE_BATTERY = 8  # the battery critical or emergency low, COM_LOW_BAT_ACT's action
+FAILSAFE_MANUAL_CONTROL = 9  # the sticks (MANUAL_CONTROL) lost, NAV_RCL_ACT's action
 GEOFENCE_ACTIONS = ("none", "warning", "hold", "return", "terminate", "land")  # GF_ACTION, as PX4 numbers them
 # The battery's warning levels, as PX4's battery_status.warning numbers them.
 BATTERY_WARNINGS = ("none", "low", "critical", "emergency")
 ACTUATOR_FAILURE_ACTIONS = ("none", "hold", "land", "return", "terminate")  # COM_ACT_FAIL_ACT, as PX4 numbers them
 DATALINK_ACTIONS = ("none", "hold", "land")  # NAV_DLL_ACT, as PX4 numbers its first ones
-HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION = (int(m) for m in Mode)
+# NAV_RCL_ACT, as PX4 numbers it (4 is no value there, and takes no action); "goes on": a landing or return kept
+RC_LOSS_ACTIONS = ("none", "hold", "return", "land", "none", "terminate", "disarm")
+RC_LOSS_GOES_ON = -1.0  # cm[STICK_ACTION]: the action not taken, a landing or return goes on
+# COM_RCL_EXCEPT's bits: the modes in which the sticks' loss is ignored (hold's covers takeoff, as PX4's)
+RCL_EXCEPT_MISSION, RCL_EXCEPT_HOLD, RCL_EXCEPT_OFFBOARD = 1, 2, 4
+STICKS_LIVE, STICKS_LOST, STICKS_NEVER = 0.0, 1.0, 2.0  # cm[STICK_LOST]: live, lost after coming, none since boot
+RC_IN_MODE_DISABLED = 4  # COM_RC_IN_MODE: stick input disabled (MANUAL_CONTROL not taken, no loss failsafe)
+HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION, POSCTL, ALTCTL, STABILIZED = (int(m) for m in Mode)
+MANUAL_MODES = (Mode.POSCTL, Mode.ALTCTL, Mode.STABILIZED)  # flown on the sticks (autopilot.manual)
+THROTTLE_ABOVE_CENTER, THROTTLE_LOW = 0.2, -0.8  # PX4's arming checks of the throttle stick (−1..1) in them
 # The phases of RTL and of LAND.
 RTL_CLIMB, RTL_RETURN, RTL_LAND = 0, 1, 2
 LAND_BRAKING, LAND_DESCENDING = 0, 1
@@ -62,7 +72,19 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 # - the battery, as its BATTERY_STATUS says (quadsitl.hil.battery_values): voltage [V], current [A], charge drawn [mAh],
 #   energy drawn [J], the share left (NaN: no battery, an ideal supply); its warning level (BATTERY_WARNINGS' index:
 #   while armed it only rises, as PX4's) and the level at arming; BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR and
-#   COM_LOW_BAT_ACT.
+#   COM_LOW_BAT_ACT;
+# - the sticks (MANUAL_CONTROL, as PX4's manual_control_setpoint: pitch, roll, throttle, yaw, each −1..1), the
+#   simulated time of the newest [s] (−1e9: none yet), whether the newest is within COM_RC_LOSS_T of wall time (1.0,
+#   set by the shell), whether they are lost (STICKS_*: live, lost, none since boot), lost at arming (1.0: their
+#   loss is no failsafe until
+#   they come), the action their loss took (RC_LOSS_ACTIONS' index, RC_LOSS_GOES_ON), the mode it left and when the
+#   action comes after its delay in hold (simulated time [s]; NaN: none due); the
+#   position POSCTL holds (x, y [m, NED]; NaN: the sticks move it);
+# - the manual modes' settings: COM_RC_LOSS_T, NAV_RCL_ACT, COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_FAIL_ACT_T [s],
+#   MPC_MAN_TILT_MAX [rad],
+#   MPC_MAN_Y_MAX [rad/s], MPC_VEL_MANUAL, MPC_HOLD_DZ, MPC_XY_MAN_EXPO, MPC_Z_MAN_EXPO, MPC_YAW_EXPO.
+# The reference's last field, REF_THROTTLE, is STABILIZED's throttle stick (−1..1; NaN: none), which the autopilot's
+# tick maps to thrust on its own model (autopilot.manual.throttle_curve).
 STATE = """
 status: ARMED MODE FAILSAFE
 sp_horizontal: SP_X SP_Y SP_VX SP_VY SP_AX SP_AY
@@ -73,10 +95,12 @@ home: HOME_X HOME_Y HOME_ALT HOME_YAW
 disarm: ARMED_AT TOOK_OFF RESTING_SINCE ARM_WALL_RECENT
 seen: NOW TICK X Y ALTITUDE VX VY CLIMB_RATE YAW
 settings: SETPOINT_TIMEOUT LAND_SPEED LANDED_TIME LAND_TARGET ACC_HOR CRUISE TKO_SPEED Z_VEL_UP Z_VEL_DN RTL_ALT YAW_RATE_AUTO YAW_RATE_OFFBOARD DISARM_PREFLIGHT
-reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST
+reference: REF_X REF_Y REF_VX REF_VY REF_AX REF_AY REF_ALT REF_CLIMB REF_CLIMB_ACC REF_ROLL REF_PITCH REF_YAW REF_YAW_RATE REF_LIMITED REF_THRUST REF_THROTTLE
 failures: MOTORS_OFF NO_POSITION
 geofence: GF_ACTION GF_MAX_HOR GF_MAX_VER GF_BREACH FENCE_N RALLY_N RTL_X RTL_Y RTL_TO
 battery: BAT_V BAT_I BAT_MAH BAT_J BAT_REMAINING BAT_WARNING BAT_WARNING_ARMED BAT_LOW BAT_CRIT BAT_EMERGEN BAT_ACTION
+sticks: STICK_PITCH STICK_ROLL STICK_THROTTLE STICK_YAW STICK_TIME STICK_WALL_FRESH STICK_LOST STICK_LOST_ARMED STICK_ACTION STICK_MODE_BEFORE STICK_DEADLINE POS_LOCK_X POS_LOCK_Y
+manual: RC_LOSS_T RCL_ACT RCL_EXCEPT RC_IN_MODE FAIL_ACT_T MAN_TILT MAN_YAW_RATE VEL_MANUAL HOLD_DZ XY_EXPO Z_EXPO YAW_EXPO
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
 LAYOUTS = {"STATE": STATE}
@@ -103,17 +127,23 @@ SEEN_FIRST, SEEN_END = 50, 59
  YAW_RATE_AUTO, YAW_RATE_OFFBOARD, DISARM_PREFLIGHT) = range(59, 72)  # fmt: skip
 SETTINGS_FIRST, SETTINGS_END = 59, 72
 (REF_X, REF_Y, REF_VX, REF_VY, REF_AX, REF_AY, REF_ALT, REF_CLIMB, REF_CLIMB_ACC, REF_ROLL, REF_PITCH, REF_YAW,
- REF_YAW_RATE, REF_LIMITED, REF_THRUST) = range(72, 87)  # fmt: skip
-REFERENCE_FIRST, REFERENCE_END = 72, 87
-(MOTORS_OFF, NO_POSITION) = range(87, 89)  # fmt: skip
-FAILURES_FIRST, FAILURES_END = 87, 89
-(GF_ACTION, GF_MAX_HOR, GF_MAX_VER, GF_BREACH, FENCE_N, RALLY_N, RTL_X, RTL_Y, RTL_TO) = range(89, 98)  # fmt: skip
-GEOFENCE_FIRST, GEOFENCE_END = 89, 98
+ REF_YAW_RATE, REF_LIMITED, REF_THRUST, REF_THROTTLE) = range(72, 88)  # fmt: skip
+REFERENCE_FIRST, REFERENCE_END = 72, 88
+(MOTORS_OFF, NO_POSITION) = range(88, 90)  # fmt: skip
+FAILURES_FIRST, FAILURES_END = 88, 90
+(GF_ACTION, GF_MAX_HOR, GF_MAX_VER, GF_BREACH, FENCE_N, RALLY_N, RTL_X, RTL_Y, RTL_TO) = range(90, 99)  # fmt: skip
+GEOFENCE_FIRST, GEOFENCE_END = 90, 99
 (BAT_V, BAT_I, BAT_MAH, BAT_J, BAT_REMAINING, BAT_WARNING, BAT_WARNING_ARMED, BAT_LOW, BAT_CRIT, BAT_EMERGEN,
- BAT_ACTION) = range(98, 109)  # fmt: skip
-BATTERY_FIRST, BATTERY_END = 98, 109
+ BAT_ACTION) = range(99, 110)  # fmt: skip
+BATTERY_FIRST, BATTERY_END = 99, 110
+(STICK_PITCH, STICK_ROLL, STICK_THROTTLE, STICK_YAW, STICK_TIME, STICK_WALL_FRESH, STICK_LOST, STICK_LOST_ARMED,
+ STICK_ACTION, STICK_MODE_BEFORE, STICK_DEADLINE, POS_LOCK_X, POS_LOCK_Y) = range(110, 123)  # fmt: skip
+STICKS_FIRST, STICKS_END = 110, 123
+(RC_LOSS_T, RCL_ACT, RCL_EXCEPT, RC_IN_MODE, FAIL_ACT_T, MAN_TILT, MAN_YAW_RATE, VEL_MANUAL, HOLD_DZ, XY_EXPO, Z_EXPO,
+ YAW_EXPO) = range(123, 135)  # fmt: skip
+MANUAL_FIRST, MANUAL_END = 123, 135
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 109
+SIZE = 135
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
@@ -122,6 +152,9 @@ EVENT_PREFLIGHT_DISARM = 6
 EVENT_GEOFENCE = 7  # the geofence breached: GF_ACTION's action taken (cm[GF_BREACH] says how)
 EVENT_GEOFENCE_GOING_ON = 8  # the geofence breached while landing or returning: that goes on
 EVENT_BATTERY = 9  # the battery's warning rose (cm[BAT_WARNING]): COM_LOW_BAT_ACT's action taken, or a warning
+EVENT_STICKS_LOST = 10  # the sticks lost in flight: NAV_RCL_ACT's action (cm[STICK_ACTION]) taken, or not
+EVENT_STICKS_REGAINED = 11  # the sticks back after their loss
+EVENT_STICKS_ACTION = 12  # the sticks still lost after COM_FAIL_ACT_T in hold: NAV_RCL_ACT's return or landing taken
 AIRBORNE_ALT = 0.3  # [m]: above this the vehicle has taken off (PX4's land detector's "not landed"), estimates included
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
 TAKEOFF_TOLERANCE = 0.1  # [m]: takeoff is done when the vehicle is this close to the takeoff altitude
@@ -192,6 +225,39 @@ class CommanderSettings:
     low_bat_action: int = key(0, low=0, high=3, mavlink=param("COM_LOW_BAT_ACT"),
                               doc="on a critical or emergency battery: 0 = warning, 1 = return (both levels), "
                                   "2 = land, 3 = return at critical, land at emergency")  # fmt: skip
+    rc_loss_timeout: float = key(0.5, unit="s", low=0, low_open=True, high=35, mavlink=param("COM_RC_LOSS_T"),
+                                 doc="the sticks (MANUAL_CONTROL) are lost when none came for this long (simulated "
+                                     "and wall time)")  # fmt: skip
+    rc_loss_action: int = key(2, low=0, high=6, mavlink=param("NAV_RCL_ACT"),
+                              doc="on the sticks' loss in flight: 0 = nothing, 1 = hold, 2 = return, 3 = land, "
+                                  "4 = nothing, 5 = terminate (motors off), 6 = disarm")  # fmt: skip
+    rc_loss_except: int = key(0, low=0, high=7, mavlink=param("COM_RCL_EXCEPT"),
+                              doc="modes in which the sticks' loss is ignored (bits): 1 = mission, 2 = hold and "
+                                  "takeoff, 4 = offboard")  # fmt: skip
+    rc_in_mode: int = key(3, low=0, high=4, mavlink=param("COM_RC_IN_MODE"),
+                          doc="stick input: 0 = RC only (none here: MANUAL_CONTROL ignored), 1 = MAVLink only, "
+                              "2 = either, 3 = the first (MAVLink), 4 = disabled (no loss failsafe)")  # fmt: skip
+    fail_act_t: float = key(5.0, unit="s", low=0, high=25, mavlink=param("COM_FAIL_ACT_T"),
+                            doc="the sticks' loss holds this long (simulated time) before its return or landing "
+                                "(0: at once); the other failsafes act at once")  # fmt: skip
+    man_tilt_max: float = key(math.radians(35.0), unit="rad", low=math.radians(1.0), high=math.radians(70.0),
+                              doc="tilt at full stick in STABILIZED and ALTCTL",
+                              mavlink=param("MPC_MAN_TILT_MAX", unit="deg", low=1, high=70, to_param=math.degrees,
+                                            from_param=math.radians))  # fmt: skip
+    man_yaw_rate: float = key(math.radians(150.0), unit="rad/s", low=0, high=math.radians(400.0),
+                              doc="yaw rate at full stick in the manual modes",
+                              mavlink=param("MPC_MAN_Y_MAX", unit="deg/s", low=0, high=400, to_param=math.degrees,
+                                            from_param=math.radians))  # fmt: skip
+    vel_manual: float = key(10.0, unit="m/s", low=3, high=20, mavlink=param("MPC_VEL_MANUAL"),
+                            doc="horizontal speed at full stick in POSCTL")  # fmt: skip
+    hold_deadzone: float = key(0.1, low=0, high=1, mavlink=param("MPC_HOLD_DZ", unit="norm"),
+                               doc="the sticks' deadzone in ALTCTL and POSCTL (centred: hold)")  # fmt: skip
+    xy_expo: float = key(0.6, low=0, high=1, mavlink=param("MPC_XY_MAN_EXPO", unit="norm"),
+                         doc="expo of the roll and pitch sticks in ALTCTL and POSCTL")  # fmt: skip
+    z_expo: float = key(0.6, low=0, high=1, mavlink=param("MPC_Z_MAN_EXPO", unit="norm"),
+                        doc="expo of the throttle stick in ALTCTL and POSCTL")  # fmt: skip
+    yaw_expo: float = key(0.6, low=0, high=1, mavlink=param("MPC_YAW_EXPO", unit="norm"),
+                          doc="expo of the yaw stick in ALTCTL and POSCTL")  # fmt: skip
     yaw_rate_auto: float = key(math.radians(45.0), unit="rad/s", low=0, low_open=True, high=math.radians(360.0),
                                doc="heading rate limit of the auto modes (takeoff, hold, goto, mission, return)",
                                mavlink=param("MPC_YAWRAUTO_MAX", unit="deg/s", low=0, low_open=True, high=360,

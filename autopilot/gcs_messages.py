@@ -32,6 +32,7 @@ from autopilot.commander import (
     BAT_V,
     BAT_WARNING,
     GF_BREACH,
+    MANUAL_MODES,
     TOUCHDOWN_ALT,
     TOUCHDOWN_CLIMB,
     Commander,
@@ -115,6 +116,8 @@ def heartbeat(c: Commander) -> mavlink.MAVLink_heartbeat_message:
         base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
     if c.mode == Mode.OFFBOARD:
         base |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+    elif c.mode in MANUAL_MODES:  # PX4: manual input, the attitude controlled
+        base |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
     else:
         base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
     if c.failsafe:

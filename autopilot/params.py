@@ -75,7 +75,12 @@ SAFETY = params_of(CommanderSettings, ("disarm_preflight", "dist_1wp", "failure_
 GEOFENCE = params_of(CommanderSettings, ("geofence_action", "max_height"))  # GF_ACTION, GF_MAX_VER_DIST
 BATTERY = params_of(CommanderSettings, ("bat_low_thr", "bat_crit_thr", "bat_emergen_thr", "low_bat_action"))
 # BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR, COM_LOW_BAT_ACT
-SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE + BATTERY  # the commander's settings that are parameters
+MANUAL = params_of(CommanderSettings, ("rc_loss_timeout", "rc_loss_action", "rc_loss_except", "rc_in_mode",
+                                       "fail_act_t", "man_tilt_max", "man_yaw_rate", "vel_manual", "hold_deadzone",
+                                       "xy_expo", "z_expo", "yaw_expo"))  # fmt: skip
+# COM_RC_LOSS_T, NAV_RCL_ACT, COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_FAIL_ACT_T, MPC_MAN_TILT_MAX, MPC_MAN_Y_MAX,
+# MPC_VEL_MANUAL, MPC_HOLD_DZ, MPC_XY_MAN_EXPO, MPC_Z_MAN_EXPO, MPC_YAW_EXPO
+SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE + BATTERY + MANUAL  # the commander's, as parameters
 
 
 def _declared(entries: tuple[ParamEntry, ...]) -> list[ParamSpec]:
@@ -88,6 +93,7 @@ def _specs() -> tuple[ParamSpec, ...]:
     s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
     s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS) + _declared(SETPOINTS) + _declared(POSITION)
     s += _declared(MISSIONS) + _declared(HEADING) + _declared(SAFETY) + _declared(GEOFENCE) + _declared(BATTERY)
+    s += _declared(MANUAL)
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
     return tuple(s)
@@ -112,6 +118,7 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(param_values(settings, SAFETY))
     out.update(param_values(settings, GEOFENCE))
     out.update(param_values(settings, BATTERY))
+    out.update(param_values(settings, MANUAL))
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 

@@ -26,6 +26,7 @@ from autopilot.records import (
     FileTransfer,
     GroundHeartbeat,
     LogRequest,
+    ManualControl,
     MissionMessage,
     ModeRequest,
     ParamRequest,
@@ -41,6 +42,8 @@ QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refus
 # SET_ATTITUDE_TARGET's type_mask bits (ATTITUDE_TARGET_TYPEMASK): the attitude is ignored (body rates alone); the
 # thrust is ignored; the thrust is the extension field thrust_body (x, y, z in the body frame) instead.
 RATES_ONLY, THROTTLE_IGNORE, THRUST_BODY_SET = 128, 64, 32
+STICK_FULL = 1000  # MANUAL_CONTROL's full deflection (x, y, r: ±1000; z, throttle: 0..1000)
+AXIS_UNUSED = 32767  # INT16_MAX: MANUAL_CONTROL's "this axis is invalid"
 THRUST_BODY_AT = 39  # [bytes] where SET_ATTITUDE_TARGET's thrust_body extension starts in its payload
 FTP_HEADER = 12  # bytes of a FILE_TRANSFER_PROTOCOL payload's header: shorter is not a request
 LOG_MESSAGES = (mavlink.MAVLINK_MSG_ID_LOG_REQUEST_LIST, mavlink.MAVLINK_MSG_ID_LOG_REQUEST_DATA,
@@ -77,6 +80,12 @@ class Receiver:
     def on_message(self, m, link) -> None:
         """One message from ``link``: to its handler, when it is for this vehicle and one we take."""
         mid = m.get_msgId()
+        if mid == mavlink.MAVLINK_MSG_ID_MANUAL_CONTROL:  # its target is ``target``, a system alone (0: any)
+            if m.target in (0, self.system):
+                self._manual_control(m, link)
+            else:
+                self.counters.not_for_us += 1
+            return
         if not hasattr(m, "target_system"):  # broadcasts: a ground station's heartbeat is a sign of the datalink
             if mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
                 self.counters.unknown += 1
@@ -187,6 +196,24 @@ class Receiver:
                                          f"(normalised collective thrust)")  # fmt: skip
             return None
         return value
+
+    def _manual_control(self, m, link) -> None:
+        """MANUAL_CONTROL: the sticks, as PX4 reads them (:class:`autopilot.records.ManualControl`). An axis beyond its
+        range (x, y, r: ±1000; z: 0..1000) refuses the whole message, said once, and the sticks stay as they were: no
+        stick is flown clipped, and a refused message is no sign of life for the sticks' loss."""
+        axes = {"x": m.x, "y": m.y, "z": m.z, "r": m.r}
+        bad = [f"{name} {value}" for name, value in axes.items() if value != AXIS_UNUSED
+               and not (0 if name == "z" else -STICK_FULL) <= value <= STICK_FULL]  # fmt: skip
+        if bad:
+            self.outbox.refuse("manual_control", f"MANUAL_CONTROL refused: {', '.join(bad)}; allowed: x, y, r in "
+                                                 f"[-{STICK_FULL}, {STICK_FULL}], z in [0, {STICK_FULL}]")  # fmt: skip
+            return
+
+        def axis(value: int, centre: float = 0.0) -> float:
+            return centre if value == AXIS_UNUSED else value / STICK_FULL
+
+        throttle = 2.0 * axis(m.z, 0.5) - 1.0  # PX4: z 0..1000 → −1..1
+        self.routes.deliver(ManualControl(axis(m.x), axis(m.y), throttle, axis(m.r), wall=time.monotonic()))
 
     def _set_mode(self, m, link) -> None:
         """SET_MODE, QGroundControl's way to PX4 modes (no acknowledgement)."""

@@ -42,6 +42,19 @@ class AttitudeSetpoint:
 
 
 @dataclass(frozen=True)
+class ManualControl:
+    """MANUAL_CONTROL's sticks, as PX4's ``manual_control_setpoint`` reads them: pitch (x: forward +), roll (y: right
+    +) and yaw (r: right +) in −1..1, throttle (z 0..1000 → −1..1: 0 at the centre); an axis MANUAL_CONTROL marks
+    invalid (INT16_MAX) is centred."""
+
+    pitch: float
+    roll: float
+    throttle: float
+    yaw: float
+    wall: float
+
+
+@dataclass(frozen=True)
 class Command:
     """COMMAND_LONG or COMMAND_INT: the command id, params 1–7 (COMMAND_INT's 5–7 are x, y, z), its frame (COMMAND_LONG:
     a global frame, AMSL), who sent it and the link it came on (SET_MESSAGE_INTERVAL applies to that link)."""
@@ -131,6 +144,7 @@ class GroundHeartbeat:
 Record = (
     TrajectorySetpoint
     | AttitudeSetpoint
+    | ManualControl
     | Command
     | ModeRequest
     | ParamRequest
@@ -148,6 +162,7 @@ class Routes:
 
     trajectory: Callable[[TrajectorySetpoint], None]
     attitude: Callable[[AttitudeSetpoint], None]
+    manual_control: Callable[[ManualControl], None]
     command: Callable[[Command], None]
     mode: Callable[[ModeRequest], None]
     param_request: Callable[[ParamRequest], None]
@@ -165,6 +180,7 @@ class Routes:
 _ROUTE = {
     TrajectorySetpoint: "trajectory",
     AttitudeSetpoint: "attitude",
+    ManualControl: "manual_control",
     Command: "command",
     ModeRequest: "mode",
     ParamRequest: "param_request",

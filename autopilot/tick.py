@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from autopilot import commander, plugin, stream_frames
+from autopilot import commander, manual, plugin, stream_frames
 from autopilot import estimator as ekf
 from autopilot.backstepping import Errors, altitude_law, attitude_law, thrust
 from autopilot.commander import (
@@ -35,6 +35,7 @@ from autopilot.commander import (
     REF_LIMITED,
     REF_PITCH,
     REF_ROLL,
+    REF_THROTTLE,
     REF_THRUST,
     REF_X,
     REF_YAW,
@@ -93,7 +94,7 @@ from quadsitl.hil import (
 )
 from quadsitl.jit import jit
 from quadsitl.mixer import Forces, allocate
-from quadsitl.param_arrays import ARM, D_OVER_B
+from quadsitl.param_arrays import ARM, D_OVER_B, MASS, G
 from quadsitl.rawbytes import put
 from quadsitl.state import Inputs
 from quadsitl.telemetry import (  # where a record's fields are [bytes]: globals, constants to the compiler
@@ -230,7 +231,10 @@ def plugged(plug: tuple, x: tuple, cm: np.ndarray, v: np.ndarray, c: np.ndarray,
 @jit(inline=True)
 def climb_asked(cm: np.ndarray, h: float) -> bool:
     """Whether the reference asks a vehicle resting on the ground at altitude ``h`` [m] to leave it: a thrust given
-    (flown as it is), an altitude above it, or (no altitude) a climb rate, or else an acceleration, upward."""
+    (flown as it is; STABILIZED's throttle stick above the centre), an altitude above it, or (no altitude) a climb
+    rate, or else an acceleration, upward."""
+    if not math.isnan(cm[REF_THROTTLE]):
+        return cm[REF_THROTTLE] > 0.0
     if not math.isnan(cm[REF_THRUST]):
         return True
     if not math.isnan(cm[REF_ALT]):
@@ -272,12 +276,19 @@ def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: 
     it is, whichever law makes the torques: u1 = thrust × 4·f_max, every motor at that share of its largest force,
     as HIL_ACTUATOR_CONTROLS normalises them (PX4's normalised thrust).
 
+    **STABILIZED's throttle stick** (cm[REF_THROTTLE]) is made that thrust here, on the autopilot's own model
+    (:func:`autopilot.manual.throttle_curve`: THR_MIN at the bottom, the weight m·g at the centre, THR_MAX at the top),
+    and then flown as a thrust given.
+
     **A plugged controller** (``kind`` PLUGGED, its law in ``plug``) is flown instead of :func:`fly`. A command of
     it that is not finite never reaches the motors: that tick and every one until the next arming fly the
     backstepping on the preset's gains, the commander lands (FAILSAFE_CONTROLLER), and the event is
     EVENT_CONTROLLER_FAILED."""
     h, climb = altitude(st), climb_rate(st)
     event = commander.update(cm, tick, now, st[0], st[1], h, st[3], st[4], climb, st[8])
+    if not math.isnan(cm[REF_THROTTLE]):
+        hover = v[MASS] * v[G]
+        cm[REF_THRUST] = manual.throttle_curve(cm[REF_THROTTLE], c[THRUST_MIN], hover, c[THRUST_MAX]) / (4.0 * f_max)
     armed = cm[ARMED] != 0.0
     idle = h < TOUCHDOWN_ALT and abs(climb) < TOUCHDOWN_CLIMB and not climb_asked(cm, h)
     if armed and not idle:

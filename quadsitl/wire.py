@@ -78,6 +78,9 @@ class Mode(IntEnum):
     TAKEOFF = 3  # PX4 AUTO.TAKEOFF (4/2): climb to the takeoff altitude, then hold
     RTL = 4  # PX4 AUTO.RTL (4/5): climb to RTL_RETURN_ALT, fly home, land, disarm
     MISSION = 5  # PX4 AUTO.MISSION (4/4): fly the uploaded mission (autopilot.missions)
+    POSCTL = 6  # PX4 POSCTL (3): sticks to velocity, centred sticks hold position (autopilot.manual)
+    ALTCTL = 7  # PX4 ALTCTL (2): sticks to attitude, throttle to climb rate, centred throttle holds altitude
+    STABILIZED = 8  # PX4 STABILIZED (7): sticks to attitude and yaw rate, throttle to thrust
 
     @property
     def px4_custom_mode(self) -> int:
@@ -87,18 +90,17 @@ class Mode(IntEnum):
     @classmethod
     def from_px4(cls, custom_mode: int) -> Mode | None:
         main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-        if main == 6:
-            return cls.OFFBOARD
         for mode, (m, s) in _PX4_MODES.items():
-            if main == m == 4 and sub == s:
+            if main == m and (sub == s or m in _ANY_SUB):
                 return mode
         return None
 
 
 _PX4_MODES = {
     Mode.HOLD: (4, 3), Mode.OFFBOARD: (6, 0), Mode.LAND: (4, 6), Mode.TAKEOFF: (4, 2), Mode.RTL: (4, 5),
-    Mode.MISSION: (4, 4),
+    Mode.MISSION: (4, 4), Mode.POSCTL: (3, 0), Mode.ALTCTL: (2, 0), Mode.STABILIZED: (7, 0),
 }  # fmt: skip
+_ANY_SUB = (6, 2, 7)  # main modes whose sub mode PX4 does not read (POSCTL's sub 1 is its orbit)
 
 
 # A parameter's value on the wire, as PX4 carries it (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE): a REAL32 as

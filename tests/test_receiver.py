@@ -31,7 +31,7 @@ class Said:
 @pytest.fixture
 def rx():
     got: list = []
-    routes = records.Routes(*([got.append] * 10))
+    routes = records.Routes(*([got.append] * 11))
     counters = records.Counters()
     outbox = Said(counters)
     frame = setpoints.Frame((47.397742, 8.545594, 488.0), xy_vel_max=12.0, z_vel_up=3.0, z_vel_dn=1.5)
@@ -98,7 +98,7 @@ def test_an_attitude_beyond_the_tilt_limit_is_refused_and_a_unit_quaternion_flow
 def test_unknown_messages_and_short_ftp_requests_are_counted(rx):
     receiver, got, counters, _ = rx
     receiver.on_message(M.MAVLink_file_transfer_protocol_message(0, 1, 1, [0] * 4), link=None)
-    receiver.on_message(M.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0), link=None)
+    receiver.on_message(M.MAVLink_debug_vect_message(b"x", 0, 0.0, 0.0, 0.0), link=None)  # a broadcast we do not take
     assert got == [] and counters.unknown == 2
 
 
@@ -139,3 +139,41 @@ def test_a_thrust_out_of_range_or_off_the_body_z_axis_is_refused_with_the_field_
     assert got == [] and counters.refused == 3
     assert "thrust 1.5; allowed: [0, 1]" in outbox.texts[0] and "thrust -0.2; allowed: [0, 1]" in outbox.texts[1]
     assert "thrust_body x 0.3" in outbox.texts[2]
+
+
+def manual_control(x=0, y=0, z=500, r=0, target=1):
+    return M.MAVLink_manual_control_message(target, x, y, z, r, 0)
+
+
+def test_manual_control_becomes_px4s_sticks_and_an_invalid_axis_is_centred(rx):
+    receiver, got, counters, _ = rx
+    receiver.on_message(manual_control(x=500, y=-250, z=750, r=1000), link=None)
+    receiver.on_message(manual_control(x=32767, y=32767, z=32767, r=32767, target=0), link=None)  # INT16_MAX: unused
+    (a, b) = got
+    assert isinstance(a, records.ManualControl)
+    assert (a.pitch, a.roll, a.throttle, a.yaw) == (0.5, -0.25, 0.5, 1.0)  # PX4: throttle = z / 1000 · 2 − 1
+    assert (b.pitch, b.roll, b.throttle, b.yaw) == (0.0, 0.0, 0.0, 0.0)
+    assert counters.refused == 0
+
+
+@pytest.mark.parametrize(
+    ("axes", "named"),
+    [
+        ({"x": 1001}, "x 1001"),
+        ({"y": -1001}, "y -1001"),
+        ({"z": -1}, "z -1"),
+        ({"z": 1001}, "z 1001"),
+        ({"r": -2000}, "r -2000"),
+    ],
+)
+def test_manual_control_out_of_range_is_refused_whole_with_the_axis_named(rx, axes, named):
+    receiver, got, counters, outbox = rx
+    receiver.on_message(manual_control(**axes), link=None)
+    assert got == [] and counters.refused == 1
+    assert named in outbox.texts[0] and "allowed" in outbox.texts[0]
+
+
+def test_manual_control_for_another_system_is_counted_not_delivered(rx):
+    receiver, got, counters, _ = rx
+    receiver.on_message(manual_control(target=2), link=None)
+    assert got == [] and counters.not_for_us == 1
