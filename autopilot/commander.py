@@ -123,6 +123,8 @@ def enter(cm: np.ndarray, mode: int) -> None:
     cm[LAND_ALT] = cm[TARGET_ALT]
     if mode == TAKEOFF:
         cm[TARGET_ALT] = cm[TAKEOFF_ALT]
+    elif mode == ORBIT:  # to the circle first, then around it from rest
+        cm[ORBIT_APPROACH], cm[ORBIT_SPEED], cm[ORBIT_ANGLE], cm[ALT_LOCK] = 1.0, 0.0, 0.0, math.nan
     elif mode == RTL:
         cm[TARGET_ALT] = max(cm[TARGET_ALT], cm[HOME_ALT] + cm[RTL_ALT])
         geofence.return_destination(cm)
@@ -555,6 +557,86 @@ def _fly_manual(cm: np.ndarray, dt: float) -> None:
 
 
 @jit
+def orbit_speed(radius: float, speed: float) -> float:
+    """PX4's orbit speed [m/s, signed] on ``radius`` [m]: within ±ORBIT_SPEED_MAX, and slow enough that the
+    centripetal acceleration v²/r stays below ORBIT_ACC_MAX (the speed, not the radius, gives way)."""
+    v = min(max(speed, -ORBIT_SPEED_MAX), ORBIT_SPEED_MAX)
+    if v * v >= ORBIT_ACC_MAX * radius:
+        v = math.copysign(math.sqrt(ORBIT_ACC_MAX * radius), v)
+    return v
+
+
+@jit
+def _orbit(cm: np.ndarray, dt: float) -> int:
+    """ORBIT's reference, PX4's ``FlightTaskOrbit``: first to the nearest point of the circle (the auto modes'
+    reference at MPC_XY_CRUISE, facing the centre); on it, a velocity along the circle (its speed slewing at
+    MPC_ACC_HOR toward the orbit's), plus the radius' error, with the centripetal acceleration fed forward, at the
+    centre's altitude; the heading as ORBIT_YAW_MODE says. Live sticks adjust it as PX4's: the pitch stick the radius
+    (at MPC_XY_CRUISE), the roll stick the speed (at MPC_ACC_HOR; along the circle with the tangent heading: the other
+    way round), the throttle the altitude (ALTCTL's), the yaw stick the heading in mode 4. → EVENT_ORBITS_DONE when
+    the turns asked for are flown (then HOLD), else EVENT_NONE."""
+    dx, dy = cm[X] - cm[ORBIT_X], cm[Y] - cm[ORBIT_Y]
+    n = math.sqrt(dx * dx + dy * dy)
+    ux, uy = (dx / n, dy / n) if n > 1e-6 else (1.0, 0.0)  # from the centre to the vehicle (north at the centre)
+    r = cm[ORBIT_R]
+    if cm[ORBIT_APPROACH] != 0.0:
+        if abs(n - r) >= ORBIT_ON_CIRCLE or abs(cm[ALTITUDE] - cm[ORBIT_ALT]) >= ORBIT_ON_ALT:
+            cm[TARGET_X], cm[TARGET_Y] = cm[ORBIT_X] + ux * r, cm[ORBIT_Y] + uy * r
+            cm[TARGET_ALT] = cm[ORBIT_ALT]
+            advance_reference(cm, dt, cm[LEG_SPEED], cm[Z_VEL_UP], cm[Z_VEL_DN])
+            cm[HOLD_YAW] = math.atan2(-uy, -ux)
+            _fly_generated(cm, dt)
+            return EVENT_NONE
+        cm[ORBIT_APPROACH], cm[ORBIT_SPEED], cm[ALT_LOCK] = 0.0, 0.0, cm[ORBIT_ALT]
+    live = sticks_fresh(cm)
+    mode = int(cm[ORBIT_YAW_MODE])
+    v = cm[ORBIT_V]
+    if live:
+        pitch = manual.expo_deadzone(cm[STICK_PITCH], cm[XY_EXPO], cm[HOLD_DZ])
+        roll = manual.expo_deadzone(cm[STICK_ROLL], cm[XY_EXPO], cm[HOLD_DZ])
+        if mode == 3:
+            way = 1.0 if cm[ORBIT_V] > 0.0 else -1.0
+            r -= way * roll * dt * cm[CRUISE]
+            v += way * pitch * dt * cm[ACC_HOR]
+        else:
+            r -= pitch * dt * cm[CRUISE]
+            v -= roll * dt * cm[ACC_HOR]
+        r = min(max(r, ORBIT_RADIUS_MIN), cm[ORBIT_RAD_MAX])
+        cm[ORBIT_R], cm[ORBIT_V] = r, orbit_speed(r, v)
+        v = cm[ORBIT_V]
+    step = cm[ACC_HOR] * dt
+    speed = cm[ORBIT_SPEED] + min(max(v - cm[ORBIT_SPEED], -step), step)
+    cm[ORBIT_SPEED] = speed
+    radial = r - n  # back onto the circle
+    cm[REF_X], cm[REF_Y] = math.nan, math.nan
+    cm[REF_VX], cm[REF_VY] = -uy * speed + radial * ux, ux * speed + radial * uy
+    cm[REF_AX], cm[REF_AY] = -ux * speed * speed / r, -uy * speed * speed / r
+    if live:
+        _manual_vertical(cm)
+    else:
+        cm[REF_ALT], cm[REF_CLIMB], cm[REF_CLIMB_ACC] = cm[ALT_LOCK], 0.0, math.nan
+    rate = speed / r  # the heading's turn around the circle, fed forward
+    if mode == 1:
+        turn_heading(cm, cm[ORBIT_HEADING], cm[YAW_RATE_AUTO], dt)
+    elif mode == 2:
+        cm[REF_YAW], cm[REF_YAW_RATE] = math.nan, 0.0
+    elif mode == 4:
+        yaw = manual.expo_deadzone(cm[STICK_YAW], cm[YAW_EXPO], cm[HOLD_DZ]) if live else 0.0
+        _manual_heading(cm, yaw * cm[MAN_YAW_RATE])
+    else:
+        way = 1.0 if v > 0.0 else -1.0
+        wanted = math.atan2(way * ux, -way * uy) if mode == 3 else math.atan2(-uy, -ux)
+        turn_heading(cm, wanted, cm[YAW_RATE_AUTO] + abs(rate), dt)
+        cm[REF_YAW_RATE] = rate
+    cm[REF_ROLL], cm[REF_PITCH], cm[REF_LIMITED], cm[REF_THRUST] = 0.0, 0.0, 1.0, math.nan
+    cm[ORBIT_ANGLE] += abs(speed) * dt / r
+    if cm[ORBIT_TURNS] > 0.0 and cm[ORBIT_ANGLE] >= 2.0 * math.pi * cm[ORBIT_TURNS]:
+        enter(cm, HOLD)
+        return EVENT_ORBITS_DONE
+    return EVENT_NONE
+
+
+@jit
 def update(
     cm: np.ndarray, tick: int, now: float, x: float, y: float, altitude: float, vx: float, vy: float,
     climb_rate: float, yaw: float,
@@ -596,6 +678,9 @@ def update(
     if mode in (POSCTL, ALTCTL, STABILIZED):
         _fly_manual(cm, dt)
         return event
+    if mode == ORBIT:
+        done = _orbit(cm, dt)
+        return done if done != EVENT_NONE else event
     if mode == LAND:
         landed = _land(cm, dt, now)
         return landed if landed != EVENT_NONE else event
@@ -673,6 +758,7 @@ class Commander:
         cm[MAN_TILT], cm[MAN_YAW_RATE], cm[VEL_MANUAL] = s.man_tilt_max, s.man_yaw_rate, s.vel_manual
         cm[HOLD_DZ], cm[XY_EXPO], cm[Z_EXPO], cm[YAW_EXPO] = s.hold_deadzone, s.xy_expo, s.z_expo, s.yaw_expo
         cm[FAIL_ACT_T] = s.fail_act_t
+        cm[ORBIT_RAD_MAX], cm[ORBIT_YAW_DEFAULT] = s.orbit_radius_max, s.orbit_yaw_mode
 
     @property
     def armed(self) -> bool:
@@ -911,6 +997,58 @@ class Commander:
         self.goto(x, y, altitude, yaw, speed)
         return True, ""
 
+    def orbit(self, radius: float, speed: float, yaw_mode: float, turns: float, x: float, y: float,
+              altitude: float) -> tuple[bool, str]:  # fmt: skip
+        """MAV_CMD_DO_ORBIT, as PX4 takes it: circle (x, y NED [m], altitude [m]) on ``radius`` [m] (its sign the way
+        round: positive clockwise seen from above) at ``speed`` [m/s] (its sign reverses the way), heading as
+        ORBIT_YAW ``yaw_mode`` says (5: unchanged), ``turns`` times (0: for ever); NaN keeps a value (orbiting) or
+        takes PX4's start (1 m, 1 m/s, MC_ORBIT_YAW_MOD, for ever, around the vehicle where it is). A speed too fast
+        for the radius is slowed (:func:`orbit_speed`) and said. → (taken, why not)."""
+        cm = self.cm
+        if not self.armed or cm[ALTITUDE] < TOUCHDOWN_ALT + 0.1:
+            return False, "Orbit denied: not flying (take off first)"
+        orbiting = self.mode == Mode.ORBIT
+        r, v = (float(cm[ORBIT_R]), float(cm[ORBIT_V])) if orbiting else (ORBIT_RADIUS_MIN, 1.0)
+        clockwise = v > 0.0
+        if math.isfinite(radius):
+            clockwise, r = radius > 0.0, abs(radius)
+        if not ORBIT_RADIUS_MIN <= r <= self.settings.orbit_radius_max:
+            return False, (f"Orbit denied: radius {r:g} m; allowed: [{ORBIT_RADIUS_MIN:g}, "
+                           f"{self.settings.orbit_radius_max:g}] m (MC_ORBIT_RAD_MAX)")  # fmt: skip
+        asked = math.copysign(abs(v) if math.isnan(speed) else speed, 1.0 if clockwise else -1.0)
+        if math.isinf(asked):
+            return False, f"Orbit denied: speed {speed:g} m/s; expected a number or NaN (keep)"
+        mode = int(cm[ORBIT_YAW_MODE]) if orbiting else self.settings.orbit_yaw_mode
+        if math.isfinite(yaw_mode) and round(yaw_mode) != ORBIT_YAW_UNCHANGED:
+            if yaw_mode != round(yaw_mode) or not 0 <= yaw_mode < len(ORBIT_YAW):
+                return False, (f"Orbit denied: yaw behaviour {yaw_mode:g}; allowed: 0..4 "
+                               f"({', '.join(ORBIT_YAW)}) or 5 (unchanged)")  # fmt: skip
+            mode = int(yaw_mode)
+        if math.isnan(turns):
+            turns = float(cm[ORBIT_TURNS]) if orbiting else 0.0
+        elif not 0.0 <= turns < math.inf:
+            return False, f"Orbit denied: orbits {turns:g}; allowed: 0 (for ever) or more"
+        centre = (cm[ORBIT_X], cm[ORBIT_Y], cm[ORBIT_ALT]) if orbiting else (cm[X], cm[Y], cm[ALTITUDE])
+        x, y, altitude = (c if math.isnan(w) else w for w, c in zip((x, y, altitude), centre, strict=True))
+        v = orbit_speed(r, asked)
+        cm[ORBIT_X], cm[ORBIT_Y], cm[ORBIT_ALT], cm[ORBIT_R], cm[ORBIT_V] = x, y, altitude, r, v
+        cm[ORBIT_YAW_MODE], cm[ORBIT_HEADING], cm[ORBIT_TURNS] = mode, cm[YAW], turns
+        if v != asked:
+            self.messages.append((4, f"Orbit speed {abs(asked):g} m/s reduced to {abs(v):.2f} m/s: at most "
+                                     f"{ORBIT_SPEED_MAX:g} m/s and {ORBIT_ACC_MAX:g} m/s² toward the centre on "
+                                     f"{r:g} m"))  # fmt: skip
+        if not orbiting:
+            enter(cm, ORBIT)
+        elif abs(math.hypot(cm[X] - x, cm[Y] - y) - r) >= ORBIT_ON_CIRCLE:  # PX4: to the circle again
+            cm[ORBIT_APPROACH] = 1.0
+            cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], cm[ALTITUDE]
+            cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], cm[CLIMB_RATE]
+        cm[ORBIT_ANGLE] = 0.0
+        way = "clockwise" if v > 0.0 else "counter-clockwise"
+        self.messages.append((6, f"Orbit: {r:g} m {way} at {abs(v):.2f} m/s, heading {ORBIT_YAW[mode]}"
+                                 + (f", {turns:g} turns" if turns else "")))  # fmt: skip
+        return True, ""
+
     def goto(self, x: float, y: float, altitude: float, yaw: float, speed: float, climb: float = math.nan,
              descent: float = math.nan) -> None:  # fmt: skip
         """Aim the auto modes' reference at (x, y NED [m], altitude [m]), heading ``yaw`` [rad], at ``speed``
@@ -1011,6 +1149,9 @@ class Commander:
             return False, "Offboard denied: no setpoint stream"
         if mode == Mode.TAKEOFF:
             return self.takeoff()
+        if mode == Mode.ORBIT:  # PX4's orbit without a DO_ORBIT: 1 m around where the vehicle is
+            nan = math.nan
+            return self.orbit(nan, nan, nan, nan, nan, nan, nan)
         if mode == Mode.RTL and not self.armed:
             return False, "Return denied: not armed"
         if mode in MANUAL_MODES and not self.sticks_fresh():
@@ -1053,6 +1194,8 @@ class Commander:
                 said += f" in {self.settings.fail_act_t:g} s (COM_FAIL_ACT_T), holding until then"
             self.messages.append((2, f"Manual control lost: no MANUAL_CONTROL for {self.settings.rc_loss_timeout:g} "
                                      f"s; action: {said}"))  # fmt: skip
+        elif event == EVENT_ORBITS_DONE:
+            self.messages.append((6, f"Orbit done: {self.cm[ORBIT_TURNS]:g} turns; holding"))
         elif event == EVENT_STICKS_ACTION:
             action = "return" if self.mode == Mode.RTL else "land"
             self.messages.append((2, f"Failsafe: manual control still lost; {action}"))

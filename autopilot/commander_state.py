@@ -34,9 +34,16 @@ RC_LOSS_GOES_ON = -1.0  # cm[STICK_ACTION]: the action not taken, a landing or r
 RCL_EXCEPT_MISSION, RCL_EXCEPT_HOLD, RCL_EXCEPT_OFFBOARD = 1, 2, 4
 STICKS_LIVE, STICKS_LOST, STICKS_NEVER = 0.0, 1.0, 2.0  # cm[STICK_LOST]: live, lost after coming, none since boot
 RC_IN_MODE_DISABLED = 4  # COM_RC_IN_MODE: stick input disabled (MANUAL_CONTROL not taken, no loss failsafe)
-HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION, POSCTL, ALTCTL, STABILIZED = (int(m) for m in Mode)
+HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION, POSCTL, ALTCTL, STABILIZED, ORBIT = (int(m) for m in Mode)
 MANUAL_MODES = (Mode.POSCTL, Mode.ALTCTL, Mode.STABILIZED)  # flown on the sticks (autopilot.manual)
 THROTTLE_ABOVE_CENTER, THROTTLE_LOW = 0.2, -0.8  # PX4's arming checks of the throttle stick (−1..1) in them
+# PX4's orbit (FlightTaskOrbit): the smallest radius [m], the largest speed [m/s] and centripetal acceleration [m/s²];
+# on the circle within ORBIT_ON_CIRCLE [m] of its radius and NAV_MC_ALT_RAD [m] of its altitude
+ORBIT_RADIUS_MIN, ORBIT_SPEED_MAX, ORBIT_ACC_MAX, ORBIT_ON_CIRCLE, ORBIT_ON_ALT = 1.0, 10.0, 2.0, 2.0, 0.8
+# ORBIT_YAW_BEHAVIOUR: face the centre, hold the initial heading, uncontrolled, face along the circle, the yaw stick;
+# 5: unchanged (MC_ORBIT_YAW_MOD when not orbiting)
+ORBIT_YAW = ("front to centre", "initial heading", "uncontrolled", "front tangent", "yaw stick")
+ORBIT_YAW_UNCHANGED = 5
 # The phases of RTL and of LAND.
 RTL_CLIMB, RTL_RETURN, RTL_LAND = 0, 1, 2
 LAND_BRAKING, LAND_DESCENDING = 0, 1
@@ -82,7 +89,11 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 #   position POSCTL holds (x, y [m, NED]; NaN: the sticks move it);
 # - the manual modes' settings: COM_RC_LOSS_T, NAV_RCL_ACT, COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_FAIL_ACT_T [s],
 #   MPC_MAN_TILT_MAX [rad],
-#   MPC_MAN_Y_MAX [rad/s], MPC_VEL_MANUAL, MPC_HOLD_DZ, MPC_XY_MAN_EXPO, MPC_Z_MAN_EXPO, MPC_YAW_EXPO.
+#   MPC_MAN_Y_MAX [rad/s], MPC_VEL_MANUAL, MPC_HOLD_DZ, MPC_XY_MAN_EXPO, MPC_Z_MAN_EXPO, MPC_YAW_EXPO;
+# - the orbit (MAV_CMD_DO_ORBIT): its centre (x, y [m, NED], altitude [m]), radius [m], speed [m/s, signed: positive
+#   clockwise seen from above] and the speed flown (slewing toward it at MPC_ACC_HOR), ORBIT_YAW's index, the heading
+#   when it was commanded [rad], whether it is approaching the circle (1.0), the angle flown around it [rad] and the
+#   turns to fly (0: for ever); MC_ORBIT_RAD_MAX and MC_ORBIT_YAW_MOD.
 # The reference's last field, REF_THROTTLE, is STABILIZED's throttle stick (−1..1; NaN: none), which the autopilot's
 # tick maps to thrust on its own model (autopilot.manual.throttle_curve).
 STATE = """
@@ -100,6 +111,7 @@ failures: MOTORS_OFF NO_POSITION
 geofence: GF_ACTION GF_MAX_HOR GF_MAX_VER GF_BREACH FENCE_N RALLY_N RTL_X RTL_Y RTL_TO
 battery: BAT_V BAT_I BAT_MAH BAT_J BAT_REMAINING BAT_WARNING BAT_WARNING_ARMED BAT_LOW BAT_CRIT BAT_EMERGEN BAT_ACTION
 sticks: STICK_PITCH STICK_ROLL STICK_THROTTLE STICK_YAW STICK_TIME STICK_WALL_FRESH STICK_LOST STICK_LOST_ARMED STICK_ACTION STICK_MODE_BEFORE STICK_DEADLINE POS_LOCK_X POS_LOCK_Y
+orbit: ORBIT_X ORBIT_Y ORBIT_ALT ORBIT_R ORBIT_V ORBIT_SPEED ORBIT_YAW_MODE ORBIT_HEADING ORBIT_APPROACH ORBIT_ANGLE ORBIT_TURNS ORBIT_RAD_MAX ORBIT_YAW_DEFAULT
 manual: RC_LOSS_T RCL_ACT RCL_EXCEPT RC_IN_MODE FAIL_ACT_T MAN_TILT MAN_YAW_RATE VEL_MANUAL HOLD_DZ XY_EXPO Z_EXPO YAW_EXPO
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
@@ -139,11 +151,14 @@ BATTERY_FIRST, BATTERY_END = 99, 110
 (STICK_PITCH, STICK_ROLL, STICK_THROTTLE, STICK_YAW, STICK_TIME, STICK_WALL_FRESH, STICK_LOST, STICK_LOST_ARMED,
  STICK_ACTION, STICK_MODE_BEFORE, STICK_DEADLINE, POS_LOCK_X, POS_LOCK_Y) = range(110, 123)  # fmt: skip
 STICKS_FIRST, STICKS_END = 110, 123
+(ORBIT_X, ORBIT_Y, ORBIT_ALT, ORBIT_R, ORBIT_V, ORBIT_SPEED, ORBIT_YAW_MODE, ORBIT_HEADING, ORBIT_APPROACH,
+ ORBIT_ANGLE, ORBIT_TURNS, ORBIT_RAD_MAX, ORBIT_YAW_DEFAULT) = range(123, 136)  # fmt: skip
+ORBIT_FIRST, ORBIT_END = 123, 136
 (RC_LOSS_T, RCL_ACT, RCL_EXCEPT, RC_IN_MODE, FAIL_ACT_T, MAN_TILT, MAN_YAW_RATE, VEL_MANUAL, HOLD_DZ, XY_EXPO, Z_EXPO,
- YAW_EXPO) = range(123, 135)  # fmt: skip
-MANUAL_FIRST, MANUAL_END = 123, 135
+ YAW_EXPO) = range(136, 148)  # fmt: skip
+MANUAL_FIRST, MANUAL_END = 136, 148
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 135
+SIZE = 148
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
@@ -154,6 +169,7 @@ EVENT_GEOFENCE_GOING_ON = 8  # the geofence breached while landing or returning:
 EVENT_BATTERY = 9  # the battery's warning rose (cm[BAT_WARNING]): COM_LOW_BAT_ACT's action taken, or a warning
 EVENT_STICKS_LOST = 10  # the sticks lost in flight: NAV_RCL_ACT's action (cm[STICK_ACTION]) taken, or not
 EVENT_STICKS_REGAINED = 11  # the sticks back after their loss
+EVENT_ORBITS_DONE = 13  # the orbit's turns flown: hold
 EVENT_STICKS_ACTION = 12  # the sticks still lost after COM_FAIL_ACT_T in hold: NAV_RCL_ACT's return or landing taken
 AIRBORNE_ALT = 0.3  # [m]: above this the vehicle has taken off (PX4's land detector's "not landed"), estimates included
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
@@ -240,6 +256,11 @@ class CommanderSettings:
     fail_act_t: float = key(5.0, unit="s", low=0, high=25, mavlink=param("COM_FAIL_ACT_T"),
                             doc="the sticks' loss holds this long (simulated time) before its return or landing "
                                 "(0: at once); the other failsafes act at once")  # fmt: skip
+    orbit_radius_max: float = key(1000.0, unit="m", low=1, high=10000, mavlink=param("MC_ORBIT_RAD_MAX"),
+                                  doc="the largest orbit radius (DO_ORBIT)")  # fmt: skip
+    orbit_yaw_mode: int = key(0, low=0, high=4, mavlink=param("MC_ORBIT_YAW_MOD"),
+                              doc="the orbit's heading when DO_ORBIT gives none: 0 = to the centre, 1 = the initial "
+                                  "one, 2 = uncontrolled, 3 = along the circle, 4 = the yaw stick")  # fmt: skip
     man_tilt_max: float = key(math.radians(35.0), unit="rad", low=math.radians(1.0), high=math.radians(70.0),
                               doc="tilt at full stick in STABILIZED and ALTCTL",
                               mavlink=param("MPC_MAN_TILT_MAX", unit="deg", low=1, high=70, to_param=math.degrees,

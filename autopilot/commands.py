@@ -25,7 +25,7 @@ UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
 FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
 SUPPORTED_MODES = (
     "supported are offboard (6), takeoff (4/2), hold (4/3), mission (4/4), RTL (4/5), land (4/6), "
-    "position (3), altitude (2), stabilized (7)"
+    "position (3), altitude (2), stabilized (7), orbit (3/1)"
 )
 Result = tuple[int, str, object]  # (MAV_RESULT, the reason of a refusal or "", the message asked for or None)
 
@@ -150,6 +150,24 @@ def do_reposition(v: Vehicle, c: Command) -> Result:
     return _result(*v.commander.reposition(x, y, altitude, yaw, speed, bool(hold)))
 
 
+def do_orbit(v: Vehicle, c: Command) -> Result:
+    """MAV_CMD_DO_ORBIT (MAVSDK's do_orbit): p1 radius [m] (its sign the way round: positive clockwise), p2 speed
+    [m/s], p3 ORBIT_YAW_BEHAVIOUR, p4 orbits (0: for ever), then the centre; NaN keeps a value
+    (:meth:`Commander.orbit`). Refused: TEMPORARILY_REJECTED on the ground, as PX4's "Orbit command rejected"; DENIED
+    for a radius, speed, heading, count or centre out of range."""
+    lat, lon, alt, _ = c.location()  # the altitude is AMSL whatever the frame, as PX4 reads DO_ORBIT (and MAVSDK
+    # sends it: an AMSL altitude in MAV_FRAME_GLOBAL_RELATIVE_ALT)
+    try:
+        x, y, altitude = setpoints.reposition(lat, lon, alt, setpoints.GLOBAL, v.frame(), what="Orbit")
+    except setpoints.SetpointError as exc:
+        v.outbox.counters.refused += 1
+        return DENIED, str(exc), None
+    ok, reason = v.commander.orbit(c.param(1), c.param(2), c.param(3), c.param(4), x, y, altitude)
+    if not ok and reason.endswith("(take off first)"):
+        return mavlink.MAV_RESULT_TEMPORARILY_REJECTED, reason, None
+    return _result(ok, reason)
+
+
 def do_change_speed(v: Vehicle, c: Command) -> Result:
     """MAV_CMD_DO_CHANGE_SPEED: p1 speed type (0 air, 1 ground: the horizontal speed), p2 speed [m/s] (−1 or −2: no
     change / default)."""
@@ -200,9 +218,10 @@ def request_message(v: Vehicle, c: Command) -> Result:
         return ACCEPTED, "", gcs_messages.gps_global_origin(v.home)
     if v.streams.supported(mid):
         snap = v.snapshot()
-        if snap is None:
+        msg = None if snap is None else gcs_messages.build(mid, snap, v.commander, v.home)
+        if msg is None:  # no state yet, or nothing to say (ORBIT_EXECUTION_STATUS while not orbiting)
             return mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "", None
-        return ACCEPTED, "", gcs_messages.build(mid, snap, v.commander, v.home)
+        return ACCEPTED, "", msg
     return UNSUPPORTED, "", None
 
 
@@ -241,6 +260,7 @@ COMMANDS: dict[int, Callable[[Vehicle, Command], Result]] = {
     mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: nav_return_to_launch,
     mavlink.MAV_CMD_NAV_TAKEOFF: nav_takeoff,
     mavlink.MAV_CMD_DO_REPOSITION: do_reposition,
+    mavlink.MAV_CMD_DO_ORBIT: do_orbit,
     mavlink.MAV_CMD_DO_CHANGE_SPEED: do_change_speed,
     mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: do_set_mission_current,
     mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: request_autopilot_capabilities,

@@ -33,6 +33,11 @@ from autopilot.commander import (
     BAT_WARNING,
     GF_BREACH,
     MANUAL_MODES,
+    ORBIT_ALT,
+    ORBIT_R,
+    ORBIT_V,
+    ORBIT_X,
+    ORBIT_Y,
     TOUCHDOWN_ALT,
     TOUCHDOWN_CLIMB,
     Commander,
@@ -192,7 +197,8 @@ def compiled_frame(msg_id: int, s: Snapshot, origin: Origin) -> bytes:
 
 
 def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
-    """The telemetry message ``msg_id`` for this tick (one of :mod:`autopilot.streams`' ids)."""
+    """The telemetry message ``msg_id`` for this tick (one of :mod:`autopilot.streams`' ids); None when it has nothing
+    to say now (ORBIT_EXECUTION_STATUS while not orbiting)."""
     st, ms = s.state, s.time_ms & 0xFFFFFFFF
     if msg_id in stream_frames.SLOT_OF:  # built by compiled code, as the tick builds them
         return message_of(compiled_frame(msg_id, s, origin))
@@ -206,6 +212,8 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
         return battery_status(c.cm)
     if msg_id == mavlink.MAVLINK_MSG_ID_HIGHRES_IMU:
         return highres_imu(s, origin)
+    if msg_id == mavlink.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS:
+        return orbit_execution_status(c, origin, s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
         flags, vel, pos_h, pos_v, mag, acc_h, acc_v = s.estimator or (TRUE_STATE_FLAGS, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         return mavlink.MAVLink_estimator_status_message(s.time_ms * 1000, flags, vel, pos_h, pos_v, mag, 0.0, 0.0,
@@ -281,6 +289,18 @@ def float32(value: float) -> float:
 # BATTERY_STATUS.charge_state for the commander's warning level (none, low, critical, emergency)
 CHARGE_STATES = (mavlink.MAV_BATTERY_CHARGE_STATE_OK, mavlink.MAV_BATTERY_CHARGE_STATE_LOW,
                  mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL, mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY)  # fmt: skip
+
+
+def orbit_execution_status(c: Commander, origin: Origin, time_usec: int):
+    """ORBIT_EXECUTION_STATUS as PX4 sends it while orbiting (None otherwise: nothing is sent): the radius [m], its
+    sign the way round (positive clockwise), and the centre in MAV_FRAME_GLOBAL (lat, lon [1e-7 deg], AMSL [m])."""
+    if c.mode != Mode.ORBIT:
+        return None
+    cm = c.cm
+    lat, lon = _lat_lon_e7(origin, cm[ORBIT_X], cm[ORBIT_Y])
+    radius = math.copysign(float(cm[ORBIT_R]), float(cm[ORBIT_V]))
+    return mavlink.MAVLink_orbit_execution_status_message(time_usec, radius, mavlink.MAV_FRAME_GLOBAL, lat, lon,
+                                                          float(origin.alt + cm[ORBIT_ALT]))  # fmt: skip
 
 
 def battery_status(cm: np.ndarray) -> mavlink.MAVLink_battery_status_message:

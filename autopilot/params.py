@@ -80,7 +80,8 @@ MANUAL = params_of(CommanderSettings, ("rc_loss_timeout", "rc_loss_action", "rc_
                                        "xy_expo", "z_expo", "yaw_expo"))  # fmt: skip
 # COM_RC_LOSS_T, NAV_RCL_ACT, COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_FAIL_ACT_T, MPC_MAN_TILT_MAX, MPC_MAN_Y_MAX,
 # MPC_VEL_MANUAL, MPC_HOLD_DZ, MPC_XY_MAN_EXPO, MPC_Z_MAN_EXPO, MPC_YAW_EXPO
-SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE + BATTERY + MANUAL  # the commander's, as parameters
+ORBIT = params_of(CommanderSettings, ("orbit_radius_max", "orbit_yaw_mode"))  # MC_ORBIT_RAD_MAX, MC_ORBIT_YAW_MOD
+SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE + BATTERY + MANUAL + ORBIT  # the commander's, as params
 
 
 def _declared(entries: tuple[ParamEntry, ...]) -> list[ParamSpec]:
@@ -93,7 +94,7 @@ def _specs() -> tuple[ParamSpec, ...]:
     s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
     s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS) + _declared(SETPOINTS) + _declared(POSITION)
     s += _declared(MISSIONS) + _declared(HEADING) + _declared(SAFETY) + _declared(GEOFENCE) + _declared(BATTERY)
-    s += _declared(MANUAL)
+    s += _declared(MANUAL) + _declared(ORBIT)
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
     return tuple(s)
@@ -119,6 +120,7 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(param_values(settings, GEOFENCE))
     out.update(param_values(settings, BATTERY))
     out.update(param_values(settings, MANUAL))
+    out.update(param_values(settings, ORBIT))
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 

@@ -197,24 +197,26 @@ def position_target(
     return horizontal, vertical, heading
 
 
-def reposition(lat: float, lon: float, alt: float, frame: int, f: Frame) -> tuple[float, float, float]:
+def reposition(lat: float, lon: float, alt: float, frame: int, f: Frame,
+               what: str = "Reposition") -> tuple[float, float, float]:  # fmt: skip
     """MAV_CMD_DO_REPOSITION's target (latitude, longitude [deg], altitude in ``frame``; NaN: keep) → local
-    (x, y NED, altitude) with NaN kept, or :class:`SetpointError`."""
+    (x, y NED, altitude) with NaN kept, or :class:`SetpointError` (its text starts with ``what``: DO_ORBIT's centre
+    is read so too)."""
     if frame not in (GLOBAL, GLOBAL_INT, GLOBAL_RELATIVE_ALT, GLOBAL_RELATIVE_ALT_INT, GLOBAL_TERRAIN_ALT_INT):
         raise SetpointError(
-            f"Reposition refused: frame {frame}; supported are GLOBAL (0), GLOBAL_INT (5), relative altitude "
+            f"{what} refused: frame {frame}; supported are GLOBAL (0), GLOBAL_INT (5), relative altitude "
             "(3, 6) and terrain altitude (11)"
         )
     for name, value, lo, hi in (("latitude", lat, -90.0, 90.0), ("longitude", lon, -180.0, 180.0)):
         if not math.isnan(value) and not lo <= value <= hi:
-            raise SetpointError(f"Reposition refused: {name} {value:g} deg; allowed: [{lo:g}, {hi:g}]")
+            raise SetpointError(f"{what} refused: {name} {value:g} deg; allowed: [{lo:g}, {hi:g}]")
     if math.isinf(alt):
-        raise SetpointError(f"Reposition refused: altitude {alt:g}; expected a finite number or NaN (keep)")
+        raise SetpointError(f"{what} refused: altitude {alt:g}; expected a finite number or NaN (keep)")
     if math.isnan(lat) != math.isnan(lon):
-        raise SetpointError("Reposition refused: give latitude and longitude both, or neither (NaN)")
+        raise SetpointError(f"{what} refused: give latitude and longitude both, or neither (NaN)")
     x = y = math.nan
     if not math.isnan(lat):
         x, y = geodetic_to_ned(lat, lon, f.origin[0], f.origin[1])
     altitude = math.nan if math.isnan(alt) else altitude_of(frame, alt, f)
-    check_position(x, y, altitude, f, "Reposition")
+    check_position(x, y, altitude, f, what)
     return x, y, altitude

@@ -46,6 +46,7 @@ SLOW_RATES: dict[int, float] = {  # [Hz]
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,  # PX4's rate
     mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 0.0,  # off until asked for, as on PX4's normal link (MAVSDK's set_rate_imu)
+    mavlink.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: 2.0,  # PX4's rate on its normal link; while orbiting
 }
 
 # The tick after the fast messages' at which each slow one goes out (an odd offset: never on a fast tick at the
@@ -62,6 +63,7 @@ SLOTS: dict[int, int] = {
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 15,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 17,
     mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 19,
+    mavlink.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: 21,
 }
 
 MAX_INTERVAL_US = 60_000_000

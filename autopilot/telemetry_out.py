@@ -102,7 +102,8 @@ class Streams:
             for mid in link.streams.due(tick, skip):
                 if mid not in built:
                     snap = snap or self.snapshot()
-                    built[mid] = self.ground.pack(gcs_messages.build(mid, snap, self.commander, self.home))
+                    msg = gcs_messages.build(mid, snap, self.commander, self.home)  # None: not now (an orbit's)
+                    built[mid] = b"" if msg is None else self.ground.pack(msg)
                 frames.append(built[mid])
             if frames and not link.send(b"".join(frames)):  # one datagram per link and tick, as PX4 fills its buffer
                 self.refresh()

@@ -40,9 +40,27 @@ def parse_remote(option: str, text: str) -> tuple[str, int] | None:
     return None if text.lower() == "none" else parse_address(option, text)
 
 
-PICK_PORTS = (20000, 32768)
-"""[first, end) of the ports :func:`free_port` picks from: above PX4's (14540-14589, 18570-18599) and below Linux's
-default ephemeral range (32768-60999)."""
+PORTS_VARIABLE = "QUADSITL_PORTS"
+
+
+def _pick_ports() -> tuple[int, int]:
+    """[first, end) of the ports :func:`free_port` picks from: above PX4's (14540-14589, 18570-18599) and below Linux's
+    default ephemeral range (32768-60999); or a part of that the environment's QUADSITL_PORTS ("FIRST-LAST") gives,
+    so that runs started side by side (the test suite's workers) never pick a port another has picked and not bound
+    yet: a stream's remote port is bound only when its client starts."""
+    text = os.environ.get(PORTS_VARIABLE, "")
+    if text:
+        try:
+            first, last = (int(x) for x in text.split("-"))
+        except ValueError:
+            raise ValueError(f"{PORTS_VARIABLE}={text!r}: expected FIRST-LAST, e.g. 20000-24000") from None
+        if not 1024 <= first < last <= 65535:
+            raise ValueError(f"{PORTS_VARIABLE}={text!r}: expected 1024 <= FIRST < LAST <= 65535")
+        return first, last + 1
+    return 20000, 32768
+
+
+PICK_PORTS = _pick_ports()
 EPHEMERAL_RANGE = "/proc/sys/net/ipv4/ip_local_port_range"
 _pick = random.Random()  # its own state: picking a port never moves a seeded generator's
 

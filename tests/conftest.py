@@ -10,6 +10,13 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 os.environ.setdefault("MAVLINK_DIALECT", "common")
 
+# Each xdist worker picks its ports (and so do the processes its tests start) from a part of its own: a vehicle's
+# stream to a client's port that is not bound yet must not reach another test's client (quadsitl.process_util).
+if "PYTEST_XDIST_WORKER" in os.environ and "QUADSITL_PORTS" not in os.environ:
+    _worker, _workers = int(os.environ["PYTEST_XDIST_WORKER"][2:]), int(os.environ["PYTEST_XDIST_WORKER_COUNT"])
+    _share = (32768 - 20000) // _workers
+    os.environ["QUADSITL_PORTS"] = f"{20000 + _worker * _share}-{20000 + (_worker + 1) * _share - 1}"
+
 BIN = Path(sys.executable).parent
 
 

@@ -5,8 +5,11 @@ it."""
 
 from __future__ import annotations
 
+import os
 import random
 import socket
+import subprocess
+import sys
 from types import SimpleNamespace
 from typing import ClassVar
 
@@ -165,3 +168,15 @@ def test_a_benchs_autopilot_whose_port_was_bound_meanwhile_starts_again_on_other
         with bench.autopilot_process(tmp_path) as ap:
             assert ap.attempts == 2 and len(picks) == 6 and ap.proc.poll() is None
             assert ap.endpoint != f"tcp/127.0.0.1:{busy}" and busy in ap.taken
+
+
+def test_quadsitl_ports_narrows_the_picks_and_a_bad_value_is_refused_naming_it():
+    code = "from quadsitl.process_util import PICK_PORTS, free_port; print(PICK_PORTS, free_port())"
+    env = {**os.environ, "QUADSITL_PORTS": "25000-25009"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert out.stdout.startswith("(25000, 25010) ")
+    assert 25000 <= int(out.stdout.split()[-1]) <= 25009
+    for bad in ("25000", "30000-20000"):
+        env["QUADSITL_PORTS"] = bad
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+        assert out.returncode != 0 and f"QUADSITL_PORTS={bad!r}" in out.stderr
