@@ -65,7 +65,7 @@ from quadsitl.state import Reference, VehicleState
 from quadsitl.wire import Mode
 
 if TYPE_CHECKING:
-    from autopilot.records import AttitudeSetpoint, ManualControl, TrajectorySetpoint
+    from autopilot.records import AttitudeSetpoint, FollowTarget, ManualControl, TrajectorySetpoint
 
 
 @jit
@@ -125,6 +125,10 @@ def enter(cm: np.ndarray, mode: int) -> None:
         cm[TARGET_ALT] = cm[TAKEOFF_ALT]
     elif mode == ORBIT:  # to the circle first, then around it from rest
         cm[ORBIT_APPROACH], cm[ORBIT_SPEED], cm[ORBIT_ANGLE], cm[ALT_LOCK] = 1.0, 0.0, 0.0, math.nan
+    elif mode == FOLLOW:  # around the target from where the vehicle is; held until a target reports
+        bearing = math.atan2(cm[Y] - cm[TGT_Y], cm[X] - cm[TGT_X])
+        cm[FOLLOW_ANGLE] = bearing if math.isfinite(bearing) else cm[TGT_COURSE] + cm[FLW_FA]
+        cm[FOLLOW_RATE], cm[TGT_LOST] = 0.0, 0.0
     elif mode == RTL:
         cm[TARGET_ALT] = max(cm[TARGET_ALT], cm[HOME_ALT] + cm[RTL_ALT])
         geofence.return_destination(cm)
@@ -637,6 +641,76 @@ def _orbit(cm: np.ndarray, dt: float) -> int:
 
 
 @jit
+def target_fresh(cm: np.ndarray) -> bool:
+    """Whether follow-me's target is reporting: its newest FOLLOW_TARGET within FOLLOW_TIMEOUT of simulated or of wall
+    time."""
+    return cm[NOW] - cm[TGT_TIME] <= FOLLOW_TIMEOUT or cm[TGT_WALL_FRESH] == 1.0
+
+
+@jit
+def _follow(cm: np.ndarray, dt: float) -> int:
+    """FOLLOW's reference, PX4's ``FlightTaskAutoFollowTarget``: the target (predicted from its newest report with its
+    velocity) seen from FLW_TGT_DST away at the angle its course plus FLW_TGT_FA, FLW_TGT_HT above home, the ground
+    or the target (FLW_TGT_ALT_M; never below FOLLOW_SAFETY_ALT), flying the target's velocity too and facing it. The
+    angle around the target turns toward its side at up to FLW_TGT_MAX_VEL along the circle (FOLLOW_ACC to speed
+    up and slow down); while far from its height it climbs or descends first, where it is. No report for
+    FOLLOW_TIMEOUT: it stops and holds → EVENT_TARGET_LOST; reports again → EVENT_TARGET_BACK."""
+    if not target_fresh(cm):
+        event = EVENT_NONE
+        if cm[TGT_LOST] == 0.0:
+            event = EVENT_TARGET_LOST
+            cm[TGT_LOST] = 1.0
+            cm[TARGET_X] = cm[X] + stop_distance(cm[VX], cm[ACC_HOR])
+            cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], cm[ACC_HOR])
+            cm[TARGET_ALT] = max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], cm[ACC_HOR]), 0.0)
+            cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], cm[ALTITUDE]
+            cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], cm[CLIMB_RATE]
+            cm[HOLD_YAW] = cm[YAW_REF]
+        advance_reference(cm, dt, cm[CRUISE], cm[Z_VEL_UP], cm[Z_VEL_DN])
+        _fly_generated(cm, dt)
+        return event
+    event = EVENT_NONE
+    if cm[TGT_LOST] != 0.0:
+        cm[TGT_LOST] = 0.0
+        event = EVENT_TARGET_BACK
+    age = cm[NOW] - cm[TGT_TIME]
+    tx, ty = cm[TGT_X] + cm[TGT_VX] * age, cm[TGT_Y] + cm[TGT_VY] * age
+    if math.sqrt(cm[TGT_VX] ** 2 + cm[TGT_VY] ** 2) >= FOLLOW_COURSE_SPEED:
+        cm[TGT_COURSE] = math.atan2(cm[TGT_VY], cm[TGT_VX])
+    # the angle around the target: toward its side the short way, the rate as a bounded trajectory
+    d = cm[FLW_DST]
+    error = wrap_pi(cm[TGT_COURSE] + cm[FLW_FA] - cm[FOLLOW_ANGLE])
+    rate_max, acc = cm[FLW_MAX_VEL] / d, FOLLOW_ACC / d
+    want = math.copysign(min(math.sqrt(2.0 * acc * abs(error)), rate_max), error)
+    rate = cm[FOLLOW_RATE] + min(max(want - cm[FOLLOW_RATE], -acc * dt), acc * dt)
+    if abs(error) <= abs(rate) * dt:
+        cm[FOLLOW_ANGLE], rate = cm[TGT_COURSE] + cm[FLW_FA], 0.0
+    else:
+        cm[FOLLOW_ANGLE] = wrap_pi(cm[FOLLOW_ANGLE] + rate * dt)
+    cm[FOLLOW_RATE] = rate
+    a = cm[FOLLOW_ANGLE]
+    mode = cm[FLW_ALT_M]
+    base = cm[HOME_ALT] if mode == 0.0 else 0.0 if mode == 1.0 else cm[TGT_ALT] + cm[TGT_CLIMB] * age
+    altitude = max(base + cm[FLW_HT], FOLLOW_SAFETY_ALT)
+    if abs(altitude - cm[ALTITUDE]) >= FOLLOW_ALT_FIRST:  # the height first, where it is
+        cm[REF_X], cm[REF_Y] = cm[X], cm[Y]
+        for i in range(REF_VX, REF_AY + 1):
+            cm[i] = 0.0
+    else:
+        cm[REF_X], cm[REF_Y] = tx + d * math.cos(a), ty + d * math.sin(a)
+        cm[REF_VX] = cm[TGT_VX] - math.sin(a) * rate * d
+        cm[REF_VY] = cm[TGT_VY] + math.cos(a) * rate * d
+        cm[REF_AX], cm[REF_AY] = 0.0, 0.0
+    cm[REF_ALT], cm[REF_CLIMB], cm[REF_CLIMB_ACC] = altitude, 0.0, math.nan
+    dx, dy = tx - cm[X], ty - cm[Y]
+    if dx * dx + dy * dy > FOLLOW_YAW_DISTANCE**2:
+        cm[HOLD_YAW] = math.atan2(dy, dx)
+    turn_heading(cm, cm[HOLD_YAW], cm[YAW_RATE_AUTO], dt)
+    cm[REF_ROLL], cm[REF_PITCH], cm[REF_LIMITED], cm[REF_THRUST] = 0.0, 0.0, 1.0, math.nan
+    return event
+
+
+@jit
 def update(
     cm: np.ndarray, tick: int, now: float, x: float, y: float, altitude: float, vx: float, vy: float,
     climb_rate: float, yaw: float,
@@ -681,6 +755,9 @@ def update(
     if mode == ORBIT:
         done = _orbit(cm, dt)
         return done if done != EVENT_NONE else event
+    if mode == FOLLOW:
+        said = _follow(cm, dt)
+        return said if said != EVENT_NONE else event
     if mode == LAND:
         landed = _land(cm, dt, now)
         return landed if landed != EVENT_NONE else event
@@ -725,11 +802,13 @@ class Commander:
         self.cm[OFFBOARD_TICK] = -1.0
         self.cm[BAT_V : BAT_REMAINING + 1] = math.nan  # no battery until one reports
         self.cm[STICK_TIME], self.cm[STICK_LOST] = -1e9, STICKS_NEVER
+        self.cm[TGT_TIME] = -1e9  # no follow-me target yet
         self.cm[[POS_LOCK_X, POS_LOCK_Y, STICK_DEADLINE]] = math.nan
         self.settings = settings or CommanderSettings()
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) to announce
         self.setpoint_wall = -math.inf  # [s] the shell's wall clock when the newest setpoint arrived
         self.sticks_wall = -math.inf  # [s] the shell's wall clock when the newest sticks arrived
+        self.target_wall = -math.inf  # [s] the shell's wall clock when the newest FOLLOW_TARGET arrived
         self.armed_wall: float | None = None  # [s] the shell's wall clock at its first call after arming
 
     # ---- the state, by name --------------------------------------------------------------------
@@ -759,6 +838,8 @@ class Commander:
         cm[HOLD_DZ], cm[XY_EXPO], cm[Z_EXPO], cm[YAW_EXPO] = s.hold_deadzone, s.xy_expo, s.z_expo, s.yaw_expo
         cm[FAIL_ACT_T] = s.fail_act_t
         cm[ORBIT_RAD_MAX], cm[ORBIT_YAW_DEFAULT] = s.orbit_radius_max, s.orbit_yaw_mode
+        cm[FLW_HT], cm[FLW_DST], cm[FLW_FA] = s.follow_height, s.follow_distance, s.follow_angle
+        cm[FLW_ALT_M], cm[FLW_MAX_VEL], cm[FLW_RS] = s.follow_altitude_mode, s.follow_max_speed, s.follow_responsiveness
 
     @property
     def armed(self) -> bool:
@@ -847,6 +928,7 @@ class Commander:
         setpoint arrived (``wall=`` of the setpoint handlers) within the timeout of wall time too."""
         self.cm[SP_WALL_FRESH] = 1.0 if wall - self.setpoint_wall <= self.settings.setpoint_timeout else 0.0
         self.cm[STICK_WALL_FRESH] = 1.0 if wall - self.sticks_wall <= self.settings.rc_loss_timeout else 0.0
+        self.cm[TGT_WALL_FRESH] = 1.0 if wall - self.target_wall <= FOLLOW_TIMEOUT else 0.0
         if not self.armed:
             self.armed_wall = None
             return
@@ -918,6 +1000,34 @@ class Commander:
     def on_manual_control(self, r: ManualControl) -> None:
         """Sticks from the receiver (:mod:`autopilot.receiver`)."""
         self.on_sticks(r.pitch, r.roll, r.throttle, r.yaw, wall=r.wall)
+
+    def on_follow_target(self, r: FollowTarget) -> None:
+        """A FOLLOW_TARGET from the receiver: follow-me's target, filtered as PX4's target estimator does in spirit
+        (an α filter of gain 1 − FLW_TGT_RS: the report predicted with the velocity, then corrected toward it; the
+        velocity toward the report's, or, without one, toward the change between reports). The first, or one after
+        the target was lost, is taken as it is."""
+        cm = self.cm
+        dt = max(cm[NOW] - cm[TGT_TIME], 0.0)
+        vx, vy, climb = r.vx, r.vy, r.climb
+        continuing = cm[TGT_TIME] > -1e8 and (dt <= FOLLOW_TIMEOUT or r.wall - self.target_wall <= FOLLOW_TIMEOUT)
+        if continuing:
+            g = 1.0 - self.settings.follow_responsiveness
+            px, py = cm[TGT_X] + cm[TGT_VX] * dt, cm[TGT_Y] + cm[TGT_VY] * dt
+            palt = cm[TGT_ALT] + cm[TGT_CLIMB] * dt
+            if math.isnan(vx):  # no velocity reported: the change since the last report (none within a tick)
+                vx, vy, climb = cm[TGT_VX], cm[TGT_VY], cm[TGT_CLIMB]
+                if dt > 0.0:
+                    vx, vy, climb = (r.x - cm[TGT_X]) / dt, (r.y - cm[TGT_Y]) / dt, (r.altitude - cm[TGT_ALT]) / dt
+            x, y, altitude = px + g * (r.x - px), py + g * (r.y - py), palt + g * (r.altitude - palt)
+            vx, vy, climb = (cm[TGT_VX] + g * (vx - cm[TGT_VX]), cm[TGT_VY] + g * (vy - cm[TGT_VY]),
+                             cm[TGT_CLIMB] + g * (climb - cm[TGT_CLIMB]))  # fmt: skip
+        else:
+            x, y, altitude = r.x, r.y, r.altitude
+            if math.isnan(vx):
+                vx = vy = climb = 0.0
+        cm[TGT_X], cm[TGT_Y], cm[TGT_ALT], cm[TGT_VX], cm[TGT_VY], cm[TGT_CLIMB] = x, y, altitude, vx, vy, climb
+        cm[TGT_TIME] = cm[NOW]
+        self.target_wall = max(self.target_wall, r.wall)
 
     def sticks_fresh(self) -> bool:
         return bool(sticks_fresh(self.cm))
@@ -1149,6 +1259,8 @@ class Commander:
             return False, "Offboard denied: no setpoint stream"
         if mode == Mode.TAKEOFF:
             return self.takeoff()
+        if mode == Mode.FOLLOW and (not self.armed or self.cm[ALTITUDE] < TOUCHDOWN_ALT + 0.1):
+            return False, "Follow me denied: not flying (take off first)"
         if mode == Mode.ORBIT:  # PX4's orbit without a DO_ORBIT: 1 m around where the vehicle is
             nan = math.nan
             return self.orbit(nan, nan, nan, nan, nan, nan, nan)
@@ -1194,6 +1306,13 @@ class Commander:
                 said += f" in {self.settings.fail_act_t:g} s (COM_FAIL_ACT_T), holding until then"
             self.messages.append((2, f"Manual control lost: no MANUAL_CONTROL for {self.settings.rc_loss_timeout:g} "
                                      f"s; action: {said}"))  # fmt: skip
+        elif event == EVENT_TARGET_LOST:
+            if self.cm[TGT_TIME] < -1e8:
+                self.messages.append((4, "Follow me: no target yet (FOLLOW_TARGET); holding"))
+            else:
+                self.messages.append((4, f"Follow target lost: no FOLLOW_TARGET for {FOLLOW_TIMEOUT:g} s; holding"))
+        elif event == EVENT_TARGET_BACK:
+            self.messages.append((6, "Follow target back; following"))
         elif event == EVENT_ORBITS_DONE:
             self.messages.append((6, f"Orbit done: {self.cm[ORBIT_TURNS]:g} turns; holding"))
         elif event == EVENT_STICKS_ACTION:

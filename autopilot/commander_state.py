@@ -34,7 +34,7 @@ RC_LOSS_GOES_ON = -1.0  # cm[STICK_ACTION]: the action not taken, a landing or r
 RCL_EXCEPT_MISSION, RCL_EXCEPT_HOLD, RCL_EXCEPT_OFFBOARD = 1, 2, 4
 STICKS_LIVE, STICKS_LOST, STICKS_NEVER = 0.0, 1.0, 2.0  # cm[STICK_LOST]: live, lost after coming, none since boot
 RC_IN_MODE_DISABLED = 4  # COM_RC_IN_MODE: stick input disabled (MANUAL_CONTROL not taken, no loss failsafe)
-HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION, POSCTL, ALTCTL, STABILIZED, ORBIT = (int(m) for m in Mode)
+HOLD, OFFBOARD, LAND, TAKEOFF, RTL, MISSION, POSCTL, ALTCTL, STABILIZED, ORBIT, FOLLOW = (int(m) for m in Mode)
 MANUAL_MODES = (Mode.POSCTL, Mode.ALTCTL, Mode.STABILIZED)  # flown on the sticks (autopilot.manual)
 THROTTLE_ABOVE_CENTER, THROTTLE_LOW = 0.2, -0.8  # PX4's arming checks of the throttle stick (−1..1) in them
 # PX4's orbit (FlightTaskOrbit): the smallest radius [m], the largest speed [m/s] and centripetal acceleration [m/s²];
@@ -44,6 +44,13 @@ ORBIT_RADIUS_MIN, ORBIT_SPEED_MAX, ORBIT_ACC_MAX, ORBIT_ON_CIRCLE, ORBIT_ON_ALT 
 # 5: unchanged (MC_ORBIT_YAW_MOD when not orbiting)
 ORBIT_YAW = ("front to centre", "initial heading", "uncontrolled", "front tangent", "yaw stick")
 ORBIT_YAW_UNCHANGED = 5
+# PX4's follow-me (FlightTaskAutoFollowTarget): the target is lost after FOLLOW_TIMEOUT [s] without FOLLOW_TARGET; its
+# course follows its velocity from FOLLOW_COURSE_SPEED [m/s]; the follow angle turns with at most FOLLOW_ACC [m/s²]
+# along the circle; the vehicle climbs first while FOLLOW_ALT_FIRST [m] from its altitude, and never goes below
+# FOLLOW_SAFETY_ALT [m] (PX4's MINIMUM_SAFETY_ALTITUDE); it faces the target from FOLLOW_YAW_DISTANCE [m]
+FOLLOW_TIMEOUT, FOLLOW_COURSE_SPEED, FOLLOW_ACC, FOLLOW_ALT_FIRST = 1.5, 1.0, 2.0, 3.0
+FOLLOW_SAFETY_ALT, FOLLOW_YAW_DISTANCE = 1.0, 1.0
+FOLLOW_ALTITUDE_MODES = ("above home", "above the ground", "above the target")  # FLW_TGT_ALT_M
 # The phases of RTL and of LAND.
 RTL_CLIMB, RTL_RETURN, RTL_LAND = 0, 1, 2
 LAND_BRAKING, LAND_DESCENDING = 0, 1
@@ -93,7 +100,11 @@ LAND_BRAKING, LAND_DESCENDING = 0, 1
 # - the orbit (MAV_CMD_DO_ORBIT): its centre (x, y [m, NED], altitude [m]), radius [m], speed [m/s, signed: positive
 #   clockwise seen from above] and the speed flown (slewing toward it at MPC_ACC_HOR), ORBIT_YAW's index, the heading
 #   when it was commanded [rad], whether it is approaching the circle (1.0), the angle flown around it [rad] and the
-#   turns to fly (0: for ever); MC_ORBIT_RAD_MAX and MC_ORBIT_YAW_MOD.
+#   turns to fly (0: for ever); MC_ORBIT_RAD_MAX and MC_ORBIT_YAW_MOD;
+# - follow-me (FOLLOW_TARGET): the target's filtered position (x, y [m, NED], altitude [m]) and velocity (north, east,
+#   up [m/s]) at the simulated time of its newest report [s] (−1e9: none), whether that is within FOLLOW_TIMEOUT of
+#   wall time (1.0, set by the shell), its course [rad], the angle around it flown [rad] and its rate [rad/s], whether
+#   it is lost (1.0); FLW_TGT_HT, FLW_TGT_DST, FLW_TGT_FA [rad], FLW_TGT_ALT_M, FLW_TGT_MAX_VEL, FLW_TGT_RS.
 # The reference's last field, REF_THROTTLE, is STABILIZED's throttle stick (−1..1; NaN: none), which the autopilot's
 # tick maps to thrust on its own model (autopilot.manual.throttle_curve).
 STATE = """
@@ -112,6 +123,7 @@ geofence: GF_ACTION GF_MAX_HOR GF_MAX_VER GF_BREACH FENCE_N RALLY_N RTL_X RTL_Y 
 battery: BAT_V BAT_I BAT_MAH BAT_J BAT_REMAINING BAT_WARNING BAT_WARNING_ARMED BAT_LOW BAT_CRIT BAT_EMERGEN BAT_ACTION
 sticks: STICK_PITCH STICK_ROLL STICK_THROTTLE STICK_YAW STICK_TIME STICK_WALL_FRESH STICK_LOST STICK_LOST_ARMED STICK_ACTION STICK_MODE_BEFORE STICK_DEADLINE POS_LOCK_X POS_LOCK_Y
 orbit: ORBIT_X ORBIT_Y ORBIT_ALT ORBIT_R ORBIT_V ORBIT_SPEED ORBIT_YAW_MODE ORBIT_HEADING ORBIT_APPROACH ORBIT_ANGLE ORBIT_TURNS ORBIT_RAD_MAX ORBIT_YAW_DEFAULT
+follow: TGT_X TGT_Y TGT_ALT TGT_VX TGT_VY TGT_CLIMB TGT_TIME TGT_WALL_FRESH TGT_COURSE FOLLOW_ANGLE FOLLOW_RATE TGT_LOST FLW_HT FLW_DST FLW_FA FLW_ALT_M FLW_MAX_VEL FLW_RS
 manual: RC_LOSS_T RCL_ACT RCL_EXCEPT RC_IN_MODE FAIL_ACT_T MAN_TILT MAN_YAW_RATE VEL_MANUAL HOLD_DZ XY_EXPO Z_EXPO YAW_EXPO
 setpoint = sp_horizontal + sp_rest
 """  # noqa: E501
@@ -154,11 +166,14 @@ STICKS_FIRST, STICKS_END = 110, 123
 (ORBIT_X, ORBIT_Y, ORBIT_ALT, ORBIT_R, ORBIT_V, ORBIT_SPEED, ORBIT_YAW_MODE, ORBIT_HEADING, ORBIT_APPROACH,
  ORBIT_ANGLE, ORBIT_TURNS, ORBIT_RAD_MAX, ORBIT_YAW_DEFAULT) = range(123, 136)  # fmt: skip
 ORBIT_FIRST, ORBIT_END = 123, 136
+(TGT_X, TGT_Y, TGT_ALT, TGT_VX, TGT_VY, TGT_CLIMB, TGT_TIME, TGT_WALL_FRESH, TGT_COURSE, FOLLOW_ANGLE, FOLLOW_RATE,
+ TGT_LOST, FLW_HT, FLW_DST, FLW_FA, FLW_ALT_M, FLW_MAX_VEL, FLW_RS) = range(136, 154)  # fmt: skip
+FOLLOW_FIRST, FOLLOW_END = 136, 154
 (RC_LOSS_T, RCL_ACT, RCL_EXCEPT, RC_IN_MODE, FAIL_ACT_T, MAN_TILT, MAN_YAW_RATE, VEL_MANUAL, HOLD_DZ, XY_EXPO, Z_EXPO,
- YAW_EXPO) = range(136, 148)  # fmt: skip
-MANUAL_FIRST, MANUAL_END = 136, 148
+ YAW_EXPO) = range(154, 166)  # fmt: skip
+MANUAL_FIRST, MANUAL_END = 154, 166
 SETPOINT_FIRST, SETPOINT_END = 3, 17
-SIZE = 148
+SIZE = 166
 # --- end of the generated layout ---
 # What update() reports for the shell to announce.
 EVENT_NONE, EVENT_SETPOINT_LOST, EVENT_LANDED, EVENT_TAKEOFF_DONE, EVENT_HOME_REACHED = 0, 1, 2, 3, 4
@@ -170,6 +185,8 @@ EVENT_BATTERY = 9  # the battery's warning rose (cm[BAT_WARNING]): COM_LOW_BAT_A
 EVENT_STICKS_LOST = 10  # the sticks lost in flight: NAV_RCL_ACT's action (cm[STICK_ACTION]) taken, or not
 EVENT_STICKS_REGAINED = 11  # the sticks back after their loss
 EVENT_ORBITS_DONE = 13  # the orbit's turns flown: hold
+EVENT_TARGET_LOST = 14  # follow-me: no FOLLOW_TARGET for FOLLOW_TIMEOUT: holding
+EVENT_TARGET_BACK = 15  # follow-me: the target reported again: following
 EVENT_STICKS_ACTION = 12  # the sticks still lost after COM_FAIL_ACT_T in hold: NAV_RCL_ACT's return or landing taken
 AIRBORNE_ALT = 0.3  # [m]: above this the vehicle has taken off (PX4's land detector's "not landed"), estimates included
 TOUCHDOWN_ALT, TOUCHDOWN_CLIMB = 0.1, 0.1  # [m], [m/s]: resting on the ground (an estimate on sensors wanders by cm)
@@ -256,6 +273,22 @@ class CommanderSettings:
     fail_act_t: float = key(5.0, unit="s", low=0, high=25, mavlink=param("COM_FAIL_ACT_T"),
                             doc="the sticks' loss holds this long (simulated time) before its return or landing "
                                 "(0: at once); the other failsafes act at once")  # fmt: skip
+    follow_height: float = key(8.0, unit="m", low=8, high=100, mavlink=param("FLW_TGT_HT"),
+                               doc="follow-me's height (FLW_TGT_ALT_M says above what)")  # fmt: skip
+    follow_distance: float = key(8.0, unit="m", low=1, high=100, mavlink=param("FLW_TGT_DST"),
+                                 doc="follow-me's distance from the target")  # fmt: skip
+    follow_angle: float = key(math.pi, unit="rad", low=-math.pi, high=math.pi,
+                              doc="follow-me's side of the target: 0 ahead, 90° right, 180° behind (its course)",
+                              mavlink=param("FLW_TGT_FA", unit="deg", low=-180, high=180, to_param=math.degrees,
+                                            from_param=math.radians))  # fmt: skip
+    follow_altitude_mode: int = key(0, low=0, high=2, mavlink=param("FLW_TGT_ALT_M"),
+                                    doc="follow-me's height is above: 0 = home, 1 = the ground below (flat here), "
+                                        "2 = the target")  # fmt: skip
+    follow_max_speed: float = key(5.0, unit="m/s", low=0, high=20, mavlink=param("FLW_TGT_MAX_VEL"),
+                                  doc="follow-me's speed around the target when its side changes")  # fmt: skip
+    follow_responsiveness: float = key(0.1, low=0, high=1, mavlink=param("FLW_TGT_RS", unit="norm"),
+                                       doc="follow-me's smoothing of the target's reports: 0 takes each as it is, "
+                                           "1 ignores them")  # fmt: skip
     orbit_radius_max: float = key(1000.0, unit="m", low=1, high=10000, mavlink=param("MC_ORBIT_RAD_MAX"),
                                   doc="the largest orbit radius (DO_ORBIT)")  # fmt: skip
     orbit_yaw_mode: int = key(0, low=0, high=4, mavlink=param("MC_ORBIT_YAW_MOD"),

@@ -25,7 +25,8 @@ UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
 FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 that forces a disarm in the air (PX4, MAVLink)
 SUPPORTED_MODES = (
     "supported are offboard (6), takeoff (4/2), hold (4/3), mission (4/4), RTL (4/5), land (4/6), "
-    "position (3), altitude (2), stabilized (7), orbit (3/1)"
+    "position (3), altitude (2), stabilized (7), orbit (3/1), "
+    "follow me (4/8)"
 )
 Result = tuple[int, str, object]  # (MAV_RESULT, the reason of a refusal or "", the message asked for or None)
 

@@ -43,8 +43,8 @@ INTERVAL_MS = {"vehicle_attitude": 50, "vehicle_attitude_setpoint": 50, "vehicle
 NAV_OFFBOARD, NAV_MISSION = 14, 3  # vehicle_status.nav_state
 # vehicle_status.nav_state of each of the autopilot's modes (quadsitl.telemetry.MODES): hold AUTO_LOITER, offboard,
 # land AUTO_LAND, takeoff AUTO_TAKEOFF, rtl AUTO_RTL, mission AUTO_MISSION, posctl POSCTL, altctl ALTCTL,
-# stabilized STAB, orbit ORBIT
-NAV_STATE = {0: 4, 1: NAV_OFFBOARD, 2: 18, 3: 17, 4: 5, 5: NAV_MISSION, 6: 2, 7: 1, 8: 15, 9: 21}
+# stabilized STAB, orbit ORBIT, follow AUTO_FOLLOW_TARGET
+NAV_STATE = {0: 4, 1: NAV_OFFBOARD, 2: 18, 3: 17, 4: 5, 5: NAV_MISSION, 6: 2, 7: 1, 8: 15, 9: 21, 10: 19}
 STANDBY, ARMED = 1, 2  # vehicle_status.arming_state
 
 

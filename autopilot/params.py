@@ -81,7 +81,18 @@ MANUAL = params_of(CommanderSettings, ("rc_loss_timeout", "rc_loss_action", "rc_
 # COM_RC_LOSS_T, NAV_RCL_ACT, COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_FAIL_ACT_T, MPC_MAN_TILT_MAX, MPC_MAN_Y_MAX,
 # MPC_VEL_MANUAL, MPC_HOLD_DZ, MPC_XY_MAN_EXPO, MPC_Z_MAN_EXPO, MPC_YAW_EXPO
 ORBIT = params_of(CommanderSettings, ("orbit_radius_max", "orbit_yaw_mode"))  # MC_ORBIT_RAD_MAX, MC_ORBIT_YAW_MOD
-SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE + BATTERY + MANUAL + ORBIT  # the commander's, as params
+FOLLOW = params_of(
+    CommanderSettings,
+    (
+        "follow_height",
+        "follow_distance",
+        "follow_angle",
+        "follow_altitude_mode",
+        "follow_max_speed",
+        "follow_responsiveness",
+    ),
+)  # FLW_TGT_*
+SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE + BATTERY + MANUAL + ORBIT + FOLLOW  # as parameters
 
 
 def _declared(entries: tuple[ParamEntry, ...]) -> list[ParamSpec]:
@@ -94,7 +105,7 @@ def _specs() -> tuple[ParamSpec, ...]:
     s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
     s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS) + _declared(SETPOINTS) + _declared(POSITION)
     s += _declared(MISSIONS) + _declared(HEADING) + _declared(SAFETY) + _declared(GEOFENCE) + _declared(BATTERY)
-    s += _declared(MANUAL) + _declared(ORBIT)
+    s += _declared(MANUAL) + _declared(ORBIT) + _declared(FOLLOW)
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
     return tuple(s)
@@ -121,6 +132,7 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(param_values(settings, BATTERY))
     out.update(param_values(settings, MANUAL))
     out.update(param_values(settings, ORBIT))
+    out.update(param_values(settings, FOLLOW))
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 

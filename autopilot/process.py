@@ -174,6 +174,7 @@ class Autopilot:
         self.pace = None if lead is None else OffboardLockstep(lead, self.period)  # autopilot.offboard_lockstep
         routes = Routes(trajectory=self.commander.on_trajectory, attitude=self.commander.on_attitude,
                         manual_control=self.commander.on_manual_control,
+                        follow_target=self.commander.on_follow_target,
                         command=self.on_command, mode=self.on_mode, param_request=self.param_protocol.on_request,
                         param_set=self.param_protocol.on_set, mission=self.on_mission,
                         file_transfer=self.on_file_transfer, log=self.on_log,

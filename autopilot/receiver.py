@@ -24,6 +24,7 @@ from autopilot.records import (
     Command,
     Counters,
     FileTransfer,
+    FollowTarget,
     GroundHeartbeat,
     LogRequest,
     ManualControl,
@@ -35,7 +36,7 @@ from autopilot.records import (
     TrajectorySetpoint,
 )
 from quadsitl import codec, wire
-from quadsitl.compiled_frames import quaternion_to_euler
+from quadsitl.compiled_frames import geodetic_to_ned, quaternion_to_euler
 
 mavlink = wire.mavlink
 QUATERNION_TOLERANCE = 0.1  # |q|² − 1 within this: normalised; beyond: refused
@@ -85,6 +86,9 @@ class Receiver:
                 self._manual_control(m, link)
             else:
                 self.counters.not_for_us += 1
+            return
+        if mid == mavlink.MAVLINK_MSG_ID_FOLLOW_TARGET:  # a broadcast: follow-me's target
+            self._follow_target(m)
             return
         if not hasattr(m, "target_system"):  # broadcasts: a ground station's heartbeat is a sign of the datalink
             if mid != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
@@ -214,6 +218,22 @@ class Receiver:
 
         throttle = 2.0 * axis(m.z, 0.5) - 1.0  # PX4: z 0..1000 → −1..1
         self.routes.deliver(ManualControl(axis(m.x), axis(m.y), throttle, axis(m.r), wall=time.monotonic()))
+
+    def _follow_target(self, m) -> None:
+        """FOLLOW_TARGET: the target's position (lat, lon [1e-7 deg], alt AMSL [m]) and velocity (NED [m/s], NaN or
+        all three needed), as PX4 reads it, in local NED; one with a position out of range, or not finite, refused."""
+        lat, lon, alt = m.lat * 1e-7, m.lon * 1e-7, m.alt
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0 and math.isfinite(alt)):
+            why = f"lat {lat:g}, lon {lon:g} deg, alt {alt:g} m"
+            self.outbox.refuse("follow_target", f"FOLLOW_TARGET refused: {why}; allowed: lat [-90, 90], lon "
+                                                "[-180, 180], a finite altitude")  # fmt: skip
+            return
+        vel = tuple(m.vel)
+        if not all(map(math.isfinite, vel)):
+            vel = (math.nan,) * 3
+        f = self.frame()
+        x, y = geodetic_to_ned(lat, lon, f.origin[0], f.origin[1])
+        self.routes.deliver(FollowTarget(x, y, alt - f.origin[2], vel[0], vel[1], -vel[2], wall=time.monotonic()))
 
     def _set_mode(self, m, link) -> None:
         """SET_MODE, QGroundControl's way to PX4 modes (no acknowledgement)."""

@@ -55,6 +55,20 @@ class ManualControl:
 
 
 @dataclass(frozen=True)
+class FollowTarget:
+    """FOLLOW_TARGET, as PX4 reads it (its position and velocity; the rest unused): follow-me's target in local NED
+    (x, y [m], altitude [m] above the local origin), its velocity (north, east, up [m/s]; NaN: not reported)."""
+
+    x: float
+    y: float
+    altitude: float
+    vx: float
+    vy: float
+    climb: float
+    wall: float
+
+
+@dataclass(frozen=True)
 class Command:
     """COMMAND_LONG or COMMAND_INT: the command id, params 1–7 (COMMAND_INT's 5–7 are x, y, z), its frame (COMMAND_LONG:
     a global frame, AMSL), who sent it and the link it came on (SET_MESSAGE_INTERVAL applies to that link)."""
@@ -145,6 +159,7 @@ Record = (
     TrajectorySetpoint
     | AttitudeSetpoint
     | ManualControl
+    | FollowTarget
     | Command
     | ModeRequest
     | ParamRequest
@@ -163,6 +178,7 @@ class Routes:
     trajectory: Callable[[TrajectorySetpoint], None]
     attitude: Callable[[AttitudeSetpoint], None]
     manual_control: Callable[[ManualControl], None]
+    follow_target: Callable[[FollowTarget], None]
     command: Callable[[Command], None]
     mode: Callable[[ModeRequest], None]
     param_request: Callable[[ParamRequest], None]
@@ -181,6 +197,7 @@ _ROUTE = {
     TrajectorySetpoint: "trajectory",
     AttitudeSetpoint: "attitude",
     ManualControl: "manual_control",
+    FollowTarget: "follow_target",
     Command: "command",
     ModeRequest: "mode",
     ParamRequest: "param_request",

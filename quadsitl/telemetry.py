@@ -13,7 +13,7 @@ plant started), ``t`` float64 simulated time [s], then float64 fields in SI unit
 setpoint: ``x_ref``, ``y_ref`` the horizontal position reference in local NED [m] (x north, y east), NaN
 while the horizontal position is not controlled (attitude setpoints, the paper's experiment);
 status: ``armed`` uint8 (0/1), ``mode`` uint8 (:data:`MODES`: 0 hold, 1 offboard, 2 land, 3 takeoff,
-4 rtl, 5 mission, 6 posctl, 7 altctl, 8 stabilized, 9 orbit), ``failsafe`` uint8 (0 none, 1 setpoint stream
+4 rtl, 5 mission, 6 posctl, 7 altctl, 8 stabilized, 9 orbit, 10 follow), ``failsafe`` uint8 (0 none, 1 setpoint stream
 lost, 2 plant link lost, 3 ground station lost, 4 estimator failed, 5 controller failed, 6 motor failure, 7 geofence,
 8 battery, 9 manual control lost), ``offboard_tick``
 int64 (tick at which the current offboard flight started, −1 when not in an offboard flight), then the battery as
@@ -150,6 +150,7 @@ MODES: dict[int, str] = {
     7: "altctl",
     8: "stabilized",
     9: "orbit",
+    10: "follow",
 }
 
 

@@ -82,6 +82,7 @@ class Mode(IntEnum):
     ALTCTL = 7  # PX4 ALTCTL (2): sticks to attitude, throttle to climb rate, centred throttle holds altitude
     STABILIZED = 8  # PX4 STABILIZED (7): sticks to attitude and yaw rate, throttle to thrust
     ORBIT = 9  # PX4 ORBIT (3/1, POSCTL's sub mode): circle a point (MAV_CMD_DO_ORBIT)
+    FOLLOW = 10  # PX4 AUTO.FOLLOW_TARGET (4/8): follow a target (FOLLOW_TARGET) at the FLW_TGT_* offset
 
     @property
     def px4_custom_mode(self) -> int:
@@ -100,7 +101,7 @@ class Mode(IntEnum):
 _PX4_MODES = {
     Mode.HOLD: (4, 3), Mode.OFFBOARD: (6, 0), Mode.LAND: (4, 6), Mode.TAKEOFF: (4, 2), Mode.RTL: (4, 5),
     Mode.MISSION: (4, 4), Mode.POSCTL: (3, 0), Mode.ALTCTL: (2, 0), Mode.STABILIZED: (7, 0),
-    Mode.ORBIT: (3, 1),
+    Mode.ORBIT: (3, 1), Mode.FOLLOW: (4, 8),
 }  # fmt: skip
 _ANY_SUB = (6, 2, 7)  # main modes whose sub mode PX4 does not read (POSCTL's sub 1 is its orbit)
 

@@ -130,7 +130,7 @@ def test_status_names_mode_and_failsafe():
 
 @pytest.mark.parametrize(("number", "name"), [(0, "hold"), (1, "offboard"), (2, "land"), (3, "takeoff"), (4, "rtl"),
                                               (5, "mission"), (6, "posctl"), (7, "altctl"), (8, "stabilized"),
-                                              (9, "orbit"), (10, "unknown (10)")])  # fmt: skip
+                                              (9, "orbit"), (10, "follow"), (11, "unknown (11)")])  # fmt: skip
 def test_every_mode_number_of_the_status_stream_has_its_name(number, name):
     fleet = Fleet()
     feed(fleet, range(1, 3), wall=0.0, mode=number)

@@ -31,7 +31,7 @@ class Said:
 @pytest.fixture
 def rx():
     got: list = []
-    routes = records.Routes(*([got.append] * 11))
+    routes = records.Routes(*([got.append] * 12))
     counters = records.Counters()
     outbox = Said(counters)
     frame = setpoints.Frame((47.397742, 8.545594, 488.0), xy_vel_max=12.0, z_vel_up=3.0, z_vel_dn=1.5)

@@ -46,6 +46,7 @@ def test_px4_custom_modes():
     assert wire.Mode.from_px4(1 << 16) is None  # MANUAL (rate-free manual thrust): not ours
     assert wire.Mode.from_px4((3 << 16) | (1 << 24)) is wire.Mode.ORBIT  # POSCTL's sub mode 1 is PX4's orbit
     assert wire.Mode.from_px4((3 << 16) | (2 << 24)) is None
+    assert wire.Mode.from_px4((4 << 16) | (8 << 24)) is wire.Mode.FOLLOW  # AUTO.FOLLOW_TARGET
     assert {int(m): m.name.lower() for m in wire.Mode} == telemetry.MODES  # telemetry's names are the modes'
     assert wire.Mode.MISSION.px4_custom_mode == 67371008 and wire.Mode.TAKEOFF.px4_custom_mode == 33816576
     assert codec.tick_of(codec.usec_of(12345, 0.001), 0.001) == 12345
