@@ -39,3 +39,9 @@ async def healthy(tel: TelemetryAsync, timeout: float = 30.0):
                 return health
 
     return await asyncio.wait_for(ready(), timeout)
+
+
+async def texts(system, said: list[str]) -> None:
+    """Every STATUSTEXT the vehicle says, appended to ``said`` (run it as a task)."""
+    async for t in TelemetryAsync(system).subscribe_status_text():
+        said.append(t.text)

@@ -16,14 +16,9 @@ from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
 
 from quadsitl.config import load_preset, preset_toml
 from tests.mavclient import quadsitl_up
-from tests.mavsdk_client import autopilot, first, healthy, until
+from tests.mavsdk_client import autopilot, first, healthy, texts, until
 
 pytestmark = pytest.mark.timeout(300)
-
-
-async def texts(system, said: list[str]) -> None:
-    async for t in TelemetryAsync(system).subscribe_status_text():
-        said.append(t.text)
 
 
 async def battery_in_flight(port: int) -> dict:

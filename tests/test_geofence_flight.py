@@ -28,16 +28,11 @@ from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
 
 from tests.mavclient import quadsitl_up
-from tests.mavsdk_client import autopilot, first, healthy, until
+from tests.mavsdk_client import autopilot, first, healthy, texts, until
 
 pytestmark = pytest.mark.timeout(300)
 DATA = Path(__file__).parent / "data"
 FENCE_NORTH = 0.0001 * 111_320.0  # [m] the polygon's northern edge from home (0.0001° of latitude)
-
-
-async def texts(system, said: list[str]) -> None:
-    async for t in TelemetryAsync(system).subscribe_status_text():
-        said.append(t.text)
 
 
 async def fence_and_breach(port: int, action: int) -> dict:

@@ -15,14 +15,9 @@ from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
 
 from tests.mavclient import quadsitl_up
-from tests.mavsdk_client import autopilot, first, healthy, until
+from tests.mavsdk_client import autopilot, first, healthy, texts, until
 
 pytestmark = pytest.mark.timeout(300)
-
-
-async def texts(system, said: list[str]) -> None:
-    async for t in TelemetryAsync(system).subscribe_status_text():
-        said.append(t.text)
 
 
 class Joystick:
