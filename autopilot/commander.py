@@ -88,6 +88,22 @@ def stop_distance(v: float, a: float) -> float:
 
 
 @jit
+def start_here(cm: np.ndarray) -> None:
+    """The auto modes' reference started at the vehicle (position and velocity, no acceleration), its target where
+    the vehicle can stop (at MPC_ACC_HOR, not below the ground)."""
+    a = cm[ACC_HOR]
+    # Resting on the ground, the reference starts and stays on it: an estimated altitude and climb rate (sensor
+    # mode) that wander by centimetres must not make a target above the vehicle, which would lift it off.
+    landed = cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB
+    cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], 0.0 if landed else max(cm[ALTITUDE], 0.0)
+    cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], 0.0 if landed else cm[CLIMB_RATE]
+    cm[GEN_AX], cm[GEN_AY], cm[GEN_CLIMB_ACC] = 0.0, 0.0, 0.0
+    cm[TARGET_X] = cm[X] + stop_distance(cm[VX], a)
+    cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], a)
+    cm[TARGET_ALT] = 0.0 if landed else max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)
+
+
+@jit
 def enter(cm: np.ndarray, mode: int) -> None:
     """Switch to ``mode``. Auto modes start their reference at the vehicle (position and velocity), aimed at
     where it can stop (not below the ground), heading as now."""
@@ -107,16 +123,7 @@ def enter(cm: np.ndarray, mode: int) -> None:
         cm[HOLD_YAW] = cm[YAW_REF] = cm[YAW]
         cm[ALT_LOCK] = math.nan
         return
-    a = cm[ACC_HOR]
-    # Resting on the ground, the reference starts and stays on it: an estimated altitude and climb rate (sensor
-    # mode) that wander by centimetres must not make a target above the vehicle, which would lift it off.
-    landed = cm[ALTITUDE] < TOUCHDOWN_ALT and abs(cm[CLIMB_RATE]) < TOUCHDOWN_CLIMB
-    cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], 0.0 if landed else max(cm[ALTITUDE], 0.0)
-    cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], 0.0 if landed else cm[CLIMB_RATE]
-    cm[GEN_AX], cm[GEN_AY], cm[GEN_CLIMB_ACC] = 0.0, 0.0, 0.0
-    cm[TARGET_X] = cm[X] + stop_distance(cm[VX], a)
-    cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], a)
-    cm[TARGET_ALT] = 0.0 if landed else max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)
+    start_here(cm)
     cm[HOLD_YAW] = cm[YAW_REF] = cm[YAW]
     cm[LEG_SPEED], cm[LEG_CLIMB], cm[LEG_DESCENT] = cm[CRUISE], math.nan, math.nan
     cm[PHASE] = 0.0
@@ -523,7 +530,7 @@ def _fly_manual(cm: np.ndarray, dt: float) -> None:
         for i in range(REF_X, REF_CLIMB_ACC + 1):
             cm[i] = math.nan
         _manual_heading(cm, cm[STICK_YAW] * cm[MAN_YAW_RATE])
-        cm[REF_LIMITED], cm[REF_THROTTLE] = 0.0, min(max(cm[STICK_THROTTLE], -1.0), 1.0)
+        cm[REF_LIMITED], cm[REF_THROTTLE] = 0.0, cm[STICK_THROTTLE]  # manual.throttle_curve keeps it within ±1
         return
     dz = cm[HOLD_DZ]
     pitch = manual.expo_deadzone(cm[STICK_PITCH], cm[XY_EXPO], dz)
@@ -660,11 +667,7 @@ def _follow(cm: np.ndarray, dt: float) -> int:
         if cm[TGT_LOST] == 0.0:
             event = EVENT_TARGET_LOST
             cm[TGT_LOST] = 1.0
-            cm[TARGET_X] = cm[X] + stop_distance(cm[VX], cm[ACC_HOR])
-            cm[TARGET_Y] = cm[Y] + stop_distance(cm[VY], cm[ACC_HOR])
-            cm[TARGET_ALT] = max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], cm[ACC_HOR]), 0.0)
-            cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], cm[ALTITUDE]
-            cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], cm[CLIMB_RATE]
+            start_here(cm)
             cm[HOLD_YAW] = cm[YAW_REF]
         advance_reference(cm, dt, cm[CRUISE], cm[Z_VEL_UP], cm[Z_VEL_DN])
         _fly_generated(cm, dt)
@@ -1060,6 +1063,10 @@ class Commander:
         self.messages.append((6, "Armed"))
         return True, ""
 
+    def flying(self) -> bool:
+        """Armed and off the ground (what goto, orbit and follow-me need)."""
+        return self.armed and self.cm[ALTITUDE] >= TOUCHDOWN_ALT + 0.1
+
     def _manual_arming_check(self) -> str:
         """PX4's checks for arming in a manual mode: the sticks live; the throttle not above the centre (ALTCTL,
         POSCTL: it would climb at once), or low (STABILIZED: it is the thrust). "" when they pass."""
@@ -1097,7 +1104,7 @@ class Commander:
         MPC_XY_CRUISE), heading ``yaw`` [rad]; NaN keeps the current target's value. ``hold``: switch to hold
         first (param2 bit 0); without it the vehicle must be in hold already."""
         cm = self.cm
-        if not self.armed or cm[ALTITUDE] < TOUCHDOWN_ALT + 0.1:
+        if not self.flying():
             return False, "Reposition denied: not flying (take off first)"
         if self.mode != Mode.HOLD:
             if not hold:
@@ -1115,7 +1122,7 @@ class Commander:
         takes PX4's start (1 m, 1 m/s, MC_ORBIT_YAW_MOD, for ever, around the vehicle where it is). A speed too fast
         for the radius is slowed (:func:`orbit_speed`) and said. → (taken, why not)."""
         cm = self.cm
-        if not self.armed or cm[ALTITUDE] < TOUCHDOWN_ALT + 0.1:
+        if not self.flying():
             return False, "Orbit denied: not flying (take off first)"
         orbiting = self.mode == Mode.ORBIT
         r, v = (float(cm[ORBIT_R]), float(cm[ORBIT_V])) if orbiting else (ORBIT_RADIUS_MIN, 1.0)
@@ -1151,8 +1158,7 @@ class Commander:
             enter(cm, ORBIT)
         elif abs(math.hypot(cm[X] - x, cm[Y] - y) - r) >= ORBIT_ON_CIRCLE:  # PX4: to the circle again
             cm[ORBIT_APPROACH] = 1.0
-            cm[GEN_X], cm[GEN_Y], cm[GEN_ALT] = cm[X], cm[Y], cm[ALTITUDE]
-            cm[GEN_VX], cm[GEN_VY], cm[GEN_CLIMB] = cm[VX], cm[VY], cm[CLIMB_RATE]
+            start_here(cm)  # the approach aims its target anew each tick
         cm[ORBIT_ANGLE] = 0.0
         way = "clockwise" if v > 0.0 else "counter-clockwise"
         self.messages.append((6, f"Orbit: {r:g} m {way} at {abs(v):.2f} m/s, heading {ORBIT_YAW[mode]}"
@@ -1259,7 +1265,7 @@ class Commander:
             return False, "Offboard denied: no setpoint stream"
         if mode == Mode.TAKEOFF:
             return self.takeoff()
-        if mode == Mode.FOLLOW and (not self.armed or self.cm[ALTITUDE] < TOUCHDOWN_ALT + 0.1):
+        if mode == Mode.FOLLOW and not self.flying():
             return False, "Follow me denied: not flying (take off first)"
         if mode == Mode.ORBIT:  # PX4's orbit without a DO_ORBIT: 1 m around where the vehicle is
             nan = math.nan
