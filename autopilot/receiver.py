@@ -233,7 +233,8 @@ class Receiver:
             vel = (math.nan,) * 3
         f = self.frame()
         x, y = geodetic_to_ned(lat, lon, f.origin[0], f.origin[1])
-        self.routes.deliver(FollowTarget(x, y, alt - f.origin[2], vel[0], vel[1], -vel[2], wall=time.monotonic()))
+        altitude = setpoints.altitude_of(setpoints.GLOBAL, alt, f)  # AMSL → above the local origin
+        self.routes.deliver(FollowTarget(x, y, altitude, vel[0], vel[1], -vel[2], wall=time.monotonic()))
 
     def _set_mode(self, m, link) -> None:
         """SET_MODE, QGroundControl's way to PX4 modes (no acknowledgement)."""
