@@ -8,7 +8,7 @@ import math
 from collections.abc import Callable
 from typing import Protocol
 
-from autopilot import gcs_messages, setpoints
+from autopilot import calibration, gcs_messages, setpoints
 from autopilot.commander import Commander
 from autopilot.gcs_messages import Home, Snapshot
 from autopilot.missions import Missions
@@ -51,6 +51,8 @@ class Vehicle(Protocol):
     def armed(self) -> None: ...
     def inject_failure(self, unit: int, kind: int, instance: int) -> tuple[bool, str]: ...
     def refresh_streams(self) -> None: ...
+    def calibrate(self, kind: str | None) -> Result: ...
+    def calibrating(self) -> bool: ...
 
 
 def as_int(value: float) -> int:
@@ -67,6 +69,8 @@ def arm_disarm(v: Vehicle, c: Command) -> Result:
     cm = v.commander
     if c.param(1) == 1.0:
         reason = "" if cm.armed else gcs_messages.arming_check(v.has_state())
+        if not reason and not cm.armed and v.calibrating():
+            reason = "Arming denied: calibration in progress"
         if not reason and not cm.armed and cm.mode == wire.Mode.MISSION:  # arming in AUTO.MISSION starts it
             reason = v.missions.refusal(cm)
             reason = f"Arming denied: {reason}" if reason else ""
@@ -253,6 +257,15 @@ def inject_failure(v: Vehicle, c: Command) -> Result:
     return (ACCEPTED if ok else UNSUPPORTED), reason, None
 
 
+def preflight_calibration(v: Vehicle, c: Command) -> Result:
+    """MAV_CMD_PREFLIGHT_CALIBRATION, as PX4's commander answers it (:mod:`autopilot.calibration`): p1 = 1 gyro,
+    p2 = 1 magnetometer, p5 = 1 accelerometer, p5 = 2 level; all 0 cancels the one running. Armed, or while one
+    runs: TEMPORARILY_REJECTED."""
+    if v.commander.armed:
+        return mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "Calibration denied: armed", None
+    return v.calibrate(calibration.which(tuple(c.param(i) for i in range(1, 8))))
+
+
 COMMANDS: dict[int, Callable[[Vehicle, Command], Result]] = {
     mavlink.MAV_CMD_COMPONENT_ARM_DISARM: arm_disarm,
     mavlink.MAV_CMD_DO_SET_MODE: do_set_mode,
@@ -270,6 +283,7 @@ COMMANDS: dict[int, Callable[[Vehicle, Command], Result]] = {
     mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: set_message_interval,
     mavlink.MAV_CMD_GET_MESSAGE_INTERVAL: get_message_interval,
     mavlink.MAV_CMD_INJECT_FAILURE: inject_failure,
+    mavlink.MAV_CMD_PREFLIGHT_CALIBRATION: preflight_calibration,
 }
 
 

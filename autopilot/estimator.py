@@ -117,6 +117,12 @@ LOST_INTERVALS = 3  # a sensor is lost after at least this many of its intervals
 (A_ACCEL, A_MAG, A_BARO, A_N_IMU, A_N_MAG, A_N_BARO, A_BARO_REF, A_DANG, A_DVEL, A_DT,
  ACC_SIZE) = 0, 3, 6, 7, 8, 9, 10, 11, 14, 17, 18  # fmt: skip
 
+# ---- the calibration (cal): what is applied to each new measurement before the filter takes it, as PX4's sensor
+# calibrations apply it (body = R_board·(raw − offset): autopilot.calibration), and what a calibration running collects
+# from the corrected samples (their sums and count since it last took them; only while CAL_COLLECT is set)
+(CAL_GYRO_OFFSET, CAL_BOARD, CAL_BOARD_ON, CAL_COLLECT, CAL_SUM_GYRO, CAL_SUM_ACCEL, CAL_COUNT,
+ CAL_SIZE) = 0, 3, 12, 13, 14, 17, 20, 21  # fmt: skip
+
 # ---- the measurements of a tick (z: Z_*) and which are new (flags: MAG_NEW, BARO_NEW, GPS_NEW) are laid out as
 # the plant link's decoder writes them (quadsitl.hil)
 
@@ -166,6 +172,35 @@ def parameter_array(e: EstimatorParams, field_ned: tuple[float, float, float], g
 @jit(inline=True)
 def _quaternion(x: np.ndarray) -> tuple[float, float, float, float]:
     return (x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+
+
+@jit
+def calibrated(flags: int, z: np.ndarray, cal: np.ndarray) -> None:
+    """The new measurements in ``z`` (``flags``: IMU_NEW, MAG_NEW) corrected in place by the calibration ``cal``:
+    the gyro's offsets subtracted, then gyro, accelerometer and magnetometer turned from the sensors' axes to the
+    body's by the board rotation (when not the identity); the corrected IMU sample collected while a calibration
+    runs."""
+    if flags & IMU_NEW:
+        for i in range(3):
+            z[Z_GYRO + i] -= cal[CAL_GYRO_OFFSET + i]
+        if cal[CAL_BOARD_ON] != 0.0:
+            _rotate(z, Z_GYRO, cal)
+            _rotate(z, Z_ACCEL, cal)
+        if cal[CAL_COLLECT] != 0.0:
+            for i in range(3):
+                cal[CAL_SUM_GYRO + i] += z[Z_GYRO + i]
+                cal[CAL_SUM_ACCEL + i] += z[Z_ACCEL + i]
+            cal[CAL_COUNT] += 1.0
+    if flags & MAG_NEW and cal[CAL_BOARD_ON] != 0.0:
+        _rotate(z, Z_MAG, cal)
+
+
+@jit(inline=True)
+def _rotate(z: np.ndarray, at: int, cal: np.ndarray) -> None:
+    a, b, c = z[at], z[at + 1], z[at + 2]
+    for i in range(3):
+        r = CAL_BOARD + 3 * i
+        z[at + i] = cal[r] * a + cal[r + 1] * b + cal[r + 2] * c
 
 
 @jit
@@ -605,6 +640,8 @@ class Estimator:
         self.scratch = np.zeros((N + 5, N))
         self.z = np.zeros(Z_SIZE)
         self.out = np.zeros(12)
+        self.cal = np.zeros(CAL_SIZE)
+        self.calibrate((0.0, 0.0, 0.0), ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
 
     @classmethod
     def for_field(cls, period: float, gravity: float, strength: float, declination_deg: float,
@@ -635,8 +672,31 @@ class Estimator:
     @property
     def arrays(self) -> tuple:
         """What the autopilot's compiled tick works on (:func:`autopilot.tick.sensor_tick`): the measurements, then
-        :func:`estimator_tick`'s arrays."""
-        return self.z, self.x, self.P, self.hist, self.io, self.acc, self.e, self.ratio, self.scratch, self.out
+        :func:`estimator_tick`'s arrays, then the calibration (:func:`calibrated`)."""
+        return (self.z, self.x, self.P, self.hist, self.io, self.acc, self.e, self.ratio, self.scratch, self.out,
+                self.cal)  # fmt: skip
+
+    def calibrate(self, gyro_offset: tuple[float, float, float], board: tuple[tuple[float, ...], ...]) -> None:
+        """The calibration applied from the next measurement on: the gyro's offsets [rad/s, sensor axes] and the
+        board rotation (body = board·sensor)."""
+        self.cal[CAL_GYRO_OFFSET : CAL_GYRO_OFFSET + 3] = gyro_offset
+        self.cal[CAL_BOARD : CAL_BOARD + 9] = np.asarray(board, dtype=np.float64).ravel()
+        self.cal[CAL_BOARD_ON] = float(not np.array_equal(self.cal[CAL_BOARD : CAL_BOARD + 9], np.eye(3).ravel()))
+
+    def collect(self, on: bool) -> None:
+        """Collect the corrected IMU samples for a calibration (:meth:`take`), or stop."""
+        self.cal[CAL_COLLECT] = float(on)
+        self.cal[CAL_SUM_GYRO : CAL_COUNT + 1] = 0.0
+
+    def take(self) -> tuple[tuple[float, float, float], tuple[float, float, float]] | None:
+        """The mean corrected gyro [rad/s] and accelerometer [m/s²] sample (FRD) since the last call, and start
+        again; None when no sample came."""
+        n = self.cal[CAL_COUNT]
+        if n == 0.0:
+            return None
+        c = (self.cal[CAL_SUM_GYRO : CAL_SUM_ACCEL + 3] / n).tolist()
+        self.cal[CAL_SUM_GYRO : CAL_COUNT + 1] = 0.0
+        return (c[0], c[1], c[2]), (c[3], c[4], c[5])
 
     @property
     def state(self) -> VehicleState:

@@ -17,6 +17,7 @@ import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
+from autopilot.calibration import CalibrationParams
 from autopilot.commander import CommanderSettings
 from autopilot.factory import PluggedController, make_controller
 from autopilot.gains import GainError, rates_from_poles
@@ -40,8 +41,11 @@ class ParamSpec:
     doc: str
     lo_open: bool = False
     integer: bool = False
+    fixed: str = ""  # why the value may not change in this autopilot (its one allowed value is lo)
 
     def allowed(self) -> str:
+        if self.fixed:
+            return f"{self.lo:g} ({self.fixed})"
         if self.integer:
             return f"an integer in [{self.lo:g}, {self.hi:g}]"
         left = "(" if self.lo_open else "["
@@ -51,6 +55,8 @@ class ParamSpec:
     def accepts(self, value: float) -> bool:
         if not math.isfinite(value):
             return False
+        if self.fixed:
+            return value == self.lo
         if self.integer and value != round(value):
             return False
         above = value > self.lo if self.lo_open else value >= self.lo
@@ -92,6 +98,8 @@ FOLLOW = params_of(
         "follow_responsiveness",
     ),
 )  # FLW_TGT_*
+CALIBRATION = params_of(CalibrationParams)  # CAL_GYRO0_[XYZ]OFF, SENS_BOARD_X_OFF, SENS_BOARD_Y_OFF
+NO_SENSORS = "the vehicle flies on the plant's true state (--state truth): no sensors to calibrate"
 SETTINGS = SETPOINTS + MISSIONS + HEADING + SAFETY + GEOFENCE + BATTERY + MANUAL + ORBIT + FOLLOW  # as parameters
 
 
@@ -105,7 +113,7 @@ def _specs() -> tuple[ParamSpec, ...]:
     s: list[ParamSpec] = [ParamSpec("CTL_TYPE", 0, 1, "", "controller: 0 = backstepping, 1 = PD", integer=True)]
     s += _declared(GAINS) + _declared(MODEL) + _declared(LIMITS) + _declared(SETPOINTS) + _declared(POSITION)
     s += _declared(MISSIONS) + _declared(HEADING) + _declared(SAFETY) + _declared(GEOFENCE) + _declared(BATTERY)
-    s += _declared(MANUAL) + _declared(ORBIT) + _declared(FOLLOW)
+    s += _declared(MANUAL) + _declared(ORBIT) + _declared(FOLLOW) + _declared(CALIBRATION)
     for spec in s:
         assert len(spec.name) <= MAX_NAME, spec.name
     return tuple(s)
@@ -133,6 +141,7 @@ def values_from(preset: Preset, controller: str, settings: CommanderSettings) ->
     out.update(param_values(settings, MANUAL))
     out.update(param_values(settings, ORBIT))
     out.update(param_values(settings, FOLLOW))
+    out.update(param_values(CalibrationParams(), CALIBRATION))
     assert set(out) == set(INDEX), set(out) ^ set(INDEX)
     return out
 
@@ -147,6 +156,7 @@ class Applied:
     controller: str
     settings: CommanderSettings
     plugged: dict[str, float] = field(default_factory=dict)
+    calibration: CalibrationParams = field(default_factory=CalibrationParams)
 
 
 PLUGGED_TYPE = len(CONTROLLER_TYPES)  # CTL_TYPE of a plugged controller
@@ -160,7 +170,8 @@ def plugged_specs(plugged: Plugged) -> tuple[ParamSpec, ...]:
 
 def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, float],
           plugged: Plugged | None = None) -> Applied:  # fmt: skip
-    """Values → the preset, controller kind and commander settings they describe (and ``plugged``'s parameters). The
+    """Values → the preset, controller kind, commander settings and calibration they describe (and ``plugged``'s
+    parameters). The
     preset's actuators (the wire's scale) and simulation settings are not parameters and stay ``base``'s."""
     vehicle = replace(base.autopilot_model, **fields_from_params(values, MODEL))
     controller = replace(base.controller, poles=None, **fields_from_params(values, GAINS),
@@ -171,7 +182,7 @@ def apply(base: Preset, base_settings: CommanderSettings, values: dict[str, floa
     named = {} if plugged is None else {p.name: values[p.param_id] for p in plugged.parameters}
     return Applied(replace(base, vehicle=vehicle, model=(), controller=controller, position=position),
                    plugged.spec if kind == PLUGGED_TYPE and plugged else CONTROLLER_TYPES[kind], settings,
-                   named)  # fmt: skip
+                   named, CalibrationParams(**fields_from_params(values, CALIBRATION)))  # fmt: skip
 
 
 def commander_settings(position: PositionParams, settings: CommanderSettings) -> CommanderSettings:
@@ -185,7 +196,8 @@ def commander_settings(position: PositionParams, settings: CommanderSettings) ->
 
 class ParamStore:
     """The parameter values of one autopilot, changed only through :meth:`set`. With a ``plugged`` controller
-    (:mod:`autopilot.plugin`), CTL_TYPE 2 flies it and its parameters follow the autopilot's own."""
+    (:mod:`autopilot.plugin`), CTL_TYPE 2 flies it and its parameters follow the autopilot's own. Without sensors
+    (``preset.sensors`` None: truth mode) the calibration's parameters stay 0."""
 
     def __init__(self, preset: Preset, controller: str, settings: CommanderSettings,
                  plugged: Plugged | None = None) -> None:  # fmt: skip
@@ -200,6 +212,10 @@ class ParamStore:
             if clash:
                 raise ValueError(f"controller {plugged.spec}: parameter {clash[0]} is one of the autopilot's own")
             self.specs = (ctl, *SPECS[1:], *own)
+        if preset.sensors is None:
+            fixed = {e.name for e in CALIBRATION}
+            self.specs = tuple(replace(s, lo=0.0, hi=0.0, fixed=NO_SENSORS) if s.name in fixed else s
+                               for s in self.specs)  # fmt: skip
         self.index = {spec.name: i for i, spec in enumerate(self.specs)}
         plug = plugged is not None and controller == plugged.spec
         self.values = values_from(preset, "backstepping" if plug else controller, settings)

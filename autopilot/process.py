@@ -33,6 +33,7 @@ import numpy as np
 import zenoh
 
 from autopilot import (
+    calibration,
     commander_state,
     commands,
     flight_log,
@@ -45,6 +46,7 @@ from autopilot import (
 )
 from autopilot import tick as kernel
 from autopilot.arguments import build_parser, check
+from autopilot.calibration import Calibration
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.commands import SUPPORTED_MODES
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
@@ -58,7 +60,7 @@ from autopilot.offboard_lockstep import OffboardLockstep
 from autopilot.onboard_log import OnboardLog
 from autopilot.outbox import Outbox
 from autopilot.param_protocol import ParamProtocol
-from autopilot.params import ParamStore
+from autopilot.params import CALIBRATION, ParamStore
 from autopilot.plant_link import PlantLink
 from autopilot.receiver import Receiver
 from autopilot.records import (
@@ -78,6 +80,7 @@ from autopilot.tick import autopilot_tick, sensor_tick, warm_up
 from quadsitl import codec, failures, fastio, hil, wire
 from quadsitl.cli_util import UsageError, parse_controller_params, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
+from quadsitl.keys import param_values
 from quadsitl.process_util import (
     bind_udp,
     parse_remote,
@@ -97,6 +100,7 @@ GCS_BUDGET = 0.001  # [s] wall: the most time one reading of the ground-station 
 # A log's download: at most this many LOG_DATA (90 bytes each) a burst, so many to a datagram (about 1.7 kB): bursts
 # every GCS_POLL while one goes on
 LOG_DATA_BURST, LOG_DATA_PER_DATAGRAM = 128, 16
+CALIBRATION_SAMPLE = 0.004  # [s] wall: a calibration's samples, as PX4 SITL's 250 Hz IMU gives them
 
 
 class Autopilot:
@@ -163,6 +167,11 @@ class Autopilot:
             self.zenoh.also(self.onboard.add)
             self.outbox.on_said = lambda severity, text: self.onboard.say(self.commander.now, severity, text)
         self.logs = LogServer(logs, lambda: self.onboard.path if self.onboard else None)
+        self.calibration: Calibration | None = None  # the one running (MAV_CMD_PREFLIGHT_CALIBRATION)
+        self.cancel_calibration = False  # asked to cancel it
+        self.calibration_tick = -1  # the tick of its last sample (truth mode: one sample a tick at most)
+        self.next_sample = 0.0  # [s] wall: when its next sample is taken
+        self.gravity = preset.vehicle.gravity
         # The per-tick telemetry messages (autopilot.stream_frames) are built by the compiled tick and sent by the
         # compiled loop, on unsigned links (a signed link's frames are pymavlink's to sign: Python builds them all).
         frames = StreamFrames(len(links), self.origin, 4.0 * preset.actuators.max_thrust)
@@ -288,6 +297,8 @@ class Autopilot:
                 limit = min(limit, int(self.io[kernel.TICK]))  # Python's, which may hold the clock there
         if self.logs.sending:  # a log's download: its next burst from Python after GCS_POLL
             next_chores = min(next_chores, time.monotonic() + GCS_POLL)
+        if self.calibration is not None:  # a calibration: its next sample
+            next_chores = min(next_chores, self.next_sample)
         status, nbytes, flags, self.next_poll, wall = self.plant.serve(
             self.io, self.tick_arguments(), self.zenoh.deadline(next_chores), limit, self.destinations.out,
             self.ground_fds, self.next_poll, GCS_POLL,
@@ -526,6 +537,61 @@ class Autopilot:
         self.controller = self.params.build(applied)  # Ωr: the command in self.mem
         self.plug = self.controller.plug or plugin.no_plug()
         self.commander.settings = applied.settings
+        if self.estimator is not None:
+            cal = applied.calibration
+            self.estimator.calibrate(cal.gyro_offset, calibration.board_rotation(cal))
+
+    # ---- calibration (autopilot.calibration) -----------------------------------------------------------
+
+    def calibrating(self) -> bool:
+        return self.calibration is not None
+
+    def calibrate(self, kind: str | None) -> tuple[int, str, None]:
+        """MAV_CMD_PREFLIGHT_CALIBRATION, disarmed (:func:`autopilot.commands.preflight_calibration`): ``kind`` started
+        (GYRO, MAG, ACCEL, LEVEL), the one running cancelled ("", which is also PX4's "RC calibration ended" when none
+        runs), or one not run here refused (None)."""
+        if kind == "":  # cancelled at its next sample: after this answer (MAVSDK's cancel() waits for it, holding
+            self.cancel_calibration = self.calibration is not None  # the lock its "[cal]" texts' handler takes)
+            return mavlink.MAV_RESULT_ACCEPTED, "", None
+        if self.calibration is not None:
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED, f"Calibration: {self.calibration.kind} is running", None
+        if kind is None:
+            return mavlink.MAV_RESULT_UNSUPPORTED, calibration.NOT_RUN, None
+        if not self.has_state():
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "Calibration: no sensor data yet", None
+        self.calibration = Calibration(kind, self.params.applied().calibration, self.outbox.say)
+        if self.estimator is not None:
+            self.estimator.collect(True)
+        self.next_sample = time.monotonic() + CALIBRATION_SAMPLE
+        return mavlink.MAV_RESULT_ACCEPTED, "", None
+
+    def calibration_step(self) -> None:
+        """The running calibration's next sample (sensor mode: the corrected IMU samples since the last, averaged;
+        truth mode: the ideal sensors of the newest tick); when it ends, what it saved set and announced."""
+        c, tick = self.calibration, int(self.io[kernel.TICK])
+        if self.cancel_calibration:
+            self.cancel_calibration = False
+            c.cancel()
+        if not c.done:
+            roll, pitch = float(self.st[6]), float(self.st[7])
+            if self.estimator is not None:
+                taken = self.estimator.take()
+                if taken is not None:
+                    c.step(calibration.Sample(self.commander.now, *taken, roll, pitch))
+            elif tick != self.calibration_tick:
+                self.calibration_tick = tick
+                rates = tuple(float(r) for r in self.st[codec.BODY_RATES : codec.BODY_RATES + 3])
+                c.step(calibration.truth_sample(self.commander.now, roll, pitch, rates, self.gravity))
+        if not c.done:
+            return
+        self.calibration = None
+        if self.estimator is not None:
+            self.estimator.collect(False)
+        if c.saved is not None:
+            for name, value in param_values(c.saved, CALIBRATION).items():
+                if self.params.lookup(name)[2] != value and not self.params.set(name, value):
+                    self.param_protocol.send(*self.params.lookup(name))
+            self.apply_params()
 
     def publish_plan(self, again: bool = False) -> None:
         self.zenoh.publish_plan(self.missions, self.commander, again)
@@ -598,6 +664,9 @@ class Autopilot:
                 self.poll_gcs()
             if self.logs.sending:
                 self.send_log_data()
+            if self.calibration is not None and wall >= self.next_sample:
+                self.next_sample = wall + CALIBRATION_SAMPLE
+                self.calibration_step()
             if wall >= next_chores:
                 next_chores = wall + HOUSEKEEPING
                 self.chores(wall)

@@ -473,7 +473,8 @@ def estimate(flags: int, t_usec: int, period: float, est: tuple, st: np.ndarray)
     :func:`quadsitl.hil.decode_sensors`; ``t_usec`` [µs]: their HIL_SENSOR's time), its estimate into ``st`` (the
     VehicleState fields, then the body rates the controllers' eq (1) inverse came from: the bias-corrected gyro).
     Returns the estimator's status (ESTIMATE_*)."""
-    z, x, P, hist, eio, acc, e, ratio, scratch, out = est
+    z, x, P, hist, eio, acc, e, ratio, scratch, out, cal = est
+    ekf.calibrated(flags, z, cal)
     ekf.estimator_tick(flags, z, t_usec, period, (0.0, 0.0, 0.0), x, P, hist, eio, acc, e, ratio, scratch, out)
     for i in range(12):
         st[i] = out[i]
