@@ -44,6 +44,7 @@ LEVEL_TIME, LEVEL_TRIES, LEVEL_MAX_SPREAD, LEVEL_MAX_ANGLE = 0.5, 50, math.radia
 ACCEL_SAMPLES, ORIENTATION_FAILURES = 750, 4
 STILL_EMA, STILL_THRESHOLD, STILL_TIME, STILL_TIME_LENIENT, SIDE_ERROR = 0.5, 0.25, 1.3, 0.5, 5.0
 DETECT_TIMEOUT = 90.0
+NO_DATA = 100.0  # [s] wall: a calibration without samples fails (PX4: 1000 sensor polls of 100 ms)
 MAG_ROTATION_DEADLINE, MAG_ROTATION = 42.0 / 6 * 5, 0.5  # [s] 5 sides' share of 42 s; [rad] the integral to reach
 
 
@@ -120,6 +121,13 @@ class Calibration:
             self._worker.send(s)
         except StopIteration:
             self.done = True
+
+    def no_data(self) -> None:
+        """No sample for NO_DATA of wall time (the plant gone): it fails as PX4's does when its sensor stops."""
+        if not self.done:
+            self._worker.close()
+            self.done = True
+            self.say(CRITICAL, "[cal] calibration failed: reading sensor")
 
     def cancel(self) -> None:
         """PREFLIGHT_CALIBRATION with every param 0, while it runs."""

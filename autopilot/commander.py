@@ -1114,6 +1114,15 @@ class Commander:
         self.goto(x, y, altitude, yaw, speed)
         return True, ""
 
+    def outside_fence(self, x: float, y: float, altitude: float) -> bool:
+        """Whether a reposition or an orbit to (x, y NED [m], altitude [m]; NaN: the vehicle's) is outside the geofence
+        while a breach would be acted on (GF_ACTION beyond a warning): PX4's navigator then ignores it."""
+        if self.settings.geofence_action in (0, 1):
+            return False
+        cm = self.cm
+        x, y = (cm[X] if math.isnan(x) else x), (cm[Y] if math.isnan(y) else y)
+        return geofence.point_breach(cm, x, y, cm[ALTITUDE] if math.isnan(altitude) else altitude) != 0
+
     def orbit(self, radius: float, speed: float, yaw_mode: float, turns: float, x: float, y: float,
               altitude: float) -> tuple[bool, str]:  # fmt: skip
         """MAV_CMD_DO_ORBIT, as PX4 takes it: circle (x, y NED [m], altitude [m]) on ``radius`` [m] (its sign the way

@@ -152,6 +152,9 @@ def do_reposition(v: Vehicle, c: Command) -> Result:
     hold = as_int(c.param(2)) > 0 and as_int(c.param(2)) & 1
     if all(math.isnan(value) for value in (lat, lon, alt, yaw)):  # stop here
         x, y, altitude = v.commander.position_target_here()
+    if v.commander.outside_fence(x, y, altitude):  # accepted, and ignored, as PX4's navigator ignores it
+        v.outbox.say(mavlink.MAV_SEVERITY_CRITICAL, "Reposition is outside geofence")
+        return ACCEPTED, "", None
     return _result(*v.commander.reposition(x, y, altitude, yaw, speed, bool(hold)))
 
 
@@ -167,6 +170,9 @@ def do_orbit(v: Vehicle, c: Command) -> Result:
     except setpoints.SetpointError as exc:
         v.outbox.counters.refused += 1
         return DENIED, str(exc), None
+    if v.commander.flying() and v.commander.outside_fence(x, y, altitude):  # as a reposition outside
+        v.outbox.say(mavlink.MAV_SEVERITY_CRITICAL, "Orbit is outside geofence")
+        return ACCEPTED, "", None
     ok, reason = v.commander.orbit(c.param(1), c.param(2), c.param(3), c.param(4), x, y, altitude)
     if not ok and reason.endswith("(take off first)"):
         return mavlink.MAV_RESULT_TEMPORARILY_REJECTED, reason, None

@@ -145,12 +145,19 @@ def fence_breach(cm: np.ndarray, x: float, y: float) -> int:
 
 
 @jit
-def breach(cm: np.ndarray) -> int:
-    """How the vehicle (its last state seen, cm[X], cm[Y], cm[ALTITUDE]) breaches the geofence: BREACH_*, or 0."""
-    if cm[GF_MAX_HOR] > 0.0 and math.hypot(cm[X] - cm[HOME_X], cm[Y] - cm[HOME_Y]) > cm[GF_MAX_HOR]:
+def point_breach(cm: np.ndarray, x: float, y: float, altitude: float) -> int:
+    """How a point (x, y [m, NED], ``altitude`` [m, up from the origin]) breaches the geofence: BREACH_*, or 0 (PX4's
+    checkPointAgainstAllGeofences)."""
+    if cm[GF_MAX_HOR] > 0.0 and math.hypot(x - cm[HOME_X], y - cm[HOME_Y]) > cm[GF_MAX_HOR]:
         return BREACH_DISTANCE
-    if cm[GF_MAX_VER] > 0.0 and cm[ALTITUDE] - cm[HOME_ALT] > cm[GF_MAX_VER]:
+    if cm[GF_MAX_VER] > 0.0 and altitude - cm[HOME_ALT] > cm[GF_MAX_VER]:
         return BREACH_HEIGHT
     if cm[FENCE_N] > 0.0:
-        return fence_breach(cm, cm[X], cm[Y])
+        return fence_breach(cm, x, y)
     return 0
+
+
+@jit
+def breach(cm: np.ndarray) -> int:
+    """How the vehicle (its last state seen, cm[X], cm[Y], cm[ALTITUDE]) breaches the geofence: BREACH_*, or 0."""
+    return point_breach(cm, cm[X], cm[Y], cm[ALTITUDE])

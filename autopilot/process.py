@@ -171,6 +171,7 @@ class Autopilot:
         self.cancel_calibration = False  # asked to cancel it
         self.calibration_tick = -1  # the tick of its last sample (truth mode: one sample a tick at most)
         self.next_sample = 0.0  # [s] wall: when its next sample is taken
+        self.calibration_heard = 0.0  # [s] wall: when it last had a sample
         self.gravity = preset.vehicle.gravity
         # The per-tick telemetry messages (autopilot.stream_frames) are built by the compiled tick and sent by the
         # compiled loop, on unsigned links (a signed link's frames are pymavlink's to sign: Python builds them all).
@@ -562,7 +563,7 @@ class Autopilot:
         self.calibration = Calibration(kind, self.params.applied().calibration, self.outbox.say)
         if self.estimator is not None:
             self.estimator.collect(True)
-        self.next_sample = time.monotonic() + CALIBRATION_SAMPLE
+        self.next_sample = self.calibration_heard = time.monotonic() + CALIBRATION_SAMPLE
         return mavlink.MAV_RESULT_ACCEPTED, "", None
 
     def calibration_step(self) -> None:
@@ -574,14 +575,18 @@ class Autopilot:
             c.cancel()
         if not c.done:
             roll, pitch = float(self.st[6]), float(self.st[7])
+            wall = time.monotonic()
             if self.estimator is not None:
                 taken = self.estimator.take()
                 if taken is not None:
+                    self.calibration_heard = wall
                     c.step(calibration.Sample(self.commander.now, *taken, roll, pitch))
             elif tick != self.calibration_tick:
-                self.calibration_tick = tick
+                self.calibration_tick, self.calibration_heard = tick, wall
                 rates = tuple(float(r) for r in self.st[codec.BODY_RATES : codec.BODY_RATES + 3])
                 c.step(calibration.truth_sample(self.commander.now, roll, pitch, rates, self.gravity))
+            if wall - self.calibration_heard > calibration.NO_DATA:
+                c.no_data()
         if not c.done:
             return
         self.calibration = None

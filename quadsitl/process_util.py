@@ -105,6 +105,15 @@ def free_port(kind: int = socket.SOCK_DGRAM, avoid: Collection[int] = ()) -> int
     raise OSError("no free port on 127.0.0.1")
 
 
+def free_ports_apart(count: int, kind: int = socket.SOCK_DGRAM) -> list[int]:
+    """``count`` ports free on 127.0.0.1 now (:func:`free_port`), no two the same: each is picked avoiding those
+    before it, which are free too until their processes bind them."""
+    ports: list[int] = []
+    for _ in range(count):
+        ports.append(free_port(kind, avoid=ports))
+    return ports
+
+
 def bind_tcp(
     option: str, value: str, host: str, port: int, choose: str, host_option: str | None = None
 ) -> socket.socket:

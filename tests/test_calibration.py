@@ -164,6 +164,12 @@ def test_a_cancelled_calibration_says_so_and_saves_nothing():
     assert texts(said)[-1] == "[cal] calibration cancelled"
 
 
+def test_a_calibration_without_samples_fails_reading_the_sensor():
+    c, said = calibration(LEVEL)
+    c.no_data()
+    assert c.done and c.saved is None and texts(said)[-1] == "[cal] calibration failed: reading sensor"
+
+
 def test_the_estimator_applies_the_calibration_to_each_new_measurement_and_collects_them():
     est = Estimator(0.001, 9.8, (0.2, 0.0, 0.4))
     board = cal.board_rotation(CalibrationParams(board_pitch_deg=10.0))

@@ -14,6 +14,7 @@ import pytest
 from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
 
 from groundstation.launcher import free_port
+from quadsitl.process_util import free_ports_apart
 from tests.mavclient import Client
 
 
@@ -39,7 +40,7 @@ class Lines:
 
 @pytest.fixture
 def system(tmp_path):
-    ports = {k: free_port() for k in ("plant", "api")}
+    ports = dict(zip(("plant", "api"), free_ports_apart(2), strict=True))
     procs: list[subprocess.Popen] = []
 
     def start(name: str, argv: list[str]) -> subprocess.Popen:

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from groundstation.launcher import free_port
+from quadsitl.process_util import free_ports_apart
 from tests.test_fly import alive, children_of, procs, quadsitl  # noqa: F401 (procs is a fixture)
 
 
@@ -175,13 +176,13 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
 def test_a_dashboard_that_dies_is_reported_and_the_vehicle_flies_on(tmp_path, procs):  # noqa: F811
     from tests.mavclient import Client
 
-    port, gcs = free_port(socket.SOCK_STREAM), free_port()
+    port, (gcs, gcs_listen, api_listen) = free_port(socket.SOCK_STREAM), free_ports_apart(3)
     zenoh_ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     err = tmp_path / "stderr.txt"
     with open(err, "w") as f:
         up = subprocess.Popen(quadsitl("up", "-q", "--dashboard", "--dashboard-port", str(port), "--gcs-listen",
-                                       f"127.0.0.1:{free_port()}", "--gcs-remote", f"127.0.0.1:{gcs}", "--api-listen",
-                                       f"127.0.0.1:{free_port()}", "--api-remote", "none", "--zenoh-listen", zenoh_ep),
+                                       f"127.0.0.1:{gcs_listen}", "--gcs-remote", f"127.0.0.1:{gcs}", "--api-listen",
+                                       f"127.0.0.1:{api_listen}", "--api-remote", "none", "--zenoh-listen", zenoh_ep),
                               stderr=f)  # fmt: skip
     procs.append(up)
     url = f"http://127.0.0.1:{port}/"

@@ -16,11 +16,11 @@ import pytest
 from pymavlink import mavutil
 
 from groundstation import pacing, trajectories
-from groundstation.launcher import SETPOINTS_AHEAD, free_port
+from groundstation.launcher import SETPOINTS_AHEAD
 from groundstation.setpoint_grid import SETPOINT_MS
 from groundstation.telemetry_csv import read_csv
 from quadsitl.config import SENSOR_GROUND_S
-from quadsitl.process_util import children_of
+from quadsitl.process_util import children_of, free_ports_apart
 from quadsitl.state import Reference
 
 BIN = Path(sys.executable).parent
@@ -379,7 +379,7 @@ def test_sigterm_tears_everything_down(tmp_path, procs):
 
 
 def test_setpoint_loss_failsafe_with_a_raw_pymavlink_client(procs):
-    plant_port, gcs_port = free_port(), free_port()
+    plant_port, gcs_port = free_ports_apart(2)
     procs.append(subprocess.Popen([sys.executable, "-m", "autopilot", "--no-zenoh", "--plant-listen",
                                    f"127.0.0.1:{plant_port}", "--gcs-listen", f"127.0.0.1:{gcs_port}",
                                    "--gcs-remote", "none", "--api-listen", "127.0.0.1:0",

@@ -17,6 +17,7 @@ import pytest
 from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
 
 from groundstation.launcher import free_port
+from quadsitl.process_util import free_ports_apart
 from quadsitl.wire import link
 from tests.mavclient import Client
 
@@ -110,7 +111,7 @@ def datagrams(rng: random.Random, count: int) -> list[bytes]:
 
 @pytest.fixture
 def flying_vehicle():
-    ports = {name: free_port() for name in ("plant_listen", "gcs", "api", "plant_bind")}
+    ports = dict(zip(("plant_listen", "gcs", "api", "plant_bind"), free_ports_apart(4), strict=True))
     ports["zenoh"] = free_port(socket.SOCK_STREAM)
     ap = subprocess.Popen([sys.executable, "-m", "autopilot", "--zenoh-listen", f"tcp/127.0.0.1:{ports['zenoh']}",
                            "--plant-listen",

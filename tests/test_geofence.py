@@ -3,6 +3,8 @@ GF_MAX_HOR_DIST and GF_MAX_VER_DIST of home; and the commander's GF_ACTION on a 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -105,6 +107,16 @@ def test_terminate_turns_the_motors_off_and_none_checks_nothing():
     c = armed(0, SQUARE)
     fly(c, 1, 12.0)
     assert c.armed and c.messages == [] and c.cm[GF_BREACH] == 0
+
+
+def test_a_point_is_checked_as_the_vehicle_is_and_a_goto_outside_only_when_a_breach_is_acted_on():
+    c = armed(2, SQUARE, max_distance=50.0, max_height=20.0)
+    assert geofence.point_breach(c.cm, 5.0, 0.0, 5.0) == 0
+    assert geofence.point_breach(c.cm, 12.0, 0.0, 5.0) == geofence.BREACH_OUTSIDE
+    assert geofence.point_breach(c.cm, 5.0, 0.0, 30.0) == geofence.BREACH_HEIGHT  # home at 5 m
+    assert c.outside_fence(12.0, 0.0, 5.0) and not c.outside_fence(5.0, math.nan, math.nan)
+    warned = armed(1, SQUARE)  # GF_ACTION warning: PX4 lets a goto outside through
+    assert not warned.outside_fence(12.0, 0.0, 5.0)
 
 
 def test_the_distance_and_height_limits_are_breaches_too():

@@ -1,7 +1,8 @@
 """A geofence on ``quadsitl up`` as on PX4 SITL: MAVSDK-Python's ``geofence.py`` steps (an inclusion polygon 0.0001°
 around home, uploaded), the fence downloaded back as uploaded, a malformed one refused with the stored one kept, and a
 breach flown end to end: offboard north out of the fence, GF_ACTION's hold (PX4's default) stops the vehicle just
-beyond it, and its return brings it home. Rally points as MAVSDK's ``mission_import.py`` uploads them, and a return
+beyond it, and its return brings it home; a goto and an orbit beyond the fence are accepted and ignored, as PX4's
+navigator ignores them. Rally points as MAVSDK's ``mission_import.py`` uploads them, and a return
 that lands at the nearest."""
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.action import ActionAsync, OrbitYawBehavior
 from mavsdk.asyncio.plugins.geofence import (
     FenceType,
     GeofenceAsync,
@@ -62,6 +63,14 @@ async def fence_and_breach(port: int, action: int) -> dict:
         await action_.arm()
         await action_.takeoff()
         await until(tel.subscribe_position(), lambda p: p.relative_altitude_m > 2.9, 30)
+        if action == 2:  # a goto and an orbit beyond the fence: accepted and ignored, as PX4's navigator does
+            here = await first(tel.subscribe_position())
+            await action_.goto_location(lat + 0.001, lon, here.absolute_altitude_m, 0.0)
+            await action_.do_orbit(5.0, 2.0, OrbitYawBehavior.HOLD_FRONT_TO_CIRCLE_CENTER, lat + 0.001, lon,
+                                   here.absolute_altitude_m)  # fmt: skip
+            await asyncio.sleep(1.0)
+            seen["after_goto"] = (await first(tel.subscribe_position_velocity_ned())).position
+            seen["mode_after_goto"] = await first(tel.subscribe_flight_mode())
         await off.set_velocity_ned(VelocityNedYaw(2.0, 0.0, 0.0, 0.0))
         await off.start()
         wanted = FlightMode.HOLD if action == 2 else FlightMode.RETURN_TO_LAUNCH
@@ -92,6 +101,9 @@ def test_mavsdk_geofence_example_and_a_breach_flown_end_to_end(action):
     assert f"Geofence breached: outside the fence; action: {what}" in seen["said"], seen["said"]
     assert FENCE_NORTH < seen["north_at_breach"] < FENCE_NORTH + 2.0
     if action == 2:  # held where it stopped: at most its braking distance beyond the fence
+        assert "Reposition is outside geofence" in seen["said"] and "Orbit is outside geofence" in seen["said"]
+        assert math.hypot(seen["after_goto"].north_m, seen["after_goto"].east_m) < 0.5  # it stayed
+        assert seen["mode_after_goto"] == FlightMode.HOLD  # not orbiting
         assert abs(seen["north_held"] - seen["north_at_breach"]) < 3.0
         assert seen["north_landed"] > FENCE_NORTH
     else:  # returned home and landed there

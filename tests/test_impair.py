@@ -10,8 +10,8 @@ import time
 import pytest
 from pymavlink.dialects.v20 import common as M  # noqa: N812 (the MAVLink constants, short)
 
-from groundstation.launcher import free_port
 from quadsitl.cli_util import UsageError
+from quadsitl.process_util import free_ports_apart
 from sitl.impair import Impairment, ImpairmentSpec, parse_impairment
 from tests.mavclient import Client
 
@@ -42,7 +42,7 @@ def test_impairment_option_errors_name_the_key_and_value(text, message):
 
 
 def test_realtime_flight_through_5_percent_loss_and_2_ms_jitter_reaches_the_papers_references():
-    plant_port, api = free_port(), free_port()
+    plant_port, api = free_ports_apart(2)
     ap = subprocess.Popen([sys.executable, "-m", "autopilot", "--no-zenoh", "--plant-listen", f"127.0.0.1:{plant_port}",
                            "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--api-listen", f"127.0.0.1:{api}",
                            "--api-remote", "none"])  # fmt: skip

@@ -16,7 +16,7 @@ from autopilot import tick as kernel
 from autopilot.process import Autopilot, build_parser
 from quadsitl import codec, fastio, wire
 from quadsitl.config import load_preset
-from quadsitl.process_util import PACE_WINDOW, PATIENCE, free_port, set_receive_timeout, wait_readable
+from quadsitl.process_util import PACE_WINDOW, PATIENCE, free_ports_apart, set_receive_timeout, wait_readable
 
 pytestmark = pytest.mark.skipif(not fastio.AVAILABLE, reason="compiled loops: Linux, numba on")
 PERIOD = 0.001
@@ -97,10 +97,10 @@ def test_the_compiled_receive_polls_for_its_patience_and_counts_the_wait():
 def vehicle():
     """An autopilot (the process's object, no Zenoh; its api link streams telemetry to a port) and a socket that
     plays its plant."""
-    port = free_port()
+    port, remote = free_ports_apart(2)
     args = build_parser().parse_args(["--preset", "paper", "--plant-listen", f"127.0.0.1:{port}", "--gcs-listen",
                                       "127.0.0.1:0", "--gcs-remote", "none", "--api-listen", "127.0.0.1:0",
-                                      "--api-remote", f"127.0.0.1:{free_port()}", "--no-zenoh"])  # fmt: skip
+                                      "--api-remote", f"127.0.0.1:{remote}", "--no-zenoh"])  # fmt: skip
     args.home, args.signing_key = None, None
     ap = Autopilot(load_preset("paper"), args)
     plant = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

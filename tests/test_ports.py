@@ -19,7 +19,7 @@ from groundstation import cli, launcher
 from groundstation.fleet import plan_fleet
 from groundstation.launcher import planned_ports
 from quadsitl import process_util
-from quadsitl.process_util import PICK_PORTS, ephemeral_range, free_port
+from quadsitl.process_util import PICK_PORTS, ephemeral_range, free_port, free_ports_apart
 from tests.mavclient import free_ports
 
 
@@ -58,6 +58,16 @@ def test_ports_to_avoid_are_never_picked(monkeypatch):
     monkeypatch.setattr(process_util, "PICK_PORTS", (base, base + 4))
     avoid = {base, base + 1, base + 3}
     assert {free_port(avoid=avoid) for _ in range(50)} == {base + 2}
+
+
+def test_ports_picked_together_are_never_the_same(monkeypatch):
+    """A test's or a launcher's ports picked one after the other, none bound yet: each avoids those before it (two
+    picks of one test came out the same once in some thousands, and its autopilot could not bind)."""
+    monkeypatch.setattr(process_util, "ephemeral_range", lambda: (60000, 60999))
+    base = free_ports(3)
+    monkeypatch.setattr(process_util, "PICK_PORTS", (base, base + 3))
+    for _ in range(20):
+        assert sorted(free_ports_apart(3)) == [base, base + 1, base + 2]
 
 
 class _Recorder:
