@@ -40,7 +40,11 @@ async def follow_me(port: int) -> dict:
         await until(tel.subscribe_position(), lambda p: p.relative_altitude_m > 2.4, 30)
         await follow.start()
         seen["mode"] = await until(tel.subscribe_flight_mode(), lambda f: f == FlightMode.FOLLOW_ME, 10)
-        seen["active"] = await follow.is_active()
+        for _ in range(20):  # MAVSDK's plugin learns the mode from the heartbeat in its own time
+            seen["active"] = await follow.is_active()
+            if seen["active"]:
+                break
+            await asyncio.sleep(0.1)
         target = TargetLocation(0, 0, 0, 0, 0, 0)
         for latitude, longitude in FAKE_LOCATION:
             target.latitude_deg, target.longitude_deg, target.absolute_altitude_m = latitude, longitude, 480.0
