@@ -28,6 +28,7 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass, replace
 
 from quadsitl import wire
+from quadsitl.frames import body_to_ned, euler_to_quaternion, ned_to_body, quaternion_multiply, quaternion_to_euler
 from quadsitl.keys import key
 from quadsitl.keys import mavlink as param
 
@@ -178,7 +179,8 @@ class Calibration:
 
     def _level(self) -> Worker:
         self._started()
-        board = board_rotation(self.params)
+        p = self.params
+        board = euler_to_quaternion(math.radians(p.board_roll_deg), math.radians(p.board_pitch_deg), 0.0)
         for _ in range(LEVEL_TRIES):
             first = yield
             angles, said = [], -100
@@ -313,23 +315,20 @@ class Calibration:
 
 
 def board_rotation(p: CalibrationParams) -> tuple[tuple[float, ...], ...]:
-    """R(roll, pitch) of the board offsets (PX4's Dcm of the Euler angles, yaw 0): body = R·sensor."""
-    r, q = math.radians(p.board_roll_deg), math.radians(p.board_pitch_deg)
-    cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(q), math.sin(q)
-    return ((cp, sp * sr, sp * cr), (0.0, cr, -sr), (-sp, cp * sr, cp * cr))
+    """R(roll, pitch) of the board offsets (PX4's Dcm of the Euler angles, yaw 0) as rows: body = R·sensor."""
+    q = euler_to_quaternion(math.radians(p.board_roll_deg), math.radians(p.board_pitch_deg), 0.0)
+    columns = [body_to_ned(q, *axis) for axis in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))]
+    return tuple(tuple(c[i] for c in columns) for i in range(3))
 
 
 def truth_sample(t: float, roll: float, pitch: float, rates: tuple[float, float, float], gravity: float) -> Sample:
     """Truth mode's ideal sensors at rest: the true body rates [rad/s], and the specific force of gravity alone in
     body axes [m/s²] (the true state carries no acceleration; a calibration runs disarmed, at rest)."""
-    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
-    return Sample(t, rates, (gravity * sp, -gravity * sr * cp, -gravity * cr * cp), roll, pitch)
+    return Sample(t, rates, ned_to_body(euler_to_quaternion(roll, pitch, 0.0), 0.0, 0.0, -gravity), roll, pitch)
 
 
-def _board_angles(board: tuple[tuple[float, ...], ...], roll: float, pitch: float) -> tuple[float, float]:
-    """Roll and pitch [rad] of R_board·R(roll, pitch) (yaw ignored): the attitude the sensors themselves show, the
+def _board_angles(board: tuple[float, float, float, float], roll: float, pitch: float) -> tuple[float, float]:
+    """Roll and pitch [rad] of q_board ⊗ q(roll, pitch) (yaw ignored): the attitude the sensors themselves show, the
     board offsets in force taken back out (PX4's level calibration)."""
-    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
-    a = ((cp, sp * sr, sp * cr), (0.0, cr, -sr), (-sp, cp * sr, cp * cr))
-    m = [[sum(board[i][k] * a[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-    return math.atan2(m[2][1], m[2][2]), math.asin(max(-1.0, min(1.0, -m[2][0])))
+    roll, pitch, _ = quaternion_to_euler(*quaternion_multiply(board, euler_to_quaternion(roll, pitch, 0.0)))
+    return roll, pitch
