@@ -86,6 +86,20 @@ def _warm_the_engine(version: int):
 ENGINE_PARTS = (("engine-paper", (), _warm_the_engine(0)), ("engine-general", (), _warm_the_engine(1)))
 
 
+def _warm_the_sensor_sim() -> None:
+    """``sim``'s compiled loop on sensors (the estimator's path in it: 160-230 s cold on a 2-core guest)."""
+    from groundstation.api import sim
+
+    sim("x500", state="sensors", duration=0.01)
+
+
+# sim on sensors, one part: the tests that fly it (the fixture sensor_sim) wait for it. Compiled by the test that came
+# first, it was compiled by two or three workers at once when their tests came together, each on a core of two, for
+# longer than a test's timeout, while the real-time flights beside them starved.
+SENSOR_PARTS = (("sim-sensors", (), _warm_the_sensor_sim),)
+LATER_PARTS = ENGINE_PARTS + SENSOR_PARTS
+
+
 def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.1, extra: tuple = ()) -> None:
     """Compile ``parts`` into numba's cache, each once among the pytest-xdist workers that share the directory
     ``shared``: a worker takes a part nobody has taken whose needs are done (worker ``worker`` starts with the part
@@ -139,7 +153,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     controller = bool(getattr(config.option, "numprocesses", None)) and not hasattr(config, "workerinput")
     if controller or config.option.collectonly:
         return
-    _warm(WARM_PARTS, config._tmp_path_factory, extra=ENGINE_PARTS)
+    _warm(WARM_PARTS, config._tmp_path_factory, extra=LATER_PARTS)
     _WARMED.append(True)
 
 
@@ -151,7 +165,7 @@ def compiled(tmp_path_factory):
     """Every per-tick function in numba's cache: :func:`pytest_sessionstart` compiled them (or, should it not have
     run, here)."""
     if not _WARMED:
-        _warm(WARM_PARTS, tmp_path_factory, extra=ENGINE_PARTS)
+        _warm(WARM_PARTS, tmp_path_factory, extra=LATER_PARTS)
 
 
 @pytest.fixture(scope="session")
@@ -159,6 +173,13 @@ def batch_engine(compiled, tmp_path_factory):
     """The sweeps' batch engine in numba's cache (tests that fly it, or start processes that do): compiled here, or
     waited for while another worker compiles it."""
     _warm(ENGINE_PARTS, tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def sensor_sim(compiled, tmp_path_factory):
+    """``sim``'s loop on sensors in numba's cache (tests that run ``sim`` or the batch engine on sensors): compiled
+    here, or waited for while another worker compiles it."""
+    _warm(SENSOR_PARTS, tmp_path_factory)
 
 
 @pytest.fixture

@@ -43,7 +43,7 @@ def artifacts(tmp_path) -> Path:
     return out
 
 
-def wait_http(url: str, timeout: float = 20.0) -> None:
+def wait_http(url: str, timeout: float = 60.0) -> None:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         try:

@@ -272,7 +272,7 @@ def test_fly_on_sensors_is_deterministic_per_seed(flown, tmp_path):
 
 
 @pytest.mark.timeout(420)  # sim's sensor path compiles cold in 160-230 s on an idle 2-core machine; more under load
-def test_fly_equals_sim_on_sensors(flown, tmp_path):
+def test_fly_equals_sim_on_sensors(flown, tmp_path, sensor_sim):
     """``quadsitl sim --state sensors`` flies what ``fly`` flies: the same sensor noise, estimator and controller,
     composed of the same compiled functions. The estimate agrees to float32's precision (the forces cross the wire
     as float32), the truth to HIL_STATE_QUATERNION's quantisation (1e-7 deg, 1 mm)."""

@@ -18,7 +18,7 @@ from groundstation.sweep.trials import trial_preset
 from groundstation.telemetry_csv import read_csv
 from quadsitl.config import ConfigError
 
-pytestmark = [pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.timeout(300), pytest.mark.usefixtures("sensor_sim")]  # x500-wind-hold flies sim on sensors
 
 TRACKING = [engine.METRICS.index(n) for n in engine.POSITION_METRICS]
 

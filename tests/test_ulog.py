@@ -112,7 +112,7 @@ def test_pyulogs_commands_read_it(circle, tmp_path):
     assert float(last["x"]) == pytest.approx(t["x"][i], rel=F32, abs=1e-6)
 
 
-def test_in_sensor_mode_the_estimate_is_flown_and_the_truth_logged_beside_it(tmp_path):
+def test_in_sensor_mode_the_estimate_is_flown_and_the_truth_logged_beside_it(tmp_path, sensor_sim):
     r = subprocess.run(quadsitl("sim", "--preset", "x500", "--state", "sensors", "--trajectory",
                                 "hold:altitude=2,duration=3", "--no-figures", "--out", str(tmp_path)),
                        capture_output=True, text=True)  # fmt: skip
