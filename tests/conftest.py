@@ -97,7 +97,7 @@ def _warm_the_sensor_sim() -> None:
 # first, it was compiled by two or three workers at once when their tests came together, each on a core of two, for
 # longer than a test's timeout, while the real-time flights beside them starved.
 SENSOR_PARTS = (("sim-sensors", (), _warm_the_sensor_sim),)
-LATER_PARTS = ENGINE_PARTS + SENSOR_PARTS
+LATER_PARTS = SENSOR_PARTS + ENGINE_PARTS  # the longest first
 
 
 def warm_among_workers(parts: tuple, shared: Path, worker: int, poll: float = 0.1, extra: tuple = ()) -> None:
@@ -155,9 +155,34 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         return
     _warm(WARM_PARTS, config._tmp_path_factory, extra=LATER_PARTS)
     _WARMED.append(True)
+    if "PYTEST_XDIST_WORKER" in os.environ:
+        _warm_later_behind(config._tmp_path_factory.getbasetemp().parent / "numba-warm")
 
 
 _WARMED: list[bool] = []  # pytest_sessionstart compiled them
+_BEHIND: list[subprocess.Popen] = []  # the process compiling LATER_PARTS, when this worker started it
+
+
+def _warm_later_behind(shared: Path) -> None:
+    """The parts left of LATER_PARTS compiled from now on by a process of its own at low priority (nice 10), started
+    once in the run by the first worker here: the tests that need them (the fixtures batch_engine and sensor_sim)
+    find them compiled, or wait for the part under way, instead of compiling it in their own time (sim's loop on
+    sensors took longer than a test's timeout on a loaded CI machine). Should it stop, a fixture takes its part over."""
+    try:
+        (shared / "later.started").touch(exist_ok=False)
+    except FileExistsError:
+        return
+    code = f"from pathlib import Path; from tests.conftest import LATER_PARTS, warm_among_workers; " \
+           f"warm_among_workers(LATER_PARTS, Path({str(shared)!r}), 0)"  # fmt: skip
+    _BEHIND.append(subprocess.Popen([sys.executable, "-c", code], cwd=Path(__file__).parent.parent,
+                                    preexec_fn=lambda: os.nice(10)))  # fmt: skip
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    for p in _BEHIND:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
 
 
 @pytest.fixture(scope="session", autouse=True)
