@@ -169,6 +169,44 @@ def parameter_array(e: EstimatorParams, field_ned: tuple[float, float, float], g
     )  # fmt: skip
 
 
+# report(): the newest measurements the filter took (accelerometer [m/s²], gyro [rad/s], magnetometer [gauss], FRD,
+# after the calibration; barometric altitude [m AMSL]), then its health as ESTIMATOR_STATUS says it
+REPORT_ACCEL, REPORT_GYRO, REPORT_MAG, REPORT_BARO, REPORT_FLAGS, REPORT_SIZE = 0, 3, 6, 9, 10, 17
+VALID = (ESTIMATOR_ATTITUDE | ESTIMATOR_VELOCITY_HORIZ | ESTIMATOR_VELOCITY_VERT | ESTIMATOR_POS_HORIZ_REL
+         | ESTIMATOR_POS_HORIZ_ABS | ESTIMATOR_POS_VERT_ABS)  # fmt: skip
+
+
+@jit(inline=True)
+def report(z: np.ndarray, x: np.ndarray, P: np.ndarray, io: np.ndarray, ratio: np.ndarray) -> tuple:
+    """The filter's report (REPORT_SIZE floats, REPORT_*), for every reader: the telemetry's ``sensors`` record (the
+    autopilot's tick and ``sim``), HIGHRES_IMU and ESTIMATOR_STATUS. First the newest measurements it took (``z``:
+    accelerometer, gyro, magnetometer, barometric altitude); then its health as PX4's EKF2 reports it: the flags of
+    what is valid (ESTIMATOR_*: attitude, velocity, relative and absolute horizontal position, absolute vertical
+    position; none while aligning or diverged or the IMU is lost; no absolute horizontal position while the GPS is
+    lost; GPS_GLITCH while GPS positions are refused), the innovation test ratios (> 1: refused) of the velocity,
+    horizontal position, vertical position (barometer) and magnetometer (each the largest of its components, at the
+    last fusion), and the 1σ horizontal and vertical position accuracy [m] from P."""
+    aligned = io[ALIGNED] != 0
+    valid = aligned and io[DIVERGED] == 0
+    flags = VALID if valid else 0
+    if valid and io[LOST] & LOST_GPS:  # dead reckoning: no absolute horizontal position
+        flags &= ~ESTIMATOR_POS_HORIZ_ABS
+    if valid and io[LOST] & LOST_IMU:  # predicting on the last samples: nothing is to be trusted
+        flags = 0
+    r = ratio
+    if aligned and max(r[0], r[1]) > 1.0:
+        flags |= ESTIMATOR_GPS_GLITCH
+    return (z[Z_ACCEL], z[Z_ACCEL + 1], z[Z_ACCEL + 2], z[Z_GYRO], z[Z_GYRO + 1], z[Z_GYRO + 2], z[Z_MAG], z[Z_MAG + 1],
+            z[Z_MAG + 2], z[Z_BARO], float(flags), max(r[2], r[3], r[4]), max(r[0], r[1]), r[5], max(r[6], r[7], r[8]),
+            math.sqrt(max(P[DP, DP] + P[DP + 1, DP + 1], 0.0)), math.sqrt(max(P[DP + 2, DP + 2], 0.0)))  # fmt: skip
+
+
+@jit(inline=True)
+def report_of(est: tuple) -> tuple:
+    """:func:`report` of a filter's arrays (:attr:`Estimator.arrays`, as the compiled ticks carry them)."""
+    return report(est[0], est[1], est[2], est[4], est[7])
+
+
 @jit(inline=True)
 def _quaternion(x: np.ndarray) -> tuple[float, float, float, float]:
     return (x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
@@ -718,28 +756,19 @@ class Estimator:
         ``divergence_time_s``, or a non-finite state. A sensor that stops is lost (:attr:`lost`), not diverged."""
         return bool(self.io[DIVERGED])
 
+    def report(self) -> tuple[float, ...]:
+        """What the filter took and how it is (:func:`report`): the telemetry's ``sensors`` record's fields."""
+        return report_of(self.arrays)
+
     def status(self) -> tuple[int, float, float, float, float, float, float]:
-        """The filter's health as ``ESTIMATOR_STATUS`` says it (PX4's EKF2 fills it likewise): the flags of what is
-        valid (ESTIMATOR_*: attitude, velocity, relative and absolute horizontal position, absolute vertical
-        position; none while aligning or diverged or the IMU is lost; no absolute horizontal position while the
-        GPS is lost;
-        GPS_GLITCH while GPS positions are refused), the innovation test
-        ratios (> 1: refused) of the velocity, horizontal position, vertical position (barometer) and magnetometer
-        (each the largest of its components, at the last fusion), and the 1σ horizontal and vertical position
-        accuracy [m] from P."""
-        r = self.ratio
-        valid = self.aligned and not self.diverged
-        flags = (ESTIMATOR_ATTITUDE | ESTIMATOR_VELOCITY_HORIZ | ESTIMATOR_VELOCITY_VERT | ESTIMATOR_POS_HORIZ_REL
-                 | ESTIMATOR_POS_HORIZ_ABS | ESTIMATOR_POS_VERT_ABS) if valid else 0  # fmt: skip
-        if valid and self.lost & LOST_GPS:  # dead reckoning: no absolute horizontal position
-            flags &= ~ESTIMATOR_POS_HORIZ_ABS
-        if valid and self.lost & LOST_IMU:  # predicting on the last samples: nothing is to be trusted
-            flags = 0
-        if self.aligned and max(r[0], r[1]) > 1.0:
-            flags |= ESTIMATOR_GPS_GLITCH
-        P = self.P
-        return (flags, float(max(r[2], r[3], r[4])), float(max(r[0], r[1])), float(r[5]), float(max(r[6], r[7], r[8])),
-                math.sqrt(max(P[DP, DP] + P[DP + 1, DP + 1], 0.0)), math.sqrt(max(P[DP + 2, DP + 2], 0.0)))  # fmt: skip
+        """The filter's health as ``ESTIMATOR_STATUS`` says it: flags, then the test ratios and accuracies
+        (:func:`report`'s last seven)."""
+        r = self.report()
+        return (int(r[REPORT_FLAGS]), *r[REPORT_FLAGS + 1 :])
+
+    def measurements(self) -> tuple[float, ...]:
+        """The newest measurements it took, as HIGHRES_IMU says them (:func:`report`'s first ten)."""
+        return self.report()[:REPORT_FLAGS]
 
     @property
     def gyro_bias(self) -> np.ndarray:

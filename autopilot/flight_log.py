@@ -18,6 +18,10 @@ after them in sensor mode: ``quadsitl sim``'s :func:`groundstation.offline.telem
 | ``vehicle_status`` (1 s) | arming_state 2 (armed), nav_state (offboard 14 or mission 3) |
 | ``battery_status`` (200 ms) | a vehicle with a battery: voltage_v, current_a, discharged_mah, remaining |
 | ``vehicle_local_position_groundtruth``, ``vehicle_attitude_groundtruth`` | sensor mode: the truth (as PX4 SITL) |
+| ``sensor_combined`` (5 ms) | sensor mode: gyro_rad, accelerometer_m_s2 (the samples the estimator took, FRD) |
+| ``vehicle_magnetometer`` (200 ms) | sensor mode: magnetometer_ga [gauss, FRD] |
+| ``vehicle_air_data`` (200 ms) | sensor mode: baro_alt_meter, and pressure, temperature, density of the ISA there |
+| ``estimator_status`` (200 ms) | sensor mode: solution_status_flags, the test ratios, the position accuracies |
 
 The parameters are the autopilot's (:func:`autopilot.params.values_from`); the information names the system
 (``sys_name``, ``ver_hw``: SITL, ``ver_sw``), the preset and the controller."""
@@ -31,15 +35,18 @@ import numpy as np
 
 from autopilot.commander import CommanderSettings
 from autopilot.params import CONTROLLER_TYPES, SPECS, commander_settings, values_from
-from quadsitl import __version__, ulog
+from quadsitl import __version__, earth, ulog
 from quadsitl.config import Preset
 from quadsitl.frames import PX4_HOME, euler_to_quaternion, ned_to_geodetic
-from quadsitl.telemetry import TRUTH, record_dtype
+from quadsitl.telemetry import SENSING, TRUTH, record_dtype
 
 # PX4's default logging intervals [ms] (logged_topics.cpp, add_default_topics)
 INTERVAL_MS = {"vehicle_attitude": 50, "vehicle_attitude_setpoint": 50, "vehicle_angular_velocity": 20,
                "vehicle_local_position": 100, "vehicle_local_position_setpoint": 100, "vehicle_global_position": 200,
-               "actuator_outputs": 100, "vehicle_status": 1000, "battery_status": 200}  # fmt: skip
+               "actuator_outputs": 100, "vehicle_status": 1000, "battery_status": 200, "vehicle_magnetometer": 200,
+               "vehicle_air_data": 200, "estimator_status": 200,
+               # logged as published (interval 0), at IMU_INTEG_RATE: 200 Hz
+               "sensor_combined": 5}  # fmt: skip
 NAV_OFFBOARD, NAV_MISSION = 14, 3  # vehicle_status.nav_state
 # vehicle_status.nav_state of each of the autopilot's modes (quadsitl.telemetry.MODES): hold AUTO_LOITER, offboard,
 # land AUTO_LAND, takeoff AUTO_TAKEOFF, rtl AUTO_RTL, mission AUTO_MISSION, posctl POSCTL, altctl ALTCTL,
@@ -103,15 +110,15 @@ def _local_position(name: str, t: np.ndarray, c: Mapping[str, np.ndarray], home:
 
 
 def logged_streams(sensing: bool) -> tuple[str, ...]:
-    """The telemetry records a flight log is made of (:mod:`quadsitl.telemetry`'s streams): the truth's too in sensor
-    mode."""
-    return ("state", "setpoint", "actuators", *((TRUTH,) if sensing else ()))
+    """The telemetry records a flight log is made of (:mod:`quadsitl.telemetry`'s streams): the truth's and the
+    sensors' too in sensor mode."""
+    return ("state", "setpoint", "actuators", *(SENSING if sensing else ()))
 
 
 def record_columns(records: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Telemetry columns ({column: values}, as :func:`topics_of` takes them) of the autopilot's telemetry records
     ({stream: structured array}, :mod:`quadsitl.telemetry`'s streams, each the same ticks): each field by its name,
-    the truth's with ``_true``."""
+    the truth's with ``_true`` (the sensors' are telemetry.csv's columns by their own names)."""
     columns: dict[str, np.ndarray] = {}
     for stream, rows in records.items():
         suffix = "_true" if stream == TRUTH else ""
@@ -121,11 +128,12 @@ def record_columns(records: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def topics_of(columns: Mapping[str, np.ndarray], f_max: float, home: tuple = PX4_HOME, mission: bool = False,
-              before: float | None = None) -> list[ulog.Topic]:  # fmt: skip
+              before: float | None = None, *, period: float) -> list[ulog.Topic]:  # fmt: skip
     """The topics of a flight's telemetry ``columns`` ({column: values}, telemetry.csv's; with ``armed`` and ``mode``
     (the status record's) when the autopilot logs them) flown from ``home`` (lat, lon [deg], alt [m AMSL]) with
-    motors of ``f_max`` [N] each; ``mission``: without a ``mode`` column, a mission's flight (nav_state AUTO_MISSION,
-    else OFFBOARD); ``before``: the time [s] of the row logged before these (a flight logged in parts)."""
+    motors of ``f_max`` [N] each, at the control period ``period`` [s] (one IMU sample each); ``mission``: without a
+    ``mode`` column, a mission's flight (nav_state AUTO_MISSION, else OFFBOARD); ``before``: the time [s] of the row
+    logged before these (a flight logged in parts)."""
     c = columns
     t = np.asarray(c["t"], dtype=np.float64)
     topics = [_attitude("vehicle_attitude", t, c, before)]
@@ -182,6 +190,52 @@ def topics_of(columns: Mapping[str, np.ndarray], f_max: float, home: tuple = PX4
         truth = {k[: -len("_true")]: v for k, v in c.items() if k.endswith("_true")}
         topics.append(_attitude("vehicle_attitude_groundtruth", t, truth, before))
         topics.append(_local_position("vehicle_local_position_groundtruth", t, truth, home, before))
+    if "accel_x" in c:  # sensor mode: what the estimator took, and its status
+        topics += _sensor_topics(t, c, before, period)
+    return topics
+
+
+def _sensor_topics(t: np.ndarray, c: Mapping[str, np.ndarray], before: float | None,
+                   period: float) -> list[ulog.Topic]:  # fmt: skip
+    """sensor_combined, vehicle_magnetometer, vehicle_air_data and estimator_status of the sensors' columns."""
+
+    def xyz(name: str, rows: np.ndarray) -> np.ndarray:
+        return np.column_stack([c[f"{name}_{a}"][rows] for a in "xyz"]).reshape(-1, 3)
+
+    rows = sampled(t, INTERVAL_MS["sensor_combined"], before)
+    n, dt = len(rows), np.uint32(round(period * 1e6))  # one sample of one control period
+    zero = np.zeros(n, dtype=np.uint8)
+    topics = [_topic("sensor_combined", ["float[3] gyro_rad", "uint32_t gyro_integral_dt",
+                                         "int32_t accelerometer_timestamp_relative", "float[3] accelerometer_m_s2",
+                                         "uint32_t accelerometer_integral_dt", "uint8_t accelerometer_clipping",
+                                         "uint8_t gyro_clipping"], t, rows,
+                     {"gyro_rad": xyz("gyro", rows), "gyro_integral_dt": np.full(n, dt),
+                      "accelerometer_timestamp_relative": np.zeros(n, dtype=np.int32),
+                      "accelerometer_m_s2": xyz("accel", rows), "accelerometer_integral_dt": np.full(n, dt),
+                      "accelerometer_clipping": zero, "gyro_clipping": zero})]  # fmt: skip
+    rows = sampled(t, INTERVAL_MS["vehicle_magnetometer"], before)
+    topics.append(_topic("vehicle_magnetometer", ["float[3] magnetometer_ga"], t, rows,
+                         {"magnetometer_ga": xyz("mag", rows)}, sampled_at=True))  # fmt: skip
+    rows = sampled(t, INTERVAL_MS["vehicle_air_data"], before)
+    alt = c["baro_alt"][rows]
+    isa = np.array([(earth.isa_pressure(h), earth.isa_temperature(h) - earth.ZERO_CELSIUS, earth.isa_density(h))
+                    for h in alt.tolist()]).reshape(-1, 3)  # fmt: skip
+    topics.append(_topic("vehicle_air_data", ["float baro_alt_meter", "float baro_temp_celcius",
+                                              "float baro_pressure_pa", "float rho"], t, rows,
+                         {"baro_alt_meter": alt, "baro_temp_celcius": isa[:, 1], "baro_pressure_pa": isa[:, 0],
+                          "rho": isa[:, 2]}, sampled_at=True))  # fmt: skip
+    rows = sampled(t, INTERVAL_MS["estimator_status"], before)
+    # PX4's MAVLink ESTIMATOR_STATUS is made of these: flags ← solution_status_flags, mag_ratio ← hdg_test_ratio,
+    # vel_ratio ← vel_test_ratio, pos_horiz_ratio ← pos_test_ratio, pos_vert_ratio ← hgt_test_ratio
+    topics.append(_topic("estimator_status", ["float pos_horiz_accuracy", "float pos_vert_accuracy",
+                                              "float hdg_test_ratio", "float vel_test_ratio", "float pos_test_ratio",
+                                              "float hgt_test_ratio", "uint16_t solution_status_flags"], t, rows,
+                         {"pos_horiz_accuracy": c["pos_horiz_accuracy"][rows],
+                          "pos_vert_accuracy": c["pos_vert_accuracy"][rows], "hdg_test_ratio": c["mag_ratio"][rows],
+                          "vel_test_ratio": c["vel_ratio"][rows], "pos_test_ratio": c["pos_horiz_ratio"][rows],
+                          "hgt_test_ratio": c["pos_vert_ratio"][rows],
+                          "solution_status_flags": c["estimator_flags"][rows].astype(np.uint16)},
+                         sampled_at=True))  # fmt: skip
     return topics
 
 
@@ -192,7 +246,7 @@ def definitions(preset: Preset, controller: str, sensing: bool, home: tuple = PX
     on ``preset``) and the system's information."""
     streams = (*logged_streams(sensing), *(("status",) if preset.battery is not None else ()))  # the battery's too
     empty = {stream: np.zeros(0, dtype=record_dtype(stream)) for stream in streams}
-    topics = topics_of(record_columns(empty), preset.actuators.max_thrust, home)
+    topics = topics_of(record_columns(empty), preset.actuators.max_thrust, home, period=preset.sim.period)
     if parameters is None:
         s = commander_settings(preset.position, CommanderSettings())
         built_in = controller in CONTROLLER_TYPES
@@ -212,5 +266,5 @@ def log_of(columns: Mapping[str, np.ndarray], preset: Preset, controller: str, h
     """The ULog of a whole flight's telemetry ``columns`` ({column: values}, telemetry.csv's), flown from ``home``
     (lat, lon [deg], alt [m AMSL]) by ``controller`` on ``preset``; ``mission``: a mission's flight."""
     log = definitions(preset, controller, "z_true" in columns, home)
-    log.topics = topics_of(columns, preset.actuators.max_thrust, home, mission)
+    log.topics = topics_of(columns, preset.actuators.max_thrust, home, mission, period=preset.sim.period)
     return log

@@ -19,7 +19,7 @@ from autopilot import flight_log
 from autopilot.tick import Batch
 from quadsitl import telemetry, ulog
 
-KEPT_MS = 10  # [ms] flight_log.INTERVAL_MS are all multiples of it
+KEPT_MS = 5  # [ms] flight_log.INTERVAL_MS are all multiples of it
 assert all(ms % KEPT_MS == 0 for ms in flight_log.INTERVAL_MS.values())
 WRITE_EVERY = 1.0  # [s] simulated: what a crash of the process may lose
 LEVELS = {level: name for name, level in ulog.LOG_LEVELS.items()}  # MAV_SEVERITY's numbers are ULog's levels
@@ -27,13 +27,14 @@ LEVELS = {level: name for name, level in ulog.LOG_LEVELS.items()}  # MAV_SEVERIT
 
 class OnboardLog:
     """Flight logs in ``directory``. ``definitions()``: a new log's definitions (topics, parameters as they are
-    now, information: :func:`autopilot.flight_log.definitions`); ``f_max`` [N] and ``home`` (lat, lon [deg], alt [m
-    AMSL]) as :func:`autopilot.flight_log.topics_of` takes them; ``streams``: the batch's streams logged (the truth's
-    in sensor mode)."""
+    now, information: :func:`autopilot.flight_log.definitions`); ``f_max`` [N], ``home`` (lat, lon [deg], alt [m
+    AMSL]) and the control ``period`` [s] as :func:`autopilot.flight_log.topics_of` takes them; ``streams``: the
+    batch's streams logged (the truth's and the sensors' in sensor mode)."""
 
     def __init__(self, directory: Path, definitions: Callable[[], ulog.Log], f_max: float, home: tuple,
-                 streams: tuple[str, ...]) -> None:  # fmt: skip
+                 streams: tuple[str, ...], period: float) -> None:  # fmt: skip
         self.directory, self.definitions, self.f_max, self.home = directory, definitions, f_max, home
+        self.period = period
         self.streams = ("status", *streams)
         self.dtypes = {stream: telemetry.record_dtype(stream) for stream in self.streams}
         self.writer: ulog.Writer | None = None
@@ -108,7 +109,8 @@ class OnboardLog:
         topics: list[ulog.Topic] = []
         if self.pending:
             columns = {name: np.concatenate([p[name] for p in self.pending]) for name in self.pending[0]}
-            topics = flight_log.topics_of(columns, self.f_max, self.home, before=self.last_written)
+            topics = flight_log.topics_of(columns, self.f_max, self.home, before=self.last_written,
+                                          period=self.period)  # fmt: skip
             self.last_written = float(columns["t"][-1])
         self.writer.append(topics, strings)
         self.writer.flush()

@@ -77,7 +77,7 @@ from autopilot.stream_frames import StreamFrames
 from autopilot.streams import MessageStreams, phase_of, spread_of
 from autopilot.telemetry_out import BATCH_WALL, Streams, ZenohOut
 from autopilot.tick import autopilot_tick, sensor_tick, warm_up
-from quadsitl import codec, failures, fastio, hil, wire
+from quadsitl import codec, failures, fastio, wire
 from quadsitl.cli_util import UsageError, parse_controller_params, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
 from quadsitl.keys import param_values
@@ -163,7 +163,7 @@ class Autopilot:
         logs = Path(args.logs) if args.logs else None
         if logs is not None:
             self.onboard = OnboardLog(logs, self.log_definitions, preset.actuators.max_thrust, self.origin,
-                                      flight_log.logged_streams(self.sensing))  # fmt: skip
+                                      flight_log.logged_streams(self.sensing), self.period)  # fmt: skip
             self.zenoh.also(self.onboard.add)
             self.outbox.on_said = lambda severity, text: self.onboard.say(self.commander.now, severity, text)
         self.logs = LogServer(logs, lambda: self.onboard.path if self.onboard else None)
@@ -410,15 +410,8 @@ class Autopilot:
             home=self._home(),
             target=self.commander.target if self.commander.armed else (math.nan,) * 4 + (ref.altitude, math.nan),
             estimator=None if self.estimator is None else self.estimator.status(),
-            imu=None if self.estimator is None else self.imu(),
+            imu=None if self.estimator is None else self.estimator.measurements(),
         )
-
-    def imu(self) -> tuple[float, ...]:
-        """Sensor mode: the newest measurements the estimator took, as HIGHRES_IMU says them (accel, gyro, mag, then
-        the barometric altitude)."""
-        z = self.estimator.z.tolist()
-        return (*z[hil.Z_ACCEL : hil.Z_ACCEL + 3], *z[hil.Z_GYRO : hil.Z_GYRO + 3], *z[hil.Z_MAG : hil.Z_MAG + 3],
-                z[hil.Z_BARO])  # fmt: skip
 
     def _home(self) -> tuple[float, float, float, float]:
         """Home (where the vehicle armed) in the local frame: x, y, z [m] NED and heading [rad]."""

@@ -133,7 +133,7 @@ class ZenohOut:
         self.readers: list[Callable[[Batch, int], None]] = []  # the batch's other readers (the onboard log)
         if session is None:
             return
-        for stream in (*telemetry.STREAMS, *([telemetry.TRUTH] if sensing else [])):
+        for stream in (*telemetry.STREAMS, *(telemetry.SENSING if sensing else ())):
             self.pubs[stream] = session.declare_publisher(telemetry.key(vehicle, stream),
                                                           encoding=telemetry.encoding(stream),
                                                           congestion_control=CONGESTION[congestion])  # fmt: skip

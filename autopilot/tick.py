@@ -102,6 +102,7 @@ from quadsitl.telemetry import (  # where a record's fields are [bytes]: globals
     AT_T,
     AT_TICK,
     FLOAT64,
+    SENSORS_AT_VALUES,
     SETPOINT_AT_REF,
     STATE_AT_P,
     STATE_AT_X,
@@ -120,6 +121,9 @@ STATE_SIZE, SETPOINT_SIZE, ACTUATORS_SIZE, STATUS_SIZE = (telemetry.STREAMS[s].s
 assert tuple(telemetry.STREAMS) == ("state", "setpoint", "actuators", "status")
 TRUTH_AT = STATE_SIZE + SETPOINT_SIZE + ACTUATORS_SIZE + STATUS_SIZE  # × capacity: the truth's region, after them
 assert telemetry.TRUTH_RECORD is telemetry.STREAMS["state"]  # the truth's record: the state's offsets (STATE_AT_*)
+SENSORS_AT = TRUTH_AT + STATE_SIZE  # × capacity: the sensors' region, after the truth's
+SENSORS_SIZE = telemetry.SENSORS_RECORD.size
+assert telemetry.SENSING == ("truth", "sensors") and len(telemetry.SENSORS_FIELDS) == 2 + ekf.REPORT_SIZE
 
 
 @jit(inline=True)
@@ -492,8 +496,8 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
     """Sensor mode: a sensor datagram from the plant (:mod:`quadsitl.hil`) → what to do, as :func:`autopilot_tick`.
     A new tick's measurements go to the estimator (``est``: :attr:`autopilot.estimator.Estimator.arrays`); its
     estimate becomes ``st`` and is flown. The plant's ground truth is decoded into ``truth`` and goes to the
-    telemetry records only: the controllers never see it. ``home``: the local origin (lat, lon [deg], alt [m AMSL])
-    the GPS positions are taken from."""
+    telemetry records only (the controllers never see it), with the estimator's report (the sensors' record).
+    ``home``: the local origin (lat, lon [deg], alt [m AMSL]) the GPS positions are taken from."""
     t, flags, dropped = decode_sensors(rx, length, home, est[0], truth, frame)
     if t < 0:
         return NOT_MINE if t == NOT_THIS_FRAME else REFUSED
@@ -518,6 +522,12 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
             _put(records, at + STATE_AT_X + FLOAT64 * i, truth[i])
         for i in range(3):
             _put(records, at + STATE_AT_P + FLOAT64 * i, truth[BODY_RATES + i])
+        at = io[CAPACITY] * SENSORS_AT + row * SENSORS_SIZE  # and the sensors' (what the estimator took, its health)
+        _put_int(records, at + AT_TICK, tick)
+        _put(records, at + AT_T, tick * period)
+        values = ekf.report_of(est)
+        for i in range(ekf.REPORT_SIZE):
+            _put(records, at + SENSORS_AT_VALUES + FLOAT64 * i, values[i])
     control_tick(kind, plug, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
     flags = _flags(io, tick) | _frames(tick, period, st, cm, mem, io, frames)
     if status != io[ESTIMATE]:
@@ -528,11 +538,13 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
 
 class Batch:
     """Telemetry records of up to ``capacity`` ticks: one buffer, the streams' regions one after the other
-    (telemetry.STREAMS' layouts, then the truth's, written in sensor mode only); io[ROWS] counts the rows written."""
+    (telemetry.STREAMS' layouts, then the truth's and the sensors', written in sensor mode only); io[ROWS] counts the
+    rows written."""
 
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
-        layouts = {**telemetry.STREAMS, telemetry.TRUTH: telemetry.TRUTH_RECORD}  # the truth last (TRUTH_AT)
+        # the truth's (TRUTH_AT), then the sensors' (SENSORS_AT)
+        layouts = {**telemetry.STREAMS, **{s: telemetry.layout(s)[0] for s in telemetry.SENSING}}
         self.records = np.zeros(capacity * sum(f.size for f in layouts.values()), dtype=np.uint8)
         self.regions, at = {}, 0
         for stream, f in layouts.items():

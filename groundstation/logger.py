@@ -16,9 +16,8 @@ import zenoh
 
 from quadsitl import telemetry
 
-DTYPES = {stream: telemetry.record_dtype(stream) for stream in telemetry.STREAMS}
-# the plant's ground truth, in sensor mode: laid out as the state
-DTYPES[telemetry.TRUTH] = telemetry.record_dtype("state")
+# the streams, and sensor mode's: the plant's ground truth (laid out as the state) and the sensors
+DTYPES = {stream: telemetry.record_dtype(stream) for stream in (*telemetry.STREAMS, *telemetry.SENSING)}
 STATUS_FIELDS = ("tick", "armed", "mode", "failsafe", "offboard_tick")
 CHANNEL = 1 << 20  # samples per stream that may wait for drain()
 
@@ -27,6 +26,8 @@ def by_tick(chunks: list[np.ndarray], stream: str, ticks: np.ndarray, names: tup
     """The fields ``names`` of a stream's records (``chunks`` as they arrived) at ``ticks``: the newest record of a
     tick that came twice, NaN for a tick that never came."""
     recs = joined_records(chunks, DTYPES[stream])[::-1]
+    if len(recs) == 0:
+        return [np.full(len(ticks), np.nan) for _ in names]
     _, first = np.unique(recs["tick"], return_index=True)
     kept = recs[first]
     at = np.minimum(np.searchsorted(kept["tick"], ticks), len(kept) - 1)
@@ -63,11 +64,12 @@ class TelemetryLogger:
         # Each stream's samples wait in a FIFO channel inside Zenoh (no Python runs when one arrives, so the
         # logger wakes no thread per sample); drain() takes them. A full channel holds Zenoh back, and with it a
         # vehicle whose publishers wait (fly's) or drop (up's): the capacity covers minutes of samples.
-        self._truth: list[np.ndarray] = []  # sensor mode: the ground truth beside the estimate
+        self._sensing: dict[str, list[np.ndarray]] = {s: [] for s in telemetry.SENSING}  # sensor mode: the ground
+        # truth beside the estimate, and the sensors
         self._battery: list[np.ndarray] = []  # a battery's status records (none kept for an ideal supply)
         self._subs = [
             (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(CHANNEL)))
-            for stream in (*telemetry.STREAMS, telemetry.TRUTH, telemetry.MISSION)
+            for stream in (*telemetry.STREAMS, *telemetry.SENSING, telemetry.MISSION)
         ]
         self.mission: dict | None = None  # the newest mission document (quadsitl.telemetry.decode_mission)
         self.mission_reached: list[tuple[int, float]] = []  # its (seq, simulated time [s]) reached
@@ -95,8 +97,8 @@ class TelemetryLogger:
                 self.malformed += 1
                 continue
             recs = np.frombuffer(data, dtype=DTYPES[stream])
-            if stream == telemetry.TRUTH:
-                self._truth.append(recs)
+            if stream in self._sensing:
+                self._sensing[stream].append(recs)
                 continue
             if stream != "status":
                 self._raw[stream].append(recs)
@@ -144,10 +146,11 @@ class TelemetryLogger:
 
     def complete(self) -> set[int]:
         """Flight ticks (counted from the flight's start) for which all four streams arrived, and in sensor mode the
-        truth's: a truth record still on its way must not become a row's NaN."""
+        truth's and the sensors': a record still on its way must not become a row's NaN."""
         flown, _ = self._joined()
-        if self._truth:  # sensor mode: the truth's record too (its columns would be NaN without it)
-            flown = np.intersect1d(flown, np.concatenate([r["tick"] for r in self._truth]))
+        for chunks in self._sensing.values():  # sensor mode: theirs too (their columns would be NaN without them)
+            if chunks:
+                flown = np.intersect1d(flown, np.concatenate([r["tick"] for r in chunks]))
         return set((flown.astype(np.int64) - self.flight_start_tick).tolist())
 
     def wait_for(self, ticks: int, quiet: float) -> bool:
@@ -175,8 +178,8 @@ class TelemetryLogger:
         return {s: int(ticks - np.isin(wanted, t.astype(np.int64)).sum()) for s, t in got.items()}
 
     def rows(self) -> dict[int, list[float]]:
-        """Flight tick → row in telemetry_csv.COLUMNS order (the truth's and the battery's after them, when there are
-        any: telemetry_csv.names_of), t = 0 at the flight's first tick."""
+        """Flight tick → row in telemetry_csv.COLUMNS order (sensor mode's and the battery's after them, when there
+        are any: telemetry_csv.names_of), t = 0 at the flight's first tick."""
         flown, recs = self._joined()
         s, r, a = recs["state"], recs["setpoint"], recs["actuators"]
         k = flown.astype(np.int64) - self.flight_start_tick
@@ -184,8 +187,9 @@ class TelemetryLogger:
                    s["pitch"], s["yaw"], s["p"], s["q"], s["r"], r["altitude_ref"], r["roll_ref"], r["pitch_ref"],
                    r["yaw_ref"], r["x_ref"], r["y_ref"], a["u1"], a["u2"], a["u3"], a["u4"], a["f1"], a["f2"], a["f3"],
                    a["f4"]]  # fmt: skip
-        if self._truth:  # sensor mode: the truth's columns (telemetry_csv.TRUTH_COLUMNS)
-            columns += by_tick(self._truth, telemetry.TRUTH, flown, telemetry.FIELDS["state"][2:])
+        if any(self._sensing.values()):  # sensor mode: the truth's and the sensors' (telemetry_csv.SENSING_COLUMNS)
+            for stream, chunks in self._sensing.items():
+                columns += by_tick(chunks, stream, flown, telemetry.layout(stream)[1][2:])
         if self._battery:  # a battery: its columns last (telemetry_csv.BATTERY_COLUMNS)
             columns += by_tick(self._battery, "status", flown, telemetry.BATTERY_FIELDS)
         table = np.column_stack(columns) if len(k) else np.zeros((0, len(columns)))

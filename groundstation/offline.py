@@ -33,16 +33,25 @@ from groundstation.figures import write_figures, write_mission_figure, write_pat
 from groundstation.metrics import battery_use, channel_outputs, estimate_rms, position_metrics, run_metrics
 from groundstation.mission_files import MISSION_DURATION, Mission
 from groundstation.setpoint_grid import grid_setpoints
-from groundstation.telemetry_csv import BATTERY_COLUMNS, TRUTH_COLUMNS, columns_from_arrays, stacked, write_csv
+from groundstation.telemetry_csv import (
+    BATTERY_COLUMNS,
+    SENSOR_COLUMNS,
+    TRUTH_COLUMNS,
+    columns_from_arrays,
+    stacked,
+    write_csv,
+)
 from groundstation.vehicle import (
     R_BATTERY,
     R_FORCES,
     R_INPUTS,
     R_REF,
     R_SEEN,
+    R_SENSORS,
     R_STATE,
     R_XY_REF,
     ROW_SIZE,
+    SENSING_ROW_SIZE,
     Setpoints,
     Vehicle,
     ground_ticks,
@@ -83,6 +92,7 @@ class SimResult:
     mission: MissionFlight | None = None  # a mission's flight: how it went
     controller_failed_at: float | None = None  # [s]: when a plugged controller commanded a non-finite value
     battery: np.ndarray | None = None  # (N, 5) the battery the autopilot knew: V, A, mAh, J, share left
+    sensors: np.ndarray | None = None  # (N, 17) sensor mode: the estimator's report (telemetry_csv.SENSOR_COLUMNS)
 
     def body_rates(self, state: np.ndarray | None = None) -> np.ndarray:
         """(N, 3) body rates p, q, r [rad/s] from the Euler-angle rates of ``state`` (default: the truth), eq (1)."""
@@ -116,12 +126,13 @@ def result_of(vehicle: Vehicle, rows: np.ndarray, diverged: bool) -> SimResult:
                      rows[:, R_SEEN : R_SEEN + 12] if vehicle.sensing else None,
                      rows[:, R_XY_REF : R_XY_REF + 2],
                      controller_failed_at=(failed - 1 - first) * vehicle.period if failed else None,
-                     battery=battery if vehicle.preset.battery is not None else None)  # fmt: skip
+                     battery=battery if vehicle.preset.battery is not None else None,
+                     sensors=rows[:, R_SENSORS:SENSING_ROW_SIZE] if vehicle.sensing else None)  # fmt: skip
 
 
 def rows_of(res: SimResult) -> np.ndarray:
-    """The flight's rows as :func:`groundstation.vehicle.record` lays them out (R_*; :func:`result_of`'s inverse):
-    the sweeps' kept trajectories."""
+    """The flight's rows as :func:`groundstation.vehicle.record` lays them out (R_*; :func:`result_of`'s inverse,
+    without the sensors' report): the sweeps' kept trajectories."""
     seen = res.state if res.estimate is None else res.estimate
     battery = np.full((len(res.t), 5), np.nan) if res.battery is None else res.battery
     rows = np.column_stack([res.state, seen, res.reference, res.position_reference, res.inputs, res.forces, battery])
@@ -273,8 +284,8 @@ def run_offline(
 
 def telemetry_columns(res: SimResult, rates: bool = True) -> dict[str, np.ndarray]:
     """The run's telemetry.csv as {column: values} (telemetry_csv.COLUMNS; in sensor mode the estimate flown in
-    x..r, the truth after, telemetry_csv.TRUTH_COLUMNS), as ``quadsitl fly``'s. Without ``rates`` the body rates p,
-    q, r are NaN (a sweep's metrics do not read them, and they cost one call per row:
+    x..r, the truth and the sensors after: telemetry_csv.SENSING_COLUMNS), as ``quadsitl fly``'s. Without ``rates``
+    the body rates p, q, r are NaN (a sweep's metrics do not read them, and they cost one call per row:
     docs/performance.md#a-flights-files)."""
 
     def body(state: np.ndarray) -> np.ndarray:
@@ -285,6 +296,7 @@ def telemetry_columns(res: SimResult, rates: bool = True) -> dict[str, np.ndarra
                                   res.position_reference)  # fmt: skip
     if res.estimate is not None:
         columns.update(zip(TRUTH_COLUMNS, [*res.state[:, :9].T, *body(res.state).T], strict=True))
+        columns.update(zip(SENSOR_COLUMNS, res.sensors.T, strict=True))
     if res.battery is not None:
         columns.update(zip(BATTERY_COLUMNS, res.battery.T, strict=True))
     return columns

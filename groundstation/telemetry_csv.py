@@ -7,7 +7,9 @@ controlled: attitude setpoints, ``quadsitl sim``); u1 [N], u2, u3 [N], u4 [N·m]
 forces [N].
 
 In sensor mode (``--state sensors``) x..r are the autopilot's estimate, what its controllers flew on, and the
-plant's ground truth follows in :data:`TRUTH_COLUMNS` (x_true .. r_true, the same quantities and units). A vehicle
+plant's ground truth follows in :data:`TRUTH_COLUMNS` (x_true .. r_true, the same quantities and units), then what
+the estimator took and how it was, :data:`SENSOR_COLUMNS` (the telemetry's sensors record: accel_x .. baro_alt,
+estimator_flags .. pos_vert_accuracy, :mod:`quadsitl.telemetry`). A vehicle
 with a battery has :data:`BATTERY_COLUMNS` last: what the autopilot knows of it (docs/battery.md), battery_v [V],
 battery_a [A], battery_mah and battery_j (the charge and energy drawn [mAh, J]), battery_remaining (0..1).
 """
@@ -29,19 +31,21 @@ COLUMNS = (
 
 
 TRUTH_COLUMNS = tuple(f"{c}_true" for c in ("x", "y", "z", "vx", "vy", "vz", "roll", "pitch", "yaw", "p", "q", "r"))
+SENSOR_COLUMNS = telemetry.SENSORS_FIELDS[2:]  # the sensors record's fields, by their names
+SENSING_COLUMNS = TRUTH_COLUMNS + SENSOR_COLUMNS  # sensor mode's
 BATTERY_COLUMNS = telemetry.BATTERY_FIELDS  # the status record's battery fields, by their names
 
 
 def names_of(width: int) -> tuple[str, ...]:
-    """The columns of telemetry rows ``width`` wide: :data:`COLUMNS`, then :data:`TRUTH_COLUMNS` (sensor mode) and
+    """The columns of telemetry rows ``width`` wide: :data:`COLUMNS`, then :data:`SENSING_COLUMNS` (sensor mode) and
     :data:`BATTERY_COLUMNS` (a battery) where the width has room for them."""
     extra = width - len(COLUMNS)
-    truth = extra in (len(TRUTH_COLUMNS), len(TRUTH_COLUMNS) + len(BATTERY_COLUMNS))
-    battery = extra in (len(BATTERY_COLUMNS), len(TRUTH_COLUMNS) + len(BATTERY_COLUMNS))
-    names = COLUMNS + (TRUTH_COLUMNS if truth else ()) + (BATTERY_COLUMNS if battery else ())
+    sensing = extra in (len(SENSING_COLUMNS), len(SENSING_COLUMNS) + len(BATTERY_COLUMNS))
+    battery = extra in (len(BATTERY_COLUMNS), len(SENSING_COLUMNS) + len(BATTERY_COLUMNS))
+    names = COLUMNS + (SENSING_COLUMNS if sensing else ()) + (BATTERY_COLUMNS if battery else ())
     if len(names) != width:
-        raise ValueError(f"telemetry rows of {width} columns: expected {len(COLUMNS)}, the truth's "
-                         f"{len(TRUTH_COLUMNS)} and the battery's {len(BATTERY_COLUMNS)} after, or not")  # fmt: skip
+        raise ValueError(f"telemetry rows of {width} columns: expected {len(COLUMNS)}, sensor mode's "
+                         f"{len(SENSING_COLUMNS)} and the battery's {len(BATTERY_COLUMNS)} after, or not")  # fmt: skip
     return names
 
 

@@ -32,7 +32,7 @@ from autopilot import commander as cmd
 from autopilot import plugin, setpoints
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
-from autopilot.estimator import Estimator
+from autopilot.estimator import REPORT_SIZE, Estimator, report_of
 from autopilot.params import commander_settings
 from autopilot.tick import autopilot_step, estimate, reference_shown
 from groundstation.setpoint_grid import POSITION_VELOCITY_YAW
@@ -62,8 +62,10 @@ from sitl.plant import (
 SP_FIELDS = cmd.SETPOINT_END - cmd.SETPOINT_FIRST
 # A row of the result (fly_ticks): the truth x(k) (12), what the autopilot flew on (12), the reference shown
 # (altitude, roll, pitch, yaw, x, y: autopilot.tick.reference_shown), u1..u4, the commanded forces f1..f4 [N], the
-# battery as the autopilot knows it (V, A, mAh, J, share left: the status record's; NaN without one).
+# battery as the autopilot knows it (V, A, mAh, J, share left: the status record's; NaN without one). On sensors the
+# row goes on with the estimator's report (autopilot.estimator.report: the telemetry's sensors record).
 R_STATE, R_SEEN, R_REF, R_XY_REF, R_INPUTS, R_FORCES, R_BATTERY, ROW_SIZE = 0, 12, 24, 28, 30, 34, 38, 43
+R_SENSORS, SENSING_ROW_SIZE = ROW_SIZE, ROW_SIZE + REPORT_SIZE
 
 
 @jit(inline=True)
@@ -186,6 +188,29 @@ def record(rows: np.ndarray, j: int, s: tuple, st: np.ndarray, cm: np.ndarray, m
         rows[j, R_BATTERY + i] = cm[cmd.BAT_V + i]
 
 
+@jit(inline=True)
+def _report(rows: np.ndarray, j: int, est: tuple) -> None:
+    values = report_of(est)
+    for i in range(REPORT_SIZE):
+        rows[j, R_SENSORS + i] = values[i]
+
+
+def record_sensors(rows: np.ndarray, j: int, est: tuple) -> None:
+    """On sensors (``est``: the estimator's arrays), row ``j``'s R_SENSORS columns: the estimator's report after the
+    tick; on the true state (``est`` = ()) nothing, and compiled, nothing is compiled for it."""
+    if len(est):
+        _report(rows, j, est)
+
+
+if not DISABLED:
+
+    @overload(record_sensors, inline="always")
+    def _record_sensors(rows, j, est):
+        if isinstance(est, types.BaseTuple) and len(est) == 0:
+            return lambda rows, j, est: None
+        return lambda rows, j, est: _report(rows, j, est)
+
+
 @jit
 def fly_ticks(first: int, n: int, recording: bool, kind: int, period: float, substeps: int, method: int,
               plant: tuple, sens: tuple, ap: tuple, est: tuple, home: tuple, f_min: float, f_max: float,
@@ -194,8 +219,8 @@ def fly_ticks(first: int, n: int, recording: bool, kind: int, period: float, sub
     (``sp_ticks``, ``sp_values``: :class:`Setpoints`; ``sp_next``[0] the first not yet flown) go to the commander, as
     the autopilot's handlers set them (cmd.SP_X..SP_YAW_RATE, stamped with the commander's time), then the tick
     (:func:`vehicle_tick`). With ``recording``, a state x(k) outside the bounds (:func:`sitl.plant.inside`) ends the
-    loop before its tick, and each tick's row goes to rows[k − first] (R_*). Returns the number of ticks flown (n
-    unless the state diverged)."""
+    loop before its tick, and each tick's row goes to rows[k − first] (R_*; on sensors SENSING_ROW_SIZE wide).
+    Returns the number of ticks flown (n unless the state diverged)."""
     w, cm = plant[0], ap[1]
     st, mem = ap[0], ap[2]
     for j in range(n):
@@ -208,6 +233,7 @@ def fly_ticks(first: int, n: int, recording: bool, kind: int, period: float, sub
         vehicle_tick(k, kind, period, substeps, method, plant, sens, ap, est, home, f_min, f_max)
         if recording:
             record(rows, j, s, st, cm, mem)
+            record_sensors(rows, j, est)
     return n
 
 
@@ -322,7 +348,7 @@ class Vehicle:
         ``state`` is the state that left its bounds, or when ``after_tick`` said stop). ``progress`` is called with
         the ticks flown so far every PROGRESS_TICKS; it only observes. ``after_tick``, when given, is called after
         every tick, as the autopilot process runs its mission executor after its compiled tick: False stops."""
-        rows = np.empty((n if record else 0, ROW_SIZE))
+        rows = np.empty((n if record else 0, SENSING_ROW_SIZE if self.sensing else ROW_SIZE))
         done = 0
         while done < n:
             if progress is not None and done % PROGRESS_TICKS == 0:

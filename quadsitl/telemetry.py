@@ -8,6 +8,12 @@ Keys (``<vehicle>`` defaults to ``v1``), one record per control tick on each:
     quadsitl/<vehicle>/status     tick, t, armed, mode, failsafe, offboard_tick, battery_v, battery_a, battery_mah,
                                   battery_j, battery_remaining
 
+and in sensor mode (``--state sensors``, where ``state`` is the estimate flown) two more:
+
+    quadsitl/<vehicle>/truth      the plant's ground truth, laid out as the state
+    quadsitl/<vehicle>/sensors    tick, t, accel_x/y/z, gyro_x/y/z, mag_x/y/z, baro_alt, estimator_flags, vel_ratio,
+                                  pos_horiz_ratio, pos_vert_ratio, mag_ratio, pos_horiz_accuracy, pos_vert_accuracy
+
 Encoding: little-endian C structs (``struct`` formats below): ``tick`` uint64 (control ticks since the
 plant started), ``t`` float64 simulated time [s], then float64 fields in SI units, radians, NED/FRD;
 setpoint: ``x_ref``, ``y_ref`` the horizontal position reference in local NED [m] (x north, y east), NaN
@@ -18,7 +24,10 @@ lost, 2 plant link lost, 3 ground station lost, 4 estimator failed, 5 controller
 8 battery, 9 manual control lost), ``offboard_tick``
 int64 (tick at which the current offboard flight started, −1 when not in an offboard flight), then the battery as
 the autopilot knows it (docs/battery.md): voltage [V], current [A], charge drawn [mAh], energy drawn [J], the share
-of its charge left (0..1), all float64, NaN without a battery (an ideal supply). The Zenoh
+of its charge left (0..1), all float64, NaN without a battery (an ideal supply); sensors: the newest samples the
+estimator took (FRD, calibrated: accelerometer [m/s²], gyro [rad/s], magnetometer [gauss]; barometric altitude
+[m AMSL]) and ESTIMATOR_STATUS's fields (its flags as a float64, the test ratios, the 1σ accuracies [m]), all
+float64 (:data:`SENSORS_FIELDS`; v4 added it). The Zenoh
 encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v4`` (:data:`SCHEMA_VERSION`).
 
 One more key is not per tick: ``quadsitl/<vehicle>/mission`` carries the stored mission as the dashboard draws
@@ -99,41 +108,68 @@ FIELDS: dict[str, tuple[str, ...]] = {
 FIELD_CODES = {"Q": "<u8", "d": "<f8", "B": "u1", "q": "<i8"}  # struct's code → numpy's type
 
 
+# In sensor mode the autopilot flies on its estimate: the state stream is that estimate, and two more streams go out
+# beside it, a record per tick each. Not in STREAMS: a truth-mode run has neither.
+# - quadsitl/<vehicle>/truth: the plant's ground truth, laid out as the state's (tick, t, x, y, z, vx, vy, vz, roll,
+#   pitch, yaw, p, q, r).
+# - quadsitl/<vehicle>/sensors: what the estimator took and how it is (autopilot.estimator.report): the newest
+#   accelerometer [m/s²], gyro [rad/s] and magnetometer [gauss] samples (FRD, calibrated), the barometric altitude
+#   [m AMSL]; then ESTIMATOR_STATUS's fields: its flags (a float64 holding the integer), the velocity, horizontal
+#   and vertical position and magnetometer test ratios, the horizontal and vertical position accuracy [m, 1σ].
+TRUTH = "truth"
+TRUTH_RECORD = STREAMS["state"]
+SENSORS = "sensors"
+SENSORS_RECORD = struct.Struct("<Qd17d")
+SENSORS_FIELDS = ("tick", "t", "accel_x", "accel_y", "accel_z", "gyro_x", "gyro_y", "gyro_z", "mag_x", "mag_y",
+                  "mag_z", "baro_alt", "estimator_flags", "vel_ratio", "pos_horiz_ratio", "pos_vert_ratio",
+                  "mag_ratio", "pos_horiz_accuracy", "pos_vert_accuracy")  # fmt: skip
+SENSING = (TRUTH, SENSORS)  # the streams of sensor mode, in the order they follow STREAMS'
+
+
+def layout(stream: str) -> tuple[struct.Struct, tuple[str, ...]]:
+    """A stream's record (its struct and its fields' names): STREAMS' and FIELDS', or sensor mode's."""
+    if stream == TRUTH:
+        return TRUTH_RECORD, FIELDS["state"]
+    if stream == SENSORS:
+        return SENSORS_RECORD, SENSORS_FIELDS
+    return STREAMS[stream], FIELDS[stream]
+
+
 def _codes(stream: str) -> list[str]:
     """The struct codes of a record's fields, one per field ("<Qd12d" → Q, d, d, ... d)."""
-    codes = re.findall(r"(\d*)([QdBq])", STREAMS[stream].format)
+    codes = re.findall(r"(\d*)([QdBq])", layout(stream)[0].format)
     return [code for count, code in codes for _ in range(int(count or 1))]
 
 
 def _offsets(stream: str) -> dict[str, int]:
-    codes = _codes(stream)
-    assert len(codes) == len(FIELDS[stream]), stream
-    return {f: struct.calcsize("<" + "".join(codes[:i])) for i, f in enumerate(FIELDS[stream])}
+    codes, fields = _codes(stream), layout(stream)[1]
+    assert len(codes) == len(fields), stream
+    return {f: struct.calcsize("<" + "".join(codes[:i])) for i, f in enumerate(fields)}
 
 
-OFFSETS: dict[str, dict[str, int]] = {stream: _offsets(stream) for stream in STREAMS}
+OFFSETS: dict[str, dict[str, int]] = {stream: _offsets(stream) for stream in (*STREAMS, SENSORS)}
 FLOAT64 = struct.calcsize("<d")  # [bytes] a float64 field: consecutive ones are this far apart
 AT_TICK, AT_T = OFFSETS["state"]["tick"], OFFSETS["state"]["t"]  # the same in every record
 assert all((o["tick"], o["t"]) == (AT_TICK, AT_T) for o in OFFSETS.values())
-assert all(set(_codes(s)[2:]) == {"d"} for s in ("state", "setpoint", "actuators"))  # after t: float64s in a row
+assert all(set(_codes(s)[2:]) == {"d"} for s in ("state", "setpoint", "actuators", SENSORS))  # after t: float64s
 STATE_AT_X, STATE_AT_P = OFFSETS["state"]["x"], OFFSETS["state"]["p"]  # x..yaw, then p, q, r
 SETPOINT_AT_REF = OFFSETS["setpoint"]["altitude_ref"]  # altitude_ref..y_ref
 ACTUATORS_AT_U = OFFSETS["actuators"]["u1"]  # u1..u4, f1..f4
 STATUS_AT_ARMED, STATUS_AT_MODE, STATUS_AT_FAILSAFE, STATUS_AT_OFFBOARD_TICK, STATUS_AT_BATTERY = (
     OFFSETS["status"][f] for f in ("armed", "mode", "failsafe", "offboard_tick", "battery_v"))  # fmt: skip
 BATTERY_FIELDS = FIELDS["status"][6:]  # battery_v .. battery_remaining, float64s in a row
+SENSORS_AT_VALUES = OFFSETS[SENSORS]["accel_x"]  # accel_x .. pos_vert_accuracy
 
 
 def record_dtype(stream: str) -> np.dtype:
-    """A record of ``stream`` (or of the truth, laid out as the state's) as a numpy structured type: its fields at
+    """A record of ``stream`` (STREAMS', or sensor mode's: :func:`layout`) as a numpy structured type: its fields at
     their offsets (the same bytes)."""
     import numpy as np
 
-    stream = "state" if stream == TRUTH else stream
-
-    size = STREAMS[stream].size
-    dtype = np.dtype({"names": list(FIELDS[stream]), "formats": [FIELD_CODES[c] for c in _codes(stream)],
-                      "offsets": list(OFFSETS[stream].values()), "itemsize": size})  # fmt: skip
+    record, fields = layout(stream)
+    size = record.size
+    dtype = np.dtype({"names": list(fields), "formats": [FIELD_CODES[c] for c in _codes(stream)],
+                      "offsets": list(_offsets(stream).values()), "itemsize": size})  # fmt: skip
     assert dtype.itemsize == size
     return dtype
 
@@ -153,12 +189,6 @@ MODES: dict[int, str] = {
     10: "follow",
 }
 
-
-# In sensor mode the autopilot flies on its estimate: the state stream is that estimate, and the plant's ground truth
-# goes out beside it on quadsitl/<vehicle>/truth, a record per tick laid out as the state's (tick, t, x, y, z, vx, vy,
-# vz, roll, pitch, yaw, p, q, r). Not in STREAMS: a truth-mode run has none.
-TRUTH = "truth"
-TRUTH_RECORD = STREAMS["state"]
 
 MISSION = "mission"  # the key quadsitl/<vehicle>/mission: the stored mission, JSON (not a per-tick stream)
 MISSION_SCHEMA = 1
@@ -326,8 +356,9 @@ def decode_mission(payload: bytes) -> dict:
 
 
 def records(stream: str, payload: bytes) -> list[tuple]:
-    """One sample → its records (tuples in FIELDS order). Raises ValueError on a malformed payload."""
-    fmt = STREAMS[stream]
+    """One sample → its records (tuples in its fields' order: :func:`layout`). Raises ValueError on a malformed
+    payload."""
+    fmt = layout(stream)[0]
     if not payload or len(payload) % fmt.size:
         raise ValueError(f"{stream}: payload of {len(payload)} bytes, expected a multiple of {fmt.size}")
     return list(fmt.iter_unpack(payload))
@@ -335,10 +366,10 @@ def records(stream: str, payload: bytes) -> list[tuple]:
 
 def decode(stream: str, payload: bytes) -> dict[str, float]:
     """One sample → {field: value}. Raises ValueError on a malformed payload."""
-    fmt = STREAMS[stream]
+    fmt, fields = layout(stream)
     if len(payload) != fmt.size:
         raise ValueError(f"{stream}: payload of {len(payload)} bytes, expected {fmt.size}")
-    return dict(zip(FIELDS[stream], fmt.unpack(payload)))
+    return dict(zip(fields, fmt.unpack(payload)))
 
 
 def zenoh_config(

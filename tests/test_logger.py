@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from groundstation.logger import DTYPES, TelemetryLogger, joined_records
+from groundstation.telemetry_csv import COLUMNS, SENSING_COLUMNS, names_of
 from quadsitl import telemetry
 
 STREAMS = [s for s in telemetry.STREAMS if s != "status"]
@@ -107,16 +108,20 @@ def test_the_logger_joins_its_samples_keeping_a_ticks_newest_record_and_only_tic
     assert joined_records([], DTYPES["state"]).shape == (0,)
 
 
-def test_on_sensors_the_logger_waits_for_the_truth_still_on_its_way():
-    """The truth's records come on a stream of their own: the last of them may still be on their way when the other
-    four streams are complete. Waited for, so that no row's truth columns are NaN for a record that was coming (a
-    telemetry.csv that differed from run to run at its last rows)."""
+@pytest.mark.parametrize("late_stream", telemetry.SENSING)
+def test_on_sensors_the_logger_waits_for_the_truth_and_the_sensors_still_on_their_way(late_stream):
+    """The truth's and the sensors' records come on streams of their own: the last of them may still be on their way
+    when the other four streams are complete. Waited for, so that no row's columns are NaN for a record that was
+    coming (a telemetry.csv that differed from run to run at its last rows)."""
     every = ("status", *STREAMS)
-    truth = (telemetry.TRUTH,)
-    late = logger_fed([(0.0, range(100, 200), every), (0.0, range(100, 150), truth), (0.3, range(150, 200), truth)])
+    other = tuple(s for s in telemetry.SENSING if s != late_stream)
+    late = logger_fed([(0.0, range(100, 200), every + other), (0.0, range(100, 150), (late_stream,)),
+                       (0.3, range(150, 200), (late_stream,))])  # fmt: skip
     began = time.monotonic()
     assert late.wait_for(100, quiet=1.0)
-    assert time.monotonic() - began > 0.25  # it waited for the truth's last records
+    assert time.monotonic() - began > 0.25  # it waited for the late stream's last records
     rows = late.rows()
     assert sorted(rows) == list(range(100))
-    assert not np.isnan(np.array([rows[k][28:40] for k in range(100)])).any()  # telemetry_csv.TRUTH_COLUMNS
+    table = np.array([rows[k] for k in range(100)])
+    names = names_of(table.shape[1])  # the status's zeros say a battery: its columns last
+    assert names[len(COLUMNS) : len(COLUMNS) + len(SENSING_COLUMNS)] == SENSING_COLUMNS and not np.isnan(table).any()

@@ -23,7 +23,7 @@ from autopilot.factory import make_controller
 from autopilot.plugin import no_plug
 from autopilot.stream_frames import StreamFrames
 from groundstation.launcher import free_port
-from groundstation.telemetry_csv import read_csv
+from groundstation.telemetry_csv import SENSOR_COLUMNS, read_csv
 from quadsitl import codec, earth, frames, hil, wire
 from quadsitl.config import SensorParams, load_preset
 from sitl import tick as plant_tick
@@ -291,13 +291,17 @@ def test_fly_equals_sim_on_sensors(flown, tmp_path, sensor_sim):
     assert np.max(np.hypot(s["x_true"] - d["x_true"], s["y_true"] - d["y_true"])) < 0.01  # lat/lon: 1e-7 deg
     assert np.max(np.abs(s["z_true"] - d["z_true"])) < 6e-4  # altitude: mm
     assert np.max(np.abs(s["vx_true"] - d["vx_true"])) < 6e-3  # cm/s
+    # What the estimator took (the same sensor datagram, encoded and decoded in both: float32's) and its status.
+    for c in SENSOR_COLUMNS:
+        assert np.max(np.abs(s[c] - d[c])) < 1e-5 * max(1.0, np.max(np.abs(d[c]))), c
+    assert np.array_equal(s["estimator_flags"], d["estimator_flags"]) and (d["estimator_flags"] == 63).all()
 
 
 @pytest.mark.timeout(120)
 def test_up_on_sensors_arms_once_aligned_takes_off_on_the_estimate_and_publishes_the_truth():
     """``quadsitl up --state sensors`` flown with pymavlink as a user would: armable only once the estimator has
     aligned, ESTIMATOR_STATUS valid, a takeoff to 3 m flown on the estimate (LOCAL_POSITION_NED), and the truth on
-    quadsitl/v1/truth beside the estimate on quadsitl/v1/state."""
+    quadsitl/v1/truth beside the estimate on quadsitl/v1/state, with what the estimator took on quadsitl/v1/sensors."""
     import queue
 
     import zenoh
@@ -309,8 +313,10 @@ def test_up_on_sensors_arms_once_aligned_takes_off_on_the_estimate_and_publishes
         c = Client(v.gcs_port)
         session = zenoh.open(telemetry.zenoh_config(connect=[v.zenoh]))
         truth: queue.Queue = queue.Queue()
+        sensors: queue.Queue = queue.Queue()
         try:
             session.declare_subscriber("quadsitl/v1/truth", lambda s: truth.put(s.payload.to_bytes()))
+            session.declare_subscriber("quadsitl/v1/sensors", lambda s: sensors.put(s.payload.to_bytes()))
             c.wait_armable(30)
             status = c.wait("ESTIMATOR_STATUS", timeout=20)
             assert status.flags & M.ESTIMATOR_ATTITUDE and status.flags & M.ESTIMATOR_POS_HORIZ_ABS
@@ -327,6 +333,24 @@ def test_up_on_sensors_arms_once_aligned_takes_off_on_the_estimate_and_publishes
                 newest = truth.get()
             latest = telemetry.records("state", newest)[-1]
             assert abs(-latest[4] - 3.0) < 0.15  # the truth is where the estimate says, within its error
+            newest = sensors.get(timeout=10)
+            while not sensors.empty():
+                newest = sensors.get()
+            took = telemetry.records(telemetry.SENSORS, newest)[-1]
+            took = dict(zip(telemetry.SENSORS_FIELDS, took, strict=True))
+            assert abs(took["accel_z"] + 9.8) < 0.5 and abs(took["baro_alt"] - 491.0) < 1.0  # hovering at 3 m
+            assert int(took["estimator_flags"]) & 63 == 63 and 0.0 < took["pos_horiz_accuracy"] < 2.0
+            # The vehicle's own log of the flight so far (written as it goes), with PX4's sensor topics
+            from pyulog import ULog
+
+            (path,) = v.logs.rglob("*.ulg")
+            data = {d.name: d.data for d in ULog(str(path)).data_list}
+            imu, est = data["sensor_combined"], data["estimator_status"]
+            steps = np.diff(imu["timestamp"].astype(np.int64))  # from arming, then each 5 ms of the flight's clock
+            assert (steps[1:] == 5000).all() and 0 < steps[0] <= 5000 and len(steps) > 100
+            assert np.all(est["solution_status_flags"] & 63 == 63)
+            assert abs(np.median(imu["accelerometer_m_s2[2]"]) + 9.8) < 0.5
+            assert {"vehicle_magnetometer", "vehicle_air_data"} <= set(data)
             assert v.proc.poll() is None
         finally:
             session.close()

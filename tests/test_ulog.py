@@ -17,9 +17,9 @@ from autopilot.flight_log import INTERVAL_MS, definitions, record_columns, topic
 from autopilot.onboard_log import OnboardLog
 from autopilot.tick import Batch
 from groundstation.telemetry_csv import read_csv
-from quadsitl import frames, ulog
+from quadsitl import earth, frames, ulog
 from quadsitl.config import load_preset
-from quadsitl.telemetry import TRUTH, record_dtype
+from quadsitl.telemetry import SENSING, SENSORS, record_dtype
 from tests.test_fly import quadsitl
 
 pytestmark = pytest.mark.timeout(300)
@@ -42,6 +42,44 @@ def close(a: np.ndarray, b: np.ndarray) -> bool:
     return np.allclose(a, b, rtol=F32, atol=1e-6, equal_nan=True)
 
 
+SENSOR_TOPICS = ("sensor_combined", "vehicle_magnetometer", "vehicle_air_data", "estimator_status")
+
+
+def assert_sensor_topics(data: dict[str, dict[str, np.ndarray]], t: dict[str, np.ndarray], period: float,
+                         home_alt: float) -> None:  # fmt: skip
+    """The sensor mode's topics are telemetry.csv's sensor columns at PX4's intervals, and say what a vehicle
+    holding 2 m on its sensors measures."""
+    for name in SENSOR_TOPICS:
+        stamps = data[name]["timestamp"].astype(np.int64)
+        assert len(stamps) == math.floor(t["t"][-1] / (INTERVAL_MS[name] / 1000.0)) + 1, name
+        assert (np.diff(stamps) == INTERVAL_MS[name] * 1000).all(), name
+    imu = data["sensor_combined"]
+    i = rows_at(t, imu["timestamp"])
+    for j, axis in enumerate("xyz"):
+        assert close(imu[f"gyro_rad[{j}]"], t[f"gyro_{axis}"][i]), axis
+        assert close(imu[f"accelerometer_m_s2[{j}]"], t[f"accel_{axis}"][i]), axis
+    assert (imu["gyro_integral_dt"] == round(period * 1e6)).all()
+    assert np.mean(imu["accelerometer_m_s2[2]"]) == pytest.approx(-9.8, abs=0.3)  # holding: −g along down
+    mag = data["vehicle_magnetometer"]
+    i = rows_at(t, mag["timestamp"])
+    assert all(close(mag[f"magnetometer_ga[{j}]"], t[f"mag_{a}"][i]) for j, a in enumerate("xyz"))
+    assert np.linalg.norm([mag[f"magnetometer_ga[{j}]"][-1] for j in range(3)]) == pytest.approx(0.48, abs=0.05)
+    air = data["vehicle_air_data"]
+    i = rows_at(t, air["timestamp"])
+    assert close(air["baro_alt_meter"], t["baro_alt"][i])
+    assert air["baro_alt_meter"][-1] == pytest.approx(home_alt + 2.0, abs=1.0)
+    assert air["baro_pressure_pa"][-1] == pytest.approx(earth.isa_pressure(float(air["baro_alt_meter"][-1])), rel=1e-6)
+    est = data["estimator_status"]
+    i = rows_at(t, est["timestamp"])
+    assert (est["solution_status_flags"] == t["estimator_flags"][i]).all()
+    assert (est["solution_status_flags"] & 63 == 63).all()  # attitude, velocity, position: valid throughout
+    for topic, column in (("vel_test_ratio", "vel_ratio"), ("pos_test_ratio", "pos_horiz_ratio"),
+                          ("hgt_test_ratio", "pos_vert_ratio"), ("hdg_test_ratio", "mag_ratio"),
+                          ("pos_horiz_accuracy", "pos_horiz_accuracy")):  # fmt: skip
+        assert close(est[topic], t[column][i]), topic
+    assert 0.0 < est["pos_horiz_accuracy"][-1] < 2.0 and 0.0 < est["pos_vert_accuracy"][-1] < 1.0
+
+
 @pytest.fixture(scope="module")
 def circle(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("circle")
@@ -57,7 +95,10 @@ def test_sim_writes_a_ulog_pyulog_reads_with_pxs_topics_as_the_telemetry_says(ci
             "vehicle_local_position_setpoint", "vehicle_global_position", "actuator_outputs",
             "vehicle_status"} <= set(data)  # fmt: skip
     duration = t["t"][-1]
+    assert not set(SENSOR_TOPICS) & set(data)  # on the true state: no sensors
     for name, interval in INTERVAL_MS.items():  # PX4's default logging intervals
+        if name in SENSOR_TOPICS:
+            continue
         stamps = data[name]["timestamp"]
         assert len(stamps) == math.floor(duration / (interval / 1000.0)) + 1, name
         assert (np.diff(stamps.astype(np.int64)) == interval * 1000).all(), name
@@ -123,6 +164,8 @@ def test_in_sensor_mode_the_estimate_is_flown_and_the_truth_logged_beside_it(tmp
         i = rows_at(t, lp["timestamp"])
         assert close(lp["z"], t["z" + suffix][i]) and close(lp["vx"], t["vx" + suffix][i]), name
     assert not np.allclose(data["vehicle_local_position"]["x"], data["vehicle_local_position_groundtruth"]["x"])
+    x500 = load_preset("x500")
+    assert_sensor_topics(data, t, x500.sim.period, frames.PX4_HOME[2])
 
 
 def test_the_writer_interleaves_topics_in_time_and_logs_strings(tmp_path):
@@ -165,6 +208,7 @@ def test_fly_writes_the_same_log_from_its_telemetry_on_sensors(tmp_path):
         assert close(lp["x"], t["x" + suffix][i]) and close(lp["z"], t["z" + suffix][i]), name
     assert (data["vehicle_status"]["nav_state"] == 14).all()
     assert ULog(str(tmp_path / "flight.ulg")).msg_info_dict["quadsitl_controller"] == "backstepping"
+    assert_sensor_topics(data, t, load_preset("x500").sim.period, frames.PX4_HOME[2])
 
 
 def test_a_written_log_in_one_append_is_the_encoded_log(tmp_path):
@@ -184,12 +228,12 @@ def fill(batch: Batch, records: dict[str, np.ndarray]) -> int:
 
 
 def test_the_autopilots_log_written_batch_by_batch_is_the_flight_logged_whole(tmp_path):
-    """OnboardLog keeps the first row of each 10 ms of each batch and writes them every second: what it writes is
-    what flight_log makes of the whole flight's rows at once, from arming to disarming (sensor mode: the truth
-    too); the status texts said in flight are logged, those said on the ground are not."""
+    """OnboardLog keeps the first row of each 5 ms of each batch and writes them every second: what it writes is
+    what flight_log makes of the whole flight's rows at once, from arming to disarming (sensor mode: the truth and
+    the sensors too); the status texts said in flight are logged, those said on the ground are not."""
     rng = np.random.default_rng(3)
     n, armed_from, armed_to = 5000, 700, 4300
-    streams = ("state", "setpoint", "actuators", TRUTH)
+    streams = ("state", "setpoint", "actuators", *SENSING)
     records = {s: np.zeros(n, dtype=record_dtype(s)) for s in (*streams, "status")}
     t = 0.25 + np.arange(n) * 0.001
     for rows in records.values():
@@ -199,9 +243,10 @@ def test_the_autopilots_log_written_batch_by_batch_is_the_flight_logged_whole(tm
                 rows[name] = rng.normal(size=n)
     records["status"]["armed"][armed_from:armed_to] = 1
     records["status"]["mode"] = 1
+    records[SENSORS]["estimator_flags"] = rng.integers(0, 2048, size=n)
     preset = load_preset("x500")
     log = OnboardLog(tmp_path, lambda: definitions(preset, "backstepping", True), preset.actuators.max_thrust,
-                     frames.PX4_HOME, streams)  # fmt: skip
+                     frames.PX4_HOME, streams, preset.sim.period)  # fmt: skip
     batch = Batch(2048)
     at = 0
     for size in rng.integers(1, 2048, size=50):  # batches of every size, as the wall clock cuts them
@@ -217,10 +262,10 @@ def test_the_autopilots_log_written_batch_by_batch_is_the_flight_logged_whole(tm
     (path,) = tmp_path.glob("*/*.ulg")
     whole = definitions(preset, "backstepping", True)
     columns = record_columns({s: r[armed_from:armed_to] for s, r in records.items()})
-    whole.topics = topics_of(columns, preset.actuators.max_thrust, frames.PX4_HOME)
+    whole.topics = topics_of(columns, preset.actuators.max_thrust, frames.PX4_HOME, period=preset.sim.period)
     ulog.write(tmp_path / "whole.ulg", whole)
     written, expected = topics(path), topics(tmp_path / "whole.ulg")
-    assert set(written) == set(expected) and "vehicle_attitude_groundtruth" in written
+    assert set(written) == set(expected) and {"vehicle_attitude_groundtruth", *SENSOR_TOPICS} <= set(written)
     for name, data in expected.items():
         for field, values in data.items():
             assert np.array_equal(written[name][field], values, equal_nan=True), (name, field)
