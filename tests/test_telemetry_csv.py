@@ -1,16 +1,23 @@
 """The telemetry CSV read back as written: every column by name, NaN (``nan``) kept, a lone row and a flight
-with no rows (a header alone) as arrays of their length, and the sensor-mode truth columns when there are some."""
+with no rows (a header alone) as arrays of their length, and sensor mode's and a battery's columns when there
+are some."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from groundstation.telemetry_csv import COLUMNS, TRUTH_COLUMNS, read_csv, write_csv
+from groundstation.telemetry_csv import BATTERY_COLUMNS, COLUMNS, SENSING_COLUMNS, read_csv, write_csv
 
 
 def test_what_write_csv_writes_read_csv_reads_column_by_column(tmp_path):
     rng = np.random.default_rng(3)
-    for n, columns in ((500, COLUMNS), (1, COLUMNS), (7, COLUMNS + TRUTH_COLUMNS)):
+    for n, columns in (
+        (500, COLUMNS),
+        (1, COLUMNS),
+        (7, COLUMNS + SENSING_COLUMNS),
+        (3, COLUMNS + SENSING_COLUMNS + BATTERY_COLUMNS),
+        (2, COLUMNS + BATTERY_COLUMNS),
+    ):
         rows = rng.normal(size=(n, len(columns))) * 10.0 ** rng.integers(-9, 4, size=len(columns))
         rows[:, COLUMNS.index("x_ref")] = np.nan  # attitude setpoints: nothing controls x and y
         write_csv(tmp_path / "t.csv", rows)
