@@ -144,7 +144,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         with FlightProgress(duration * len(kinds), enabled=not args.quiet, label=label) as bar:
             results, metrics = run_offline(preset, kinds, duration, integrator, args.substeps, rates=rates,
                                            poles=poles, progress=bar.update, trajectory=trajectory, mission=mission,
-                                           home=home, controller_values=values)  # fmt: skip
+                                           home=home, controller_values=values, announce=not args.quiet)  # fmt: skip
     except GainError as exc:
         what = f"trial {args.trial} was not flown by the sweep: " if args.from_sweep is not None else ""
         raise UsageError(f"{what}inadmissible gains: {exc}") from None

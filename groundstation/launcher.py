@@ -34,7 +34,7 @@ from pathlib import Path
 from groundstation.fleet import VehiclePlan, zenoh_argv
 from quadsitl.children import Children, describe, run_supervised, supervise
 from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
-from quadsitl.compile_cache import cached
+from quadsitl.compile_cache import cached, compiling
 from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
 from quadsitl.process_util import (
     PLANT_DIVERGED,
@@ -63,7 +63,6 @@ LOGGED = ("--telemetry-congestion", "block")
 # autopilot serves the plant with is not in numba's cache, that the first run compiles.
 READY_FUNCTION = "plant_loop.serve"
 READY_TIMEOUT = 600.0  # [s] wall: the longest `up` waits to say it is ready (a cold compile on a slow machine)
-COMPILING = "quadsitl up: compiling the vehicle's equations (once, after an install or a change; a minute or so)..."
 
 
 def signing_env(key_text: str | None) -> dict[str, str] | None:
@@ -188,7 +187,7 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
         url = start_dashboard(children, web_port, zenoh_endpoint(args), zenoh_config=args.zenoh_config)
     if not args.quiet:
         if not cached(READY_FUNCTION):
-            print(COMPILING, flush=True)
+            print(compiling("up"), flush=True)
         children.wait_ready(READY_TIMEOUT)  # the banner after the first heartbeat
         if all(p.poll() is None for p in children.procs.values()):  # not when a child ended first: said below
             print(banner(preset, args, url) if len(fleet) == 1 else fleet_banner(fleet, args, url), flush=True)
@@ -380,6 +379,8 @@ def fly(preset_name: str, preset: Preset, args) -> int:
     quiet = ["--quiet"] if args.quiet else []
     children = Children(env=signing_env(args.signing_key))
     web_port = dashboard_port(args.dashboard_port) if args.dashboard else None
+    if not args.quiet and not cached(READY_FUNCTION):  # the processes compile before their first tick
+        print(compiling("fly"), flush=True)
 
     def flight(_stack: contextlib.ExitStack) -> int:
         ap = ["autopilot", "--preset", preset_name, "--plant-listen", f"127.0.0.1:{plant_port}",

@@ -32,6 +32,7 @@ from groundstation import mission_files, trajectories
 from groundstation.figures import write_figures, write_mission_figure, write_path_figure
 from groundstation.metrics import battery_use, channel_outputs, estimate_rms, position_metrics, run_metrics
 from groundstation.mission_files import MISSION_DURATION, Mission
+from groundstation.progress import announce_if_slow
 from groundstation.setpoint_grid import grid_setpoints
 from groundstation.telemetry_csv import (
     BATTERY_COLUMNS,
@@ -58,6 +59,7 @@ from groundstation.vehicle import (
 )
 from quadsitl import ulog
 from quadsitl.cli_util import UsageError
+from quadsitl.compile_cache import compiling
 from quadsitl.compiled_frames import euler_rates_to_body_rates
 from quadsitl.config import Preset
 from quadsitl.frames import PX4_HOME
@@ -237,6 +239,7 @@ def run_offline(
     home: tuple[float, float, float] = PX4_HOME,
     controller_values: dict[str, float] | None = None,
     metrics: bool = True,
+    announce: bool = False,
 ) -> tuple[dict[str, SimResult], dict[str, dict]]:
     """Fly each controller on a fresh vehicle, on the setpoints of ``trajectory`` (:func:`groundstation.trajectories.
     make`; ``step``: the preset's reference, the paper's experiment) made on ``quadsitl fly``'s grid
@@ -247,15 +250,24 @@ def run_offline(
     autopilot's parser before any flight starts, so bad input fails fast.
 
     ``controller_values``: the first controller's parameters, when it plugs in (:mod:`autopilot.plugin`). Without
-    ``metrics`` the runs' metrics are not computed (a sweep takes its own from the telemetry): {} instead.
+    ``metrics`` the runs' metrics are not computed (a sweep takes its own from the telemetry): {} instead. With
+    ``announce``, building the controllers and the first vehicle's loop, when it takes more than a second (they
+    compile), is said on stderr.
 
     ``progress``, when given, is called now and then with the simulated seconds done so far over all
     the runs: it reaches ``len(controllers) × duration`` at the end."""
     path = trajectories.make(trajectory, preset.reference)
     position = isinstance(path, trajectories.PositionTrajectory)
-    built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=position or bool(mission),
-                                   values=controller_values if i == 0 else None)
-             for i, kind in enumerate(controllers)}  # fmt: skip
+
+    def vehicle_of(controller) -> Vehicle:
+        return Vehicle(preset, controller.kind, controller.v, controller.c, integrator, substeps, home, controller.plug)
+
+    with announce_if_slow(compiling("sim", preset.sensors is not None), enabled=announce):
+        built = {kind: make_controller(preset, kind, rates=rates, poles=poles, position_loop=position or bool(mission),
+                                       values=controller_values if i == 0 else None)
+                 for i, kind in enumerate(controllers)}  # fmt: skip
+        first_vehicle = vehicle_of(next(iter(built.values())))
+        first_vehicle.compile()
     duration = (
         duration
         or (MISSION_DURATION if mission else None)
@@ -266,8 +278,7 @@ def run_offline(
     ticks = round(duration / period)
     results, found = {}, {}
     for i, (kind, controller) in enumerate(built.items()):
-        vehicle = Vehicle(preset, controller.kind, controller.v, controller.c, integrator, substeps, home,
-                          controller.plug)  # fmt: skip
+        vehicle = first_vehicle if i == 0 else vehicle_of(controller)
         done = None if progress is None else (lambda s, before=i * duration: progress(before + s))
         if mission is not None:
             res = fly_mission(vehicle, mission, duration, done)

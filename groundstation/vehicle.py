@@ -342,6 +342,14 @@ class Vehicle:
         """The truth x(k) before the next tick."""
         return self.plant.state
 
+    def compile(self) -> None:
+        """The loop (:func:`fly_ticks`) for this vehicle's types compiled, or loaded from numba's cache, now: it flies
+        no tick."""
+        fly_ticks(self.tick, 0, False, self.kind, self.period, self.plant.substeps, self.plant.method,
+                  self.plant_arrays, self.plant.sensors.arrays, self.ap, self.est, self.home, self.f_min, self.f_max,
+                  self.sp.ticks, self.sp.values, self.sp_next,
+                  np.empty((0, SENSING_ROW_SIZE if self.sensing else ROW_SIZE)))  # fmt: skip
+
     def fly(self, n: int, record: bool = True, progress: Callable[[int], None] | None = None,
             after_tick: Callable[[], bool] | None = None) -> tuple[np.ndarray, int]:  # fmt: skip
         """Fly the next ``n`` ticks: (their rows, R_*; the ticks flown, fewer than n when the state diverged: then

@@ -1,0 +1,72 @@
+"""The first run after an install compiles the equations for a minute or more: each command says so when it is about
+to, on whatever its output is (a pipe here, as under CI or a script), with an estimate, and the warm runs after it do
+not (docs/performance.md#cold-start). Each cold run is stopped as soon as it has said it: the compile itself is not
+waited for."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from quadsitl.compile_cache import compiling
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def said_while_cold(argv: list[str], cache: Path, stream: str, within: float = 60.0) -> list[str]:
+    """The lines ``quadsitl <argv>`` prints on ``stream`` ("stdout" or "stderr", a pipe) with an empty numba cache,
+    until one says it compiles or ``within`` [s] passes; the command (and the processes it started) stopped then."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "groundstation.cli", *argv], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)  # fmt: skip
+    lines: list[str] = []
+    found = threading.Event()
+
+    def read() -> None:
+        for line in getattr(proc, stream):
+            lines.append(line.rstrip("\n"))
+            if "compiling" in line:
+                found.set()
+                return
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        found.wait(within)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the launcher and its children: the compile is not waited for
+        proc.wait()
+    return lines
+
+
+def test_fly_says_it_compiles_on_its_first_run_even_into_a_pipe(tmp_path):
+    began = time.monotonic()
+    lines = said_while_cold(["fly", "--out", str(tmp_path / "out"), "--no-figures"], tmp_path / "cache", "stdout")
+    assert compiling("fly") in lines and time.monotonic() - began < 30  # said first, before the processes compile
+    assert "about a minute" in compiling("fly")
+
+
+def test_sim_says_it_compiles_on_its_first_run_even_into_a_pipe(tmp_path):
+    lines = said_while_cold(["sim", "--out", str(tmp_path / "out"), "--no-figures"], tmp_path / "cache", "stderr")
+    assert f"{compiling('sim')} ..." in lines
+
+
+def test_sim_on_sensors_says_its_longer_estimate(tmp_path):
+    argv = ["sim", "--preset", "x500", "--state", "sensors", "--out", str(tmp_path / "out"), "--no-figures"]
+    lines = said_while_cold(argv, tmp_path / "cache", "stderr")
+    assert f"{compiling('sim', sensing=True)} ..." in lines and "3 to 6 minutes" in lines[-1]
+
+
+def test_warm_runs_do_not_say_it(tmp_path):
+    """The suite compiled fly's processes and sim's truth loop first (tests/conftest.py)."""
+    fly = subprocess.run([sys.executable, "-m", "groundstation.cli", "fly", "--duration", "0.5", "--no-figures",
+                          "--out", str(tmp_path / "fly")], capture_output=True, text=True, timeout=100)  # fmt: skip
+    assert fly.returncode == 0, fly.stderr
+    assert "compiling" not in fly.stdout + fly.stderr
