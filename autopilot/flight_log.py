@@ -47,6 +47,7 @@ INTERVAL_MS = {"vehicle_attitude": 50, "vehicle_attitude_setpoint": 50, "vehicle
                "vehicle_air_data": 200, "estimator_status": 200,
                # logged as published (interval 0), at IMU_INTEG_RATE: 200 Hz
                "sensor_combined": 5}  # fmt: skip
+SENSOR_TOPICS = ("sensor_combined", "vehicle_magnetometer", "vehicle_air_data", "estimator_status")  # sensor mode's
 NAV_OFFBOARD, NAV_MISSION = 14, 3  # vehicle_status.nav_state
 # vehicle_status.nav_state of each of the autopilot's modes (quadsitl.telemetry.MODES): hold AUTO_LOITER, offboard,
 # land AUTO_LAND, takeoff AUTO_TAKEOFF, rtl AUTO_RTL, mission AUTO_MISSION, posctl POSCTL, altctl ALTCTL,

@@ -3,13 +3,15 @@ disarming): one ULog per flight, ``DIR/YYYY-MM-DD/HH_MM_SS.ulg`` named by the wa
 the flight goes from the telemetry records the compiled tick batches (PX4's topics: :mod:`autopilot.flight_log`),
 with the status texts said meanwhile stamped on the simulated clock. :mod:`autopilot.log_protocol` serves them.
 
-Of each batch only the first row of each ``KEPT_MS`` is kept, which holds the first row of every logged topic's
+Of each batch only the first row of each ``kept_ms`` is kept (:func:`kept_ms`), which holds the first row of every
+logged topic's
 interval (each a multiple of it), and the kept rows are written at least every ``WRITE_EVERY`` simulated seconds and
 when the vehicle disarms."""
 
 from __future__ import annotations
 
 import datetime
+import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,9 +20,16 @@ import numpy as np
 from autopilot import flight_log
 from autopilot.tick import Batch
 from quadsitl import telemetry, ulog
+from quadsitl.telemetry import SENSORS
 
-KEPT_MS = 5  # [ms] flight_log.INTERVAL_MS are all multiples of it
-assert all(ms % KEPT_MS == 0 for ms in flight_log.INTERVAL_MS.values())
+
+def kept_ms(sensing: bool) -> int:
+    """[ms] The interval every logged topic's is a multiple of: 10 on the true state, 5 with sensor mode's
+    sensor_combined (the log keeps no more rows than its topics take)."""
+    return math.gcd(*(ms for name, ms in flight_log.INTERVAL_MS.items()
+                      if sensing or name not in flight_log.SENSOR_TOPICS))  # fmt: skip
+
+
 WRITE_EVERY = 1.0  # [s] simulated: what a crash of the process may lose
 LEVELS = {level: name for name, level in ulog.LOG_LEVELS.items()}  # MAV_SEVERITY's numbers are ULog's levels
 
@@ -36,6 +45,7 @@ class OnboardLog:
         self.directory, self.definitions, self.f_max, self.home = directory, definitions, f_max, home
         self.period = period
         self.streams = ("status", *streams)
+        self.kept_ms = kept_ms(SENSORS in streams)
         self.dtypes = {stream: telemetry.record_dtype(stream) for stream in self.streams}
         self.writer: ulog.Writer | None = None
         self.pending: list[dict[str, np.ndarray]] = []  # kept rows not yet written, as columns
@@ -91,9 +101,9 @@ class OnboardLog:
         self.last_kept = self.last_written = None
 
     def _keep(self, records: dict[str, np.ndarray]) -> None:
-        """The rows that begin a KEPT_MS interval, copied (the batch's buffer is written again)."""
+        """The rows that begin a ``kept_ms`` interval, copied (the batch's buffer is written again)."""
         columns = flight_log.record_columns(records)
-        kept = flight_log.sampled(columns["t"], KEPT_MS, self.last_kept)
+        kept = flight_log.sampled(columns["t"], self.kept_ms, self.last_kept)
         if len(kept):
             self.pending.append({name: values[kept].copy() for name, values in columns.items()})
             self.last_kept = float(columns["t"][kept[-1]])

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from pyulog import ULog
 
-from autopilot.flight_log import INTERVAL_MS, definitions, record_columns, topics_of
-from autopilot.onboard_log import OnboardLog
+from autopilot.flight_log import INTERVAL_MS, SENSOR_TOPICS, definitions, record_columns, topics_of
+from autopilot.onboard_log import OnboardLog, kept_ms
 from autopilot.tick import Batch
 from groundstation.telemetry_csv import read_csv
 from quadsitl import earth, frames, ulog
@@ -40,9 +40,6 @@ def rows_at(telemetry: dict[str, np.ndarray], stamps: np.ndarray) -> np.ndarray:
 
 def close(a: np.ndarray, b: np.ndarray) -> bool:
     return np.allclose(a, b, rtol=F32, atol=1e-6, equal_nan=True)
-
-
-SENSOR_TOPICS = ("sensor_combined", "vehicle_magnetometer", "vehicle_air_data", "estimator_status")
 
 
 def assert_sensor_topics(data: dict[str, dict[str, np.ndarray]], t: dict[str, np.ndarray], period: float,
@@ -228,7 +225,8 @@ def fill(batch: Batch, records: dict[str, np.ndarray]) -> int:
 
 
 def test_the_autopilots_log_written_batch_by_batch_is_the_flight_logged_whole(tmp_path):
-    """OnboardLog keeps the first row of each 5 ms of each batch and writes them every second: what it writes is
+    """OnboardLog keeps the first row of each 5 ms of each batch (sensor mode's sensor_combined; 10 ms on the true
+    state, the other topics' intervals' divisor) and writes them every second: what it writes is
     what flight_log makes of the whole flight's rows at once, from arming to disarming (sensor mode: the truth and
     the sensors too); the status texts said in flight are logged, those said on the ground are not."""
     rng = np.random.default_rng(3)
@@ -270,3 +268,4 @@ def test_the_autopilots_log_written_batch_by_batch_is_the_flight_logged_whole(tm
         for field, values in data.items():
             assert np.array_equal(written[name][field], values, equal_nan=True), (name, field)
     assert [m.message for m in ULog(str(path)).logged_messages] == ["in flight"]
+    assert (log.kept_ms, kept_ms(False)) == (5, 10)
