@@ -42,6 +42,7 @@ from autopilot.commander import (
     TOUCHDOWN_CLIMB,
     Commander,
 )
+from autopilot.estimator import VALID
 from quadsitl import __version__, earth, hil
 from quadsitl.codec import FRAME_MAX
 from quadsitl.compiled_frames import euler_to_quaternion
@@ -228,10 +229,8 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
     raise ValueError(f"message id {msg_id} is not a telemetry stream")
 
 
-# The true state flown (--state truth): attitude, velocity and position all valid, exactly.
-TRUE_STATE_FLAGS = (mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_HORIZ | mavlink.ESTIMATOR_VELOCITY_VERT
-                    | mavlink.ESTIMATOR_POS_HORIZ_REL | mavlink.ESTIMATOR_POS_HORIZ_ABS
-                    | mavlink.ESTIMATOR_POS_VERT_ABS)  # fmt: skip
+# The true state flown (--state truth): attitude, velocity and position all valid, exactly (a valid estimate's flags).
+TRUE_STATE_FLAGS = VALID
 
 
 SENSORS = (  # the simulated vehicle's sensors: the plant's state stands for all of them

@@ -3,8 +3,7 @@ disarming): one ULog per flight, ``DIR/YYYY-MM-DD/HH_MM_SS.ulg`` named by the wa
 the flight goes from the telemetry records the compiled tick batches (PX4's topics: :mod:`autopilot.flight_log`),
 with the status texts said meanwhile stamped on the simulated clock. :mod:`autopilot.log_protocol` serves them.
 
-Of each batch only the first row of each ``kept_ms`` is kept (:func:`kept_ms`), which holds the first row of every
-logged topic's
+Of each batch only the first row of each :func:`kept_ms` is kept, which holds the first row of every logged topic's
 interval (each a multiple of it), and the kept rows are written at least every ``WRITE_EVERY`` simulated seconds and
 when the vehicle disarms."""
 

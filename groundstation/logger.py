@@ -64,8 +64,8 @@ class TelemetryLogger:
         # Each stream's samples wait in a FIFO channel inside Zenoh (no Python runs when one arrives, so the
         # logger wakes no thread per sample); drain() takes them. A full channel holds Zenoh back, and with it a
         # vehicle whose publishers wait (fly's) or drop (up's): the capacity covers minutes of samples.
-        self._sensing: dict[str, list[np.ndarray]] = {s: [] for s in telemetry.SENSING}  # sensor mode: the ground
-        # truth beside the estimate, and the sensors
+        # sensor mode: the ground truth beside the estimate, and what the estimator took
+        self._sensing: dict[str, list[np.ndarray]] = {s: [] for s in telemetry.SENSING}
         self._battery: list[np.ndarray] = []  # a battery's status records (none kept for an ideal supply)
         self._subs = [
             (stream, session.declare_subscriber(telemetry.key(vehicle, stream), zenoh.handlers.FifoChannel(CHANNEL)))

@@ -342,13 +342,20 @@ class Vehicle:
         """The truth x(k) before the next tick."""
         return self.plant.state
 
+    def _rows(self, n: int) -> np.ndarray:
+        """Room for ``n`` rows of the result (R_*; on sensors with the estimator's report)."""
+        return np.empty((n, SENSING_ROW_SIZE if self.sensing else ROW_SIZE))
+
+    def _ticks(self, n: int, record: bool, rows: np.ndarray) -> int:
+        """:func:`fly_ticks` on this vehicle's arrays from its next tick: the ticks flown."""
+        return fly_ticks(self.tick, n, record, self.kind, self.period, self.plant.substeps, self.plant.method,
+                         self.plant_arrays, self.plant.sensors.arrays, self.ap, self.est, self.home, self.f_min,
+                         self.f_max, self.sp.ticks, self.sp.values, self.sp_next, rows)  # fmt: skip
+
     def compile(self) -> None:
         """The loop (:func:`fly_ticks`) for this vehicle's types compiled, or loaded from numba's cache, now: it flies
         no tick."""
-        fly_ticks(self.tick, 0, False, self.kind, self.period, self.plant.substeps, self.plant.method,
-                  self.plant_arrays, self.plant.sensors.arrays, self.ap, self.est, self.home, self.f_min, self.f_max,
-                  self.sp.ticks, self.sp.values, self.sp_next,
-                  np.empty((0, SENSING_ROW_SIZE if self.sensing else ROW_SIZE)))  # fmt: skip
+        self._ticks(0, False, self._rows(0))
 
     def fly(self, n: int, record: bool = True, progress: Callable[[int], None] | None = None,
             after_tick: Callable[[], bool] | None = None) -> tuple[np.ndarray, int]:  # fmt: skip
@@ -356,17 +363,14 @@ class Vehicle:
         ``state`` is the state that left its bounds, or when ``after_tick`` said stop). ``progress`` is called with
         the ticks flown so far every PROGRESS_TICKS; it only observes. ``after_tick``, when given, is called after
         every tick, as the autopilot process runs its mission executor after its compiled tick: False stops."""
-        rows = np.empty((n if record else 0, SENSING_ROW_SIZE if self.sensing else ROW_SIZE))
+        rows = self._rows(n if record else 0)
         done = 0
         while done < n:
             if progress is not None and done % PROGRESS_TICKS == 0:
                 progress(done)
             m = 1 if after_tick is not None else min(PROGRESS_TICKS, n - done)
             chunk = rows[done : done + m] if record else rows
-            flown = fly_ticks(self.tick, m, record, self.kind, self.period, self.plant.substeps,
-                              self.plant.method, self.plant_arrays, self.plant.sensors.arrays, self.ap,
-                              self.est, self.home, self.f_min, self.f_max, self.sp.ticks, self.sp.values,
-                              self.sp_next, chunk)  # fmt: skip
+            flown = self._ticks(m, record, chunk)
             self.tick += flown
             done += flown
             if flown < m or (after_tick is not None and not after_tick()):

@@ -27,7 +27,7 @@ the autopilot knows it (docs/battery.md): voltage [V], current [A], charge drawn
 of its charge left (0..1), all float64, NaN without a battery (an ideal supply); sensors: the newest samples the
 estimator took (FRD, calibrated: accelerometer [m/s²], gyro [rad/s], magnetometer [gauss]; barometric altitude
 [m AMSL]) and ESTIMATOR_STATUS's fields (its flags as a float64, the test ratios, the 1σ accuracies [m]), all
-float64 (:data:`SENSORS_FIELDS`; v4 added it). The Zenoh
+float64 (:data:`SENSORS_FIELDS`: a stream added beside v4's, whose records it leaves as they were). The Zenoh
 encoding is ``application/octet-stream`` with schema ``quadsitl.<stream>.v4`` (:data:`SCHEMA_VERSION`).
 
 One more key is not per tick: ``quadsitl/<vehicle>/mission`` carries the stored mission as the dashboard draws

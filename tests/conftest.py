@@ -87,7 +87,7 @@ ENGINE_PARTS = (("engine-paper", (), _warm_the_engine(0)), ("engine-general", ()
 
 
 def _warm_the_sensor_sim() -> None:
-    """``sim``'s compiled loop on sensors (the estimator's path in it: 160-230 s cold on a 2-core guest)."""
+    """``sim``'s compiled loop on sensors, the estimator's path in it: minutes cold (docs/performance.md#on-sensors)."""
     from groundstation.api import sim
 
     sim("x500", state="sensors", duration=0.01)
