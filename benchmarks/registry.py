@@ -24,3 +24,11 @@ def unavailable(sections: Sequence[Section]) -> dict[str, tuple[str, tuple[str, 
     """{name: (what it lacks and how to get it, the JSON keys it leaves out)} for each of ``sections`` that cannot run
     on this machine."""
     return {s.name: (why, s.absent) for s in sections if s.missing is not None and (why := s.missing())}
+
+
+def left_out(sections: Sequence[Section], full: bool, named: bool) -> dict[str, tuple[str, tuple[str, ...]]]:
+    """{name: (why, the JSON keys it leaves out)} for each of ``sections`` that has no quick form, in a run without
+    ``full`` (``--full``) whose sections were not ``named`` (``--only``): the default run leaves those out."""
+    if full or named:
+        return {}
+    return {s.name: (f"it runs with --full or --only {s.name}", s.absent) for s in sections if s.full_only}

@@ -3,7 +3,6 @@ on stderr as it comes and, with ``--json``, written as one JSON document on stdo
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
@@ -49,25 +48,25 @@ class Report:
         if not self.quiet:
             print(f"\n{title}", file=sys.stderr, flush=True)
 
-    def write_json(self, ratio: float | None, extra: Mapping[str, object], elapsed: float, host: dict,
-                   skipped: Mapping[str, tuple[str, tuple[str, ...]]]) -> None:  # fmt: skip
-        """The JSON document on stdout: ``lockstep_ratio``, the sections' own keys (``extra``), ``elapsed_s``,
-        ``machine``, every figure, and ``skipped`` {section: its reason and the keys absent} when a section could
-        not run (``skipped``: {section: (why, the keys it would have written)})."""
+    def document(self, ratio: float | None, extra: Mapping[str, object], elapsed: float, host: dict,
+                 skipped: Mapping[str, tuple[str, tuple[str, ...]]]) -> dict[str, object]:  # fmt: skip
+        """The JSON report: ``lockstep_ratio``, the sections' own keys (``extra``), ``elapsed_s``, ``machine``, every
+        figure, and ``skipped`` {section: its reason and the keys absent} when a section did not run (``skipped``:
+        {section: (why, the keys it would have written)})."""
         report = {"lockstep_ratio": ratio, **extra, "elapsed_s": elapsed, "machine": host,
                   "figures": [asdict(f) for f in self.figures]}  # fmt: skip
         if skipped:  # their figures are absent, not zero: say why
             report["skipped"] = {part: {"reason": why, "absent": list(absent)}
                                  for part, (why, absent) in skipped.items()}  # fmt: skip
-        print(json.dumps(report, indent=2))
+        return report
 
 
-def summary(ratio: float | None, elapsed: float, host: dict) -> None:
-    """The last line on stderr: ``lockstep_ratio`` (when the lockstep section ran), the run's length [s] and the
-    machine (:func:`benchmarks.machine.describe`)."""
-    if ratio is not None:
-        print(f"\nlockstep_ratio = {ratio:.3f} against the fastest ping-pong (goal >= 0.5); {elapsed:.0f} s on "
-              f"{machine.one_line(host)}", file=sys.stderr)  # fmt: skip
+def summary(ratio: float | None, elapsed: float, host: dict, took: Mapping[str, float]) -> None:
+    """The last lines on stderr: each section's wall time (``took`` [s]), then ``lockstep_ratio`` (when the lockstep
+    section ran), the run's length [s] and the machine (:func:`benchmarks.machine.describe`)."""
+    sections = ", ".join(f"{name} {s:.0f}" for name, s in took.items())
+    ratio_text = f"lockstep_ratio = {ratio:.3f} against the fastest ping-pong; " if ratio is not None else ""
+    print(f"\nsections [s]: {sections}\n{ratio_text}{elapsed:.0f} s on {machine.one_line(host)}", file=sys.stderr)
 
 
 def steal_since(r: Report, before: tuple[int, int]) -> float:

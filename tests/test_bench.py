@@ -9,6 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.goals import GOALS, check
+from benchmarks.registry import SECTIONS, left_out
+
 # Runs `quadsitl bench` with Playwright made unimportable, as on a machine where the project was installed
 # without its test extra (`pip install -e .`).
 WITHOUT_PLAYWRIGHT = """
@@ -43,6 +46,16 @@ def test_bench_costs_report_json_with_names_units_and_baselines(costs_without_pl
                  "lockstep tick's compiled work: both ticks in turn, in one compiled loop"):  # fmt: skip
         assert figures[name]["baseline_name"] == "plain Python" and figures[name]["ratio"] < 0.5
     assert report["machine"]["cores"] >= 1 and report["machine"]["python"]
+    # every goal is listed; none of them has its figure in this run, and the run's length is checked only on a
+    # default run of every section
+    assert report["scope"] == "quick"
+    goals = {g["key"]: g for g in report["goals"]}
+    assert set(goals) == {g.key for g in GOALS} and all(g["met"] is None for g in goals.values())
+    assert goals["lockstep_ratio"]["why_not_checked"] == "not measured in this run (--full measures it)"
+    assert goals["elapsed_s"]["why_not_checked"] == "only a default run of every section checks it"
+    # and on stderr, a line each after the figures
+    said = [line.split() for line in r.stderr.splitlines() if line.startswith("  lockstep_ratio >= ")]
+    assert [words[:7] for words in said] == [["lockstep_ratio", ">=", "0.75", "not", "checked:", "not", "measured"]]
 
 
 def test_bench_refuses_bad_options(cli):
@@ -67,9 +80,11 @@ def _largest_kept(figures: dict, how: str, measured: tuple[int, ...], name: str)
 
 
 def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
-    r = cli("bench", "--only", "fleet", "--fleet-sizes", "1,2", "--fleet-seconds", "2", "--json", timeout=240)
+    r = cli("bench", "--full", "--only", "fleet", "--fleet-sizes", "1,2", "--fleet-seconds", "2", "--json",
+            timeout=240)  # fmt: skip
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)
+    assert report["scope"] == "full"
     figures = {f["name"]: f for f in report["figures"]}
     # the dashboard watched the real-time runs (this machine has Chromium: ./scripts/test installs it)
     assert report["fleet_dashboard_open"] is True
@@ -142,10 +157,41 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
         assert report[key] == _largest_kept(figures, how, measured, "worst vehicle's deadline-miss ratio")
         assert report[f"{key}_over_floor"] == _largest_kept(figures, how, measured, beyond_name) >= report[key]
         assert report[f"{key}_own"] == (_largest_kept(figures, how, measured, own_name) if fifo else None)
-    for n in (1, 2):
+    _check_fleet_lockstep(report, figures, (1, 2))
+
+
+def _check_fleet_lockstep(report: dict, figures: dict, sizes: tuple[int, ...]) -> None:
+    """The fleet section's lockstep figures of ``sizes`` vehicles, each against one vehicle's, and its keys."""
+    for n in sizes:
         lockstep = figures[f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)"]
         # ran (10,000+ ticks/s on a quiet machine; a loaded CI run's lockstep pair can read a tenth of that)
         assert lockstep["value"] > 100 and lockstep["unit"] == "1/s" and lockstep["baseline_name"] == "one vehicle"
+    largest = figures[f"fleet of {sizes[-1]}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)"]
+    assert report["fleet_lockstep_size"] == sizes[-1]
+    assert report["fleet_lockstep_ratio"] == pytest.approx(largest["value"] / largest["baseline"])
+    memory = figures[f"fleet of {sizes[-1]}, lockstep: memory per vehicle"]
+    assert memory["unit"] == "MB" and 20 < memory["value"] < 2000 and report["fleet_memory_per_vehicle_mb"] == memory[
+        "value"]  # fmt: skip
+    # its goals are checked against those keys; the one at 32 vehicles is not, on a smaller fleet
+    goals = {g["key"]: g for g in report["goals"]}
+    assert goals["fleet_memory_per_vehicle_mb"]["met"] == (memory["value"] <= 40)
+    lockstep_goal = goals["fleet_lockstep_ratio"]
+    assert lockstep_goal["met"] is None and lockstep_goal["value"] == report["fleet_lockstep_ratio"]
+    assert lockstep_goal["why_not_checked"] == f"the largest fleet measured had {sizes[-1]} vehicles"
+
+
+def test_bench_fleet_by_default_flies_one_vehicle_and_the_largest_fleet_in_lockstep_only(cli):
+    """The quick form (no --full): no floor, no real-time run, no browser; one vehicle and the largest size up to
+    eight, in lockstep, with the keys the goals read."""
+    r = cli("bench", "--only", "fleet", "--fleet-sizes", "1,2,3,12", "--fleet-seconds", "2", "--json", timeout=180)
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    assert report["scope"] == "quick"
+    figures = {f["name"]: f for f in report["figures"]}
+    assert not [name for name in figures if "real time" in name or "bare loop" in name]
+    assert not [name for name in figures if "fleet of 2," in name or "fleet of 12," in name]
+    assert "fleet_max_realtime" not in report and "fleet_floor_miss_ratio" not in report
+    _check_fleet_lockstep(report, figures, (1, 3))
 
 
 def test_bench_without_playwright_skips_the_dashboard_and_still_writes_the_report(costs_without_playwright):
@@ -162,6 +208,37 @@ def test_bench_without_playwright_skips_the_dashboard_and_still_writes_the_repor
     lines = [line for line in r.stderr.splitlines() if "skipping" in line]
     assert lines == [f"quadsitl bench: skipping the dashboard section: {skipped['reason']}"]
     assert {f["name"] for f in report["figures"]} >= {"backstepping controller step", "plant step (euler)"}
+
+
+def test_goals_are_met_or_not_by_their_figures_and_say_why_when_not_checked():
+    report = {"scope": "quick", "lockstep_ratio": 0.8, "fanout_ratio_10": 0.79, "first_run_s": 20.0,
+              "elapsed_s": 121.0, "fleet_lockstep_ratio": 0.95, "fleet_lockstep_size": 32,
+              "fleet_memory_per_vehicle_mb": 40.5}  # fmt: skip
+    rows = {g["key"]: g for g in check(report, whole=True)}
+    assert [g["key"] for g in check(report, whole=True)] == [g.key for g in GOALS]  # the table's order
+    assert rows["lockstep_ratio"]["met"] is True and rows["lockstep_ratio"]["goal"] == "lockstep_ratio >= 0.75"
+    assert rows["fanout_ratio_10"]["met"] is False  # at least 0.8
+    assert rows["first_run_s"]["met"] is True  # at most 20 s, 20 included
+    assert rows["fleet_memory_per_vehicle_mb"]["met"] is False
+    assert rows["fleet_lockstep_ratio"]["met"] is True
+    assert rows["elapsed_s"]["met"] is False and rows["elapsed_s"]["goal"] == "elapsed_s <= 120"
+    assert rows["batch_full_vehicle_steps_per_s"] == {
+        "goal": "batch_full_vehicle_steps_per_s >= 2e+07", "key": "batch_full_vehicle_steps_per_s", "bound": 2e7,
+        "against": rows["batch_full_vehicle_steps_per_s"]["against"], "value": None, "met": None,
+        "why_not_checked": "not measured in this run (--full measures it)"}  # fmt: skip
+    # the run's length is the default run's goal: not a --full run's, nor one of some sections
+    for scope, whole in (("full", True), ("quick", False)):
+        row = {g["key"]: g for g in check({**report, "scope": scope}, whole)}["elapsed_s"]
+        assert row["met"] is None and row["why_not_checked"] == "only a default run of every section checks it"
+    # the fleet's lockstep goal is at 32 vehicles: a smaller fleet's ratio is reported, not judged
+    row = {g["key"]: g for g in check({**report, "fleet_lockstep_size": 16}, True)}["fleet_lockstep_ratio"]
+    assert row["met"] is None and row["value"] == 0.95
+
+
+def test_a_default_run_leaves_out_the_cold_start_unless_named_or_full():
+    assert left_out(SECTIONS, full=False, named=False) == {
+        "coldstart": ("it runs with --full or --only coldstart", ("first_run_s",))}  # fmt: skip
+    assert left_out(SECTIONS, full=True, named=False) == {} == left_out(SECTIONS, full=False, named=True)
 
 
 def test_missing_names_what_the_browser_needs_and_how_to_get_it(monkeypatch):

@@ -24,6 +24,11 @@ class Context:
     ping: float | None = None
     lockstep_ratio: float | None = None
 
+    @property
+    def full(self) -> bool:
+        """``--full``: every section whole; else each in its quick form (the figures its goals need)."""
+        return bool(self.args.full)
+
 
 @dataclass(frozen=True)
 class Section:
@@ -32,7 +37,8 @@ class Section:
     numba's cache once, before the first section that is not ``cold`` (a process compiling as it starts would miss
     the bench's wait for it); ``cold``: it measures that compilation itself, so it runs before. ``missing()``: what
     this machine lacks to run it and how to get it, or None (an optional section, skipped with one line saying so);
-    ``absent``: the JSON keys it then leaves out."""
+    ``absent``: the JSON keys it then leaves out; ``full_only``: it has no quick form, and a default run leaves it out
+    (it runs with ``--full``, or named with ``--only``)."""
 
     name: str
     run: Callable[[Context], dict[str, object]]
@@ -40,3 +46,4 @@ class Section:
     cold: bool = False
     missing: Callable[[], str | None] | None = None
     absent: tuple[str, ...] = ()
+    full_only: bool = False

@@ -16,7 +16,12 @@ FIFO series and its floor run so (``fleet_fifo_cores_awake``): the set-up for re
 priority, and name the periods in which the host stalled a core; the worst vehicle's misses outside them are its own
 (``fleet_max_realtime_own``, ``fleet_max_realtime_fifo_own``: the largest N that missed under 1 % of its periods
 outside the host's stalls), and the sizes grow until that reaches 1 % (without those loops, until the misses beyond
-the floor do). In lockstep, the fleet's ticks per second (all vehicles) against one vehicle's.
+the floor do). In lockstep, the fleet's ticks per second (all vehicles) against one vehicle's (``fleet_lockstep_ratio``
+at the largest size, ``fleet_lockstep_size``), and memory per vehicle in the largest fleet
+(``fleet_memory_per_vehicle_mb``).
+
+The real-time series and its floors run with ``--full``; the quick form is the lockstep of one vehicle and of the
+largest fleet up to :data:`QUICK_FLEET` vehicles.
 """
 
 from __future__ import annotations
@@ -40,6 +45,8 @@ from benchmarks.sections.base import Context, Section
 from benchmarks.sections.dashboard import dashboard_page
 from quadsitl.children import stop
 from quadsitl.process_util import rss_mb
+
+QUICK_FLEET = 8  # the quick form's largest fleet: 16 autopilots' start alone took 14 s of a two-minute run
 
 
 def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | None = None, fifo: bool = False,
@@ -132,10 +139,15 @@ def own_misses(res: dict, watch: Stalls) -> dict:
     return {"stalled_ratio": len(stalled) / ticks, "worst_own_miss_ratio": max(own, default=0.0)}
 
 
-def bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float) -> dict:
+def bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float, full: bool) -> dict:
     """The section (the module's docstring) over fleets of ``sizes`` vehicles, each run ``seconds`` long, the real-time
     runs with the dashboard's page open when this machine has Playwright and Chromium (said in the section's title);
-    returns its keys of the JSON report."""
+    returns its keys of the JSON report. Without ``full``, the quick form: the lockstep of one vehicle and of the
+    largest fleet of ``sizes`` up to :data:`QUICK_FLEET`."""
+    if not full:
+        largest = max([n for n in sizes if n <= QUICK_FLEET] or [1])
+        r.section(f"7. fleets in lockstep: one vehicle and {largest} (every size and the real-time series: --full)")
+        return _fleet_lockstep(r, workdir, sorted({1, largest}), round(4 * seconds * 1000))
     with contextlib.ExitStack() as stack:
         browser = None
         if browser_missing() is None:
@@ -236,18 +248,28 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
                 break  # the next sizes would miss more
         out[key], out[f"{key}_over_floor"] = largest, largest_over_floor
         out[f"{key}_own"] = largest_own if one["worst_own_miss_ratio"] is not None else None
-    lockstep_ticks = 4 * ticks  # a few seconds at several times real time
-    one_ls = fleet_run(1, workdir, lockstep_ticks, "lockstep")
+    return out | _fleet_lockstep(r, workdir, sizes, 4 * ticks)  # a few seconds at several times real time
+
+
+def _fleet_lockstep(r: Report, workdir: Path, sizes: Sequence[int], ticks: int) -> dict[str, object]:
+    """One vehicle, then fleets of ``sizes`` vehicles in lockstep for ``ticks`` ticks: each fleet's ticks per second
+    (all vehicles) against one vehicle's → ``fleet_lockstep_ratio`` and ``fleet_lockstep_size`` of the largest, and
+    its memory per vehicle, ``fleet_memory_per_vehicle_mb``."""
+    one = fleet_run(1, workdir, ticks, "lockstep")
+    ls = one
     for n in sizes:
-        ls = one_ls if n == 1 else fleet_run(n, workdir, lockstep_ticks, "lockstep")
+        ls = one if n == 1 else fleet_run(n, workdir, ticks, "lockstep")
         r.add(f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)",
-              ls["ticks_per_s"], "1/s", one_ls["ticks_per_s"], "one vehicle")  # fmt: skip
-    return out
+              ls["ticks_per_s"], "1/s", one["ticks_per_s"], "one vehicle")  # fmt: skip
+    r.add(f"fleet of {sizes[-1]}, lockstep: memory per vehicle", ls["memory_per_vehicle_mb"], "MB")
+    return {"fleet_lockstep_ratio": ls["ticks_per_s"] / one["ticks_per_s"], "fleet_lockstep_size": sizes[-1],
+            "fleet_memory_per_vehicle_mb": ls["memory_per_vehicle_mb"]}  # fmt: skip
 
 
 def run(ctx: Context) -> dict[str, object]:
-    """Fleets of ``--fleet-sizes`` vehicles, each run ``--fleet-seconds`` long (:func:`bench_fleet`)."""
-    return bench_fleet(ctx.report, ctx.work, ctx.sizes, ctx.args.fleet_seconds)
+    """Fleets of ``--fleet-sizes`` vehicles, each run ``--fleet-seconds`` long (:func:`bench_fleet`; the real-time
+    series with ``--full``)."""
+    return bench_fleet(ctx.report, ctx.work, ctx.sizes, ctx.args.fleet_seconds, ctx.full)
 
 
 SECTION = Section("fleet", run)

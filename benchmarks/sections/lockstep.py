@@ -1,8 +1,9 @@
 """1. lockstep: control ticks per second of the full ``quadsitl fly`` pipeline (plant and autopilot as processes,
 MAVLink over UDP, Zenoh telemetry every tick, the ground station streaming setpoints and logging all telemetry)
 against a bare UDP ping-pong between two Python processes with datagrams of the same sizes
-(:mod:`benchmarks.pingpong`). ``lockstep_ratio`` = fly rate / the fastest ping-pong's rate. Then (1b.) the lockstep
-with a busy-looping process on the machine, polling against blocking."""
+(:mod:`benchmarks.pingpong`). ``lockstep_ratio`` = fly rate / the fastest ping-pong's rate. With ``--full``, also
+``fly`` with polling off and on one core, and (1b.) the lockstep with a busy-looping process on the machine, polling
+against blocking."""
 
 from __future__ import annotations
 
@@ -38,20 +39,24 @@ def fly_rate(seconds: float, workdir: Path, env: dict[str, str] | None = None, c
     return json.loads((out / "rate.json").read_text())["ticks_per_s"]
 
 
-def bench_lockstep(r: Report, workdir: Path, rounds: int) -> tuple[float, float, float]:
-    """Interleaved rounds of the ping-pongs and of ``fly``, the best of each → (fly's ticks per second, the blocking
-    ping-pong's round trips per second, the fastest ping-pong's)."""
+def bench_lockstep(r: Report, workdir: Path, rounds: int, full: bool) -> tuple[float, float, float]:
+    """Interleaved rounds of the ping-pongs and of ``fly`` (``full``: also with polling off and on one core), the best
+    of each → (fly's ticks per second, the blocking ping-pong's round trips per second, the fastest ping-pong's)."""
     r.section("1. lockstep loop (quadsitl fly, paper preset) against a bare UDP ping-pong")
     runs: dict[str, list[float]] = {}
-    for _ in range(rounds):  # interleaved, so that all see the same machine
-        for name, measure in (
-            ("ping", pingpong.measure),
-            ("ping polling", lambda: pingpong.measure(spin=True)),
-            ("ping one core", lambda: pingpong.measure(cpu=0)),
-            ("fly", lambda: fly_rate(10.0, workdir)),
+    measures = [
+        ("ping", pingpong.measure),
+        ("ping polling", lambda: pingpong.measure(spin=True)),
+        ("ping one core", lambda: pingpong.measure(cpu=0)),
+        ("fly", lambda: fly_rate(10.0, workdir)),
+    ]
+    if full:
+        measures += [
             ("fly blocking", lambda: fly_rate(10.0, workdir, BLOCKING)),
             ("fly one core", lambda: fly_rate(10.0, workdir, cpu=0)),
-        ):
+        ]
+    for _ in range(rounds):  # interleaved, so that all see the same machine
+        for name, measure in measures:
             runs.setdefault(name, []).append(measure())
     best = {name: max(values) for name, values in runs.items()}
     ping, fly = best["ping"], best["fly"]
@@ -63,10 +68,11 @@ def bench_lockstep(r: Report, workdir: Path, rounds: int) -> tuple[float, float,
     r.add("fly ticks", fly, "1/s", floor, f"fastest ping-pong: {floor_name}")
     r.add("fly real-time factor at 1 kHz", fly / 1000.0, "x")
     r.add("fly ticks against the blocking ping-pong", fly, "1/s", ping, "blocking ping-pong")
-    r.add("fly ticks, polling off ($QUADSITL_SPIN_US=0)", best["fly blocking"], "1/s", floor, "fastest ping-pong")
-    # Where waking a process on the other core is slow (a Firecracker guest), the whole run on one core can beat the
-    # default; not where it is fast (docs/performance.md). Shown, so a user can tell which machine this is.
-    r.add("fly ticks, every process on one core (taskset -c 0)", best["fly one core"], "1/s", fly, "fly")
+    if full:
+        r.add("fly ticks, polling off ($QUADSITL_SPIN_US=0)", best["fly blocking"], "1/s", floor, "fastest ping-pong")
+        # Where waking a process on the other core is slow (a Firecracker guest), the whole run on one core can beat
+        # the default; not where it is fast (docs/performance.md). Shown, so a user can tell which machine this is.
+        r.add("fly ticks, every process on one core (taskset -c 0)", best["fly one core"], "1/s", fly, "fly")
     return fly, ping, floor
 
 
@@ -91,12 +97,13 @@ def bench_contention(r: Report, workdir: Path) -> None:
 def run(ctx: Context) -> dict[str, object]:
     """The lockstep against the ping-pongs (``ctx.ping`` and ``ctx.lockstep_ratio`` set for the sections after it),
     the hypervisor's steal time meanwhile, then the lockstep beside a CPU hog: ``lockstep_ratio_blocking`` (against
-    the blocking ping-pong) and ``steal_lockstep``."""
+    the blocking ping-pong) and ``steal_lockstep``; the CPU hog with ``--full``."""
     before = machine.cpu_times()
-    fly, ctx.ping, floor = bench_lockstep(ctx.report, ctx.work, ctx.args.rounds)
+    fly, ctx.ping, floor = bench_lockstep(ctx.report, ctx.work, ctx.args.rounds, ctx.full)
     ctx.lockstep_ratio = fly / floor
     out = {"lockstep_ratio_blocking": fly / ctx.ping, "steal_lockstep": steal_since(ctx.report, before)}
-    bench_contention(ctx.report, ctx.work)
+    if ctx.full:
+        bench_contention(ctx.report, ctx.work)
     return out
 
 

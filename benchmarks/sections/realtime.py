@@ -26,7 +26,7 @@ def bench_realtime(r: Report, workdir: Path, seconds: float) -> None:
 
 
 def run(ctx: Context) -> dict[str, object]:
-    """Runs of ``--realtime-seconds``; no keys of its own."""
+    """Runs of ``--realtime-seconds`` (3 s in the quick form, 10 with ``--full``); no keys of its own."""
     bench_realtime(ctx.report, ctx.work, ctx.args.realtime_seconds)
     return {}
 
