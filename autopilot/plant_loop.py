@@ -77,7 +77,7 @@ if fastio.AVAILABLE:
                     ok = False
         return ok
 
-    @jit
+    @jit(nogil=True)  # it waits on the socket: a host's other vehicles fly meanwhile (autopilot.host)
     def serve(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray, tx: np.ndarray,
               io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, patience_ns: int,
               hot_after: int, limit_tick: int, stats: np.ndarray, links: tuple, ground: np.ndarray,

@@ -25,8 +25,9 @@ import argparse
 import math
 import select
 import sys
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -624,20 +625,21 @@ class Autopilot:
             except Exception as exc:  # a bug must not take the vehicle down: report it, fly on
                 print(f"{self.label}: error: handling {m.get_type()} from {sender}: {exc!r}", file=sys.stderr)
 
-    def run(self) -> None:
+    def run(self, stop: threading.Event | None = None, ready: Callable[[], None] = say_ready) -> None:
         """The plant socket drives the loop (a blocking receive, so a tick waits on nothing else); the
         ground-station sockets are read every ``GCS_POLL`` seconds of wall time (by the compiled loop: when a
         datagram waits on them), the wall-clock work runs every ``HOUSEKEEPING``, and both whenever the plant is
-        quiet."""
+        quiet. Until ``stop`` is set (a process hosting several vehicles, :mod:`autopilot.host`: the loop comes back
+        to Python at least every ``HOUSEKEEPING``), or forever; ``ready`` once the first heartbeat is out."""
         set_receive_timeout(self.plant.sock, 0.02)
         for link in self.links:
             link.sock.setblocking(False)
         wall = time.monotonic()
         self.chores(wall)  # the first heartbeat: ground stations see the vehicle from now on
-        say_ready()  # and a launcher that waits for it (quadsitl up) says so
+        ready()  # and a launcher that waits for it (quadsitl up) says so
         next_chores = wall + HOUSEKEEPING
         receive = self.plant.wait
-        while True:
+        while stop is None or not stop.is_set():
             status = -1
             if self.pending is not None:  # the wall-clock work goes on while the clock waits (the heartbeat)
                 self.wait_for_setpoint()
@@ -757,23 +759,42 @@ def warm_up_loops() -> None:
             ap.close()
 
 
+REFUSED = (UsageError, ConfigError, GainError, plugin.ControllerError, zenoh.ZError)
+"""What :func:`open_autopilot` raises for options it refuses (said by :func:`refusal`)."""
+
+
+def open_autopilot(args: argparse.Namespace) -> Autopilot:
+    """The autopilot of these options, its per-tick code compiled (or loaded from numba's cache) before its first tick;
+    one of :data:`REFUSED` for options it cannot fly."""
+    preset = with_state(load_preset(args.preset), args)
+    check(args, preset)
+    warm_up()  # compiled before the first tick (numba's cache makes this quick after the first run)
+    ap = Autopilot(preset, args)
+    try:
+        if ap.plant.fast:
+            plant_loop.warm_up(ap.tick_arguments())
+    except BaseException:
+        ap.close()
+        raise
+    return ap
+
+
+def refusal(prog: str, exc: BaseException) -> str:
+    """The error line for an exception of :data:`REFUSED`."""
+    if isinstance(exc, zenoh.ZError):
+        return (f"{prog}: error: cannot open the Zenoh session (--zenoh-listen / --zenoh-connect / --zenoh-config): "
+                f"{exc}")  # fmt: skip
+    return f"{prog}: error: {exc}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     start_process()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        preset = with_state(load_preset(args.preset), args)
-        check(args, preset)
-        warm_up()  # compiled before the first tick (numba's cache makes this quick after the first run)
-        ap = Autopilot(preset, args)
-        if ap.plant.fast:
-            plant_loop.warm_up(ap.tick_arguments())
-    except (UsageError, ConfigError, GainError, plugin.ControllerError) as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except zenoh.ZError as exc:
-        print(f"{parser.prog}: error: cannot open the Zenoh session (--zenoh-listen / --zenoh-connect / "
-              f"--zenoh-config): {exc}", file=sys.stderr)  # fmt: skip
+        ap = open_autopilot(args)
+    except REFUSED as exc:
+        print(refusal(parser.prog, exc), file=sys.stderr)
         return 2
     try:
         ap.run()

@@ -35,17 +35,24 @@ class StartedAutopilot:
 
     def start(self) -> None:
         """The process started on three free ports (plant, api, Zenoh), none of ``taken``, which they join."""
+        self.pick()
+        self.proc = _python("autopilot", *self.options(), env=self.env)
+        self.attempts += 1
+
+    def pick(self) -> None:
+        """Three free ports (plant, api, Zenoh), none of ``taken``, which they join."""
         picks = []
         for kind in (socket.SOCK_DGRAM, socket.SOCK_DGRAM, socket.SOCK_STREAM):
             picks.append(free_port(kind, avoid=self.taken))
             self.taken.add(picks[-1])
         self.plant_port, self.api_port, zenoh_port = picks
         self.endpoint = f"tcp/127.0.0.1:{zenoh_port}"
-        self.proc = _python("autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{self.plant_port}",
-                            "--api-listen", f"127.0.0.1:{self.api_port}", "--api-remote", "none", "--gcs-listen",
-                            "127.0.0.1:0", "--gcs-remote", "none", "--zenoh-listen", self.endpoint, "--system-id",
-                            str(self.system_id), *self.extra, env=self.env)  # fmt: skip
-        self.attempts += 1
+
+    def options(self) -> list[str]:
+        """The autopilot's command line on its ports (``python -m autopilot`` and :mod:`autopilot.host` take it)."""
+        return ["--preset", "paper", "--plant-listen", f"127.0.0.1:{self.plant_port}", "--api-listen",
+                f"127.0.0.1:{self.api_port}", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
+                "none", "--zenoh-listen", self.endpoint, "--system-id", str(self.system_id), *self.extra]  # fmt: skip
 
     def __iter__(self) -> Iterator:
         return iter((self.plant_port, self.api_port, self.endpoint, self.proc.pid))
@@ -66,6 +73,28 @@ class StartedAutopilot:
 
 
 START_ATTEMPTS = 3  # an autopilot's starts in all, each on other ports, before the bench gives up
+
+
+class HostedAutopilots:
+    """``n`` autopilots in one process (:mod:`autopilot.host`, as ``quadsitl up --hosted`` runs a fleet) on free
+    ports, system ids 1..n: ``vehicles`` unpack as :class:`StartedAutopilot` do, ``proc`` is the one process."""
+
+    def __init__(self, n: int, taken: set[int]) -> None:
+        self.vehicles = []
+        for i in range(n):
+            v = StartedAutopilot.__new__(StartedAutopilot)
+            v.env, v.system_id, v.taken, v.extra, v.attempts = None, i + 1, taken, (), 1
+            v.pick()
+            self.vehicles.append(v)
+        argv = [word for v in self.vehicles for word in ("--", *v.options())]
+        self.proc = _python("autopilot.host", *argv)
+        for v in self.vehicles:
+            v.proc = self.proc
+
+    def wait_ready(self, timeout: float = 120.0) -> None:
+        """Until every vehicle answers a ground station's heartbeat."""
+        for v in self.vehicles:
+            _wait_heartbeat(v.api_port, timeout, alive=lambda: self.proc.poll() is None)
 
 
 class AutopilotExitedError(RuntimeError):

@@ -442,6 +442,12 @@ the source, or 'mkdocs serve' there.""",
         "--speed", type=float, default=1.0, metavar="F", help="lockstep pace, × real time (default 1; 0 = no cap)"
     )
     upp.add_argument("--cores-awake", action="store_true", help=CORES_AWAKE_HELP)
+    upp.add_argument(
+        "--hosted",
+        action="store_true",
+        help="every vehicle's autopilot in one process (a thread each; its own ports, MAVLink identity, parameters "
+        "and failsafes as before): a fleet's memory is its vehicles', not one interpreter each",
+    )
     for name, listen, remote in (("gcs", 18570, 14550), ("api", 14580, 14540)):
         upp.add_argument(
             f"--{name}-listen",

@@ -146,6 +146,7 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
     # One plant process simulates every vehicle on one clock (sitl.lockstep.run_lockstep); an autopilot each.
     plant = ["sitl", "--preset", args.preset, "--mode", args.mode] + (["--cores-awake"] if args.cores_awake else [])
     taken = planned_ports(fleet)  # an internal port never lands on a later vehicle's, not yet bound
+    hosted: list[str] = ["autopilot.host"]  # --hosted: every vehicle's autopilot options, in one process
     for v in fleet:
         plant_port = free_port(avoid=taken)
         taken.add(plant_port)
@@ -166,7 +167,10 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
         else:  # the first vehicle's session listens, the others connect to it (and find each other), or a router
             ap += ["--vehicle", v.name, *zenoh_argv(v.index, args.zenoh_listen, args.zenoh_connect, True,
                                                     args.zenoh_config)]  # fmt: skip
-        children.start("autopilot" + named, ap, ready=True)
+        if args.hosted:
+            hosted += ["--", *ap[1:]]
+        else:
+            children.start("autopilot" + named, ap, ready=True)
         plant += ["--autopilot", f"127.0.0.1:{plant_port}", "--vehicle", v.name, *home]
         if v.preset != args.preset:
             plant += ["--vehicle-preset", f"{v.number}={v.preset}"]
@@ -177,6 +181,8 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
     plant += wind_argv(args) + state_argv(args)
     if not args.no_zenoh:  # wind changes on quadsitl/<vehicle>/wind (sitl/wind_link.py)
         plant += zenoh_argv(0, args.zenoh_listen, args.zenoh_connect, False, args.zenoh_config)
+    if args.hosted:
+        children.start("autopilots", hosted, ready=True)
     children.start("plant", plant + (["--quiet"] if args.quiet else []))
     info = None if args.no_zenoh else publish_info(fleet, zenoh_endpoint(args), bool(args.zenoh_connect),
                                                    args.zenoh_config)  # fmt: skip

@@ -69,6 +69,9 @@ MASK_ATTITUDE_ONLY = 1 | 2 | 4 | 64
 MASK_Z_ONLY = 0b0000_1101_1111_1011  # SET_POSITION_TARGET_LOCAL_NED: only z (and yaw ignored: 1024, rate 2048)
 MASK_POSITION_VELOCITY_YAW = POSITION_VELOCITY_YAW  # a position trajectory's (groundstation.setpoint_grid)
 COMMAND_RETRY = 0.5  # [s] wall: a command is sent again until acknowledged (MAVSDK waits 0.5 s too)
+# [s] wall: how long a refusal's COMMAND_ACK waits for its reason, the STATUSTEXT sent right after it (in chunks when
+# long), before the ground station says it was refused
+REASON_WAIT = 1.0
 # [s] wall: after the flight, the ground station waits for telemetry still on its way until this long passes without
 # a sample (a fixed 2 s could end while a loaded machine was still delivering a backlog)
 TELEMETRY_QUIET = 2.0
@@ -193,6 +196,10 @@ class GroundStation:
             readable_of([self.sock], self.last_read + self.wait_data - time.monotonic())
         time.sleep(max(0.0, self.last_read + self.interval - time.monotonic()))
         self.last_read = time.monotonic()
+        self.read_waiting()
+
+    def read_waiting(self) -> None:
+        """Handle every datagram waiting on the socket (up to 1000), without waiting for more."""
         self.sock.settimeout(0.0)
         for _ in range(1000):
             try:
@@ -346,6 +353,10 @@ class GroundStation:
         if result == mavlink.MAV_RESULT_ACCEPTED:
             return True, last_sent
         if result is not None:
+            end = time.monotonic() + REASON_WAIT
+            while not self.said and (left := end - time.monotonic()) > 0:  # its reason comes right after it
+                if readable_of([self.sock], left):
+                    self.read_waiting()
             why = f": the vehicle says {self.said[-1]!r}" if self.said else ""
             raise GcsError(f"{what} refused (MAV_RESULT {result}){why}")
         if now - last_sent > COMMAND_RETRY:

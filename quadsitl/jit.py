@@ -41,7 +41,7 @@ DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 numba.config.CACHE_DIR = str(cache_dir())
 
 
-def jit(fn: F | None = None, *, inline: bool = False) -> F | Callable[[F], F]:
+def jit(fn: F | None = None, *, inline: bool = False, nogil: bool = False) -> F | Callable[[F], F]:
     """Compile ``fn`` in nopython mode, cached on disk (see the module's docstring). ``@jit(inline=True)``: the
     function's body is also inlined into every compiled caller (numba's ``inline="always"``), for the equations
     of one control tick, which the per-tick kernels and the sweeps' batch engine call millions of times; the
@@ -49,10 +49,13 @@ def jit(fn: F | None = None, *, inline: bool = False) -> F | Callable[[F], F]:
     (:mod:`quadsitl.codec`, :mod:`quadsitl.hil`): compiled code calls them with constant offsets and sizes, and numba
     compiles a function called from compiled code once per combination of constant arguments (13 versions of one
     four-byte read); inlined, they compile with their caller, which shortened both the autopilot's compile and its
-    tick (docs/performance.md#compiling-on-first-run)."""
+    tick (docs/performance.md#compiling-on-first-run). ``@jit(nogil=True)``: the function runs without Python's global
+    lock, for the compiled loops that wait on a socket (:func:`autopilot.plant_loop.serve`), so that the other
+    threads of a process hosting several vehicles (:mod:`autopilot.host`) run meanwhile."""
 
     def compile_(f: F) -> F:
-        return numba.njit(cache=True, error_model="numpy", inline="always" if inline else "never")(f)  # type: ignore[return-value]
+        inlined = "always" if inline else "never"
+        return numba.njit(cache=True, error_model="numpy", inline=inlined, nogil=nogil)(f)  # type: ignore[return-value]
 
     return compile_ if fn is None else compile_(fn)
 

@@ -226,11 +226,12 @@ class Client:
             self.pump(0.05)
         raise AssertionError(f"no STATUSTEXT containing {needle!r}; got {self.texts}")
 
-    def param_set(self, name: str, value: float, timeout: float = 10.0, resend: float = 1.0):
-        """PARAM_SET → the PARAM_VALUE that answers it (:meth:`_request`, as QGroundControl and MAVSDK resend it)."""
+    def param_set(self, name: str, value: float, timeout: float = 10.0, resend: float = 1.0, system: int = 1):
+        """PARAM_SET to ``system`` → the PARAM_VALUE that answers it (:meth:`_request`, as QGroundControl and MAVSDK
+        resend it)."""
 
         def send(attempt: int) -> None:
-            self.conn.mav.param_set_send(1, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
+            self.conn.mav.param_set_send(system, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
 
         return self._request(send, "PARAM_VALUE", lambda m: m.param_id == name, timeout, resend)
 

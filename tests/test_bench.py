@@ -157,21 +157,32 @@ def test_bench_fleet_reports_each_size_against_one_vehicle(cli):
         assert report[key] == _largest_kept(figures, how, measured, "worst vehicle's deadline-miss ratio")
         assert report[f"{key}_over_floor"] == _largest_kept(figures, how, measured, beyond_name) >= report[key]
         assert report[f"{key}_own"] == (_largest_kept(figures, how, measured, own_name) if fifo else None)
-    _check_fleet_lockstep(report, figures, (1, 2))
+    _check_fleet_lockstep(report, figures, (1, 2), each=2)
 
 
-def _check_fleet_lockstep(report: dict, figures: dict, sizes: tuple[int, ...]) -> None:
-    """The fleet section's lockstep figures of ``sizes`` vehicles, each against one vehicle's, and its keys."""
+def _check_fleet_lockstep(report: dict, figures: dict, sizes: tuple[int, ...], each: int | None) -> None:
+    """The fleet section's lockstep figures: ``sizes`` vehicles hosted in one process and (``each``) that many with a
+    process each, against one vehicle's, and its keys."""
+    one = figures["one vehicle, lockstep: ticks (plant + autopilot, no ground station)"]
+    # ran (10,000+ ticks/s on a quiet machine; a loaded CI run's lockstep pair can read a tenth of that)
+    assert one["value"] > 100 and one["unit"] == "1/s"
     for n in sizes:
-        lockstep = figures[f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)"]
-        # ran (10,000+ ticks/s on a quiet machine; a loaded CI run's lockstep pair can read a tenth of that)
-        assert lockstep["value"] > 100 and lockstep["unit"] == "1/s" and lockstep["baseline_name"] == "one vehicle"
-    largest = figures[f"fleet of {sizes[-1]}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)"]
-    assert report["fleet_lockstep_size"] == sizes[-1]
-    assert report["fleet_lockstep_ratio"] == pytest.approx(largest["value"] / largest["baseline"])
-    memory = figures[f"fleet of {sizes[-1]}, lockstep: memory per vehicle"]
-    assert memory["unit"] == "MB" and 20 < memory["value"] < 2000 and report["fleet_memory_per_vehicle_mb"] == memory[
-        "value"]  # fmt: skip
+        hosted = figures[f"fleet of {n}, lockstep, hosted (up --hosted): ticks of all vehicles"]
+        assert hosted["value"] > 100 and hosted["baseline"] == one["value"] and hosted["baseline_name"] == "one vehicle"
+    n = sizes[-1]
+    assert report["fleet_lockstep_size"] == n
+    assert report["fleet_lockstep_ratio"] == pytest.approx(hosted["value"] / one["value"])
+    memory = figures[f"fleet of {n}, lockstep, hosted: memory per vehicle"]
+    assert memory["unit"] == "MB" and 5 < memory["value"] < 2000
+    assert report["fleet_memory_per_vehicle_mb"] == memory["value"]
+    if each is None:
+        assert "fleet_processes_lockstep_ratio" not in report
+    else:  # a process each: more memory per vehicle than hosted, one interpreter each
+        processes = figures[f"fleet of {each}, lockstep, an autopilot process each: ticks of all vehicles"]
+        assert processes["value"] > 100 and processes["baseline"] == one["value"]
+        assert report["fleet_processes_lockstep_ratio"] == pytest.approx(processes["value"] / one["value"])
+        per = figures[f"fleet of {each}, lockstep, an autopilot process each: memory per vehicle"]
+        assert per["baseline"] == memory["value"] < per["value"] == report["fleet_processes_memory_per_vehicle_mb"]
     # its goals are checked against those keys; the one at 32 vehicles is not, on a smaller fleet
     goals = {g["key"]: g for g in report["goals"]}
     assert goals["fleet_memory_per_vehicle_mb"]["met"] == (memory["value"] <= 40)
@@ -180,18 +191,18 @@ def _check_fleet_lockstep(report: dict, figures: dict, sizes: tuple[int, ...]) -
     assert lockstep_goal["why_not_checked"] == f"the largest fleet measured had {sizes[-1]} vehicles"
 
 
-def test_bench_fleet_by_default_flies_one_vehicle_and_the_largest_fleet_in_lockstep_only(cli):
-    """The quick form (no --full): no floor, no real-time run, no browser; one vehicle and the largest size up to
-    eight, in lockstep, with the keys the goals read."""
-    r = cli("bench", "--only", "fleet", "--fleet-sizes", "1,2,3,12", "--fleet-seconds", "2", "--json", timeout=180)
+def test_bench_fleet_by_default_flies_one_vehicle_and_the_largest_fleet_hosted_in_lockstep_only(cli):
+    """The quick form (no --full): no floor, no real-time run, no browser, no fleet of processes; one vehicle and the
+    largest size hosted in one process, in lockstep, with the keys the goals read."""
+    r = cli("bench", "--only", "fleet", "--fleet-sizes", "1,2,3", "--fleet-seconds", "2", "--json", timeout=180)
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)
     assert report["scope"] == "quick"
     figures = {f["name"]: f for f in report["figures"]}
     assert not [name for name in figures if "real time" in name or "bare loop" in name]
-    assert not [name for name in figures if "fleet of 2," in name or "fleet of 12," in name]
+    assert not [name for name in figures if "fleet of 2," in name]
     assert "fleet_max_realtime" not in report and "fleet_floor_miss_ratio" not in report
-    _check_fleet_lockstep(report, figures, (1, 3))
+    _check_fleet_lockstep(report, figures, (3,), each=None)
 
 
 def test_bench_without_playwright_skips_the_dashboard_and_still_writes_the_report(costs_without_playwright):

@@ -1,5 +1,6 @@
-"""7. fleets: N vehicles at once (N autopilot processes and one plant process on one clock, as ``up --vehicles N``),
-growing N. In real time at 1 kHz, with the dashboard's page open when the machine has a browser: the worst vehicle's
+"""7. fleets: N vehicles at once (their autopilots hosted in one process and one plant process on one clock, as ``up
+--vehicles N --hosted``), growing N. In real time at 1 kHz, with the dashboard's page open when the machine has a
+browser: the worst vehicle's
 deadline-miss ratio (its tick started late, or its autopilot's answer missed the period) against one vehicle's, with
 CPU (% of a core: per vehicle, each autopilot's, the plant's), memory per vehicle and the hypervisor's steal time
 during the run; ``fleet_max_realtime`` is the largest N whose every vehicle misses under 1 % of its periods.
@@ -16,12 +17,11 @@ FIFO series and its floor run so (``fleet_fifo_cores_awake``): the set-up for re
 priority, and name the periods in which the host stalled a core; the worst vehicle's misses outside them are its own
 (``fleet_max_realtime_own``, ``fleet_max_realtime_fifo_own``: the largest N that missed under 1 % of its periods
 outside the host's stalls), and the sizes grow until that reaches 1 % (without those loops, until the misses beyond
-the floor do). In lockstep, the fleet's ticks per second (all vehicles) against one vehicle's (``fleet_lockstep_ratio``
-at the largest size, ``fleet_lockstep_size``), and memory per vehicle in the largest fleet
-(``fleet_memory_per_vehicle_mb``).
+the floor do). In lockstep, the fleet's ticks per second (all vehicles) against one vehicle's, hosted at each size
+and with an autopilot process each at one (:func:`_fleet_lockstep`), and memory per vehicle.
 
-The real-time series and its floors run with ``--full``; the quick form is the lockstep of one vehicle and of the
-largest fleet up to :data:`QUICK_FLEET` vehicles.
+The real-time series and its floors, every size and the fleet of processes run with ``--full``; the quick form is the
+lockstep of one vehicle and of the largest fleet, hosted.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from benchmarks import machine
-from benchmarks.autopilots import autopilot_process
+from benchmarks.autopilots import GRACE, HostedAutopilots, autopilot_process
 from benchmarks.browser import missing as browser_missing
 from benchmarks.floor import FIFO_PRIORITY, Stalls, floor_on_every_core, watching_every_core
 from benchmarks.report import Report
@@ -46,11 +46,11 @@ from benchmarks.sections.dashboard import dashboard_page
 from quadsitl.children import stop
 from quadsitl.process_util import rss_mb
 
-QUICK_FLEET = 8  # the quick form's largest fleet: 16 autopilots' start alone took 14 s of a two-minute run
+PROCESSES_FLEET = 16  # --full's fleet of processes, beside the hosted ones: 32 would take 6 GB and a minute to start
 
 
 def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | None = None, fifo: bool = False,
-              awake: bool = False) -> dict:  # fmt: skip
+              awake: bool = False, hosted: bool = False) -> dict:  # fmt: skip
     """``n`` vehicles (an autopilot each and one plant process simulating all of them on one clock, as ``quadsitl up
     --vehicles N`` runs them, the paper preset) flying ``ticks`` ticks in ``mode`` (``realtime`` or ``lockstep``).
     The vehicles are not armed: an autopilot armed in hold on the ground idles (no control law) as a disarmed one
@@ -63,20 +63,29 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
     watching the fleet would have it; its CPU is not counted in the vehicles'. ``fifo``: the autopilots (raised to it
     once started: :func:`raise_to_fifo`) and the plant run under SCHED_FIFO (:func:`fifo_scheduling`); the
     dashboard does not (it runs at idle priority). ``awake``: every core is kept out of slow idle states while the
-    fleet runs (:func:`cores_awake`, as ``--cores-awake``)."""
+    fleet runs (:func:`cores_awake`, as ``--cores-awake``). ``hosted``: the autopilots in one process
+    (:class:`benchmarks.autopilots.HostedAutopilots`, as ``up --hosted``); its CPU and memory are the vehicles'."""
     with contextlib.ExitStack() as stack:
         stack.enter_context(cores_awake(awake))
         # system ids 1..n, as `quadsitl up --vehicles N` gives them (each streams on ticks of its own), all started at
         # once and then waited for; under the default scheduler, and raised to SCHED_FIFO once started: N start-ups
         # (imports, compiled code loading) at FIFO priority would take both cores from everything else for seconds
         taken: set[int] = set()  # every autopilot's ports distinct, picked before any of them binds
-        aps = [stack.enter_context(autopilot_process(workdir, system_id=i + 1, taken=taken, ready=False))
-               for i in range(n)]  # fmt: skip
-        for ap in aps:
-            ap.wait_ready()
-            if fifo:
-                raise_to_fifo(ap.proc.pid)
-        ap_pids = [ap.proc.pid for ap in aps]
+        if hosted:
+            host = HostedAutopilots(n, taken)
+            stack.callback(stop, host.proc, GRACE)
+            host.wait_ready()
+            aps: list = host.vehicles
+            ap_pids = [host.proc.pid]
+        else:
+            aps = [stack.enter_context(autopilot_process(workdir, system_id=i + 1, taken=taken, ready=False))
+                   for i in range(n)]  # fmt: skip
+            for ap in aps:
+                ap.wait_ready()
+            ap_pids = [ap.proc.pid for ap in aps]
+        if fifo:
+            for pid in ap_pids:
+                raise_to_fifo(pid)
         if browser is not None:
             stack.enter_context(dashboard_page(browser, [endpoint for _, _, endpoint, _ in aps]))
         stats = workdir / f"fleet-{n}-{mode}-{time.monotonic_ns()}.json"
@@ -143,11 +152,11 @@ def bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float, 
     """The section (the module's docstring) over fleets of ``sizes`` vehicles, each run ``seconds`` long, the real-time
     runs with the dashboard's page open when this machine has Playwright and Chromium (said in the section's title);
     returns its keys of the JSON report. Without ``full``, the quick form: the lockstep of one vehicle and of the
-    largest fleet of ``sizes`` up to :data:`QUICK_FLEET`."""
+    largest fleet of ``sizes``, hosted."""
     if not full:
-        largest = max([n for n in sizes if n <= QUICK_FLEET] or [1])
-        r.section(f"7. fleets in lockstep: one vehicle and {largest} (every size and the real-time series: --full)")
-        return _fleet_lockstep(r, workdir, sorted({1, largest}), round(4 * seconds * 1000))
+        r.section(f"7. fleets in lockstep: one vehicle, and {sizes[-1]} hosted in one process (every size, a process "
+                  "each, and the real-time series: --full)")  # fmt: skip
+        return _fleet_lockstep(r, workdir, [sizes[-1]], round(4 * seconds * 1000), None)
     with contextlib.ExitStack() as stack:
         browser = None
         if browser_missing() is None:
@@ -180,7 +189,8 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
     watched = "the dashboard open in headless Chromium"
     if browser is None:
         watched = f"no dashboard: {browser_missing()}"
-    r.section(f"7. fleets: N vehicles at once, {seconds:g} s at 1 kHz in real time ({watched}), then in lockstep")
+    r.section(f"7. fleets: N vehicles at once, hosted in one process (up --hosted), {seconds:g} s at 1 kHz in real "
+              f"time ({watched}), then in lockstep")  # fmt: skip
     ticks = round(seconds * 1000)
     out: dict[str, object] = {"fleet_dashboard_open": browser is not None}
     # The machine's floor, in this run: what keeping time costs with nothing else running. On a virtual machine the
@@ -210,11 +220,11 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
             out["fleet_floor_miss_ratio_fifo"] = floors[True]["any"]
             out["fleet_floor_miss_ratios_per_core_fifo"] = list(floors[True]["per_core"].values())
         floor = floors[fifo]["any"]
-        one = fleet_run(1, workdir, ticks, "realtime", browser, fifo, fifo and awake)
+        one = fleet_run(1, workdir, ticks, "realtime", browser, fifo, fifo and awake, hosted=True)
         largest = largest_over_floor = largest_own = 0
         kept = kept_over_floor = kept_own = True
         for n in sizes:
-            rt = one if n == 1 else fleet_run(n, workdir, ticks, "realtime", browser, fifo, fifo and awake)
+            rt = one if n == 1 else fleet_run(n, workdir, ticks, "realtime", browser, fifo, fifo and awake, hosted=True)
             r.add(f"fleet of {n}, real time, {how}: worst vehicle's deadline-miss ratio", rt["worst_miss_ratio"],
                   "ratio", one["worst_miss_ratio"], "one vehicle", ratio=None)  # fmt: skip
             r.add(f"fleet of {n}, real time, {how}: the clock's deadline-miss ratio (ticks started a period late)",
@@ -248,22 +258,38 @@ def _bench_fleet(r: Report, workdir: Path, sizes: Sequence[int], seconds: float,
                 break  # the next sizes would miss more
         out[key], out[f"{key}_over_floor"] = largest, largest_over_floor
         out[f"{key}_own"] = largest_own if one["worst_own_miss_ratio"] is not None else None
-    return out | _fleet_lockstep(r, workdir, sizes, 4 * ticks)  # a few seconds at several times real time
+    each = max([n for n in sizes if n <= PROCESSES_FLEET] or [1])  # a few seconds at several times real time:
+    return out | _fleet_lockstep(r, workdir, sizes, 4 * ticks, each)
 
 
-def _fleet_lockstep(r: Report, workdir: Path, sizes: Sequence[int], ticks: int) -> dict[str, object]:
-    """One vehicle, then fleets of ``sizes`` vehicles in lockstep for ``ticks`` ticks: each fleet's ticks per second
-    (all vehicles) against one vehicle's → ``fleet_lockstep_ratio`` and ``fleet_lockstep_size`` of the largest, and
-    its memory per vehicle, ``fleet_memory_per_vehicle_mb``."""
+def _fleet_lockstep(r: Report, workdir: Path, sizes: Sequence[int], ticks: int, each: int | None) -> dict[str, object]:
+    """One vehicle (its own autopilot process), then fleets of ``sizes`` vehicles in lockstep for ``ticks`` ticks,
+    their autopilots hosted in one process (``up --hosted``), and (``each``) a fleet of that many with an autopilot
+    process each: each fleet's ticks per second (all vehicles) against one vehicle's, and memory per vehicle → for the
+    largest hosted fleet ``fleet_lockstep_size``, ``fleet_lockstep_ratio``, ``fleet_memory_per_vehicle_mb``, and for
+    the processes ``fleet_processes_size``, ``fleet_processes_lockstep_ratio``,
+    ``fleet_processes_memory_per_vehicle_mb``."""
     one = fleet_run(1, workdir, ticks, "lockstep")
-    ls = one
+    r.add("one vehicle, lockstep: ticks (plant + autopilot, no ground station)", one["ticks_per_s"], "1/s")
+    hosted = one
     for n in sizes:
-        ls = one if n == 1 else fleet_run(n, workdir, ticks, "lockstep")
-        r.add(f"fleet of {n}, lockstep: ticks of all vehicles (plant + autopilot, no ground station)",
-              ls["ticks_per_s"], "1/s", one["ticks_per_s"], "one vehicle")  # fmt: skip
-    r.add(f"fleet of {sizes[-1]}, lockstep: memory per vehicle", ls["memory_per_vehicle_mb"], "MB")
-    return {"fleet_lockstep_ratio": ls["ticks_per_s"] / one["ticks_per_s"], "fleet_lockstep_size": sizes[-1],
-            "fleet_memory_per_vehicle_mb": ls["memory_per_vehicle_mb"]}  # fmt: skip
+        hosted = fleet_run(n, workdir, ticks, "lockstep", hosted=True)
+        r.add(f"fleet of {n}, lockstep, hosted (up --hosted): ticks of all vehicles", hosted["ticks_per_s"], "1/s",
+              one["ticks_per_s"], "one vehicle")  # fmt: skip
+    n = sizes[-1]
+    r.add(f"fleet of {n}, lockstep, hosted: memory per vehicle", hosted["memory_per_vehicle_mb"], "MB")
+    out: dict[str, object] = {"fleet_lockstep_size": n, "fleet_lockstep_ratio": hosted["ticks_per_s"] / one[
+        "ticks_per_s"], "fleet_memory_per_vehicle_mb": hosted["memory_per_vehicle_mb"]}  # fmt: skip
+    if each is None:
+        return out
+    processes = fleet_run(each, workdir, ticks, "lockstep")
+    r.add(f"fleet of {each}, lockstep, an autopilot process each: ticks of all vehicles", processes["ticks_per_s"],
+          "1/s", one["ticks_per_s"], "one vehicle")  # fmt: skip
+    r.add(f"fleet of {each}, lockstep, an autopilot process each: memory per vehicle",
+          processes["memory_per_vehicle_mb"], "MB", hosted["memory_per_vehicle_mb"], f"{n} hosted")  # fmt: skip
+    return out | {"fleet_processes_size": each,
+                  "fleet_processes_lockstep_ratio": processes["ticks_per_s"] / one["ticks_per_s"],
+                  "fleet_processes_memory_per_vehicle_mb": processes["memory_per_vehicle_mb"]}  # fmt: skip
 
 
 def run(ctx: Context) -> dict[str, object]:
