@@ -5,7 +5,8 @@ Each vehicle is the same :class:`autopilot.process.Autopilot` a process of its o
 plant's, its ground-station and offboard links), MAVLink identity, parameters, commander and failsafes, and its own
 Zenoh session: from outside, the fleet looks as N processes do (PX4's multi-vehicle SITL, one instance a vehicle).
 Each flies its own loop (:meth:`Autopilot.run`) in a thread of its own; the loop waits for its plant's datagrams in
-compiled code that does not hold Python's lock (:func:`autopilot.plant_loop.serve`), so the others fly meanwhile,
+compiled code that does not hold Python's lock (:func:`autopilot.plant_loop.serve_unlocked`), so the others fly
+meanwhile,
 and they share one interpreter, one compiler and the compiled code: a fleet's memory is its vehicles' state, not N
 interpreters (docs/fleets.md#hosted-autopilots).
 
@@ -69,7 +70,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     aps: list[Autopilot] = []
     try:
         for args in every:
-            aps.append(open_autopilot(args))
+            aps.append(open_autopilot(args, unlocked=True))
     except REFUSED as exc:
         print(refusal(PROG, exc), file=sys.stderr)
         for ap in aps:

@@ -27,6 +27,7 @@ class PlantLink:
 
     def __init__(self, listen: str, period: float, system: int) -> None:
         self.sock = bind_udp("--plant-listen", listen)
+        self.unlocked = False  # served without Python's lock (plant_loop.serve_unlocked): a host's vehicles, in threads
         self.rx = bytearray(65535)  # the datagram, read in place by the compiled decoder
         self.rx_array = np.frombuffer(self.rx, dtype=np.uint8)
         self.tx = np.zeros(codec.FRAME_MAX, dtype=np.uint8)  # the answer, written by the compiled tick
@@ -80,7 +81,8 @@ class PlantLink:
         stats[plant_loop.SHORT] = wait.short
         stats[plant_loop.NEXT_GROUND] = int(next_poll * 1e9)
         polling = wait.polling()
-        status, nbytes, flags = plant_loop.serve(
+        serve = plant_loop.serve_unlocked if self.unlocked else plant_loop.serve
+        status, nbytes, flags = serve(
             self.sock.fileno(), self.rx_array, self.sender, self.sender_len, self.address, self.tx, io, tick_args,
             int(deadline * 1e9), polling, int(wait.budget * 1e9), int(wait.patience * 1e9), HOT_AFTER, limit, stats,
             destinations, ground_fds, int(ground_every * 1e9),

@@ -77,7 +77,7 @@ if fastio.AVAILABLE:
                     ok = False
         return ok
 
-    @jit(nogil=True)  # it waits on the socket: a host's other vehicles fly meanwhile (autopilot.host)
+    @jit
     def serve(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray, tx: np.ndarray,
               io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, patience_ns: int,
               hot_after: int, limit_tick: int, stats: np.ndarray, links: tuple, ground: np.ndarray,
@@ -125,6 +125,16 @@ if fastio.AVAILABLE:
                 if fastio.any_readable(ground):
                     return GROUND, -1, 0
 
+    @jit(nogil=True)  # it waits on the socket: a host's other vehicles fly meanwhile
+    def serve_unlocked(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray,
+                       tx: np.ndarray, io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int,
+                       patience_ns: int, hot_after: int, limit_tick: int, stats: np.ndarray, links: tuple,
+                       ground: np.ndarray, ground_every_ns: int) -> tuple:  # fmt: skip
+        """:func:`serve` without Python's lock while it runs, for a process hosting several vehicles' loops in
+        threads (:mod:`autopilot.host`); a process of one vehicle keeps the lock, as it always has."""
+        return serve(fd, rx, addr, addrlen, peer, tx, io, targs, deadline_ns, polling, budget_ns, patience_ns,
+                     hot_after, limit_tick, stats, links, ground, ground_every_ns)  # fmt: skip
+
 
 MAX_DESTINATIONS = 16  # ground-station destinations the compiled loop sends the telemetry frames to
 
@@ -170,8 +180,9 @@ def _copied(value: object) -> object:
     return value
 
 
-def warm_up(targs: tuple) -> None:
-    """Compile (or load from numba's cache) :func:`serve` for these tick arguments (the autopilot's own, copied:
+def warm_up(targs: tuple, unlocked: bool = False) -> None:
+    """Compile (or load from numba's cache) :func:`serve` (``unlocked``: :func:`serve_unlocked`) for these tick
+    arguments (the autopilot's own, copied:
     nothing of its state is touched) before the first tick: one made-up ODOMETRY datagram served on a loopback
     socket."""
     if not fastio.AVAILABLE:
@@ -192,5 +203,6 @@ def warm_up(targs: tuple) -> None:
         rx, addr, addrlen = np.zeros(65535, dtype=np.uint8), np.zeros_like(peer), np.zeros(1, dtype=np.int32)
         for polling in (True, False):
             sock.sendto(frame[:n].tobytes(), sock.getsockname())
-            serve(sock.fileno(), rx, addr, addrlen, peer, tx, io, targs, 0, polling, 1000, 1000, 8, NO_LIMIT,
-                  np.zeros(STATS_SIZE, dtype=np.int64), Destinations().out, fastio.pollfds([sock]), 0)  # fmt: skip
+            served = serve_unlocked if unlocked else serve
+            served(sock.fileno(), rx, addr, addrlen, peer, tx, io, targs, 0, polling, 1000, 1000, 8, NO_LIMIT,
+                   np.zeros(STATS_SIZE, dtype=np.int64), Destinations().out, fastio.pollfds([sock]), 0)  # fmt: skip

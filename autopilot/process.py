@@ -754,7 +754,8 @@ def warm_up_loops() -> None:
         args.home, args.signing_key = None, None
         ap = Autopilot(with_state(load_preset("x500"), args), args)
         try:
-            plant_loop.warm_up(ap.tick_arguments())
+            for unlocked in (False, True):  # a process of its own, and a host's (up --hosted)
+                plant_loop.warm_up(ap.tick_arguments(), unlocked)
         finally:
             ap.close()
 
@@ -763,16 +764,18 @@ REFUSED = (UsageError, ConfigError, GainError, plugin.ControllerError, zenoh.ZEr
 """What :func:`open_autopilot` raises for options it refuses (said by :func:`refusal`)."""
 
 
-def open_autopilot(args: argparse.Namespace) -> Autopilot:
+def open_autopilot(args: argparse.Namespace, unlocked: bool = False) -> Autopilot:
     """The autopilot of these options, its per-tick code compiled (or loaded from numba's cache) before its first tick;
-    one of :data:`REFUSED` for options it cannot fly."""
+    one of :data:`REFUSED` for options it cannot fly. ``unlocked``: its plant loop lets go of Python's lock while it
+    waits (a process hosting several vehicles in threads, :mod:`autopilot.host`)."""
     preset = with_state(load_preset(args.preset), args)
     check(args, preset)
     warm_up()  # compiled before the first tick (numba's cache makes this quick after the first run)
     ap = Autopilot(preset, args)
+    ap.plant.unlocked = unlocked
     try:
         if ap.plant.fast:
-            plant_loop.warm_up(ap.tick_arguments())
+            plant_loop.warm_up(ap.tick_arguments(), unlocked)
     except BaseException:
         ap.close()
         raise

@@ -50,7 +50,7 @@ def jit(fn: F | None = None, *, inline: bool = False, nogil: bool = False) -> F 
     compiles a function called from compiled code once per combination of constant arguments (13 versions of one
     four-byte read); inlined, they compile with their caller, which shortened both the autopilot's compile and its
     tick (docs/performance.md#compiling-on-first-run). ``@jit(nogil=True)``: the function runs without Python's global
-    lock, for the compiled loops that wait on a socket (:func:`autopilot.plant_loop.serve`), so that the other
+    lock, for the compiled loops that wait on a socket (:func:`autopilot.plant_loop.serve_unlocked`), so that the other
     threads of a process hosting several vehicles (:mod:`autopilot.host`) run meanwhile."""
 
     def compile_(f: F) -> F:
