@@ -46,7 +46,7 @@ from benchmarks.sections.dashboard import dashboard_page
 from quadsitl.children import stop
 from quadsitl.process_util import rss_mb
 
-PROCESSES_FLEET = 16  # --full's fleet of processes, beside the hosted ones: 32 would take 6 GB and a minute to start
+PROCESSES_FLEET = 16  # --full's fleet of processes, beside the hosted ones (docs/fleets.md#hosted-autopilots: memory)
 
 
 def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | None = None, fifo: bool = False,
