@@ -122,6 +122,7 @@ class Segment:
     pilots: dict[int, subprocess.Popen] = field(default_factory=dict)
     flights: dict[int, int] = field(default_factory=dict)
     failed_flights: int = 0
+    why_failed: list[str] = field(default_factory=list)  # each failed mission's ground station: its last words
     restarts: dict[str, int] = field(default_factory=lambda: {"dashboard": 0, "router": 0, "gcs": 0})
     follows: dict[str, Follow] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -302,14 +303,18 @@ class Soak:
                     seg.flights[i] = seg.flights.get(i, 0) + 1
                 else:
                     seg.failed_flights += 1
+                    seg.why_failed.append(
+                        f"v{i + 1}, status {proc.returncode}: {last_words(self.work / f'v{i + 1}.err')}"
+                    )
                 seg.restarts["gcs"] += 1
             folder = self.work / f"v{i + 1}"
             shutil.rmtree(folder, ignore_errors=True)
-            seg.pilots[i] = start_module("groundstation.cli", "gcs", "--quiet", "--preset", self.args.preset,
-                                         "--connect", f"127.0.0.1:{gcs_listen + i}", "--target-system", str(i + 1),
-                                         "--vehicle", f"v{i + 1}", "--zenoh-connect", endpoint, "--mission",
-                                         str(self.mission), "--out", str(folder), "--timeout", "300",
-                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+            with open(self.work / f"v{i + 1}.err", "w") as err:  # the child holds its own copy
+                seg.pilots[i] = start_module("groundstation.cli", "gcs", "--quiet", "--preset", self.args.preset,
+                                             "--connect", f"127.0.0.1:{gcs_listen + i}", "--target-system",
+                                             str(i + 1), "--vehicle", f"v{i + 1}", "--zenoh-connect", endpoint,
+                                             "--mission", str(self.mission), "--out", str(folder), "--timeout", "300",
+                                             stdout=subprocess.DEVNULL, stderr=err)  # fmt: skip
 
     def sample(self, seg: Segment, t: float) -> None:
         rss = {}
@@ -330,12 +335,22 @@ class Soak:
                             "failsafes": {v: f[2] for v, f in follows.items()},
                             "landings": {v: f[3] for v, f in follows.items()},
                             "missions": sum(seg.flights.values()), "failed_missions": seg.failed_flights,
+                            "why_failed": list(seg.why_failed),
                             "restarts": dict(seg.restarts)})  # fmt: skip
         self.say(
             f"{seg.mode} {t:6.0f} s: rss {sum(rss.values()):.0f} MB in {len(rss)} processes, tick rate "
             f"{', '.join(f'{v} {r:g}/s' for v, r in rates.items()) or '-'}, missions {sum(seg.flights.values())}, "
             f"lost {sum(f[1] for f in follows.values())}, failsafes {sum(f[2] for f in follows.values())}"
         )
+
+
+def last_words(path: Path, lines: int = 3) -> str:
+    """The last ``lines`` non-empty lines of a ground station's stderr, joined: why its mission failed."""
+    try:
+        said = [line.strip() for line in path.read_text(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        return "(no output)"
+    return " / ".join(said[-lines:]) or "(no output)"
 
 
 def summary(seg: Segment) -> dict:
@@ -360,6 +375,7 @@ def summary(seg: Segment) -> dict:
                           else {}},
                lost=sum(samples[-1]["lost"].values()), failsafes=sum(samples[-1]["failsafes"].values()),
                missions=samples[-1]["missions"], failed_missions=samples[-1]["failed_missions"],
+               why_failed=samples[-1]["why_failed"],
                restarts=samples[-1]["restarts"])  # fmt: skip
     return out
 
@@ -376,6 +392,7 @@ def table(s: dict) -> str:
     rate = s.get("tick_rate", {})
     for v in rate.get("first", {}):
         lines.append(f"  tick rate {v}: {rate['first'][v]:g}/s first, {rate['last'].get(v, float('nan')):g}/s last")
+    lines += [f"  failed mission: {why}" for why in s.get("why_failed", [])]
     return "\n".join(lines)
 
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.alone import pytest_collection_modifyitems, pytest_configure, pytest_runtest_protocol  # noqa: F401 (hooks)
+
 # pymavlink's mavutil speaks MAVLink 2 with the common dialect only when told before it is imported.
 os.environ.setdefault("MAVLINK20", "1")
 os.environ.setdefault("MAVLINK_DIALECT", "common")
