@@ -25,13 +25,18 @@ _stop = functools.partial(stop, grace=GRACE)
 
 class StartedAutopilot:
     """An autopilot process on free ports (:func:`autopilot_process`); unpacks as (plant port, api port, Zenoh
-    endpoint, process id)."""
+    endpoint, process id). ``start`` False: its ports only, for a process that hosts it (:class:`HostedAutopilots`
+    sets ``proc``), which this one never starts again."""
 
     def __init__(self, env: dict[str, str] | None, system_id: int, taken: set[int],
-                 extra: tuple[str, ...] = ()) -> None:  # fmt: skip
+                 extra: tuple[str, ...] = (), start: bool = True) -> None:  # fmt: skip
         self.env, self.system_id, self.taken, self.extra = env, system_id, taken, extra
         self.attempts = 0
-        self.start()
+        self.own = start
+        if start:
+            self.start()
+        else:
+            self.pick()
 
     def start(self) -> None:
         """The process started on three free ports (plant, api, Zenoh), none of ``taken``, which they join."""
@@ -66,6 +71,8 @@ class StartedAutopilot:
                 _wait_heartbeat(self.api_port, timeout, alive=lambda: self.proc.poll() is None)
                 return
             except AutopilotExitedError:
+                if not self.own:
+                    raise RuntimeError(f"its host exited with status {self.proc.returncode} while starting") from None
                 if self.attempts >= START_ATTEMPTS:
                     raise RuntimeError(f"the autopilot exited with status {self.proc.returncode} while starting, "
                                        f"{self.attempts} times, each on other ports") from None  # fmt: skip
@@ -80,12 +87,7 @@ class HostedAutopilots:
     ports, system ids 1..n: ``vehicles`` unpack as :class:`StartedAutopilot` do, ``proc`` is the one process."""
 
     def __init__(self, n: int, taken: set[int]) -> None:
-        self.vehicles = []
-        for i in range(n):
-            v = StartedAutopilot.__new__(StartedAutopilot)
-            v.env, v.system_id, v.taken, v.extra, v.attempts = None, i + 1, taken, (), 1
-            v.pick()
-            self.vehicles.append(v)
+        self.vehicles = [StartedAutopilot(None, i + 1, taken, start=False) for i in range(n)]
         argv = [word for v in self.vehicles for word in ("--", *v.options())]
         self.proc = _python("autopilot.host", *argv)
         for v in self.vehicles:
