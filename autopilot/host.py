@@ -4,11 +4,12 @@ autopilot's command line (``python -m autopilot ARGS``), as ``quadsitl up --vehi
 Each vehicle is the same :class:`autopilot.process.Autopilot` a process of its own runs, with its own sockets (the
 plant's, its ground-station and offboard links), MAVLink identity, parameters, commander and failsafes, and its own
 Zenoh session: from outside, the fleet looks as N processes do (PX4's multi-vehicle SITL, one instance a vehicle).
-Each flies its own loop (:meth:`Autopilot.run`) in a thread of its own; the loop waits for its plant's datagrams in
-compiled code that does not hold Python's lock (:func:`autopilot.plant_loop.serve_unlocked`), so the others fly
-meanwhile,
-and they share one interpreter, one compiler and the compiled code: a fleet's memory is its vehicles' state, not N
-interpreters (docs/fleets.md#hosted-autopilots).
+The vehicles fly in groups of up to :data:`autopilot.group.GROUP_SIZE`, a thread each (:class:`autopilot.group.Group`:
+one ``poll`` on the group's plant sockets, the datagrams served in compiled code that does not hold Python's lock,
+so the other groups fly meanwhile); a vehicle that cannot be grouped flies its own loop (:meth:`Autopilot.run`) in a
+thread of its own, waiting in :func:`autopilot.plant_loop.serve_unlocked`. They share one interpreter, one compiler
+and the compiled code: a fleet's memory is its vehicles' state, not N interpreters
+(docs/fleets.md#hosted-autopilots).
 
 The process says it is ready (:func:`quadsitl.process_util.say_ready`) once every vehicle has sent its first heartbeat,
 and stops every vehicle on SIGINT or SIGTERM. A vehicle whose loop fails ends the process (exit status 1), as the
@@ -20,8 +21,9 @@ from __future__ import annotations
 import sys
 import threading
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
+from autopilot.group import Group, groups_of
 from autopilot.process import REFUSED, Autopilot, build_parser, open_autopilot, refusal
 from quadsitl.process_util import say_ready, start_process
 
@@ -61,12 +63,12 @@ class Readiness:
 def main(argv: Sequence[str] | None = None) -> int:
     start_process()
     try:
-        groups = vehicles_of(sys.argv[1:] if argv is None else argv)
+        lines = vehicles_of(sys.argv[1:] if argv is None else argv)
     except ValueError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     parser = build_parser()
-    every = [parser.parse_args(group) for group in groups]  # all refused or none, before any vehicle opens a socket
+    every = [parser.parse_args(line) for line in lines]  # all refused or none, before any vehicle opens a socket
     aps: list[Autopilot] = []
     try:
         for args in every:
@@ -77,17 +79,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.close()
         return 2
     stop, ready, failed = threading.Event(), Readiness(len(aps)), []
+    groups, alone = groups_of(aps)
 
-    def fly(ap: Autopilot) -> None:
+    def fly(label: str, run: Callable[[threading.Event, Callable[[], None]], None]) -> None:
         try:
-            ap.run(stop, ready.one)
-        except BaseException as exc:  # the vehicle's loop ended: every vehicle stops, and the supervisor hears of it
-            failed.append(ap.label)
-            print(f"{ap.label}: error: its loop failed: {exc!r}", file=sys.stderr, flush=True)
+            run(stop, ready.one)
+        except BaseException as exc:  # the loop ended: every vehicle stops, and the supervisor hears of it
+            failed.append(label)
+            print(f"{label}: error: its loop failed: {exc!r}", file=sys.stderr, flush=True)
             traceback.print_exc()
             stop.set()
 
-    threads = [threading.Thread(target=fly, args=(ap,), name=ap.label, daemon=True) for ap in aps]
+    flown = [(", ".join(ap.label for ap in g), Group(g).run) for g in groups] + [(ap.label, ap.run) for ap in alone]
+    threads = [threading.Thread(target=fly, args=(label, run), name=label, daemon=True) for label, run in flown]
     try:
         for t in threads:
             t.start()

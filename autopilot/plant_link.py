@@ -20,6 +20,7 @@ PLANT_LOST_AFTER = 0.5  # [s] wall without a vehicle state: the plant link is lo
 PLANT_SILENCE = 1.0  # [s] wall: after this long without the locked plant, another plant may take the link
 PLANT_HOLDING = 0.005  # [s] wall: a plant quiet this long may be holding its clock (Autopilot.answer_armed)
 STRANGER, SAME, NEW = 0, 1, 2  # what admit() says of a datagram's sender
+NO_PEER = np.zeros(fastio.SOCKADDR_IN, dtype=np.uint8)  # no plant locked yet: no sender's address matches it
 
 
 class PlantLink:
@@ -101,6 +102,21 @@ class PlantLink:
         if pace is not None:
             wait.be_patient(PaceGauge.patience(pace))
         return status, nbytes, flags, stats[plant_loop.NEXT_GROUND] * 1e-9, wall
+
+    def group_entry(self, io: np.ndarray, tick_args: tuple, destinations: tuple, ground_fds: np.ndarray) -> tuple:
+        """This link's part of :func:`plant_loop.serve_group`'s vehicles (:func:`plant_loop.group_entry`); the locked
+        plant's address, or none yet (all zero: no sender matches it)."""
+        peer = self.address if self.address is not None else NO_PEER
+        return plant_loop.group_entry(self.sock.fileno(), self.rx_array, self.sender, self.sender_len, peer, self.tx,
+                                      io, tick_args, self.stats, destinations, ground_fds)  # fmt: skip
+
+    def group_served(self, status: int) -> float:
+        """:func:`plant_loop.serve_group` gave this link back to Python with ``status``: the plant heard, if the loop
+        answered it since the last time → the wall time [s]."""
+        wall = time.monotonic()
+        if self.stats[plant_loop.ANSWERED] or status == plant_loop.TICKED:
+            self.heard = wall
+        return wall
 
     def close(self) -> None:
         self.sock.close()

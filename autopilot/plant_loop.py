@@ -39,6 +39,10 @@ from quadsitl import fastio
 from quadsitl.jit import jit
 
 TICKED, STRANGER, DUE, QUIET, SENT, GROUND = 0, 1, 2, 3, 4, 5
+READABLE = 6  # serve_group's: a datagram waits on the plant socket of a vehicle whose datagrams Python reads
+# serve_group's: ctl's columns (a row per vehicle) and out's entries
+CTL_DEADLINE, CTL_LIMIT, CTL_COMPILED, CTL_GROUND_EVERY, CTL_HELD, CTL_HELD_LENGTH, CTL_HELD_FLAGS, CTL_SIZE = range(8)
+VEHICLE, LENGTH, FLAGS, NEXT, OUT_SIZE = range(5)
 # stats (int64): ticks answered here, the waits (quadsitl.fastio.receive's counts), the last tick's duration [ns],
 # and when the ground-station sockets are next asked (CLOCK_MONOTONIC [ns]; the caller sets it, the loop moves it).
 ANSWERED, TICK_NS, NEXT_GROUND, STATS_SIZE = 0, 5, 6, 7
@@ -135,6 +139,94 @@ if fastio.AVAILABLE:
         return serve(fd, rx, addr, addrlen, peer, tx, io, targs, deadline_ns, polling, budget_ns, patience_ns,
                      hot_after, limit_tick, stats, links, ground, ground_every_ns)  # fmt: skip
 
+    @jit(nogil=True)  # it waits on the sockets: the host's other threads run meanwhile
+    def serve_group(vehicles: object, ctl: np.ndarray, pfds: np.ndarray, out: np.ndarray, quiet_ns: int) -> int:
+        """:func:`serve` for several vehicles of one host at once, in one thread, without Python's lock
+        (:mod:`autopilot.group`): a ``poll(2)`` on every vehicle's plant socket, then each datagram waiting served as
+        :func:`serve` serves it, without a thread woken for each vehicle. → a status of :func:`serve`'s, or READABLE
+        (the vehicle's plant socket has a datagram for Python to read), for the vehicle out[VEHICLE] (the length and
+        flags in out[LENGTH], out[FLAGS]); QUIET with out[VEHICLE] −1 when nothing came for ``quiet_ns``.
+
+        Answers come first: a tick that leaves Python work once its answer is out (SENT) holds its vehicle (its next
+        datagram waits) while the others' waiting datagrams are answered, and a deadline (DUE) is given back only
+        when no datagram waits, so that one vehicle's trip to Python does not make its group-mates' answers late.
+
+        ``vehicles``: numba's typed List of :func:`group_entry` tuples; ``ctl`` (int64, a row per vehicle):
+        CTL_DEADLINE (CLOCK_MONOTONIC [ns]: the vehicle's DUE), CTL_LIMIT (``limit_tick``), CTL_COMPILED (0: the
+        vehicle's datagrams go to Python, READABLE), CTL_GROUND_EVERY [ns], CTL_HELD (1: a SENT waits for Python, its
+        length and flags in CTL_HELD_LENGTH, CTL_HELD_FLAGS); ``pfds``: :func:`quadsitl.fastio.pollfds` of the plant
+        sockets, in the same order. The vehicles are taken in turn from out[NEXT] on."""
+        k = len(vehicles)
+        began = fastio.monotonic_ns()
+        wait_ms = 0
+        while True:
+            ready = fastio.poll(pfds.ctypes.data, k, wait_ms)
+            served = 0
+            for j in range(k if ready > 0 else 0):
+                i = (out[NEXT] + j) % k
+                if pfds[i, 1] >> 16 == 0 or ctl[i, CTL_HELD]:  # nothing to read, or its Python work goes first
+                    continue
+                if ctl[i, CTL_COMPILED] == 0:
+                    return _picked(out, i, k, READABLE, -1, 0)
+                fd, rx, addr, addrlen, peer, tx, io, targs, stats, links, ground = vehicles[i]
+                addrlen[0] = fastio.SOCKADDR_IN
+                n = fastio.recvfrom(fd, rx.ctypes.data, rx.size, fastio.MSG_DONTWAIT, addr.ctypes.data,
+                                    addrlen.ctypes.data)  # fmt: skip
+                if n < 0:
+                    continue
+                served += 1
+                start = fastio.monotonic_ns()
+                if addrlen[0] != fastio.SOCKADDR_IN:
+                    return _picked(out, i, k, STRANGER, n, 0)
+                for b in range(8):  # family, port, IPv4 address
+                    if addr[b] != peer[b]:
+                        return _picked(out, i, k, STRANGER, n, 0)
+                flags = fly_datagram(rx, n, targs)
+                if not flags & kernel.ANSWER or io[kernel.TICK] > ctl[i, CTL_LIMIT]:
+                    return _picked(out, i, k, TICKED, n, flags)
+                fastio.sendto(fd, tx.ctypes.data, io[kernel.TX_LEN], 0, peer.ctypes.data, fastio.SOCKADDR_IN)
+                stats[ANSWERED] += 1
+                if flags & kernel.FRAMES and links[4][0] >= 0 and send_frames(targs[-1], links):
+                    flags &= ~kernel.FRAMES
+                end = fastio.monotonic_ns()
+                stats[TICK_NS] = end - start
+                if flags != kernel.ANSWER:  # Python's work once the others are answered
+                    ctl[i, CTL_HELD], ctl[i, CTL_HELD_LENGTH], ctl[i, CTL_HELD_FLAGS] = 1, n, flags
+                elif end >= stats[NEXT_GROUND]:
+                    stats[NEXT_GROUND] = end + ctl[i, CTL_GROUND_EVERY]
+                    if fastio.any_readable(ground):
+                        return _picked(out, i, k, GROUND, -1, 0)
+            if served:
+                wait_ms = 0  # more may have come meanwhile: answered before anything else
+                continue
+            now = fastio.monotonic_ns()
+            wait_ns = began + quiet_ns - now
+            for j in range(k):
+                i = (out[NEXT] + j) % k
+                if ctl[i, CTL_HELD]:
+                    ctl[i, CTL_HELD] = 0
+                    return _picked(out, i, k, SENT, ctl[i, CTL_HELD_LENGTH], ctl[i, CTL_HELD_FLAGS])
+                if now >= ctl[i, CTL_DEADLINE]:
+                    return _picked(out, i, k, DUE, -1, 0)
+                wait_ns = min(wait_ns, ctl[i, CTL_DEADLINE] - now)
+            if wait_ns <= 0:
+                out[VEHICLE] = -1
+                return QUIET
+            wait_ms = (wait_ns + 999_999) // 1_000_000
+
+    @jit(inline=True)
+    def _picked(out: np.ndarray, i: int, k: int, status: int, n: int, flags: int) -> int:
+        """serve_group's answer: ``status`` for vehicle ``i`` of ``k`` (the next call starts with the one after it)."""
+        out[VEHICLE], out[LENGTH], out[FLAGS], out[NEXT] = i, n, flags, (i + 1) % k
+        return status
+
+
+def group_entry(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray,
+                tx: np.ndarray, io: np.ndarray, targs: tuple, stats: np.ndarray, links: tuple,
+                ground: np.ndarray) -> tuple:  # fmt: skip
+    """One vehicle of :func:`serve_group`: :func:`serve`'s arguments that are the vehicle's own, in one tuple."""
+    return (fd, rx, addr, addrlen, peer, tx, io, targs, stats, links, ground)
+
 
 MAX_DESTINATIONS = 16  # ground-station destinations the compiled loop sends the telemetry frames to
 
@@ -180,6 +272,16 @@ def _copied(value: object) -> object:
     return value
 
 
+def group_list(entries: list[tuple]) -> object:
+    """numba's typed List of :func:`group_entry` tuples, for :func:`serve_group`."""
+    from numba.typed import List
+
+    out = List()
+    for entry in entries:
+        out.append(entry)
+    return out
+
+
 def warm_up(targs: tuple, unlocked: bool = False) -> None:
     """Compile (or load from numba's cache) :func:`serve` (``unlocked``: :func:`serve_unlocked`) for these tick
     arguments (the autopilot's own, copied:
@@ -188,6 +290,7 @@ def warm_up(targs: tuple, unlocked: bool = False) -> None:
     if not fastio.AVAILABLE:
         return
     import socket
+    import time
 
     from quadsitl import codec
     from quadsitl.process_util import set_receive_timeout
@@ -206,3 +309,21 @@ def warm_up(targs: tuple, unlocked: bool = False) -> None:
             served = serve_unlocked if unlocked else serve
             served(sock.fileno(), rx, addr, addrlen, peer, tx, io, targs, 0, polling, 1000, 1000, 8, NO_LIMIT,
                    np.zeros(STATS_SIZE, dtype=np.int64), Destinations().out, fastio.pollfds([sock]), 0)  # fmt: skip
+        if unlocked:  # a host's vehicles may also be served in groups (autopilot.group)
+            sock.sendto(frame[:n].tobytes(), sock.getsockname())
+            entry = group_entry(
+                sock.fileno(),
+                rx,
+                addr,
+                addrlen,
+                peer,
+                tx,
+                io,
+                targs,
+                np.zeros(STATS_SIZE, dtype=np.int64),
+                Destinations().out,
+                fastio.pollfds([sock]),
+            )
+            ctl = np.zeros((1, CTL_SIZE), dtype=np.int64)
+            ctl[0, :CTL_HELD] = time.monotonic_ns() + 10**8, NO_LIMIT, 1, 0
+            serve_group(group_list([entry]), ctl, fastio.pollfds([sock]), np.zeros(OUT_SIZE, dtype=np.int64), 10**8)

@@ -201,6 +201,7 @@ class Autopilot:
         self.f_min, self.f_max, self.reversible = act.min_thrust, act.max_thrust, act.reversible
         self.ground_fds = fastio.pollfds([link.sock for link in links])  # asked by the compiled loop
         self.next_poll = 0.0  # [s] wall (time.monotonic): when the ground-station sockets are next read or asked
+        self.next_chores = 0.0  # [s] wall (time.monotonic): when the wall-clock work is next due (begin sets it)
         self.pending: tuple[bytes, tuple[str, int]] | None = None  # an answer to the plant waiting for a setpoint
         self.refresh_streams()
 
@@ -287,9 +288,15 @@ class Autopilot:
                             self.io)  # fmt: skip
         self.plant.answer(self.io, self.plant.peer)
 
-    def serve_plant(self, next_chores: float) -> int:
-        """Serve the plant link in compiled code (:meth:`PlantLink.serve`) until Python has something to do (the
-        wall-clock work at ``next_chores`` or the next telemetry batch among it), and do it → the loop's status."""
+    def serving(self) -> bool:
+        """Whether the plant's ticks go to the compiled loop: a plant heard (an IPv4 one), not lost, and no mission
+        flying (its executor steps in Python after each tick)."""
+        return self.plant.address is not None and not self.plant.lost and not self.missions.flying
+
+    def serve_bounds(self) -> tuple[float, int]:
+        """Where the compiled loop gives the plant back to Python: (the wall-clock moment [s]: the wall-clock work at
+        ``next_chores``, the next telemetry batch among it, a log's next burst, a calibration's next sample; the
+        last tick it may answer itself)."""
         # With --offboard-lockstep the loop gives the tick before a held setpoint's to Python (Receiver.release)
         limit = plant_loop.NO_LIMIT
         if self.pace is not None:
@@ -297,14 +304,26 @@ class Autopilot:
             c = self.commander
             if c.armed and c.mode == wire.Mode.OFFBOARD and c.offboard_tick < 0:  # the flight's first tick is next:
                 limit = min(limit, int(self.io[kernel.TICK]))  # Python's, which may hold the clock there
+        next_chores = self.next_chores
         if self.logs.sending:  # a log's download: its next burst from Python after GCS_POLL
             next_chores = min(next_chores, time.monotonic() + GCS_POLL)
         if self.calibration is not None:  # a calibration: its next sample
             next_chores = min(next_chores, self.next_sample)
+        return self.zenoh.deadline(next_chores), limit
+
+    def serve_plant(self) -> int:
+        """Serve the plant link in compiled code (:meth:`PlantLink.serve`) until Python has something to do
+        (:meth:`serve_bounds`), and do it → the loop's status."""
+        deadline, limit = self.serve_bounds()
         status, nbytes, flags, self.next_poll, wall = self.plant.serve(
-            self.io, self.tick_arguments(), self.zenoh.deadline(next_chores), limit, self.destinations.out,
-            self.ground_fds, self.next_poll, GCS_POLL,
+            self.io, self.tick_arguments(), deadline, limit, self.destinations.out, self.ground_fds, self.next_poll,
+            GCS_POLL,
         )  # fmt: skip
+        return self.served(status, nbytes, flags, wall)
+
+    def served(self, status: int, nbytes: int, flags: int, wall: float) -> int:
+        """What the compiled loop (:mod:`autopilot.plant_loop`) gave back to Python at ``wall``: the rest of its tick,
+        or a stranger's datagram → ``status``."""
         stats = self.plant.stats
         if stats[plant_loop.ANSWERED]:
             self.load = stats[plant_loop.TICK_NS] * 1e-9 / self.period
@@ -631,20 +650,14 @@ class Autopilot:
         datagram waits on them), the wall-clock work runs every ``HOUSEKEEPING``, and both whenever the plant is
         quiet. Until ``stop`` is set (a process hosting several vehicles, :mod:`autopilot.host`: the loop comes back
         to Python at least every ``HOUSEKEEPING``), or forever; ``ready`` once the first heartbeat is out."""
-        set_receive_timeout(self.plant.sock, 0.02)
-        for link in self.links:
-            link.sock.setblocking(False)
-        wall = time.monotonic()
-        self.chores(wall)  # the first heartbeat: ground stations see the vehicle from now on
-        ready()  # and a launcher that waits for it (quadsitl up) says so
-        next_chores = wall + HOUSEKEEPING
+        self.begin(ready)
         receive = self.plant.wait
         while stop is None or not stop.is_set():
             status = -1
             if self.pending is not None:  # the wall-clock work goes on while the clock waits (the heartbeat)
                 self.wait_for_setpoint()
-            elif self.plant.address is not None and not self.plant.lost and not self.missions.flying:
-                status = self.serve_plant(next_chores)  # the plant's ticks in compiled code, until Python's turn
+            elif self.serving():
+                status = self.serve_plant()  # the plant's ticks in compiled code, until Python's turn
             else:
                 try:
                     nbytes, sender = receive()
@@ -652,24 +665,41 @@ class Autopilot:
                     nbytes = -1
                 if nbytes >= 0:
                     self.on_plant_datagram(nbytes, sender)
-            wall = time.monotonic()
-            if self.plant.silent(wall):
-                self.plant.lost = True
-                self.commander.plant_lost()
-                self.outbox.announce(self.commander)
-            if self.zenoh.due(wall):
-                self.zenoh.flush()
-            if wall >= self.next_poll or status == plant_loop.GROUND:
-                self.next_poll = wall + GCS_POLL
-                self.poll_gcs()
-            if self.logs.sending:
-                self.send_log_data()
-            if self.calibration is not None and wall >= self.next_sample:
-                self.next_sample = wall + CALIBRATION_SAMPLE
-                self.calibration_step()
-            if wall >= next_chores:
-                next_chores = wall + HOUSEKEEPING
-                self.chores(wall)
+            self.housekeeping(status)
+
+    def begin(self, ready: Callable[[], None]) -> None:
+        """Before the loop: the sockets' waits, the first heartbeat (ground stations see the vehicle from now on),
+        then ``ready`` (a launcher that waits for it, quadsitl up, says so)."""
+        set_receive_timeout(self.plant.sock, 0.02)
+        for link in self.links:
+            link.sock.setblocking(False)
+        wall = time.monotonic()
+        self.chores(wall)
+        ready()
+        self.next_chores = wall + HOUSEKEEPING
+
+    def housekeeping(self, status: int) -> None:
+        """After each turn of the loop (``status``: the compiled loop's, or −1): the plant's silence, the telemetry
+        batch, the ground-station sockets, a log's download, a calibration's sample and the wall-clock work, each
+        when it is due."""
+        wall = time.monotonic()
+        if self.plant.silent(wall):
+            self.plant.lost = True
+            self.commander.plant_lost()
+            self.outbox.announce(self.commander)
+        if self.zenoh.due(wall):
+            self.zenoh.flush()
+        if wall >= self.next_poll or status == plant_loop.GROUND:
+            self.next_poll = wall + GCS_POLL
+            self.poll_gcs()
+        if self.logs.sending:
+            self.send_log_data()
+        if self.calibration is not None and wall >= self.next_sample:
+            self.next_sample = wall + CALIBRATION_SAMPLE
+            self.calibration_step()
+        if wall >= self.next_chores:
+            self.next_chores = wall + HOUSEKEEPING
+            self.chores(wall)
 
     def chores(self, wall: float) -> None:
         """The wall-clock work: the telemetry batch (a little early, so that the next is due with the next chores),

@@ -272,8 +272,9 @@ def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle, monke
     # (after a real-time plant's catch-up burst made it hot); an unpaced one keeps the patience (lockstep's speed).
     import autopilot.plant_link as process
 
-    # serve_plant(0.0) hands back after every tick, and yields the core each time: on a machine whose cores are
-    # taken (the suite's other workers; three busy loops do it) each yield gave away a slice, and the "fast" ticks
+    # serve_plant() with the chores due at once hands back after every tick, and yields the core each time: on a
+    # machine whose cores are taken (the suite's other workers; three busy loops do it) each yield gave away a slice,
+    # and the "fast" ticks
     # below never reached PACED_BELOW × real time. The yield is another test's subject; here only the pace counts.
     monkeypatch.setattr(process.os, "sched_yield", lambda: None)
     ap, plant, autopilot = vehicle
@@ -286,7 +287,8 @@ def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle, monke
     while time.monotonic() - began < 3 * PACE_WINDOW:  # a tick every 5 ms of wall: 0.2 x real time
         plant.sendto(state_frame(k), autopilot)
         k += 1
-        ap.serve_plant(0.0)  # back to Python after the tick
+        ap.next_chores = 0.0
+        ap.serve_plant()  # back to Python after the tick
         assert answer_of(plant.recv(1000))[0] == codec.usec_of(k - 1, PERIOD)
         time.sleep(0.005)
     assert wait.patience == wait.budget
@@ -296,7 +298,8 @@ def test_the_autopilot_is_patient_only_with_a_plant_nothing_paces(vehicle, monke
             plant.sendto(state_frame(k), autopilot)
             k += 1
         for _ in range(20):
-            ap.serve_plant(0.0)
+            ap.next_chores = 0.0
+            ap.serve_plant()
         for _ in range(20):
             plant.recv(1000)
     assert wait.patience == PATIENCE
@@ -320,13 +323,15 @@ def test_the_autopilot_yields_its_core_once_its_answer_is_out_and_before_pythons
     for k in range(2, 42):
         plant.sendto(state_frame(k), autopilot)
     returns = []
-    while (status := ap.serve_plant(time.monotonic() + 10.0)) != plant_loop.QUIET:
+    ap.next_chores = time.monotonic() + 10.0
+    while (status := ap.serve_plant()) != plant_loop.QUIET:
         returns.append(status)
         while wait_readable(plant, 0.0):
             plant.recv(1000)
     handed_back = [r for r in returns if r in (plant_loop.SENT, plant_loop.DUE)]
     assert handed_back and len(yields) == len(handed_back) and all(yields)
-    assert ap.serve_plant(time.monotonic() + 10.0) == plant_loop.QUIET and len(yields) == len(handed_back)
+    ap.next_chores = time.monotonic() + 10.0
+    assert ap.serve_plant() == plant_loop.QUIET and len(yields) == len(handed_back)
 
 
 def test_arming_answers_a_holding_plant_at_once(vehicle):

@@ -1,0 +1,134 @@
+"""Several hosted vehicles flown by one thread (:mod:`autopilot.host`): one ``poll(2)`` on their plant sockets and
+each datagram served in compiled code (:func:`autopilot.plant_loop.serve_group`), instead of a thread woken and put
+to sleep again for every vehicle's every tick (docs/performance.md#a-hosted-fleet-of-32-in-real-time).
+
+Each vehicle is the same :class:`autopilot.process.Autopilot` with the same loop as a thread of its own runs
+(:meth:`Autopilot.run`), cut at its turns: :meth:`Autopilot.begin`, then, each time the compiled loop gives that
+vehicle back to Python, what :meth:`Autopilot.run` does after its compiled loop returns (:meth:`Autopilot.served`,
+or the Python path's datagram) and :meth:`Autopilot.housekeeping`. A vehicle whose ticks go to Python (no plant
+heard yet, a plant lost, a mission flying: :meth:`Autopilot.serving` False) has its datagrams read by Python, told
+by the same ``poll``. Only that vehicle's Python ran in its turn, so only its row of the loop's arguments is made
+again (:meth:`Group.prepare`). The vehicles are taken in turn, each turn starting after the last one served.
+
+Not grouped (:func:`groupable`): a vehicle flown with ``--offboard-lockstep`` (its clock may wait for a setpoint in
+Python, which would hold its group-mates) or whose plant link is not served by compiled code (IPv6, or
+``QUADSITL_COMPILED_LOOPS=0``).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+
+import numba
+import numpy as np
+
+from autopilot import plant_loop
+from autopilot.process import GCS_POLL, HOUSEKEEPING, Autopilot
+from quadsitl import fastio
+
+GROUP_SIZE = 16  # vehicles a thread flies at most: a host's groups share the cores (docs/fleets.md#hosted-autopilots)
+QUIET_NS = 20_000_000  # [ns] the longest the loop waits without coming back to Python (the stop event's latency)
+
+
+def groupable(ap: Autopilot) -> bool:
+    """Whether ``ap`` can fly in a group (the module's docstring)."""
+    return ap.pace is None and ap.plant.fast
+
+
+def groups_of(aps: Sequence[Autopilot], size: int = GROUP_SIZE) -> tuple[list[list[Autopilot]], list[Autopilot]]:
+    """(the groups, the vehicles flown alone): ``aps`` that :func:`groupable` in groups of at most ``size``, each of
+    vehicles whose loop arguments have the same types (one compiled loop: truth and sensors differ)."""
+    kinds: dict[object, list[Autopilot]] = {}
+    alone = []
+    for ap in aps:
+        if groupable(ap):
+            kinds.setdefault(numba.typeof(_entry(ap)), []).append(ap)
+        else:
+            alone.append(ap)
+    groups = []
+    for same in kinds.values():
+        count = -(-len(same) // size)  # as many groups as needed, as even as they come
+        groups += [same[g::count] for g in range(count)]
+    return groups, alone
+
+
+def _entry(ap: Autopilot) -> tuple:
+    return ap.plant.group_entry(ap.io, ap.tick_arguments(), ap.destinations.out, ap.ground_fds)
+
+
+def _same(a: tuple, b: tuple) -> bool:
+    """Whether two tick-argument tuples hold the same things: the same arrays and tuples, equal numbers."""
+    return len(a) == len(b) and all(
+        x is y or (not isinstance(x, (np.ndarray, tuple)) and type(x) is type(y) and x == y)
+        for x, y in zip(a, b, strict=True)
+    )
+
+
+class Group:
+    """Vehicles flown by one thread (:meth:`run`), all of :func:`groups_of`'s kind."""
+
+    def __init__(self, aps: Sequence[Autopilot]) -> None:
+        self.aps = list(aps)
+        k = len(self.aps)
+        self.ctl = np.zeros((k, plant_loop.CTL_SIZE), dtype=np.int64)
+        self.pfds = fastio.pollfds([ap.plant.sock for ap in self.aps])
+        self.out = np.zeros(plant_loop.OUT_SIZE, dtype=np.int64)
+        self.targs = [ap.tick_arguments() for ap in self.aps]
+        self.peers = [ap.plant.address for ap in self.aps]
+        self.entries = plant_loop.group_list([_entry(ap) for ap in self.aps])
+        self.entries[0] = self.entries[0]  # numba compiles the list's item assignment now, not in the first turn
+
+    def prepare(self, i: int) -> None:
+        """Vehicle ``i``'s row of the loop's arguments, after its turn in Python (the only one whose Python ran)."""
+        ap = self.aps[i]
+        compiled = ap.serving()
+        row = self.ctl[i]
+        if compiled:
+            deadline, limit = ap.serve_bounds()
+            targs = ap.tick_arguments()
+            if ap.plant.address is not self.peers[i] or not _same(targs, self.targs[i]):
+                self.targs[i], self.peers[i] = targs, ap.plant.address
+                self.entries[i] = ap.plant.group_entry(ap.io, targs, ap.destinations.out, ap.ground_fds)
+        else:
+            deadline, limit = ap.next_chores, plant_loop.NO_LIMIT
+        row[plant_loop.CTL_DEADLINE] = int(deadline * 1e9)
+        row[plant_loop.CTL_LIMIT] = limit
+        row[plant_loop.CTL_COMPILED] = compiled
+        row[plant_loop.CTL_GROUND_EVERY] = int(GCS_POLL * 1e9)
+        stats = ap.plant.stats
+        stats[plant_loop.ANSWERED] = 0
+        stats[plant_loop.NEXT_GROUND] = int(ap.next_poll * 1e9)
+
+    def turn(self, i: int, status: int) -> None:
+        """Vehicle ``i``'s turn in Python: what the loop gave back (``status``), then its housekeeping."""
+        ap = self.aps[i]
+        if status == plant_loop.READABLE:  # its datagrams are Python's: the one waiting, read at once
+            try:
+                nbytes, sender = ap.plant.sock.recvfrom_into(ap.plant.rx)
+            except (BlockingIOError, InterruptedError):
+                nbytes = -1
+            if nbytes >= 0:
+                ap.on_plant_datagram(nbytes, sender)
+            status = -1
+        elif status != plant_loop.QUIET:
+            wall = ap.plant.group_served(status)
+            ap.next_poll = ap.plant.stats[plant_loop.NEXT_GROUND] * 1e-9
+            ap.served(status, int(self.out[plant_loop.LENGTH]), int(self.out[plant_loop.FLAGS]), wall)
+        ap.housekeeping(status)
+        self.prepare(i)
+
+    def run(self, stop: threading.Event, ready: Callable[[], None]) -> None:
+        """Fly the group until ``stop`` is set; ``ready`` once for each vehicle, when its first heartbeat is out."""
+        for i, ap in enumerate(self.aps):
+            ap.begin(ready)
+            ap.next_chores += HOUSEKEEPING * i / len(self.aps)  # the group's trips to Python spread over the period
+            self.prepare(i)
+        while not stop.is_set():
+            status = plant_loop.serve_group(self.entries, self.ctl, self.pfds, self.out, QUIET_NS)
+            i = int(self.out[plant_loop.VEHICLE])
+            if i >= 0:
+                self.turn(i, status)
+            else:  # nothing came for QUIET_NS: every vehicle's housekeeping (a plant gone silent)
+                for j in range(len(self.aps)):
+                    self.turn(j, plant_loop.QUIET)
