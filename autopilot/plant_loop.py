@@ -39,6 +39,7 @@ from quadsitl import fastio
 from quadsitl.jit import jit
 
 TICKED, STRANGER, DUE, QUIET, SENT, GROUND = 0, 1, 2, 3, 4, 5
+ANSWERED_ONLY = 7  # fly_one's: the answer sent, nothing left for Python (never returned to Python)
 READABLE = 6  # serve_group's: a datagram waits on the plant socket of a vehicle whose datagrams Python reads
 # serve_group's: ctl's columns (a row per vehicle) and out's entries
 CTL_DEADLINE, CTL_LIMIT, CTL_COMPILED, CTL_GROUND_EVERY, CTL_HELD, CTL_HELD_LENGTH, CTL_HELD_FLAGS, CTL_SIZE = range(8)
@@ -81,6 +82,31 @@ if fastio.AVAILABLE:
                     ok = False
         return ok
 
+    @jit(inline=True)
+    def fly_one(fd: int, n: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray,
+                tx: np.ndarray, io: np.ndarray, targs: tuple, stats: np.ndarray, links: tuple,
+                limit_tick: int) -> tuple:  # fmt: skip
+        """The datagram rx[:n] just received on ``fd`` from ``addr`` (:func:`serve`'s and :func:`serve_group`'s
+        arguments) → (STRANGER: not the locked plant's; TICKED: no answer sent (none, or past ``limit_tick``); SENT: the
+        answer sent and work left for Python; ANSWERED_ONLY: the answer sent and nothing else; the tick's flags, the
+        clock [ns] once done). The answer goes to the plant, then the tick's telemetry frames to ``links``."""
+        now = fastio.monotonic_ns()
+        if addrlen[0] != fastio.SOCKADDR_IN:
+            return STRANGER, 0, now
+        for i in range(8):  # family, port, IPv4 address
+            if addr[i] != peer[i]:
+                return STRANGER, 0, now
+        flags = fly_datagram(rx, n, targs)
+        if not flags & kernel.ANSWER or io[kernel.TICK] > limit_tick:
+            return TICKED, flags, now
+        fastio.sendto(fd, tx.ctypes.data, io[kernel.TX_LEN], 0, peer.ctypes.data, fastio.SOCKADDR_IN)
+        stats[ANSWERED] += 1
+        if flags & kernel.FRAMES and links[4][0] >= 0 and send_frames(targs[-1], links):
+            flags &= ~kernel.FRAMES
+        end = fastio.monotonic_ns()
+        stats[TICK_NS] = end - now
+        return (SENT if flags != kernel.ANSWER else ANSWERED_ONLY), flags, end
+
     @jit
     def serve(fd: int, rx: np.ndarray, addr: np.ndarray, addrlen: np.ndarray, peer: np.ndarray, tx: np.ndarray,
               io: np.ndarray, targs: tuple, deadline_ns: int, polling: bool, budget_ns: int, patience_ns: int,
@@ -105,23 +131,9 @@ if fastio.AVAILABLE:
             n = fastio.receive(fd, rx, addr, addrlen, polling, budget_ns, patience_ns, stats)
             if n == fastio.RAN_OUT or n < 0:
                 return QUIET, -1, 0
-            now = fastio.monotonic_ns()
-            if addrlen[0] != fastio.SOCKADDR_IN:
-                return STRANGER, n, 0
-            for i in range(8):  # family, port, IPv4 address
-                if addr[i] != peer[i]:
-                    return STRANGER, n, 0
-            flags = fly_datagram(rx, n, targs)
-            if not flags & kernel.ANSWER or io[kernel.TICK] > limit_tick:
-                return TICKED, n, flags
-            fastio.sendto(fd, tx.ctypes.data, io[kernel.TX_LEN], 0, peer.ctypes.data, fastio.SOCKADDR_IN)
-            stats[ANSWERED] += 1
-            if flags & kernel.FRAMES and links[4][0] >= 0 and send_frames(targs[-1], links):
-                flags &= ~kernel.FRAMES
-            end = fastio.monotonic_ns()
-            stats[TICK_NS] = end - now
-            if flags != kernel.ANSWER:
-                return SENT, n, flags
+            status, flags, end = fly_one(fd, n, rx, addr, addrlen, peer, tx, io, targs, stats, links, limit_tick)
+            if status != ANSWERED_ONLY:
+                return status, n, flags
             if end >= deadline_ns or (not polling and stats[SHORT] == hot_after):
                 return DUE, -1, 0
             if end >= stats[NEXT_GROUND]:
@@ -175,23 +187,12 @@ if fastio.AVAILABLE:
                 if n < 0:
                     continue
                 served += 1
-                start = fastio.monotonic_ns()
-                if addrlen[0] != fastio.SOCKADDR_IN:
-                    return _picked(out, i, k, STRANGER, n, 0)
-                for b in range(8):  # family, port, IPv4 address
-                    if addr[b] != peer[b]:
-                        return _picked(out, i, k, STRANGER, n, 0)
-                flags = fly_datagram(rx, n, targs)
-                if not flags & kernel.ANSWER or io[kernel.TICK] > ctl[i, CTL_LIMIT]:
-                    return _picked(out, i, k, TICKED, n, flags)
-                fastio.sendto(fd, tx.ctypes.data, io[kernel.TX_LEN], 0, peer.ctypes.data, fastio.SOCKADDR_IN)
-                stats[ANSWERED] += 1
-                if flags & kernel.FRAMES and links[4][0] >= 0 and send_frames(targs[-1], links):
-                    flags &= ~kernel.FRAMES
-                end = fastio.monotonic_ns()
-                stats[TICK_NS] = end - start
-                if flags != kernel.ANSWER:  # Python's work once the others are answered
+                status, flags, end = fly_one(fd, n, rx, addr, addrlen, peer, tx, io, targs, stats, links,
+                                             ctl[i, CTL_LIMIT])  # fmt: skip
+                if status == SENT:  # Python's work once the others are answered
                     ctl[i, CTL_HELD], ctl[i, CTL_HELD_LENGTH], ctl[i, CTL_HELD_FLAGS] = 1, n, flags
+                elif status != ANSWERED_ONLY:
+                    return _picked(out, i, k, status, n, flags)
                 elif end >= stats[NEXT_GROUND]:
                     stats[NEXT_GROUND] = end + ctl[i, CTL_GROUND_EVERY]
                     if fastio.any_readable(ground):
