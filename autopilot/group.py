@@ -53,8 +53,10 @@ def groups_of(aps: Sequence[Autopilot], size: int = GROUP_SIZE) -> tuple[list[li
     return groups, alone
 
 
-def _entry(ap: Autopilot) -> tuple:
-    return ap.plant.group_entry(ap.io, ap.tick_arguments(), ap.destinations.out, ap.ground_fds)
+def _entry(ap: Autopilot, targs: tuple | None = None) -> tuple:
+    """``ap``'s part of :func:`plant_loop.serve_group`'s vehicles, with these tick arguments (default: its own now)."""
+    targs = ap.tick_arguments() if targs is None else targs
+    return ap.plant.group_entry(ap.io, targs, ap.destinations.out, ap.ground_fds)
 
 
 def _same(a: tuple, b: tuple) -> bool:
@@ -76,7 +78,7 @@ class Group:
         self.out = np.zeros(plant_loop.OUT_SIZE, dtype=np.int64)
         self.targs = [ap.tick_arguments() for ap in self.aps]
         self.peers = [ap.plant.address for ap in self.aps]
-        self.entries = plant_loop.group_list([_entry(ap) for ap in self.aps])
+        self.entries = plant_loop.group_list([_entry(ap, t) for ap, t in zip(self.aps, self.targs, strict=True)])
         self.entries[0] = self.entries[0]  # numba compiles the list's item assignment now, not in the first turn
 
     def prepare(self, i: int) -> None:
@@ -89,7 +91,7 @@ class Group:
             targs = ap.tick_arguments()
             if ap.plant.address is not self.peers[i] or not _same(targs, self.targs[i]):
                 self.targs[i], self.peers[i] = targs, ap.plant.address
-                self.entries[i] = ap.plant.group_entry(ap.io, targs, ap.destinations.out, ap.ground_fds)
+                self.entries[i] = _entry(ap, targs)
         else:
             deadline, limit = ap.next_chores, plant_loop.NO_LIMIT
         row[plant_loop.CTL_DEADLINE] = int(deadline * 1e9)
@@ -104,15 +106,10 @@ class Group:
         """Vehicle ``i``'s turn in Python: what the loop gave back (``status``), then its housekeeping."""
         ap = self.aps[i]
         if status == plant_loop.READABLE:  # its datagrams are Python's: the one waiting, read at once
-            try:
-                nbytes, sender = ap.plant.sock.recvfrom_into(ap.plant.rx)
-            except (BlockingIOError, InterruptedError):
-                nbytes = -1
-            if nbytes >= 0:
-                ap.on_plant_datagram(nbytes, sender)
+            ap.take_plant_datagram(lambda: ap.plant.sock.recvfrom_into(ap.plant.rx))
             status = -1
         elif status != plant_loop.QUIET:
-            wall = ap.plant.group_served(status)
+            wall = ap.plant.after_loop(status)
             ap.next_poll = ap.plant.stats[plant_loop.NEXT_GROUND] * 1e-9
             ap.served(status, int(self.out[plant_loop.LENGTH]), int(self.out[plant_loop.FLAGS]), wall)
         ap.housekeeping(status)

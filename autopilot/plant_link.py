@@ -93,11 +93,9 @@ class PlantLink:
             # sched_yield puts this process behind them (under SCHED_FIFO, at the end of its priority's queue, where
             # nothing else would take the core from it until it blocks); docs/performance.md, "Yielding the core".
             os.sched_yield()
-        wall = time.monotonic()
+        wall = self.after_loop(status)
         wait.tally(int(stats[plant_loop.POLLED]), int(stats[plant_loop.LATE]), polling and status == plant_loop.QUIET,
                    int(stats[plant_loop.BLOCKED]), int(stats[plant_loop.SHORT]))  # fmt: skip
-        if stats[plant_loop.ANSWERED] or status == plant_loop.TICKED:
-            self.heard = wall
         pace = self.pace.update(int(io[kernel.TICK]), wall)
         if pace is not None:
             wait.be_patient(PaceGauge.patience(pace))
@@ -110,9 +108,9 @@ class PlantLink:
         return plant_loop.group_entry(self.sock.fileno(), self.rx_array, self.sender, self.sender_len, peer, self.tx,
                                       io, tick_args, self.stats, destinations, ground_fds)  # fmt: skip
 
-    def group_served(self, status: int) -> float:
-        """:func:`plant_loop.serve_group` gave this link back to Python with ``status``: the plant heard, if the loop
-        answered it since the last time → the wall time [s]."""
+    def after_loop(self, status: int) -> float:
+        """A compiled loop (:func:`plant_loop.serve`, :func:`plant_loop.serve_group`) gave this link back to Python
+        with ``status``: the plant heard, if the loop answered it since the last time → the wall time [s]."""
         wall = time.monotonic()
         if self.stats[plant_loop.ANSWERED] or status == plant_loop.TICKED:
             self.heard = wall

@@ -659,13 +659,17 @@ class Autopilot:
             elif self.serving():
                 status = self.serve_plant()  # the plant's ticks in compiled code, until Python's turn
             else:
-                try:
-                    nbytes, sender = receive()
-                except (BlockingIOError, InterruptedError):
-                    nbytes = -1
-                if nbytes >= 0:
-                    self.on_plant_datagram(nbytes, sender)
+                self.take_plant_datagram(receive)
             self.housekeeping(status)
+
+    def take_plant_datagram(self, receive: Callable[[], tuple[int, tuple[str, int]]]) -> None:
+        """The plant's next datagram through Python's loop: ``receive()`` → (its length, its sender) into
+        ``self.plant.rx`` (BlockingIOError when none came), flown (:meth:`on_plant_datagram`)."""
+        try:
+            nbytes, sender = receive()
+        except (BlockingIOError, InterruptedError):
+            return
+        self.on_plant_datagram(nbytes, sender)
 
     def begin(self, ready: Callable[[], None]) -> None:
         """Before the loop: the sockets' waits, the first heartbeat (ground stations see the vehicle from now on),
