@@ -98,24 +98,6 @@ class Snapshot:
     imu: tuple[float, ...] | None = None
 
 
-def position_target(s: Snapshot, ms: int) -> mavlink.MAVLink_position_target_local_ned_message:
-    """POSITION_TARGET_LOCAL_NED: the position and velocity the autopilot flies to, a field's ignore bit set where
-    it is not controlled (accelerations and yaw rate always: the yaw is the target)."""
-    x, y, vx, vy, alt, climb = s.target
-    values = (x, y, -alt, vx, vy, -climb)
-    mask = 64 | 128 | 256 | 2048
-    for bit, value in enumerate(values):
-        if not math.isfinite(value):
-            mask |= 1 << bit
-    out = [v if math.isfinite(v) else 0.0 for v in values]
-    yaw = s.reference.yaw if math.isfinite(s.reference.yaw) else 0.0
-    if not math.isfinite(s.reference.yaw):
-        mask |= 1024
-    return mavlink.MAVLink_position_target_local_ned_message(
-        ms, mavlink.MAV_FRAME_LOCAL_NED, mask, *out, 0.0, 0.0, 0.0, yaw, 0.0
-    )
-
-
 def heartbeat(c: Commander) -> mavlink.MAVLink_heartbeat_message:
     base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     if c.armed:
@@ -167,44 +149,37 @@ def in_air(c: Commander, state: VehicleState) -> bool:
     return landed_state(c, state) != mavlink.MAV_LANDED_STATE_ON_GROUND
 
 
-def pwm(control: float, reversible: bool) -> int:
-    """A normalised motor command → PWM [µs]: [0, 1] → 1000..2000, or [−1, 1] → 1000..2000
-    (1500 = zero) for reversible motors."""
-    c = (control + 1.0) / 2.0 if reversible else control
-    return round(1000.0 + 1000.0 * min(max(c, 0.0), 1.0))
-
-
 def _lat_lon_e7(origin: Origin, north: float, east: float) -> tuple[int, int]:
     """Local north/east [m] from ``origin`` → (lat, lon) [1e-7 deg] (:func:`autopilot.stream_frames.lat_lon_e7`)."""
     return stream_frames.lat_lon_e7(float(origin.lat), float(origin.lon), float(north), float(east))
 
 
-def _frame_values(s: Snapshot, origin: Origin) -> tuple:
-    """:func:`autopilot.stream_frames.encode`'s arguments after the time, from a snapshot: all floats, so that the
-    encoder has one signature (compiled before the first tick: :func:`warm_up`)."""
+def _frame_values(s: Snapshot, origin: Origin, armed: bool) -> tuple:
+    """:func:`autopilot.stream_frames.encode`'s arguments after the time, from a snapshot: floats (and the PWM ints),
+    so that the encoder has one signature (compiled before the first tick: :func:`warm_up`)."""
     thrust = min(max(s.u1 / s.max_total_thrust, 0.0), 1.0)
+    controls = tuple(map(float, s.controls))
+    servo = stream_frames.pwms(controls, bool(armed), bool(s.reversible))
     return (tuple(map(float, s.state)), tuple(map(float, s.body_rates)), tuple(map(float, s.reference)),
-            float(thrust), (float(origin.lat), float(origin.lon), float(origin.alt)), float(s.home[2]))  # fmt: skip
+            float(thrust), (float(origin.lat), float(origin.lon), float(origin.alt)), float(s.home[2]),
+            tuple(map(float, s.target)), controls, servo)  # fmt: skip
 
 
-def compiled_frame(msg_id: int, s: Snapshot, origin: Origin) -> bytes:
+def compiled_frame(msg_id: int, s: Snapshot, origin: Origin, armed: bool) -> bytes:
     """The frame of one of :data:`autopilot.stream_frames.COMPILED`'s messages for this snapshot: the bytes the
     autopilot's tick builds for it (:func:`autopilot.stream_frames.encode`), with sequence 0 and system and component
     1: :func:`build` hands it to pymavlink, which packs it again with the link's own."""
     buf = np.zeros(FRAME_MAX, dtype=np.uint8)
     n = stream_frames.encode(buf, stream_frames.SLOT_OF[msg_id], 0, 1, 1, int(s.time_ms),
-                             *_frame_values(s, origin))  # fmt: skip
+                             *_frame_values(s, origin, armed))  # fmt: skip
     return buf[:n].tobytes()
 
 
 def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
     """The telemetry message ``msg_id`` for this tick (one of :mod:`autopilot.streams`' ids); None when it has nothing
     to say now (ORBIT_EXECUTION_STATUS while not orbiting)."""
-    st, ms = s.state, s.time_ms & 0xFFFFFFFF
     if msg_id in stream_frames.SLOT_OF:  # built by compiled code, as the tick builds them
-        return message_of(compiled_frame(msg_id, s, origin))
-    if msg_id == mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
-        return position_target(s, ms)
+        return message_of(compiled_frame(msg_id, s, origin, c.armed))
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
         return home_position(origin, *s.home, time_usec=s.time_ms * 1000)
     if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
@@ -220,12 +195,7 @@ def build(msg_id: int, s: Snapshot, c: Commander, origin: Origin):
         return mavlink.MAVLink_estimator_status_message(s.time_ms * 1000, flags, vel, pos_h, pos_v, mag, 0.0, 0.0,
                                                         acc_h, acc_v)  # fmt: skip
     if msg_id == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
-        return mavlink.MAVLink_extended_sys_state_message(mavlink.MAV_VTOL_STATE_UNDEFINED, landed_state(c, st))
-    if msg_id == mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
-        out = [pwm(x, s.reversible) if c.armed else 0 for x in s.controls]
-        return mavlink.MAVLink_servo_output_raw_message((s.time_ms * 1000) & 0xFFFFFFFF, 0, *out, *[0] * 12)
-    if msg_id == mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS:
-        return mavlink.MAVLink_actuator_output_status_message(s.time_ms * 1000, 0b1111, [*s.controls, *[0.0] * 28])
+        return mavlink.MAVLink_extended_sys_state_message(mavlink.MAV_VTOL_STATE_UNDEFINED, landed_state(c, s.state))
     raise ValueError(f"message id {msg_id} is not a telemetry stream")
 
 

@@ -176,7 +176,7 @@ class Autopilot:
         self.gravity = preset.vehicle.gravity
         # The per-tick telemetry messages (autopilot.stream_frames) are built by the compiled tick and sent by the
         # compiled loop, on unsigned links (a signed link's frames are pymavlink's to sign: Python builds them all).
-        frames = StreamFrames(len(links), self.origin, 4.0 * preset.actuators.max_thrust)
+        frames = StreamFrames(len(links), self.origin, 4.0 * preset.actuators.max_thrust, preset.actuators.reversible)
         self.telemetry = Streams(self.ground, frames, self.io, self.plant.fast, args.signing_key is None, self.snapshot,
                                  self.commander, self.home)  # fmt: skip
         self.frames = frames

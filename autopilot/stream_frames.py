@@ -1,7 +1,8 @@
 """The telemetry messages that follow every tick, built by compiled code (:mod:`quadsitl.jit`): GPS_RAW_INT,
-ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, GLOBAL_POSITION_INT and ATTITUDE_TARGET (:data:`COMPILED`).
+ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, GLOBAL_POSITION_INT, SERVO_OUTPUT_RAW, ATTITUDE_TARGET,
+POSITION_TARGET_LOCAL_NED and ACTUATOR_OUTPUT_STATUS (:data:`COMPILED`).
 
-These are the messages a ground station asks for at tens of Hz, on the ticks their stream is due
+These are the messages a ground station asks for at 5 Hz and more, on the ticks their stream is due
 (:mod:`autopilot.streams`). Built in Python, each cost the autopilot's loop a return from compiled code and a
 snapshot, pymavlink's message and the frame in Python, while the plant waited: in an unpaced lockstep run the 50 Hz
 ATTITUDE stream alone took a large share of the run (docs/performance.md#in-lockstep). Here the tick builds them
@@ -21,8 +22,22 @@ import re
 
 import numpy as np
 
-from autopilot.commander import ARMED, HOLD_YAW, HOME_ALT, REF_ALT, REF_PITCH, REF_ROLL, REF_YAW, TARGET_ALT
-from autopilot.control_params import MEM_U
+from autopilot.commander import (
+    ARMED,
+    HOLD_YAW,
+    HOME_ALT,
+    REF_ALT,
+    REF_CLIMB,
+    REF_PITCH,
+    REF_ROLL,
+    REF_VX,
+    REF_VY,
+    REF_X,
+    REF_Y,
+    REF_YAW,
+    TARGET_ALT,
+)
+from autopilot.control_params import MEM_FORCES, MEM_U
 from quadsitl.codec import BODY_RATES, FRAME_MAX, HEADER_SIZE, finish_frame
 from quadsitl.compiled_frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.jit import jit
@@ -35,18 +50,21 @@ _CLASSES = (  # by message id, the order of the frames in a datagram
     mavlink.MAVLink_attitude_quaternion_message,
     mavlink.MAVLink_local_position_ned_message,
     mavlink.MAVLink_global_position_int_message,
+    mavlink.MAVLink_servo_output_raw_message,
     mavlink.MAVLink_attitude_target_message,
+    mavlink.MAVLink_position_target_local_ned_message,
+    mavlink.MAVLink_actuator_output_status_message,
 )
 COMPILED: tuple[int, ...] = tuple(c.id for c in _CLASSES)
-"""The message ids built here, in :data:`SLOTS`' order."""
-GPS, ATT, ATT_Q, LPN, GPI, ATT_T = range(len(_CLASSES))  # slots
+"""The message ids built here, in the order of their slots (GPS, ATT, …), which is their ids' order."""
+GPS, ATT, ATT_Q, LPN, GPI, SERVO, ATT_T, POS_T, ACT = range(len(_CLASSES))  # slots
 SLOT_COUNT = len(_CLASSES)
 SLOT_OF = {mid: i for i, mid in enumerate(COMPILED)}
 
 # A field's type on the wire: struct codes → what put_field writes.
 _TYPES = {"B": 0, "h": 1, "H": 2, "i": 3, "I": 4, "Q": 5, "f": 6}
 _SIZES = {"B": 1, "h": 2, "H": 2, "i": 4, "I": 4, "Q": 8, "f": 4}
-MAX_FIELDS = 20
+MAX_FIELDS = 34  # ACTUATOR_OUTPUT_STATUS: time, mask and 32 actuators
 
 
 def _layout(cls: type) -> list[tuple[int, int]]:
@@ -71,8 +89,9 @@ MSG_ID = np.array(COMPILED, dtype=np.int64)
 CRC_EXTRA = np.array([c.crc_extra for c in _CLASSES], dtype=np.int64)
 
 # ``tel`` (float64): what the frames need besides the tick's arrays: the local frame's geodetic origin (latitude,
-# longitude [deg], altitude AMSL [m]) and the largest total thrust 4·F_max [N] (ATTITUDE_TARGET's thrust is u1 over it).
-ORIGIN_LAT, ORIGIN_LON, ORIGIN_ALT, MAX_TOTAL_THRUST, TEL_SIZE = range(5)
+# longitude [deg], altitude AMSL [m]), the largest total thrust 4·F_max [N] (ATTITUDE_TARGET's thrust is u1 over it,
+# each motor's control F_j over a quarter of it) and whether the motors are reversible (1) or not (0).
+ORIGIN_LAT, ORIGIN_LON, ORIGIN_ALT, MAX_TOTAL_THRUST, REVERSIBLE, TEL_SIZE = range(6)
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 # What GPS_RAW_INT claims about the simulated receiver. Its fix is the true state, so its uncertainties are
@@ -84,6 +103,11 @@ GPS_V_ACC = 1  # [mm]
 GPS_VEL_ACC = 10  # [mm/s]
 GPS_FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
 ATTITUDE_TARGET_MASK = 7  # the body-rate fields are not used
+# POSITION_TARGET_LOCAL_NED's type_mask: the accelerations and the yaw rate are never targets (the yaw is); the bit
+# of each of x, y, z, vx, vy, vz (bits 0..5) and yaw (bit 10) is set too while it is not controlled.
+POSITION_TARGET_IGNORED = 64 | 128 | 256 | 2048
+YAW_IGNORED = 1024
+ACTUATORS_ACTIVE = 0b1111  # ACTUATOR_OUTPUT_STATUS.active: the four motors
 
 
 @jit(inline=True)
@@ -119,9 +143,27 @@ def amsl_mm(alt0: float, z: float) -> int:
 
 
 @jit
+def pwm(control: float, reversible: bool) -> int:
+    """A normalised motor command → PWM [µs]: [0, 1] → 1000..2000, or [−1, 1] → 1000..2000 (1500 = zero) for
+    reversible motors; 0 (no pulse) when it is not finite."""
+    c = (control + 1.0) / 2.0 if reversible else control
+    return clamp_int(1000.0 + 1000.0 * c, 1000, 2000)
+
+
+@jit
+def pwms(controls: tuple, armed: bool, reversible: bool) -> tuple:
+    """SERVO_OUTPUT_RAW's first four outputs [µs] for the motors' ``controls`` (F_j / F_max): 0 while disarmed."""
+    if not armed:
+        return 0, 0, 0, 0
+    return (pwm(controls[0], reversible), pwm(controls[1], reversible), pwm(controls[2], reversible),
+            pwm(controls[3], reversible))  # fmt: skip
+
+
+@jit
 def _values(slot: int, vals: np.ndarray, time_ms: int, x: tuple, rates: tuple, ref: tuple, thrust: float,
-            origin: tuple, home_z: float) -> None:  # fmt: skip
-    """The payload values of message ``slot`` in wire order (pymavlink's ``ordered_fieldnames``, arrays expanded)."""
+            origin: tuple, home_z: float, target: tuple, controls: tuple, servo: tuple) -> None:  # fmt: skip
+    """The payload values of message ``slot`` in wire order (pymavlink's ``ordered_fieldnames``, arrays expanded),
+    into ``vals`` (zeros)."""
     ms = time_ms & 0xFFFFFFFF
     if slot == GPS:  # a perfect receiver at the state: a 3D fix, its course unknown while it does not move
         lat, lon = lat_lon_e7(origin[0], origin[1], x[0], x[1])
@@ -143,9 +185,28 @@ def _values(slot: int, vals: np.ndarray, time_ms: int, x: tuple, rates: tuple, r
         _set(vals, (ms, lat, lon, amsl_mm(origin[2], x[2]), clamp_int((home_z - x[2]) * 1000, INT32_MIN, INT32_MAX),
                     clamp_int(x[3] * 100, -32768, 32767), clamp_int(x[4] * 100, -32768, 32767),
                     clamp_int(x[5] * 100, -32768, 32767), cdeg(x[8])))  # fmt: skip
-    else:  # ATT_T: the attitude reference as a quaternion, the thrust as a fraction of the largest
+    elif slot == ATT_T:  # the attitude reference as a quaternion, the thrust as a fraction of the largest
         q = euler_to_quaternion(ref[1], ref[2], ref[3])
         _set(vals, (float(ms), q[0], q[1], q[2], q[3], 0.0, 0.0, 0.0, thrust, float(ATTITUDE_TARGET_MASK)))
+    elif slot == SERVO:  # port 0: the four motors' PWM, the other twelve outputs unused
+        vals[0] = float((time_ms * 1000) & 0xFFFFFFFF)
+        _set(vals[1:], servo)
+    elif slot == POS_T:  # the position and velocity flown to (target: x, y, vx, vy, altitude, climb rate), NED
+        values = (target[0], target[1], -target[4], target[2], target[3], -target[5])
+        mask = POSITION_TARGET_IGNORED
+        for bit in range(6):
+            if not math.isfinite(values[bit]):
+                mask |= 1 << bit
+        yaw = ref[3]
+        if not math.isfinite(yaw):
+            yaw, mask = 0.0, mask | YAW_IGNORED
+        vals[0] = float(ms)
+        for i in range(6):
+            vals[1 + i] = values[i] if math.isfinite(values[i]) else 0.0
+        vals[10], vals[12], vals[13] = yaw, float(mask), float(mavlink.MAV_FRAME_LOCAL_NED)
+    else:  # ACT: the four motors' controls, F_j / F_max
+        vals[0], vals[1] = float(max(time_ms * 1000, 0)), float(ACTUATORS_ACTIVE)
+        _set(vals[2:], controls)
 
 
 @jit(inline=True)
@@ -170,14 +231,17 @@ def _put(buf: np.ndarray, at: int, kind: int, value: float) -> None:
 
 @jit
 def encode(buf: np.ndarray, slot: int, seq: int, system: int, component: int, time_ms: int, x: tuple, rates: tuple,
-           ref: tuple, thrust: float, origin: tuple, home_z: float) -> int:  # fmt: skip
+           ref: tuple, thrust: float, origin: tuple, home_z: float, target: tuple, controls: tuple,
+           servo: tuple) -> int:  # fmt: skip
     """Message ``slot`` (:data:`COMPILED`'s order) as a MAVLink 2 frame at the start of ``buf`` (FRAME_MAX bytes) →
     its length. ``time_ms``: simulated time [ms]; ``x``: the 12 VehicleState fields (local NED [m], [m/s], ZYX Euler
     angles [rad] and their rates); ``rates``: body rates p, q, r [rad/s]; ``ref``: the reference shown (altitude [m],
     roll, pitch, yaw [rad]); ``thrust``: u1 over the largest total thrust; ``origin``: the local frame's (lat, lon
-    [deg], alt [m AMSL]); ``home_z``: home's local z [m, down]."""
-    vals = np.empty(MAX_FIELDS)
-    _values(slot, vals, time_ms, x, rates, ref, thrust, origin, home_z)
+    [deg], alt [m AMSL]); ``home_z``: home's local z [m, down]; ``target``: the position reference flown (local NED
+    x, y [m], vx, vy [m/s], altitude [m], climb rate [m/s]; NaN where not controlled); ``controls``: the motors' F_j /
+    F_max; ``servo``: their PWM [µs] (:func:`pwms`)."""
+    vals = np.zeros(MAX_FIELDS)  # the fields a message leaves unused are 0
+    _values(slot, vals, time_ms, x, rates, ref, thrust, origin, home_z, target, controls, servo)
     size = PAYLOAD_SIZE[slot]
     buf[HEADER_SIZE : HEADER_SIZE + size] = 0
     for i in range(FIELD_COUNT[slot]):
@@ -188,16 +252,24 @@ def encode(buf: np.ndarray, slot: int, seq: int, system: int, component: int, ti
 @jit
 def tick_values(st: np.ndarray, cm: np.ndarray, mem: np.ndarray, tel: np.ndarray) -> tuple:
     """What :func:`encode` needs, from the tick's arrays (:mod:`autopilot.tick`): (x, rates, ref, thrust, origin,
-    home_z). The reference shown is the one flown, or disarmed the altitude and heading held, level."""
+    home_z, target, controls, servo). The reference shown is the one flown, or disarmed the altitude and heading
+    held, level; the position target likewise, or disarmed the altitude held alone."""
     x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])
     rates = (st[BODY_RATES], st[BODY_RATES + 1], st[BODY_RATES + 2])
-    if cm[ARMED] != 0.0:
+    armed = cm[ARMED] != 0.0
+    if armed:
         ref = (cm[REF_ALT], cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW])
+        target = (cm[REF_X], cm[REF_Y], cm[REF_VX], cm[REF_VY], cm[REF_ALT], cm[REF_CLIMB])
     else:
         ref = (cm[TARGET_ALT], 0.0, 0.0, cm[HOLD_YAW])
+        target = (math.nan, math.nan, math.nan, math.nan, cm[TARGET_ALT], math.nan)
     thrust = min(max(mem[MEM_U] / tel[MAX_TOTAL_THRUST], 0.0), 1.0)
     origin = (tel[ORIGIN_LAT], tel[ORIGIN_LON], tel[ORIGIN_ALT])
-    return x, rates, ref, thrust, origin, -cm[HOME_ALT]
+    f_max = tel[MAX_TOTAL_THRUST] / 4.0
+    controls = (mem[MEM_FORCES] / f_max, mem[MEM_FORCES + 1] / f_max, mem[MEM_FORCES + 2] / f_max,
+                mem[MEM_FORCES + 3] / f_max)  # fmt: skip
+    servo = pwms(controls, armed, tel[REVERSIBLE] != 0.0)
+    return x, rates, ref, thrust, origin, -cm[HOME_ALT], target, controls, servo
 
 
 @jit
@@ -220,7 +292,7 @@ def stream_tick(tick: int, period: float, st: np.ndarray, cm: np.ndarray, mem: n
     if not due:
         return False
     time_ms = round(tick * period * 1000)
-    x, rates, ref, thrust, origin, home_z = tick_values(st, cm, mem, tel)
+    x, rates, ref, thrust, origin, home_z, target, controls, servo = tick_values(st, cm, mem, tel)
     for slot in range(SLOT_COUNT):
         n = 0
         for link in range(links):
@@ -228,7 +300,7 @@ def stream_tick(tick: int, period: float, st: np.ndarray, cm: np.ndarray, mem: n
             if every > 0 and (tick - sched[link, slot, 1]) % every == 0:
                 if n == 0:
                     n = encode(scratch, slot, seq[0], system, component, time_ms, x, rates, ref, thrust, origin,
-                               home_z)  # fmt: skip
+                               home_z, target, controls, servo)  # fmt: skip
                     seq[0] = (seq[0] + 1) & 0xFF
                 at = lens[link]
                 frames[link, at : at + n] = scratch[:n]
@@ -240,15 +312,19 @@ DATAGRAM_MAX = SLOT_COUNT * FRAME_MAX
 
 
 class StreamFrames:
-    """The arrays :func:`stream_tick` works in, for ``links`` ground-station links (``out``)."""
+    """The arrays :func:`stream_tick` works in, for ``links`` ground-station links (``out``), of a vehicle whose local
+    frame has its origin at ``origin`` (lat, lon [deg], alt [m AMSL]), whose motors give at most ``max_total_thrust``
+    [N] together and are ``reversible`` or not."""
 
-    def __init__(self, links: int, origin: tuple[float, float, float], max_total_thrust: float) -> None:
+    def __init__(self, links: int, origin: tuple[float, float, float], max_total_thrust: float,
+                 reversible: bool) -> None:  # fmt: skip
         self.sched = np.zeros((links, SLOT_COUNT, 2), dtype=np.int64)
         self.frames = np.zeros((links, DATAGRAM_MAX), dtype=np.uint8)
         self.lens = np.zeros(links, dtype=np.int64)
         self.tel = np.zeros(TEL_SIZE)
         self.tel[ORIGIN_LAT : ORIGIN_ALT + 1] = origin
         self.tel[MAX_TOTAL_THRUST] = max_total_thrust
+        self.tel[REVERSIBLE] = 1.0 if reversible else 0.0
         self.scratch = np.zeros(FRAME_MAX, dtype=np.uint8)
         self.out = (self.sched, self.frames, self.lens, self.tel, self.scratch)
 

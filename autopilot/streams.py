@@ -5,16 +5,16 @@ deterministic), and in real time it is tied to the wall clock. ``MAV_CMD_SET_MES
 one message's interval (µs; −1 stops it, 0 restores the default); ``MAV_CMD_GET_MESSAGE_INTERVAL``
 reads it back. HEARTBEAT is not scheduled here: it goes out at 1 Hz of wall time, like PX4's.
 
-Every stream has a phase, as each of PX4's streams keeps its own schedule: the --telemetry-rate messages go out together
-(one snapshot, one datagram) at ticks ≡ ``phase`` modulo their interval, with GLOBAL_POSITION_INT and GPS_RAW_INT on the
-same ticks (a map and a local plot agree tick for tick), and each of the other slower ones on a tick of its own between
-them. So no tick builds more than six messages, where at 1 kHz every 100th tick once built eleven: in a real-time fleet
-all of its autopilots did that Python in the same millisecond, and the last of them missed its deadline
-(docs/performance.md#spreading-a-fleets-work-over-the-ticks). An autopilot's ``phase`` follows from its system id
-(:func:`phase_of`), so a fleet's vehicles stream on different ticks too, and a lockstep run stays deterministic. The
-messages with a slot of their own are the ones Python builds (each a trip out of the compiled loop); a vehicle sends
-them ``spread`` ticks after vehicle 1 does (:func:`spread_of`), so a fleet's autopilots make those trips on ticks spread
-over each 100, where sixteen made all of theirs within the same 25 ticks.
+Every stream has a phase, as each of PX4's streams keeps its own schedule: the --telemetry-rate messages go out
+together (one datagram) at ticks ≡ ``phase`` modulo their interval, with the other messages the compiled tick builds
+(:mod:`autopilot.stream_frames`: the positions, the targets, the motor outputs) on the same ticks (a map and a local
+plot agree tick for tick), and each of the ones Python builds on a tick of its own between them. Those once all went out
+on every 100th tick at 1 kHz: in a real-time fleet all of its autopilots did that Python in the same millisecond, and
+the last of them missed its deadline (docs/performance.md#spreading-a-fleets-work-over-the-ticks). An autopilot's
+``phase`` follows from its system id (:func:`phase_of`), so a fleet's vehicles stream on different ticks too, and a
+lockstep run stays deterministic. The messages with a slot of their own are the ones Python builds (each a trip out of
+the compiled loop); a vehicle sends them ``spread`` ticks after vehicle 1 does (:func:`spread_of`), so a fleet's
+autopilots make those trips on ticks spread over each 100, where sixteen made all of theirs within the same 25 ticks.
 """
 
 from __future__ import annotations
@@ -50,13 +50,14 @@ SLOW_RATES: dict[int, float] = {  # [Hz]
 }
 
 # The tick after the fast messages' at which each slow one goes out (an odd offset: never on a fast tick at the
-# default 50 Hz). GLOBAL_POSITION_INT and GPS_RAW_INT (every other one of its ticks) go with the fast ones.
+# default 50 Hz). Those the compiled tick builds (autopilot.stream_frames) go with the fast ones, in their datagram:
+# GPS_RAW_INT on every other one of GLOBAL_POSITION_INT's ticks.
 SLOTS: dict[int, int] = {
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0,
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 0,
-    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 3,
-    mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 5,
-    mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS: 7,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 0,
+    mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 0,
+    mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS: 0,
     mavlink.MAVLINK_MSG_ID_SYS_STATUS: 9,
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 11,
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 13,

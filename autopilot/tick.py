@@ -571,7 +571,7 @@ def warm_up() -> None:
     v = np.ones(VEHICLE_SIZE)
     c = control_array((0.5,) * 8, 0.001)
     batch = Batch(2)
-    frames = stream_frames.StreamFrames(2, (47.0, 8.0, 488.0), 40.0)
+    frames = stream_frames.StreamFrames(2, (47.0, 8.0, 488.0), 40.0, False)
     frames.sched[:, :, 0] = 1  # every message on every link, every tick
     gcs_messages.warm_up()  # what Python builds (requested, signed, the slower streams) calls compiled code too
     for kind in (BACKSTEPPING, PD):

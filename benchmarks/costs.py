@@ -70,7 +70,7 @@ def measure(number: int) -> dict[str, float]:
     n_state = codec.encode_state(state_frame, 0, 1, 25, 1000, x)
     st, scratch = np.zeros(codec.DECODED_SIZE), np.zeros(codec.DECODED_SIZE)
     commander, batch = Commander(), Batch(64)
-    frames = StreamFrames(2, (47.0, 8.0, 488.0), 4 * 1e4).out  # no stream due: as on most ticks
+    frames = StreamFrames(2, (47.0, 8.0, 488.0), 4 * 1e4, False).out  # no stream due: as on most ticks
     commander.arm()
     io = np.zeros(IO_SIZE, dtype=np.int64)
     stamp = [0]

@@ -115,7 +115,7 @@ def _ticks(states: np.ndarray, refs: np.ndarray) -> dict[str, np.ndarray]:
     frames_out, bytes_out = [], []
     sens = Sensors(SensorParams(), preset.sim.period, preset.vehicle.gravity).arrays  # truth mode: not touched
     tick.encode_tick(tx, io_pl, x, out, air[0], sens, 0, preset.sim.period)
-    no_frames = StreamFrames(2, (47.0, 8.0, 488.0), 40.0).out  # no stream on any link
+    no_frames = StreamFrames(2, (47.0, 8.0, 488.0), 40.0, False).out  # no stream on any link
     for k in range(300):
         n = int(io_pl[tick.TX_LEN])
         rx[:n] = tx[:n]

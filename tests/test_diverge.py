@@ -218,7 +218,7 @@ def test_the_autopilot_never_flies_a_non_finite_state():
     def deliver(k: int, x) -> int:
         n = codec.encode_state(frame, k & 0xFF, 1, 25, codec.usec_of(k, 0.001), tuple(x))
         return kernel.autopilot_tick(frame, n, scratch, st, 0.001, PD, no_plug(), cm.cm, mem, v, c, 0.0, 10.0, tx, io,
-                                     records, StreamFrames(2, (47.0, 8.0, 488.0), 40.0).out)  # fmt: skip
+                                     records, StreamFrames(2, (47.0, 8.0, 488.0), 40.0, False).out)  # fmt: skip
 
     assert deliver(0, [0.0] * 12) & kernel.ANSWER
     before = st.copy()

@@ -168,9 +168,9 @@ def test_the_compiled_loop_answers_each_tick_and_gives_python_what_it_must_do(ve
 
 
 def test_the_loop_sends_the_ticks_telemetry_frames_itself(vehicle):
-    """A tick with only compiled telemetry due (ATTITUDE and the other 50 Hz messages, GLOBAL_POSITION_INT,
-    GPS_RAW_INT) does not come back to Python: the loop sends the frames to the link's destinations after the
-    answer."""
+    """A tick with only compiled telemetry due (ATTITUDE and the other 50 Hz messages, the positions, the targets, the
+    motor outputs) does not come back to Python: the loop sends the frames to the link's destinations after the
+    answer, in one datagram."""
     ap, plant, autopilot = vehicle
     ground = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ground.bind(("127.0.0.1", 0))
@@ -181,7 +181,7 @@ def test_the_loop_sends_the_ticks_telemetry_frames_itself(vehicle):
     ap.on_plant_datagram(*ap.plant.sock.recvfrom_into(ap.plant.rx))
     plant.recv(1000)
     assert ap.destinations.count[0] == 1
-    for k in (200, 201, 202):  # 200: all six due (phase 0; GPS_RAW_INT at 5 Hz), the others nothing
+    for k in (200, 201, 202):  # 200: all nine due (phase 0; GPS_RAW_INT at 5 Hz), the others nothing
         plant.sendto(state_frame(k), autopilot)
     time.sleep(0.05)
     (status, _, _), stats = serve(ap, deadline_s=0.3)
@@ -189,9 +189,10 @@ def test_the_loop_sends_the_ticks_telemetry_frames_itself(vehicle):
     assert [answer_of(plant.recv(1000))[0] for _ in range(3)] == [200_000, 201_000, 202_000]
     msgs = wire.link(0, 0).parse_buffer(ground.recv(65535))
     assert [m.get_type() for m in msgs] == ["GPS_RAW_INT", "ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED",
-                                            "GLOBAL_POSITION_INT", "ATTITUDE_TARGET"]  # fmt: skip
-    assert {m.time_boot_ms for m in msgs[1:]} == {200} and msgs[0].time_usec == 200_000
-    assert len({m.get_seq() for m in msgs}) == 6
+                                            "GLOBAL_POSITION_INT", "SERVO_OUTPUT_RAW", "ATTITUDE_TARGET",
+                                            "POSITION_TARGET_LOCAL_NED", "ACTUATOR_OUTPUT_STATUS"]  # fmt: skip
+    assert {getattr(m, "time_boot_ms", None) or m.time_usec // 1000 for m in msgs} == {200}
+    assert len({m.get_seq() for m in msgs}) == 9
     ground.close()
 
 

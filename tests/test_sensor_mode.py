@@ -152,7 +152,7 @@ class SensorAutopilot:
         flags = kernel.sensor_tick(rx, len(rx), self.frame, self.truth, frames.PX4_HOME, self.est.arrays, self.st,
                                    self.period, self.ctl.kind, no_plug(), self.cm.cm, self.mem, self.ctl.v,
                                    self.ctl.c, self.f_min, self.f_max, self.tx, self.io, self.batch.records,
-                                   StreamFrames(2, frames.PX4_HOME, 40.0).out)  # fmt: skip
+                                   StreamFrames(2, frames.PX4_HOME, 40.0, False).out)  # fmt: skip
         assert flags & kernel.ANSWER
         return bytes(self.tx[: self.io[kernel.TX_LEN]])
 

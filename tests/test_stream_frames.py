@@ -10,8 +10,23 @@ import numpy as np
 import pytest
 
 from autopilot import stream_frames as sf
-from autopilot.commander import ARMED, HOLD_YAW, HOME_ALT, REF_ALT, REF_PITCH, REF_ROLL, REF_YAW, TARGET_ALT, Commander
-from autopilot.control_params import MEM_SIZE, MEM_U
+from autopilot.commander import (
+    ARMED,
+    HOLD_YAW,
+    HOME_ALT,
+    REF_ALT,
+    REF_CLIMB,
+    REF_PITCH,
+    REF_ROLL,
+    REF_VX,
+    REF_VY,
+    REF_X,
+    REF_Y,
+    REF_YAW,
+    TARGET_ALT,
+    Commander,
+)
+from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
 from quadsitl import codec, wire
 from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.wire import mavlink
@@ -27,9 +42,29 @@ def _cdeg(angle: float) -> int:
     return round(math.degrees(angle) % 360.0 * 100) % 36000 if math.isfinite(angle) else 0
 
 
-def reference_message(mid: int, time_ms: int, x, rates, ref, thrust: float, origin, home_z: float):
+def _pwm(control: float, reversible: bool) -> int:
+    c = (control + 1.0) / 2.0 if reversible else control
+    return round(1000.0 + 1000.0 * min(max(c, 0.0), 1.0)) if math.isfinite(c) else 0
+
+
+def reference_message(mid: int, time_ms: int, x, rates, ref, thrust: float, origin, home_z: float, target, controls,
+                      armed: bool, reversible: bool):  # fmt: skip
     """The message as its definition says, in plain Python (the test's own reading of the MAVLink messages)."""
     ms = time_ms & 0xFFFFFFFF
+    if mid == mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:  # port 0: the four motors, 0 µs while disarmed
+        out = [_pwm(c, reversible) if armed else 0 for c in controls]
+        return mavlink.MAVLink_servo_output_raw_message((time_ms * 1000) & 0xFFFFFFFF, 0, *out, *[0] * 12)
+    if mid == mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS:
+        return mavlink.MAVLink_actuator_output_status_message(time_ms * 1000, 0b1111, [*controls, *[0.0] * 28])
+    if mid == mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:  # a field not controlled: its ignore bit, 0
+        tx, ty, tvx, tvy, alt, climb = target
+        values = (tx, ty, -alt, tvx, tvy, -climb)
+        mask = 64 | 128 | 256 | 2048 | sum(1 << i for i, v in enumerate(values) if not math.isfinite(v))
+        mask |= 0 if math.isfinite(ref[3]) else 1024
+        finite = [v if math.isfinite(v) else 0.0 for v in values]
+        yaw = ref[3] if math.isfinite(ref[3]) else 0.0
+        return mavlink.MAVLink_position_target_local_ned_message(ms, mavlink.MAV_FRAME_LOCAL_NED, mask, *finite,
+                                                                 0.0, 0.0, 0.0, yaw, 0.0)  # fmt: skip
     roll, pitch, yaw = x[6:9]
     if math.isfinite(x[0]) and math.isfinite(x[1]):
         lat, lon = ned_to_geodetic(x[0], x[1], origin[0], origin[1])
@@ -61,7 +96,13 @@ def random_case(rng: np.random.Generator):
     x = tuple(float(v) for v in rng.normal(0.0, [50, 50, 30, 5, 5, 2, 0.5, 0.5, 3, 1, 1, 1]))
     rates = tuple(float(v) for v in rng.normal(0.0, 1.0, 3))
     ref = tuple(float(v) for v in rng.normal(0.0, [5, 0.3, 0.3, 2]))
-    return int(rng.integers(0, 2**33)), x, rates, ref, float(rng.uniform(0, 1)), -float(rng.uniform(0, 5))
+    target = tuple(float(v) if rng.uniform() < 0.8 else math.nan for v in rng.normal(0.0, [50, 50, 5, 5, 30, 2]))
+    controls = tuple(float(v) for v in rng.uniform(-1.2, 1.2, 4))
+    return (int(rng.integers(0, 2**33)), x, rates, ref, float(rng.uniform(0, 1)), -float(rng.uniform(0, 5)), target,
+            controls, bool(rng.integers(2)), bool(rng.integers(2)))  # fmt: skip
+
+
+NAN6 = (math.nan,) * 6
 
 
 @pytest.mark.parametrize("mid", sf.COMPILED)
@@ -69,16 +110,30 @@ def test_each_frame_is_the_bytes_pymavlink_sends_for_the_messages_definition(mid
     rng = np.random.default_rng(mid)
     buf, mav = np.zeros(codec.FRAME_MAX, dtype=np.uint8), wire.link(3, 1)
     cases = [random_case(rng) for _ in range(200)]
-    cases.append((1234, (0.0,) * 12, (0.0,) * 3, (0.0, 0.0, 0.0, math.nan), 0.0, 0.0))  # at rest; a yaw rate alone
-    cases.append((5, (1e9, -1e9, -1e9, 1e5, -1e5, 1e5, 0.0, 0.0, -7.0, 0, 0, 0), (0.0,) * 3, (0,) * 4, 1.0, 0.0))
-    cases.append((7, (math.nan,) * 12, (0.0,) * 3, (0,) * 4, 0.5, 0.0))  # nothing finite: the fields say 0
-    for seq, (time_ms, x, rates, ref, thrust, home_z) in enumerate(cases):
-        n = sf.encode(buf, sf.SLOT_OF[mid], seq & 0xFF, 3, 1, time_ms, x, rates, ref, thrust, ORIGIN, home_z)
+    rest = (0.0,) * 12, (0.0,) * 3, (0.0, 0.0, 0.0, math.nan), 0.0, 0.0, (0.0,) * 6, (0.0,) * 4
+    cases.append((1234, *rest, True, True))  # at rest; a yaw rate alone
+    far = (1e9, -1e9, -1e9, 1e5, -1e5, 1e5, 0.0, 0.0, -7.0, 0, 0, 0)
+    cases.append((5, far, (0.0,) * 3, (0,) * 4, 1.0, 0.0, (1e9, -1e9, 1e5, -1e5, 1e9, 1e5), (1.0, -1.0, 2.0, -2.0),
+                  True, False))  # fmt: skip
+    nothing = (math.nan,) * 12, (0.0,) * 3, (0,) * 4, 0.5, 0.0, NAN6, (0.5,) * 4
+    cases.append((7, *nothing, False, False))  # nothing finite: the fields say 0
+    for seq, (time_ms, x, rates, ref, thrust, home_z, target, controls, armed, reversible) in enumerate(cases):
+        servo = tuple(_pwm(c, reversible) if armed else 0 for c in controls)
+        n = sf.encode(buf, sf.SLOT_OF[mid], seq & 0xFF, 3, 1, time_ms, x, rates, ref, thrust, ORIGIN, home_z,
+                      target, controls, servo)  # fmt: skip
         mav.seq = seq & 0xFF
-        assert bytes(buf[:n]) == reference_message(mid, time_ms, x, rates, ref, thrust, ORIGIN, home_z).pack(mav), (
-            seq,
-            x,
-        )
+        want = reference_message(mid, time_ms, x, rates, ref, thrust, ORIGIN, home_z, target, controls, armed,
+                                 reversible)  # fmt: skip
+        assert bytes(buf[:n]) == want.pack(mav), (seq, x)
+
+
+def test_the_motor_outputs_are_pwm_of_the_controls_and_none_while_disarmed():
+    """SERVO_OUTPUT_RAW's PWM: [0, 1] → 1000..2000 µs, reversible [−1, 1] → 1000..2000 (1500 = zero), clamped; no
+    pulse (0) for a control that is not finite, and for every motor while disarmed."""
+    assert [sf.pwm(c, True) for c in (-1.0, 0.0, 1.0, 2.0, 0.5)] == [1000, 1500, 2000, 2000, 1750]
+    assert [sf.pwm(c, False) for c in (0.0, 0.25, 1.0, -1.0, math.nan)] == [1000, 1250, 2000, 1000, 0]
+    assert sf.pwms((0.5, -0.5, 1.0, 0.0), True, True) == (1750, 1250, 2000, 1500)
+    assert sf.pwms((0.5, -0.5, 1.0, 0.0), False, True) == (0, 0, 0, 0)
 
 
 def test_the_helpers_round_half_to_even_and_clamp_as_python_does():
@@ -94,25 +149,35 @@ def tick_arrays(armed: bool):
     cm = c.cm
     cm[ARMED] = 1.0 if armed else 0.0
     cm[REF_ALT], cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW] = 5.0, 0.1, -0.1, 1.0
+    cm[REF_X], cm[REF_Y], cm[REF_VX], cm[REF_VY], cm[REF_CLIMB] = 3.0, -4.0, 0.5, math.nan, 1.5
     cm[TARGET_ALT], cm[HOLD_YAW], cm[HOME_ALT] = 2.0, -1.0, 0.25
     mem = np.zeros(MEM_SIZE)
     mem[MEM_U] = 30.0
+    mem[MEM_FORCES : MEM_FORCES + 4] = (5.0, -5.0, 10.0, 0.0)
     return st, cm, mem
 
 
 @pytest.mark.parametrize("armed", [True, False])
-def test_the_tick_shows_the_reference_flown_or_disarmed_the_one_held(armed):
+@pytest.mark.parametrize("reversible", [True, False])
+def test_the_tick_shows_the_reference_flown_or_disarmed_the_one_held(armed, reversible):
     st, cm, mem = tick_arrays(armed)
-    frames = sf.StreamFrames(1, ORIGIN, 40.0)
-    x, rates, ref, thrust, origin, home_z = sf.tick_values(st, cm, mem, frames.tel)
+    frames = sf.StreamFrames(1, ORIGIN, 40.0, reversible)
+    x, rates, ref, thrust, origin, home_z, target, controls, servo = sf.tick_values(st, cm, mem, frames.tel)
     assert x == tuple(st[:12]) and rates == tuple(st[12:15]) and origin == ORIGIN and home_z == -0.25
     assert ref == ((5.0, 0.1, -0.1, 1.0) if armed else (2.0, 0.0, 0.0, -1.0))
     assert thrust == 0.75
+    if armed:
+        assert target[:3] == (3.0, -4.0, 0.5) and math.isnan(target[3]) and target[4:] == (5.0, 1.5)
+    else:  # the altitude held alone
+        assert all(math.isnan(v) for v in target[:4] + target[5:]) and target[4] == 2.0
+    assert controls == (0.5, -0.5, 1.0, 0.0)  # F_j over F_max = 10 N
+    pulses = (1750, 1250, 2000, 1500) if reversible else (1500, 1000, 2000, 1000)
+    assert servo == (pulses if armed else (0, 0, 0, 0))
 
 
 def test_the_tick_builds_what_is_due_on_each_link_once_in_id_order():
     st, cm, mem = tick_arrays(True)
-    frames = sf.StreamFrames(2, ORIGIN, 40.0)
+    frames = sf.StreamFrames(2, ORIGIN, 40.0, False)
     att, gpi, lpn = (sf.SLOT_OF[m] for m in (30, 33, 32))
     frames.sched[0, att] = (20, 4)  # 50 Hz at phase 4
     frames.sched[1, att] = (10, 4)  # 100 Hz on the other link
@@ -150,7 +215,7 @@ def test_nothing_compiles_on_the_tick_path_once_warmed_up():
     from quadsitl.state import Reference, VehicleState
 
     warm_up()
-    compiled = (sf.clamp_int, sf.cdeg, sf.lat_lon_e7, sf.amsl_mm, sf.encode, codec.crc16)
+    compiled = (sf.clamp_int, sf.cdeg, sf.lat_lon_e7, sf.amsl_mm, sf.pwms, sf.encode, codec.crc16)
     before = [len(f.signatures) for f in compiled]
     for value in (0, 1.5):  # ints as a caller may pass them, and floats
         s = gcs_messages.Snapshot(time_ms=12, state=VehicleState(*(value,) * 12), body_rates=(value,) * 3,
