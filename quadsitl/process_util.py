@@ -432,10 +432,12 @@ def children_of(pid: int) -> list[int]:
     return out
 
 
-def rss_mb(pid: int) -> float:
-    """Resident memory [MB] of a live process (``/proc/PID/status``'s VmRSS)."""
+def rss_mb(pid: int | str, field: str = "VmRSS") -> float:
+    """Resident memory [MB] of a live process (``/proc/PID/status``'s VmRSS; ``pid`` "self": this one's): now, or its
+    peak since it started its program (``field`` "VmHWM"). Not ``getrusage``'s peak, which also counts what the
+    parent held when it forked the process (a bench that had compiled in-process gave each plant 2.4 GB)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
+        if line.startswith(f"{field}:"):
             return int(line.split()[1]) / 1024.0
     return 0.0
 

@@ -69,6 +69,7 @@ from quadsitl.process_util import (
     clock_above_its_peers,
     hold_cores_awake,
     parse_address,
+    rss_mb,
     set_receive_timeout,
     start_process,
     timers_on_time,
@@ -334,7 +335,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                  "receives_polled": sum(v.link.wait.polled for v in vehicles),
                  "receives_blocked": sum(v.link.wait.blocked for v in vehicles),
                  "polling_budget_s": vehicles[0].link.wait.budget,  # SpinThenBlock: what makes a wait hot
-                 "polling_patience_s": vehicles[0].link.wait.patience}  # fmt: skip
+                 "polling_patience_s": vehicles[0].link.wait.patience,
+                 "peak_memory_mb": rss_mb("self", "VmHWM")}  # fmt: skip
         if args.mode == "realtime":  # the clock's timing, and the autopilots' answers that missed their period
             stats.update(period_stats(starts, period))
             stats["answer_miss_ratios"] = [v.late / max(v.answered + v.late, 1) for v in vehicles]

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import subprocess
 import sys
 import time
@@ -101,16 +100,15 @@ def fleet_run(n: int, workdir: Path, ticks: int, mode: str, browser: object | No
             plant = subprocess.Popen(argv, stderr=subprocess.DEVNULL)
         try:
             rss = [rss_mb(pid) for pid in ap_pids]
-            _, status, usage = os.wait4(plant.pid, 0)  # reaped here, with its peak memory
+            plant.wait()
             steal = machine.steal_ratio(before, machine.cpu_times())
-            plant.returncode = os.waitstatus_to_exitcode(status)
             if plant.returncode != 0:
                 raise RuntimeError(f"the fleet's plant exited with status {plant.returncode}")
-            rss.append(usage.ru_maxrss / 1024.0)
             ap_cpu = sum(machine.process_cpu_seconds(pid) - c0 for pid, c0 in zip(ap_pids, ap_cpu0, strict=True))
         finally:
             stop(plant, grace=0)
     res = json.loads(stats.read_text())
+    rss.append(res["peak_memory_mb"])  # the plant's own peak
     host = own_misses(res, watch) if watch is not None else None
     # CPU over the run itself: the plant's own count from its first tick to its last (its imports and compiled code
     # load are not a running fleet's cost); the autopilots idle until the plant starts.
