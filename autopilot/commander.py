@@ -892,21 +892,9 @@ class Commander:
         return float(self.cm[HOME_YAW])
 
     @property
-    def target(self) -> tuple[float, float, float, float, float, float]:
-        """The position reference of the last tick: x, y [m], vx, vy [m/s] (local NED), altitude [m], climb rate
-        [m/s]; NaN where not controlled."""
-        cm = self.cm
-        return tuple(float(cm[i]) for i in (REF_X, REF_Y, REF_VX, REF_VY, REF_ALT, REF_CLIMB))  # type: ignore[return-value]
-
-    @property
     def position_target(self) -> tuple[float, float, float]:
         """The position the auto modes are heading for: (x, y NED [m], altitude [m])."""
         return float(self.cm[TARGET_X]), float(self.cm[TARGET_Y]), float(self.cm[TARGET_ALT])
-
-    @property
-    def hold(self) -> Reference:
-        """The reference shown while disarmed: the altitude and heading the auto modes hold, level."""
-        return Reference(float(self.cm[TARGET_ALT]), 0.0, 0.0, float(self.cm[HOLD_YAW]))
 
     @property
     def reference(self) -> Reference:

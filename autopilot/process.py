@@ -22,7 +22,6 @@ and the telemetry (:mod:`autopilot.telemetry_out`: the MAVLink streams and Zenoh
 from __future__ import annotations
 
 import argparse
-import math
 import select
 import sys
 import threading
@@ -44,13 +43,14 @@ from autopilot import (
     plant_messages,
     plugin,
     setpoints,
+    stream_frames,
 )
 from autopilot import tick as kernel
 from autopilot.arguments import build_parser, check
 from autopilot.calibration import Calibration
 from autopilot.commander import Commander, CommanderSettings
 from autopilot.commands import SUPPORTED_MODES
-from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
+from autopilot.control_params import MEM_SIZE, MEM_U
 from autopilot.estimator import Estimator
 from autopilot.gains import GainError
 from autopilot.gcs_messages import Home, Snapshot
@@ -396,12 +396,11 @@ class Autopilot:
 
     # ---- what the vehicle knows ------------------------------------------------------------------
 
-    def latest(self) -> tuple[int, VehicleState, Reference] | None:
-        """The last tick flown: (tick, state, the reference flown or held); None before the first."""
+    def latest(self) -> tuple[int, VehicleState] | None:
+        """The last tick flown: (tick, state); None before the first."""
         if self.io[kernel.LAST_USEC] < 0:
             return None
-        c = self.commander
-        return int(self.io[kernel.TICK]), VehicleState._make(self.st[:12].tolist()), c.reference if c.armed else c.hold
+        return int(self.io[kernel.TICK]), VehicleState._make(self.st[:12].tolist())
 
     def state(self) -> VehicleState | None:
         """The state of the last tick flown (None before the first)."""
@@ -409,26 +408,27 @@ class Autopilot:
         return None if latest is None else latest[1]
 
     def snapshot(self) -> Snapshot | None:
-        """The last tick, as the ground-station messages report it (None before the first)."""
-        latest = self.latest()
-        if latest is None:
+        """The last tick, as the ground-station messages report it (None before the first): what the compiled tick
+        shows of it (:func:`autopilot.stream_frames.tick_values`), and what only Python knows."""
+        if self.io[kernel.LAST_USEC] < 0:
             return None
-        tick, state, ref = latest
-        forces = self.mem[MEM_FORCES : MEM_FORCES + 4].tolist()
+        x, rates, ref, _, _, _, target, controls, _ = stream_frames.tick_values(
+            self.st, self.commander.cm, self.mem, self.frames.tel
+        )
         return Snapshot(
-            time_ms=round(tick * self.period * 1000),
-            state=state,
-            body_rates=tuple(self.st[codec.BODY_RATES : codec.BODY_RATES + 3].tolist()),
-            reference=ref,
+            time_ms=round(int(self.io[kernel.TICK]) * self.period * 1000),
+            state=VehicleState._make(x),
+            body_rates=rates,
+            reference=Reference._make(ref),
             u1=float(self.mem[MEM_U]),
-            controls=tuple(f / self.f_max for f in forces),
+            controls=controls,
             reversible=self.reversible,
             max_total_thrust=4.0 * self.f_max,
             load=self.load,
             errors=self.counters.as_tuple(),
             has_state=self.has_state(),
             home=self._home(),
-            target=self.commander.target if self.commander.armed else (math.nan,) * 4 + (ref.altitude, math.nan),
+            target=target,
             estimator=None if self.estimator is None else self.estimator.status(),
             imu=None if self.estimator is None else self.estimator.measurements(),
         )

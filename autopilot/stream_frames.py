@@ -37,7 +37,7 @@ from autopilot.commander import (
     REF_YAW,
     TARGET_ALT,
 )
-from autopilot.control_params import MEM_FORCES, MEM_U
+from autopilot.control_params import MEM_ATTITUDE_REF, MEM_FORCES, MEM_U
 from quadsitl.codec import BODY_RATES, FRAME_MAX, HEADER_SIZE, finish_frame
 from quadsitl.compiled_frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.jit import jit
@@ -250,18 +250,32 @@ def encode(buf: np.ndarray, slot: int, seq: int, system: int, component: int, ti
 
 
 @jit
+def reference_shown(cm: np.ndarray, mem: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """The reference the telemetry shows for the last :func:`autopilot.tick.autopilot_step` (ATTITUDE_TARGET, the
+    records, ``sim``'s columns): (altitude [m], roll, pitch, yaw [rad],
+    x, y [m, NED]). Armed, the one flown (roll and pitch: the position loop's when it flies; x, y NaN while the
+    horizontal position is not controlled); disarmed, the altitude and heading held, level, x and y NaN."""
+    if cm[ARMED] == 0.0:
+        return cm[TARGET_ALT], 0.0, 0.0, cm[HOLD_YAW], np.nan, np.nan
+    flown = not math.isnan(mem[MEM_ATTITUDE_REF])
+    roll = mem[MEM_ATTITUDE_REF] if flown else cm[REF_ROLL]
+    pitch = mem[MEM_ATTITUDE_REF + 1] if flown else cm[REF_PITCH]
+    return cm[REF_ALT], roll, pitch, cm[REF_YAW], cm[REF_X], cm[REF_X + 1]
+
+
+@jit
 def tick_values(st: np.ndarray, cm: np.ndarray, mem: np.ndarray, tel: np.ndarray) -> tuple:
     """What :func:`encode` needs, from the tick's arrays (:mod:`autopilot.tick`): (x, rates, ref, thrust, origin,
-    home_z, target, controls, servo). The reference shown is the one flown, or disarmed the altitude and heading
-    held, level; the position target likewise, or disarmed the altitude held alone."""
+    home_z, target, controls, servo). The reference shown is :func:`reference_shown`'s; the position target the one
+    flown, or disarmed the altitude held alone."""
     x = (st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9], st[10], st[11])
     rates = (st[BODY_RATES], st[BODY_RATES + 1], st[BODY_RATES + 2])
     armed = cm[ARMED] != 0.0
+    shown = reference_shown(cm, mem)
+    ref = (shown[0], shown[1], shown[2], shown[3])
     if armed:
-        ref = (cm[REF_ALT], cm[REF_ROLL], cm[REF_PITCH], cm[REF_YAW])
         target = (cm[REF_X], cm[REF_Y], cm[REF_VX], cm[REF_VY], cm[REF_ALT], cm[REF_CLIMB])
     else:
-        ref = (cm[TARGET_ALT], 0.0, 0.0, cm[HOLD_YAW])
         target = (math.nan, math.nan, math.nan, math.nan, cm[TARGET_ALT], math.nan)
     thrust = min(max(mem[MEM_U] / tel[MAX_TOTAL_THRUST], 0.0), 1.0)
     origin = (tel[ORIGIN_LAT], tel[ORIGIN_LON], tel[ORIGIN_ALT])

@@ -40,7 +40,6 @@ from autopilot.commander import (
     REF_X,
     REF_YAW,
     REF_YAW_RATE,
-    TARGET_ALT,
     TOUCHDOWN_ALT,
     TOUCHDOWN_CLIMB,
 )
@@ -337,19 +336,6 @@ def autopilot_step(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: 
 
 
 @jit
-def reference_shown(cm: np.ndarray, mem: np.ndarray) -> tuple[float, float, float, float, float, float]:
-    """The reference the telemetry shows for the last :func:`autopilot_step`: (altitude [m], roll, pitch, yaw [rad],
-    x, y [m, NED]). Armed, the one flown (roll and pitch: the position loop's when it flies; x, y NaN while the
-    horizontal position is not controlled); disarmed, the altitude and heading held, level, x and y NaN."""
-    if cm[ARMED] == 0.0:
-        return cm[TARGET_ALT], 0.0, 0.0, cm[commander.HOLD_YAW], np.nan, np.nan
-    flown = not math.isnan(mem[MEM_ATTITUDE_REF])
-    roll = mem[MEM_ATTITUDE_REF] if flown else cm[REF_ROLL]
-    pitch = mem[MEM_ATTITUDE_REF + 1] if flown else cm[REF_PITCH]
-    return cm[REF_ALT], roll, pitch, cm[REF_YAW], cm[REF_X], cm[REF_X + 1]
-
-
-@jit
 def control_tick(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: np.ndarray, v: np.ndarray,
                  c: np.ndarray, f_min: float, f_max: float, tx: np.ndarray, io: np.ndarray, time_usec: int, tick: int,
                  now: float, records: np.ndarray) -> None:  # fmt: skip
@@ -374,7 +360,7 @@ def control_tick(kind: int, plug: tuple, st: np.ndarray, cm: np.ndarray, mem: np
     at = capacity * STATE_SIZE + row * SETPOINT_SIZE
     _put_int(records, at + AT_TICK, tick)
     _put(records, at + AT_T, now)
-    shown = reference_shown(cm, mem)
+    shown = stream_frames.reference_shown(cm, mem)
     for i in range(6):  # altitude, roll, pitch, yaw, x_ref, y_ref
         _put(records, at + SETPOINT_AT_REF + FLOAT64 * i, shown[i])
     at = capacity * (STATE_SIZE + SETPOINT_SIZE) + row * ACTUATORS_SIZE
@@ -593,3 +579,5 @@ def warm_up() -> None:
             sensor_tick(datagram, n, frame.copy(), st.copy(), (47.0, 8.0, 488.0), est.arrays, st, 0.001, kind,
                         plugin.no_plug(), commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0, frame, io, batch.records,
                         frames.out)  # fmt: skip
+    # what a Python-built message shows of the last tick (autopilot.process.Autopilot.snapshot), called from Python
+    stream_frames.tick_values(st, Commander().cm, np.zeros(MEM_SIZE), frames.tel)

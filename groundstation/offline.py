@@ -84,7 +84,7 @@ class SimResult:
 
     t: np.ndarray  # (N,) [s]
     state: np.ndarray  # (N, 12) VehicleState fields (Euler-angle rates): the truth x(k) at the start of tick k
-    reference: np.ndarray  # (N, 4) altitude, roll, pitch, yaw flown (autopilot.tick.reference_shown)
+    reference: np.ndarray  # (N, 4) altitude, roll, pitch, yaw flown (autopilot.stream_frames.reference_shown)
     inputs: np.ndarray  # (N, 4) u1..u4 commanded
     forces: np.ndarray  # (N, 4) commanded motor forces [N]
     diverged_at: float | None = None  # [s]: the time of the tick whose state left the bounds (None: it did not)

@@ -34,7 +34,8 @@ from autopilot.commander import Commander, CommanderSettings
 from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
 from autopilot.estimator import REPORT_SIZE, Estimator, report_of
 from autopilot.params import commander_settings
-from autopilot.tick import autopilot_step, estimate, reference_shown
+from autopilot.stream_frames import reference_shown
+from autopilot.tick import autopilot_step, estimate
 from groundstation.setpoint_grid import POSITION_VELOCITY_YAW
 from quadsitl import codec, hil
 from quadsitl.config import DEFAULT_LIMITS, SENSOR_GROUND_S, PositionParams, Preset
@@ -61,9 +62,9 @@ from sitl.plant import (
 # The commander's offboard setpoint fields, in its state array's order: what a setpoint sets (cmd.SP_X..SP_THRUST).
 SP_FIELDS = cmd.SETPOINT_END - cmd.SETPOINT_FIRST
 # A row of the result (fly_ticks): the truth x(k) (12), what the autopilot flew on (12), the reference shown
-# (altitude, roll, pitch, yaw, x, y: autopilot.tick.reference_shown), u1..u4, the commanded forces f1..f4 [N], the
-# battery as the autopilot knows it (V, A, mAh, J, share left: the status record's; NaN without one). On sensors the
-# row goes on with the estimator's report (autopilot.estimator.report: the telemetry's sensors record).
+# (altitude, roll, pitch, yaw, x, y: autopilot.stream_frames.reference_shown), u1..u4, the commanded forces f1..f4
+# [N], the battery as the autopilot knows it (V, A, mAh, J, share left: the status record's; NaN without one). On
+# sensors the row goes on with the estimator's report (autopilot.estimator.report: the telemetry's sensors record).
 R_STATE, R_SEEN, R_REF, R_XY_REF, R_INPUTS, R_FORCES, R_BATTERY, ROW_SIZE = 0, 12, 24, 28, 30, 34, 38, 43
 R_SENSORS, SENSING_ROW_SIZE = ROW_SIZE, ROW_SIZE + REPORT_SIZE
 
@@ -173,7 +174,7 @@ def arm_offboard(k: int, cm: np.ndarray, x: np.ndarray, period: float, sp_ticks:
 @jit(inline=True)
 def record(rows: np.ndarray, j: int, s: tuple, st: np.ndarray, cm: np.ndarray, mem: np.ndarray) -> None:
     """Row ``j`` of ``rows`` (R_*) for the tick just flown: the truth ``s`` = x(k) (12) it started from, what the
-    autopilot flew on, the reference shown (:func:`autopilot.tick.reference_shown`), u1..u4, the forces and the
+    autopilot flew on, the reference shown (:func:`autopilot.stream_frames.reference_shown`), u1..u4, the forces and the
     battery."""
     for i in range(12):
         rows[j, R_STATE + i] = s[i]

@@ -25,9 +25,7 @@ def test_a_late_autopilot_does_not_make_the_plant_race_to_catch_up(tmp_path):
     autopilot = None
     try:
         time.sleep(1.5)  # the plant holds tick 0 meanwhile
-        autopilot = subprocess.Popen([sys.executable, "-m", "autopilot", "--preset", "paper", "--plant-listen",
-                                      f"127.0.0.1:{port}", "--api-listen", "127.0.0.1:0", "--api-remote", "none",
-                                      "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--no-zenoh"])  # fmt: skip
+        autopilot = subprocess.Popen(autopilot_argv(port))
         assert plant.wait(30) == 0
     finally:
         for p in (plant, autopilot):
@@ -46,20 +44,30 @@ def test_a_late_autopilot_does_not_make_the_plant_race_to_catch_up(tmp_path):
     assert s["polling_patience_s"] == s["polling_budget_s"] == SPIN_BUDGET
 
 
-@pytest.mark.timeout(60)
-def test_an_unpaced_plant_polls_for_a_late_answer_with_patience(tmp_path):
+def autopilot_argv(port: int) -> list[str]:
+    """The paper's autopilot, answering a plant on ``port``, with no ground link or Zenoh."""
+    return [sys.executable, "-m", "autopilot", "--preset", "paper", "--plant-listen", f"127.0.0.1:{port}",
+            "--api-listen", "127.0.0.1:0", "--api-remote", "none", "--gcs-listen", "127.0.0.1:0", "--gcs-remote",
+            "none", "--no-zenoh"]  # fmt: skip
+
+
+def unpaced_run(tmp_path, ticks: int) -> dict:
+    """The plant's ``--stats`` after ``ticks`` unpaced lockstep ticks with the paper's autopilot."""
     port, stats = free_port(), tmp_path / "stats.json"
-    autopilot = subprocess.Popen([sys.executable, "-m", "autopilot", "--preset", "paper", "--plant-listen",
-                                  f"127.0.0.1:{port}", "--api-listen", "127.0.0.1:0", "--api-remote", "none",
-                                  "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--no-zenoh"])  # fmt: skip
+    autopilot = subprocess.Popen(autopilot_argv(port))
     try:
         r = subprocess.run([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot", f"127.0.0.1:{port}",
-                            "--ticks", "3000", "--stats", str(stats), "--quiet"], timeout=50)  # fmt: skip
+                            "--ticks", str(ticks), "--stats", str(stats), "--quiet"], timeout=50)  # fmt: skip
         assert r.returncode == 0
     finally:
         autopilot.kill()
         autopilot.wait()
-    s = json.loads(stats.read_text())
+    return json.loads(stats.read_text())
+
+
+@pytest.mark.timeout(60)
+def test_an_unpaced_plant_polls_for_a_late_answer_with_patience(tmp_path):
+    s = unpaced_run(tmp_path, 3000)
     assert s["ticks"] == 3000 and s["polling_budget_s"] == SPIN_BUDGET and s["polling_patience_s"] == PATIENCE
 
 
@@ -139,17 +147,7 @@ def test_a_paced_plant_makes_up_late_wake_ups_but_not_a_stall(monkeypatch):
 def test_the_plants_stats_give_its_own_peak_memory_not_its_parents(tmp_path):
     """``--stats``' peak_memory_mb is the plant's own (VmHWM), not getrusage's, which also counts what the parent held
     when it started the plant: a bench holding 2.4 GB once read as 2.4 GB for every plant it started."""
-    port, stats = free_port(), tmp_path / "stats.json"
-    autopilot = subprocess.Popen([sys.executable, "-m", "autopilot", "--preset", "paper", "--plant-listen",
-                                  f"127.0.0.1:{port}", "--api-listen", "127.0.0.1:0", "--api-remote", "none",
-                                  "--gcs-listen", "127.0.0.1:0", "--gcs-remote", "none", "--no-zenoh"])  # fmt: skip
     ballast = np.ones(80 * 2**20)  # 640 MB, every page touched, held while the plant starts
-    try:
-        r = subprocess.run([sys.executable, "-m", "sitl", "--preset", "paper", "--autopilot", f"127.0.0.1:{port}",
-                            "--ticks", "500", "--stats", str(stats), "--quiet"], timeout=50)  # fmt: skip
-        assert r.returncode == 0
-    finally:
-        autopilot.kill()
-        autopilot.wait()
+    s = unpaced_run(tmp_path, 500)
     assert ballast[-1] == 1.0
-    assert 20 < json.loads(stats.read_text())["peak_memory_mb"] < 400
+    assert 20 < s["peak_memory_mb"] < 400

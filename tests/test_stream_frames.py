@@ -26,7 +26,7 @@ from autopilot.commander import (
     TARGET_ALT,
     Commander,
 )
-from autopilot.control_params import MEM_FORCES, MEM_SIZE, MEM_U
+from autopilot.control_params import MEM_ATTITUDE_REF, MEM_FORCES, MEM_SIZE, MEM_U
 from quadsitl import codec, wire
 from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
 from quadsitl.wire import mavlink
@@ -143,7 +143,7 @@ def test_the_helpers_round_half_to_even_and_clamp_as_python_does():
         assert sf.cdeg(angle) == _cdeg(angle)
 
 
-def tick_arrays(armed: bool):
+def tick_arrays(armed: bool, position_loop: bool = False):
     st = np.arange(15, dtype=float) * 0.1
     c = Commander()
     cm = c.cm
@@ -154,17 +154,25 @@ def tick_arrays(armed: bool):
     mem = np.zeros(MEM_SIZE)
     mem[MEM_U] = 30.0
     mem[MEM_FORCES : MEM_FORCES + 4] = (5.0, -5.0, 10.0, 0.0)
+    # the roll and pitch the position loop made this tick (autopilot.tick.control_step), NaN when it did not fly
+    mem[MEM_ATTITUDE_REF : MEM_ATTITUDE_REF + 2] = (0.2, -0.3) if position_loop else (math.nan, math.nan)
     return st, cm, mem
 
 
 @pytest.mark.parametrize("armed", [True, False])
 @pytest.mark.parametrize("reversible", [True, False])
-def test_the_tick_shows_the_reference_flown_or_disarmed_the_one_held(armed, reversible):
-    st, cm, mem = tick_arrays(armed)
+@pytest.mark.parametrize("position_loop", [True, False])
+def test_the_tick_shows_the_reference_flown_or_disarmed_the_one_held(armed, reversible, position_loop):
+    """ATTITUDE_TARGET shows the attitude flown: the setpoint's, or the position loop's roll and pitch when it flies
+    (PX4's vehicle_attitude_setpoint); disarmed, the altitude and heading held, level. The same reference as the
+    records' and ``sim``'s (sf.reference_shown)."""
+    st, cm, mem = tick_arrays(armed, position_loop)
     frames = sf.StreamFrames(1, ORIGIN, 40.0, reversible)
     x, rates, ref, thrust, origin, home_z, target, controls, servo = sf.tick_values(st, cm, mem, frames.tel)
     assert x == tuple(st[:12]) and rates == tuple(st[12:15]) and origin == ORIGIN and home_z == -0.25
-    assert ref == ((5.0, 0.1, -0.1, 1.0) if armed else (2.0, 0.0, 0.0, -1.0))
+    flown = (5.0, 0.2, -0.3, 1.0) if position_loop else (5.0, 0.1, -0.1, 1.0)
+    assert ref == (flown if armed else (2.0, 0.0, 0.0, -1.0))
+    assert ref == sf.reference_shown(cm, mem)[:4]
     assert thrust == 0.75
     if armed:
         assert target[:3] == (3.0, -4.0, 0.5) and math.isnan(target[3]) and target[4:] == (5.0, 1.5)
@@ -215,8 +223,12 @@ def test_nothing_compiles_on_the_tick_path_once_warmed_up():
     from quadsitl.state import Reference, VehicleState
 
     warm_up()
-    compiled = (sf.clamp_int, sf.cdeg, sf.lat_lon_e7, sf.amsl_mm, sf.pwms, sf.encode, codec.crc16)
+    compiled = (sf.clamp_int, sf.cdeg, sf.lat_lon_e7, sf.amsl_mm, sf.pwms, sf.encode, sf.tick_values, codec.crc16)
     before = [len(f.signatures) for f in compiled]
+    # what a Python-built message shows of the last tick (autopilot.process.Autopilot.snapshot): the process's arrays
+    sf.tick_values(
+        np.zeros(codec.DECODED_SIZE), Commander().cm, np.zeros(MEM_SIZE), sf.StreamFrames(1, ORIGIN, 40.0, False).tel
+    )
     for value in (0, 1.5):  # ints as a caller may pass them, and floats
         s = gcs_messages.Snapshot(time_ms=12, state=VehicleState(*(value,) * 12), body_rates=(value,) * 3,
                                   reference=Reference(value, value, value, value), u1=value, controls=(value,) * 4,

@@ -43,7 +43,7 @@ from autopilot import plugin
 from autopilot.commander_state import BAT_J
 from autopilot.control_params import BACKSTEPPING, MEM_FORCES, MEM_SIZE, MEM_U, THRUST_MAX, THRUST_MIN
 from autopilot.control_params import SIZE as CONTROL_SIZE
-from autopilot.tick import reference_shown
+from autopilot.stream_frames import reference_shown
 from groundstation.vehicle import (
     R_FORCES,
     R_INPUTS,
