@@ -136,8 +136,9 @@ class Missions:
         return self.executor
 
     def refusal(self, c: Commander) -> str:
-        """Why AUTO.MISSION cannot start now ("" when it can): no mission, or its first waypoint too far from home
-        (PX4's checkHorizontalDistanceToFirstWaypoint, MIS_DIST_1WP)."""
+        """Why AUTO.MISSION cannot start now ("" when it can): no mission, its first waypoint too far from home
+        (PX4's checkHorizontalDistanceToFirstWaypoint, MIS_DIST_1WP), or an item outside the geofence
+        (:meth:`outside_fence`)."""
         ex = self._executor(c)
         if ex is None:
             return "Mission denied: no mission uploaded"
@@ -145,7 +146,31 @@ class Missions:
         far = self.first_waypoint_distance(ex, c)
         if c.settings.dist_1wp > 0.0 and far >= c.settings.dist_1wp:
             return f"First waypoint far away from home: {far:.0f}m. Correct mission loaded?"
+        outside = self.outside_fence(ex, c)
+        if outside:
+            return f"Geofence violation for waypoint {outside}"
         return ""
+
+    @staticmethod
+    def outside_fence(ex: MissionExecutor, c: Commander) -> int:
+        """The first item (counted from 1, as PX4 says it) whose place is outside the geofence, beyond GF_MAX_HOR_DIST
+        or above GF_MAX_VER_DIST, while the fence is checked (GF_ACTION not 0); 0 when none is (PX4's mission
+        feasibility check, MissionFeasibilityChecker::checkGeofence: such a mission is not flown). A takeoff's altitude
+        is checked above home; a landing where the vehicle is has no place of its own."""
+        if c.settings.geofence_action == 0:
+            return 0
+        for i, item in enumerate(ex.items):
+            if item.command == mp.NAV_TAKEOFF:
+                x, y, altitude = c.home[0], c.home[1], ex.altitude_of(item)
+            elif item.command in (mp.NAV_WAYPOINT, mp.NAV_LOITER_TIME) or (
+                item.command == mp.NAV_LAND and not ex.land_here(item)
+            ):
+                x, y, altitude = ex.local(item)
+            else:
+                continue
+            if geofence.point_breach(c.cm, float(x), float(y), float(altitude)):
+                return i + 1
+        return 0
 
     def start(self, c: Commander, now: float) -> tuple[bool, str, list[mp.Out]]:
         """AUTO.MISSION: (accepted, why not, messages). Needs a mission; flies it from its current item. Disarmed,

@@ -3,6 +3,7 @@ GF_MAX_HOR_DIST and GF_MAX_VER_DIST of home; and the commander's GF_ACTION on a 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -178,3 +179,39 @@ def test_rally_points_outside_the_stored_geofence_are_refused_by_the_vehicles_ch
     assert m.rally_outside((inside, excluded)) == "Rally point 1 is outside the geofence: refused"
     assert m.protocol.store_other(mp.MISSION_TYPE_RALLY, (inside, outside)) != "" and m.protocol.rally == ()
     assert m.protocol.store_other(mp.MISSION_TYPE_RALLY, (inside,)) == "" and len(m.protocol.rally) == 1
+
+
+@pytest.mark.parametrize("action", [0, 1, 2])
+def test_a_mission_with_a_place_outside_the_fence_is_refused_as_px4s_feasibility_check_does(action):
+    """Missions.refusal names the first item (from 1) whose place is outside the fence, beyond GF_MAX_HOR_DIST or
+    above GF_MAX_VER_DIST; a landing where the vehicle is has no place; GF_ACTION 0 checks nothing."""
+    from autopilot import mission_protocol as mp
+    from autopilot.missions import Missions
+    from quadsitl.frames import PX4_HOME, ned_to_geodetic
+
+    def item(seq: int, command: int, north: float, east: float, z: float = 10.0) -> mp.MissionItem:
+        lat, lon = ned_to_geodetic(north, east, *PX4_HOME[:2])
+        return mp.MissionItem(seq, mp.FRAME_GLOBAL_RELATIVE_ALT_INT, command, 0, 1, 0.0, 0.0, 0.0, math.nan,
+                              round(lat * 1e7), round(lon * 1e7), z, 0)  # fmt: skip
+
+    def refusal(*items: mp.MissionItem, **settings) -> str:
+        m = Missions(PX4_HOME)
+        square = [item(i, mp.FENCE_POLYGON_INCLUSION, n, e) for i, (n, e) in enumerate(
+            ((-20, -20), (20, -20), (20, 20), (-20, 20)))]  # fmt: skip
+        square = [dataclasses.replace(s, frame=mp.FRAME_GLOBAL_INT, p1=4.0, mission_type=1) for s in square]
+        assert m.protocol.store_other(mp.MISSION_TYPE_FENCE, tuple(square)) == ""
+        m.protocol.store(tuple(dataclasses.replace(it, seq=k) for k, it in enumerate(items)))
+        c = Commander(CommanderSettings(geofence_action=action, **settings))
+        m.sync(c)
+        return m.refusal(c)
+
+    checked = action != 0
+    takeoff, inside = item(0, mp.NAV_TAKEOFF, 0, 0), item(1, mp.NAV_WAYPOINT, 10, 10)
+    assert refusal(takeoff, inside, item(2, mp.NAV_LAND, 0, 0)) == ""
+    far = refusal(takeoff, inside, item(2, mp.NAV_WAYPOINT, 25, 0), item(3, mp.NAV_LAND, 0, 0))
+    assert far == ("Geofence violation for waypoint 3" if checked else "")
+    assert refusal(takeoff, item(1, mp.NAV_LAND, 30, 0)) == ("Geofence violation for waypoint 2" if checked else "")
+    here = dataclasses.replace(item(1, mp.NAV_LAND, 0, 0), x=0, y=0)  # lands where it is
+    assert refusal(takeoff, inside, here) == ""
+    high = refusal(item(0, mp.NAV_TAKEOFF, 0, 0, z=40.0), inside, max_height=30.0)
+    assert high == ("Geofence violation for waypoint 1" if checked else "")

@@ -175,11 +175,15 @@ def test_a_plans_geofence_and_rally_points_are_flown_by_fly_and_sim_alike(tmp_pa
         assert math.hypot(x - rally[0], y - rally[1]) < 0.5, (command, landed, rally)
 
 
-def test_a_mission_leg_out_of_the_plans_geofence_is_stopped_at_the_fence(tmp_path):
-    """GF_ACTION 2 (PX4's default): the vehicle holds where it stops beyond the fence; the mission does not go on."""
-    out = tmp_path / "sim"
-    r = run_cli("sim", "--preset", "x500", "--mission", fenced_plan(tmp_path, 60), "--duration", "60", "--no-figures",
-                "--quiet", "--out", str(out), timeout=300)  # fmt: skip
-    assert r.returncode != 0 and "did not end within --duration" in r.stderr, r.stderr
-    t = pd.read_csv(out / "telemetry.csv")
-    assert 30.0 < t.x.max() < 36.0  # past the fence by its braking distance from cruise speed, at most
+def test_a_mission_with_a_waypoint_beyond_the_plans_geofence_is_not_flown(tmp_path):
+    """As PX4's mission feasibility check refuses it ("Geofence violation for waypoint 3": its third item, 60 m north,
+    is 30 m beyond the fence), whether the fence came before the mission or after it (fly uploads it after, as
+    QGroundControl does): sim refuses the plan before it flies, and fly's vehicle never arms in AUTO.MISSION."""
+    path = fenced_plan(tmp_path, 60)
+    for command in ("sim", "fly"):
+        out = tmp_path / command
+        r = run_cli(command, "--preset", "x500", "--mission", path, "--duration", "60", "--no-figures", "--quiet",
+                    "--out", str(out), timeout=300)  # fmt: skip
+        assert r.returncode != 0 and "Geofence violation for waypoint 3" in r.stderr, (command, r.stderr)
+        if (out / "telemetry.csv").exists():  # nothing flown: the vehicle stayed on the ground
+            assert pd.read_csv(out / "telemetry.csv").altitude.max() < 0.5
