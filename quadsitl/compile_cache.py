@@ -14,16 +14,19 @@ STALE_DAYS = 7
 
 
 def cache_dir() -> Path:
-    """Where numba keeps the compiled functions: ``$NUMBA_CACHE_DIR`` (default ``~/.cache/quadsitl``), in a
-    folder named by a hash of the packages' sources. A folder is marked each time it is used; folders of
-    other sources (other versions, other checkouts) unused for STALE_DAYS are removed."""
+    """Where numba keeps the compiled functions: ``$NUMBA_CACHE_DIR``, else ``quadsitl`` in the user's cache folder
+    (``$XDG_CACHE_HOME`` when it is an absolute path, as the XDG base directory specification says; else
+    ``~/.cache``), in a folder named by a hash of the packages' sources. A folder is marked each time it is used;
+    folders of other sources (other versions, other checkouts) unused for STALE_DAYS are removed."""
     root = Path(__file__).resolve().parent.parent
     digest = hashlib.sha256()
     for package in PACKAGES:
         for path in sorted((root / package).rglob("*.py")):
             digest.update(path.relative_to(root).as_posix().encode())
             digest.update(path.read_bytes())
-    base = Path(os.environ.get("NUMBA_CACHE_DIR") or Path.home() / ".cache" / "quadsitl") / "numba"
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    user = Path(xdg) if os.path.isabs(xdg) else Path.home() / ".cache"
+    base = Path(os.environ.get("NUMBA_CACHE_DIR") or user / "quadsitl") / "numba"
     folder = base / digest.hexdigest()[:16]
     folder.mkdir(parents=True, exist_ok=True)
     now = time.time()

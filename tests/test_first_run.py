@@ -70,3 +70,20 @@ def test_warm_runs_do_not_say_it(tmp_path):
                           "--out", str(tmp_path / "fly")], capture_output=True, text=True, timeout=100)  # fmt: skip
     assert fly.returncode == 0, fly.stderr
     assert "compiling" not in fly.stdout + fly.stderr
+
+
+@pytest.mark.parametrize(("xdg", "numba_dir", "under"), [
+    ("XDG", "", "XDG/quadsitl/numba"),  # the user's cache folder, as the XDG specification names it
+    ("XDG", "NUMBA", "NUMBA/numba"),  # numba's own variable first
+    ("relative/dir", "", "HOME/.cache/quadsitl/numba"),  # a relative XDG_CACHE_HOME is to be ignored
+])  # fmt: skip
+def test_the_compiled_code_goes_where_the_environment_says(tmp_path, xdg, numba_dir, under):
+    def at(name: str) -> str:
+        return str(tmp_path / name) if name in ("XDG", "NUMBA", "HOME") else name
+
+    env = {**os.environ, "XDG_CACHE_HOME": at(xdg), "NUMBA_CACHE_DIR": at(numba_dir), "HOME": at("HOME")}
+    r = subprocess.run([sys.executable, "-c", "from quadsitl.compile_cache import cache_dir; print(cache_dir())"],
+                       capture_output=True, text=True, env=env, timeout=60)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    folder = Path(r.stdout.strip())
+    assert folder.parent == tmp_path / under.split("/", 1)[0] / under.split("/", 1)[1] and folder.is_dir()
