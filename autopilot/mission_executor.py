@@ -446,6 +446,14 @@ class MissionExecutor:
         """A NAV_LAND item lands where the vehicle is (frame MISSION, or latitude and longitude both 0)."""
         return item.frame == mp.FRAME_MISSION or (item.x == 0 and item.y == 0)
 
+    @classmethod
+    def has_place(cls, item: mp.MissionItem) -> bool:
+        """The item flies to a place of its own: a waypoint, a loiter, or a landing not where the vehicle is (a
+        takeoff goes straight up)."""
+        return item.command in (mp.NAV_WAYPOINT, mp.NAV_LOITER_TIME) or (
+            item.command == mp.NAV_LAND and not cls.land_here(item)
+        )
+
     @staticmethod
     def _yaw(item: mp.MissionItem) -> float:
         return math.radians(item.p4) if math.isfinite(item.p4) else NAN

@@ -138,7 +138,7 @@ class Missions:
     def refusal(self, c: Commander) -> str:
         """Why AUTO.MISSION cannot start now ("" when it can): no mission, its first waypoint too far from home
         (PX4's checkHorizontalDistanceToFirstWaypoint, MIS_DIST_1WP), or an item outside the geofence
-        (:meth:`outside_fence`)."""
+        (:meth:`first_item_outside_fence`)."""
         ex = self._executor(c)
         if ex is None:
             return "Mission denied: no mission uploaded"
@@ -146,13 +146,13 @@ class Missions:
         far = self.first_waypoint_distance(ex, c)
         if c.settings.dist_1wp > 0.0 and far >= c.settings.dist_1wp:
             return f"First waypoint far away from home: {far:.0f}m. Correct mission loaded?"
-        outside = self.outside_fence(ex, c)
+        outside = self.first_item_outside_fence(ex, c)
         if outside:
             return f"Geofence violation for waypoint {outside}"
         return ""
 
     @staticmethod
-    def outside_fence(ex: MissionExecutor, c: Commander) -> int:
+    def first_item_outside_fence(ex: MissionExecutor, c: Commander) -> int:
         """The first item (counted from 1, as PX4 says it) whose place is outside the geofence, beyond GF_MAX_HOR_DIST
         or above GF_MAX_VER_DIST, while the fence is checked (GF_ACTION not 0); 0 when none is (PX4's mission
         feasibility check, MissionFeasibilityChecker::checkGeofence: such a mission is not flown). A takeoff's altitude
@@ -162,9 +162,7 @@ class Missions:
         for i, item in enumerate(ex.items):
             if item.command == mp.NAV_TAKEOFF:
                 x, y, altitude = c.home[0], c.home[1], ex.altitude_of(item)
-            elif item.command in (mp.NAV_WAYPOINT, mp.NAV_LOITER_TIME) or (
-                item.command == mp.NAV_LAND and not ex.land_here(item)
-            ):
+            elif ex.has_place(item):
                 x, y, altitude = ex.local(item)
             else:
                 continue
@@ -213,9 +211,7 @@ class Missions:
         """The horizontal distance [m] from home to the mission's first item that flies to a place of its own (0:
         none does; a takeoff goes straight up, a landing may land where the vehicle is)."""
         for item in ex.items:
-            if item.command in (mp.NAV_WAYPOINT, mp.NAV_LOITER_TIME) or (
-                item.command == mp.NAV_LAND and not ex.land_here(item)
-            ):
+            if ex.has_place(item):
                 x, y, _ = ex.local(item)
                 return math.hypot(x - c.home[0], y - c.home[1])
         return 0.0
