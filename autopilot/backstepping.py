@@ -27,7 +27,7 @@ its memory (the previous command, for Ωr) between calls.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -238,7 +238,7 @@ class BacksteppingController:
         self.v = vehicle_array(vehicle)
         self.c = control_array(self.poles, period, kp, kd, max_tilt, thrust_min, thrust_max, position)
         self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
-        self._step = specialized(step_arrays, self.x, self.ref, self.mem, self.v, self.c)
+        self._step: Callable | None = None  # specialized at the first step (a process never: its tick is compiled)
         self.reset()
 
     @property
@@ -253,6 +253,8 @@ class BacksteppingController:
 
     def step(self, state: VehicleState, reference: Reference) -> Inputs:
         self.x[:], self.ref[:], self.mem[MEM_U : MEM_U + 4] = state, reference, self.last
+        if self._step is None:
+            self._step = specialized(step_arrays, self.x, self.ref, self.mem, self.v, self.c)
         self._step(self.x, self.ref, self.mem, self.v, self.c)
         self.last = Inputs._make(self.mem[MEM_U : MEM_U + 4].tolist())
         self.errors = tuple(self.mem[MEM_ERRORS : MEM_ERRORS + 8].tolist())

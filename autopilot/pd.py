@@ -21,7 +21,7 @@ backstepping (:mod:`autopilot.control_params`).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -124,7 +124,7 @@ class PDController:
         self.v = vehicle_array(vehicle)
         self.c = control_array(poles, period, kp, kd, max_tilt, thrust_min, thrust_max, position)
         self.x, self.ref, self.mem = np.zeros(12), np.zeros(4), np.zeros(MEM_SIZE)
-        self._step = specialized(step_arrays, self.x, self.ref, self.mem, self.v, self.c)
+        self._step: Callable | None = None  # specialized at the first step (a process never: its tick is compiled)
         self.last = Inputs()
 
     @property
@@ -137,6 +137,8 @@ class PDController:
 
     def step(self, state: VehicleState, reference: Reference) -> Inputs:
         self.x[:], self.ref[:] = state, reference
+        if self._step is None:
+            self._step = specialized(step_arrays, self.x, self.ref, self.mem, self.v, self.c)
         self._step(self.x, self.ref, self.mem, self.v, self.c)
         self.last = Inputs._make(self.mem[MEM_U : MEM_U + 4].tolist())
         return self.last

@@ -298,8 +298,7 @@ def warm_up(targs: tuple, unlocked: bool = False) -> None:
 
     targs = _copied(targs)
     tx, io = targs[-4], targs[-3]
-    frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
-    n = codec.encode_state(frame, 0, 1, 1, 0, np.zeros(codec.DECODED_SIZE))
+    frame, n = kernel.made_up_datagram(False, codec.FRAME_MAX)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         set_receive_timeout(sock, 0.1)

@@ -804,7 +804,7 @@ def open_autopilot(args: argparse.Namespace, unlocked: bool = False) -> Autopilo
     waits (a process hosting several vehicles in threads, :mod:`autopilot.host`)."""
     preset = with_state(load_preset(args.preset), args)
     check(args, preset)
-    warm_up()  # compiled before the first tick (numba's cache makes this quick after the first run)
+    warm_up(preset.sensors is not None)  # its mode's tick compiled before the first (numba's cache: quick after once)
     ap = Autopilot(preset, args)
     ap.plant.unlocked = unlocked
     try:

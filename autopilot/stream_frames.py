@@ -40,7 +40,7 @@ from autopilot.commander import (
 from autopilot.control_params import MEM_ATTITUDE_REF, MEM_FORCES, MEM_U
 from quadsitl.codec import BODY_RATES, FRAME_MAX, HEADER_SIZE, finish_frame
 from quadsitl.compiled_frames import euler_to_quaternion, ned_to_geodetic
-from quadsitl.jit import jit
+from quadsitl.jit import copy_into, jit
 from quadsitl.rawbytes import put
 from quadsitl.wire import UINT16_UNKNOWN, mavlink
 
@@ -317,7 +317,7 @@ def stream_tick(tick: int, period: float, st: np.ndarray, cm: np.ndarray, mem: n
                                home_z, target, controls, servo)  # fmt: skip
                     seq[0] = (seq[0] + 1) & 0xFF
                 at = lens[link]
-                frames[link, at : at + n] = scratch[:n]
+                copy_into(frames[link, at:], scratch[:n])
                 lens[link] = at + n
     return True
 

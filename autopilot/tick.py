@@ -91,7 +91,7 @@ from quadsitl.hil import (
     decode_battery,
     decode_sensors,
 )
-from quadsitl.jit import jit
+from quadsitl.jit import copy_into, jit
 from quadsitl.mixer import Forces, allocate
 from quadsitl.param_arrays import ARM, D_OVER_B, MASS, G
 from quadsitl.rawbytes import put
@@ -450,7 +450,7 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
         return answer_again(t, cm, mem, f_max, tx, io) if new == 0 else 0
     if n < length:
         commander.battery_seen(cm, decode_battery(rx[n:]))
-    st[:] = scratch
+    copy_into(st, scratch)
     tick = tick_of(t, period)
     io[TICK] = tick
     control_tick(kind, plug, st, cm, mem, v, c, f_min, f_max, tx, io, t, tick, tick * period, records)
@@ -542,8 +542,31 @@ class Batch:
         return self.records[at : at + rows * size].tobytes()
 
 
-def warm_up() -> None:
-    """Compile (or load from numba's cache) everything a tick calls, on made-up data, before the first tick."""
+def made_up_datagram(sensing: bool, size: int) -> tuple[np.ndarray, int]:
+    """A datagram of the plant's for a warm-up, at rest, in a buffer of ``size`` bytes → (buffer, its length):
+    ODOMETRY, or (``sensing``) HIL_SENSOR and HIL_GPS. Made by pymavlink: the compiled encoders are the plant's, and
+    an autopilot that compiled them only for this would wait seconds more on its first run."""
+    from quadsitl import codec, hil, wire
+    from quadsitl.state import VehicleState
+
+    mav = wire.link(1, 1)
+    if sensing:
+        fields = hil.MAG_UPDATED | hil.BARO_UPDATED
+        sensor = wire.mavlink.MAVLink_hil_sensor_message(0, 0.0, 0.0, -9.8, 0.0, 0.0, 0.0, 0.2, 0.0, 0.4, 1000.0, 0.0,
+                                                         100.0, 15.0, fields, 0)  # fmt: skip
+        gps = wire.hil_gps_message(0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (47.0, 8.0, 488.0), 1.0, 1.0, 10)
+        data = codec.pack(sensor, mav) + codec.pack(gps, mav)
+    else:
+        data = codec.pack(wire.state_message(0, VehicleState(*(0.0,) * 12)), mav)
+    buf = np.zeros(size, dtype=np.uint8)
+    buf[: len(data)] = np.frombuffer(data, dtype=np.uint8)
+    return buf, len(data)
+
+
+def warm_up(sensing: bool | None = None) -> None:
+    """Compile (or load from numba's cache) everything a tick calls, on made-up data, before the first tick: the
+    state mode's tick (``sensing`` False), the sensor mode's (True), or both (None: a launcher's, for processes of
+    either). A process compiles only the mode it flies (docs/performance.md#compiling-on-first-run)."""
     from autopilot import gcs_messages
     from autopilot.commander import Commander
     from autopilot.control_params import BACKSTEPPING, control_array
@@ -552,7 +575,6 @@ def warm_up() -> None:
     from quadsitl.param_arrays import VEHICLE_SIZE
 
     frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
-    datagram = np.zeros(hil.DATAGRAM_MAX, dtype=np.uint8)
     st = np.zeros(codec.DECODED_SIZE)
     v = np.ones(VEHICLE_SIZE)
     c = control_array((0.5,) * 8, 0.001)
@@ -567,15 +589,15 @@ def warm_up() -> None:
                 commander.arm()
             io = np.zeros(IO_SIZE, dtype=np.int64)
             io[LAST_USEC], io[CAPACITY] = -1, batch.capacity
-            n = codec.encode_state(frame, 0, 1, 1, 0, st)
-            autopilot_tick(frame, n, st.copy(), st, 0.001, kind, plugin.no_plug(), commander.cm, np.zeros(MEM_SIZE),
-                           v, c, -1.0, 1.0, frame, io, batch.records, frames.out)  # fmt: skip
-            io[LAST_USEC] = -1
+            if sensing is not True:
+                rx, n = made_up_datagram(False, codec.FRAME_MAX)
+                autopilot_tick(rx, n, st.copy(), st, 0.001, kind, plugin.no_plug(), commander.cm, np.zeros(MEM_SIZE),
+                               v, c, -1.0, 1.0, frame, io, batch.records, frames.out)  # fmt: skip
+                io[LAST_USEC] = -1
+            if sensing is False:
+                continue
             est = Estimator(0.001, 9.8, (0.2, 0.0, 0.4))
-            n = hil.encode_sensor(datagram, 0, 1, 1, 0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), (0.2, 0.0, 0.4), 1000.0,
-                                  100.0, 15.0, hil.MAG_UPDATED | hil.BARO_UPDATED)  # fmt: skip
-            n += hil.encode_gps(datagram[n:], 1, 1, 1, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (47.0, 8.0, 488.0), 1.0,
-                                1.0, 10)  # fmt: skip
+            datagram, n = made_up_datagram(True, hil.DATAGRAM_MAX)
             sensor_tick(datagram, n, frame.copy(), st.copy(), (47.0, 8.0, 488.0), est.arrays, st, 0.001, kind,
                         plugin.no_plug(), commander.cm, np.zeros(MEM_SIZE), v, c, -1.0, 1.0, frame, io, batch.records,
                         frames.out)  # fmt: skip

@@ -239,7 +239,7 @@ def compile_once(env: dict[str, str] | None) -> None:
     code = (
         "from autopilot.tick import warm_up; warm_up(); from autopilot.process import warm_up_loops; warm_up_loops(); "
         "from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process import warm_up; "
-        "warm_up(Plant(load_preset('paper')))"
+        "warm_up(Plant(load_preset('paper')), (False, True))"
     )
     if subprocess.run([sys.executable, "-c", code], env=env).returncode != 0:
         raise RuntimeError("compiling the equations failed (above)")

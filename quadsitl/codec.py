@@ -168,7 +168,8 @@ def encode_state(buf: np.ndarray, seq: int, system: int, component: int, time_us
     _put_f32(buf, 48, p)
     _put_f32(buf, 52, qr)
     _put_f32(buf, 56, r)
-    buf[HEADER_SIZE + ODOMETRY_TAIL_AT : HEADER_SIZE + ODOMETRY_SIZE] = ODOMETRY_TAIL
+    for i in range(ODOMETRY_TAIL.size):
+        buf[HEADER_SIZE + ODOMETRY_TAIL_AT + i] = ODOMETRY_TAIL[i]
     return finish_frame(buf, ODOMETRY_SIZE, seq, system, component, ODOMETRY_ID, ODOMETRY_CRC_EXTRA)
 
 

@@ -60,6 +60,17 @@ def jit(fn: F | None = None, *, inline: bool = False, nogil: bool = False) -> F 
     return compile_ if fn is None else compile_(fn)
 
 
+@jit(inline=True)
+def copy_into(dst: np.ndarray, src: np.ndarray) -> None:
+    """``dst[:src.size] = src`` for 1-D arrays, element by element: numba's own slice assignment checks the shapes
+    and compiles, for its error, a message formatted with them (string formatting, seconds of a first run's
+    compile in each process: docs/performance.md#compiling-on-first-run). IndexError when ``dst`` is shorter."""
+    if dst.size < src.size:
+        raise IndexError("copy_into: the destination is shorter than the source")
+    for i in range(src.size):
+        dst[i] = src[i]
+
+
 def specialized(fn: F, *args: object) -> F:
     """The machine code of the :func:`jit` function ``fn`` for the types of ``args`` (compiled, or loaded from the
     cache, now), callable without numba's dispatch: a call from Python then skips working out the type of every argument

@@ -46,7 +46,10 @@ class FleetArrays:
         self.work, self.params, self.air_rng = (stacked(plants, f) for f in PLANT_FIELDS)
         for plant in plants:
             plant._views()  # x, commanded, out, ...: views of the plant's row of work
-        self.sens = tuple(stacked([p.sensors for p in plants], f) for f in SENSOR_FIELDS)
+        # the sensors' arrays, if any vehicle flies on sensors (sitl.plant.Plant.sens; a vehicle on the truth in a
+        # mixed fleet is told by its io[SENSING]): None compiles the loops without the sensors' path
+        sensing = any(p.sensing for p in plants)
+        self.sens = tuple(stacked([p.sensors for p in plants], f) for f in SENSOR_FIELDS) if sensing else None
         self.tx, self.io, self.rt, self.received = (stacked(links, f) for f in LINK_FIELDS)
         for link in links:
             link.tx_view = memoryview(link.tx)  # type: ignore[arg-type]

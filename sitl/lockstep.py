@@ -59,7 +59,7 @@ def run_lockstep(vehicles: Sequence[Vehicle], speed: float, max_ticks: int | Non
         v.link.wait.be_patient(PATIENCE if speed <= 0 else None)
         p, link = v.plant, v.link
         args = (p.x, p.motors, p.out, p.v, p.a, p.air, p.air_rng, period, p.substeps, p.method, link.tx, link.io,
-                p.sensors.arrays)  # fmt: skip
+                p.sens)  # fmt: skip
         waits.append((v, link, link.receive, link.rx_array, link.max_thrust, link.received, p.commanded, args))
     winds = [v for v in vehicles if v.wind is not None]
     monotonic, lockstep_tick, usec_of = time.monotonic, tick.lockstep_tick, codec.usec_of

@@ -22,7 +22,7 @@ import numpy as np
 
 from quadsitl import fastio
 from quadsitl.codec import usec_of
-from quadsitl.jit import jit
+from quadsitl.jit import copy_into, jit
 from quadsitl.param_arrays import VEHICLE_SIZE
 from sitl import tick
 from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X
@@ -39,7 +39,7 @@ POLLED, LATE, BLOCKED, SHORT = fastio.POLLED, fastio.LATE, fastio.BLOCKED, fasti
 
 @jit
 def run(fds: np.ndarray, rx: np.ndarray, k: int, max_k: int, max_thrust: np.ndarray, received: np.ndarray,
-        work: np.ndarray, params: np.ndarray, air_rng: np.ndarray, sens: tuple, substeps: np.ndarray,
+        work: np.ndarray, params: np.ndarray, air_rng: np.ndarray, sens: tuple | None, substeps: np.ndarray,
         method: np.ndarray, period: float, tx: np.ndarray, io: np.ndarray, sent: np.ndarray, sent_len: np.ndarray,
         deadline_ns: int, polling: np.ndarray, budget_ns: np.ndarray, patience_ns: np.ndarray, hot_after: int,
         stats: np.ndarray) -> tuple:  # fmt: skip
@@ -54,14 +54,13 @@ def run(fds: np.ndarray, rx: np.ndarray, k: int, max_k: int, max_thrust: np.ndar
     socket's own timeout ends it: TIMED_OUT), and once ``hot_after`` consecutive waits were each shorter than the
     budget the clock goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]."""
     sender, length = np.zeros(fastio.SOCKADDR_IN, dtype=np.uint8), np.zeros(1, dtype=np.int32)  # (connected: the peer)
-    p, rng, bias, clock, queue, out = sens
     fleet = fds.size
     while k < max_k:
         want = usec_of(k, period)
         for i in range(fleet):
             m = io[i, tick.TX_LEN]
             if fleet > 1:
-                sent[i, :m] = tx[i, :m]
+                copy_into(sent[i], tx[i, :m])
                 sent_len[i] = m
             fastio.send(fds[i], tx[i].ctypes.data, m, 0)
         for i in range(fleet):
@@ -74,7 +73,7 @@ def run(fds: np.ndarray, rx: np.ndarray, k: int, max_k: int, max_thrust: np.ndar
             r = tick.lockstep_tick(rx, n, want, max_thrust[i], received[i], w[W_COMMANDED:W_OUT], w[W_X:W_MOTORS],
                                    w[W_MOTORS:W_COMMANDED], w[W_OUT:W_AIR], params[i, :VEHICLE_SIZE],
                                    params[i, VEHICLE_SIZE:], w[W_AIR:], air_rng[i], period, substeps[i], method[i],
-                                   tx[i], io[i], (p[i], rng[i], bias[i], clock[i], queue[i], out[i]), k)  # fmt: skip
+                                   tx[i], io[i], tick.sensors_of(sens, i), k)  # fmt: skip
             if r != tick.STEPPED:
                 return TAKEN, k, i, n, r
             stats[i, STEPPED] += 1

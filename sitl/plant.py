@@ -13,7 +13,7 @@ from the ground is not touched, so the paper's experiment is unaltered by starti
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -200,10 +200,16 @@ class Plant:
         battery.start(self.out[OUT_CURRENT:OUT_SIZE], self.a)
         self.time = 0.0
         self.air[:], self.air_rng = air_arrays(preset.wind)
-        # The sensors (the preset's, else the defaults: their arrays are passed in truth mode too, untouched).
+        # The sensors (the preset's, else the defaults, whose arrays the compiled tick is not given: sens).
         self.sensors = Sensors(preset.sensors or SensorParams(), self.period, preset.vehicle.gravity, home)
-        self._step = specialized(step_work, self.work, self.params, self.air_rng, self.period, self.substeps,
-                                 self.method, math.nan)  # fmt: skip
+        self.sensing = preset.sensors is not None
+        self._step: Callable | None = None  # step_work, specialized when first stepped (a lockstep plant never is)
+
+    @property
+    def sens(self) -> tuple | None:
+        """The sensors' arrays for the compiled tick (:func:`sitl.tick.encode_tick`) in sensor mode (the preset has
+        [sensors]); None on the true state, for which numba compiles no sensors' path."""
+        return self.sensors.arrays if self.sensing else None
 
     _VIEWS = ("v", "a", "x", "motors", "commanded", "out", "air")
 
@@ -264,5 +270,8 @@ class Plant:
         if commanded is not None:
             self.commanded[:] = commanded
         omega_r = math.nan if omega_r is None else float(omega_r)
+        if self._step is None:
+            self._step = specialized(step_work, self.work, self.params, self.air_rng, self.period, self.substeps,
+                                     self.method, math.nan)  # fmt: skip
         self._step(self.work, self.params, self.air_rng, self.period, self.substeps, self.method, omega_r)
         self.time += self.period

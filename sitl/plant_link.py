@@ -67,7 +67,9 @@ class PlantLink:
         self.outbox: list[tuple[float, int, bytes]] = []  # (release time, order, datagram), a heap
         self.inbox: list[tuple[float, int, bytes]] = []
         self.order = 0
-        self.sensor_clock: np.ndarray | None = None  # the plant's sensors' schedule, where failures are injected
+        # the plant's sensors (failures are injected in their schedule, read when injected: a fleet's arrays
+        # (sitl.fleet_arrays) replace it with a row of theirs)
+        self.sensors: sensors.Sensors | None = None
 
     @property
     def last_heard(self) -> float | None:
@@ -102,7 +104,7 @@ class PlantLink:
 
     def encode(self, k: int, plant: Plant) -> None:
         """Tick ``k``'s datagram (the state, or its measurements), into tx."""
-        tick.encode_tick(self.tx, self.io, plant.x, plant.out, plant.air, plant.sensors.arrays, k, self.period)
+        tick.encode_tick(self.tx, self.io, plant.x, plant.out, plant.air, plant.sens, k, self.period)
 
     def send(self, frame: bytes | None = None) -> None:
         """Send the state frame in tx (or ``frame``, one sent before)."""
@@ -199,7 +201,7 @@ class PlantLink:
         """A sensor failure the autopilot passes on (MAV_CMD_INJECT_FAILURE, which it checked): made physical in the
         sensors (:func:`sitl.sensors.inject_failure`), from the next tick on; said on stderr."""
         unit, kind = round(m.param1), round(m.param2)
-        if self.sensor_clock is not None and sensors.inject_failure(self.sensor_clock, unit, kind):
+        if self.sensors is not None and sensors.inject_failure(self.sensors.clock, unit, kind):
             print(f"plant: failure injected: sensor unit {unit}, type {kind}", file=sys.stderr, flush=True)
 
     def apply(self, plant: Plant, t: int) -> bool:

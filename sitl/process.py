@@ -34,12 +34,13 @@ the compiled code before the clock starts (:func:`warm_up`), and :func:`main`. E
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import json
 import socket
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -85,55 +86,93 @@ from sitl.realtime import run_realtime
 from sitl.vehicle import DivergedError, Vehicle
 from sitl.wind_link import WindLink
 
+CLOCKS = ("lockstep", "realtime")  # --mode's choices
 
-def warm_up(plant: Plant) -> None:
-    """Compile (or load from numba's cache) everything a tick calls, before the first tick, on a copy."""
-    twin = copy.deepcopy(plant)
+
+def warm_up(plant: Plant, modes: Iterable[bool] | None = None, clocks: Iterable[str] = CLOCKS) -> None:
+    """Compile (or load from numba's cache) everything a tick calls, before the first tick, on a copy: for the
+    plant's own mode (on sensors or the truth, :attr:`sitl.plant.Plant.sens`) or for each of ``modes`` (True: on
+    sensors), and for each of ``clocks`` (lockstep's tick inlines the dynamics; real time steps them out of line).
+    A process compiles only what it flies (docs/performance.md#compiling-on-first-run)."""
+    for sensing in sorted(set((plant.sensing,) if modes is None else modes)):
+        for clock in clocks:
+            _WARM[clock](copy.deepcopy(plant), sensing)
+
+
+def _warm_lockstep(twin: Plant, sensing: bool) -> None:
     link = np.zeros(max(codec.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
     io = np.zeros(tick.IO_SIZE, dtype=np.int64)
+    io[tick.SENSING] = sensing
+    sens = twin.sensors.arrays if sensing else None
     args = (twin.x, twin.motors, twin.out, twin.v, twin.a, twin.air, twin.air_rng, twin.period, twin.substeps,
-            twin.method, link, io, twin.sensors.arrays)  # fmt: skip
-    for sensing in (0, 1):
-        io[tick.SENSING] = sensing
-        n = codec.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
-        tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, *args, 0)
-        tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), *args, 0)
+            twin.method, link, io, sens)  # fmt: skip
+    n = codec.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
+    tick.lockstep_tick(link, n, 0, 1.0, twin.commanded.copy(), twin.commanded, *args, 0)
+    tick.take_and_step(0, 0, twin.commanded, twin.commanded.copy(), *args, 0)
+    tick.encode_tick(link, io, twin.x, twin.out, twin.air, sens, 0, twin.period)  # (sitl.plant_link: from Python)
     codec.decode_actuators(link, n, twin.commanded, 1.0)
-    twin.step()
     state_inside(twin.x)
-    if fastio.AVAILABLE:  # the compiled clock, on a loopback pair: each wait finds an answer to tick 0
-        io[tick.SENSING], io[tick.LAST_USEC] = 0, -1
-        udp = (socket.AF_INET, socket.SOCK_DGRAM)
-        with socket.socket(*udp) as a, socket.socket(*udp) as b:
-            a.bind(("127.0.0.1", 0))
-            b.bind(("127.0.0.1", 0))
-            a.connect(b.getsockname())
-            b.connect(a.getsockname())
-            set_receive_timeout(a, 0.1)
-            # the real-time period (sitl.realtime_loop): a fleet of one, its state sent, its answer taken, a step
-            one = [x[None].copy() for x in (link, io, twin.work, twin.params, twin.air_rng, twin.commanded)]
-            tx, rt_io, work, params, air_rng, received = one
-            sens = tuple(x[None].copy() for x in twin.sensors.arrays)
+    rt = np.zeros(realtime_loop.RT_SIZE, dtype=np.int64)
+    realtime_loop.heard(rt, 1)  # (a held lockstep clock's: PlantLink.heard and check_lost)
+    realtime_loop.lost_clock(rt, 2, LOST_AFTER_NS)
+    if fastio.AVAILABLE:  # the compiled clock (sitl.lockstep_loop), a fleet of one: its answer to tick 0 waiting
+        with _loopback_pair() as (a, b):
+            tx, rt_io, work, params, air_rng, received = _rows(twin, link, io)
+            b.send(link[:n].tobytes())
+            lockstep_loop.run(np.array([a.fileno()], dtype=np.int64), np.zeros(65535, dtype=np.uint8), 0, 1,
+                              np.ones(1), received, work, params, air_rng, _sensor_rows(twin, sensing),
+                              np.array([twin.substeps]), np.array([twin.method]), twin.period, tx, rt_io,
+                              np.zeros_like(tx), np.zeros(1, dtype=np.int64), 0, np.ones(1, dtype=np.bool_),
+                              np.full(1, 1000), np.full(1, 1000), HOT_AFTER,
+                              np.zeros((1, lockstep_loop.STATS_SIZE), dtype=np.int64))  # fmt: skip
+
+
+def _warm_realtime(twin: Plant, sensing: bool) -> None:
+    link = np.zeros(max(codec.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
+    io = np.zeros(tick.IO_SIZE, dtype=np.int64)
+    io[tick.SENSING], io[tick.LAST_USEC] = sensing, -1
+    sens = twin.sensors.arrays if sensing else None
+    tick.encode_tick(link, io, twin.x, twin.out, twin.air, sens, 0, twin.period)  # (sitl.plant_link: from Python)
+    n = codec.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
+    codec.decode_actuators(link, n, twin.commanded, 1.0)
+    twin.step()  # (the Python period's, impaired links: sitl.plant.step_work, which the compiled period calls too)
+    state_inside(twin.x)
+    realtime_loop.send_order(0, 0, 1)  # (the Python period's order of sending, impaired links)
+    if fastio.AVAILABLE:  # the compiled period (sitl.realtime_loop), a fleet of one: its state sent, its answer taken
+        with _loopback_pair() as (a, b):
+            tx, rt_io, work, params, air_rng, received = _rows(twin, link, io)
             fds, rt = np.array([a.fileno()], dtype=np.int64), np.zeros((1, realtime_loop.RT_SIZE), dtype=np.int64)
-            realtime_loop.send_ticks(fds, tx, rt_io, work, sens, 0, twin.period)
+            realtime_loop.send_ticks(fds, tx, rt_io, work, _sensor_rows(twin, sensing), 0, twin.period)
             b.recv(65535)
-            n = codec.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
             b.send(link[:n].tobytes())
             realtime_loop.take_and_step_all(fds, np.zeros(65535, dtype=np.uint8), received, np.ones(1), rt_io, rt,
                                             work, params, air_rng, np.array([twin.substeps]), np.array([twin.method]),
                                             0, 0, True, twin.period, 0, np.zeros(1, dtype=np.int64))  # fmt: skip
-            rt = rt[0]
-            realtime_loop.heard(rt, 1)  # (a held lockstep clock's: PlantLink.heard and check_lost)
-            realtime_loop.lost_clock(rt, 2, LOST_AFTER_NS)
-            realtime_loop.send_order(0, 0, 1)  # (the Python period's order of sending, impaired links)
-            # the lockstep clock (sitl.lockstep_loop): a fleet of one, its answer to tick 0 waiting
-            rt_io[0, tick.LAST_USEC] = -1
-            b.send(link[:n].tobytes())
-            lockstep_loop.run(fds, np.zeros(65535, dtype=np.uint8), 0, 1, np.ones(1), received, work, params, air_rng,
-                              sens, np.array([twin.substeps]), np.array([twin.method]), twin.period, tx, rt_io,
-                              np.zeros_like(tx), np.zeros(1, dtype=np.int64), 0, np.ones(1, dtype=np.bool_),
-                              np.full(1, 1000), np.full(1, 1000), HOT_AFTER,
-                              np.zeros((1, lockstep_loop.STATS_SIZE), dtype=np.int64))  # fmt: skip
+
+
+_WARM = {"lockstep": _warm_lockstep, "realtime": _warm_realtime}
+
+
+@contextlib.contextmanager
+def _loopback_pair() -> Iterator[tuple[socket.socket, socket.socket]]:
+    """Two connected UDP sockets on loopback (the first's receive times out after 0.1 s)."""
+    udp = (socket.AF_INET, socket.SOCK_DGRAM)
+    with socket.socket(*udp) as a, socket.socket(*udp) as b:
+        a.bind(("127.0.0.1", 0))
+        b.bind(("127.0.0.1", 0))
+        a.connect(b.getsockname())
+        b.connect(a.getsockname())
+        set_receive_timeout(a, 0.1)
+        yield a, b
+
+
+def _rows(twin: Plant, link: np.ndarray, io: np.ndarray) -> list[np.ndarray]:
+    """A fleet of one's arrays (sitl.fleet_arrays): tx, io, work, params, air_rng, received."""
+    return [x[None].copy() for x in (link, io, twin.work, twin.params, twin.air_rng, twin.commanded)]
+
+
+def _sensor_rows(twin: Plant, sensing: bool) -> tuple | None:
+    return tuple(x[None].copy() for x in twin.sensors.arrays) if sensing else None
 
 
 def open_wind_links(args: argparse.Namespace, vehicles: Sequence[Vehicle]) -> Any:
@@ -271,7 +310,7 @@ def fleet_from_args(args: argparse.Namespace) -> list[Vehicle]:
         if args.hold_until_armed is not None:
             link.io[tick.HOLD_TICK] = round(args.hold_until_armed / preset.sim.period)
         link.io[tick.HOLD_LANDED] = int(args.hold_when_landed)
-        link.sensor_clock = plant.sensors.clock  # failure injection (the autopilot passes MAV_CMD_INJECT_FAILURE on)
+        link.sensors = plant.sensors  # failure injection (the autopilot passes MAV_CMD_INJECT_FAILURE on)
         vehicles.append(Vehicle(name, preset, plant, link))
     return vehicles
 
@@ -287,7 +326,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # held (open) until this process ends: the kernel drops the request then, however it ends
         awake = hold_cores_awake() if args.cores_awake else None  # noqa: F841
         vehicles = fleet_from_args(args)
-        warm_up(vehicles[0].plant)
+        warm_up(vehicles[0].plant, {v.plant.sensing for v in vehicles}, (args.mode,))
         session = open_wind_links(args, vehicles)
     except (UsageError, ConfigError) as exc:
         for v in vehicles:

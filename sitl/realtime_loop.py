@@ -24,7 +24,7 @@ import numpy as np
 
 from quadsitl import fastio
 from quadsitl.codec import NOT_THIS_FRAME, decode_actuators
-from quadsitl.jit import jit
+from quadsitl.jit import copy_into, jit
 from sitl import tick
 from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X, state_inside, step_work
 
@@ -37,8 +37,8 @@ STILL_LOST = 8  # lost_clock's: the autopilot was lost already
 
 
 @jit
-def send_tick(fd: int, tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray, sens: tuple,
-              k: int, period: float) -> bool:  # fmt: skip
+def send_tick(fd: int, tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray,
+              sens: tuple | None, k: int, period: float) -> bool:  # fmt: skip
     """The start of tick ``k``: False when the state ``x`` is not :func:`sitl.plant.state_inside` its bounds (nothing
     sent: the run ends), else its datagram (:func:`sitl.tick.encode_tick`) sent on the connected socket ``fd``. A
     refused send (no autopilot yet: an ICMP error) is not an error: the plant free-wheels."""
@@ -58,7 +58,7 @@ def apply(t: int, received: np.ndarray, io: np.ndarray, rt: np.ndarray, commande
         io[tick.DISCARDED] += 1
         return -1
     io[tick.LAST_USEC] = t
-    commanded[:] = received
+    copy_into(commanded, received)
     return heard(rt, now_ns)
 
 
@@ -143,21 +143,20 @@ def take_and_step(fd: int, rx: np.ndarray, received: np.ndarray, max_thrust: flo
 
 
 @jit
-def send_ticks(fds: np.ndarray, tx: np.ndarray, io: np.ndarray, work: np.ndarray, sens: tuple, k: int,
+def send_ticks(fds: np.ndarray, tx: np.ndarray, io: np.ndarray, work: np.ndarray, sens: tuple | None, k: int,
                period: float) -> int:  # fmt: skip
     """:func:`send_tick` for every vehicle: ``fds`` their connected sockets, the other arrays their rows (``work``:
-    :class:`sitl.plant.Plant`'s work array; ``sens``: the six arrays of :attr:`sitl.sensors.Sensors.arrays`) → −1,
-    or the first vehicle whose state left its bounds (then no vehicle is sent tick ``k``: the run ends). The
-    vehicles take turns at going first (:func:`send_order`)."""
+    :class:`sitl.plant.Plant`'s work array; ``sens``: the six arrays of :attr:`sitl.sensors.Sensors.arrays`, or None
+    on the true state) → −1, or the first vehicle whose state left its bounds (then no vehicle is sent tick ``k``: the
+    run ends). The vehicles take turns at going first (:func:`send_order`)."""
     for i in range(fds.size):
         if not state_inside(work[i, W_X:W_MOTORS]):
             return i
-    p, rng, bias, clock, queue, out = sens
     for j in range(fds.size):
         i = send_order(j, k, fds.size)
         w = work[i]
-        send_tick(fds[i], tx[i], io[i], w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:],
-                  (p[i], rng[i], bias[i], clock[i], queue[i], out[i]), k, period)  # fmt: skip
+        send_tick(fds[i], tx[i], io[i], w[W_X:W_MOTORS], w[W_OUT:W_AIR], w[W_AIR:], tick.sensors_of(sens, i), k,
+                  period)  # fmt: skip
     return -1
 
 

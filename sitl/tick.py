@@ -5,7 +5,9 @@ integrate one period, and encode the next tick's datagram, in one call from the 
 The datagram is the state as ODOMETRY, or in sensor mode (io[SENSING]) what the vehicle's sensors measure of it
 (:mod:`quadsitl.hil`: HIL_SENSOR, HIL_GPS when a fix is delivered, and HIL_STATE_QUATERNION, the truth, unless
 io[SENSING] is SENSORS_ONLY).
-``sens`` is :attr:`sitl.sensors.Sensors.arrays` (any sensors' arrays in truth mode: they are not touched)."""
+``sens`` is :attr:`sitl.sensors.Sensors.arrays`, or None on the true state (:attr:`sitl.plant.Plant.sens`): numba then
+compiles no sensors' path, which the first run after an install would otherwise wait for
+(docs/performance.md#compiling-on-first-run)."""
 
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from quadsitl.codec import HEADER_SIZE, HIL_SIZE, NOT_THIS_FRAME, SAFETY_ARMED, 
 from quadsitl.compiled_frames import euler_to_quaternion
 from quadsitl.config import DEFAULT_LIMITS
 from quadsitl.hil import encode_battery, encode_gps, encode_sensor, encode_truth
-from quadsitl.jit import jit
+from quadsitl.jit import copy_into, jit
 from sitl import sensors as sn
 from sitl.plant import (
     OUT_CHARGE,
@@ -85,16 +87,17 @@ def encode_sensors(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarra
 
 
 @jit(inline=True)
-def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray, sens: tuple,
+def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, air: np.ndarray, sens: tuple | None,
                 tick: int, period: float) -> None:  # fmt: skip
     """Tick ``tick``'s datagram into ``tx``: the state ``x`` stamped with the tick's simulated time as ODOMETRY, or
-    in sensor mode its measurements (:func:`encode_sensors`); then, for a vehicle with a battery, its BATTERY_STATUS
-    (:func:`quadsitl.hil.encode_battery`: the battery's state in ``out`` after the step that made ``x``)."""
-    if io[SENSING] != 0:
-        encode_sensors(tx, io, x, out, air, sens, tick, period)
-    else:
+    in sensor mode (io[SENSING], ``sens`` not None) its measurements (:func:`encode_sensors`); then, for a vehicle with
+    a battery, its BATTERY_STATUS (:func:`quadsitl.hil.encode_battery`: the battery's state in ``out`` after the step
+    that made ``x``). Compiled with ``sens`` None, the sensors' branch is pruned (never typed nor compiled)."""
+    if sens is None or io[SENSING] == 0:
         io[SEQ] = (io[SEQ] + 1) & 0xFF
         io[TX_LEN] = encode_state(tx, io[SEQ], io[SYSTEM], io[COMPONENT], usec_of(tick, period), x)
+    else:
+        encode_sensors(tx, io, x, out, air, sens, tick, period)
     if out[OUT_REMAINING] >= 0.0:  # a battery (an ideal supply's is −1)
         io[SEQ] = (io[SEQ] + 1) & 0xFF
         n = io[TX_LEN]
@@ -102,11 +105,21 @@ def encode_tick(tx: np.ndarray, io: np.ndarray, x: np.ndarray, out: np.ndarray, 
                                         out[OUT_CHARGE], out[OUT_ENERGY], out[OUT_REMAINING])  # fmt: skip
 
 
+@jit(inline=True)
+def sensors_of(sens: tuple | None, i: int) -> tuple | None:
+    """Vehicle ``i``'s sensors' arrays (:attr:`sitl.sensors.Sensors.arrays`) of a fleet's, a row per vehicle
+    (:class:`sitl.fleet_arrays.FleetArrays`); None for a fleet on the true state (None)."""
+    if sens is None:
+        return None
+    p, rng, bias, clock, queue, out = sens
+    return p[i], rng[i], bias[i], clock[i], queue[i], out[i]
+
+
 @jit
 def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray, x: np.ndarray,
                   motors: np.ndarray, out: np.ndarray, v: np.ndarray, a: np.ndarray, air: np.ndarray,
                   air_rng: np.ndarray, period: float, substeps: int, method: int, tx: np.ndarray, io: np.ndarray,
-                  sens: tuple, tick: int) -> int:  # fmt: skip
+                  sens: tuple | None, tick: int) -> int:  # fmt: skip
     """An actuator message stamped ``t`` (its forces in ``received``): when it answers tick ``tick``
     (``want``), make it the command, integrate one period in the tick's wind (:func:`sitl.plant.step_arrays`) and
     encode the state of tick + 1 (DIVERGED when that state is not :func:`sitl.plant.inside` the default
@@ -127,7 +140,7 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
     else:
         io[FLOWN] = 1
     io[LAST_USEC] = t
-    commanded[:] = received
+    copy_into(commanded, received)
     step_arrays(x, motors, commanded, out, v, a, air, air_rng, period, substeps, method, np.nan)
     encode_tick(tx, io, x, out, air, sens, tick + 1, period)
     s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
@@ -138,7 +151,7 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
 def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, received: np.ndarray,
                   commanded: np.ndarray, x: np.ndarray, motors: np.ndarray, out: np.ndarray, v: np.ndarray,
                   a: np.ndarray, air: np.ndarray, air_rng: np.ndarray, period: float, substeps: int, method: int,
-                  tx: np.ndarray, io: np.ndarray, sens: tuple, tick: int) -> int:  # fmt: skip
+                  tx: np.ndarray, io: np.ndarray, sens: tuple | None, tick: int) -> int:  # fmt: skip
     """A datagram from the autopilot (rx[:length]) during tick ``tick``: STEPPED (the next state is in tx),
     DIVERGED (it is, but outside its bounds), FUTURE, NOTHING or ANOTHER_FRAME."""
     t = decode_actuators(rx, length, received, max_thrust)

@@ -44,7 +44,7 @@ def _warm_the_plant() -> None:
     from sitl import process
     from sitl.plant import Plant
 
-    process.warm_up(Plant(load_preset("paper")))
+    process.warm_up(Plant(load_preset("paper")), (False, True))
 
 
 def _warm_the_autopilots_loop() -> None:

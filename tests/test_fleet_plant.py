@@ -21,12 +21,13 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from importlib import resources
 from pathlib import Path
 
 import pytest
 
 from benchmarks.machine import process_cpu_seconds
-from quadsitl import codec, wire
+from quadsitl import codec, failures, wire
 from quadsitl.config import load_preset
 from quadsitl.process_util import PLANT_DIVERGED
 
@@ -239,6 +240,43 @@ def test_vehicle_1_of_a_fleet_is_the_lone_vehicle_and_the_others_draw_their_own_
     assert accel[0] != accel[1]
     mean_z = [sum(a[2] for a in acc) / len(acc) for acc in accel]
     assert all(abs(m + 9.8) < 0.2 for m in mean_z), mean_z  # both at rest: −g along z, FRD
+
+
+@pytest.mark.timeout(90)
+def test_a_mixed_fleet_flies_each_on_its_own_state_and_a_gps_failure_reaches_the_compiled_clock(tmp_path):
+    """A preset with [sensors] beside one without (``--vehicle-preset``), on the compiled lockstep clock: vehicle 1
+    gets its true state (ODOMETRY), vehicle 2 its sensors' (HIL_SENSOR, HIL_GPS and the truth). Vehicle 2's autopilot
+    passes on MAV_CMD_INJECT_FAILURE (the GPS off): from then on no HIL_GPS comes, though the clock reads the fleet's
+    arrays (sitl.fleet_arrays), which replace each vehicle's own."""
+    preset = tmp_path / "x500_sensors.toml"
+    preset.write_text((resources.files("quadsitl") / "presets" / "x500.toml").read_text() + "\n[sensors]\n")
+    kinds: list[set[str]] = [set(), set()]
+    fixes: list[int] = []  # vehicle 2's HIL_GPS stamps [us]
+    off_at = -1
+    with fleet_plant(2, "--vehicle-preset", f"2={preset}", "--quiet") as (_plant, aps):
+        for k in range(1500):
+            for i, ap in enumerate(aps):
+                ap.sock.settimeout(30 if k == 0 else 5)  # the first: the plant may be loading its compiled code
+                data, ap.plant = ap.sock.recvfrom(65535)
+                messages = ap.mav.parse_buffer(data)
+                kinds[i] |= {m.get_type() for m in messages}
+                t = next(m.time_usec for m in messages if m.get_type() in ("ODOMETRY", "HIL_SENSOR"))
+                fixes += [m.time_usec for m in messages if m.get_type() == "HIL_GPS" and i == 1]
+                command = b""
+                if i == 1 and k == 700:
+                    off_at = t
+                    command = codec.pack(
+                        ap.mav.command_long_encode(
+                            1, 1, wire.mavlink.MAV_CMD_INJECT_FAILURE, 0, failures.GPS, failures.OFF, 0, 0, 0, 0, 0
+                        ),
+                        ap.mav,
+                    )
+                answer = codec.pack(wire.actuator_message(t, (0.0,) * 4, MAX_THRUST, True), ap.mav)
+                ap.sock.sendto(command + answer, ap.plant)
+    assert "ODOMETRY" in kinds[0] and not kinds[0] & {"HIL_SENSOR", "HIL_GPS"}, kinds[0]
+    assert {"HIL_SENSOR", "HIL_GPS", "HIL_STATE_QUATERNION"} <= kinds[1] and "ODOMETRY" not in kinds[1], kinds[1]
+    assert len([t for t in fixes if t <= off_at]) >= 3, fixes
+    assert [t for t in fixes if t > off_at] == []
 
 
 @pytest.mark.timeout(60)

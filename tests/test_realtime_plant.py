@@ -28,6 +28,8 @@ def answer_every_state(ap: socket.socket, forces: tuple[float, ...], max_thrust:
         except BlockingIOError:
             return answered
         stamp = codec.decode_state(rx, n, decoded)
+        if stamp == codec.NOT_THIS_FRAME:  # sensor mode: HIL_SENSOR first, stamped in its first field as ODOMETRY is
+            stamp = int(rx[codec.HEADER_SIZE : codec.HEADER_SIZE + 8].view(np.uint64)[0])
         assert stamp >= 0
         if round(stamp / 1000) in silent:  # [us] at 1 kHz
             continue
@@ -36,22 +38,23 @@ def answer_every_state(ap: socket.socket, forces: tuple[float, ...], max_thrust:
         answered += 1
 
 
-def fleet_of(vehicles: int) -> tuple[list, list[socket.socket], tuple[float, ...], float]:
-    """A real-time plant's fleet of ``vehicles`` (the paper preset), their autopilots' sockets, the forces they answer
-    with [N], the maximum thrust [N]; compiled code loaded before any clock starts."""
+def fleet_of(vehicles: int, *options: str) -> tuple[list, list[socket.socket], tuple[float, ...], float]:
+    """A real-time plant's fleet of ``vehicles`` (the paper preset, with the plant's ``options``), their autopilots'
+    sockets, the forces they answer with [N], the maximum thrust [N]; compiled code loaded before any clock starts,
+    as a real-time plant process loads it."""
     aps = []
     for _ in range(vehicles):
         ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         ap.bind(("127.0.0.1", 0))
         ap.setblocking(False)
         aps.append(ap)
-    argv = ["--preset", "paper", "--mode", "realtime"]
+    argv = ["--preset", "paper", "--mode", "realtime", *options]
     for ap in aps:
         argv += ["--autopilot", f"127.0.0.1:{ap.getsockname()[1]}"]
     fleet = process.fleet_from_args(process.build_parser().parse_args(argv))
     max_thrust = fleet[0].link.max_thrust
     forces = (0.3 * max_thrust, 0.31 * max_thrust, 0.32 * max_thrust, 0.33 * max_thrust)
-    process.warm_up(fleet[0].plant)  # compiled code loaded before the clock starts, the plant's and ...
+    process.warm_up(fleet[0].plant, clocks=("realtime",))  # compiled code loaded before the clock starts: the plant's,
     scratch = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
     codec.decode_state(
         scratch, codec.encode_state(scratch, 0, 1, 1, 0, np.zeros(codec.DECODED_SIZE)), np.zeros(codec.DECODED_SIZE)
@@ -165,16 +168,18 @@ def test_the_vehicles_take_turns_at_being_sent_their_tick_first(monkeypatch, loo
     assert orders == [[k % 3, (k + 1) % 3, (k + 2) % 3] for k in range(7)]
 
 
+@pytest.mark.parametrize("state", ["truth", "sensors"])
 @pytest.mark.parametrize("loops", ["1", "0"])
-def test_nothing_compiles_in_a_real_time_period_once_warmed_up(monkeypatch, loops):
-    """After the plant's warm-up (:func:`sitl.process.warm_up`, which every plant process runs before its clock
-    starts), a real-time period, compiled or Python, calls no compiled function of :mod:`sitl.realtime_loop` for
-    types it has not compiled: a compile on a fresh checkout would stall the clock."""
-    from sitl import realtime_loop
+def test_nothing_compiles_in_a_real_time_period_once_warmed_up(monkeypatch, loops, state):
+    """After the plant's warm-up for its mode and clock (:func:`sitl.process.warm_up`, which every plant process runs
+    before its clock starts), a real-time period, compiled or Python, on the truth or on sensors, calls no compiled
+    function of :mod:`sitl.realtime_loop`, :mod:`sitl.tick` or :mod:`sitl.plant` for types it has not compiled (or
+    loaded): a compile on a fresh checkout would stall the clock."""
+    from sitl import plant, realtime_loop, tick
 
     monkeypatch.setenv(fastio.LOOPS_ENV, loops)
-    fleet, aps, forces, max_thrust = fleet_of(2)
-    compiled = [f for f in vars(realtime_loop).values() if hasattr(f, "signatures")]
+    fleet, aps, forces, max_thrust = fleet_of(2, "--state", state)
+    compiled = [f for m in (realtime_loop, tick, plant) for f in vars(m).values() if hasattr(f, "signatures")]
     before = [len(f.signatures) for f in compiled]
     real_sleep_until = realtime.sleep_until
 
