@@ -26,7 +26,7 @@ import select
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -777,12 +777,12 @@ SENSOR_NEWS = (
 LANDS = kernel.ESTIMATE_GPS_LOST | kernel.ESTIMATE_IMU_LOST  # losses that are the estimator failsafe, in the air
 
 
-def warm_up_loops() -> None:
-    """Compile into numba's cache (or load from it) the autopilot's compiled plant loop for both of its modes, whose
-    arguments' types differ (truth and sensors), with what an autopilot process makes on the way (its controllers'
-    own steps): for a launcher to do once before it starts a fleet, whose autopilots then load it instead of each
-    compiling it at once. Call :func:`autopilot.tick.warm_up` first: the loop calls the tick, which it then loads."""
-    for state in ("truth", "sensors"):
+def warm_up_loops(modes: Iterable[bool] = (False, True)) -> None:
+    """Compile into numba's cache (or load from it) the autopilot's compiled plant loop for each of ``modes`` (True:
+    on sensors; the two loops' arguments' types differ): for a launcher to do once before it starts a fleet, whose
+    autopilots then load it instead of each compiling it at once. Call :func:`autopilot.tick.warm_up` first for the
+    same modes: the loop calls the tick, which it then loads."""
+    for state in ("sensors" if sensing else "truth" for sensing in sorted(set(modes))):
         args = build_parser().parse_args(["--no-zenoh", "--plant-listen", "127.0.0.1:0", "--gcs-listen", "127.0.0.1:0",
                                           "--api-listen", "127.0.0.1:0", "--state", state])  # fmt: skip
         args.home, args.signing_key = None, None

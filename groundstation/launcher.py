@@ -33,9 +33,9 @@ from pathlib import Path
 
 from groundstation.fleet import VehiclePlan, zenoh_argv
 from quadsitl.children import Children, describe, run_supervised, supervise
-from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings
+from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings, with_state
 from quadsitl.compile_cache import cached, compiling
-from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams
+from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams, load_preset
 from quadsitl.process_util import (
     PLANT_DIVERGED,
     bind_tcp,
@@ -141,8 +141,9 @@ def run_up(children: Children, stack: contextlib.ExitStack, preset: Preset, args
            web_port: int | None) -> int:  # fmt: skip
     """``up``'s processes started (the dashboard's on ``web_port``, if any) and its banner printed, then watched until
     one fails: the exit status. The vehicles' info publisher, when Zenoh is on, closes with ``stack``."""
-    if len(fleet) > 1:
-        compile_once(children.env)
+    if len(fleet) > 1:  # for the modes the fleet flies (its presets' [sensors], --state) and its clock
+        modes = {with_state(load_preset(v.preset), args).sensors is not None for v in fleet}
+        compile_once(children.env, modes, (args.mode,))
     # One plant process simulates every vehicle on one clock (sitl.lockstep.run_lockstep); an autopilot each.
     plant = ["sitl", "--preset", args.preset, "--mode", args.mode] + (["--cores-awake"] if args.cores_awake else [])
     taken = planned_ports(fleet)  # an internal port never lands on a later vehicle's, not yet bound
@@ -233,13 +234,17 @@ def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False, 
         return None
 
 
-def compile_once(env: dict[str, str] | None) -> None:
+def compile_once(env: dict[str, str] | None, modes: Collection[bool] = (False, True),
+                 clocks: Collection[str] = ("lockstep", "realtime")) -> None:  # fmt: skip
     """Before a fleet starts: compile the equations once, into numba's cache, in a process of its own, so that
-    the fleet's 2N processes load them instead of each compiling the same code at once (a cold start)."""
+    the fleet's 2N processes load them instead of each compiling the same code at once (a cold start): for the
+    ``modes`` its vehicles fly (True: on sensors) and the plant's ``clocks``."""
+    modes, clocks = sorted(set(modes)), sorted(set(clocks))
     code = (
-        "from autopilot.tick import warm_up; warm_up(); from autopilot.process import warm_up_loops; warm_up_loops(); "
+        "from autopilot.tick import warm_up; from autopilot.process import warm_up_loops; "
+        f"[warm_up(s) for s in {modes!r}]; warm_up_loops({modes!r}); "
         "from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process import warm_up; "
-        "warm_up(Plant(load_preset('paper')), (False, True))"
+        f"warm_up(Plant(load_preset('paper')), {modes!r}, {clocks!r})"
     )
     if subprocess.run([sys.executable, "-c", code], env=env).returncode != 0:
         raise RuntimeError("compiling the equations failed (above)")

@@ -105,7 +105,7 @@ def test_up_never_hands_a_vehicle_a_port_of_a_later_vehicles_plan(monkeypatch):
     real_choice = process_util._pick.choice
     monkeypatch.setattr(process_util._pick, "choice", lambda seq: real_choice([p for p in seq if p in taken]))
     monkeypatch.setattr(launcher, "Children", _Recorder)
-    monkeypatch.setattr(launcher, "compile_once", lambda env: None)
+    monkeypatch.setattr(launcher, "compile_once", lambda *args: None)
     _Recorder.started = []
     status = cli.main(
         [
