@@ -153,7 +153,8 @@ def see(cm: np.ndarray, x: np.ndarray, period: float) -> None:
     """The commander sees the state ``x`` (12, VehicleState order) at tick −1, before the first: as the processes'
     commander has seen the vehicle on the ground, the tick before it is armed, so the first tick flown is a period
     after it (an auto mode's reference moves from the first tick on, as in ``quadsitl fly``)."""
-    cmd.update(cm, -1, -period, x[0], x[1], -x[2], x[3], x[4], -x[5], x[8])
+    # (tick −1 as an int64, not a constant: numba compiles a function called with a constant argument again)
+    cmd.update(cm, np.int64(-1), -period, x[0], x[1], -x[2], x[3], x[4], -x[5], x[8])
 
 
 @jit(inline=True)
