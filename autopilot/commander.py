@@ -103,11 +103,19 @@ def start_here(cm: np.ndarray) -> None:
     cm[TARGET_ALT] = 0.0 if landed else max(cm[ALTITUDE] + stop_distance(cm[CLIMB_RATE], a), 0.0)
 
 
-@jit
+@jit(inline=True)
 def enter(cm: np.ndarray, mode: int) -> None:
     """Switch to ``mode``. Auto modes start their reference at the vehicle (position and velocity), aimed at
-    where it can stop (not below the ground), heading as now."""
+    where it can stop (not below the ground), heading as now (:func:`_entered`)."""
     cm[MODE] = mode
+    _entered(cm)
+
+
+@jit
+def _entered(cm: np.ndarray) -> None:
+    """:func:`enter`'s work for the mode in cm[MODE], in one compiled function: called with each mode as a constant,
+    numba would compile it once per mode."""
+    mode = int(cm[MODE])
     cm[LANDED_SINCE] = math.nan
     cm[OFFBOARD_TICK] = -1.0  # an offboard flight starts at the next tick (set in update)
     cm[REF_THROTTLE] = math.nan  # STABILIZED's alone

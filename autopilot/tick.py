@@ -568,7 +568,7 @@ def warm_up(sensing: bool | None = None) -> None:
     state mode's tick (``sensing`` False), the sensor mode's (True), or both (None: a launcher's, for processes of
     either). A process compiles only the mode it flies (docs/performance.md#compiling-on-first-run)."""
     from autopilot import gcs_messages
-    from autopilot.commander import Commander
+    from autopilot.commander import HOLD, Commander, enter
     from autopilot.control_params import BACKSTEPPING, control_array
     from autopilot.estimator import Estimator
     from quadsitl import codec, hil
@@ -603,3 +603,4 @@ def warm_up(sensing: bool | None = None) -> None:
                         frames.out)  # fmt: skip
     # what a Python-built message shows of the last tick (autopilot.process.Autopilot.snapshot), called from Python
     stream_frames.tick_values(st, Commander().cm, np.zeros(MEM_SIZE), frames.tel)
+    enter(Commander().cm, HOLD)  # a mode change from Python (Commander.set_mode and the like)

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from autopilot import commander
 from autopilot import stream_frames as sf
 from autopilot.commander import (
     ARMED,
@@ -29,7 +30,7 @@ from autopilot.commander import (
 from autopilot.control_params import MEM_ATTITUDE_REF, MEM_FORCES, MEM_SIZE, MEM_U
 from quadsitl import codec, wire
 from quadsitl.frames import euler_to_quaternion, ned_to_geodetic
-from quadsitl.wire import mavlink
+from quadsitl.wire import Mode, mavlink
 
 ORIGIN = (47.397742, 8.545594, 488.0)
 
@@ -214,16 +215,18 @@ def test_the_tick_builds_what_is_due_on_each_link_once_in_id_order():
 
 def test_nothing_compiles_on_the_tick_path_once_warmed_up():
     """After the autopilot's warm-up, building any streamed message from Python (a requested message, a signed
-    link, the slower streams), from a snapshot of ints or floats, or packing one (quadsitl.codec.pack: STATUSTEXT,
-    parameters, command answers), compiles nothing more: no stall on the tick path (a first STATUSTEXT compiling the
-    checksum's entry from Python kept autopilots on a cold cache silent for longer than the plant's 0.5 s)."""
+    link, the slower streams), from a snapshot of ints or floats, packing one (quadsitl.codec.pack: STATUSTEXT,
+    parameters, command answers), or a mode change from Python (Commander.set_mode), compiles nothing more: no
+    stall on the tick path (a first STATUSTEXT compiling the checksum's entry from Python kept autopilots on a cold
+    cache silent for longer than the plant's 0.5 s)."""
     from autopilot import gcs_messages
     from autopilot.streams import MessageStreams
     from autopilot.tick import warm_up
     from quadsitl.state import Reference, VehicleState
 
     warm_up()
-    compiled = (sf.clamp_int, sf.cdeg, sf.lat_lon_e7, sf.amsl_mm, sf.pwms, sf.encode, sf.tick_values, codec.crc16)
+    compiled = (sf.clamp_int, sf.cdeg, sf.lat_lon_e7, sf.amsl_mm, sf.pwms, sf.encode, sf.tick_values, codec.crc16,
+                commander.enter, commander._entered)  # fmt: skip
     before = [len(f.signatures) for f in compiled]
     # what a Python-built message shows of the last tick (autopilot.process.Autopilot.snapshot): the process's arrays
     sf.tick_values(
@@ -240,4 +243,6 @@ def test_nothing_compiles_on_the_tick_path_once_warmed_up():
                 mav.param_value_encode(b"MPC_XY_VEL_MAX", 12.0, mavlink.MAV_PARAM_TYPE_REAL32, 90, 3),
                 mav.command_ack_encode(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_RESULT_ACCEPTED)):  # fmt: skip
         assert mav.parse_buffer(codec.pack(msg, wire.link(7, 1)))[0].get_type() == msg.get_type()
+    c = Commander()
+    assert c.set_mode(Mode.LAND) == (True, "") and c.mode == Mode.LAND
     assert [len(f.signatures) for f in compiled] == before
