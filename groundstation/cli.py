@@ -26,6 +26,7 @@ from groundstation.launcher import add_dashboard_arguments
 from groundstation.sweep.command import add_sweep_parser
 from groundstation.up_network import zenoh_and_addresses
 from quadsitl.cli_util import (
+    CLOCKS,
     UsageError,
     add_preset_arguments,
     add_state_arguments,
@@ -434,7 +435,7 @@ the source, or 'mkdocs serve' there.""",
     add_preset_arguments(upp)
     upp.add_argument(
         "--mode",
-        choices=("lockstep", "realtime"),
+        choices=CLOCKS,
         default="lockstep",
         help="lockstep (default): deterministic, paced by --speed; realtime: the plant runs on the wall clock",
     )

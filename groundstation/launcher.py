@@ -33,7 +33,7 @@ from pathlib import Path
 
 from groundstation.fleet import VehiclePlan, zenoh_argv
 from quadsitl.children import Children, describe, run_supervised, supervise
-from quadsitl.cli_util import UsageError, state_argv, wind_argv, wind_settings, with_state
+from quadsitl.cli_util import CLOCKS, UsageError, state_argv, wind_argv, wind_settings, with_state
 from quadsitl.compile_cache import cached, compiling
 from quadsitl.config import SENSOR_GROUND_S, Preset, WindParams, load_preset
 from quadsitl.process_util import (
@@ -235,7 +235,7 @@ def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False, 
 
 
 def compile_once(env: dict[str, str] | None, modes: Collection[bool] = (False, True),
-                 clocks: Collection[str] = ("lockstep", "realtime")) -> None:  # fmt: skip
+                 clocks: Collection[str] = CLOCKS) -> None:  # fmt: skip
     """Before a fleet starts: compile the equations once, into numba's cache, in a process of its own, so that
     the fleet's 2N processes load them instead of each compiling the same code at once (a cold start): for the
     ``modes`` its vehicles fly (True: on sensors) and the plant's ``clocks``."""

@@ -245,6 +245,7 @@ def wind_settings(preset: Preset) -> dict[str, Any]:
 
 
 STATE_SOURCES = ("truth", "sensors")
+CLOCKS = ("lockstep", "realtime")  # the plant's --mode (and up's): its clock
 
 
 def add_state_arguments(p: argparse.ArgumentParser) -> None:

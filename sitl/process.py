@@ -49,6 +49,7 @@ import numpy as np
 
 from quadsitl import codec, fastio, hil, wire
 from quadsitl.cli_util import (
+    CLOCKS,
     UsageError,
     add_preset_arguments,
     add_state_arguments,
@@ -86,8 +87,6 @@ from sitl.realtime import run_realtime
 from sitl.vehicle import DivergedError, Vehicle
 from sitl.wind_link import WindLink
 
-CLOCKS = ("lockstep", "realtime")  # --mode's choices
-
 
 def warm_up(plant: Plant, modes: Iterable[bool] | None = None, clocks: Iterable[str] = CLOCKS) -> None:
     """Compile (or load from numba's cache) everything a tick calls, before the first tick, on a copy: for the
@@ -99,11 +98,16 @@ def warm_up(plant: Plant, modes: Iterable[bool] | None = None, clocks: Iterable[
             _WARM[clock](copy.deepcopy(plant), sensing)
 
 
-def _warm_lockstep(twin: Plant, sensing: bool) -> None:
+def _warm_arrays(twin: Plant, sensing: bool) -> tuple[np.ndarray, np.ndarray, tuple | None]:
+    """A link's buffer and bookkeeping in the mode (no answer used yet), and the sensors' arrays it is given."""
     link = np.zeros(max(codec.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
     io = np.zeros(tick.IO_SIZE, dtype=np.int64)
-    io[tick.SENSING] = sensing
-    sens = twin.sensors.arrays if sensing else None
+    io[tick.SENSING], io[tick.LAST_USEC] = sensing, -1
+    return link, io, twin.sensors.arrays if sensing else None
+
+
+def _warm_lockstep(twin: Plant, sensing: bool) -> None:
+    link, io, sens = _warm_arrays(twin, sensing)
     args = (twin.x, twin.motors, twin.out, twin.v, twin.a, twin.air, twin.air_rng, twin.period, twin.substeps,
             twin.method, link, io, sens)  # fmt: skip
     n = codec.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
@@ -118,6 +122,7 @@ def _warm_lockstep(twin: Plant, sensing: bool) -> None:
     if fastio.AVAILABLE:  # the compiled clock (sitl.lockstep_loop), a fleet of one: its answer to tick 0 waiting
         with _loopback_pair() as (a, b):
             tx, rt_io, work, params, air_rng, received = _rows(twin, link, io)
+            rt_io[0, tick.LAST_USEC] = -1  # (the tick calls above took tick 0's answer)
             b.send(link[:n].tobytes())
             lockstep_loop.run(np.array([a.fileno()], dtype=np.int64), np.zeros(65535, dtype=np.uint8), 0, 1,
                               np.ones(1), received, work, params, air_rng, _sensor_rows(twin, sensing),
@@ -128,10 +133,7 @@ def _warm_lockstep(twin: Plant, sensing: bool) -> None:
 
 
 def _warm_realtime(twin: Plant, sensing: bool) -> None:
-    link = np.zeros(max(codec.FRAME_MAX, hil.DATAGRAM_MAX), dtype=np.uint8)
-    io = np.zeros(tick.IO_SIZE, dtype=np.int64)
-    io[tick.SENSING], io[tick.LAST_USEC] = sensing, -1
-    sens = twin.sensors.arrays if sensing else None
+    link, io, sens = _warm_arrays(twin, sensing)
     tick.encode_tick(link, io, twin.x, twin.out, twin.air, sens, 0, twin.period)  # (sitl.plant_link: from Python)
     n = codec.encode_actuators(link, 0, 1, 1, 0, (0.0, 0.0, 0.0, 0.0), 1.0, False)
     codec.decode_actuators(link, n, twin.commanded, 1.0)
@@ -217,7 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicle-preset", action="append", default=[], metavar="K=PRESET",
                    help="in a fleet, vehicle K (1-based) flies PRESET (a name or a TOML file) instead of --preset; "
                    "every preset must have the same control period (repeatable)")  # fmt: skip
-    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="default: lockstep")
+    p.add_argument("--mode", choices=CLOCKS, default="lockstep", help="default: lockstep")
     p.add_argument("--cores-awake", action="store_true", help=CORES_AWAKE_HELP)
     p.add_argument(
         "--speed",
