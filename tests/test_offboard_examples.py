@@ -100,8 +100,10 @@ def test_offboard_attitude_flies_the_thrust_and_rests_on_the_ground_at_zero():
     # Thrust 0 on the ground: the vehicle neither rises nor slides (it hovered along the ground at 9 m/s before).
     assert max(math.hypot(n, e) for n, e, _ in rest) < 0.01 and max(-d for _, _, d in rest) < 0.01
     up = track.of("up")
-    # 0.7 of the x500's 34.2 N is 1.22 × its weight: about 2.2 m/s² up, 4.3 m in 2 s (the altitude held would be 0).
-    assert 3.0 < -up[-1][2] < 5.0
+    # 0.7 of the x500's 34.2 N is 1.22 × its weight: about 2.2 m/s² up less the drag (a held altitude would be 0).
+    # Climbed from rest, v² / 2h is that acceleration whatever the wall-clock sleep's length on a busy machine.
+    height, speed = -up[-1][2], -track.down_speeds("up")[-1]
+    assert height > 1.5 and 1.5 < speed**2 / (2 * height) < 2.3
     # ±30° roll at 0.6 thrust: it moves sideways (right wing down: east, then back), the height not held.
     roll = track.of("roll+")
     assert roll[-1][1] - roll[0][1] > 1.0
