@@ -48,5 +48,5 @@ def compiling(command: str, sensing: bool = False) -> str:
     """What ``quadsitl <command>`` says, on any output, when it is about to compile (:func:`cached` says it must, or
     loading takes long): that the wait is the compiler's, once, and about how long it takes on a 2-core machine
     (docs/performance.md#cold-start); ``sensing``: ``sim``'s loop on sensors, several times longer."""
-    took = "3 to 6 minutes on a 2-core machine" if sensing else "40 s to a minute on a 2-core machine"
+    took = "2 to 4 minutes on a 2-core machine" if sensing else "30 s to a minute on a 2-core machine"
     return f"quadsitl {command}: compiling the vehicle's equations, once after an install or a change ({took})"

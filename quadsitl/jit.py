@@ -30,6 +30,7 @@ from typing import TypeVar
 import numba
 import numpy as np
 
+from quadsitl import numba_inlining
 from quadsitl.compile_cache import cache_dir
 
 F = TypeVar("F", bound=Callable)
@@ -39,6 +40,7 @@ DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 
 
 numba.config.CACHE_DIR = str(cache_dir())
+numba_inlining.install()  # numba's inliner copies an inlined function's IR in linear time (see the module)
 
 
 def jit(fn: F | None = None, *, inline: bool = False, nogil: bool = False) -> F | Callable[[F], F]:
