@@ -124,7 +124,7 @@ class ZenohOut:
                  io: np.ndarray) -> None:  # fmt: skip
         self.session, self.io = session, io
         self.pubs: dict[str, zenoh.Publisher] = {}
-        self.slow: telemetry.SlowCopies | None = None  # the overview (quadsitl/<vehicle>/slow/<stream>)
+        self.slow: telemetry.Overview | None = None  # the overview (quadsitl/<vehicle>/slow/overview)
         self.plan_pub: zenoh.Publisher | None = None  # quadsitl/<vehicle>/mission: the plan, for maps
         self.plan_published: tuple = ()  # what the last mission document said (version, current, state, home)
         self.batch = Batch(BATCH_TICKS)
@@ -138,7 +138,7 @@ class ZenohOut:
                                                           encoding=telemetry.encoding(stream),
                                                           congestion_control=CONGESTION[congestion])  # fmt: skip
         io[kernel.CAPACITY] = BATCH_TICKS  # records are batched only while there is a session
-        self.slow = telemetry.SlowCopies(session, vehicle)
+        self.slow = telemetry.Overview(session, vehicle)
         self.plan_pub = session.declare_publisher(telemetry.key(vehicle, telemetry.MISSION),
                                                   encoding=telemetry.mission_encoding(),
                                                   congestion_control=CONGESTION[congestion])  # fmt: skip
@@ -216,7 +216,7 @@ class ZenohOut:
             self.flush()
         if self.slow is not None and self.slow.owed:  # the overview ends on the last record
             self.slow.offer(self.last_records.get, time.monotonic(), force=True)
-        slow = list(self.slow.pubs.values()) if self.slow else []
+        slow = [self.slow.pub] if self.slow else []
         for pub in (*self.pubs.values(), *slow, *([self.plan_pub] if self.plan_pub else [])):
             pub.undeclare()
         if self.session is not None:

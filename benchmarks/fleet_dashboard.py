@@ -53,7 +53,7 @@ def publish(endpoint: str, n: int, seconds: float, batch_ms: float) -> None:
     pubs = [{s: session.declare_publisher(telemetry.key(v.name, s), encoding=telemetry.encoding(s),
                                           congestion_control=zenoh.CongestionControl.DROP)
              for s in telemetry.STREAMS} for v in fleet]  # fmt: skip
-    overviews = [telemetry.SlowCopies(session, v.name) for v in fleet]  # as an autopilot puts them
+    overviews = [telemetry.Overview(session, v.name) for v in fleet]  # as an autopilot puts them
     types = {s: dtype(s) for s in telemetry.STREAMS}
     start, tick = time.monotonic(), 1
     end = start + seconds

@@ -102,7 +102,7 @@ def publish(
         )
         for s in telemetry.STREAMS
     }
-    slow = telemetry.SlowCopies(session, vehicle)  # the overview, as an autopilot puts it
+    slow = telemetry.Overview(session, vehicle)  # the overview, as an autopilot puts it
     try:
         wait_for_subscribers(list(pubs.values()), wait)
         n, ticks, times = len(recording), recording.ticks, recording.times
@@ -145,7 +145,7 @@ def publish(
             slow.offer(lambda s: bytes(payload[s][(n - 1) * sizes[s] : n * sizes[s]]), clock(), force=True)
     finally:
         stats.finished = clock()
-        for pub in (*pubs.values(), *slow.pubs.values()):
+        for pub in (*pubs.values(), slow.pub):
             pub.undeclare()
     return stats
 

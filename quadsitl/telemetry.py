@@ -50,6 +50,10 @@ simulated time [s] of the tick after which it was reached (absent in documents o
 ``rally`` the rally points (both absent in older documents: empty).
 :func:`encode_mission` and :func:`decode_mission` write and check it.
 
+And the overview, for maps of a fleet: ``quadsitl/<vehicle>/slow/overview`` carries the newest state, setpoint,
+actuators and status records of one tick, concatenated in that order, at most 20 times a second of wall time
+(:class:`Overview`, :func:`split_overview`; schema ``quadsitl.overview.v4``).
+
 Versions: v4 added the battery to the status record (v3's was ``<QdBBBq``); v3 added x_ref and y_ref to the
 setpoint record (v2's was ``<Qd4d``); the other streams' records are as they were, and carry the newest version
 too, so that one version names the whole set. v2 batched records; v1 carried
@@ -200,44 +204,59 @@ def key(vehicle: str, stream: str) -> str:
     return f"{PREFIX}/{vehicle}/{stream}"
 
 
-# The overview: every publisher of the streams also puts the newest record of each, alone, on
-# quadsitl/<vehicle>/slow/<stream>, at most every SLOW_PERIOD seconds of wall time. A map of a fleet subscribes to
+# The overview: every publisher of the streams also puts the newest record of each, the four in one sample, on
+# quadsitl/<vehicle>/slow/overview, at most every SLOW_PERIOD seconds of wall time. A map of a fleet subscribes to
 # that (quadsitl/*/slow/*) and takes the full rate only of the vehicle it shows: a publisher sends a sample only
-# where a subscriber matches, so the other vehicles' full-rate streams never leave their process.
+# where a subscriber matches, so the other vehicles' full-rate streams never leave their process. One sample, not
+# one per stream: a map gets the four records of one tick together (docs/telemetry.md#the-overview).
 SLOW = "slow"
-SLOW_PERIOD = 0.05  # [s] wall: 20 samples a second per stream
+OVERVIEW = "overview"
+SLOW_PERIOD = 0.05  # [s] wall: 20 samples a second
+OVERVIEW_SIZE = sum(record.size for record in STREAMS.values())  # [bytes] the four records, in STREAMS' order
 
 
-def slow_key(vehicle: str, stream: str) -> str:
-    return f"{PREFIX}/{vehicle}/{SLOW}/{stream}"
+def overview_key(vehicle: str) -> str:
+    return f"{PREFIX}/{vehicle}/{SLOW}/{OVERVIEW}"
 
 
-class SlowCopies:
-    """The overview's publishers of one vehicle (see SLOW): :meth:`offer` the newest record of each stream as often
-    as you like; it is put at most every SLOW_PERIOD wall seconds. An offer turned away is owed: :meth:`catch_up`
-    puts the newest records once the period is over, so the overview ends on the vehicle's last record even when
-    its clock stops (a lockstep plant holding it once landed) and nothing new is offered."""
+def split_overview(payload: bytes) -> dict[str, bytes] | None:
+    """An overview sample's record of each stream (STREAMS' order, each its record's size); None when the payload
+    is not OVERVIEW_SIZE bytes long."""
+    if len(payload) != OVERVIEW_SIZE:
+        return None
+    out, at = {}, 0
+    for stream, record in STREAMS.items():
+        out[stream] = payload[at : at + record.size]
+        at += record.size
+    return out
 
-    def __init__(self, session: zenoh.Session, vehicle: str, streams: Sequence[str] = tuple(STREAMS)) -> None:
+
+class Overview:
+    """The overview's publisher of one vehicle (see SLOW): :meth:`offer` the newest records as often as you like;
+    they are put at most every SLOW_PERIOD wall seconds. An offer turned away is owed: :meth:`catch_up` puts the
+    newest records once the period is over, so the overview ends on the vehicle's last record even when its clock
+    stops (a lockstep plant holding it once landed) and nothing new is offered."""
+
+    def __init__(self, session: zenoh.Session, vehicle: str) -> None:
         import zenoh
 
-        self.pubs = {s: session.declare_publisher(slow_key(vehicle, s), encoding=encoding(s),
-                                                  congestion_control=zenoh.CongestionControl.DROP)
-                     for s in streams}  # fmt: skip
+        self.pub = session.declare_publisher(overview_key(vehicle), encoding=overview_encoding(),
+                                             congestion_control=zenoh.CongestionControl.DROP)  # fmt: skip
         self.due = -math.inf
         self.owed = False  # an offer was turned away since the last put
 
     def offer(self, newest: Callable[[str], bytes | None], now: float, force: bool = False) -> bool:
-        """Put ``newest(stream)`` (one record; None: none yet) on each stream's slow key if SLOW_PERIOD has passed
-        since the last put, or with ``force`` (``now``: wall seconds, monotonic); True when it did."""
+        """Put ``newest(stream)`` of every stream (one record each) as one sample if SLOW_PERIOD has passed since the
+        last put, or with ``force`` (``now``: wall seconds, monotonic); True when it did. While a stream has no
+        record yet (None), nothing is put, nor owed."""
+        records = [newest(stream) for stream in STREAMS]
+        if not all(records):
+            return False
         if now < self.due and not force:
             self.owed = True
             return False
         self.due, self.owed = now + SLOW_PERIOD, False
-        for stream, pub in self.pubs.items():
-            record = newest(stream)
-            if record:
-                pub.put(record)
+        self.pub.put(b"".join(records))  # type: ignore[arg-type]
         return True
 
     def catch_up(self, newest: Callable[[str], bytes | None], now: float) -> bool:
@@ -249,6 +268,12 @@ def encoding(stream: str) -> zenoh.Encoding:
     import zenoh
 
     return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(f"quadsitl.{stream}.v{SCHEMA_VERSION}")
+
+
+def overview_encoding() -> zenoh.Encoding:
+    import zenoh
+
+    return zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(f"quadsitl.{OVERVIEW}.v{SCHEMA_VERSION}")
 
 
 def mission_encoding() -> zenoh.Encoding:

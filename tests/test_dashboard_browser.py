@@ -234,8 +234,8 @@ class Publisher:
 
         self.session = zenoh.open(telemetry.zenoh_config(connect=[endpoint]))
         self.pubs = {s: self.session.declare_publisher(telemetry.key(vehicle, s)) for s in telemetry.STREAMS}
-        self.slow = telemetry.SlowCopies(self.session, vehicle)  # the overview, as the autopilot puts it
-        self.wait_matching(self.slow.pubs.values(), "the dashboard's Zenoh session was not found")
+        self.slow = telemetry.Overview(self.session, vehicle)  # the overview, as the autopilot puts it
+        self.wait_matching([self.slow.pub], "the dashboard's Zenoh session was not found")
 
     @staticmethod
     def wait_matching(pubs, why: str) -> None:
@@ -266,7 +266,7 @@ class Publisher:
         self.slow.offer(lambda s: out[s][-telemetry.STREAMS[s].size :], time.monotonic())
 
     def close(self) -> None:
-        for p in (*self.pubs.values(), *self.slow.pubs.values()):
+        for p in (*self.pubs.values(), self.slow.pub):
             p.undeclare()
         self.session.close()
 

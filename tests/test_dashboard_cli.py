@@ -141,16 +141,17 @@ def test_hostile_zenoh_publishers_do_not_hurt_the_dashboard():
             # Peers reach each other directly (the autopilot's session does not forward between them): wait
             # until this one has found the dashboard's subscriber (the only one on the overview keys), or its
             # samples go nowhere. Counting peers is not enough: the launcher's info session is one too.
-            probe = session.declare_publisher(f"{telemetry.PREFIX}/v1/{telemetry.SLOW}/{next(iter(telemetry.STREAMS))}")
+            probe = session.declare_publisher(telemetry.overview_key("v1"))
             Publisher.wait_matching([probe], "the dashboard's Zenoh subscriber was never found")
             probe.undeclare()
             rng = random.Random(5)
             for i in range(3000):
                 stream = rng.choice([*telemetry.STREAMS, "junk"])
                 vehicle = "v1" if i % 3 else f"x{rng.randrange(500)}"
-                payload = rng.randbytes(rng.choice([0, 1, 7, 13, 50, 112, 113, 400]))
+                payload = rng.randbytes(rng.choice([0, 1, 7, 13, 50, 112, 113, 400, telemetry.OVERVIEW_SIZE]))
                 # the overview every vehicle is followed by, and the full rate a page would take
-                session.put(f"quadsitl/{vehicle}/{'slow/' if i % 2 else ''}{stream}", payload)
+                key = telemetry.overview_key(vehicle) if i % 2 else f"quadsitl/{vehicle}/{stream}"
+                session.put(key, payload)
                 if i % 500 == 0:
                     session.put("quadsitl/a/b/c/d", b"deep")
                     session.put("elsewhere/v1/state", b"x")

@@ -232,7 +232,7 @@ def test_only_a_vehicle_a_page_shows_is_followed_at_the_full_rate():
     dash_session = zenoh.open(telemetry.zenoh_config(connect=[endpoint]))
     try:
         full = {v: pub_session.declare_publisher(telemetry.key(v, "state")) for v in ("v1", "v2")}
-        overview = {v: telemetry.SlowCopies(pub_session, v) for v in ("v1", "v2")}
+        overview = {v: telemetry.Overview(pub_session, v) for v in ("v1", "v2")}
         dash = Dashboard(dash_session, Fleet())
 
         def matching(v: str, want: bool) -> bool:
@@ -279,13 +279,16 @@ def test_the_overview_ends_on_the_last_record_even_when_nothing_new_comes():
     pub_session = zenoh.open(telemetry.zenoh_config(listen=[endpoint]))
     sub_session = zenoh.open(telemetry.zenoh_config(connect=[endpoint]))
     try:
-        sub = sub_session.declare_subscriber(telemetry.slow_key("v1", "state"), zenoh.handlers.FifoChannel(64))
-        overview = telemetry.SlowCopies(pub_session, "v1", streams=("state",))
+        sub = sub_session.declare_subscriber(f"{telemetry.PREFIX}/*/{telemetry.SLOW}/*", zenoh.handlers.FifoChannel(64))
+        overview = telemetry.Overview(pub_session, "v1")
         deadline = time.monotonic() + 10
-        while not overview.pubs["state"].matching_status.matching:
+        while not overview.pub.matching_status.matching:
             assert time.monotonic() < deadline, "the subscriber was not found"
             time.sleep(0.02)
-        newest = {"state": records("state", [1])}
+        newest = {s: records(s, [1]) for s in ("setpoint", "actuators")}
+        assert not overview.offer(newest.get, 999.0) and not overview.owed  # a stream without a record yet
+        newest |= {"state": records("state", [1]), "status": records("status", [1], armed=1, mode=0, failsafe=0,
+                                                                         offboard_tick=-1)}  # fmt: skip
         t = 1000.0  # wall seconds, as the autopilot passes them
         assert overview.offer(newest.get, t) and not overview.owed
         newest["state"] = records("state", [2])
@@ -302,8 +305,11 @@ def test_the_overview_ends_on_the_last_record_even_when_nothing_new_comes():
             if sample is None:
                 time.sleep(0.01)
                 continue
-            got.append(sample.payload.to_bytes())
-        assert got == [records("state", [k]) for k in (1, 2, 3)]
+            assert str(sample.key_expr) == telemetry.overview_key("v1")
+            got.append(telemetry.split_overview(sample.payload.to_bytes()))
+        # One sample a put, every stream's newest record in it
+        assert [g["state"] for g in got] == [records("state", [k]) for k in (1, 2, 3)]
+        assert all(g["status"] == newest["status"] and g["setpoint"] == newest["setpoint"] for g in got)
     finally:
         sub_session.close()
         pub_session.close()

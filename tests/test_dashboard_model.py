@@ -226,14 +226,16 @@ def test_the_mission_document_carries_the_geofence_and_rally_points_and_refuses_
 
 
 def slow(fleet: Fleet, tick: int, wall: float, vehicle: str = "v1", x: float | None = None) -> None:
-    """The overview of tick ``tick``: each stream's record alone on quadsitl/<vehicle>/slow/<stream>."""
+    """The overview of tick ``tick``: each stream's record, in one sample on quadsitl/<vehicle>/slow/overview."""
+    out = b""
     for stream in ("state", "setpoint", "actuators"):
         rec = records(stream, [tick])
         if stream == "state" and x is not None:
             rec = rec[:16] + telemetry.STREAMS["state"].pack(tick, tick * T, x, *[0.0] * 11)[16:]
-        fleet.ingest(f"quadsitl/{vehicle}/slow/{stream}", rec, wall)
-    fleet.ingest(f"quadsitl/{vehicle}/slow/status", records("status", [tick], armed=1, mode=1, failsafe=0,
-                                                            offboard_tick=0), wall)  # fmt: skip
+        out += rec
+    out += records("status", [tick], armed=1, mode=1, failsafe=0, offboard_tick=0)
+    assert list(telemetry.split_overview(out)) == list(telemetry.STREAMS)
+    fleet.ingest(f"quadsitl/{vehicle}/slow/overview", out, wall)
 
 
 def test_the_overview_alone_keeps_a_vehicle_on_the_map_with_rows_trail_and_rates():
@@ -247,6 +249,7 @@ def test_the_overview_alone_keeps_a_vehicle_on_the_map_with_rows_trail_and_rates
         slow(fleet, 50 * i, 0.05 * i, x=0.1 * i)
     v = fleet.vehicles["v1"]
     assert v.latest["state"][0] == 2000 and v.latest["status"][3] == 1 and v.malformed == 0
+    assert v.samples == 40  # Zenoh's samples: one an overview
     assert [r[1][0] for r in v.rows][:3] == pytest.approx([0.05, 0.1, 0.15])  # a row per overview tick
     assert len(v.rows) == 40
     trail = v.trail_since(0)
@@ -256,9 +259,12 @@ def test_the_overview_alone_keeps_a_vehicle_on_the_map_with_rows_trail_and_rates
     gen = v.generation
     slow(fleet, 10, 2.1)  # ticks went back: a new run under the same name
     assert v.generation == gen + 1 and len(v.rows) == 1
-    # an overview sample of more than one record is not one
-    fleet.ingest("quadsitl/v1/slow/state", records("state", [60, 61]), 2.2)
-    assert v.malformed == 1
+    # an overview sample of any other length is not one (here, two states), nor a stream's own key under slow/
+    fleet.ingest("quadsitl/v1/slow/overview", records("state", [60, 61]), 2.2)
+    assert v.malformed == 1 and v.latest["state"][0] == 10
+    ignored = fleet.ignored
+    fleet.ingest("quadsitl/v1/slow/state", records("state", [60]), 2.2)
+    assert fleet.ignored == ignored + 1 and v.latest["state"][0] == 10
 
 
 def test_the_overview_is_ignored_while_the_full_rate_comes_and_taken_again_when_it_stops():

@@ -80,7 +80,7 @@ class Subscriber:
         self._sub = self.session.declare_subscriber(f"quadsitl/{vehicle}/**", self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        stream = str(sample.key_expr).split("/", 2)[2]  # "state", or "slow/state" (the overview)
+        stream = str(sample.key_expr).split("/", 2)[2]  # "state", or "slow/overview" (the overview)
         with self._lock:
             self.samples.append((stream, sample.payload.to_bytes(), sample.timestamp.get_time().timestamp()))
 
@@ -183,18 +183,22 @@ def test_csv_every_tick_arrives_in_order_with_the_csv_values(sim_csv):
             np.testing.assert_array_equal(got, want, err_msg=stream)
     # Batched as the autopilot does: at full speed far fewer samples than records.
     assert len([s for s, _, _ in sub.samples if s == "state"]) < n / 10
-    # The overview, as an autopilot puts it: the newest record alone on quadsitl/<vehicle>/slow/<stream>, the
-    # first at once, then at most one per SLOW_PERIOD, and the last one, owed, at the end: it ends on the last record.
+    # The overview, as an autopilot puts it: the newest record of each stream, in one sample on
+    # quadsitl/<vehicle>/slow/overview, the first at once, then at most one per SLOW_PERIOD, and the last one, owed,
+    # at the end: it ends on the last record.
+    every = {stream: _records_bytes(sub, stream) for stream in telemetry.STREAMS}
+    deadline = time.monotonic() + 5
+    while True:
+        with sub._lock:
+            slow = [telemetry.split_overview(data) for s, data, _ in sub.samples if s == "slow/overview"]
+        if (slow and slow[-1]["state"] == every["state"][-1]) or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
+    assert len(slow) >= 2
     for stream in telemetry.STREAMS:
-        every = _records_bytes(sub, stream)
-        deadline = time.monotonic() + 5
-        while True:
-            with sub._lock:
-                slow = [data for s, data, _ in sub.samples if s == f"slow/{stream}"]
-            if slow[-1:] == [every[-1]] or time.monotonic() > deadline:
-                break
-            time.sleep(0.02)
-        assert len(slow) >= 2 and slow[0] in set(every) and slow[-1] == every[-1], stream
+        assert slow[0][stream] in set(every[stream]) and slow[-1][stream] == every[stream][-1], stream
+    # the four records of one overview sample are of one tick
+    assert all(len({telemetry.STREAMS[s].unpack(o[s])[0] for s in o}) == 1 for o in slow)
     assert "published 500 state, 500 setpoint, 500 actuators, 500 status records" in r.stderr
     assert "0.500 s simulated" in r.stderr
 

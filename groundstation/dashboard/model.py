@@ -114,8 +114,8 @@ class Vehicle:
     # ---- ingest ---------------------------------------------------------------------------------------
 
     def ingest(self, stream: str, payload: bytes, wall: float, slow: bool = False, sent: float | None = None) -> None:
-        """A sample of ``stream``: full rate (consecutive ticks), or with ``slow`` the overview's one record
-        (quadsitl/<vehicle>/slow/<stream>, :data:`quadsitl.telemetry.SLOW`), taken only while no full-rate sample
+        """A sample of ``stream``: full rate (consecutive ticks), or with ``slow`` the overview's one record of it
+        (quadsitl/<vehicle>/slow/overview, :data:`quadsitl.telemetry.SLOW`), taken only while no full-rate sample
         has come for STALE_AFTER: its record is a plot row and a trail point of its own, whatever its tick. ``sent``:
         when it was published [s, the publisher's clock], if the sample says; the rates use it instead of ``wall``."""
         if slow and wall - self.full_wall <= STALE_AFTER:
@@ -358,16 +358,17 @@ class Fleet:
         self.ignored = 0  # samples on keys that are not telemetry, or beyond MAX_VEHICLES
 
     def ingest(self, key: str, payload: bytes, wall: float, sent: float | None = None) -> None:
-        """A Zenoh sample on ``key`` (``quadsitl/<vehicle>/<stream>``) received at ``wall`` [s] (published at
-        ``sent`` [s, the publisher's clock], if it says)."""
+        """A Zenoh sample on ``key`` (``quadsitl/<vehicle>/<stream>``, or the overview's
+        ``quadsitl/<vehicle>/slow/overview``) received at ``wall`` [s] (published at ``sent`` [s, the publisher's
+        clock], if it says)."""
         parts = key.split("/")
-        slow = len(parts) == 4 and parts[2] == telemetry.SLOW and parts[3] in telemetry.STREAMS
+        slow = len(parts) == 4 and parts[2] == telemetry.SLOW and parts[3] == telemetry.OVERVIEW
         if slow:
-            parts = [parts[0], parts[1], parts[3]]
+            parts = [parts[0], parts[1], telemetry.OVERVIEW]
         mission = len(parts) == 3 and parts[2] == telemetry.MISSION
         info = len(parts) == 3 and parts[2] == INFO
         if (len(parts) != 3 or parts[0] != telemetry.PREFIX
-                or (parts[2] not in telemetry.STREAMS and not mission and not info)):  # fmt: skip
+                or (parts[2] not in telemetry.STREAMS and not mission and not info and not slow)):  # fmt: skip
             self.ignored += 1
             return
         v = self.vehicles.get(parts[1])
@@ -380,8 +381,17 @@ class Fleet:
             v.ingest_mission(payload, wall)
         elif info:
             v.ingest_info(payload, wall)
+        elif slow:
+            records = telemetry.split_overview(payload)
+            if records is None:
+                v.malformed += 1
+                return
+            before = v.samples
+            for stream, record in records.items():
+                v.ingest(stream, record, wall, True, sent)
+            v.samples = min(v.samples, before + 1)  # one Zenoh sample, whatever it held
         else:
-            v.ingest(parts[2], payload, wall, slow, sent)
+            v.ingest(parts[2], payload, wall, False, sent)
 
     def ordered(self) -> list[Vehicle]:
         """The vehicles in natural order of their names (v1, v2, …, v10)."""

@@ -3,11 +3,11 @@
 Zenoh subscribers hand their samples to ring channels in Zenoh's own threads; a task polls them every ``POLL``
 seconds and files them into the pure :class:`~groundstation.dashboard.model.Fleet`, so no Python runs per sample
 on Zenoh's side and a slow page can never push back on the vehicle (a full ring drops its oldest samples). Every
-vehicle is followed through its overview (``quadsitl/*/slow/*``: the newest record of each stream, 20 times a
-second, :data:`quadsitl.telemetry.SLOW`), its mission and its info; only a vehicle a page shows is followed at the
-full rate (``quadsitl/<vehicle>/*``, while a page shows it). A publisher sends only where a subscriber matches, so
-the other vehicles' full-rate streams stay in their autopilots: with the page open, a fleet's autopilots spend what
-they would without it.
+vehicle is followed through its overview (``quadsitl/*/slow/*``: the newest record of each stream, in one sample 20
+times a second, :data:`quadsitl.telemetry.SLOW`), its mission and its info; only a vehicle a page shows is followed
+at the full rate (``quadsitl/<vehicle>/*``, while a page shows it). A publisher sends only where a subscriber
+matches, so the other vehicles' full-rate streams stay in their autopilots: with the page open, a fleet's autopilots
+spend what they would without it.
 
 Routes (Starlette on uvicorn):
 
