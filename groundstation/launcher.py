@@ -236,17 +236,25 @@ def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False, 
 
 def compile_once(env: dict[str, str] | None, modes: Collection[bool] = (False, True),
                  clocks: Collection[str] = CLOCKS) -> None:  # fmt: skip
-    """Before a fleet starts: compile the equations once, into numba's cache, in a process of its own, so that
-    the fleet's 2N processes load them instead of each compiling the same code at once (a cold start): for the
-    ``modes`` its vehicles fly (True: on sensors) and the plant's ``clocks``."""
+    """Before a fleet starts: compile the equations once, into numba's cache, in two processes of their own (the
+    autopilot's code and the plant's, one on each core), so that the fleet's 2N processes load them instead of each
+    compiling the same code at once (a cold start): for the ``modes`` its vehicles fly (True: on sensors) and the
+    plant's ``clocks``."""
     modes, clocks = sorted(set(modes)), sorted(set(clocks))
-    code = (
-        "from autopilot.tick import warm_up; from autopilot.process import warm_up_loops; "
-        f"[warm_up(s) for s in {modes!r}]; warm_up_loops({modes!r}); "
-        "from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process import warm_up; "
-        f"warm_up(Plant(load_preset('paper')), {modes!r}, {clocks!r})"
-    )
-    if subprocess.run([sys.executable, "-c", code], env=env).returncode != 0:
+    autopilot = ("from autopilot.tick import warm_up; from autopilot.process import warm_up_loops; "
+                 f"[warm_up(s) for s in {modes!r}]; warm_up_loops({modes!r})")  # fmt: skip
+    plant = ("from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process import warm_up; "
+             f"warm_up(Plant(load_preset('paper')), {modes!r}, {clocks!r})")  # fmt: skip
+    # The autopilot's code and the plant's compile at once, a process each, as a first `fly`'s two processes do.
+    compilers = [subprocess.Popen([sys.executable, "-c", code], env=env) for code in (autopilot, plant)]
+    try:
+        failed = [p.wait() != 0 for p in compilers]
+    finally:
+        for p in compilers:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    if any(failed):
         raise RuntimeError("compiling the equations failed (above)")
 
 

@@ -87,3 +87,19 @@ def test_the_compiled_code_goes_where_the_environment_says(tmp_path, xdg, numba_
     assert r.returncode == 0, r.stderr
     folder = Path(r.stdout.strip())
     assert folder.parent == tmp_path / under.split("/", 1)[0] / under.split("/", 1)[1] and folder.is_dir()
+
+
+def test_up_compiles_the_autopilot_and_the_plant_at_once_and_fails_if_either_half_fails(tmp_path, monkeypatch):
+    """``quadsitl up``'s compile before a fleet starts (launcher.compile_once): the autopilot's code and the plant's in
+    a process each, both running at once (each logs its start and end through a wrapper of this Python)."""
+    from groundstation import launcher
+
+    log, wrapper = tmp_path / "log", tmp_path / "python"
+    wrapper.write_text(f'#!/bin/sh\necho start >> "{log}"\n"{sys.executable}" "$@"\nrc=$?\necho end >> "{log}"\n'
+                       "exit $rc\n")  # fmt: skip
+    wrapper.chmod(0o755)
+    monkeypatch.setattr(sys, "executable", str(wrapper))
+    launcher.compile_once(None, (False,), ("lockstep",))
+    assert log.read_text().split() == ["start", "start", "end", "end"]
+    with pytest.raises(RuntimeError, match="compiling the equations failed"):
+        launcher.compile_once(None, (False,), ("no such clock",))  # the plant's half fails, the autopilot's does not
