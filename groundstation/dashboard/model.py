@@ -186,6 +186,18 @@ class Vehicle:
         while trail and trail[0][1] < t_last - self.window:
             trail.popleft()
 
+    def ingest_overview(self, payload: bytes, wall: float, sent: float | None = None) -> None:
+        """An overview sample (quadsitl/<vehicle>/slow/overview, :func:`quadsitl.telemetry.split_overview`): each
+        stream's record as :meth:`ingest` takes it with ``slow``, counted as the one sample it is."""
+        records = telemetry.split_overview(payload)
+        if records is None:
+            self.malformed += 1
+            return
+        before = self.samples
+        for stream, record in records.items():
+            self.ingest(stream, record, wall, True, sent)
+        self.samples = min(self.samples, before + 1)
+
     def ingest_info(self, payload: bytes, wall: float) -> None:
         """A ``quadsitl/<vehicle>/info`` document: kept when well formed; otherwise refused, its reason kept for
         the page (``info_error``) and the last good one kept."""
@@ -382,14 +394,7 @@ class Fleet:
         elif info:
             v.ingest_info(payload, wall)
         elif slow:
-            records = telemetry.split_overview(payload)
-            if records is None:
-                v.malformed += 1
-                return
-            before = v.samples
-            for stream, record in records.items():
-                v.ingest(stream, record, wall, True, sent)
-            v.samples = min(v.samples, before + 1)  # one Zenoh sample, whatever it held
+            v.ingest_overview(payload, wall, sent)
         else:
             v.ingest(parts[2], payload, wall, False, sent)
 
