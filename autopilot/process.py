@@ -155,8 +155,8 @@ class Autopilot:
         self.ground = GroundLinks(links, self.system_id, wire.AUTOPILOT_COMPONENT_ID, args.signing_key, self.io,
                                   self.counters)  # fmt: skip
         self.streams = links[0].streams  # for what every link's streams share: which ids are streamed
-        self.zenoh = ZenohOut(None if args.no_zenoh else ZenohOut.open(args), args.vehicle, self.sensing,
-                              args.telemetry_congestion, self.io)  # fmt: skip
+        session, pool = (None, None) if args.no_zenoh else ZenohOut.open(args)
+        self.zenoh = ZenohOut(session, args.vehicle, self.sensing, args.telemetry_congestion, self.io, pool)
         self.outbox = Outbox(self.ground, self.counters, self.publish_plan)
         # The flight logs (autopilot.onboard_log), kept from the batches of telemetry records, and served (LOG_*)
         self.preset, self.kind = preset, kind
@@ -706,9 +706,10 @@ class Autopilot:
             self.chores(wall)
 
     def chores(self, wall: float) -> None:
-        """The wall-clock work: the telemetry batch (a little early, so that the next is due with the next chores),
-        the setpoint stream's, the mission transfers' and the datalink's clocks, and the heartbeat."""
-        if self.io[kernel.ROWS]:
+        """The wall-clock work: the telemetry batch when it is due before the next chores (a little early, so that
+        the next is due with the chores after), the setpoint stream's, the mission transfers' and the datalink's
+        clocks, and the heartbeat."""
+        if self.zenoh.due(wall, early=HOUSEKEEPING):
             self.zenoh.flush()
         self.zenoh.catch_up(wall)  # the newest records, turned away by the overview's period: owed
         self.commander.wall_clock(wall)

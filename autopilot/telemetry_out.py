@@ -12,6 +12,7 @@ from __future__ import annotations
 import socket
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import zenoh
@@ -25,16 +26,23 @@ from autopilot.missions import Missions
 from autopilot.stream_frames import COMPILED as COMPILED_STREAMS
 from autopilot.stream_frames import StreamFrames
 from autopilot.tick import Batch
-from quadsitl import fastio, telemetry
+from quadsitl import fastio, telemetry, zenoh_shm
+
+if TYPE_CHECKING:
+    from zenoh.shm import ShmProvider
 
 # [s] wall: Zenoh telemetry goes out at least this often (every 20 ticks at 1 kHz real time, more samples than a
 # dashboard draws); each batch wakes Zenoh's threads on the cores a lockstep pair needs
 # (docs/performance.md#telemetry-batches).
 BATCH_WALL = 0.020
+# A run faster than ten times real time (more than FAST_ROWS ticks in BATCH_WALL) batches FAST_BATCH_WALL instead:
+# each batch costs every subscriber a wake-up and its callbacks, whatever it holds (docs/performance.md#fan-out).
+FAST_ROWS = 200
+FAST_BATCH_WALL = 0.100
 # And at the latest after this many ticks: each batch is a trip out of the compiled loop here and a few samples the
 # ground station's Python takes, so fewer, larger batches make a lockstep run faster
 # (docs/performance.md#telemetry-batches).
-BATCH_TICKS = 2048
+BATCH_TICKS = 8192
 # --telemetry-congestion: what a full-rate telemetry put does when a subscriber's link has no room (Zenoh's congestion
 # control; DROP waits 1 ms for room first). The overview's slow copies always drop: they are a view, not a record.
 CONGESTION = {"drop": zenoh.CongestionControl.DROP, "block": zenoh.CongestionControl.BLOCK}
@@ -121,8 +129,8 @@ class ZenohOut:
     published (``--no-zenoh``), and the tick batches nothing."""
 
     def __init__(self, session: zenoh.Session | None, vehicle: str, sensing: bool, congestion: str,
-                 io: np.ndarray) -> None:  # fmt: skip
-        self.session, self.io = session, io
+                 io: np.ndarray, pool: ShmProvider | None = None) -> None:  # fmt: skip
+        self.session, self.io, self.pool = session, io, pool  # pool: batches through shared memory (zenoh_shm)
         self.pubs: dict[str, zenoh.Publisher] = {}
         self.slow: telemetry.Overview | None = None  # the overview (quadsitl/<vehicle>/slow/overview)
         self.plan_pub: zenoh.Publisher | None = None  # quadsitl/<vehicle>/mission: the plan, for maps
@@ -149,16 +157,17 @@ class ZenohOut:
         self.io[kernel.CAPACITY] = BATCH_TICKS
 
     @staticmethod
-    def open(args) -> zenoh.Session:
+    def open(args) -> tuple[zenoh.Session, ShmProvider | None]:
         """The Zenoh session of the command line's options; samples carry their publication time (subscribers can
-        measure latency)."""
-        conf = telemetry.config_from_args(args)
+        measure latency); with shared memory on, the process's pool for the batches (:mod:`quadsitl.zenoh_shm`)."""
+        conf = telemetry.config_from_args(args, shared_memory=True)
+        shared = zenoh_shm.enabled(conf)
         if not args.zenoh_config:
             conf.insert_json5("timestamping/enabled", "true")
             # Room for Zenoh's most batches (its default is 2) before a put drops: its sending thread shares the
             # cores with a lockstep pair that polls, and may wait a few ms for one.
             conf.insert_json5("transport/link/tx/queue/size/data", "16")
-        return zenoh.open(conf)
+        return zenoh.open(conf), zenoh_shm.pool() if shared else None
 
     def flush(self) -> None:
         """Publish the batched records (every stream gets the same ticks)."""
@@ -166,7 +175,7 @@ class ZenohOut:
         if rows:
             for stream, pub in self.pubs.items():
                 payload = self.batch.payload(stream, rows)
-                pub.put(payload)
+                zenoh_shm.put(pub, payload, self.pool)
                 self.last_records[stream] = payload[-self.batch.regions[stream][1] :]
             for reader in self.readers:
                 reader(self.batch, rows)
@@ -175,13 +184,17 @@ class ZenohOut:
         if rows and self.slow is not None:
             self.slow.offer(self.last_records.get, self.last_flush)
 
-    def due(self, wall: float) -> bool:
-        """Rows are batched and BATCH_WALL has passed since the last flush."""
-        return bool(self.io[kernel.ROWS]) and wall - self.last_flush >= BATCH_WALL
+    def period(self) -> float:
+        """The batch's wall period [s]: BATCH_WALL, FAST_BATCH_WALL once it holds more than FAST_ROWS rows."""
+        return FAST_BATCH_WALL if self.io[kernel.ROWS] > FAST_ROWS else BATCH_WALL
+
+    def due(self, wall: float, early: float = 0.0) -> bool:
+        """Rows are batched and their period has passed since the last flush, or will have in ``early`` [s]."""
+        return bool(self.io[kernel.ROWS]) and wall + early - self.last_flush >= self.period()
 
     def deadline(self, otherwise: float) -> float:
         """When the batched rows are due [s wall]: ``otherwise`` when there are none."""
-        return min(otherwise, self.last_flush + BATCH_WALL if self.io[kernel.ROWS] else otherwise)
+        return min(otherwise, self.last_flush + self.period() if self.io[kernel.ROWS] else otherwise)
 
     def catch_up(self, wall: float) -> None:
         """The overview's records owed since its period turned them away."""

@@ -37,7 +37,7 @@ def main(endpoint: str, vehicle: str, nice: int, below: int = 0) -> None:
     # for its handler now and then gave no result within 20 s (docs/performance.md#when-a-process-goes; never caught in
     # the act)
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
-    conf = telemetry.zenoh_config("peer", connect=[endpoint])
+    conf = telemetry.zenoh_config("peer", connect=[endpoint], shared_memory=True)
     session = zenoh.open(conf)
     lock = threading.Lock()
     counts = dict.fromkeys(telemetry.STREAMS, 0)

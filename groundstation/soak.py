@@ -232,7 +232,7 @@ class Soak:
                                    "--api-listen", f"127.0.0.1:{api_listen}", "--api-remote", f"127.0.0.1:{api}",
                                    "--zenoh-listen", endpoint, "--logs", str(self.out / "logs"), *mode],
                                   start_new_session=True)  # fmt: skip
-        session = zenoh.open(telemetry.zenoh_config("peer", connect=[endpoint]))
+        session = zenoh.open(telemetry.zenoh_config("peer", connect=[endpoint], shared_memory=True))
         sub = session.declare_subscriber(f"{telemetry.PREFIX}/*/status",
                                          lambda s: on_status(seg, str(s.key_expr).split("/")[1],
                                                              s.payload.to_bytes()))  # fmt: skip

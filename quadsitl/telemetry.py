@@ -60,10 +60,11 @@ too, so that one version names the whole set. v2 batched records; v1 carried
 exactly one per sample.
 
 A sample carries one or more records of consecutive ticks, concatenated (since v2).
-The autopilot sends what it has every ``BATCH_WALL`` of wall time, or once ``BATCH_TICKS`` ticks are waiting
-(:mod:`autopilot.process`): in real time a few records per sample, in a fast lockstep run many. Every tick's
-record is published; batching only spares the transport a message (and a wake-up of its thread, and of every
-subscriber's) per tick. Split a payload with :func:`records`.
+The autopilot sends what it has every ``BATCH_WALL`` of wall time (``FAST_BATCH_WALL`` in a run faster than ten times
+real time), or once ``BATCH_TICKS`` ticks are waiting (:mod:`autopilot.telemetry_out`): in real time a few records
+per sample, in a fast lockstep run many; a large one through Zenoh's shared memory (:mod:`quadsitl.zenoh_shm`).
+Every tick's record is published; batching only spares the transport a message (and a wake-up of its thread, and of
+every subscriber's) per tick. Split a payload with :func:`records`.
 """
 
 from __future__ import annotations
@@ -76,6 +77,8 @@ import struct
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from quadsitl import zenoh_shm
 
 if TYPE_CHECKING:  # the schema needs no Zenoh: pure modules (dashboard model, recordings) import it
     import numpy as np
@@ -402,11 +405,14 @@ def zenoh_config(
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
     config_file: str | None = None,
+    shared_memory: bool = False,
 ) -> zenoh.Config:
     """A Zenoh configuration: from ``config_file`` (Zenoh's own JSON5 format) if given, else peer mode
     with multicast scouting off (it fails inside containers), every sample stamped with its publication time
     (the dashboard's rates: a subscriber that falls behind and takes a backlog at once would otherwise see a burst),
-    and the given endpoints."""
+    and the given endpoints; Zenoh's shared memory on, set up as the session opens, for the sessions that publish or
+    take the telemetry batches (``shared_memory``, where the process may lock it: :mod:`quadsitl.zenoh_shm`), else
+    off."""
     import zenoh
 
     conf = zenoh.Config.from_file(str(Path(config_file))) if config_file else zenoh.Config()
@@ -419,11 +425,7 @@ def zenoh_config(
     if not config_file:
         conf.insert_json5("scouting/multicast/enabled", "false")
         conf.insert_json5("timestamping/enabled", "true")
-        # No shared memory: Zenoh sets it up on the first message over 3 KB to a peer on this host (a 16 MB pool,
-        # mlocked page by page, and two watchdog threads) in the middle of a flight, at the autopilot's priority:
-        # under SCHED_FIFO every vehicle on that core missed its deadlines meanwhile. Copying the telemetry through
-        # the socket costs less than that once.
-        conf.insert_json5("transport/shared_memory/enabled", "false")
+        zenoh_shm.configure(conf, shared_memory)
     return conf
 
 
@@ -455,5 +457,5 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, vehicle: bool = True) -> Non
     p.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 configuration file (TLS, access control)")
 
 
-def config_from_args(args: argparse.Namespace) -> zenoh.Config:
-    return zenoh_config(args.zenoh_mode, args.zenoh_listen, args.zenoh_connect, args.zenoh_config)
+def config_from_args(args: argparse.Namespace, shared_memory: bool = False) -> zenoh.Config:
+    return zenoh_config(args.zenoh_mode, args.zenoh_listen, args.zenoh_connect, args.zenoh_config, shared_memory)

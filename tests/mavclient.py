@@ -10,6 +10,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,16 +45,17 @@ class Vehicle:
         return self.proc.returncode
 
 
-def quadsitl_up(*extra: str):
+def quadsitl_up(*extra: str, wrap: Callable[[list[str]], list[str]] | None = None):
     """``quadsitl up`` (one vehicle) on free loopback ports: :func:`fleet_up` of one."""
-    return fleet_up(1, *extra)
+    return fleet_up(1, *extra, wrap=wrap)
 
 
 @contextlib.contextmanager
-def fleet_up(n: int, *extra: str):
+def fleet_up(n: int, *extra: str, wrap: Callable[[list[str]], list[str]] | None = None):
     """``quadsitl up --vehicles n`` on free loopback ports: every vehicle's ground-station link streams to
     ``gcs_port``; vehicle i's offboard-API link to ``api_port`` + i (as PX4's 14540 + i). Its flight logs go to a
-    temporary folder (``logs``, removed afterwards) unless ``extra`` says where."""
+    temporary folder (``logs``, removed afterwards) unless ``extra`` says where. ``wrap`` turns the command line
+    into the one started (under another's limits)."""
     taken: set[int] = set()  # the five UDP ranges are picked before anything binds them: distinct
     gcs, api = free_ports(1, taken=taken), free_ports(n, taken=taken)
     gcs_listen, api_listen = free_ports(n, taken=taken), free_ports(n, taken=taken)
@@ -65,7 +67,7 @@ def fleet_up(n: int, *extra: str):
     with tempfile.TemporaryDirectory(prefix="quadsitl-logs-") as logs:
         if "--logs" not in extra:
             argv += ["--logs", logs]
-        proc = subprocess.Popen(argv, start_new_session=True)
+        proc = subprocess.Popen(wrap(argv) if wrap else argv, start_new_session=True)
         v = Vehicle(proc, gcs, api, zenoh, None if "--logs" in extra else Path(logs))
         try:
             yield v
