@@ -6,6 +6,7 @@ without where something does (real time, ``--speed`` below 2)."""
 from __future__ import annotations
 
 import os
+import select
 import socket
 import time
 
@@ -64,8 +65,11 @@ class PlantLink:
         self.sock.sendto(self.tx_view[: io[kernel.TX_LEN]], to)
 
     def silent(self, wall: float) -> bool:
-        """The locked plant has said nothing for PLANT_LOST_AFTER (and was not already lost)."""
-        return self.peer is not None and not self.lost and wall - self.heard > PLANT_LOST_AFTER
+        """The locked plant has said nothing for PLANT_LOST_AFTER (and was not already lost), and nothing waits to be
+        read: a loop held up elsewhere (a telemetry put that waits for a subscriber's room) has a plant that spoke."""
+        if self.peer is None or self.lost or wall - self.heard <= PLANT_LOST_AFTER:
+            return False
+        return not select.select([self.sock], [], [], 0)[0]
 
     def holding(self) -> bool:
         """The plant has been quiet for PLANT_HOLDING: it may be holding its clock until the vehicle arms."""

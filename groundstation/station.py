@@ -145,7 +145,7 @@ class GroundStation:
         if args.signing_key is not None:
             wire.enable_signing(self.mav, args.signing_key)
         self.tlog = open(self.out / "flight.tlog", "wb")  # noqa: SIM115 - closed in close()
-        conf = telemetry.config_from_args(args, shared_memory=True)  # the batches it logs
+        conf = telemetry.config_from_args(args)  # no shared memory: its channels would hold the pool (zenoh_shm)
         self.session = zenoh.open(conf)
         start = "armed" if self.mission is not None else "offboard"
         self.logger = TelemetryLogger(self.session, args.vehicle, self.period, start)

@@ -410,9 +410,9 @@ def zenoh_config(
     """A Zenoh configuration: from ``config_file`` (Zenoh's own JSON5 format) if given, else peer mode
     with multicast scouting off (it fails inside containers), every sample stamped with its publication time
     (the dashboard's rates: a subscriber that falls behind and takes a backlog at once would otherwise see a burst),
-    and the given endpoints; Zenoh's shared memory on, set up as the session opens, for the sessions that publish or
-    take the telemetry batches (``shared_memory``, where the process may lock it: :mod:`quadsitl.zenoh_shm`), else
-    off."""
+    and the given endpoints; Zenoh's shared memory on, set up as the session opens, for the sessions that publish the
+    telemetry batches or copy each as it comes (``shared_memory``, where the process may lock it:
+    :mod:`quadsitl.zenoh_shm`), else off."""
     import zenoh
 
     conf = zenoh.Config.from_file(str(Path(config_file))) if config_file else zenoh.Config()

@@ -4,6 +4,8 @@ settings that turn it on (:func:`configure`), a process's one pool (:func:`pool`
 A subscriber on the same host whose session has shared memory on maps a batch put from the pool instead of reading it
 through its socket: the autopilot writes it once, not once per subscriber, and nobody copies it through the kernel
 (docs/performance.md#fan-out). A subscriber elsewhere, or one with shared memory off, gets the same bytes as before.
+A subscriber that keeps samples in a channel (Zenoh's FIFO or ring) holds their pool memory until it takes them, and
+with it every batch that then finds no room goes as bytes: quadsitl's logger and dashboard keep shared memory off.
 
 Everything is set up when the session opens and the pool is made (``mode: "init"``; Zenoh's own optimisation, which
 would make a pool lazily on the first large put, stays off): nothing is locked into memory in the middle of a flight,

@@ -298,7 +298,7 @@ def serve(args: argparse.Namespace) -> int:
         args.zenoh_connect = [DEFAULT_CONNECT]
     sock = bind_tcp("--port", str(args.port), args.host, args.port, "(0 picks a free one)", host_option="--host")
     try:
-        session = zenoh.open(telemetry.config_from_args(args, shared_memory=True))
+        session = zenoh.open(telemetry.config_from_args(args))  # no shared memory: its rings would hold the pool
     except zenoh.ZError as exc:
         sock.close()
         raise UsageError(f"cannot open the Zenoh session: {exc}") from None
