@@ -319,6 +319,13 @@ class GroundStation:
             return self.vehicle_tick() - self.logger.flight_start_tick >= self.end_ticks + 1
         return flight_t >= self.duration
 
+    def landed_early(self) -> bool:
+        """The telemetry says the vehicle disarmed after the offboard flight started (a failsafe's landing): the
+        trajectory cannot be flown to its end, and a lockstep plant would hold its clock until the vehicle arms."""
+        status = self.logger.last_status
+        start = self.logger.flight_start_tick
+        return status is not None and start >= 0 and not status["armed"] and status["tick"] > start
+
     def trajectory_time(self) -> float:
         """Flight time [s] of the vehicle's newest tick seen (0 before the flight starts)."""
         return max(0.0, self.logger.flight_time(self.vehicle_tick()))
@@ -435,6 +442,10 @@ class GroundStation:
                 self.stop_streams(UNNEEDED_IN_FLIGHT)
                 flight_wall_start = now
                 self.progress = FlightProgress(self.duration, enabled=not args.quiet, label="gcs: flight")
+            elif phase is Phase.FLYING and self.landed_early():
+                said = f": the vehicle said {'; '.join(repr(t) for t in self.said[-3:])}" if self.said else ""
+                raise GcsError(f"the vehicle disarmed at t = {flight_t:.2f} s of the flight's {self.duration:g} s, "
+                               f"before its end (failsafe {self.logger.last_status['failsafe']}){said}")  # fmt: skip
             elif phase is Phase.FLYING and self.flown(flight_t):
                 phase, last_cmd = Phase.LANDING, 0.0
                 self.flight_rate = (flight_t, now - flight_wall_start)  # simulated s flown, wall s

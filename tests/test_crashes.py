@@ -208,3 +208,38 @@ def test_up_names_the_child_that_died_and_leaves_no_orphans():
         if up.poll() is None:
             up.kill()
             up.wait()
+
+
+@pytest.mark.timeout(180)
+def test_fly_ends_when_its_vehicle_lands_on_a_failsafe_before_the_flight_ends(tmp_path):
+    """The plant stopped for longer than PLANT_LOST_AFTER in the middle of a `fly`: the vehicle fails safe, lands and
+    disarms; the ground station says so and exits 1 at once, instead of waiting for a flight whose lockstep plant
+    holds its clock until the vehicle arms again (CI once waited out a test's 240 s so)."""
+    from tests.test_fly import children_of, quadsitl
+
+    argv = quadsitl("fly", "--preset", "paper", "--duration", "30", "--speed", "2", "--no-figures", "--out",
+                    str(tmp_path))  # fmt: skip
+    with open(tmp_path / "stderr.txt", "w+") as err:
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, text=True, start_new_session=True)
+        try:
+            end = time.monotonic() + 120
+            while "gcs: flight t = " not in (tmp_path / "stderr.txt").read_text():  # the flight is under way
+                assert proc.poll() is None and time.monotonic() < end, (tmp_path / "stderr.txt").read_text()
+                time.sleep(0.1)
+            time.sleep(1.0)
+            plant = next(pid for pid in children_of(proc.pid)
+                         if b"-m\0sitl" in Path(f"/proc/{pid}/cmdline").read_bytes())  # fmt: skip
+            os.kill(plant, signal.SIGSTOP)
+            time.sleep(1.0)  # twice PLANT_LOST_AFTER
+            os.kill(plant, signal.SIGCONT)
+            status = proc.wait(timeout=60)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        err.seek(0)
+        text = err.read()
+    assert status == 1, text
+    assert "Plant link lost" in text, text
+    line = next(x for x in text.splitlines() if "disarmed at t = " in x)
+    assert "before its end (failsafe 2)" in line, line  # FAILSAFE_PLANT_LOST
