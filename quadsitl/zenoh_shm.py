@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     import zenoh
     from zenoh.shm import ShmProvider
 
-# An autopilot's pool: two of its largest batches on the truth (8192 ticks, 2.65 MB), one in sensor mode (4.8 MB); a
+# An autopilot's pool: four of its largest batches on the truth (4096 ticks, 1.3 MB), two in sensor mode (2.4 MB); a
 # batch that finds no room goes as bytes. With the sessions' it fits a desktop's 8 MB RLIMIT_MEMLOCK.
 POOL_BYTES = 6 << 20
 # What sessions with shared memory lock into RAM: Zenoh 1.10's own segments when the first opens (1.3 MB), 12 kB for
