@@ -42,7 +42,7 @@ FAST_BATCH_WALL = 0.100
 # And at the latest after this many ticks: each batch is a trip out of the compiled loop here and a few samples the
 # ground station's Python takes, so fewer, larger batches make a lockstep run faster
 # (docs/performance.md#telemetry-batches).
-BATCH_TICKS = 4096  # [ticks] 2.4 MB of records in sensor mode, resident in a fleet's vehicle once filled
+BATCH_TICKS = 4096  # [ticks] resident in a fleet's vehicle once filled (docs/performance.md#fan-out)
 # --telemetry-congestion: what a full-rate telemetry put does when a subscriber's link has no room (Zenoh's congestion
 # control; DROP waits 1 ms for room first). The overview's slow copies always drop: they are a view, not a record.
 CONGESTION = {"drop": zenoh.CongestionControl.DROP, "block": zenoh.CongestionControl.BLOCK}

@@ -23,13 +23,13 @@ if TYPE_CHECKING:
     import zenoh
     from zenoh.shm import ShmProvider
 
-# An autopilot's pool: four of its largest batches on the truth (4096 ticks, 1.3 MB), two in sensor mode (2.4 MB); a
-# batch that finds no room goes as bytes. With the sessions' it fits a desktop's 8 MB RLIMIT_MEMLOCK.
+# An autopilot's pool: several of its largest batches (BATCH_TICKS of every stream); a batch that finds no room goes
+# as bytes. With the sessions' segments it fits a desktop's 8 MB RLIMIT_MEMLOCK (docs/performance.md#fan-out).
 POOL_BYTES = 6 << 20
-# What sessions with shared memory lock into RAM: Zenoh 1.10's own segments when the first opens (1.3 MB), 12 kB for
-# each one after it, with room.
+# What sessions with shared memory lock into RAM: Zenoh's own segments when the first opens and a little for each
+# one after it, with room (docs/performance.md#fan-out).
 SESSION_LOCKS = 1536 << 10
-HOSTED_LOCKS = 512 << 10  # the sessions of a process's hosted vehicles after its first (40 of them)
+HOSTED_LOCKS = 512 << 10  # the sessions of a process's hosted vehicles after its first
 THRESHOLD = 3072  # [bytes] smaller payloads go as bytes: a real-time batch of 20 ticks, as Zenoh's own threshold
 CAP_IPC_LOCK = 14  # the capability that lifts RLIMIT_MEMLOCK (linux/capability.h)
 
