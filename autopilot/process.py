@@ -707,9 +707,9 @@ class Autopilot:
 
     def chores(self, wall: float) -> None:
         """The wall-clock work: the telemetry batch when it is due before the next chores (a little early, so that
-        the next is due with the chores after), the setpoint stream's, the mission transfers' and the datalink's
-        clocks, and the heartbeat."""
-        if self.zenoh.due(wall, early=HOUSEKEEPING):
+        the next is due with the chores after) or when no tick came since the last chores, the setpoint stream's,
+        the mission transfers' and the datalink's clocks, and the heartbeat."""
+        if self.zenoh.idle() or self.zenoh.due(wall, early=HOUSEKEEPING):
             self.zenoh.flush()
         self.zenoh.catch_up(wall)  # the newest records, turned away by the overview's period: owed
         self.commander.wall_clock(wall)

@@ -138,6 +138,7 @@ class ZenohOut:
         self.batch = Batch(BATCH_TICKS)
         self.last_records: dict[str, bytes] = {}  # each stream's last record published
         self.last_flush = 0.0
+        self.tick_seen = -1  # the tick when idle() last looked
         self.readers: list[Callable[[Batch, int], None]] = []  # the batch's other readers (the onboard log)
         if session is None:
             return
@@ -191,6 +192,13 @@ class ZenohOut:
     def due(self, wall: float, early: float = 0.0) -> bool:
         """Rows are batched and their period has passed since the last flush, or will have in ``early`` [s]."""
         return bool(self.io[kernel.ROWS]) and wall + early - self.last_flush >= self.period()
+
+    def idle(self) -> bool:
+        """Rows are batched and no tick came since the last time this was asked (the chores ask it every
+        HOUSEKEEPING): the run paused or ended, and its last ticks go out now, not a fast run's period later."""
+        tick, seen = int(self.io[kernel.TICK]), self.tick_seen
+        self.tick_seen = tick
+        return bool(self.io[kernel.ROWS]) and tick == seen
 
     def deadline(self, otherwise: float) -> float:
         """When the batched rows are due [s wall]: ``otherwise`` when there are none."""

@@ -233,3 +233,15 @@ def test_a_batch_is_due_after_its_period(rows, after, early, due):
         assert out.deadline(1e9) == pytest.approx(100.0 + (FAST_BATCH_WALL if rows > FAST_ROWS else BATCH_WALL))
     else:
         assert out.deadline(1e9) == 1e9
+
+
+def test_a_paused_run_sends_its_batch_at_the_next_chores_not_a_fast_period_later():
+    out = batcher(1600, 100.0)  # a fast run's batch: due FAST_BATCH_WALL after its last flush
+    out.io[kernel.TICK] = 5000
+    assert not out.idle()  # ticks came since the last look (none yet)
+    out.io[kernel.TICK] = 5400
+    assert not out.idle()
+    assert out.idle()  # none since: the run paused or ended
+    assert not out.due(100.0 + BATCH_WALL)  # what the period alone would say
+    out.io[kernel.ROWS] = 0
+    assert not out.idle()  # nothing batched: nothing to send

@@ -1,8 +1,9 @@
 """A telemetry subscriber that keeps every tick it gets, run as its own process so that a test can stop it
 (SIGSTOP) while the vehicle publishes: what a logger that falls behind looks like to the vehicle. It subscribes to
 everything of vehicle v1, says ``ready`` on stdout once the first sample came (the subscription then reaches the
-autopilot: its mission document comes every second), and when its stdin closes prints one JSON object: for each
-full-rate stream, the ticks it got, sorted and unique.
+autopilot: its mission document comes every second), and when its stdin closes, takes what comes for GRACE more
+seconds (a finished run's last batch is on its way: this counts ticks, it does not time them) and prints one JSON
+object: for each full-rate stream, the ticks it got, sorted and unique.
 
     python -m tests.tick_counter tcp/127.0.0.1:7447
 """
@@ -11,12 +12,15 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 
 import numpy as np
 import zenoh
 
 from groundstation.logger import CHANNEL, DTYPES
 from quadsitl import telemetry
+
+GRACE = 0.5  # [s]
 
 
 def main() -> int:
@@ -27,7 +31,11 @@ def main() -> int:
         print("ready", flush=True)
         sys.stdin.read()  # until the test closes it
         streams = {telemetry.key("v1", s): s for s in ticks}  # not the overview's slow copies
-        while (sample := sub.try_recv()) is not None:
+        end = time.monotonic() + GRACE
+        while (sample := sub.try_recv()) is not None or time.monotonic() < end:
+            if sample is None:
+                time.sleep(0.005)
+                continue
             stream = streams.get(str(sample.key_expr))
             if stream is not None:
                 ticks[stream].append(np.frombuffer(sample.payload.to_bytes(), dtype=DTYPES[stream])["tick"])
