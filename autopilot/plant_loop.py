@@ -36,7 +36,7 @@ import numpy as np
 
 from autopilot import tick as kernel
 from quadsitl import fastio
-from quadsitl.jit import jit
+from quadsitl.jit import borrowed, jit
 
 TICKED, STRANGER, DUE, QUIET, SENT, GROUND = 0, 1, 2, 3, 4, 5
 ANSWERED_ONLY = 7  # fly_one's: the answer sent, nothing left for Python (never returned to Python)
@@ -127,6 +127,9 @@ if fastio.AVAILABLE:
         The telemetry frames a tick built (FRAMES) go to the ground-station links' destinations (``links``:
         :attr:`Destinations.out`) after the answer; with no destination list (count −1: one Python cannot give
         here), or when a send fails, the tick's flags keep FRAMES and Python sends them."""
+        rx, addr, addrlen, peer, tx, io, targs, stats, links, ground = borrowed(
+            (rx, addr, addrlen, peer, tx, io, targs, stats, links, ground)
+        )  # quadsitl.jit.borrowed
         while True:
             n = fastio.receive(fd, rx, addr, addrlen, polling, budget_ns, patience_ns, stats)
             if n == fastio.RAN_OUT or n < 0:
@@ -180,7 +183,7 @@ if fastio.AVAILABLE:
                     continue
                 if ctl[i, CTL_COMPILED] == 0:
                     return _picked(out, i, k, READABLE, -1, 0)
-                fd, rx, addr, addrlen, peer, tx, io, targs, stats, links, ground = vehicles[i]
+                fd, rx, addr, addrlen, peer, tx, io, targs, stats, links, ground = borrowed(vehicles[i])
                 addrlen[0] = fastio.SOCKADDR_IN
                 n = fastio.recvfrom(fd, rx.ctypes.data, rx.size, fastio.MSG_DONTWAIT, addr.ctypes.data,
                                     addrlen.ctypes.data)  # fmt: skip

@@ -91,7 +91,7 @@ from quadsitl.hil import (
     decode_battery,
     decode_sensors,
 )
-from quadsitl.jit import copy_into, jit
+from quadsitl.jit import borrowed, copy_into, jit
 from quadsitl.mixer import Forces, allocate
 from quadsitl.param_arrays import ARM, D_OVER_B, MASS, G
 from quadsitl.rawbytes import put
@@ -435,6 +435,9 @@ def autopilot_tick(rx: np.ndarray, length: int, scratch: np.ndarray, st: np.ndar
     :attr:`autopilot.stream_frames.StreamFrames.out`); a re-sent one gets the same answer again; a stale one (older
     than the last, by less than 1 s: a jump back by more is a restarted plant) none. A BATTERY_STATUS after the
     ODOMETRY (a vehicle with a battery) goes to the commander (:func:`autopilot.commander.battery_seen`)."""
+    rx, scratch, st, plug, cm, mem, v, c, tx, io, records, frames = borrowed(
+        (rx, scratch, st, plug, cm, mem, v, c, tx, io, records, frames)
+    )  # no reference counts: quadsitl.jit.borrowed
     n = length  # the first frame's length: the ODOMETRY, a BATTERY_STATUS may follow
     if length >= 12 and rx[0] == MAVLINK2_STX:
         n = min(length, HEADER_SIZE + np.int64(rx[1]) + 2)
@@ -484,6 +487,9 @@ def sensor_tick(rx: np.ndarray, length: int, frame: np.ndarray, truth: np.ndarra
     estimate becomes ``st`` and is flown. The plant's ground truth is decoded into ``truth`` and goes to the
     telemetry records only (the controllers never see it), with the estimator's report (the sensors' record).
     ``home``: the local origin (lat, lon [deg], alt [m AMSL]) the GPS positions are taken from."""
+    rx, frame, truth, est, st, plug, cm, mem, v, c, tx, io, records, frames = borrowed(
+        (rx, frame, truth, est, st, plug, cm, mem, v, c, tx, io, records, frames)
+    )  # quadsitl.jit.borrowed
     t, flags, dropped = decode_sensors(rx, length, home, est[0], truth, frame)
     if t < 0:
         return NOT_MINE if t == NOT_THIS_FRAME else REFUSED

@@ -40,7 +40,7 @@ from groundstation.setpoint_grid import POSITION_VELOCITY_YAW
 from quadsitl import codec, hil
 from quadsitl.config import DEFAULT_LIMITS, SENSOR_GROUND_S, PositionParams, Preset
 from quadsitl.frames import PX4_HOME
-from quadsitl.jit import DISABLED, jit
+from quadsitl.jit import DISABLED, borrowed, jit
 from quadsitl.state import Reference, VehicleState
 from sitl import tick as plant_tick
 from sitl.plant import (
@@ -223,6 +223,9 @@ def fly_ticks(first: int, n: int, recording: bool, kind: int, period: float, sub
     (:func:`vehicle_tick`). With ``recording``, a state x(k) outside the bounds (:func:`sitl.plant.inside`) ends the
     loop before its tick, and each tick's row goes to rows[k − first] (R_*; on sensors SENSING_ROW_SIZE wide).
     Returns the number of ticks flown (n unless the state diverged)."""
+    plant, sens, ap, est, sp_ticks, sp_values, sp_next, rows = borrowed(
+        (plant, sens, ap, est, sp_ticks, sp_values, sp_next, rows)
+    )  # quadsitl.jit.borrowed
     w, cm = plant[0], ap[1]
     st, mem = ap[0], ap[2]
     for j in range(n):

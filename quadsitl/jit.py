@@ -34,6 +34,7 @@ from quadsitl import numba_inlining
 from quadsitl.compile_cache import cache_dir
 
 F = TypeVar("F", bound=Callable)
+T = TypeVar("T")
 
 DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 """True when ``NUMBA_DISABLE_JIT=1``: every :func:`jit` function runs as ordinary Python."""
@@ -86,6 +87,40 @@ def specialized(fn: F, *args: object) -> F:
     if DISABLED:
         return fn
     return fn.compile(tuple(numba.typeof(a) for a in args))  # type: ignore[attr-defined]
+
+
+if DISABLED:
+
+    def borrowed(value: T) -> T:
+        """``value`` itself (see the compiled version's docstring)."""
+        return value
+
+else:
+    from numba.core import cgutils, types
+    from numba.extending import intrinsic
+
+    def _without_owner(builder, ty, value):
+        if isinstance(ty, types.Array):  # the array's struct: (meminfo, parent, nitems, itemsize, data, shape, strides)
+            return builder.insert_value(value, cgutils.get_null_value(value.type.elements[0]), 0)
+        if isinstance(ty, types.BaseTuple):
+            for i, t in enumerate(ty.types):
+                value = builder.insert_value(value, _without_owner(builder, t, builder.extract_value(value, i)), i)
+        return value
+
+    @intrinsic
+    def borrowed(typingctx, value):
+        """``value`` (an array, or a tuple of them, nested) with no owner: the same data, shape and strides, but
+        numba's reference count of its memory is not kept (the meminfo is NULL), so neither its copies nor its slices
+        count. Each view of an array numba makes (a slice, an argument, a tuple's element) otherwise takes and drops a
+        reference with an atomic instruction: half the sweeps' engine's time (docs/performance.md#reference-counts).
+        Only for arrays that live longer than the compiled call (its arguments), and never returned."""
+
+        def codegen(context, builder, sig, args):
+            out = _without_owner(builder, sig.args[0], args[0])
+            context.nrt.incref(builder, sig.return_type, out)  # a new reference: its other members counted
+            return out
+
+        return value(value), codegen
 
 
 if DISABLED:

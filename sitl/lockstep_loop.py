@@ -22,7 +22,7 @@ import numpy as np
 
 from quadsitl import fastio
 from quadsitl.codec import usec_of
-from quadsitl.jit import copy_into, jit
+from quadsitl.jit import borrowed, copy_into, jit
 from quadsitl.param_arrays import VEHICLE_SIZE
 from sitl import tick
 from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X
@@ -53,6 +53,10 @@ def run(fds: np.ndarray, rx: np.ndarray, k: int, max_k: int, max_thrust: np.ndar
     ``polling[i]``: vehicle i's wait polls for up to ``patience_ns[i]`` [ns]; else it blocks in the receive (the
     socket's own timeout ends it: TIMED_OUT), and once ``hot_after`` consecutive waits were each shorter than the
     budget the clock goes back to Python (DUE), which then polls. ``deadline_ns``: CLOCK_MONOTONIC [ns]."""
+    fds, rx, max_thrust, received, work, params, air_rng, substeps, method, tx, io, sent, sent_len, polling, \
+        budget_ns, patience_ns, stats = borrowed((fds, rx, max_thrust, received, work, params, air_rng, substeps,
+                                                  method, tx, io, sent, sent_len, polling, budget_ns, patience_ns,
+                                                  stats))  # quadsitl.jit.borrowed (not sens: sitl.tick)  # fmt: skip
     sender, length = np.zeros(fastio.SOCKADDR_IN, dtype=np.uint8), np.zeros(1, dtype=np.int32)  # (connected: the peer)
     fleet = fds.size
     while k < max_k:

@@ -24,7 +24,7 @@ import numpy as np
 
 from quadsitl import fastio
 from quadsitl.codec import NOT_THIS_FRAME, decode_actuators
-from quadsitl.jit import copy_into, jit
+from quadsitl.jit import borrowed, copy_into, jit
 from sitl import tick
 from sitl.plant import W_AIR, W_COMMANDED, W_MOTORS, W_OUT, W_X, state_inside, step_work
 
@@ -149,6 +149,7 @@ def send_ticks(fds: np.ndarray, tx: np.ndarray, io: np.ndarray, work: np.ndarray
     :class:`sitl.plant.Plant`'s work array; ``sens``: the six arrays of :attr:`sitl.sensors.Sensors.arrays`, or None
     on the true state) → −1, or the first vehicle whose state left its bounds (then no vehicle is sent tick ``k``: the
     run ends). The vehicles take turns at going first (:func:`send_order`)."""
+    fds, tx, io, work = borrowed((fds, tx, io, work))  # quadsitl.jit.borrowed (not ``sens``: sitl.tick.take_and_step)
     for i in range(fds.size):
         if not state_inside(work[i, W_X:W_MOTORS]):
             return i
@@ -178,6 +179,9 @@ def take_and_step_all(fds: np.ndarray, rx: np.ndarray, received: np.ndarray, max
     all) → −1 once all are stepped, or the vehicle whose datagram waits in ``rx`` for Python (ANOTHER: rt[i,
     LENGTH] bytes), after which the call is made again from that vehicle. Each vehicle's LOST_NOW and BACK_NOW
     are added to ``said[i]``, for Python to say."""
+    fds, rx, received, max_thrust, io, rt, work, params, air_rng, substeps, method, said = borrowed(
+        (fds, rx, received, max_thrust, io, rt, work, params, air_rng, substeps, method, said)
+    )  # quadsitl.jit.borrowed
     for i in range(start, fds.size):
         w = work[i]
         flags = take_and_step(

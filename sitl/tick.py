@@ -19,7 +19,7 @@ from quadsitl.codec import HEADER_SIZE, HIL_SIZE, NOT_THIS_FRAME, SAFETY_ARMED, 
 from quadsitl.compiled_frames import euler_to_quaternion
 from quadsitl.config import DEFAULT_LIMITS
 from quadsitl.hil import encode_battery, encode_gps, encode_sensor, encode_truth
-from quadsitl.jit import copy_into, jit
+from quadsitl.jit import borrowed, copy_into, jit
 from sitl import sensors as sn
 from sitl.plant import (
     OUT_CHARGE,
@@ -126,6 +126,9 @@ def take_and_step(t: int, want: int, commanded: np.ndarray, received: np.ndarray
     bounds). At io[HOLD_TICK] the clock holds (HELD) until the answer says armed (io[ANSWER_ARMED]); with
     io[HOLD_LANDED], it holds at any tick once the flight is over: the answer says disarmed, an earlier one said
     armed, and the vehicle rests on the ground (``out``'s on-ground flag of the step that made ``x``)."""
+    commanded, received, x, motors, out, v, a, air, air_rng, tx, io = borrowed(
+        (commanded, received, x, motors, out, v, a, air, air_rng, tx, io)
+    )  # quadsitl.jit.borrowed; not ``sens``, whose None numba prunes as an argument only
     if t < 0:
         return NOTHING
     if t <= io[LAST_USEC]:
@@ -154,6 +157,9 @@ def lockstep_tick(rx: np.ndarray, length: int, want: int, max_thrust: float, rec
                   tx: np.ndarray, io: np.ndarray, sens: tuple | None, tick: int) -> int:  # fmt: skip
     """A datagram from the autopilot (rx[:length]) during tick ``tick``: STEPPED (the next state is in tx),
     DIVERGED (it is, but outside its bounds), FUTURE, NOTHING or ANOTHER_FRAME."""
+    rx, received, commanded, x, motors, out, v, a, air, air_rng, tx, io = borrowed(
+        (rx, received, commanded, x, motors, out, v, a, air, air_rng, tx, io)
+    )  # quadsitl.jit.borrowed (not ``sens``: take_and_step)
     t = decode_actuators(rx, length, received, max_thrust)
     if t == NOT_THIS_FRAME:
         return ANOTHER_FRAME

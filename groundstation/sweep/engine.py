@@ -63,7 +63,7 @@ from quadsitl.config import (
 from quadsitl.config import LIMITS_SIZE as LIMITS_SIZE
 from quadsitl.config import WindParams
 from quadsitl.frames import PX4_HOME as HOME
-from quadsitl.jit import constants, jit
+from quadsitl.jit import borrowed, constants, jit
 from quadsitl.param_arrays import ACTUATOR_SIZE, F_MAX, F_MIN, VEHICLE_SIZE
 from sitl import battery
 from sitl import tick as plant_tick
@@ -172,7 +172,8 @@ def _fly(
     trial (:func:`context`). The trial is flown as ``quadsitl sim`` flies it: the commander sees the
     initial state, takes the setpoint, arms in offboard, and each tick is :func:`groundstation.vehicle.vehicle_tick`."""
     w, air_rng, pio, datagram, st, cm, mem, truth, frame, cm0, air0, rng0, sens, sp_ticks, table, \
-        sp_next, plug = ctx  # fmt: skip
+        sp_next, plug = borrowed(ctx)  # fmt: skip
+    x0, r, sp, lim, m, keep = borrowed((x0, r, sp, lim, m, keep))
     # ---- the vehicle, at rest before its first tick (groundstation.vehicle.Vehicle) -------------------------------
     w[:] = 0.0
     for i in range(12):
