@@ -30,7 +30,7 @@ from quadsitl.config import (
     initial_state,
 )
 from quadsitl.frames import PX4_HOME
-from quadsitl.jit import jit, specialized
+from quadsitl.jit import borrowed, jit, specialized
 from quadsitl.mixer import Forces, forces_to_inputs, residual_rotor_speed
 from quadsitl.param_arrays import D_OVER_B, VEHICLE_SIZE, B, actuator_array, vehicle_array
 from quadsitl.state import Inputs, VehicleState
@@ -125,6 +125,7 @@ def step_work(w: np.ndarray, params: np.ndarray, air_rng: np.ndarray, period: fl
     """:func:`step_arrays` on :class:`Plant`'s arrays: ``w`` its work array (WORK_SIZE: W_*), ``params`` its
     vehicle array then its actuator array. Three arrays to unpack instead of eight when Python calls it: numba
     wraps each array it is given in an object of its own on every call (docs/performance.md#per-call)."""
+    w, params, air_rng = borrowed((w, params, air_rng))  # quadsitl.jit.borrowed
     step_arrays(w[W_X:W_MOTORS], w[W_MOTORS:W_COMMANDED], w[W_COMMANDED:W_OUT], w[W_OUT:W_AIR],
                 params[:VEHICLE_SIZE], params[VEHICLE_SIZE:], w[W_AIR:], air_rng, period, substeps, method,
                 omega_r)  # fmt: skip
