@@ -100,6 +100,7 @@ else:
     from numba.extending import intrinsic
 
     def _without_owner(builder, ty, value):
+        """The LLVM value of ``value`` (of numba type ``ty``) with every array's meminfo in it NULL."""
         if isinstance(ty, types.Array):  # the array's struct: (meminfo, parent, nitems, itemsize, data, shape, strides)
             return builder.insert_value(value, cgutils.get_null_value(value.type.elements[0]), 0)
         if isinstance(ty, types.BaseTuple):
@@ -112,8 +113,9 @@ else:
         """``value`` (an array, or a tuple of them, nested) with no owner: the same data, shape and strides, but
         numba's reference count of its memory is not kept (the meminfo is NULL), so neither its copies nor its slices
         count. Each view of an array numba makes (a slice, an argument, a tuple's element) otherwise takes and drops a
-        reference with an atomic instruction: half the sweeps' engine's time (docs/performance.md#reference-counts).
-        Only for arrays that live longer than the compiled call (its arguments), and never returned."""
+        reference with an atomic instruction, a large share of a per-tick loop's time
+        (docs/performance.md#reference-counts). Only for arrays that live longer than the compiled call (its
+        arguments), and never returned."""
 
         def codegen(context, builder, sig, args):
             out = _without_owner(builder, sig.args[0], args[0])
