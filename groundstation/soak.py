@@ -261,10 +261,10 @@ class Soak:
                     setattr(seg, name, self.router(router, endpoint) if name == "router" else self.dashboard(router))
                     seg.restarts[name] += 1
                 if now >= next_sample:
-                    self.sample(seg, now - start)
+                    self.sample(seg, start)
                     next_sample += self.args.sample
                 time.sleep(0.2)
-            self.sample(seg, time.monotonic() - start)
+            self.sample(seg, start)
             return True
         finally:
             for proc in (*seg.pilots.values(), seg.dashboard, seg.router):
@@ -316,7 +316,9 @@ class Soak:
                                              "--mission", str(self.mission), "--out", str(folder), "--timeout", "300",
                                              stdout=subprocess.DEVNULL, stderr=err)  # fmt: skip
 
-    def sample(self, seg: Segment, t: float) -> None:
+    def sample(self, seg: Segment, start: float) -> None:
+        """One sample, ``start`` the segment's first moment (time.monotonic [s]). Its time is read with the ticks: a
+        restart just before it (which blocks) does not put ticks counted later in an earlier moment."""
         rss = {}
         for name, pid in processes(seg).items():
             try:
@@ -325,12 +327,13 @@ class Soak:
                 continue
         with seg.lock:
             follows = {v: (f.ticks, f.lost, f.failsafes, f.missions) for v, f in sorted(seg.follows.items())}
+            t = time.monotonic() - start
         last = seg.samples[-1] if seg.samples else None
         rates = {}
         for v, (ticks, *_rest) in follows.items():
             if last is not None and last["t"] < t:
                 rates[v] = round((ticks - last["ticks"].get(v, 0)) / (t - last["t"]), 1)
-        seg.samples.append({"t": round(t, 1), "rss_mb": rss, "ticks": {v: f[0] for v, f in follows.items()},
+        seg.samples.append({"t": round(t, 3), "rss_mb": rss, "ticks": {v: f[0] for v, f in follows.items()},
                             "tick_rate": rates, "lost": {v: f[1] for v, f in follows.items()},
                             "failsafes": {v: f[2] for v, f in follows.items()},
                             "landings": {v: f[3] for v, f in follows.items()},
@@ -382,10 +385,11 @@ def summary(seg: Segment) -> dict:
 
 def table(s: dict) -> str:
     """A segment's summary as lines to print."""
+    base = f"MB at {s.get('base_t', 0):.1f} s"
     lines = [f"{s['mode']}: {s.get('end_t', 0):.0f} s sampled, missions {s.get('missions', 0)} (failed "
              f"{s.get('failed_missions', 0)}), telemetry ticks lost {s.get('lost', 0)}, failsafes "
              f"{s.get('failsafes', 0)}, restarts {s.get('restarts', {})}",
-             f"  {'process':<16} {'MB at ' + str(s.get('base_t', 0)) + ' s':>14} {'MB at end':>10} "
+             f"  {'process':<16} {base:>14} {'MB at end':>10} "
              f"{'growth %':>9}"]  # fmt: skip
     for name, m in s.get("memory", {}).items():
         lines.append(f"  {name:<16} {m['base_mb']:>14.1f} {m['end_mb']:>10.1f} {m['growth_pct']:>9.2f}")

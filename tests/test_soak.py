@@ -29,8 +29,12 @@ def test_two_minutes_of_soak_memory_and_tick_rate_flat_nothing_lost(tmp_path):
         assert s["restarts"]["dashboard"] >= 1 and s["restarts"]["router"] >= 1, what
         for name, m in s["memory"].items():  # after a quarter of the segment, then at its end
             assert m["growth_pct"] < 10.0, (name, m, what)
-        for v, rate in s["tick_rate"]["last"].items():  # the fleet keeps real time's pace (1 kHz) to the end
-            assert 900.0 < rate < 1100.0, (v, rate, what)
+        # Real time: the plant's clock is the wall's, 1 kHz in every sample. Lockstep paced at real time: never faster,
+        # and still flying in every sample; how close it stays to 1 kHz is the host's (docs/performance.md#the-soak).
+        low, high = (950.0, 1050.0) if s["mode"] == "realtime" else (500.0, 1100.0)
+        for sample in s["samples"][1:]:
+            for v, rate in sample["tick_rate"].items():
+                assert low < rate < high, (v, sample["t"], rate, what)
     assert "growth %" in r.stdout and "soak.json" in r.stdout.splitlines()[-1]
 
 
