@@ -1,4 +1,4 @@
-"""Several hosted vehicles flown by one thread (:mod:`autopilot.host`): one ``poll(2)`` on their plant sockets and
+"""Several hosted vehicles flown by one thread (:mod:`autopilot.host`): one ``epoll_wait`` on their plant sockets and
 each datagram served in compiled code (:func:`autopilot.plant_loop.serve_group`), instead of a thread woken and put
 to sleep again for every vehicle's every tick (docs/performance.md#a-hosted-fleet-of-32-in-real-time).
 
@@ -7,7 +7,7 @@ Each vehicle is the same :class:`autopilot.process.Autopilot` with the same loop
 vehicle back to Python, what :meth:`Autopilot.run` does after its compiled loop returns (:meth:`Autopilot.served`,
 or the Python path's datagram) and :meth:`Autopilot.housekeeping`. A vehicle whose ticks go to Python (no plant
 heard yet, a plant lost, a mission flying: :meth:`Autopilot.serving` False) has its datagrams read by Python, told
-by the same ``poll``. Only that vehicle's Python ran in its turn, so only its row of the loop's arguments is made
+by the same ``epoll_wait``. Only that vehicle's Python ran in its turn, so only its row of the loop's arguments is made
 again (:meth:`Group.prepare`). The vehicles are taken in turn, each turn starting after the last one served.
 
 Not grouped (:func:`groupable`): a vehicle flown with ``--offboard-lockstep`` (its clock may wait for a setpoint in
@@ -17,6 +17,7 @@ Python, which would hold its group-mates) or whose plant link is not served by c
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Callable, Sequence
 
@@ -27,7 +28,13 @@ from autopilot import plant_loop
 from autopilot.process import GCS_POLL, HOUSEKEEPING, Autopilot
 from quadsitl import fastio
 
-GROUP_SIZE = 16  # vehicles a thread flies at most: a host's groups share the cores (docs/fleets.md#hosted-autopilots)
+
+def group_threads() -> int:
+    """How many groups a host flies its vehicles of one kind in: a thread for each core this process may run on but
+    one, which the fleet's plant (one process, one thread) takes; at least one (docs/fleets.md#hosted-autopilots)."""
+    return max(1, len(os.sched_getaffinity(0)) - 1)
+
+
 QUIET_NS = 20_000_000  # [ns] the longest the loop waits without coming back to Python (the stop event's latency)
 
 
@@ -36,9 +43,10 @@ def groupable(ap: Autopilot) -> bool:
     return ap.pace is None and ap.plant.fast
 
 
-def groups_of(aps: Sequence[Autopilot], size: int = GROUP_SIZE) -> tuple[list[list[Autopilot]], list[Autopilot]]:
-    """(the groups, the vehicles flown alone): ``aps`` that :func:`groupable` in groups of at most ``size``, each of
-    vehicles whose loop arguments have the same types (one compiled loop: truth and sensors differ)."""
+def groups_of(aps: Sequence[Autopilot], threads: int | None = None) -> tuple[list[list[Autopilot]], list[Autopilot]]:
+    """(the groups, the vehicles flown alone): ``aps`` that :func:`groupable` in ``threads`` groups (default
+    :func:`group_threads`; fewer when there are fewer vehicles), each of vehicles whose loop arguments have the same
+    types (one compiled loop: truth and sensors differ)."""
     kinds: dict[object, list[Autopilot]] = {}
     alone = []
     for ap in aps:
@@ -48,7 +56,7 @@ def groups_of(aps: Sequence[Autopilot], size: int = GROUP_SIZE) -> tuple[list[li
             alone.append(ap)
     groups = []
     for same in kinds.values():
-        count = -(-len(same) // size)  # as many groups as needed, as even as they come
+        count = min(len(same), group_threads() if threads is None else threads)  # as even as they come
         groups += [same[g::count] for g in range(count)]
     return groups, alone
 
@@ -74,7 +82,7 @@ class Group:
         self.aps = list(aps)
         k = len(self.aps)
         self.ctl = np.zeros((k, plant_loop.CTL_SIZE), dtype=np.int64)
-        self.pfds = fastio.pollfds([ap.plant.sock for ap in self.aps])
+        self.ready = fastio.ReadySet([ap.plant.sock for ap in self.aps])
         self.out = np.zeros(plant_loop.OUT_SIZE, dtype=np.int64)
         self.targs = [ap.tick_arguments() for ap in self.aps]
         self.peers = [ap.plant.address for ap in self.aps]
@@ -121,11 +129,16 @@ class Group:
             ap.begin(ready)
             ap.next_chores += HOUSEKEEPING * i / len(self.aps)  # the group's trips to Python spread over the period
             self.prepare(i)
-        while not stop.is_set():
-            status = plant_loop.serve_group(self.entries, self.ctl, self.pfds, self.out, QUIET_NS)
-            i = int(self.out[plant_loop.VEHICLE])
-            if i >= 0:
-                self.turn(i, status)
-            else:  # nothing came for QUIET_NS: every vehicle's housekeeping (a plant gone silent)
-                for j in range(len(self.aps)):
-                    self.turn(j, plant_loop.QUIET)
+        ready = self.ready
+        try:
+            while not stop.is_set():
+                status = plant_loop.serve_group(self.entries, self.ctl, ready.fd, ready.events, ready.slot, self.out,
+                                                QUIET_NS)  # fmt: skip
+                i = int(self.out[plant_loop.VEHICLE])
+                if i >= 0:
+                    self.turn(i, status)
+                else:  # nothing came for QUIET_NS: every vehicle's housekeeping (a plant gone silent)
+                    for j in range(len(self.aps)):
+                        self.turn(j, plant_loop.QUIET)
+        finally:
+            ready.close()

@@ -4,11 +4,11 @@ autopilot's command line (``python -m autopilot ARGS``), as ``quadsitl up --vehi
 Each vehicle is the same :class:`autopilot.process.Autopilot` a process of its own runs, with its own sockets (the
 plant's, its ground-station and offboard links), MAVLink identity, parameters, commander and failsafes, and its own
 Zenoh session: from outside, the fleet looks as N processes do (PX4's multi-vehicle SITL, one instance a vehicle).
-The vehicles fly in groups of up to :data:`autopilot.group.GROUP_SIZE`, a thread each (:class:`autopilot.group.Group`:
-one ``poll`` on the group's plant sockets, the datagrams served in compiled code that does not hold Python's lock,
-so the other groups fly meanwhile); a vehicle that cannot be grouped flies its own loop (:meth:`Autopilot.run`) in a
-thread of its own, waiting in :func:`autopilot.plant_loop.serve_unlocked`. They share one interpreter, one compiler
-and the compiled code: a fleet's memory is its vehicles' state, not N interpreters
+The vehicles fly in groups, a thread each, as many as the cores but one (:func:`autopilot.group.group_threads`;
+:class:`autopilot.group.Group`: one ``epoll_wait`` on the group's plant sockets, the datagrams served in compiled code
+that does not hold Python's lock, so the other groups fly meanwhile); a vehicle that cannot be grouped flies its own
+loop (:meth:`Autopilot.run`) in a thread of its own, waiting in :func:`autopilot.plant_loop.serve_unlocked`. They share
+one interpreter, one compiler and the compiled code: a fleet's memory is its vehicles' state, not N interpreters
 (docs/fleets.md#hosted-autopilots).
 
 The process says it is ready (:func:`quadsitl.process_util.say_ready`) once every vehicle has sent its first heartbeat,

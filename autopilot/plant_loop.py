@@ -155,10 +155,11 @@ if fastio.AVAILABLE:
                      hot_after, limit_tick, stats, links, ground, ground_every_ns)  # fmt: skip
 
     @jit(nogil=True)  # it waits on the sockets: the host's other threads run meanwhile
-    def serve_group(vehicles: object, ctl: np.ndarray, pfds: np.ndarray, out: np.ndarray, quiet_ns: int) -> int:
+    def serve_group(vehicles: object, ctl: np.ndarray, epfd: int, events: np.ndarray, slot: np.ndarray,
+                    out: np.ndarray, quiet_ns: int) -> int:  # fmt: skip
         """:func:`serve` for several vehicles of one host at once, in one thread, without Python's lock
-        (:mod:`autopilot.group`): a ``poll(2)`` on every vehicle's plant socket, then each datagram waiting served as
-        :func:`serve` serves it, without a thread woken for each vehicle. → a status of :func:`serve`'s, or READABLE
+        (:mod:`autopilot.group`): an ``epoll_wait`` on the vehicles' plant sockets, then each datagram waiting served
+        as :func:`serve` serves it, without a thread woken for each vehicle. → a status of :func:`serve`'s, or READABLE
         (the vehicle's plant socket has a datagram for Python to read), for the vehicle out[VEHICLE] (the length and
         flags in out[LENGTH], out[FLAGS]); QUIET with out[VEHICLE] −1 when nothing came for ``quiet_ns``.
 
@@ -169,17 +170,18 @@ if fastio.AVAILABLE:
         ``vehicles``: numba's typed List of :func:`group_entry` tuples; ``ctl`` (int64, a row per vehicle):
         CTL_DEADLINE (CLOCK_MONOTONIC [ns]: the vehicle's DUE), CTL_LIMIT (``limit_tick``), CTL_COMPILED (0: the
         vehicle's datagrams go to Python, READABLE), CTL_GROUND_EVERY [ns], CTL_HELD (1: a SENT waits for Python, its
-        length and flags in CTL_HELD_LENGTH, CTL_HELD_FLAGS); ``pfds``: :func:`quadsitl.fastio.pollfds` of the plant
-        sockets, in the same order. The vehicles are taken in turn from out[NEXT] on."""
+        length and flags in CTL_HELD_LENGTH, CTL_HELD_FLAGS); ``epfd``, ``events``, ``slot``: a
+        :class:`quadsitl.fastio.ReadySet` of the plant sockets, in the same order. Datagrams are served in the order
+        their sockets became readable; Python's turns are taken in turn from out[NEXT] on."""
         k = len(vehicles)
         began = fastio.monotonic_ns()
         wait_ms = 0
         while True:
-            ready = fastio.poll(pfds.ctypes.data, k, wait_ms)
+            ready = fastio.epoll_wait(epfd, events.ctypes.data, k, wait_ms)
             served = 0
-            for j in range(k if ready > 0 else 0):
-                i = (out[NEXT] + j) % k
-                if pfds[i, 1] >> 16 == 0 or ctl[i, CTL_HELD]:  # nothing to read, or its Python work goes first
+            for j in range(ready if ready > 0 else 0):
+                i = slot[events[j * fastio.EPOLL_WORDS + fastio.EPOLL_FD_WORD]]
+                if ctl[i, CTL_HELD]:  # its Python work goes first
                     continue
                 if ctl[i, CTL_COMPILED] == 0:
                     return _picked(out, i, k, READABLE, -1, 0)
@@ -329,4 +331,6 @@ def warm_up(targs: tuple, unlocked: bool = False) -> None:
             )
             ctl = np.zeros((1, CTL_SIZE), dtype=np.int64)
             ctl[0, :CTL_HELD] = time.monotonic_ns() + 10**8, NO_LIMIT, 1, 0
-            serve_group(group_list([entry]), ctl, fastio.pollfds([sock]), np.zeros(OUT_SIZE, dtype=np.int64), 10**8)
+            with fastio.ReadySet([sock]) as ready:
+                serve_group(group_list([entry]), ctl, ready.fd, ready.events, ready.slot,
+                            np.zeros(OUT_SIZE, dtype=np.int64), 10**8)  # fmt: skip

@@ -3,9 +3,10 @@ tick and answer without coming back to Python between two ticks (:mod:`autopilot
 :mod:`sitl.lockstep_loop`).
 
 Each is a numba intrinsic that declares the libc function by name in the compiled module (``recvfrom``,
-``sendto``, ``send``, ``poll``, ``clock_gettime``), so the machine code calls it directly, as C would, and numba's
-on-disk cache keeps it (a ctypes function pointer would be a different address in every process, which numba refuses to
-cache). Buffers are passed as addresses (``array.ctypes.data``); the caller keeps the arrays alive.
+``sendto``, ``send``, ``poll``, ``epoll_wait``, ``clock_gettime``), so the machine code calls it directly, as C
+would, and numba's on-disk cache keeps it (a ctypes function pointer would be a different address in every process,
+which numba refuses to cache). Buffers are passed as addresses (``array.ctypes.data``); the caller keeps the arrays
+alive.
 
 Linux only (the socket address layout below is Linux's ``struct sockaddr_in``); with ``NUMBA_DISABLE_JIT=1`` none
 of this exists, and the processes keep their Python loops (:data:`AVAILABLE`).
@@ -14,6 +15,8 @@ of this exists, and the processes keep their Python loops (:data:`AVAILABLE`).
 from __future__ import annotations
 
 import os
+import platform
+import select
 import socket
 import struct
 import sys
@@ -57,6 +60,40 @@ def pollfds(socks: list[socket.socket]) -> np.ndarray:
     for i, sock in enumerate(socks):
         out[i] = sock.fileno(), POLLIN
     return out
+
+
+# Linux's struct epoll_event in uint32 words (events, then the 64-bit data whose low word is the descriptor): packed on
+# x86-64 (12 bytes), aligned to 8 elsewhere (16).
+EPOLL_WORDS, EPOLL_FD_WORD = (3, 1) if platform.machine() in ("x86_64", "AMD64") else (4, 2)
+
+
+class ReadySet:
+    """An ``epoll(7)`` instance watching sockets for datagrams to read, for :func:`epoll_wait` in compiled code: one
+    call tells which of many sockets have one, at a cost that grows with those that do, not with all of them (a
+    ``poll(2)`` asks every socket every time: docs/performance.md#a-hosted-fleet-in-lockstep).
+
+    ``fd``: the instance's descriptor; ``events``: room for one event per socket (uint32, EPOLL_WORDS each, the
+    socket's descriptor in word EPOLL_FD_WORD: Python's ``select.epoll`` registers a descriptor as the event's data);
+    ``slot``: int64, by descriptor, the socket's index in ``socks`` (−1 for any other)."""
+
+    def __init__(self, socks: list[socket.socket]) -> None:
+        fds = [sock.fileno() for sock in socks]
+        self._epoll = select.epoll()
+        for fd in fds:
+            self._epoll.register(fd, select.EPOLLIN)
+        self.fd = self._epoll.fileno()
+        self.events = np.zeros(max(len(fds), 1) * EPOLL_WORDS, dtype=np.uint32)
+        self.slot = np.full(max(fds, default=0) + 1, -1, dtype=np.int64)
+        self.slot[fds] = np.arange(len(fds))
+
+    def close(self) -> None:
+        self._epoll.close()
+
+    def __enter__(self) -> ReadySet:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def sockaddr(address: tuple[str, int]) -> np.ndarray:
@@ -135,6 +172,30 @@ if AVAILABLE:
             fn = _libc(builder, "poll", _I32, [_PTR, _I64, _I32])
             fds_, nfds_, timeout_ = args
             return builder.sext(builder.call(fn, [_ptr(builder, fds_), nfds_, builder.trunc(timeout_, _I32)]), _I64)
+
+        return sig, codegen
+
+    @intrinsic
+    def epoll_wait(typingctx, epfd, events, maxevents, timeout_ms):
+        """epoll_wait(epoll descriptor, struct epoll_event address, room for how many, timeout [ms]: 0 returns at
+        once) → how many events it wrote, or −1."""
+        sig = types.int64(types.int64, types.intp, types.int64, types.int64)
+
+        def codegen(context, builder, signature, args):
+            fn = _libc(builder, "epoll_wait", _I32, [_I32, _PTR, _I32, _I32])
+            ep_, events_, max_, timeout_ = args
+            return builder.sext(
+                builder.call(
+                    fn,
+                    [
+                        builder.trunc(ep_, _I32),
+                        _ptr(builder, events_),
+                        builder.trunc(max_, _I32),
+                        builder.trunc(timeout_, _I32),
+                    ],
+                ),
+                _I64,
+            )
 
         return sig, codegen
 

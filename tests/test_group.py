@@ -61,7 +61,7 @@ def fleet():
 def test_a_group_answers_every_tick_of_its_own_vehicle_as_a_vehicle_on_its_own_loop_does(fleet):
     aps, plants, addresses = fleet
     grouped, alone = aps[:2], aps[2]
-    groups, single = groups_of(aps, size=2)
+    groups, single = groups_of(aps, threads=2)
     assert [len(g) for g in groups] == [2, 1] and not single  # same kind: groups as even as they come
     # vehicle 0 locks to its plant through Python's loop before the group starts, and so does the vehicle on its own
     # loop; vehicle 1's first datagram is Python's in the group (no plant yet: READABLE), its later ones the loop's
