@@ -19,14 +19,17 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from collections.abc import Callable, Sequence
 
 import numba
 import numpy as np
 
 from autopilot import plant_loop
+from autopilot import tick as kernel
 from autopilot.process import GCS_POLL, HOUSEKEEPING, Autopilot
 from quadsitl import fastio
+from quadsitl.process_util import PACED_BELOW, spin_budget
 
 
 def group_threads() -> int:
@@ -88,6 +91,11 @@ class Group:
         self.peers = [ap.plant.address for ap in self.aps]
         self.entries = plant_loop.group_list([_entry(ap, t) for ap, t in zip(self.aps, self.targs, strict=True)])
         self.entries[0] = self.entries[0]  # numba compiles the list's item assignment now, not in the first turn
+        # Each vehicle's plant pace, as a vehicle alone measures it (PaceGauge): the group polls before it blocks
+        # (spin_ns) only while every one of them is unpaced (lockstep as fast as it goes), never in real time.
+        self.unpaced = [False] * k
+        self.budget_ns = int(spin_budget() * 1e9)
+        self.spin_ns = 0
 
     def prepare(self, i: int) -> None:
         """Vehicle ``i``'s row of the loop's arguments, after its turn in Python (the only one whose Python ran)."""
@@ -122,6 +130,10 @@ class Group:
             ap.served(status, int(self.out[plant_loop.LENGTH]), int(self.out[plant_loop.FLAGS]), wall)
         ap.housekeeping(status)
         self.prepare(i)
+        pace = ap.plant.pace.update(int(ap.io[kernel.TICK]), time.monotonic())
+        if pace is not None:
+            self.unpaced[i] = pace >= PACED_BELOW
+            self.spin_ns = self.budget_ns if all(self.unpaced) else 0
 
     def run(self, stop: threading.Event, ready: Callable[[], None]) -> None:
         """Fly the group until ``stop`` is set; ``ready`` once for each vehicle, when its first heartbeat is out."""
@@ -133,7 +145,7 @@ class Group:
         try:
             while not stop.is_set():
                 status = plant_loop.serve_group(self.entries, self.ctl, ready.fd, ready.events, ready.slot, self.out,
-                                                QUIET_NS)  # fmt: skip
+                                                QUIET_NS, self.spin_ns)  # fmt: skip
                 i = int(self.out[plant_loop.VEHICLE])
                 if i >= 0:
                     self.turn(i, status)

@@ -156,7 +156,7 @@ if fastio.AVAILABLE:
 
     @jit(nogil=True)  # it waits on the sockets: the host's other threads run meanwhile
     def serve_group(vehicles: object, ctl: np.ndarray, epfd: int, events: np.ndarray, slot: np.ndarray,
-                    out: np.ndarray, quiet_ns: int) -> int:  # fmt: skip
+                    out: np.ndarray, quiet_ns: int, spin_ns: int) -> int:  # fmt: skip
         """:func:`serve` for several vehicles of one host at once, in one thread, without Python's lock
         (:mod:`autopilot.group`): an ``epoll_wait`` on the vehicles' plant sockets, then each datagram waiting served
         as :func:`serve` serves it, without a thread woken for each vehicle. → a status of :func:`serve`'s, or READABLE
@@ -172,12 +172,22 @@ if fastio.AVAILABLE:
         vehicle's datagrams go to Python, READABLE), CTL_GROUND_EVERY [ns], CTL_HELD (1: a SENT waits for Python, its
         length and flags in CTL_HELD_LENGTH, CTL_HELD_FLAGS); ``epfd``, ``events``, ``slot``: a
         :class:`quadsitl.fastio.ReadySet` of the plant sockets, in the same order. Datagrams are served in the order
-        their sockets became readable; Python's turns are taken in turn from out[NEXT] on."""
+        their sockets became readable; Python's turns are taken in turn from out[NEXT] on. ``spin_ns`` > 0: when no
+        datagram waits, ask again without blocking (yielding the core between asks) for up to that long before it
+        blocks, as a vehicle alone does in an unpaced lockstep run (:class:`quadsitl.process_util.SpinThenBlock`):
+        waking a blocked thread costs more than a vehicle's tick."""
         k = len(vehicles)
         began = fastio.monotonic_ns()
         wait_ms = 0
         while True:
-            ready = fastio.epoll_wait(epfd, events.ctypes.data, k, wait_ms)
+            ready = fastio.epoll_wait(epfd, events.ctypes.data, k, 0 if spin_ns > 0 else wait_ms)
+            if ready == 0 and wait_ms > 0 and spin_ns > 0:
+                spun = fastio.monotonic_ns()
+                while ready == 0 and fastio.monotonic_ns() - spun < spin_ns:
+                    fastio.sched_yield()
+                    ready = fastio.epoll_wait(epfd, events.ctypes.data, k, 0)
+                if ready == 0:
+                    ready = fastio.epoll_wait(epfd, events.ctypes.data, k, wait_ms)
             served = 0
             for j in range(ready if ready > 0 else 0):
                 i = slot[events[j * fastio.EPOLL_WORDS + fastio.EPOLL_FD_WORD]]
@@ -333,4 +343,4 @@ def warm_up(targs: tuple, unlocked: bool = False) -> None:
             ctl[0, :CTL_HELD] = time.monotonic_ns() + 10**8, NO_LIMIT, 1, 0
             with fastio.ReadySet([sock]) as ready:
                 serve_group(group_list([entry]), ctl, ready.fd, ready.events, ready.slot,
-                            np.zeros(OUT_SIZE, dtype=np.int64), 10**8)  # fmt: skip
+                            np.zeros(OUT_SIZE, dtype=np.int64), 10**8, 0)  # fmt: skip

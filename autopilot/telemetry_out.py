@@ -35,9 +35,10 @@ if TYPE_CHECKING:
 # dashboard draws); each batch wakes Zenoh's threads on the cores a lockstep pair needs
 # (docs/performance.md#telemetry-batches).
 BATCH_WALL = 0.020
-# A run faster than ten times real time (more than FAST_ROWS ticks in BATCH_WALL) batches FAST_BATCH_WALL instead:
-# each batch costs every subscriber a wake-up and its callbacks, whatever it holds (docs/performance.md#fan-out).
-FAST_ROWS = 200
+# A run faster than twice real time (more than FAST_ROWS ticks in BATCH_WALL) batches FAST_BATCH_WALL instead: each
+# batch costs every subscriber a wake-up and its callbacks, and its host a put per stream, whatever it holds
+# (docs/performance.md#fan-out, #a-hosted-fleet-in-lockstep).
+FAST_ROWS = 40
 FAST_BATCH_WALL = 0.100
 # And at the latest after this many ticks: each batch is a trip out of the compiled loop here and a few samples the
 # ground station's Python takes, so fewer, larger batches make a lockstep run faster

@@ -60,7 +60,7 @@ too, so that one version names the whole set. v2 batched records; v1 carried
 exactly one per sample.
 
 A sample carries one or more records of consecutive ticks, concatenated (since v2).
-The autopilot sends what it has every ``BATCH_WALL`` of wall time (``FAST_BATCH_WALL`` in a run faster than ten times
+The autopilot sends what it has every ``BATCH_WALL`` of wall time (``FAST_BATCH_WALL`` in a run faster than twice
 real time), or once ``BATCH_TICKS`` ticks are waiting (:mod:`autopilot.telemetry_out`): in real time a few records
 per sample, in a fast lockstep run many; a large one through Zenoh's shared memory (:mod:`quadsitl.zenoh_shm`).
 Every tick's record is published; batching only spares the transport a message (and a wake-up of its thread, and of

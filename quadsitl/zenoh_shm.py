@@ -79,16 +79,25 @@ def pool() -> ShmProvider | None:
         return None
 
 
+@functools.cache
+def _alloc_policy() -> tuple[object, type[Exception]]:
+    """(the pool's allocation policy: collect what subscribers let go of and defragment, never wait; Zenoh's error),
+    made once: a put's own imports and policy cost as much as its copy
+    (docs/performance.md#a-hosted-fleet-in-lockstep)."""
+    import zenoh
+    from zenoh.shm import Defragment, GarbageCollect
+
+    return Defragment(GarbageCollect()), zenoh.ZError
+
+
 def put(pub: zenoh.Publisher, payload: bytes, provider: ShmProvider | None) -> None:
     """``payload`` put through ``provider``'s shared memory when it is over THRESHOLD; as bytes when it is not, when
     there is no provider, or when the pool is full (a subscriber still holds earlier batches): never a wait."""
     if provider is not None and len(payload) > THRESHOLD:
-        import zenoh
-        from zenoh.shm import Defragment, GarbageCollect
-
+        policy, error = _alloc_policy()
         try:
-            buf = provider.alloc(len(payload), Defragment(GarbageCollect()))
-        except zenoh.ZError:
+            buf = provider.alloc(len(payload), policy)
+        except error:
             pub.put(payload)
             return
         buf[:] = payload

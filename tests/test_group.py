@@ -4,6 +4,7 @@ whose ticks are Python's (no plant yet) read by Python and then served in compil
 
 import socket
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -94,3 +95,41 @@ def test_a_group_answers_every_tick_of_its_own_vehicle_as_a_vehicle_on_its_own_l
         assert np.allclose(aps[v].st[:12], state(TICKS - 1, v), rtol=1e-6, atol=1e-6)  # its own last state (float32)
         assert aps[v].io[kernel.TICK] == TICKS - 1
     assert aps[1].plant.address is not None and aps[1].serving()  # its first datagram through Python locked it
+
+
+def test_a_group_polls_before_it_blocks_only_while_its_plants_run_unpaced(fleet):
+    """As a vehicle alone (SpinThenBlock, PaceGauge): ticks as fast as they are answered make the group poll before
+    it blocks (spin_ns, the budget); ticks a millisecond apart (real time) make it block at once."""
+    aps, plants, addresses = fleet
+    group = Group(aps[:2])
+    stop = threading.Event()
+    thread = threading.Thread(target=group.run, args=(stop, lambda: None))
+    thread.start()
+    tick = 1
+
+    def fly(seconds: float, period: float) -> float:
+        """Ticks for ``seconds``, ``period`` apart (0: each as soon as both answers came) → ticks per second."""
+        nonlocal tick
+        began = time.monotonic()
+        first = tick
+        while time.monotonic() - began < seconds:
+            for v in (0, 1):
+                plants[v].sendto(state_frame(tick, v), addresses[v])
+            for v in (0, 1):
+                plants[v].recv(1000)
+            tick += 1
+            if period:
+                time.sleep(period)
+        return (tick - first) / (time.monotonic() - began)
+
+    try:
+        assert group.budget_ns > 0
+        for _ in range(2):
+            rate = fly(0.6, 0.0)
+            assert group.spin_ns == group.budget_ns, rate  # unpaced: PACED_BELOW x real time or faster
+            rate = fly(0.6, PERIOD)
+            assert group.spin_ns == 0 and rate < 1.5 / PERIOD, rate
+    finally:
+        stop.set()
+        thread.join(10)
+    assert not thread.is_alive()
