@@ -623,6 +623,13 @@ def handle_stop_signals() -> None:
             lost = exc.signum
             signal.setitimer(signal.ITIMER_REAL, LOST_STOP_AGAIN)
             return
+        if _stop_requested is not None and exc is not None:
+            # The stop interrupted an object's making (llvmlite's ValueRef, while numba loads compiled code), and its
+            # finalizer then failed on what was never set: one line, as run_stoppable reports such an error.
+            where = getattr(getattr(info, "object", None), "__qualname__", "a finalizer")
+            print(f"{Path(sys.argv[0]).name}: stopped; while stopping, in {where}: {type(exc).__name__}: {exc}",
+                  file=sys.stderr)  # fmt: skip
+            return
         previous(info)
 
     def again(_signum: int, _frame: object) -> None:

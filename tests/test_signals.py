@@ -251,6 +251,40 @@ def test_a_stop_raised_where_python_drops_exceptions_is_raised_again(sig):
     assert "Exception ignored" not in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
+HALF_MADE = """
+import os, signal, sys, time
+from quadsitl.process_util import handle_stop_signals, run_stoppable
+
+class HalfMade:
+    def __init__(self):
+        os.kill(os.getpid(), signal.SIGTERM)  # the stop lands here, before the attribute is set (llvmlite's ValueRef)
+        for _ in range(1000):
+            pass
+        self.handle = 1
+
+    def __del__(self):
+        del self.handle  # AttributeError: the finalizer of an object the stop interrupted
+
+def main():
+    handle_stop_signals()
+    HalfMade()
+    return 3
+
+sys.exit(run_stoppable(main, stopped=0))
+"""
+
+
+def test_a_finalizer_failing_on_an_object_the_stop_interrupted_is_one_line_not_a_traceback():
+    """An autopilot stopped while numba loaded its compiled code: the stop interrupted llvmlite's ValueRef before it
+    was whole, its finalizer then raised AttributeError, and Python printed 'Exception ignored' and a traceback
+    (ci at e0544df). Stopped, with one line saying what failed while it stopped."""
+    r = subprocess.run([sys.executable, "-c", HALF_MADE], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "stopped; while stopping, in HalfMade.__del__: AttributeError" in lines[0], r.stderr
+
+
 COMMAND_REPORTED_AS_ANOTHER_ERROR = (
     INTERRUPTED_LIBRARY
     + """
