@@ -3,4 +3,4 @@ import sys
 from autopilot.process import main
 from quadsitl.process_util import run_stoppable
 
-sys.exit(run_stoppable(main))
+sys.exit(run_stoppable(main, name="quadsitl autopilot"))

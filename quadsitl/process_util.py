@@ -555,7 +555,10 @@ def run_stoppable(main: Callable[[], int], stopped: int | None = 0, name: str = 
     stopped), or, when ``stopped`` is None, 128 + the signal. Every process entry point goes through this
     (``python -m sitl``, ``-m autopilot``, ``-m groundstation``, the dashboard, replay, and ``quadsitl``). An error
     that escapes ``main`` after a stop request is taken as that stop's (the interrupted code reported it as its own)
-    and printed as one line ``NAME: stopped; while stopping: ...``."""
+    and printed as one line ``NAME: stopped; while stopping: ...``; ``name`` is also what a finalizer's failure after a
+    stop is reported under (:func:`handle_stop_signals`)."""
+    global _process_name
+    _process_name = name
     whole_lines()
     try:
         return main()
@@ -583,6 +586,7 @@ FORCE_AFTER = 2.0  # [s] a second stop signal later than this after the first in
 LOST_STOP_AGAIN = 0.005  # [s] when a stop request raised where Python drops exceptions is raised again
 _stop_requested_at: float | None = None
 _stop_requested: int | None = None  # the signal of this process's first stop request
+_process_name = "quadsitl"  # what this process calls itself on stderr (run_stoppable's name)
 
 
 def handle_stop_signals() -> None:
@@ -627,7 +631,7 @@ def handle_stop_signals() -> None:
             # The stop interrupted an object's making (llvmlite's ValueRef, while numba loads compiled code), and its
             # finalizer then failed on what was never set: one line, as run_stoppable reports such an error.
             where = getattr(getattr(info, "object", None), "__qualname__", "a finalizer")
-            print(f"{Path(sys.argv[0]).name}: stopped; while stopping, in {where}: {type(exc).__name__}: {exc}",
+            print(f"{_process_name}: stopped; while stopping, in {where}: {type(exc).__name__}: {exc}",
                   file=sys.stderr)  # fmt: skip
             return
         previous(info)

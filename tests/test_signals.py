@@ -270,19 +270,21 @@ def main():
     HalfMade()
     return 3
 
-sys.exit(run_stoppable(main, stopped=0))
+sys.exit(run_stoppable(main, stopped=0, name="quadsitl autopilot"))
 """
 
 
 def test_a_finalizer_failing_on_an_object_the_stop_interrupted_is_one_line_not_a_traceback():
     """An autopilot stopped while numba loaded its compiled code: the stop interrupted llvmlite's ValueRef before it
     was whole, its finalizer then raised AttributeError, and Python printed 'Exception ignored' and a traceback
-    (ci at e0544df). Stopped, with one line saying what failed while it stopped."""
+    (ci at e0544df). Stopped, with one line saying what failed while it stopped, under the process's own name (it was
+    ``__main__.py`` under ``python -m autopilot``)."""
     r = subprocess.run([sys.executable, "-c", HALF_MADE], capture_output=True, text=True, timeout=30)
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr
     lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and "stopped; while stopping, in HalfMade.__del__: AttributeError" in lines[0], r.stderr
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith("quadsitl autopilot: stopped; while stopping, in HalfMade.__del__: AttributeError")
 
 
 COMMAND_REPORTED_AS_ANOTHER_ERROR = (

@@ -354,4 +354,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_stoppable(main))
+    sys.exit(run_stoppable(main, name="quadsitl dashboard"))
