@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 
 from autopilot.group import Group, groups_of
 from autopilot.process import REFUSED, Autopilot, build_parser, open_autopilot, refusal
+from quadsitl.jit import favour_compile_time
 from quadsitl.process_util import say_ready, start_process
 
 PROG = "python -m autopilot.host"
@@ -62,6 +63,7 @@ class Readiness:
 
 def main(argv: Sequence[str] | None = None) -> int:
     start_process()
+    favour_compile_time()  # compiles at -O2: a first run's wait (docs/performance.md#compiling-on-first-run)
     try:
         lines = vehicles_of(sys.argv[1:] if argv is None else argv)
     except ValueError as exc:

@@ -81,6 +81,7 @@ from autopilot.tick import autopilot_tick, sensor_tick, warm_up
 from quadsitl import codec, failures, fastio, wire
 from quadsitl.cli_util import UsageError, parse_controller_params, with_state
 from quadsitl.config import ConfigError, Preset, load_preset
+from quadsitl.jit import favour_compile_time
 from quadsitl.keys import param_values
 from quadsitl.process_util import (
     bind_udp,
@@ -827,6 +828,7 @@ def refusal(prog: str, exc: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     start_process()
+    favour_compile_time()  # compiles at -O2: a first run's wait (docs/performance.md#compiling-on-first-run)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -241,10 +241,11 @@ def compile_once(env: dict[str, str] | None, modes: Collection[bool] = (False, T
     compiling the same code at once (a cold start): for the ``modes`` its vehicles fly (True: on sensors) and the
     plant's ``clocks``."""
     modes, clocks = sorted(set(modes)), sorted(set(clocks))
-    autopilot = ("from autopilot.tick import warm_up; from autopilot.process import warm_up_loops; "
+    level = "from quadsitl.jit import favour_compile_time; favour_compile_time(); "  # as the processes compile
+    autopilot = (level + "from autopilot.tick import warm_up; from autopilot.process import warm_up_loops; "
                  f"[warm_up(s) for s in {modes!r}]; warm_up_loops({modes!r})")  # fmt: skip
-    plant = ("from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process import warm_up; "
-             f"warm_up(Plant(load_preset('paper')), {modes!r}, {clocks!r})")  # fmt: skip
+    plant = (level + "from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process "
+             f"import warm_up; warm_up(Plant(load_preset('paper')), {modes!r}, {clocks!r})")  # fmt: skip
     # The autopilot's code and the plant's compile at once, a process each, as a first `fly`'s two processes do.
     compilers = [subprocess.Popen([sys.executable, "-c", code], env=env) for code in (autopilot, plant)]
     try:

@@ -63,6 +63,7 @@ from quadsitl.cli_util import (
 )
 from quadsitl.config import ConfigError, load_preset
 from quadsitl.frames import PX4_HOME
+from quadsitl.jit import favour_compile_time
 from quadsitl.process_util import (
     CORES_AWAKE_HELP,
     HOT_AFTER,
@@ -319,6 +320,7 @@ def fleet_from_args(args: argparse.Namespace) -> list[Vehicle]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     start_process()
+    favour_compile_time()  # compiles at -O2: a first run's wait (docs/performance.md#compiling-on-first-run)
     parser = build_parser()
     args = parser.parse_args(argv)
     vehicles: list[Vehicle] = []
