@@ -30,7 +30,7 @@ from typing import TypeVar
 import numba
 import numpy as np
 
-from quadsitl import numba_inlining
+from quadsitl import numba_inlining, numba_overhead
 from quadsitl.compile_cache import cache_dir
 
 F = TypeVar("F", bound=Callable)
@@ -42,6 +42,7 @@ DISABLED = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 
 numba.config.CACHE_DIR = str(cache_dir())
 numba_inlining.install()  # numba's inliner copies an inlined function's IR in linear time (see the module)
+numba_overhead.install()  # and spends less of a first compile in its own bookkeeping (see the module)
 
 PROCESS_OPT = 2
 """LLVM's optimisation level for the code the plant and autopilot processes compile (:func:`favour_compile_time`)."""
