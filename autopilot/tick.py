@@ -569,24 +569,62 @@ def made_up_datagram(sensing: bool, size: int) -> tuple[np.ndarray, int]:
     return buf, len(data)
 
 
+class _MadeUp:
+    """Made-up arrays of a tick's types, for the warm-ups: what a process passes its compiled tick."""
+
+    def __init__(self) -> None:
+        from autopilot.control_params import control_array
+        from quadsitl import codec
+        from quadsitl.param_arrays import VEHICLE_SIZE
+
+        self.frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
+        self.st = np.zeros(codec.DECODED_SIZE)
+        self.v = np.ones(VEHICLE_SIZE)
+        self.c = control_array((0.5,) * 8, 0.001)
+        self.mem = np.zeros(MEM_SIZE)
+        self.batch = Batch(2)
+        self.frames = stream_frames.StreamFrames(2, (47.0, 8.0, 488.0), 40.0, False)
+        self.frames.sched[:, :, 0] = 1  # every message on every link, every tick
+        self.io = np.zeros(IO_SIZE, dtype=np.int64)
+        self.io[LAST_USEC], self.io[CAPACITY] = -1, self.batch.capacity
+
+
+def warm_up_share(sensing: bool | None = None) -> None:
+    """Compile into numba's cache the parts of :func:`warm_up`'s tick that another process can compile while the
+    autopilot's compiles the bulk (:func:`control_tick`, which :func:`warm_up` does first): the frames the ground
+    station's messages and streams are built with, the state's decoder, the answer to a re-sent state. The autopilot's
+    tick then loads them instead of compiling them, and a first run waits less with a core each
+    (groundstation.launcher; docs/performance.md#compiling-on-first-run). Each part is called from Python with the
+    argument types the tick passes it, so its cached code is the one the tick's compile looks up."""
+    from autopilot import gcs_messages
+    from autopilot.commander import Commander
+    from quadsitl import codec
+
+    gcs_messages.warm_up()
+    m, cm = _MadeUp(), Commander().cm
+    if sensing is not True:
+        rx, n = made_up_datagram(False, codec.FRAME_MAX)
+        codec.decode_state(rx, n, m.st.copy())
+    answer_again(0, cm, m.mem, 1.0, m.frame, m.io)
+    _frames(0, 0.001, m.st, cm, m.mem, m.io, m.frames.out)
+
+
 def warm_up(sensing: bool | None = None) -> None:
     """Compile (or load from numba's cache) everything a tick calls, on made-up data, before the first tick: the
     state mode's tick (``sensing`` False), the sensor mode's (True), or both (None: a launcher's, for processes of
-    either). A process compiles only the mode it flies (docs/performance.md#compiling-on-first-run)."""
+    either). A process compiles only the mode it flies (docs/performance.md#compiling-on-first-run). The bulk first,
+    :func:`control_tick` (the commander and the controllers), while another process may compile the rest
+    (:func:`warm_up_share`)."""
     from autopilot import gcs_messages
     from autopilot.commander import HOLD, Commander, enter
-    from autopilot.control_params import BACKSTEPPING, control_array
+    from autopilot.control_params import BACKSTEPPING
     from autopilot.estimator import Estimator
     from quadsitl import codec, hil
-    from quadsitl.param_arrays import VEHICLE_SIZE
 
-    frame = np.zeros(codec.FRAME_MAX, dtype=np.uint8)
-    st = np.zeros(codec.DECODED_SIZE)
-    v = np.ones(VEHICLE_SIZE)
-    c = control_array((0.5,) * 8, 0.001)
-    batch = Batch(2)
-    frames = stream_frames.StreamFrames(2, (47.0, 8.0, 488.0), 40.0, False)
-    frames.sched[:, :, 0] = 1  # every message on every link, every tick
+    m = _MadeUp()
+    frame, st, v, c, batch, frames = m.frame, m.st, m.v, m.c, m.batch, m.frames
+    control_tick(BACKSTEPPING, plugin.no_plug(), st.copy(), Commander().cm, m.mem, v, c, -1.0, 1.0, frame.copy(),
+                 m.io.copy(), 0, 0, 0.0, batch.records.copy())  # fmt: skip
     gcs_messages.warm_up()  # what Python builds (requested, signed, the slower streams) calls compiled code too
     for kind in (BACKSTEPPING, PD):
         for armed in (False, True):

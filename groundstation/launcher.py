@@ -236,17 +236,18 @@ def publish_info(fleet: list[VehiclePlan], endpoint: str, client: bool = False, 
 
 def compile_once(env: dict[str, str] | None, modes: Collection[bool] = (False, True),
                  clocks: Collection[str] = CLOCKS) -> None:  # fmt: skip
-    """Before a fleet starts: compile the equations once, into numba's cache, in two processes of their own (the
-    autopilot's code and the plant's, one on each core), so that the fleet's 2N processes load them instead of each
-    compiling the same code at once (a cold start): for the ``modes`` its vehicles fly (True: on sensors) and the
-    plant's ``clocks``."""
+    """Before a fleet starts: compile the equations once, into numba's cache, in two processes of their own (one on
+    each core), so that the fleet's 2N processes load them instead of each compiling the same code at once (a cold
+    start): for the ``modes`` its vehicles fly (True: on sensors) and the plant's ``clocks``. One compiles the
+    autopilot's tick, its bulk first, and loops; the other the parts of that tick it can meanwhile
+    (:func:`autopilot.tick.warm_up_share`), then the plant's (docs/performance.md#compiling-on-first-run)."""
     modes, clocks = sorted(set(modes)), sorted(set(clocks))
     level = "from quadsitl.jit import favour_compile_time; favour_compile_time(); "  # as the processes compile
     autopilot = (level + "from autopilot.tick import warm_up; from autopilot.process import warm_up_loops; "
                  f"[warm_up(s) for s in {modes!r}]; warm_up_loops({modes!r})")  # fmt: skip
-    plant = (level + "from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process "
+    plant = (level + f"from autopilot.tick import warm_up_share; [warm_up_share(s) for s in {modes!r}]; "
+             "from quadsitl.config import load_preset; from sitl.plant import Plant; from sitl.process "
              f"import warm_up; warm_up(Plant(load_preset('paper')), {modes!r}, {clocks!r})")  # fmt: skip
-    # The autopilot's code and the plant's compile at once, a process each, as a first `fly`'s two processes do.
     compilers = [subprocess.Popen([sys.executable, "-c", code], env=env) for code in (autopilot, plant)]
     try:
         failed = [p.wait() != 0 for p in compilers]

@@ -103,3 +103,44 @@ def test_up_compiles_the_autopilot_and_the_plant_at_once_and_fails_if_either_hal
     assert log.read_text().split() == ["start", "start", "end", "end"]
     with pytest.raises(RuntimeError, match="compiling the equations failed"):
         launcher.compile_once(None, (False,), ("no such clock",))  # the plant's half fails, the autopilot's does not
+
+
+SHARED = ("autopilot.tick._frames", "autopilot.tick.answer_again", "quadsitl.codec.decode_state",
+          "autopilot.stream_frames.encode")  # fmt: skip
+COUNT = """
+import importlib, json, sys
+from quadsitl.jit import favour_compile_time
+favour_compile_time()
+from autopilot import tick
+getattr(tick, sys.argv[1])(False)
+out = {}
+for name in sys.argv[2:] + ["autopilot.tick.control_tick"]:
+    module, _, function = name.rpartition(".")
+    f = getattr(importlib.import_module(module), function)
+    out[name] = (len(f.signatures), sum(f._cache_hits.values()), sum(f._cache_misses.values()))
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.timeout(400)
+def test_the_share_a_helper_compiles_is_what_the_autopilots_tick_then_loads(tmp_path):
+    """Before a fleet starts, one process compiles a share of the autopilot's tick (autopilot.tick.warm_up_share), then
+    the plant's, while the other compiles the tick's bulk, control_tick first (launcher.compile_once): each part of the
+    share, compiled from Python, must have the argument types the tick's own compile looks up, or the autopilot's
+    compiler compiles it again."""
+    import json
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+
+    def run(entry: str) -> dict:
+        r = subprocess.run([sys.executable, "-c", COUNT, entry, *SHARED], env=env, capture_output=True, text=True,
+                           timeout=380)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        return json.loads(r.stdout)
+
+    share = run("warm_up_share")
+    assert all(share[name] == [1, 0, 1] for name in SHARED), share  # compiled, once each
+    assert share["autopilot.tick.control_tick"] == [0, 0, 0]  # the bulk is left to the autopilot
+    tick = run("warm_up")
+    assert all(tick[name][2] == 0 and tick[name][1] >= 1 for name in SHARED), tick  # loaded, none compiled again
+    assert tick["autopilot.tick.control_tick"] == [1, 0, 1]  # compiled first, from Python: the tick found it
