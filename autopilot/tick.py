@@ -593,9 +593,9 @@ def warm_up_share(sensing: bool | None = None) -> None:
     """Compile into numba's cache the parts of :func:`warm_up`'s tick that another process can compile while the
     autopilot's compiles the bulk (:func:`control_tick`, which :func:`warm_up` does first): the frames the ground
     station's messages and streams are built with, the state's decoder, the answer to a re-sent state. The autopilot's
-    tick then loads them instead of compiling them, and a first run waits less with a core each
-    (groundstation.launcher; docs/performance.md#compiling-on-first-run). Each part is called from Python with the
-    argument types the tick passes it, so its cached code is the one the tick's compile looks up."""
+    tick then loads them instead of compiling them, and a cold start before a fleet waits less with a core each
+    (groundstation.launcher.compile_once; docs/performance.md#compiling-on-first-run). Each part is called from
+    Python with the argument types the tick passes it, so its cached code is the one the tick's compile looks up."""
     from autopilot import gcs_messages
     from autopilot.commander import Commander
     from quadsitl import codec

@@ -50,8 +50,8 @@ PROCESS_OPT = 2
 
 def favour_compile_time() -> None:
     """Compile at LLVM's ``-O2`` (:data:`PROCESS_OPT`) instead of numba's default ``-O3`` from now on, unless the user
-    chose a level (``NUMBA_OPT``): for the plant and autopilot processes, whose first run compiles a fifth faster at
-    ``-O2`` with ticks as quick (docs/performance.md#compiling-on-first-run). The batch engine's loops, which ``-O3``
+    chose a level (``NUMBA_OPT``): for the plant and autopilot processes, whose first run compiles faster at ``-O2``
+    with ticks as quick (docs/performance.md#compiling-on-first-run). The batch engine's loops, which ``-O3``
     makes quicker, compile in processes that keep the default. The results are the same to the bit either way: no
     fast-math, so LLVM keeps every floating-point operation as written. Call before the first compile."""
     if "NUMBA_OPT" not in os.environ:

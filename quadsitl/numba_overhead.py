@@ -12,12 +12,13 @@ lowering a compile needs:
   terminal escapes (colorama, when installed: it is initialised and wound down around every message), even in its
   default ``no_color`` scheme, where the escapes make a message bold at most. With ``NUMBA_COLOR_SCHEME`` unset
   the messages are kept as plain text; a scheme the user chose is left alone.
-- **Announcing LLVM's lock.** numba broadcasts an event each time the compiler takes llvmlite's lock, about a
-  hundred thousand times in a first compile, so that a compile's metadata can say how long it held the lock
+- **Announcing LLVM's lock.** numba broadcasts an event each time the compiler takes llvmlite's lock, at every call
+  into LLVM, so that a compile's metadata can say how long it held the lock
   (``timers["llvm_lock"]``, which then reads 0). numba's other compile events and timers are untouched.
 
-:func:`install` applies each mend only where this numba does what is described (checked on its source), so another
-numba version runs unchanged. The machine code is the same: none of this reaches what numba compiles.
+:func:`install` applies each mend only where this numba does what is described (checked on its source, or on the
+objects it mends), so another numba version runs unchanged. The machine code is the same: none of this reaches what
+numba compiles.
 """
 
 from __future__ import annotations
