@@ -28,6 +28,7 @@ import inspect
 from typing import Any
 
 _NUMBAS_FLAGS_HASH = "return hash(tuple(sorted(self.values())))"  # TargetConfig.__hash__: the option names only
+_NUMBAS_FLAGS_EQUAL = "return self.values() == other.values()"  # TargetConfig.__eq__: every option reads the same
 
 
 def _differences(flags: Any) -> dict[str, Any]:
@@ -63,6 +64,8 @@ def _mend_flags() -> bool:
         return True
     try:
         if _NUMBAS_FLAGS_HASH not in inspect.getsource(config.__hash__):
+            return False
+        if _NUMBAS_FLAGS_EQUAL not in inspect.getsource(config.__eq__):
             return False
     except (OSError, TypeError):
         return False
